@@ -1,0 +1,321 @@
+//! Calibration boards: a planar grid of dots whose true positions are certified.
+//!
+//! File format (TOML):
+//! ```toml
+//! [board]
+//! name = "0.5 mm dot grid"
+//! pitch_mm = 0.5            # grid pitch, both directions
+//! dot_diameter_mm = 0.25
+//! polarity = "dark-on-light" # or "bright-on-dark"
+//! cols = 420                # points along board +x (index i)
+//! rows = 320                # points along board +y (index j)
+//! origin_mm = [0.0, 0.0]    # board coordinate of point (i=0, j=0)
+//! certified = "plate.csv"   # optional certificate, relative to this file
+//! ```
+//! The certificate is CSV with a header `i,j,x_mm,y_mm`: the true (measured by a
+//! metrology lab) coordinate of each listed point. Points not listed are taken at their
+//! nominal position, so a board without a certificate is a perfect nominal grid.
+
+use crate::config::{ConfigDoc, ConfigError, Location};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Polarity {
+    /// Dark dots printed on a light plate (front-lit chrome on glass, paper targets).
+    DarkOnLight,
+    /// Bright dots on a dark field (back-lit glass with holes in the chrome).
+    BrightOnDark,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct BoardFile {
+    board: BoardSection,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct BoardSection {
+    #[serde(default)]
+    name: String,
+    pitch_mm: f64,
+    dot_diameter_mm: f64,
+    polarity: Polarity,
+    cols: u32,
+    rows: u32,
+    #[serde(default)]
+    origin_mm: [f64; 2],
+    #[serde(default)]
+    certified: Option<String>,
+}
+
+/// A loaded board: geometry plus the true coordinate of every point.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Board {
+    pub name: String,
+    pub pitch_mm: f64,
+    pub dot_diameter_mm: f64,
+    pub polarity: Polarity,
+    pub cols: u32,
+    pub rows: u32,
+    pub origin_mm: [f64; 2],
+    /// True coordinates, row-major (`j * cols + i`); equal to nominal where uncertified.
+    certified: Vec<[f64; 2]>,
+    /// How many points the certificate listed (0 for a nominal board).
+    pub certified_points: usize,
+}
+
+/// Largest certificate deviation from nominal that is believed, as a fraction of pitch:
+/// anything larger is a typo or a certificate for another board.
+const MAX_CERT_DEVIATION_OF_PITCH: f64 = 0.1;
+
+impl Board {
+    /// A perfect nominal grid (no certificate).
+    pub fn nominal(
+        name: &str,
+        pitch_mm: f64,
+        dot_diameter_mm: f64,
+        polarity: Polarity,
+        cols: u32,
+        rows: u32,
+        origin_mm: [f64; 2],
+    ) -> Self {
+        let mut b = Board {
+            name: name.to_string(),
+            pitch_mm,
+            dot_diameter_mm,
+            polarity,
+            cols,
+            rows,
+            origin_mm,
+            certified: Vec::new(),
+            certified_points: 0,
+        };
+        b.certified = (0..rows)
+            .flat_map(|j| (0..cols).map(move |i| (i, j)))
+            .map(|(i, j)| b.nominal_xy(i as i64, j as i64))
+            .collect();
+        b
+    }
+
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        Self::from_doc(&ConfigDoc::read(path)?)
+    }
+
+    pub fn from_doc(doc: &ConfigDoc) -> Result<Self, ConfigError> {
+        let f: BoardFile = doc.parse()?;
+        let s = f.board;
+        if !(s.pitch_mm.is_finite() && s.pitch_mm > 0.0) {
+            return Err(doc.invalid("board.pitch_mm", "must be a positive number of mm"));
+        }
+        if !(s.dot_diameter_mm > 0.0 && s.dot_diameter_mm < s.pitch_mm) {
+            return Err(doc.invalid(
+                "board.dot_diameter_mm",
+                format!("must be positive and smaller than the pitch ({} mm)", s.pitch_mm),
+            ));
+        }
+        if s.cols < 2 || s.rows < 2 {
+            let key = if s.cols < 2 { "board.cols" } else { "board.rows" };
+            return Err(doc.invalid(key, "a board needs at least 2 x 2 points"));
+        }
+        if (s.cols as u64) * (s.rows as u64) > 50_000_000 {
+            return Err(doc.invalid("board.cols", "more than 50 million points"));
+        }
+        if !s.origin_mm.iter().all(|v| v.is_finite()) {
+            return Err(doc.invalid("board.origin_mm", "must be finite"));
+        }
+        let mut board = Board::nominal(
+            &s.name,
+            s.pitch_mm,
+            s.dot_diameter_mm,
+            s.polarity,
+            s.cols,
+            s.rows,
+            s.origin_mm,
+        );
+        if let Some(rel) = &s.certified {
+            let path = doc.resolve(rel);
+            let text = std::fs::read_to_string(&path).map_err(|e| {
+                doc.invalid("board.certified", format!("cannot read {}: {e}", path.display()))
+            })?;
+            board.apply_certificate(&path.display().to_string(), &text)?;
+        }
+        Ok(board)
+    }
+
+    /// Read a certificate (`i,j,x_mm,y_mm` CSV) into the board; errors name file and line.
+    pub fn apply_certificate(&mut self, file: &str, text: &str) -> Result<(), ConfigError> {
+        let err = |line: usize, msg: String| ConfigError::Invalid {
+            location: Location {
+                file: file.to_string(),
+                line: Some(line),
+                column: None,
+                key: None,
+            },
+            message: msg,
+        };
+        let mut seen = vec![false; self.certified.len()];
+        let mut count = 0;
+        for (n, raw) in text.lines().enumerate() {
+            let line_no = n + 1;
+            let line = raw.trim();
+            if line.is_empty() || line.starts_with('#') {
+                continue;
+            }
+            let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+            if fields.len() != 4 {
+                return Err(err(line_no, format!("expected 4 fields i,j,x_mm,y_mm, got {}", fields.len())));
+            }
+            if fields[0] == "i" {
+                continue; // header
+            }
+            let i: u32 = fields[0]
+                .parse()
+                .map_err(|_| err(line_no, format!("column i: `{}` is not a point index", fields[0])))?;
+            let j: u32 = fields[1]
+                .parse()
+                .map_err(|_| err(line_no, format!("column j: `{}` is not a point index", fields[1])))?;
+            let x: f64 = fields[2]
+                .parse()
+                .map_err(|_| err(line_no, format!("column x_mm: `{}` is not a number", fields[2])))?;
+            let y: f64 = fields[3]
+                .parse()
+                .map_err(|_| err(line_no, format!("column y_mm: `{}` is not a number", fields[3])))?;
+            if i >= self.cols || j >= self.rows {
+                return Err(err(
+                    line_no,
+                    format!("point ({i},{j}) is outside the {}x{} board", self.cols, self.rows),
+                ));
+            }
+            let nom = self.nominal_xy(i as i64, j as i64);
+            let dev = ((x - nom[0]).powi(2) + (y - nom[1]).powi(2)).sqrt();
+            if !(dev <= MAX_CERT_DEVIATION_OF_PITCH * self.pitch_mm) {
+                return Err(err(
+                    line_no,
+                    format!(
+                        "point ({i},{j}) certified at ({x}, {y}) is {dev:.4} mm from nominal ({:.4}, {:.4}): not this board",
+                        nom[0], nom[1]
+                    ),
+                ));
+            }
+            let k = self.index(i, j);
+            if seen[k] {
+                return Err(err(line_no, format!("point ({i},{j}) is listed twice")));
+            }
+            seen[k] = true;
+            self.certified[k] = [x, y];
+            count += 1;
+        }
+        self.certified_points = count;
+        Ok(())
+    }
+
+    #[inline]
+    fn index(&self, i: u32, j: u32) -> usize {
+        j as usize * self.cols as usize + i as usize
+    }
+
+    /// Nominal coordinate of point (i, j); defined for any integers (off-board too).
+    #[inline]
+    pub fn nominal_xy(&self, i: i64, j: i64) -> [f64; 2] {
+        [
+            self.origin_mm[0] + i as f64 * self.pitch_mm,
+            self.origin_mm[1] + j as f64 * self.pitch_mm,
+        ]
+    }
+
+    /// True (certified) coordinate of point (i, j), or None off the board.
+    #[inline]
+    pub fn true_xy(&self, i: i64, j: i64) -> Option<[f64; 2]> {
+        if i < 0 || j < 0 || i >= self.cols as i64 || j >= self.rows as i64 {
+            return None;
+        }
+        Some(self.certified[self.index(i as u32, j as u32)])
+    }
+
+    /// Set a point's true coordinate (used by generators of synthetic plates).
+    pub fn set_true_xy(&mut self, i: u32, j: u32, xy: [f64; 2]) {
+        let k = self.index(i, j);
+        self.certified[k] = xy;
+    }
+
+    /// Board extent: (min corner, max corner) of the nominal grid, in mm.
+    pub fn extent(&self) -> ([f64; 2], [f64; 2]) {
+        (
+            self.origin_mm,
+            self.nominal_xy(self.cols as i64 - 1, self.rows as i64 - 1),
+        )
+    }
+
+    /// Write the certificate CSV of every point that differs from nominal.
+    pub fn certificate_csv(&self) -> String {
+        let mut out = String::from("i,j,x_mm,y_mm\n");
+        for j in 0..self.rows {
+            for i in 0..self.cols {
+                let t = self.certified[self.index(i, j)];
+                let n = self.nominal_xy(i as i64, j as i64);
+                if t != n {
+                    out.push_str(&format!("{i},{j},{:.6},{:.6}\n", t[0], t[1]));
+                }
+            }
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn doc(text: &str) -> ConfigDoc {
+        ConfigDoc::from_text("b.toml", text, Path::new("."))
+    }
+
+    const GOOD: &str = "[board]\npitch_mm = 0.5\ndot_diameter_mm = 0.25\npolarity = \"dark-on-light\"\ncols = 10\nrows = 8\norigin_mm = [1.0, 2.0]\n";
+
+    #[test]
+    fn loads_nominal_board() {
+        let b = Board::from_doc(&doc(GOOD)).unwrap();
+        assert_eq!(b.true_xy(2, 3), Some([2.0, 3.5]));
+        assert_eq!(b.true_xy(10, 0), None);
+        assert_eq!(b.true_xy(-1, 0), None);
+        assert_eq!(b.extent().1, [5.5, 5.5]);
+    }
+
+    #[test]
+    fn rejects_bad_geometry_with_key_and_line() {
+        let bad = GOOD.replace("dot_diameter_mm = 0.25", "dot_diameter_mm = 0.6");
+        let e = Board::from_doc(&doc(&bad)).unwrap_err().to_string();
+        assert!(e.starts_with("b.toml:3: key `board.dot_diameter_mm`"), "{e}");
+        let bad = GOOD.replace("\"dark-on-light\"", "\"plaid\"");
+        let e = Board::from_doc(&doc(&bad)).unwrap_err().to_string();
+        assert!(e.contains("b.toml:4") && e.contains("polarity"), "{e}");
+    }
+
+    #[test]
+    fn certificate_overrides_listed_points_and_rejects_nonsense() {
+        let mut b = Board::from_doc(&doc(GOOD)).unwrap();
+        b.apply_certificate("c.csv", "i,j,x_mm,y_mm\n2,3,2.0004,3.4998\n").unwrap();
+        assert_eq!(b.true_xy(2, 3), Some([2.0004, 3.4998]));
+        assert_eq!(b.true_xy(3, 3), Some([2.5, 3.5]));
+        assert_eq!(b.certified_points, 1);
+        let e = b.apply_certificate("c.csv", "i,j,x_mm,y_mm\n2,3,7.0,3.5\n").unwrap_err();
+        assert!(e.to_string().starts_with("c.csv:2:"), "{e}");
+        let e = b.apply_certificate("c.csv", "1,1,1.5,2.5\n1,1,1.5,2.5\n").unwrap_err();
+        assert!(e.to_string().contains("listed twice"), "{e}");
+        let e = b.apply_certificate("c.csv", "1,x,1.5,2.5\n").unwrap_err();
+        assert!(e.to_string().contains("column j"), "{e}");
+    }
+
+    #[test]
+    fn certificate_round_trips() {
+        let mut b = Board::from_doc(&doc(GOOD)).unwrap();
+        b.set_true_xy(4, 5, [3.0003, 4.4999]);
+        let csv = b.certificate_csv();
+        let mut c = Board::from_doc(&doc(GOOD)).unwrap();
+        c.apply_certificate("x", &csv).unwrap();
+        assert_eq!(b.true_xy(4, 5), c.true_xy(4, 5));
+    }
+}

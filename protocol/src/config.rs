@@ -1,0 +1,259 @@
+//! Loading TOML data files with errors that name the file, the line and the key.
+//!
+//! Every configuration and data file of the project (boards, cameras, machines, gateway
+//! jobs, drive profiles) goes through [`ConfigDoc`], so a user who mistypes a value is
+//! told exactly where, whichever file it was.
+
+use serde::de::DeserializeOwned;
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+/// A configuration problem, located as precisely as the file allows.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("{file}: cannot read: {source}")]
+    Io {
+        file: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{location}: {message}")]
+    Invalid {
+        location: Location,
+        message: String,
+    },
+}
+
+/// Where in which file: `file:line:column: key `a.b``.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Location {
+    pub file: String,
+    pub line: Option<usize>,
+    pub column: Option<usize>,
+    pub key: Option<String>,
+}
+
+impl fmt::Display for Location {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.file)?;
+        if let Some(l) = self.line {
+            write!(f, ":{l}")?;
+            if let Some(c) = self.column {
+                write!(f, ":{c}")?;
+            }
+        }
+        if let Some(k) = &self.key {
+            write!(f, ": key `{k}`")?;
+        }
+        Ok(())
+    }
+}
+
+impl ConfigError {
+    pub fn location(&self) -> Option<&Location> {
+        match self {
+            ConfigError::Io { .. } => None,
+            ConfigError::Invalid { location, .. } => Some(location),
+        }
+    }
+}
+
+/// A TOML document with the name it came from, kept so that checks made after parsing
+/// (a negative pitch, an unknown driver) can still point at the line of the key.
+#[derive(Debug, Clone)]
+pub struct ConfigDoc {
+    pub name: String,
+    pub text: String,
+    /// Folder that relative paths inside the document are resolved against.
+    pub dir: PathBuf,
+}
+
+impl ConfigDoc {
+    pub fn read(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io {
+            file: path.to_path_buf(),
+            source,
+        })?;
+        Ok(Self {
+            name: path.display().to_string(),
+            text,
+            dir: path.parent().map(Path::to_path_buf).unwrap_or_default(),
+        })
+    }
+
+    /// A document that did not come from a file (embedded defaults, tests).
+    pub fn from_text(name: &str, text: &str, dir: &Path) -> Self {
+        Self {
+            name: name.to_string(),
+            text: text.to_string(),
+            dir: dir.to_path_buf(),
+        }
+    }
+
+    /// Deserialize the whole document; the error names line, column and key path.
+    pub fn parse<T: DeserializeOwned>(&self) -> Result<T, ConfigError> {
+        let de = toml::de::Deserializer::new(&self.text);
+        serde_path_to_error::deserialize(de).map_err(|e| {
+            let key = e.path().to_string();
+            let inner = e.into_inner();
+            let (line, column) = match inner.span() {
+                Some(span) => {
+                    let (l, c) = line_col(&self.text, span.start);
+                    (Some(l), Some(c))
+                }
+                None => (None, None),
+            };
+            let key = if key.is_empty() || key == "." {
+                None
+            } else {
+                Some(key)
+            };
+            let line = line.or_else(|| key.as_deref().and_then(|k| find_key_line(&self.text, k)));
+            ConfigError::Invalid {
+                location: Location {
+                    file: self.name.clone(),
+                    line,
+                    column,
+                    key,
+                },
+                message: inner.message().trim().to_string(),
+            }
+        })
+    }
+
+    /// An error about `key` (dotted path, e.g. `board.pitch_mm`) found after parsing.
+    pub fn invalid(&self, key: &str, message: impl Into<String>) -> ConfigError {
+        ConfigError::Invalid {
+            location: Location {
+                file: self.name.clone(),
+                line: find_key_line(&self.text, key),
+                column: None,
+                key: Some(key.to_string()),
+            },
+            message: message.into(),
+        }
+    }
+
+    /// Resolve a path written inside the document relative to the document's folder.
+    pub fn resolve(&self, rel: &str) -> PathBuf {
+        let p = Path::new(rel);
+        if p.is_absolute() {
+            p.to_path_buf()
+        } else {
+            self.dir.join(p)
+        }
+    }
+}
+
+fn line_col(text: &str, offset: usize) -> (usize, usize) {
+    let before = &text[..offset.min(text.len())];
+    let line = before.matches('\n').count() + 1;
+    let col = before.rfind('\n').map_or(before.len(), |i| before.len() - i - 1) + 1;
+    (line, col)
+}
+
+/// Best-effort line of a dotted key: tracks `[table]` headers and matches `key =` lines.
+/// Array-of-table indices (`targets[3]`) are matched by counting `[[targets]]` headers.
+pub fn find_key_line(text: &str, dotted: &str) -> Option<usize> {
+    let parts: Vec<String> = dotted.split('.').map(str::to_string).collect();
+    let mut table: Vec<String> = Vec::new();
+    let mut array_counts: std::collections::HashMap<String, usize> = Default::default();
+    let mut header_match: Option<usize> = None;
+    for (n, raw) in text.lines().enumerate() {
+        let line = raw.trim();
+        if line.starts_with("[[") {
+            let name = line.trim_start_matches("[[").split("]]").next().unwrap_or("").trim();
+            let c = array_counts.entry(name.to_string()).or_insert(0);
+            table = name.split('.').map(|s| s.trim().to_string()).collect();
+            if let Some(last) = table.last_mut() {
+                *last = format!("{last}[{c}]");
+            }
+            *c += 1;
+        } else if line.starts_with('[') {
+            let name = line.trim_start_matches('[').split(']').next().unwrap_or("").trim();
+            table = name.split('.').map(|s| s.trim().to_string()).collect();
+        } else if let Some((k, _)) = line.split_once('=') {
+            let mut full = table.clone();
+            full.extend(k.trim().trim_matches('"').split('.').map(|s| s.trim().to_string()));
+            if full == parts {
+                return Some(n + 1);
+            }
+            continue;
+        } else {
+            continue;
+        }
+        if table == parts && header_match.is_none() {
+            header_match = Some(n + 1);
+        }
+    }
+    header_match
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(serde::Deserialize, Debug)]
+    #[serde(deny_unknown_fields)]
+    #[allow(dead_code)]
+    struct Doc {
+        stage: Stage,
+    }
+    #[derive(serde::Deserialize, Debug)]
+    #[serde(deny_unknown_fields)]
+    #[allow(dead_code)]
+    struct Stage {
+        travel_mm: f64,
+        name: String,
+    }
+
+    fn doc(text: &str) -> ConfigDoc {
+        ConfigDoc::from_text("machine.toml", text, Path::new("."))
+    }
+
+    #[test]
+    fn wrong_type_names_file_line_and_key() {
+        let err = doc("[stage]\nname = \"a\"\ntravel_mm = \"long\"\n")
+            .parse::<Doc>()
+            .unwrap_err();
+        let loc = err.location().unwrap();
+        assert_eq!(loc.file, "machine.toml");
+        assert_eq!(loc.line, Some(3));
+        assert_eq!(loc.key.as_deref(), Some("stage.travel_mm"));
+        assert!(err.to_string().starts_with("machine.toml:3:"), "{err}");
+    }
+
+    #[test]
+    fn unknown_and_missing_keys_are_reported() {
+        let err = doc("[stage]\nname = \"a\"\ntravel_mm = 1.0\nspeed = 3\n")
+            .parse::<Doc>()
+            .unwrap_err();
+        assert!(err.to_string().contains("speed"), "{err}");
+        let err = doc("[stage]\nname = \"a\"\n").parse::<Doc>().unwrap_err();
+        assert!(err.to_string().contains("travel_mm"), "{err}");
+    }
+
+    #[test]
+    fn syntax_error_has_a_line() {
+        let err = doc("[stage]\nname = \"a\ntravel_mm = 1\n").parse::<Doc>().unwrap_err();
+        assert_eq!(err.location().unwrap().line, Some(2), "{err}");
+    }
+
+    #[test]
+    fn invalid_after_parse_finds_the_key_line() {
+        let d = doc("# c\n[stage]\nname = \"a\"\ntravel_mm = -1.0\n");
+        let err = d.invalid("stage.travel_mm", "must be positive");
+        assert_eq!(err.location().unwrap().line, Some(4));
+        assert_eq!(
+            err.to_string(),
+            "machine.toml:4: key `stage.travel_mm`: must be positive"
+        );
+    }
+
+    #[test]
+    fn array_of_tables_keys_are_found() {
+        let text = "[[t]]\nx = 1\n[[t]]\nx = 2\n";
+        assert_eq!(find_key_line(text, "t[1].x"), Some(4));
+        assert_eq!(find_key_line(text, "t[0].x"), Some(2));
+    }
+}

@@ -1,0 +1,13 @@
+//! Every format the gateway speaks or reads, sans-IO.
+//!
+//! Architecture invariant: nothing in this crate does I/O on a device, reads a clock or
+//! depends on an async runtime. Files are read only by the small `config` loader so that
+//! every data file gets the same error reporting (file, line, key).
+
+pub mod board;
+pub mod config;
+pub mod image;
+
+pub use board::{Board, Polarity};
+pub use config::ConfigError;
+pub use image::{MonoImage, Pixels};
