@@ -5,4 +5,5 @@
 //! through the bytes and frames a real device would send.
 
 pub mod camera;
+pub mod render;
 pub mod rng;

@@ -1,0 +1,1 @@
+//! Frame renderer (being written).

@@ -1,0 +1,1 @@
+//! Board localization (being written).
