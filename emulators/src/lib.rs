@@ -5,5 +5,6 @@
 //! through the bytes and frames a real device would send.
 
 pub mod camera;
+pub mod machine;
 pub mod render;
 pub mod rng;

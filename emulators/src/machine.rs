@@ -1,0 +1,680 @@
+//! The simulated imperfect X-Y stage: the truth every emulated device shares.
+//!
+//! The controller side is what a real controller knows: integer encoder/step counts per
+//! axis, moved along straight lines with a trapezoidal speed profile on a simulated
+//! clock. The physical side is where the carriage (and the camera on it) really is,
+//! which differs from the counts as an ordinary ballscrew stage does:
+//!
+//! * ballscrew cumulative lead error within the configured JIS class tolerance (SPEC A
+//!   table), plus a periodic (per-revolution) lead error;
+//! * straightness of each axis (a bow of the path across the axis);
+//! * yaw and pitch of each carriage, seen at the camera through Abbe arms;
+//! * squareness between X and Y;
+//! * backlash (lost motion of the nut) on every reversal;
+//! * a homing (return-to-zero) error redrawn at every homing;
+//! * thermal expansion of the screws growing with time since power-on;
+//! * settling noise redrawn at every arrival;
+//! * quantisation of positions to encoder counts.
+//!
+//! Nothing here is visible to the gateway except through what a device would report
+//! (counts) and what the camera sees (frames rendered at [`SimMachine::camera_pose`]).
+
+use crate::camera::CameraPose;
+use crate::rng::Rng;
+use protocol::config::{ConfigDoc, ConfigError};
+use serde::Deserialize;
+use std::f64::consts::PI;
+use std::path::Path;
+
+const ARCSEC: f64 = PI / (180.0 * 3600.0);
+
+/// Ballscrew accuracy classes of the SPEC A table (JIS C0, C1, C2, C3, C5).
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq, Eq)]
+pub enum LeadClass {
+    C0,
+    C1,
+    C2,
+    C3,
+    C5,
+}
+
+/// Travel tolerance (um) of a ballscrew class over a travel (mm): the SPEC A table.
+pub fn lead_tolerance_um(class: LeadClass, travel_mm: f64) -> Option<f64> {
+    const ROWS: [(f64, [f64; 5]); 10] = [
+        (100.0, [3.0, 3.5, 5.0, 8.0, 18.0]),
+        (200.0, [3.5, 4.5, 7.0, 10.0, 20.0]),
+        (315.0, [4.0, 6.0, 8.0, 12.0, 23.0]),
+        (400.0, [5.0, 7.0, 9.0, 13.0, 25.0]),
+        (500.0, [6.0, 8.0, 10.0, 15.0, 27.0]),
+        (630.0, [6.0, 9.0, 11.0, 16.0, 30.0]),
+        (800.0, [7.0, 10.0, 13.0, 18.0, 35.0]),
+        (1000.0, [8.0, 11.0, 15.0, 21.0, 40.0]),
+        (1250.0, [9.0, 13.0, 18.0, 24.0, 46.0]),
+        (1600.0, [11.0, 15.0, 21.0, 29.0, 54.0]),
+    ];
+    let col = match class {
+        LeadClass::C0 => 0,
+        LeadClass::C1 => 1,
+        LeadClass::C2 => 2,
+        LeadClass::C3 => 3,
+        LeadClass::C5 => 4,
+    };
+    ROWS.iter().find(|(upto, _)| travel_mm <= *upto).map(|(_, v)| v[col])
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AxisConfig {
+    pub travel_mm: f64,
+    pub counts_per_mm: f64,
+    pub max_feed_mm_min: f64,
+    pub accel_mm_s2: f64,
+    pub lead_mm: f64,
+    pub lead_class: LeadClass,
+    /// Fraction of the class tolerance the drawn lead error uses (0..1).
+    #[serde(default = "default_lead_use")]
+    pub lead_tolerance_use: f64,
+    #[serde(default)]
+    pub periodic_um: f64,
+    #[serde(default)]
+    pub straightness_um: f64,
+    #[serde(default)]
+    pub yaw_arcsec: f64,
+    #[serde(default)]
+    pub pitch_arcsec: f64,
+    /// In-plane distance from the camera to the axis's screw line (yaw lever).
+    #[serde(default)]
+    pub abbe_arm_mm: f64,
+    #[serde(default)]
+    pub backlash_um: f64,
+    #[serde(default)]
+    pub homing_repeatability_um: f64,
+    #[serde(default)]
+    pub settle_noise_um: f64,
+}
+
+fn default_lead_use() -> f64 {
+    0.8
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ThermalConfig {
+    /// Final temperature rise of the screws after warm-up, kelvin.
+    pub screw_rise_k: f64,
+    pub time_constant_s: f64,
+    #[serde(default = "default_expansion")]
+    pub expansion_per_k: f64,
+}
+
+fn default_expansion() -> f64 {
+    11.7e-6
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MachineSection {
+    #[serde(default)]
+    pub name: String,
+    pub seed: u64,
+    /// True board coordinate under the camera at the home switches (machine zero, before
+    /// the homing error).
+    pub board_at_home_mm: [f64; 2],
+    #[serde(default)]
+    pub squareness_arcsec: f64,
+    /// Height of the camera's optical axis point above the screws (pitch lever).
+    #[serde(default)]
+    pub camera_height_mm: f64,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AxesConfig {
+    pub x: AxisConfig,
+    pub y: AxisConfig,
+}
+
+/// A simulated machine file (`config/machines/*.toml`).
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MachineConfig {
+    pub machine: MachineSection,
+    pub axes: AxesConfig,
+    pub thermal: Option<ThermalConfig>,
+}
+
+impl MachineConfig {
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        Self::from_doc(&ConfigDoc::read(path)?)
+    }
+
+    pub fn from_doc(doc: &ConfigDoc) -> Result<Self, ConfigError> {
+        let cfg: MachineConfig = doc.parse()?;
+        for (name, a) in [("x", &cfg.axes.x), ("y", &cfg.axes.y)] {
+            let key = |k: &str| format!("axes.{name}.{k}");
+            let positive = [
+                ("travel_mm", a.travel_mm),
+                ("counts_per_mm", a.counts_per_mm),
+                ("max_feed_mm_min", a.max_feed_mm_min),
+                ("accel_mm_s2", a.accel_mm_s2),
+                ("lead_mm", a.lead_mm),
+            ];
+            for (k, v) in positive {
+                if !(v.is_finite() && v > 0.0) {
+                    return Err(doc.invalid(&key(k), "must be a positive number"));
+                }
+            }
+            if lead_tolerance_um(a.lead_class, a.travel_mm).is_none() {
+                return Err(doc.invalid(
+                    &key("travel_mm"),
+                    "the ballscrew tolerance table covers travels up to 1600 mm",
+                ));
+            }
+            if !(0.0..=1.0).contains(&a.lead_tolerance_use) {
+                return Err(doc.invalid(&key("lead_tolerance_use"), "must be a fraction 0..1"));
+            }
+            let non_negative = [
+                ("periodic_um", a.periodic_um),
+                ("straightness_um", a.straightness_um),
+                ("yaw_arcsec", a.yaw_arcsec),
+                ("pitch_arcsec", a.pitch_arcsec),
+                ("backlash_um", a.backlash_um),
+                ("homing_repeatability_um", a.homing_repeatability_um),
+                ("settle_noise_um", a.settle_noise_um),
+            ];
+            for (k, v) in non_negative {
+                if !(v.is_finite() && v >= 0.0) {
+                    return Err(doc.invalid(&key(k), "must be zero or positive"));
+                }
+            }
+        }
+        if let Some(t) = &cfg.thermal {
+            if !(t.time_constant_s > 0.0) {
+                return Err(doc.invalid("thermal.time_constant_s", "must be positive"));
+            }
+        }
+        Ok(cfg)
+    }
+}
+
+/// A smooth random curve on [0, 1]: a few sinusoids with random phases, peak ~ 1.
+#[derive(Clone, Debug)]
+struct Wander {
+    terms: Vec<(f64, f64, f64)>, // (amplitude, cycles over the travel, phase)
+}
+
+impl Wander {
+    fn new(rng: &mut Rng, n: usize, max_cycles: f64) -> Self {
+        let mut terms: Vec<(f64, f64, f64)> = (0..n)
+            .map(|k| {
+                let cycles = rng.range(0.3, max_cycles.max(0.4)) + k as f64 * 0.2;
+                (rng.range(0.5, 1.0) / (k + 1) as f64, cycles, rng.range(0.0, 2.0 * PI))
+            })
+            .collect();
+        // Normalise so the peak over [0, 1] is 1.
+        let peak = (0..=400)
+            .map(|i| {
+                let u = i as f64 / 400.0;
+                terms.iter().map(|(a, c, p)| a * (2.0 * PI * c * u + p).sin()).sum::<f64>().abs()
+            })
+            .fold(0.0, f64::max)
+            .max(1e-9);
+        for t in &mut terms {
+            t.0 /= peak;
+        }
+        Self { terms }
+    }
+
+    fn at(&self, u: f64) -> f64 {
+        self.terms.iter().map(|(a, c, p)| a * (2.0 * PI * c * u + p).sin()).sum()
+    }
+}
+
+/// The drawn (fixed for the machine's life) error curves of one axis.
+#[derive(Clone, Debug)]
+struct AxisErrors {
+    lead_slope_um: f64, // lead error at full travel
+    lead_wander_um: f64,
+    lead_wander: Wander,
+    periodic_phase: f64,
+    straightness: Wander,
+    yaw: Wander,
+    pitch: Wander,
+}
+
+impl AxisErrors {
+    fn draw(rng: &mut Rng, a: &AxisConfig) -> Self {
+        let tol = lead_tolerance_um(a.lead_class, a.travel_mm).unwrap_or(0.0) * a.lead_tolerance_use;
+        let sign = if rng.uniform() < 0.5 { -1.0 } else { 1.0 };
+        Self {
+            lead_slope_um: sign * tol * rng.range(0.6, 0.75),
+            lead_wander_um: tol * 0.25,
+            lead_wander: Wander::new(rng, 3, 3.0),
+            periodic_phase: rng.range(0.0, 2.0 * PI),
+            straightness: Wander::new(rng, 2, 1.2),
+            yaw: Wander::new(rng, 2, 1.5),
+            pitch: Wander::new(rng, 2, 1.5),
+        }
+    }
+
+    /// Cumulative lead error at nut displacement `u` mm (um).
+    fn lead_um(&self, a: &AxisConfig, u: f64) -> f64 {
+        let s = (u / a.travel_mm).clamp(-0.1, 1.1);
+        self.lead_slope_um * s
+            + self.lead_wander_um * self.lead_wander.at(s)
+            + a.periodic_um * (2.0 * PI * u / a.lead_mm + self.periodic_phase).sin()
+    }
+}
+
+/// Per-axis physical state.
+#[derive(Clone, Debug)]
+struct AxisState {
+    /// Controller position, counts from machine zero.
+    counts: i64,
+    /// Where the home switch really trips, mm (the homing error), redrawn per homing.
+    home_offset_mm: f64,
+    /// Carriage position along the axis, mm (after lead error, thermal, backlash).
+    carriage_mm: f64,
+    settle_um: f64,
+}
+
+/// A straight-line move in progress on the simulated clock.
+#[derive(Clone, Debug)]
+struct Motion {
+    from: [f64; 2],
+    to: [f64; 2],
+    length: f64,
+    v: f64,
+    a: f64,
+    elapsed: f64,
+    duration: f64,
+}
+
+impl Motion {
+    fn new(from: [f64; 2], to: [f64; 2], feed_mm_s: f64, accel: f64) -> Self {
+        let length = ((to[0] - from[0]).powi(2) + (to[1] - from[1]).powi(2)).sqrt();
+        // Trapezoid (or triangle when the move is too short to reach the feed).
+        let t_acc = feed_mm_s / accel;
+        let d_acc = 0.5 * accel * t_acc * t_acc;
+        let (v, duration) = if 2.0 * d_acc >= length {
+            let tv = (length / accel).sqrt();
+            (accel * tv, 2.0 * tv)
+        } else {
+            (feed_mm_s, 2.0 * t_acc + (length - 2.0 * d_acc) / feed_mm_s)
+        };
+        Self { from, to, length, v, a: accel, elapsed: 0.0, duration }
+    }
+
+    /// Distance along the path after `t` seconds.
+    fn distance_at(&self, t: f64) -> f64 {
+        if t >= self.duration {
+            return self.length;
+        }
+        let t_acc = self.v / self.a;
+        if t < t_acc {
+            0.5 * self.a * t * t
+        } else if t < self.duration - t_acc {
+            0.5 * self.a * t_acc * t_acc + self.v * (t - t_acc)
+        } else {
+            let r = self.duration - t;
+            self.length - 0.5 * self.a * r * r
+        }
+    }
+
+    fn point_at(&self, t: f64) -> [f64; 2] {
+        if self.length == 0.0 {
+            return self.to;
+        }
+        let f = self.distance_at(t) / self.length;
+        [
+            self.from[0] + f * (self.to[0] - self.from[0]),
+            self.from[1] + f * (self.to[1] - self.from[1]),
+        ]
+    }
+}
+
+/// Why the simulated controller refused a command (what a real controller would say).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MachineRefusal {
+    #[error("axis {axis}: target {target_mm:.4} mm is outside the travel 0..{travel_mm} mm")]
+    OutOfTravel { axis: char, target_mm: f64, travel_mm: f64 },
+    #[error("the machine is not homed")]
+    NotHomed,
+    #[error("feed {0} mm/min is not positive")]
+    BadFeed(f64),
+}
+
+/// The simulated machine. Deterministic for a given config (seed).
+#[derive(Clone, Debug)]
+pub struct SimMachine {
+    cfg: MachineConfig,
+    rng: Rng,
+    errors: [AxisErrors; 2],
+    axes: [AxisState; 2],
+    motion: Option<Motion>,
+    homed: bool,
+    /// Simulated seconds since power-on.
+    now_s: f64,
+    homings: u32,
+}
+
+impl SimMachine {
+    pub fn new(cfg: MachineConfig) -> Self {
+        let mut rng = Rng::new(cfg.machine.seed);
+        let mut err_rng = rng.fork(1);
+        let errors = [
+            AxisErrors::draw(&mut err_rng, &cfg.axes.x),
+            AxisErrors::draw(&mut err_rng, &cfg.axes.y),
+        ];
+        let axis = AxisState { counts: 0, home_offset_mm: 0.0, carriage_mm: 0.0, settle_um: 0.0 };
+        Self {
+            cfg,
+            rng,
+            errors,
+            axes: [axis.clone(), axis],
+            motion: None,
+            homed: false,
+            now_s: 0.0,
+            homings: 0,
+        }
+    }
+
+    pub fn config(&self) -> &MachineConfig {
+        &self.cfg
+    }
+
+    fn axis_cfg(&self, k: usize) -> &AxisConfig {
+        if k == 0 {
+            &self.cfg.axes.x
+        } else {
+            &self.cfg.axes.y
+        }
+    }
+
+    pub fn now_s(&self) -> f64 {
+        self.now_s
+    }
+
+    pub fn is_homed(&self) -> bool {
+        self.homed
+    }
+
+    pub fn is_moving(&self) -> bool {
+        self.motion.is_some()
+    }
+
+    pub fn homings(&self) -> u32 {
+        self.homings
+    }
+
+    /// Controller position in counts (what the encoders say).
+    pub fn counts(&self) -> [i64; 2] {
+        [self.axes[0].counts, self.axes[1].counts]
+    }
+
+    /// Controller position in mm (counts / counts_per_mm).
+    pub fn position_mm(&self) -> [f64; 2] {
+        [
+            self.axes[0].counts as f64 / self.cfg.axes.x.counts_per_mm,
+            self.axes[1].counts as f64 / self.cfg.axes.y.counts_per_mm,
+        ]
+    }
+
+    /// Home both axes: approach the switches from the negative side, take the trip point
+    /// (a new random homing error each time) as machine zero. Takes simulated time.
+    pub fn home(&mut self) {
+        let from = self.position_mm();
+        let dist = from[0].abs().max(from[1].abs());
+        self.now_s += 1.0 + dist / (self.cfg.axes.x.max_feed_mm_min / 60.0);
+        for k in 0..2 {
+            let sigma = self.axis_cfg(k).homing_repeatability_um;
+            let h = self.rng.normal() * sigma / 1000.0;
+            let st = &mut self.axes[k];
+            st.counts = 0;
+            st.home_offset_mm = h;
+            // The switch is reached moving negative, then the axis backs off positive
+            // to zero: the nut ends pushing the carriage from the negative side.
+            let b = self.axis_cfg(k).backlash_um / 1000.0;
+            let n = self.nut_mm(k, 0);
+            self.axes[k].carriage_mm = n - b / 2.0;
+            self.axes[k].settle_um = 0.0;
+        }
+        self.motion = None;
+        self.homed = true;
+        self.homings += 1;
+    }
+
+    /// Start a straight-line move to a controller position (mm, machine coordinates).
+    /// The position is quantised to counts as a real controller does.
+    pub fn start_move(&mut self, target_mm: [f64; 2], feed_mm_min: f64) -> Result<f64, MachineRefusal> {
+        if !self.homed {
+            return Err(MachineRefusal::NotHomed);
+        }
+        if !(feed_mm_min > 0.0) {
+            return Err(MachineRefusal::BadFeed(feed_mm_min));
+        }
+        for (k, name) in [(0, 'X'), (1, 'Y')] {
+            let travel = self.axis_cfg(k).travel_mm;
+            if !(target_mm[k] >= 0.0 && target_mm[k] <= travel) {
+                return Err(MachineRefusal::OutOfTravel { axis: name, target_mm: target_mm[k], travel_mm: travel });
+            }
+        }
+        self.finish_motion();
+        let to = [
+            (target_mm[0] * self.cfg.axes.x.counts_per_mm).round() / self.cfg.axes.x.counts_per_mm,
+            (target_mm[1] * self.cfg.axes.y.counts_per_mm).round() / self.cfg.axes.y.counts_per_mm,
+        ];
+        let feed = (feed_mm_min.min(self.cfg.axes.x.max_feed_mm_min.min(self.cfg.axes.y.max_feed_mm_min))) / 60.0;
+        let accel = self.cfg.axes.x.accel_mm_s2.min(self.cfg.axes.y.accel_mm_s2);
+        let m = Motion::new(self.position_mm(), to, feed, accel);
+        let d = m.duration;
+        self.motion = Some(m);
+        Ok(d)
+    }
+
+    /// Advance the simulated clock; motion progresses, the carriage follows the nut.
+    pub fn advance(&mut self, dt_s: f64) {
+        let dt = dt_s.max(0.0);
+        self.now_s += dt;
+        let Some(mut m) = self.motion.take() else { return };
+        m.elapsed += dt;
+        let p = m.point_at(m.elapsed);
+        self.set_counts_from_mm(p);
+        if m.elapsed >= m.duration {
+            for k in 0..2 {
+                let s = self.axis_cfg(k).settle_noise_um;
+                self.axes[k].settle_um = self.rng.normal() * s;
+            }
+        } else {
+            self.motion = Some(m);
+        }
+    }
+
+    /// Run the current move to its end (advancing the clock by the rest of its time).
+    pub fn finish_motion(&mut self) {
+        if let Some(m) = &self.motion {
+            let rest = m.duration - m.elapsed;
+            self.advance(rest.max(0.0) + 1e-9);
+        }
+    }
+
+    /// Stop now (feed hold): the axes stop where they are (no deceleration modelled).
+    pub fn stop(&mut self) {
+        self.motion = None;
+    }
+
+    fn set_counts_from_mm(&mut self, p: [f64; 2]) {
+        for k in 0..2 {
+            let cpm = self.axis_cfg(k).counts_per_mm;
+            self.axes[k].counts = (p[k] * cpm).round() as i64;
+            let n = self.nut_mm(k, self.axes[k].counts);
+            let b = self.axis_cfg(k).backlash_um / 1000.0;
+            let c = &mut self.axes[k].carriage_mm;
+            // Lost motion: the nut drives the carriage only once the gap is taken up.
+            if n > *c + b / 2.0 {
+                *c = n - b / 2.0;
+            } else if n < *c - b / 2.0 {
+                *c = n + b / 2.0;
+            }
+        }
+    }
+
+    /// Where the nut really is for a controller count: lead error and thermal growth
+    /// measured from the (randomly offset) home position.
+    fn nut_mm(&self, k: usize, counts: i64) -> f64 {
+        let a = self.axis_cfg(k);
+        let u = counts as f64 / a.counts_per_mm + self.axes[k].home_offset_mm;
+        let thermal = match &self.cfg.thermal {
+            Some(t) => t.expansion_per_k * t.screw_rise_k * (1.0 - (-self.now_s / t.time_constant_s).exp()) * u,
+            None => 0.0,
+        };
+        u + self.errors[k].lead_um(a, u) / 1000.0 + thermal
+    }
+
+    /// Where the camera really looks on the board, and its extra rotation (yaw). The
+    /// gateway never calls this; the camera emulator renders frames at this pose and
+    /// tests compare against it.
+    pub fn camera_pose(&self) -> CameraPose {
+        let (x, y) = (self.axes[0].carriage_mm, self.axes[1].carriage_mm);
+        let ax = &self.cfg.axes.x;
+        let ay = &self.cfg.axes.y;
+        let (ex, ey) = (&self.errors[0], &self.errors[1]);
+        let ux = (x / ax.travel_mm).clamp(-0.1, 1.1);
+        let uy = (y / ay.travel_mm).clamp(-0.1, 1.1);
+        let yaw_x = ax.yaw_arcsec * ARCSEC * ex.yaw.at(ux);
+        let yaw_y = ay.yaw_arcsec * ARCSEC * ey.yaw.at(uy);
+        let pitch_x = ax.pitch_arcsec * ARCSEC * ex.pitch.at(ux);
+        let pitch_y = ay.pitch_arcsec * ARCSEC * ey.pitch.at(uy);
+        let h = self.cfg.machine.camera_height_mm;
+        let sq = self.cfg.machine.squareness_arcsec * ARCSEC;
+        let um = 1e-3;
+        let true_x = x
+            + y * sq
+            + ay.straightness_um * um * ey.straightness.at(uy)
+            + yaw_x * ax.abbe_arm_mm
+            + pitch_x * h
+            + self.axes[0].settle_um * um;
+        let true_y = y
+            + ax.straightness_um * um * ex.straightness.at(ux)
+            + yaw_y * ay.abbe_arm_mm
+            + pitch_y * h
+            + self.axes[1].settle_um * um;
+        let o = self.cfg.machine.board_at_home_mm;
+        CameraPose { centre_mm: [o[0] + true_x, o[1] + true_y], rotation_rad: yaw_x + yaw_y }
+    }
+
+    /// Uncompensated error (um) at a controller position, approached from the negative
+    /// side, without noise: for reports and tests of the error model only.
+    pub fn static_error_um(&self, at_mm: [f64; 2]) -> [f64; 2] {
+        let mut m = self.clone();
+        m.rng = Rng::new(0);
+        for k in 0..2 {
+            m.axes[k].settle_um = 0.0;
+            let b = m.axis_cfg(k).backlash_um / 1000.0;
+            let c = ((at_mm[k] - 1.0).max(0.0) * m.axis_cfg(k).counts_per_mm).round() as i64;
+            m.axes[k].carriage_mm = m.nut_mm(k, c) - b / 2.0;
+        }
+        m.set_counts_from_mm(at_mm);
+        let p = m.camera_pose().centre_mm;
+        let o = self.cfg.machine.board_at_home_mm;
+        [
+            (p[0] - o[0] - at_mm[0]) * 1000.0,
+            (p[1] - o[1] - at_mm[1]) * 1000.0,
+        ]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    pub(crate) fn config() -> MachineConfig {
+        let text = include_str!("../../config/machines/c5-stage.toml");
+        MachineConfig::from_doc(&ConfigDoc::from_text("c5-stage.toml", text, Path::new("."))).unwrap()
+    }
+
+    #[test]
+    fn tolerance_table_lookup() {
+        assert_eq!(lead_tolerance_um(LeadClass::C5, 200.0), Some(20.0));
+        assert_eq!(lead_tolerance_um(LeadClass::C0, 250.0), Some(4.0));
+        assert_eq!(lead_tolerance_um(LeadClass::C3, 2000.0), None);
+    }
+
+    #[test]
+    fn default_stage_is_an_ordinary_20_to_50_um_stage() {
+        let m = SimMachine::new(config());
+        let mut worst: f64 = 0.0;
+        for i in 0..=20 {
+            for j in 0..=15 {
+                let e = m.static_error_um([i as f64 * 10.0, j as f64 * 10.0]);
+                worst = worst.max(e[0].abs()).max(e[1].abs());
+            }
+        }
+        assert!((20.0..=50.0).contains(&worst), "worst error {worst} um");
+        // Lead error alone stays inside the C5 tolerance for its travel.
+        let a = &m.cfg.axes.x;
+        let tol = lead_tolerance_um(a.lead_class, a.travel_mm).unwrap();
+        for i in 0..=200 {
+            let e = m.errors[0].lead_um(a, i as f64) - a.periodic_um * 0.0;
+            assert!(e.abs() <= tol + a.periodic_um, "lead error {e} um at {i} mm");
+        }
+    }
+
+    #[test]
+    fn same_seed_same_machine_and_homing_error_is_redrawn() {
+        let mut a = SimMachine::new(config());
+        let mut b = SimMachine::new(config());
+        a.home();
+        b.home();
+        assert_eq!(a.camera_pose(), b.camera_pose());
+        let first = a.camera_pose().centre_mm;
+        a.home();
+        assert_ne!(first, a.camera_pose().centre_mm, "homing error must change per homing");
+        let d = (first[0] - a.camera_pose().centre_mm[0]).abs() * 1000.0;
+        assert!(d < 30.0, "homing change {d} um is implausible");
+    }
+
+    #[test]
+    fn moves_quantise_take_time_and_need_homing() {
+        let mut m = SimMachine::new(config());
+        assert_eq!(m.start_move([1.0, 1.0], 1000.0), Err(MachineRefusal::NotHomed));
+        m.home();
+        let t0 = m.now_s();
+        let d = m.start_move([10.00013, 5.0], 3000.0).unwrap();
+        assert!(d > 0.2 && m.is_moving());
+        m.advance(d / 2.0);
+        assert!(m.is_moving());
+        let mid = m.position_mm();
+        assert!(mid[0] > 0.5 && mid[0] < 9.5, "{mid:?}");
+        m.finish_motion();
+        assert!(!m.is_moving());
+        assert!(m.now_s() - t0 >= d);
+        let cpm = m.config().axes.x.counts_per_mm;
+        assert_eq!(m.counts()[0], (10.00013 * cpm).round() as i64);
+        assert!(matches!(
+            m.start_move([-1.0, 0.0], 1000.0),
+            Err(MachineRefusal::OutOfTravel { axis: 'X', .. })
+        ));
+    }
+
+    #[test]
+    fn backlash_shows_on_reversal() {
+        let mut cfg = config();
+        cfg.axes.x.settle_noise_um = 0.0;
+        cfg.axes.y.settle_noise_um = 0.0;
+        cfg.thermal = None;
+        let b = cfg.axes.x.backlash_um;
+        let mut m = SimMachine::new(cfg);
+        m.home();
+        m.start_move([50.0, 20.0], 3000.0).unwrap();
+        m.finish_motion();
+        let from_below = m.camera_pose().centre_mm[0];
+        m.start_move([60.0, 20.0], 3000.0).unwrap();
+        m.finish_motion();
+        m.start_move([50.0, 20.0], 3000.0).unwrap();
+        m.finish_motion();
+        let from_above = m.camera_pose().centre_mm[0];
+        let lost = (from_above - from_below) * 1000.0;
+        assert!((lost - b).abs() < 0.01, "lost motion {lost} um, backlash {b} um");
+    }
+}
