@@ -1,1 +1,23 @@
+//! Async device drivers behind small object-safe traits.
+//!
+//! * [`Stage`]: a motion stage as the compensation pipeline sees it (home, move, read
+//!   the controller position, wait, stop, status), whatever the bus.
+//! * [`AxisDrive`]: one independently driven axis (a CANopen or Modbus drive); any set of
+//!   them becomes a `Stage` through [`MultiAxisStage`].
+//! * [`Camera`]: grab a frame with its metadata.
+//!
+//! Architecture invariant: drivers know nothing of the compensation pipeline and never
+//! read the simulated truth; the `sim` backend reaches the simulated machine only
+//! through controller counts and rendered frames, as a real device would.
 
+pub mod camera;
+pub mod error;
+pub mod multi_axis;
+#[cfg(feature = "sim")]
+pub mod sim;
+pub mod stage;
+
+pub use camera::{Camera, CameraInfo, Frame, FrameMeta};
+pub use error::DriverError;
+pub use multi_axis::{AxisDrive, AxisStatus, MultiAxisStage};
+pub use stage::{Axis, AxisInfo, AxisValues, Stage, StageInfo, StageState, StageStatus};

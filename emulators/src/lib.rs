@@ -6,5 +6,6 @@
 
 pub mod camera;
 pub mod machine;
+pub mod plate;
 pub mod render;
 pub mod rng;

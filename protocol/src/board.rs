@@ -136,11 +136,8 @@ impl Board {
             s.origin_mm,
         );
         if let Some(rel) = &s.certified {
-            let path = doc.resolve(rel);
-            let text = std::fs::read_to_string(&path).map_err(|e| {
-                doc.invalid("board.certified", format!("cannot read {}: {e}", path.display()))
-            })?;
-            board.apply_certificate(&path.display().to_string(), &text)?;
+            let cert = doc.read_relative("board.certified", rel)?;
+            board.apply_certificate(&cert.name, &cert.text)?;
         }
         Ok(board)
     }

@@ -66,6 +66,9 @@ pub struct ConfigDoc {
     pub text: String,
     /// Folder that relative paths inside the document are resolved against.
     pub dir: PathBuf,
+    /// Files compiled into the binary (path relative to the repository, text), looked up
+    /// before the disk so that embedded defaults can refer to each other.
+    pub embedded: &'static [(&'static str, &'static str)],
 }
 
 impl ConfigDoc {
@@ -78,6 +81,7 @@ impl ConfigDoc {
             name: path.display().to_string(),
             text,
             dir: path.parent().map(Path::to_path_buf).unwrap_or_default(),
+            embedded: &[],
         })
     }
 
@@ -87,6 +91,44 @@ impl ConfigDoc {
             name: name.to_string(),
             text: text.to_string(),
             dir: dir.to_path_buf(),
+            embedded: &[],
+        }
+    }
+
+    /// An embedded document: `name` is its repository path (e.g.
+    /// `config/gateway/demo.toml`); relative references resolve inside `files` first.
+    pub fn embedded(name: &str, files: &'static [(&'static str, &'static str)]) -> Option<Self> {
+        let text = files.iter().find(|(n, _)| *n == name)?.1;
+        let path = Path::new(name);
+        Some(Self {
+            name: format!("{name} (built in)"),
+            text: text.to_string(),
+            dir: path.parent().map(Path::to_path_buf).unwrap_or_default(),
+            embedded: files,
+        })
+    }
+
+    /// Read a file named inside this document (relative to it): embedded files first,
+    /// then the disk. The error names the document and the key that referred to it.
+    pub fn read_relative(&self, key: &str, rel: &str) -> Result<ConfigDoc, ConfigError> {
+        let path = normalize(&self.resolve(rel));
+        let as_str = path.to_string_lossy().replace('\\', "/");
+        if let Some((n, text)) = self.embedded.iter().find(|(n, _)| *n == as_str) {
+            return Ok(ConfigDoc {
+                name: format!("{n} (built in)"),
+                text: text.to_string(),
+                dir: path.parent().map(Path::to_path_buf).unwrap_or_default(),
+                embedded: self.embedded,
+            });
+        }
+        match std::fs::read_to_string(&path) {
+            Ok(text) => Ok(ConfigDoc {
+                name: path.display().to_string(),
+                text,
+                dir: path.parent().map(Path::to_path_buf).unwrap_or_default(),
+                embedded: self.embedded,
+            }),
+            Err(e) => Err(self.invalid(key, format!("cannot read `{}`: {e}", path.display()))),
         }
     }
 
@@ -143,6 +185,23 @@ impl ConfigDoc {
             self.dir.join(p)
         }
     }
+}
+
+/// Lexical normalisation (`a/b/../c` -> `a/c`), so embedded names match.
+fn normalize(p: &Path) -> PathBuf {
+    let mut out = PathBuf::new();
+    for c in p.components() {
+        match c {
+            std::path::Component::ParentDir => {
+                if !out.pop() {
+                    out.push("..");
+                }
+            }
+            std::path::Component::CurDir => {}
+            other => out.push(other),
+        }
+    }
+    out
 }
 
 fn line_col(text: &str, offset: usize) -> (usize, usize) {
@@ -248,6 +307,19 @@ mod tests {
             err.to_string(),
             "machine.toml:4: key `stage.travel_mm`: must be positive"
         );
+    }
+
+    #[test]
+    fn embedded_documents_resolve_each_other_first() {
+        static FILES: &[(&str, &str)] = &[
+            ("config/gateway/demo.toml", "[stage]\nmachine = \"../machines/m.toml\"\n"),
+            ("config/machines/m.toml", "x = 1\n"),
+        ];
+        let d = ConfigDoc::embedded("config/gateway/demo.toml", FILES).unwrap();
+        let m = d.read_relative("stage.machine", "../machines/m.toml").unwrap();
+        assert_eq!(m.text, "x = 1\n");
+        let e = d.read_relative("stage.machine", "../machines/nope.toml").unwrap_err();
+        assert!(e.to_string().contains("demo.toml (built in):2: key `stage.machine`"), "{e}");
     }
 
     #[test]

@@ -1,0 +1,168 @@
+//! The motion stage trait and its value types.
+
+use crate::error::DriverError;
+use async_trait::async_trait;
+use serde::{Deserialize, Serialize};
+use std::fmt;
+
+/// Machine axes by their usual letters.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+pub enum Axis {
+    X,
+    Y,
+    Z,
+    A,
+    B,
+    C,
+}
+
+impl Axis {
+    pub const ALL: [Axis; 6] = [Axis::X, Axis::Y, Axis::Z, Axis::A, Axis::B, Axis::C];
+
+    pub fn index(self) -> usize {
+        self as usize
+    }
+
+    pub fn letter(self) -> char {
+        ['X', 'Y', 'Z', 'A', 'B', 'C'][self.index()]
+    }
+}
+
+impl fmt::Display for Axis {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.letter())
+    }
+}
+
+/// A value per axis; axes not mentioned are `None` (a move leaves them where they are).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct AxisValues([Option<f64>; 6]);
+
+impl AxisValues {
+    pub fn xy(x: f64, y: f64) -> Self {
+        let mut v = Self::default();
+        v.set(Axis::X, x);
+        v.set(Axis::Y, y);
+        v
+    }
+
+    pub fn get(&self, a: Axis) -> Option<f64> {
+        self.0[a.index()]
+    }
+
+    pub fn set(&mut self, a: Axis, value: f64) {
+        self.0[a.index()] = Some(value);
+    }
+
+    pub fn with(mut self, a: Axis, value: f64) -> Self {
+        self.set(a, value);
+        self
+    }
+
+    /// The axes that have a value, in X..C order.
+    pub fn iter(&self) -> impl Iterator<Item = (Axis, f64)> + '_ {
+        Axis::ALL.into_iter().filter_map(|a| self.get(a).map(|v| (a, v)))
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.0.iter().all(Option::is_none)
+    }
+
+    /// X and Y, or None if either is missing.
+    pub fn to_xy(&self) -> Option<[f64; 2]> {
+        Some([self.get(Axis::X)?, self.get(Axis::Y)?])
+    }
+}
+
+/// What a stage tells about one of its axes.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct AxisInfo {
+    pub axis: Axis,
+    /// Soft limits in machine coordinates, mm.
+    pub min_mm: f64,
+    pub max_mm: f64,
+    /// Smallest commandable step, mm (encoder count or microstep).
+    pub resolution_mm: f64,
+    pub max_feed_mm_min: f64,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct StageInfo {
+    /// Human-readable identity (controller type, firmware, port).
+    pub name: String,
+    pub axes: Vec<AxisInfo>,
+}
+
+impl StageInfo {
+    pub fn axis(&self, a: Axis) -> Option<&AxisInfo> {
+        self.axes.iter().find(|i| i.axis == a)
+    }
+
+    /// Check a target against every axis's soft limits before anything is sent.
+    pub fn check_limits(&self, target: &AxisValues) -> Result<(), DriverError> {
+        for (a, v) in target.iter() {
+            let info = self.axis(a).ok_or_else(|| DriverError::Unsupported {
+                device: self.name.clone(),
+                message: format!("this stage has no {a} axis"),
+            })?;
+            if !(v >= info.min_mm && v <= info.max_mm) {
+                return Err(DriverError::OutOfLimits {
+                    axis: a,
+                    value_mm: v,
+                    min_mm: info.min_mm,
+                    max_mm: info.max_mm,
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub enum StageState {
+    Idle,
+    Moving,
+    Homing,
+    Hold,
+    /// Alarm or fault, with the device's own words; motion is stopped.
+    Alarm(String),
+    /// Powered but not homed / not referenced.
+    NotHomed,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct StageStatus {
+    pub state: StageState,
+    /// Controller position (what the controller believes), mm.
+    pub position: AxisValues,
+}
+
+/// A motion stage made of axes, driven through its controller.
+///
+/// Moves are absolute in machine coordinates (mm). `move_to` returns once the
+/// controller has accepted the move; `wait_idle` returns when motion has ended. Every
+/// implementation checks targets against [`StageInfo::check_limits`] before sending.
+#[async_trait]
+pub trait Stage: Send {
+    fn info(&self) -> &StageInfo;
+    async fn home(&mut self) -> Result<(), DriverError>;
+    async fn move_to(&mut self, target: AxisValues, feed_mm_min: f64) -> Result<(), DriverError>;
+    /// Relative move: the default reads the controller position and moves to the sum.
+    async fn move_by(&mut self, delta: AxisValues, feed_mm_min: f64) -> Result<(), DriverError> {
+        let here = self.position().await?;
+        let mut target = AxisValues::default();
+        for (a, d) in delta.iter() {
+            let p = here.get(a).ok_or_else(|| DriverError::Unsupported {
+                device: self.info().name.clone(),
+                message: format!("no position reported for axis {a}"),
+            })?;
+            target.set(a, p + d);
+        }
+        self.move_to(target, feed_mm_min).await
+    }
+    /// The controller's own position (not the truth), mm.
+    async fn position(&mut self) -> Result<AxisValues, DriverError>;
+    async fn wait_idle(&mut self) -> Result<(), DriverError>;
+    async fn stop(&mut self) -> Result<(), DriverError>;
+    async fn status(&mut self) -> Result<StageStatus, DriverError>;
+}

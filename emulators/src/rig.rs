@@ -1,0 +1,53 @@
+//! One simulated physical set-up: the imperfect machine, the calibration board fixed to
+//! the machine frame, and the camera riding on the carriage. Every emulated device of a
+//! process (stage controllers on any bus, the camera) shares one `SimRig`, so a move
+//! commanded over any link changes what the camera sees.
+
+use crate::camera::{CameraModel, CameraPose};
+use crate::machine::SimMachine;
+use crate::render::render;
+use protocol::{Board, MonoImage};
+
+/// Simulated exposure + readout time of one frame.
+const FRAME_TIME_S: f64 = 0.01;
+
+/// What the emulated camera reports with a frame (no truth in it).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SimFrameInfo {
+    pub sequence: u64,
+    /// Simulated time at the start of exposure, seconds since power-on.
+    pub time_s: f64,
+}
+
+#[derive(Clone, Debug)]
+pub struct SimRig {
+    pub machine: SimMachine,
+    pub board: Board,
+    pub camera: CameraModel,
+    noise_seed: u64,
+    frames: u64,
+}
+
+impl SimRig {
+    pub fn new(machine: SimMachine, board: Board, camera: CameraModel) -> Self {
+        let noise_seed = machine.config().machine.seed ^ 0x00C0_FFEE;
+        Self { machine, board, camera, noise_seed, frames: 0 }
+    }
+
+    /// Expose one frame where the camera really is (motion continues during exposure).
+    pub fn grab(&mut self) -> (MonoImage, SimFrameInfo) {
+        let info = SimFrameInfo { sequence: self.frames, time_s: self.machine.now_s() };
+        let pose = self.machine.camera_pose();
+        let seed = self.noise_seed.wrapping_add(self.frames.wrapping_mul(0x9E37_79B9));
+        let frame = render(&self.board, &self.camera, &pose, seed);
+        self.frames += 1;
+        self.machine.advance(FRAME_TIME_S);
+        (frame.image, info)
+    }
+
+    /// The truth: where the camera's image centre really is on the board. For tests and
+    /// reports only; the gateway's pipeline never sees it.
+    pub fn truth(&self) -> CameraPose {
+        self.machine.camera_pose()
+    }
+}
