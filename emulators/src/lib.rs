@@ -8,4 +8,5 @@ pub mod camera;
 pub mod machine;
 pub mod plate;
 pub mod render;
+pub mod rig;
 pub mod rng;
