@@ -6,6 +6,7 @@
 
 pub mod board;
 pub mod config;
+pub mod grbl;
 pub mod image;
 
 pub use board::{Board, Polarity};
