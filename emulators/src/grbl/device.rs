@@ -1,0 +1,1567 @@
+//! A GRBL 1.1 controller as a sans-IO state machine: bytes and the wall time go in,
+//! bytes come out, and motion happens on the shared simulated machine.
+//!
+//! What it models, as the firmware does it (gnea/grbl 1.1h):
+//! * the serial receive interrupt: real-time bytes are acted on wherever they occur and
+//!   never buffered; other bytes go into a 128-byte RX buffer, and bytes arriving to a
+//!   full buffer are dropped;
+//! * the main loop: one line at a time is taken out of the RX buffer (filtered,
+//!   upper-cased), executed, and answered with exactly one `ok` or `error:N`; it stops
+//!   taking lines while the planner is full, during a dwell, homing, a feed hold or a
+//!   critical alarm, so the RX buffer fills as on the device;
+//! * a planner of 15 usable blocks executed in order on [`SimMachine`], each block a
+//!   straight move with trapezoidal acceleration (no junction blending between blocks);
+//! * states Idle, Run, Hold, Jog, Home, Alarm, Check, Door, Sleep, soft reset with
+//!   `ALARM:3` when motion is interrupted, soft-limit and homing alarms, check mode;
+//! * `$` commands `$ $$ $x= $# $G $I $N $Nx= $C $X $H $J= $RST= $SLP`.
+//!
+//! Its reported position (MPos) comes from the machine's step counters divided by
+//! `$100`/`$101`, never from the truth. Time: [`Clock::Scaled`] runs motion at a multiple
+//! of the wall clock; [`Clock::Unconstrained`] completes motion as soon as anything
+//! depends on it (a status report, planner room, a buffer sync), so tests never wait on
+//! wall time for motion.
+
+use crate::machine::MachineRefusal;
+use crate::rig::SimRig;
+use protocol::grbl::codes::{alarm, status as st};
+use protocol::grbl::gcode::{filter_bytes, Action, Interpreter, Rate, MM_PER_INCH, N_AXIS};
+use protocol::grbl::realtime::{classify, Realtime, RxByte};
+use protocol::grbl::settings::Settings;
+use protocol::grbl::status::{MachineState, PositionKind, StatusReport};
+use protocol::grbl::{GRBL_VERSION, PLANNER_BLOCKS};
+use std::collections::VecDeque;
+use std::sync::{Arc, Mutex, MutexGuard};
+
+/// The rig the emulated controller drives (shared with the emulated camera).
+pub type SharedRig = Arc<Mutex<SimRig>>;
+
+/// Build date GRBL 1.1h reports in `[VER:]`.
+pub const BUILD_DATE: &str = "20190830";
+/// Compile-time options this emulated build reports in `[OPT:]`: variable spindle (V),
+/// line numbers (N), homing forces the origin (Z).
+pub const BUILD_OPTIONS: &str = "VNZ";
+
+/// How emulated time relates to the wall clock.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Clock {
+    /// Simulated seconds per wall second (1.0 = real time).
+    Scaled(f64),
+    /// Motion completes as soon as something depends on it.
+    Unconstrained,
+}
+
+/// Build-time options of the emulated controller.
+#[derive(Clone, Debug)]
+pub struct GrblConfig {
+    pub clock: Clock,
+    /// RX buffer size, bytes (GRBL: 128).
+    pub rx_buffer: usize,
+    /// Stop answering lines after this many responses (fault injection: the pty runner
+    /// uses it to make the port disappear at a known point of a stream).
+    pub answer_limit: Option<u64>,
+}
+
+impl Default for GrblConfig {
+    fn default() -> Self {
+        Self {
+            clock: Clock::Unconstrained,
+            rx_buffer: 128,
+            answer_limit: None,
+        }
+    }
+}
+
+/// Counters for tests and the stand-alone binary.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct DeviceStats {
+    /// `ok`/`error` responses sent (streaming lines answered).
+    pub responses: u64,
+    pub errors: u64,
+    /// Bytes dropped because the RX buffer was full.
+    pub rx_dropped: u64,
+    /// Most blocks seen in the planner at once.
+    pub planner_high_water: usize,
+    /// Most bytes seen in the RX buffer at once.
+    pub rx_high_water: usize,
+    pub alarms: u64,
+    pub resets: u64,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum State {
+    Idle,
+    Cycle,
+    /// Feed hold; `complete` once the axes have stopped (`Hold:0`).
+    Hold,
+    Jog,
+    Homing,
+    Alarm,
+    Check,
+    Door,
+    Sleep,
+}
+
+#[derive(Clone, Debug)]
+struct Block {
+    target: [f64; N_AXIS],
+    rate: Rate,
+    line_number: Option<u32>,
+    jog: bool,
+    probe: Option<bool>,
+}
+
+#[derive(Clone, Debug)]
+struct Running {
+    block: Block,
+    elapsed: f64,
+    duration: f64,
+    feed_mm_min: f64,
+}
+
+/// A line being executed whose remaining actions wait for a condition.
+#[derive(Clone, Debug)]
+struct Pending {
+    actions: VecDeque<Action>,
+    /// True while waiting for the M0 pause to be resumed.
+    paused: bool,
+}
+
+#[derive(Clone, Copy, Debug)]
+enum BusyKind {
+    Dwell,
+    Homing,
+}
+
+/// The emulated controller.
+pub struct GrblDevice {
+    rig: SharedRig,
+    cfg: GrblConfig,
+    settings: Settings,
+    default_settings: Settings,
+    interp: Interpreter,
+    state: State,
+    /// Hard/soft limit alarm: everything blocked until a soft reset.
+    critical: bool,
+    rx: VecDeque<u8>,
+    line: Vec<u8>,
+    pending: Option<Pending>,
+    planner: VecDeque<Block>,
+    running: Option<Running>,
+    /// Remaining simulated seconds of a dwell or homing cycle.
+    busy: Option<(f64, BusyKind)>,
+    status_requested: bool,
+    wco_counter: u8,
+    ovr_counter: u8,
+    overrides: [u16; 3],
+    /// Phantom Z axis (the stage has none): step count only.
+    z_steps: i64,
+    startup_lines: [String; 2],
+    build_info: String,
+    last_wall: Option<f64>,
+    out: Vec<u8>,
+    stats: DeviceStats,
+}
+
+fn lock(rig: &SharedRig) -> MutexGuard<'_, SimRig> {
+    rig.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+impl GrblDevice {
+    /// A controller configured for the rig's machine: `$100/$101` are its counts per
+    /// mm, `$110/$111` its maximum feeds, `$120/$121` its accelerations, `$130/$131` its
+    /// travels; homing and soft limits enabled, homing towards negative X and Y with the
+    /// origin at home (so machine space is 0..travel, as on the simulated stage).
+    pub fn new(rig: SharedRig, cfg: GrblConfig) -> Self {
+        let mut s = Settings::defaults();
+        {
+            let r = lock(&rig);
+            let c = r.machine.config();
+            for (k, a) in [&c.axes.x, &c.axes.y].into_iter().enumerate() {
+                let k = k as u16;
+                s.insert(100 + k, a.counts_per_mm);
+                s.insert(110 + k, a.max_feed_mm_min);
+                s.insert(120 + k, a.accel_mm_s2);
+                s.insert(130 + k, a.travel_mm);
+            }
+        }
+        s.insert(102, 400.0);
+        s.insert(112, 1000.0);
+        s.insert(122, 50.0);
+        s.insert(132, 50.0);
+        s.insert(22, 1.0);
+        s.insert(20, 1.0);
+        s.insert(23, 3.0);
+        s.insert(25, 3000.0);
+        let mut d = Self {
+            rig,
+            cfg,
+            default_settings: s.clone(),
+            settings: s,
+            interp: Interpreter::new(),
+            state: State::Idle,
+            critical: false,
+            rx: VecDeque::new(),
+            line: Vec::new(),
+            pending: None,
+            planner: VecDeque::new(),
+            running: None,
+            busy: None,
+            status_requested: false,
+            wco_counter: 0,
+            ovr_counter: 0,
+            overrides: [100, 100, 100],
+            z_steps: 0,
+            startup_lines: [String::new(), String::new()],
+            build_info: String::new(),
+            last_wall: None,
+            out: Vec::new(),
+            stats: DeviceStats::default(),
+        };
+        d.interp.arc_tolerance = d.settings.arc_tolerance_mm();
+        d
+    }
+
+    pub fn settings(&self) -> &Settings {
+        &self.settings
+    }
+
+    pub fn stats(&self) -> &DeviceStats {
+        &self.stats
+    }
+
+    pub fn set_clock(&mut self, clock: Clock) {
+        self.cfg.clock = clock;
+    }
+
+    /// Whether the answer limit (fault injection) has been reached.
+    pub fn answer_limit_reached(&self) -> bool {
+        self.cfg
+            .answer_limit
+            .is_some_and(|n| self.stats.responses >= n)
+    }
+
+    /// Power on: boot as GRBL does (Alarm if homing is enabled) and print the banner.
+    pub fn power_on(&mut self, now: f64) {
+        self.last_wall = Some(now);
+        self.state = if self.settings.homing_enabled() {
+            State::Alarm
+        } else {
+            State::Idle
+        };
+        self.boot_messages();
+    }
+
+    /// Bytes arrived on the serial line at wall time `now` (seconds, any origin).
+    pub fn receive(&mut self, bytes: &[u8], now: f64) {
+        self.tick(now);
+        for &b in bytes {
+            match classify(b) {
+                RxByte::Buffered(b) => {
+                    if self.rx.len() >= self.cfg.rx_buffer {
+                        // On the device the main loop empties the buffer far faster than
+                        // the wire fills it; bytes are lost only when it cannot.
+                        self.main_loop();
+                    }
+                    if self.rx.len() < self.cfg.rx_buffer {
+                        self.rx.push_back(b);
+                        self.stats.rx_high_water = self.stats.rx_high_water.max(self.rx.len());
+                    } else {
+                        self.stats.rx_dropped += 1;
+                    }
+                }
+                RxByte::Discarded => {}
+                RxByte::Realtime(r) => {
+                    // Lines that arrived before this byte were, on the device, read by
+                    // the main loop before the interrupt fired.
+                    self.main_loop();
+                    self.realtime(r);
+                }
+            }
+        }
+        self.main_loop();
+        self.answer_status();
+    }
+
+    /// Let time pass without input (motion, dwells, lines waiting for planner room).
+    pub fn poll(&mut self, now: f64) {
+        self.tick(now);
+        self.main_loop();
+        self.answer_status();
+    }
+
+    /// Whether something is going on that needs [`poll`](Self::poll) to be called as the
+    /// time passes (motion, dwell, homing, a status report still owed).
+    pub fn needs_poll(&self) -> bool {
+        self.running.is_some()
+            || !self.planner.is_empty()
+            || self.busy.is_some()
+            || self.status_requested
+    }
+
+    /// Output produced so far (taken).
+    pub fn take_output(&mut self) -> Vec<u8> {
+        std::mem::take(&mut self.out)
+    }
+
+    // ------------------------------------------------------------------ output
+
+    fn send(&mut self, line: &str) {
+        self.out.extend_from_slice(line.as_bytes());
+        self.out.extend_from_slice(b"\r\n");
+    }
+
+    fn respond(&mut self, result: Result<(), u8>) {
+        self.stats.responses += 1;
+        match result {
+            Ok(()) => self.send("ok"),
+            Err(code) => {
+                self.stats.errors += 1;
+                self.send(&format!("error:{code}"));
+            }
+        }
+    }
+
+    fn boot_messages(&mut self) {
+        self.out
+            .extend_from_slice(format!("\r\nGrbl {GRBL_VERSION} ['$' for help]\r\n").as_bytes());
+        if matches!(self.state, State::Alarm | State::Sleep) {
+            self.state = State::Alarm;
+            self.send("[MSG:'$H'|'$X' to unlock]");
+        } else {
+            self.run_startup_lines();
+        }
+    }
+
+    fn run_startup_lines(&mut self) {
+        for i in 0..2 {
+            let l = self.startup_lines[i].clone();
+            if l.is_empty() {
+                continue;
+            }
+            let r = self.execute_gcode_now(&l);
+            let status = match r {
+                Ok(()) => "ok".to_string(),
+                Err(c) => format!("error:{c}"),
+            };
+            self.send(&format!(">{l}:{status}"));
+        }
+    }
+
+    // ------------------------------------------------------------------ time
+
+    fn tick(&mut self, now: f64) {
+        let dt = match self.last_wall {
+            Some(t) => (now - t).max(0.0),
+            None => 0.0,
+        };
+        self.last_wall = Some(now);
+        if let Clock::Scaled(k) = self.cfg.clock {
+            self.advance(dt * k);
+        }
+    }
+
+    /// Run motion and busy periods for `dt` simulated seconds (infinite: to the end).
+    fn advance(&mut self, mut dt: f64) {
+        loop {
+            if let Some((left, kind)) = self.busy {
+                // A dwell lets the machine's clock run; a homing cycle already ran
+                // on the machine's clock when it started.
+                let dwell = matches!(kind, BusyKind::Dwell);
+                if dt < left {
+                    self.busy = Some((left - dt, kind));
+                    if dwell {
+                        lock(&self.rig).machine.advance(dt);
+                    }
+                    return;
+                }
+                dt -= left;
+                if dwell {
+                    lock(&self.rig).machine.advance(left);
+                }
+                self.busy = None;
+                if let BusyKind::Homing = kind {
+                    self.homing_done();
+                }
+                continue;
+            }
+            if matches!(
+                self.state,
+                State::Hold | State::Door | State::Alarm | State::Sleep
+            ) {
+                return;
+            }
+            if let Some(mut run) = self.running.take() {
+                let left = (run.duration - run.elapsed).max(0.0);
+                let step = dt.min(left);
+                let mut r = lock(&self.rig);
+                r.machine.advance(step);
+                run.elapsed += step;
+                dt -= step;
+                if run.elapsed >= run.duration || !r.machine.is_moving() {
+                    r.machine.finish_motion();
+                    drop(r);
+                    self.planner.pop_front();
+                    if let Some(fail) = run.block.probe {
+                        self.interp.probe = (self.mpos_3(), false);
+                        if fail {
+                            self.alarm(alarm::PROBE_FAIL_CONTACT, false);
+                            return;
+                        }
+                    }
+                } else {
+                    self.running = Some(run);
+                    return;
+                }
+                continue;
+            }
+            if self.planner.is_empty() {
+                if matches!(self.state, State::Cycle | State::Jog) {
+                    self.state = State::Idle;
+                }
+                return;
+            }
+            if !self.start_block() {
+                return;
+            }
+            if dt <= 0.0 && dt.is_finite() {
+                return;
+            }
+        }
+    }
+
+    /// Start executing the block at the head of the planner. False if it could not
+    /// start (an alarm was raised).
+    fn start_block(&mut self) -> bool {
+        let Some(block) = self.planner.front().cloned() else {
+            return false;
+        };
+        let spm = [self.steps_per_mm(0), self.steps_per_mm(1)];
+        let (feed, duration) = {
+            let mut r = lock(&self.rig);
+            let cfg = r.machine.config().clone();
+            let cpm = [cfg.axes.x.counts_per_mm, cfg.axes.y.counts_per_mm];
+            // Steps commanded by GRBL, turned into where the motor takes the axis.
+            let to = [
+                block.target[0] * spm[0] / cpm[0],
+                block.target[1] * spm[1] / cpm[1],
+            ];
+            let max = self
+                .settings
+                .max_rate_mm_min(0)
+                .unwrap_or(500.0)
+                .min(self.settings.max_rate_mm_min(1).unwrap_or(500.0));
+            let feed = match block.rate {
+                Rate::Rapid => max * f64::from(self.overrides[1]) / 100.0,
+                Rate::Feed(f) => (f * f64::from(self.overrides[0]) / 100.0).min(max),
+            };
+            if !r.machine.is_homed() {
+                // Unlocked without homing: the power-on position is the reference.
+                r.machine.home();
+            }
+            match r.machine.start_move(to, feed.max(1e-3)) {
+                Ok(d) => (feed, d),
+                Err(MachineRefusal::OutOfTravel { .. }) => {
+                    drop(r);
+                    // The carriage would run into the end of travel: the limit switch.
+                    self.alarm(alarm::HARD_LIMIT, true);
+                    return false;
+                }
+                Err(_) => (feed, 0.0),
+            }
+        };
+        self.z_steps =
+            (block.target[2] * self.settings.steps_per_mm(2).unwrap_or(250.0)).round() as i64;
+        if self.state == State::Idle {
+            self.state = if block.jog { State::Jog } else { State::Cycle };
+        }
+        self.running = Some(Running {
+            block,
+            elapsed: 0.0,
+            duration,
+            feed_mm_min: feed,
+        });
+        true
+    }
+
+    /// Unconstrained clock: complete everything now.
+    fn complete_all(&mut self) {
+        if self.cfg.clock == Clock::Unconstrained {
+            self.advance(f64::INFINITY);
+        }
+    }
+
+    /// Unconstrained clock: complete the executing block (to make planner room).
+    fn complete_one(&mut self) {
+        if self.cfg.clock != Clock::Unconstrained {
+            return;
+        }
+        if self.running.is_none() && !self.start_block() {
+            return;
+        }
+        if let Some(run) = &self.running {
+            let left = run.duration - run.elapsed;
+            self.advance(left.max(0.0) + 1e-12);
+        }
+    }
+
+    fn steps_per_mm(&self, axis: usize) -> f64 {
+        self.settings.steps_per_mm(axis).unwrap_or(250.0)
+    }
+
+    /// Machine position from the step counters (X, Y from the machine, Z phantom).
+    fn mpos_3(&self) -> [f64; N_AXIS] {
+        let counts = lock(&self.rig).machine.counts();
+        let cpm = {
+            let r = lock(&self.rig);
+            let c = r.machine.config();
+            [c.axes.x.counts_per_mm, c.axes.y.counts_per_mm]
+        };
+        // Machine counts are motor steps scaled by the motor's own resolution: GRBL's
+        // step counter is counts * $100 / counts_per_mm.
+        let steps = [
+            (counts[0] as f64 * self.steps_per_mm(0) / cpm[0]).round(),
+            (counts[1] as f64 * self.steps_per_mm(1) / cpm[1]).round(),
+        ];
+        [
+            steps[0] / self.steps_per_mm(0),
+            steps[1] / self.steps_per_mm(1),
+            self.z_steps as f64 / self.steps_per_mm(2),
+        ]
+    }
+
+    // ------------------------------------------------------------------ main loop
+
+    fn blocked(&self) -> bool {
+        self.critical
+            || self.busy.is_some()
+            || matches!(
+                self.state,
+                State::Hold | State::Door | State::Sleep | State::Homing
+            )
+            || self.answer_limit_reached()
+    }
+
+    fn main_loop(&mut self) {
+        loop {
+            if self.blocked() {
+                return;
+            }
+            if self.pending.is_some() {
+                if !self.continue_pending() {
+                    return;
+                }
+                continue;
+            }
+            // Take bytes out of the RX buffer into the line until an end of line.
+            let mut eol = false;
+            while let Some(b) = self.rx.pop_front() {
+                if b == b'\n' || b == b'\r' {
+                    eol = true;
+                    break;
+                }
+                self.line.push(b);
+            }
+            if !eol {
+                return;
+            }
+            let raw = std::mem::take(&mut self.line);
+            self.execute_line(&raw);
+        }
+    }
+
+    fn execute_line(&mut self, raw: &[u8]) {
+        let (text, overflow) = filter_bytes(raw);
+        if overflow {
+            return self.respond(Err(st::OVERFLOW));
+        }
+        if text.is_empty() {
+            return self.respond(Ok(()));
+        }
+        if text.starts_with('$') {
+            return self.system_command(&text);
+        }
+        if matches!(self.state, State::Alarm | State::Jog) {
+            return self.respond(Err(st::SYSTEM_GC_LOCK));
+        }
+        match self.interp.execute(&text, false) {
+            Err(code) => self.respond(Err(code)),
+            Ok(actions) => {
+                self.pending = Some(Pending {
+                    actions: actions.into(),
+                    paused: false,
+                });
+                if self.continue_pending() {
+                    // Done (answered inside).
+                }
+            }
+        }
+    }
+
+    /// Run a startup line or `$N` validation line at once (no planner waits).
+    fn execute_gcode_now(&mut self, text: &str) -> Result<(), u8> {
+        let actions = self.interp.execute(text, false)?;
+        for a in actions {
+            if let Action::Move { .. } | Action::Probe { .. } = a {
+                self.plan(a);
+            }
+        }
+        Ok(())
+    }
+
+    /// Continue the pending line's actions. Returns true when the line is finished
+    /// (answered) and the main loop may take the next one.
+    fn continue_pending(&mut self) -> bool {
+        let Some(mut p) = self.pending.take() else {
+            return true;
+        };
+        if p.paused {
+            // Resumed from M0 (the hold ended).
+            p.paused = false;
+        }
+        while let Some(a) = p.actions.front().cloned() {
+            let check = self.state == State::Check;
+            let motion = match &a {
+                Action::Move { target, jog, .. } => Some((*target, *jog)),
+                Action::Probe { target, .. } => Some((*target, false)),
+                _ => None,
+            };
+            if let Some((target, jog)) = motion {
+                // Check mode parses and tracks position but moves nothing.
+                if !check && !jog {
+                    if self.settings.soft_limits() && self.violates_travel(&target) {
+                        self.soft_limit_alarm();
+                        return false;
+                    }
+                    if self.planner.len() >= PLANNER_BLOCKS {
+                        self.complete_one();
+                        if self.critical {
+                            return false;
+                        }
+                        if self.planner.len() >= PLANNER_BLOCKS {
+                            self.pending = Some(p);
+                            return false;
+                        }
+                    }
+                    self.plan(a);
+                }
+                p.actions.pop_front();
+                continue;
+            }
+            let needs_sync = matches!(
+                a,
+                Action::Sync | Action::Dwell(_) | Action::Pause | Action::ProgramEnd
+            );
+            if needs_sync && !check && (!self.planner.is_empty() || self.running.is_some()) {
+                self.complete_all();
+                if !self.planner.is_empty() || self.running.is_some() || self.critical {
+                    self.pending = Some(p);
+                    return false;
+                }
+            }
+            p.actions.pop_front();
+            match a {
+                Action::Dwell(s) if !check && s > 0.0 && self.cfg.clock != Clock::Unconstrained => {
+                    self.busy = Some((s, BusyKind::Dwell));
+                    self.pending = Some(p);
+                    return false;
+                }
+                Action::Pause if !check => {
+                    self.state = State::Hold;
+                    p.paused = true;
+                    self.pending = Some(p);
+                    return false;
+                }
+                Action::ProgramEnd => self.send("[MSG:Pgm End]"),
+                Action::WcoChanged => self.wco_counter = 0,
+                _ => {}
+            }
+        }
+        self.respond(Ok(()));
+        true
+    }
+
+    fn plan(&mut self, a: Action) {
+        let block = match a {
+            Action::Move {
+                target,
+                rate,
+                line_number,
+                jog,
+            } => Block {
+                target,
+                rate,
+                line_number,
+                jog,
+                probe: None,
+            },
+            Action::Probe {
+                target,
+                feed,
+                fail_is_error,
+                ..
+            } => Block {
+                target,
+                rate: Rate::Feed(feed),
+                line_number: None,
+                jog: false,
+                probe: Some(fail_is_error),
+            },
+            _ => return,
+        };
+        self.planner.push_back(block);
+        self.stats.planner_high_water = self.stats.planner_high_water.max(self.planner.len());
+        // Auto cycle start.
+        if self.running.is_none() && matches!(self.state, State::Idle | State::Cycle | State::Jog) {
+            self.start_block();
+        }
+    }
+
+    fn violates_travel(&self, target: &[f64; N_AXIS]) -> bool {
+        (0..N_AXIS).any(|k| {
+            let (lo, hi) = self
+                .settings
+                .travel_range(k, true)
+                .unwrap_or((f64::NEG_INFINITY, f64::INFINITY));
+            target[k] < lo || target[k] > hi
+        })
+    }
+
+    // ------------------------------------------------------------------ alarms, reset
+
+    fn stop_motion(&mut self) {
+        lock(&self.rig).machine.stop();
+        self.running = None;
+        self.planner.clear();
+        self.busy = None;
+    }
+
+    fn sync_position(&mut self) {
+        self.interp.position = self.mpos_3();
+    }
+
+    fn alarm(&mut self, code: u8, critical: bool) {
+        self.stop_motion();
+        self.pending = None;
+        self.sync_position();
+        self.state = State::Alarm;
+        self.stats.alarms += 1;
+        self.send(&format!("ALARM:{code}"));
+        if critical {
+            self.critical = true;
+            self.send("[MSG:Reset to continue]");
+        }
+    }
+
+    fn soft_limit_alarm(&mut self) {
+        // GRBL holds the running cycle to a stop (position kept), then resets and
+        // raises the critical alarm; the offending line gets no answer.
+        self.alarm(alarm::SOFT_LIMIT, true);
+    }
+
+    fn soft_reset(&mut self) {
+        self.stats.resets += 1;
+        let moving = self.running.is_some()
+            || matches!(self.state, State::Cycle | State::Jog | State::Homing);
+        if moving && !self.critical {
+            let code = if self.state == State::Homing {
+                alarm::HOMING_FAIL_RESET
+            } else {
+                alarm::ABORT_CYCLE
+            };
+            self.stop_motion();
+            self.state = State::Alarm;
+            self.stats.alarms += 1;
+            self.send(&format!("ALARM:{code}"));
+        }
+        self.stop_motion();
+        self.critical = false;
+        self.pending = None;
+        self.rx.clear();
+        self.line.clear();
+        self.status_requested = false;
+        self.wco_counter = 0;
+        self.ovr_counter = 0;
+        self.overrides = [100, 100, 100];
+        self.interp.reset();
+        self.sync_position();
+        if !matches!(self.state, State::Alarm | State::Sleep) {
+            self.state = State::Idle;
+        }
+        self.boot_messages();
+    }
+
+    // ------------------------------------------------------------------ real-time
+
+    fn realtime(&mut self, r: Realtime) {
+        match r {
+            Realtime::SoftReset => self.soft_reset(),
+            Realtime::StatusQuery => self.status_requested = true,
+            Realtime::FeedHold | Realtime::SafetyDoor => {
+                if matches!(self.state, State::Alarm | State::Check | State::Sleep) || self.critical
+                {
+                    return;
+                }
+                if r == Realtime::SafetyDoor {
+                    self.send("[MSG:Check Door]");
+                }
+                match self.state {
+                    State::Jog => self.jog_cancel(),
+                    State::Cycle | State::Idle | State::Hold => {
+                        self.hold_motion();
+                        self.state = if r == Realtime::SafetyDoor {
+                            State::Door
+                        } else {
+                            State::Hold
+                        };
+                    }
+                    _ => {}
+                }
+            }
+            Realtime::CycleStart => {
+                if matches!(self.state, State::Hold | State::Door) {
+                    self.state = if self.planner.is_empty() {
+                        State::Idle
+                    } else {
+                        State::Cycle
+                    };
+                    if let Some(p) = &mut self.pending {
+                        p.paused = false;
+                    }
+                    if self.state == State::Cycle && self.running.is_none() {
+                        self.start_block();
+                    }
+                }
+            }
+            Realtime::JogCancel => {
+                if self.state == State::Jog {
+                    self.jog_cancel();
+                }
+            }
+            Realtime::FeedOverrideReset => self.set_override(0, 100),
+            Realtime::FeedOverrideCoarsePlus => self.set_override(0, self.overrides[0] as i32 + 10),
+            Realtime::FeedOverrideCoarseMinus => {
+                self.set_override(0, self.overrides[0] as i32 - 10)
+            }
+            Realtime::FeedOverrideFinePlus => self.set_override(0, self.overrides[0] as i32 + 1),
+            Realtime::FeedOverrideFineMinus => self.set_override(0, self.overrides[0] as i32 - 1),
+            Realtime::RapidOverrideReset => self.set_override(1, 100),
+            Realtime::RapidOverrideMedium => self.set_override(1, 50),
+            Realtime::RapidOverrideLow => self.set_override(1, 25),
+            Realtime::SpindleOverrideReset => self.set_override(2, 100),
+            Realtime::SpindleOverrideCoarsePlus => {
+                self.set_override(2, self.overrides[2] as i32 + 10)
+            }
+            Realtime::SpindleOverrideCoarseMinus => {
+                self.set_override(2, self.overrides[2] as i32 - 10)
+            }
+            Realtime::SpindleOverrideFinePlus => self.set_override(2, self.overrides[2] as i32 + 1),
+            Realtime::SpindleOverrideFineMinus => {
+                self.set_override(2, self.overrides[2] as i32 - 1)
+            }
+            Realtime::SpindleStop | Realtime::FloodToggle | Realtime::MistToggle => {
+                if r == Realtime::FloodToggle
+                    && matches!(
+                        self.state,
+                        State::Idle | State::Cycle | State::Hold | State::Jog
+                    )
+                {
+                    self.interp.modal.flood = !self.interp.modal.flood;
+                    self.ovr_counter = 0;
+                }
+            }
+        }
+    }
+
+    fn set_override(&mut self, which: usize, v: i32) {
+        let (lo, hi) = if which == 1 { (25, 100) } else { (10, 200) };
+        let v = v.clamp(lo, hi) as u16;
+        if self.overrides[which] != v {
+            self.overrides[which] = v;
+            self.ovr_counter = 0;
+        }
+    }
+
+    /// Feed hold: the axes stop where they are (the simulated stage has no
+    /// deceleration model); the rest of the block runs again from there on resume.
+    fn hold_motion(&mut self) {
+        if let Some(run) = self.running.take() {
+            lock(&self.rig).machine.stop();
+            let _ = run;
+        }
+    }
+
+    fn jog_cancel(&mut self) {
+        self.stop_motion();
+        self.sync_position();
+        self.state = State::Idle;
+    }
+
+    // ------------------------------------------------------------------ status
+
+    fn answer_status(&mut self) {
+        if !self.status_requested
+            || self.critical
+            || self.state == State::Homing
+            || self.busy.is_some_and(|b| matches!(b.1, BusyKind::Homing))
+        {
+            return;
+        }
+        self.status_requested = false;
+        if self.cfg.clock == Clock::Unconstrained
+            && (self.running.is_some() || !self.planner.is_empty() || self.busy.is_some())
+        {
+            // Complete everything, then let the main loop take what was waiting,
+            // until nothing moves any more.
+            for _ in 0..100_000 {
+                self.complete_all();
+                self.main_loop();
+                if self.running.is_none() && self.planner.is_empty() && self.busy.is_none() {
+                    break;
+                }
+            }
+        }
+        let line = self.status_line();
+        self.send(&line);
+    }
+
+    fn status_line(&mut self) -> String {
+        let state = match self.state {
+            State::Idle => MachineState::Idle,
+            State::Cycle => MachineState::Run,
+            State::Hold => MachineState::Hold(0),
+            State::Jog => MachineState::Jog,
+            State::Homing => MachineState::Home,
+            State::Alarm => MachineState::Alarm,
+            State::Check => MachineState::Check,
+            State::Door => MachineState::Door(0),
+            State::Sleep => MachineState::Sleep,
+        };
+        let inches = self.settings.report_inches();
+        let scale = if inches { 1.0 / MM_PER_INCH } else { 1.0 };
+        let mpos = self.mpos_3();
+        let wco = self.interp.wco();
+        let mpos_kind = self.settings.reports_mpos();
+        let position: Vec<f64> = (0..N_AXIS)
+            .map(|k| if mpos_kind { mpos[k] } else { mpos[k] - wco[k] } * scale)
+            .collect();
+        let mut r = StatusReport::new(state, position);
+        r.position_kind = if mpos_kind {
+            PositionKind::Machine
+        } else {
+            PositionKind::Work
+        };
+        if self.settings.reports_buffer() {
+            let blocks = PLANNER_BLOCKS.saturating_sub(self.planner.len()) as u16;
+            r.buffer = Some((blocks, (self.cfg.rx_buffer - self.rx.len()) as u16));
+        }
+        if let Some(run) = &self.running {
+            r.line_number = run.block.line_number;
+        }
+        let feed = self
+            .running
+            .as_ref()
+            .map(|run| run.feed_mm_min)
+            .unwrap_or(0.0);
+        let spindle_on = self.interp.modal.spindle != protocol::grbl::gcode::Spindle::Off;
+        r.feed = Some(feed * scale);
+        r.spindle = Some(if spindle_on {
+            self.interp.spindle_speed
+        } else {
+            0.0
+        });
+        let busy = matches!(
+            self.state,
+            State::Homing | State::Cycle | State::Hold | State::Jog | State::Door
+        );
+        if self.wco_counter > 0 {
+            self.wco_counter -= 1;
+        } else {
+            self.wco_counter = if busy { 29 } else { 9 };
+            if self.ovr_counter == 0 {
+                self.ovr_counter = 1;
+            }
+            r.wco = Some(wco.iter().map(|w| w * scale).collect());
+        }
+        if self.ovr_counter > 0 {
+            self.ovr_counter -= 1;
+        } else {
+            self.ovr_counter = if busy { 19 } else { 9 };
+            r.overrides = Some(self.overrides);
+            let mut a = String::new();
+            match self.interp.modal.spindle {
+                protocol::grbl::gcode::Spindle::Cw => a.push('S'),
+                protocol::grbl::gcode::Spindle::Ccw => a.push('C'),
+                protocol::grbl::gcode::Spindle::Off => {}
+            }
+            if self.interp.modal.flood {
+                a.push('F');
+            }
+            if !a.is_empty() {
+                r.accessories = Some(a);
+            }
+        }
+        r.to_line(if inches { 4 } else { 3 })
+    }
+
+    // ------------------------------------------------------------------ $ commands
+
+    fn system_command(&mut self, line: &str) {
+        let r = self.system_command_inner(line);
+        // `$H` answers when homing ends; `$C` off and `$RST` reset after their `ok`.
+        match r {
+            Some(Ok(After::Nothing)) => self.respond(Ok(())),
+            Some(Ok(After::Reset)) => {
+                self.respond(Ok(()));
+                self.soft_reset();
+            }
+            Some(Err(code)) => self.respond(Err(code)),
+            None => {}
+        }
+    }
+
+    fn system_command_inner(&mut self, line: &str) -> Option<Result<After, u8>> {
+        let b = line.as_bytes();
+        let rest = &line[1..];
+        let ok = Some(Ok(After::Nothing));
+        match b.get(1).copied() {
+            None => {
+                self.send(
+                    "[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $SLP $C $X $H ~ ! ? ctrl-x]",
+                );
+                ok
+            }
+            Some(b'J') => {
+                if !matches!(self.state, State::Idle | State::Jog) {
+                    return Some(Err(st::IDLE_ERROR));
+                }
+                if b.get(2) != Some(&b'=') {
+                    return Some(Err(st::INVALID_STATEMENT));
+                }
+                let mut trial = self.interp.clone();
+                let actions = match trial.execute(&line[3..], true) {
+                    Ok(a) => a,
+                    Err(c) => return Some(Err(c)),
+                };
+                for a in &actions {
+                    if let Action::Move { target, .. } = a {
+                        if self.settings.soft_limits() && self.violates_travel(target) {
+                            return Some(Err(st::TRAVEL_EXCEEDED));
+                        }
+                    }
+                }
+                self.interp = trial;
+                for a in actions {
+                    if self.planner.len() >= PLANNER_BLOCKS {
+                        self.complete_one();
+                    }
+                    self.plan(a);
+                }
+                ok
+            }
+            Some(b'$' | b'G' | b'C' | b'X') => {
+                if b.len() != 2 {
+                    return Some(Err(st::INVALID_STATEMENT));
+                }
+                match b[1] {
+                    b'$' => {
+                        if matches!(self.state, State::Cycle | State::Hold) {
+                            return Some(Err(st::IDLE_ERROR));
+                        }
+                        let lines: Vec<String> = self
+                            .settings
+                            .iter()
+                            .filter_map(|(n, _)| self.settings.line(n))
+                            .collect();
+                        for l in lines {
+                            self.send(&l);
+                        }
+                        ok
+                    }
+                    b'G' => {
+                        let s = format!("[GC:{}]", self.interp.parser_state());
+                        self.send(&s);
+                        ok
+                    }
+                    b'C' => {
+                        if self.state == State::Check {
+                            self.send("[MSG:Disabled]");
+                            Some(Ok(After::Reset))
+                        } else if self.state != State::Idle {
+                            Some(Err(st::IDLE_ERROR))
+                        } else {
+                            self.state = State::Check;
+                            self.send("[MSG:Enabled]");
+                            ok
+                        }
+                    }
+                    _ => {
+                        if self.state == State::Alarm {
+                            self.send("[MSG:Caution: Unlocked]");
+                            self.state = State::Idle;
+                            self.sync_position();
+                        }
+                        ok
+                    }
+                }
+            }
+            Some(c) => {
+                if !matches!(self.state, State::Idle | State::Alarm) {
+                    return Some(Err(st::IDLE_ERROR));
+                }
+                match c {
+                    b'#' => {
+                        if b.len() != 2 {
+                            return Some(Err(st::INVALID_STATEMENT));
+                        }
+                        self.report_parameters();
+                        ok
+                    }
+                    b'H' => {
+                        if !self.settings.homing_enabled() {
+                            return Some(Err(st::SETTING_DISABLED));
+                        }
+                        if b.len() != 2 {
+                            return Some(Err(st::INVALID_STATEMENT));
+                        }
+                        self.start_homing();
+                        None
+                    }
+                    b'S' => {
+                        if rest != "SLP" {
+                            return Some(Err(st::INVALID_STATEMENT));
+                        }
+                        self.stop_motion();
+                        self.state = State::Sleep;
+                        self.send("[MSG:Sleeping]");
+                        ok
+                    }
+                    b'I' => {
+                        if b.len() == 2 {
+                            let info =
+                                format!("[VER:{GRBL_VERSION}.{BUILD_DATE}:{}]", self.build_info);
+                            self.send(&info);
+                            let opt = format!(
+                                "[OPT:{BUILD_OPTIONS},{},{}]",
+                                PLANNER_BLOCKS, self.cfg.rx_buffer
+                            );
+                            self.send(&opt);
+                            ok
+                        } else if b[2] == b'=' {
+                            self.build_info = line[3..].to_string();
+                            ok
+                        } else {
+                            Some(Err(st::INVALID_STATEMENT))
+                        }
+                    }
+                    b'R' => {
+                        let target = match rest {
+                            "RST=$" => 0,
+                            "RST=#" => 1,
+                            "RST=*" => 2,
+                            _ => return Some(Err(st::INVALID_STATEMENT)),
+                        };
+                        if target != 1 {
+                            self.settings = self.default_settings.clone();
+                        }
+                        if target != 0 {
+                            self.interp.stored = [[0.0; N_AXIS]; 8];
+                        }
+                        if target == 2 {
+                            self.startup_lines = [String::new(), String::new()];
+                        }
+                        self.send("[MSG:Restoring defaults]");
+                        Some(Ok(After::Reset))
+                    }
+                    b'N' if b.len() == 2 => {
+                        let lines: Vec<String> = (0..2)
+                            .map(|i| format!("$N{i}={}", self.startup_lines[i]))
+                            .collect();
+                        for l in lines {
+                            self.send(&l);
+                        }
+                        ok
+                    }
+                    _ => {
+                        let (is_startup, body) = match c {
+                            b'N' => (true, &line[2..]),
+                            _ => (false, &line[1..]),
+                        };
+                        if is_startup && self.state != State::Idle {
+                            return Some(Err(st::IDLE_ERROR));
+                        }
+                        let (num, value) = match body.split_once('=') {
+                            Some(x) => x,
+                            None => {
+                                return Some(Err(if parse_grbl_float(body).is_some() {
+                                    st::INVALID_STATEMENT
+                                } else {
+                                    st::BAD_NUMBER_FORMAT
+                                }))
+                            }
+                        };
+                        let Some(n) = parse_grbl_float(num) else {
+                            return Some(Err(st::BAD_NUMBER_FORMAT));
+                        };
+                        if is_startup {
+                            let n = n.trunc() as usize;
+                            if n > 1 {
+                                return Some(Err(st::INVALID_STATEMENT));
+                            }
+                            if value.len() > 79 - 3 {
+                                return Some(Err(st::LINE_LENGTH_EXCEEDED));
+                            }
+                            if let Err(code) = self.execute_gcode_now(value) {
+                                return Some(Err(code));
+                            }
+                            self.startup_lines[n] = value.to_string();
+                            return ok;
+                        }
+                        let Some(v) = parse_grbl_float(value) else {
+                            return Some(Err(st::BAD_NUMBER_FORMAT));
+                        };
+                        if n > 255.0 {
+                            return Some(Err(st::INVALID_STATEMENT));
+                        }
+                        match self.settings.write(n as u16, v) {
+                            Ok(()) => {
+                                self.interp.arc_tolerance = self.settings.arc_tolerance_mm();
+                                ok
+                            }
+                            Err(code) => Some(Err(code)),
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    fn report_parameters(&mut self) {
+        let inches = self.settings.report_inches();
+        let (scale, dec) = if inches {
+            (1.0 / MM_PER_INCH, 4)
+        } else {
+            (1.0, 3)
+        };
+        let f = |v: &[f64; N_AXIS]| {
+            v.iter()
+                .map(|x| format!("{:.dec$}", x * scale))
+                .collect::<Vec<_>>()
+                .join(",")
+        };
+        let names = ["G54", "G55", "G56", "G57", "G58", "G59", "G28", "G30"];
+        let mut lines: Vec<String> = names
+            .iter()
+            .zip(self.interp.stored.iter())
+            .map(|(n, v)| format!("[{n}:{}]", f(v)))
+            .collect();
+        lines.push(format!("[G92:{}]", f(&self.interp.coord_offset)));
+        lines.push(format!(
+            "[TLO:{:.dec$}]",
+            self.interp.tool_length_offset * scale
+        ));
+        let (p, ok) = self.interp.probe;
+        lines.push(format!("[PRB:{}:{}]", f(&p), u8::from(ok)));
+        for l in lines {
+            self.send(&l);
+        }
+    }
+
+    fn start_homing(&mut self) {
+        self.state = State::Homing;
+        let took = {
+            let mut r = lock(&self.rig);
+            let t0 = r.machine.now_s();
+            r.machine.home();
+            r.machine.now_s() - t0
+        };
+        self.z_steps = 0;
+        match self.cfg.clock {
+            Clock::Unconstrained => self.homing_done(),
+            Clock::Scaled(_) => {
+                // The machine already ran its homing; the controller stays busy for
+                // as long as that took on the emulated clock.
+                self.busy = Some((took, BusyKind::Homing));
+            }
+        }
+    }
+
+    fn homing_done(&mut self) {
+        self.state = State::Idle;
+        self.sync_position();
+        self.respond(Ok(()));
+        self.run_startup_lines();
+    }
+}
+
+enum After {
+    Nothing,
+    Reset,
+}
+
+/// GRBL's `read_float` on a whole string.
+fn parse_grbl_float(s: &str) -> Option<f64> {
+    let ok = !s.is_empty()
+        && s.chars()
+            .enumerate()
+            .all(|(i, c)| c.is_ascii_digit() || c == '.' || (i == 0 && (c == '-' || c == '+')))
+        && s.chars().any(|c| c.is_ascii_digit())
+        && s.matches('.').count() <= 1;
+    if ok {
+        s.parse().ok()
+    } else {
+        None
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::CameraModel;
+    use crate::machine::{MachineConfig, SimMachine};
+    use protocol::config::ConfigDoc;
+    use protocol::grbl::response::{LineDecoder, Response};
+    use protocol::{Board, Polarity};
+    use std::path::Path;
+
+    pub(crate) fn rig() -> SharedRig {
+        let m = include_str!("../../../config/machines/c5-stage.toml");
+        let m = MachineConfig::from_doc(&ConfigDoc::from_text("c5-stage.toml", m, Path::new(".")))
+            .unwrap();
+        let c = include_str!("../../../config/cameras/mono-1.3mp.toml");
+        let c =
+            CameraModel::from_doc(&ConfigDoc::from_text("cam.toml", c, Path::new("."))).unwrap();
+        let b = Board::nominal("t", 0.5, 0.25, Polarity::DarkOnLight, 40, 30, [0.0, 0.0]);
+        Arc::new(Mutex::new(SimRig::new(SimMachine::new(m), b, c)))
+    }
+
+    struct Host {
+        dev: GrblDevice,
+        dec: LineDecoder,
+        t: f64,
+    }
+
+    impl Host {
+        fn new(clock: Clock) -> Self {
+            let mut dev = GrblDevice::new(
+                rig(),
+                GrblConfig {
+                    clock,
+                    ..Default::default()
+                },
+            );
+            dev.power_on(0.0);
+            let mut h = Host {
+                dev,
+                dec: LineDecoder::new(),
+                t: 0.0,
+            };
+            h.read();
+            h
+        }
+        fn read(&mut self) -> Vec<Response> {
+            let mut out = Vec::new();
+            self.dec.feed(&self.dev.take_output(), &mut out);
+            out
+        }
+        fn send(&mut self, bytes: &[u8]) -> Vec<Response> {
+            self.dev.receive(bytes, self.t);
+            self.read()
+        }
+        fn status(&mut self) -> StatusReport {
+            let r = self.send(b"?");
+            match r.last() {
+                Some(Response::Status(s)) => s.clone(),
+                other => panic!("no status: {other:?}"),
+            }
+        }
+        fn pass(&mut self, dt: f64) -> Vec<Response> {
+            self.t += dt;
+            self.dev.poll(self.t);
+            self.read()
+        }
+    }
+
+    #[test]
+    fn boots_locked_then_unlocks_homes_and_moves_by_its_step_counters() {
+        let mut dev = GrblDevice::new(rig(), GrblConfig::default());
+        dev.power_on(0.0);
+        let boot = String::from_utf8(dev.take_output()).unwrap();
+        assert_eq!(
+            boot,
+            "\r\nGrbl 1.1h ['$' for help]\r\n[MSG:'$H'|'$X' to unlock]\r\n"
+        );
+        let mut h = Host {
+            dev,
+            dec: LineDecoder::new(),
+            t: 0.0,
+        };
+        assert_eq!(h.send(b"G0X1\n"), vec![Response::Error(9)]);
+        assert_eq!(h.status().state, MachineState::Alarm);
+        assert_eq!(h.send(b"$H\n"), vec![Response::Ok]);
+        assert_eq!(h.send(b"G1X10.00013Y5F3000\n"), vec![Response::Ok]);
+        let s = h.status();
+        assert_eq!(s.state, MachineState::Idle);
+        // 2000 steps/mm: 10.00013 mm is 20000.26 steps -> 20000 steps -> 10.000 mm.
+        assert_eq!(s.position, vec![10.0, 5.0, 0.0]);
+        let counts = h.dev.rig.lock().unwrap().machine.counts();
+        assert_eq!(counts, [20000, 10000]);
+    }
+
+    #[test]
+    fn realtime_bytes_act_mid_line_and_unknown_extended_bytes_vanish() {
+        let mut h = Host::new(Clock::Unconstrained);
+        let r = h.send(b"$X\nG1X1?Y1\xFEF100\n");
+        // The `?` inside the line is answered, and the line around it is intact.
+        assert!(
+            matches!(
+                r.as_slice(),
+                [
+                    Response::Message(_),
+                    Response::Ok,
+                    Response::Ok,
+                    Response::Status(_)
+                ]
+            ),
+            "{r:?}"
+        );
+        assert_eq!(h.status().position, vec![1.0, 1.0, 0.0]);
+    }
+
+    #[test]
+    fn rx_buffer_overflow_drops_bytes_like_the_device() {
+        let mut h = Host::new(Clock::Scaled(1.0));
+        h.send(b"$X\n$10=3\n");
+        // A long move keeps the planner busy; 16 more moves fill the planner and
+        // then the RX buffer; the rest of 400 bytes is dropped.
+        let mut prog = Vec::new();
+        for i in 0..40 {
+            prog.extend_from_slice(format!("G1X{}F100\n", 10 + i).as_bytes());
+        }
+        assert!(prog.len() > 300);
+        let r = h.send(&prog);
+        assert_eq!(
+            r.iter().filter(|x| **x == Response::Ok).count(),
+            PLANNER_BLOCKS
+        );
+        assert_eq!(h.dev.stats().planner_high_water, PLANNER_BLOCKS);
+        assert!(h.dev.stats().rx_dropped > 0);
+        let s = h.status();
+        assert_eq!(s.buffer.map(|b| b.0), Some(0), "{s:?}");
+        assert_eq!(s.buffer.map(|b| b.1), Some(0), "RX buffer full");
+        assert_eq!(s.state, MachineState::Run);
+    }
+
+    #[test]
+    fn soft_limit_alarm_blocks_until_reset() {
+        let mut h = Host::new(Clock::Unconstrained);
+        h.send(b"$H\n");
+        let r = h.send(b"G0X500\nG0X1\n");
+        assert_eq!(
+            r,
+            vec![
+                Response::Alarm(2),
+                Response::Message("Reset to continue".into())
+            ]
+        );
+        assert!(h.send(b"?").is_empty(), "no status in the critical alarm");
+        let r = h.send(&[0x18]);
+        assert!(matches!(&r[0], Response::Banner { .. }), "{r:?}");
+        assert_eq!(r[1], Response::Message("'$H'|'$X' to unlock".into()));
+        assert_eq!(h.status().state, MachineState::Alarm);
+    }
+
+    #[test]
+    fn jog_cancel_hold_resume_and_reset_during_motion() {
+        let mut h = Host::new(Clock::Scaled(1.0));
+        assert!(h.send(b"$H\n").is_empty(), "homing takes time");
+        assert_eq!(h.pass(60.0), vec![Response::Ok]);
+        assert_eq!(h.send(b"$J=G91X100F600\n"), vec![Response::Ok]);
+        assert_eq!(h.send(b"$J=X500F600\n"), vec![Response::Error(15)]);
+        h.pass(1.0);
+        let s = h.status();
+        assert_eq!(s.state, MachineState::Jog);
+        assert!(s.position[0] > 5.0 && s.position[0] < 20.0, "{s:?}");
+        h.send(&[0x85]);
+        let s = h.status();
+        assert_eq!(s.state, MachineState::Idle);
+        let stopped = s.position[0];
+        h.pass(1.0);
+        assert_eq!(h.status().position[0], stopped, "jog cancelled");
+        // G-code, hold, resume.
+        assert_eq!(h.send(b"G1X150F600\n"), vec![Response::Ok]);
+        h.pass(1.0);
+        h.send(b"!");
+        let held = h.status();
+        assert_eq!(held.state, MachineState::Hold(0));
+        h.pass(1.0);
+        assert_eq!(h.status().position, held.position, "no motion while held");
+        h.send(b"~");
+        h.pass(1.0);
+        let s = h.status();
+        assert_eq!(s.state, MachineState::Run);
+        assert!(s.position[0] > held.position[0]);
+        // Reset while moving: ALARM:3, position kept by the counters but not trusted.
+        let r = h.send(&[0x18]);
+        assert_eq!(r[0], Response::Alarm(3));
+        assert!(matches!(r[1], Response::Banner { .. }));
+    }
+
+    #[test]
+    fn check_mode_settings_and_reports() {
+        let mut h = Host::new(Clock::Unconstrained);
+        h.send(b"$X\n");
+        assert_eq!(
+            h.send(b"$C\n"),
+            vec![Response::Message("Enabled".into()), Response::Ok]
+        );
+        assert_eq!(
+            h.send(b"G1X50F100\nG1X1Q1\n"),
+            vec![Response::Ok, Response::Error(20)]
+        );
+        assert_eq!(h.status().position[0], 0.0, "check mode moves nothing");
+        let r = h.send(b"$C\n");
+        assert_eq!(r[0], Response::Message("Disabled".into()));
+        assert_eq!(r[1], Response::Ok);
+        assert!(matches!(r[2], Response::Banner { .. }));
+        let r = h.send(b"$I\n");
+        assert_eq!(
+            r[1],
+            Response::Options {
+                flags: "VNZ".into(),
+                planner_blocks: 15,
+                rx_buffer: 128
+            }
+        );
+        let r = h.send(b"$$\n");
+        assert!(
+            r.contains(&Response::Setting {
+                number: 100,
+                value: "2000.000".into()
+            }),
+            "{r:?}"
+        );
+        assert_eq!(r.last(), Some(&Response::Ok));
+        assert_eq!(h.send(b"$100=abc\n"), vec![Response::Error(2)]);
+        assert_eq!(h.send(b"$999=1\n"), vec![Response::Error(3)]);
+        assert_eq!(
+            h.send(b"$Q\n"),
+            vec![Response::Error(2)],
+            "GRBL reads an unknown letter as a bad setting number"
+        );
+        assert_eq!(h.send(b"$10=0\n"), vec![Response::Ok]);
+        let s = h.status();
+        assert_eq!(s.position_kind, PositionKind::Work);
+        let r = h.send(b"$G\n");
+        assert_eq!(
+            r[0],
+            Response::ParserState("G0 G54 G17 G21 G90 G94 M5 M9 T0 F0 S0".into())
+        );
+        let long = format!("G1X{}\n", "1".repeat(90));
+        assert_eq!(h.send(long.as_bytes()), vec![Response::Error(11)]);
+        assert_eq!(
+            h.send(b"\r\n"),
+            vec![Response::Ok, Response::Ok],
+            "CR LF is two lines"
+        );
+    }
+}

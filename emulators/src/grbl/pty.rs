@@ -1,0 +1,144 @@
+//! The GRBL emulator on a real pseudo-terminal: any program that opens the printed
+//! `/dev/pts/N` path (or the optional symlink) talks to it exactly as to a USB-serial
+//! GRBL board.
+//!
+//! The runner holds the slave side open itself, so clients may come and go without the
+//! master seeing a hang-up; closing the runner ([`GrblPty::hang_up`]) closes both sides,
+//! which is what a client sees when a USB adapter is unplugged.
+
+use super::device::{DeviceStats, GrblDevice};
+use std::io;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::sync::oneshot;
+use tokio::task::JoinHandle;
+use tokio_serial::{SerialPort, SerialStream};
+
+/// A running emulator on a pseudo-terminal.
+pub struct GrblPty {
+    path: String,
+    link: Option<PathBuf>,
+    stop: Option<oneshot::Sender<()>>,
+    task: Option<JoinHandle<()>>,
+    stats: Arc<Mutex<DeviceStats>>,
+}
+
+fn io_err(e: tokio_serial::Error) -> io::Error {
+    io::Error::other(e.to_string())
+}
+
+impl GrblPty {
+    /// Create a pseudo-terminal, power the device on (banner) and serve it. Must be
+    /// called inside a tokio runtime. With `link`, a symlink to the slave path is
+    /// created there (replacing an old one), so clients can use a stable name.
+    pub fn spawn(device: GrblDevice, link: Option<&Path>) -> io::Result<GrblPty> {
+        let (master, mut slave) = SerialStream::pair().map_err(io_err)?;
+        slave.set_exclusive(false).map_err(io_err)?;
+        let path = slave
+            .name()
+            .ok_or_else(|| io::Error::other("the pseudo-terminal has no slave path"))?;
+        if let Some(l) = link {
+            if l.symlink_metadata().is_ok() {
+                std::fs::remove_file(l)?;
+            }
+            std::os::unix::fs::symlink(&path, l)?;
+        }
+        let stats = Arc::new(Mutex::new(DeviceStats::default()));
+        let (tx, rx) = oneshot::channel();
+        let task = tokio::spawn(serve(device, master, slave, rx, stats.clone()));
+        Ok(GrblPty {
+            path,
+            link: link.map(Path::to_path_buf),
+            stop: Some(tx),
+            task: Some(task),
+            stats,
+        })
+    }
+
+    /// The slave path (`/dev/pts/N`).
+    pub fn path(&self) -> &str {
+        &self.path
+    }
+
+    /// The symlink, if one was asked for.
+    pub fn link(&self) -> Option<&Path> {
+        self.link.as_deref()
+    }
+
+    pub fn stats(&self) -> DeviceStats {
+        self.stats.lock().unwrap_or_else(|p| p.into_inner()).clone()
+    }
+
+    /// Close the pseudo-terminal: the port disappears for its client. The symlink
+    /// stays (a replugged adapter gets the same name back).
+    pub async fn hang_up(mut self) {
+        if let Some(tx) = self.stop.take() {
+            let _ = tx.send(());
+        }
+        if let Some(t) = self.task.take() {
+            let _ = t.await;
+        }
+    }
+
+    /// Wait until the runner ends by itself (after the device's answer limit).
+    pub async fn closed(&mut self) {
+        if let Some(t) = self.task.take() {
+            let _ = t.await;
+        }
+    }
+}
+
+impl Drop for GrblPty {
+    fn drop(&mut self) {
+        if let Some(tx) = self.stop.take() {
+            let _ = tx.send(());
+        }
+    }
+}
+
+async fn serve(
+    mut dev: GrblDevice,
+    mut master: SerialStream,
+    slave: SerialStream,
+    mut stop: oneshot::Receiver<()>,
+    stats: Arc<Mutex<DeviceStats>>,
+) {
+    let t0 = Instant::now();
+    let now = move || t0.elapsed().as_secs_f64();
+    dev.power_on(now());
+    let mut buf = [0u8; 4096];
+    // While something moves on a scaled clock, the device is polled this often.
+    let mut tick = tokio::time::interval(Duration::from_millis(2));
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    loop {
+        let out = dev.take_output();
+        if !out.is_empty() && master.write_all(&out).await.is_err() {
+            break;
+        }
+        *stats.lock().unwrap_or_else(|p| p.into_inner()) = dev.stats().clone();
+        if dev.answer_limit_reached() {
+            // Fault injection: hang up, but only once the client has read every
+            // answer, so the point of failure is known exactly (bounded wait).
+            for _ in 0..2000 {
+                if slave.bytes_to_read().unwrap_or(0) == 0 {
+                    break;
+                }
+                tokio::time::sleep(Duration::from_millis(1)).await;
+            }
+            break;
+        }
+        tokio::select! {
+            r = master.read(&mut buf) => match r {
+                Ok(0) => break,
+                Ok(n) => dev.receive(&buf[..n], now()),
+                Err(_) => break,
+            },
+            _ = tick.tick(), if dev.needs_poll() => dev.poll(now()),
+            _ = &mut stop => break,
+        }
+    }
+    drop(master);
+    drop(slave);
+}
