@@ -1,8 +1,14 @@
 //! The compensation gateway: configuration, the localization and compensation pipeline,
 //! the orchestrator that runs it through driver traits, and the CLI.
 //!
-//! Architecture invariant: `localize`, `deviation` and `correction` are pure functions
-//! (image/observation in, numbers/moves out); only `orchestrator` does I/O, and only
-//! through the `drivers` traits.
+//! Architecture invariant: `localize` and `correction` are pure functions (image or
+//! observation in, numbers or moves out); only `orchestrator` does I/O, and only through
+//! the `drivers` traits.
 
+pub mod config;
+pub mod correction;
+pub mod image_io;
 pub mod localize;
+pub mod orchestrator;
+pub mod report;
+pub mod run;

@@ -1,1 +1,183 @@
-fn main() {}
+//! `gateway`: the command line of the compensation gateway.
+
+use anyhow::Context;
+use clap::{Parser, Subcommand};
+use gateway::config::Job;
+use gateway::localize::{localize, LocalizeParams, Method, PixelAxes};
+use gateway::report::Report;
+use gateway::run::{open_devices, run_job};
+use indicatif::{ProgressBar, ProgressStyle};
+use protocol::Board;
+use serde_json::json;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Instant;
+
+#[derive(Parser)]
+#[command(name = "gateway", version, about = "Camera + calibration board compensation gateway for X-Y stages and CNC machines")]
+struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Run the compensation job on the embedded default: a simulated C5 stage, camera and
+    /// certified board, all in-process. Reports the error against the truth.
+    Demo {
+        /// Print one JSON object instead of the table.
+        #[arg(long)]
+        json: bool,
+        /// Localization method: fit (default) or four-point (the patent's formula).
+        #[arg(long)]
+        method: Option<String>,
+    },
+    /// Run the compensation job described by a configuration file.
+    Compensate {
+        #[arg(long)]
+        config: PathBuf,
+        #[arg(long)]
+        json: bool,
+        #[arg(long)]
+        method: Option<String>,
+    },
+    /// Localize one image of the board: the board coordinate under the image centre.
+    Localize {
+        /// PNG file, 8- or 16-bit greyscale.
+        image: PathBuf,
+        /// Board file (TOML).
+        #[arg(long)]
+        board: PathBuf,
+        /// Expected board coordinate at the image centre, "X,Y" in mm.
+        #[arg(long)]
+        near: String,
+        #[arg(long, default_value = "fit")]
+        method: String,
+        /// Nominal scale; the measured scale must agree within 10 %.
+        #[arg(long)]
+        um_per_px: Option<f64>,
+        /// Board directions of the image +x and +y axes.
+        #[arg(long, default_value = "+x,-y")]
+        pixel_axes: String,
+        /// How far the true position may be from --near, mm.
+        #[arg(long, default_value_t = 0.1)]
+        hint_tolerance_mm: f64,
+        /// Refuse when the fit's RMS residual exceeds this, um.
+        #[arg(long, default_value_t = 2.0)]
+        max_residual_um: f64,
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+fn parse_method(s: &str) -> anyhow::Result<Method> {
+    match s {
+        "fit" => Ok(Method::Fit),
+        "four-point" => Ok(Method::FourPoint),
+        other => anyhow::bail!("--method `{other}`: expected `fit` or `four-point`"),
+    }
+}
+
+fn parse_xy(s: &str) -> anyhow::Result<[f64; 2]> {
+    let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+    let bad = || anyhow::anyhow!("--near `{s}`: expected two numbers in mm, like 12.5,40");
+    if parts.len() != 2 {
+        return Err(bad());
+    }
+    let x: f64 = parts[0].parse().map_err(|_| bad())?;
+    let y: f64 = parts[1].parse().map_err(|_| bad())?;
+    if !(x.is_finite() && y.is_finite()) {
+        return Err(bad());
+    }
+    Ok([x, y])
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let json_mode = match &cli.cmd {
+        Cmd::Demo { json, .. } | Cmd::Compensate { json, .. } | Cmd::Localize { json, .. } => *json,
+    };
+    match run(cli) {
+        Ok(code) => code,
+        Err(e) => {
+            let msg = format!("{e:#}");
+            if json_mode {
+                println!("{}", json!({ "error": msg }));
+            }
+            eprintln!("error: {msg}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> anyhow::Result<ExitCode> {
+    match cli.cmd {
+        Cmd::Demo { json, method } => {
+            let mut job = Job::demo();
+            if let Some(m) = method {
+                job.localize.method = parse_method(&m)?;
+            }
+            compensate(job, json)
+        }
+        Cmd::Compensate { config, json, method } => {
+            let mut job = Job::load(&config)?;
+            if let Some(m) = method {
+                job.localize.method = parse_method(&m)?;
+            }
+            compensate(job, json)
+        }
+        Cmd::Localize { image, board, near, method, um_per_px, pixel_axes, hint_tolerance_mm, max_residual_um, json } => {
+            let board = Board::load(&board)?;
+            let img = gateway::image_io::load_png(&image)?;
+            let mut p = LocalizeParams::new(parse_xy(&near)?);
+            p.method = parse_method(&method)?;
+            p.um_per_px = um_per_px;
+            p.pixel_axes = pixel_axes
+                .parse::<PixelAxes>()
+                .map_err(|e| anyhow::anyhow!("--pixel-axes `{pixel_axes}`: {e}"))?;
+            p.hint_tolerance_mm = hint_tolerance_mm;
+            p.max_residual_um = max_residual_um;
+            let t0 = Instant::now();
+            let obs = localize(&img, &board, &p).with_context(|| format!("{}", image.display()))?;
+            let elapsed_ms = t0.elapsed().as_secs_f64() * 1000.0;
+            if json {
+                println!(
+                    "{}",
+                    json!({
+                        "x_mm": obs.x_mm, "y_mm": obs.y_mm, "points": obs.points, "method": obs.method,
+                        "elapsed_ms": elapsed_ms, "residual_rms_um": obs.residual_rms_um,
+                        "um_per_px": obs.um_per_px, "rotation_deg": obs.rotation_deg,
+                        "image": { "path": image.display().to_string(), "width": img.width, "height": img.height, "bit_depth": img.bit_depth() },
+                    })
+                );
+            } else {
+                println!("board coordinate at the image centre: X {:.5} mm  Y {:.5} mm", obs.x_mm, obs.y_mm);
+                println!(
+                    "method {:?}, {} points, residual {:.3} um rms, scale {:.4} um/px, rotation {:.4} deg, {:.3} ms",
+                    obs.method, obs.points, obs.residual_rms_um, obs.um_per_px, obs.rotation_deg, elapsed_ms
+                );
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+    }
+}
+
+fn compensate(job: Job, json: bool) -> anyhow::Result<ExitCode> {
+    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
+    let mut devices = open_devices(&job)?;
+    let bar = if json { ProgressBar::hidden() } else { ProgressBar::new(job.targets.len() as u64) };
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} compensating [{bar:30}] {pos}/{len} targets {elapsed}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    let report: Report = rt.block_on(run_job(&job, &mut devices, &mut |done, _| bar.set_position(done as u64)));
+    bar.finish_and_clear();
+    if json {
+        println!("{}", serde_json::to_string(&report)?);
+    } else {
+        print!("{}", report.to_text());
+    }
+    let ok = report.error.is_none() && report.converged == report.targets;
+    Ok(if ok { ExitCode::SUCCESS } else { ExitCode::FAILURE })
+}

@@ -1,0 +1,82 @@
+//! Opening the devices a job names, and running the job to a report.
+
+use crate::config::{CameraSpec, Job, StageSpec};
+use crate::orchestrator::{Event, Orchestrator};
+use crate::report::{Report, TruthAt};
+use drivers::sim::{SharedRig, SimCamera, SimStage};
+use drivers::{Camera, DriverError, Stage};
+use emulators::machine::SimMachine;
+use emulators::rig::SimRig;
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+/// The devices of a job. `rig` is set when the machine is simulated: it is how reports
+/// learn the truth; the pipeline never receives it.
+pub struct Devices {
+    pub stage: Box<dyn Stage>,
+    pub camera: Box<dyn Camera>,
+    pub rig: Option<SharedRig>,
+}
+
+pub fn open_devices(job: &Job) -> Result<Devices, DriverError> {
+    match (&job.stage, &job.camera) {
+        (StageSpec::Sim { machine }, CameraSpec::Sim { model }) => {
+            let rig = SimRig::new(SimMachine::new(machine.clone()), job.board.clone(), model.clone());
+            let rig: SharedRig = Arc::new(Mutex::new(rig));
+            Ok(Devices {
+                stage: Box::new(SimStage::new(rig.clone())),
+                camera: Box::new(SimCamera::new(rig.clone())),
+                rig: Some(rig),
+            })
+        }
+    }
+}
+
+/// Progress callback: (targets done, targets planned).
+pub type Progress<'a> = &'a mut dyn FnMut(usize, usize);
+
+/// Run a job on opened devices and build its report (also when it stopped early).
+pub async fn run_job(job: &Job, devices: &mut Devices, progress: Progress<'_>) -> Report {
+    let started = Instant::now();
+    let rig = devices.rig.clone();
+    // Truth error (um) at the first and latest measurement of each target.
+    let mut truth: Vec<Option<TruthAt>> = Vec::new();
+    let mut current: Option<(usize, TruthAt)> = None;
+    let mut on_event = |e: Event| match e {
+        Event::Measured { target_index, .. } => {
+            if let Some(rig) = &rig {
+                let pose = rig.lock().unwrap_or_else(|p| p.into_inner()).truth();
+                let t = job.targets[target_index];
+                let err = [(pose.centre_mm[0] - t[0]) * 1000.0, (pose.centre_mm[1] - t[1]) * 1000.0];
+                match &mut current {
+                    Some((i, at)) if *i == target_index => at.after_um = err,
+                    _ => current = Some((target_index, TruthAt { before_um: err, after_um: err })),
+                }
+            }
+        }
+        Event::TargetDone { outcome, of } => {
+            truth.push(current.take().map(|(_, at)| at));
+            progress(outcome.index + 1, of);
+        }
+        Event::Homed => {}
+    };
+    let stage_name = devices.stage.info().name.clone();
+    let camera_name = devices.camera.info().model.clone();
+    let mut orch = Orchestrator { stage: devices.stage.as_mut(), camera: devices.camera.as_mut(), job };
+    let result = orch.run(&mut on_event).await;
+    let (outcomes, error) = match result {
+        Ok(o) => (o, None),
+        Err(f) => (f.completed, Some(f.error.to_string())),
+    };
+    Report::build(
+        &job.source,
+        &stage_name,
+        &camera_name,
+        job.localize.method,
+        job.targets.len(),
+        &outcomes,
+        &truth,
+        started.elapsed().as_secs_f64(),
+        error,
+    )
+}
