@@ -12,6 +12,7 @@
 
 pub mod camera;
 pub mod error;
+pub mod grbl;
 pub mod multi_axis;
 #[cfg(feature = "sim")]
 pub mod sim;

@@ -6,4 +6,4 @@ pub mod device;
 pub mod pty;
 
 pub use device::{Clock, DeviceStats, GrblConfig, GrblDevice, SharedRig};
-pub use pty::GrblPty;
+pub use pty::{Foreign, ForeignPty, GrblPty};

@@ -34,8 +34,9 @@ impl GrblPty {
     /// called inside a tokio runtime. With `link`, a symlink to the slave path is
     /// created there (replacing an old one), so clients can use a stable name.
     pub fn spawn(device: GrblDevice, link: Option<&Path>) -> io::Result<GrblPty> {
-        let (master, mut slave) = SerialStream::pair().map_err(io_err)?;
-        slave.set_exclusive(false).map_err(io_err)?;
+        // The slave side stays without any lock (no flock, no TIOCEXCL), so clients
+        // may open it exclusively as they do real ports.
+        let (master, slave) = SerialStream::pair().map_err(io_err)?;
         let path = slave
             .name()
             .ok_or_else(|| io::Error::other("the pseudo-terminal has no slave path"))?;
@@ -141,4 +142,72 @@ async fn serve(
     }
     drop(master);
     drop(slave);
+}
+
+/// How a [`ForeignPty`] behaves: devices that are not GRBL, for the driver's tests of
+/// "wrong device" errors.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Foreign {
+    /// Never sends anything.
+    Silent,
+    /// Echoes every byte back (a loopback plug, or a modem with echo on).
+    Echo,
+    /// Answers every line with a line of another firmware.
+    Chatter,
+}
+
+/// A pseudo-terminal with a device on it that is not GRBL.
+pub struct ForeignPty {
+    path: String,
+    stop: Option<oneshot::Sender<()>>,
+}
+
+impl ForeignPty {
+    pub fn spawn(kind: Foreign) -> io::Result<ForeignPty> {
+        let (mut master, slave) = SerialStream::pair().map_err(io_err)?;
+        let path = slave
+            .name()
+            .ok_or_else(|| io::Error::other("the pseudo-terminal has no slave path"))?;
+        let (tx, mut rx) = oneshot::channel::<()>();
+        tokio::spawn(async move {
+            let mut buf = [0u8; 1024];
+            loop {
+                tokio::select! {
+                    r = master.read(&mut buf) => match r {
+                        Ok(n) if n > 0 => {
+                            let reply: Vec<u8> = match kind {
+                                Foreign::Silent => Vec::new(),
+                                Foreign::Echo => buf[..n].to_vec(),
+                                Foreign::Chatter => {
+                                    if buf[..n].contains(&b'\n') { b"echo:Unknown command: \"$I\"\r\nok T:21.3 /0.0\r\n".to_vec() } else { Vec::new() }
+                                }
+                            };
+                            if !reply.is_empty() && master.write_all(&reply).await.is_err() {
+                                break;
+                            }
+                        }
+                        _ => break,
+                    },
+                    _ = &mut rx => break,
+                }
+            }
+            drop(slave);
+        });
+        Ok(ForeignPty {
+            path,
+            stop: Some(tx),
+        })
+    }
+
+    pub fn path(&self) -> &str {
+        &self.path
+    }
+}
+
+impl Drop for ForeignPty {
+    fn drop(&mut self) {
+        if let Some(tx) = self.stop.take() {
+            let _ = tx.send(());
+        }
+    }
 }

@@ -1,0 +1,79 @@
+//! Shared set-up of the GRBL system tests: a simulated rig, the GRBL emulator on a real
+//! pseudo-terminal, and the driver connected to it by path.
+
+#![allow(dead_code)]
+
+use drivers::grbl::{GrblOptions, GrblStage};
+use emulators::camera::CameraModel;
+use emulators::grbl::{Clock, GrblConfig, GrblDevice, GrblPty, SharedRig};
+use emulators::machine::{MachineConfig, SimMachine};
+use emulators::rig::SimRig;
+use protocol::Board;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+pub fn config_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../config")
+}
+
+pub fn rig() -> SharedRig {
+    let d = config_dir();
+    let m = MachineConfig::load(&d.join("machines/c5-stage.toml")).unwrap();
+    let c = CameraModel::load(&d.join("cameras/mono-1.3mp.toml")).unwrap();
+    let b = Board::load(&d.join("boards/dot-grid-0.5mm.toml")).unwrap();
+    Arc::new(Mutex::new(SimRig::new(SimMachine::new(m), b, c)))
+}
+
+pub fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap()
+}
+
+/// The emulator on a fresh pseudo-terminal (inside a runtime).
+pub fn emulator(
+    rig: &SharedRig,
+    clock: Clock,
+    answer_limit: Option<u64>,
+    link: Option<&Path>,
+) -> GrblPty {
+    let dev = GrblDevice::new(
+        rig.clone(),
+        GrblConfig {
+            clock,
+            answer_limit,
+            ..Default::default()
+        },
+    );
+    GrblPty::spawn(dev, link).expect("pseudo-terminal")
+}
+
+/// Options with short timeouts: a broken test fails in seconds, not minutes.
+pub fn options() -> GrblOptions {
+    GrblOptions {
+        connect_timeout: Duration::from_secs(3),
+        command_timeout: Duration::from_secs(2),
+        motion_timeout: Duration::from_secs(20),
+        poll_interval: Duration::from_millis(5),
+        decimals: 4,
+    }
+}
+
+pub async fn connect(path: &str) -> GrblStage {
+    GrblStage::open(path, 115_200, options())
+        .await
+        .expect("connect to the emulator")
+}
+
+/// A unique path in the temp directory for a symlink.
+pub fn temp_link(tag: &str) -> PathBuf {
+    use std::sync::atomic::{AtomicU32, Ordering};
+    static N: AtomicU32 = AtomicU32::new(0);
+    std::env::temp_dir().join(format!(
+        "grbl-{tag}-{}-{}",
+        std::process::id(),
+        N.fetch_add(1, Ordering::Relaxed)
+    ))
+}
