@@ -141,7 +141,9 @@ impl GrblStage {
             ),
             after_ms,
         };
-        // $I until [VER:] + ok; a banner means the board (re)booted and dropped it.
+        // $I until [VER:] + ok. A banner means the board (re)booted, maybe when the
+        // port opened (Arduino boards reset on DTR), and may have dropped the $I: ask
+        // again unless its answer follows the banner promptly.
         self.link.write(&Command::BuildInfo.encode()).await?;
         let mut build = BuildInfo {
             rx_buffer: DEFAULT_RX_BUFFER,
@@ -149,14 +151,22 @@ impl GrblStage {
             ..Default::default()
         };
         let mut have_version = false;
+        let mut resend_at: Option<Instant> = None;
         loop {
-            let Some(r) = self.link.next(deadline).await? else {
+            let wait_until = resend_at.map_or(deadline, |t| t.min(deadline));
+            let Some(r) = self.link.next(wait_until).await? else {
+                if resend_at.is_some_and(|t| Instant::now() >= t) && Instant::now() < deadline {
+                    resend_at = None;
+                    self.link.write(&Command::BuildInfo.encode()).await?;
+                    continue;
+                }
                 return Err(timeout(&self.link, "$I"));
             };
             match r {
                 Response::Version { version, .. } => {
                     build.version = version;
                     have_version = true;
+                    resend_at = None;
                 }
                 Response::Options {
                     flags,
@@ -172,10 +182,10 @@ impl GrblStage {
                 Response::Error(code) => return Err(self.refused("$I", code)),
                 Response::Banner { .. } => {
                     have_version = false;
-                    self.link.write(&Command::BuildInfo.encode()).await?;
+                    resend_at = Some(Instant::now() + Duration::from_millis(300));
                 }
                 Response::Message(m) => self.note_message(&m),
-                Response::Alarm(n) => self.last_alarm = Some(n),
+                Response::Alarm(n) => self.note_alarm(n),
                 _ => {}
             }
         }

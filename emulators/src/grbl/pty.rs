@@ -121,12 +121,20 @@ async fn serve(
         *stats.lock().unwrap_or_else(|p| p.into_inner()) = dev.stats().clone();
         if dev.answer_limit_reached() {
             // Fault injection: hang up, but only once the client has read every
-            // answer, so the point of failure is known exactly (bounded wait).
+            // answer, so the point of failure is known exactly. Bytes written to the
+            // master reach the slave's input queue a moment later, so the queue must
+            // be seen empty twice, a few milliseconds apart (bounded wait).
+            let mut empty_checks = 0;
             for _ in 0..2000 {
+                tokio::time::sleep(Duration::from_millis(2)).await;
                 if slave.bytes_to_read().unwrap_or(0) == 0 {
-                    break;
+                    empty_checks += 1;
+                    if empty_checks == 3 {
+                        break;
+                    }
+                } else {
+                    empty_checks = 0;
                 }
-                tokio::time::sleep(Duration::from_millis(1)).await;
             }
             break;
         }
