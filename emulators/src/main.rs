@@ -7,7 +7,10 @@ use protocol::Board;
 use std::path::PathBuf;
 
 #[derive(Parser)]
-#[command(name = "emulators", about = "Software devices for the gateway's buses, and test-data generators")]
+#[command(
+    name = "emulators",
+    about = "Software devices for the gateway's buses, and test-data generators"
+)]
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,
@@ -31,16 +34,124 @@ enum Cmd {
         #[arg(long, short)]
         out: PathBuf,
     },
+    /// Serve a GRBL 1.1 controller on a new pseudo-terminal, driving the simulated
+    /// machine; prints the port path (`/dev/pts/N`) and serves until killed.
+    Grbl {
+        /// Simulated machine file.
+        #[arg(long, default_value = "config/machines/c5-stage.toml")]
+        machine: PathBuf,
+        /// Board the camera sees (the rig's board; not used by the controller itself).
+        #[arg(long, default_value = "config/boards/dot-grid-0.5mm.toml")]
+        board: PathBuf,
+        /// Camera optics file.
+        #[arg(long, default_value = "config/cameras/mono-1.3mp.toml")]
+        camera: PathBuf,
+        /// Also create a symlink to the port at this path (stable name for senders).
+        #[arg(long)]
+        link: Option<PathBuf>,
+        /// Simulated seconds per wall second, or `unconstrained` (motion completes as
+        /// soon as anything depends on it).
+        #[arg(long, default_value = "1")]
+        time_scale: String,
+    },
+}
+
+fn parse_clock(s: &str) -> anyhow::Result<emulators::grbl::Clock> {
+    use emulators::grbl::Clock;
+    if s.eq_ignore_ascii_case("unconstrained") {
+        return Ok(Clock::Unconstrained);
+    }
+    let k: f64 = s
+        .parse()
+        .with_context(|| format!("--time-scale `{s}`: a positive number or `unconstrained`"))?;
+    anyhow::ensure!(
+        k.is_finite() && k > 0.0,
+        "--time-scale `{s}`: must be positive"
+    );
+    Ok(Clock::Scaled(k))
+}
+
+fn serve_grbl(
+    machine: PathBuf,
+    board: PathBuf,
+    camera: PathBuf,
+    link: Option<PathBuf>,
+    time_scale: String,
+) -> anyhow::Result<()> {
+    use emulators::grbl::{GrblConfig, GrblDevice, GrblPty};
+    use std::io::Write;
+    let clock = parse_clock(&time_scale)?;
+    let m = emulators::machine::MachineConfig::load(&machine)?;
+    let b = Board::load(&board)?;
+    let c = emulators::camera::CameraModel::load(&camera)?;
+    let rig = emulators::rig::SimRig::new(emulators::machine::SimMachine::new(m), b, c);
+    let rig = std::sync::Arc::new(std::sync::Mutex::new(rig));
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    rt.block_on(async move {
+        let dev = GrblDevice::new(
+            rig,
+            GrblConfig {
+                clock,
+                ..Default::default()
+            },
+        );
+        let mut pty =
+            GrblPty::spawn(dev, link.as_deref()).context("creating the pseudo-terminal")?;
+        println!("grbl: {}", pty.path());
+        if let Some(l) = pty.link() {
+            println!("link: {}", l.display());
+        }
+        std::io::stdout().flush()?;
+        pty.closed().await;
+        Ok(())
+    })
 }
 
 fn main() -> anyhow::Result<()> {
     match Cli::parse().cmd {
-        Cmd::MakeCertificate { board, seed, scale_ppm, bow_um, dot_sigma_um, out } => {
+        Cmd::Grbl {
+            machine,
+            board,
+            camera,
+            link,
+            time_scale,
+        } => serve_grbl(machine, board, camera, link, time_scale)?,
+        Cmd::MakeCertificate {
+            board,
+            seed,
+            scale_ppm,
+            bow_um,
+            dot_sigma_um,
+            out,
+        } => {
             let b = Board::load(&board)?;
-            let mut nominal = Board::nominal(&b.name, b.pitch_mm, b.dot_diameter_mm, b.polarity, b.cols, b.rows, b.origin_mm);
-            manufacture(&mut nominal, PlateErrors { scale_ppm, bow_um, dot_sigma_um }, seed);
-            std::fs::write(&out, nominal.certificate_csv()).with_context(|| format!("writing {}", out.display()))?;
-            println!("wrote {} ({} points)", out.display(), nominal.cols * nominal.rows);
+            let mut nominal = Board::nominal(
+                &b.name,
+                b.pitch_mm,
+                b.dot_diameter_mm,
+                b.polarity,
+                b.cols,
+                b.rows,
+                b.origin_mm,
+            );
+            manufacture(
+                &mut nominal,
+                PlateErrors {
+                    scale_ppm,
+                    bow_um,
+                    dot_sigma_um,
+                },
+                seed,
+            );
+            std::fs::write(&out, nominal.certificate_csv())
+                .with_context(|| format!("writing {}", out.display()))?;
+            println!(
+                "wrote {} ({} points)",
+                out.display(),
+                nominal.cols * nominal.rows
+            );
         }
     }
     Ok(())

@@ -1,0 +1,132 @@
+//! Interoperation with an independent GRBL client: a pyserial script written against
+//! GRBL's public interface (what UGS and CNCjs do at connect, then character-counting
+//! streaming) talks to the stand-alone `emulators grbl` binary over its pseudo-terminal.
+//! Skips, saying why, when python3 or pyserial is missing (CI installs pyserial).
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+
+fn workspace() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("..")
+        .canonicalize()
+        .unwrap()
+}
+
+/// The `emulators` binary next to this test's executable, built if missing.
+fn emulators_binary() -> PathBuf {
+    let exe = std::env::current_exe().unwrap();
+    let dir = exe.parent().and_then(Path::parent).unwrap().to_path_buf();
+    let bin = dir.join("emulators");
+    if !bin.exists() {
+        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+        let status = Command::new(cargo)
+            .args(["build", "-p", "emulators", "--bin", "emulators"])
+            .current_dir(workspace())
+            .status()
+            .expect("cargo build");
+        assert!(status.success(), "building the emulators binary failed");
+    }
+    bin
+}
+
+struct Kill(Child);
+impl Drop for Kill {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+#[test]
+fn pyserial_sender_connects_like_ugs_and_streams_by_character_counting() {
+    let probe = Command::new("python3")
+        .args(["-c", "import serial"])
+        .output();
+    match probe {
+        Err(e) => {
+            eprintln!("SKIPPED: python3 is not available ({e})");
+            return;
+        }
+        Ok(o) if !o.status.success() => {
+            eprintln!(
+                "SKIPPED: pyserial is not installed (python3 -m pip install pyserial): {}",
+                String::from_utf8_lossy(&o.stderr).trim()
+            );
+            return;
+        }
+        Ok(_) => {}
+    }
+    let dir = std::env::temp_dir().join(format!("grbl-interop-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let link = dir.join("ttyGRBL");
+    let child = Command::new(emulators_binary())
+        .args(["grbl", "--time-scale", "unconstrained", "--link"])
+        .arg(&link)
+        .current_dir(workspace())
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("start the emulator");
+    let mut child = Kill(child);
+    let mut first = String::new();
+    BufReader::new(child.0.stdout.as_mut().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    let pts = first
+        .trim()
+        .strip_prefix("grbl: ")
+        .unwrap_or_else(|| panic!("emulator printed {first:?}"));
+    assert!(pts.starts_with("/dev/pts/"), "{pts}");
+
+    // A 1500-line program (comments, blank lines, an arc) within the travel.
+    let mut prog = String::from("(interop test)\nG21 G90 G17\nG0 X5 Y5\n\n");
+    for i in 0..1500 {
+        prog.push_str(&format!(
+            "G1 X{:.3} Y{:.3} F4000 ; {i}\n",
+            5.0 + (i % 60) as f64 * 0.8,
+            5.0 + (i / 60) as f64 * 0.8
+        ));
+    }
+    prog.push_str("G0 X5 Y5\nG2 X20 Y5 I7.5 J0 F2000\nG4 P0.1\nM2\n");
+    let file = dir.join("prog.nc");
+    std::fs::write(&file, &prog).unwrap();
+
+    let script = workspace().join("tests/interop/grbl_sender.py");
+    let out = Command::new("python3")
+        .arg(&script)
+        .arg(&link)
+        .arg(&file)
+        .output()
+        .expect("run the sender");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "sender failed: {stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(stdout.trim()).unwrap_or_else(|e| panic!("{e}: {stdout}"));
+    let n = prog.lines().count() as u64;
+    assert_eq!(v["streamed"], n);
+    assert_eq!(v["acknowledged"], n);
+    assert_eq!(v["errors"].as_array().unwrap().len(), 0, "{v}");
+    assert_eq!(
+        v["first_state"], "Alarm",
+        "boots locked with homing enabled"
+    );
+    assert_eq!(v["rx_buffer"], 128);
+    assert_eq!(v["steps_per_mm_x"], 2000.0);
+    assert!(
+        v["version"].as_str().unwrap().starts_with("[VER:1.1h."),
+        "{v}"
+    );
+    assert!(
+        v["final_status"]
+            .as_str()
+            .unwrap()
+            .starts_with("<Idle|MPos:20.000,5.000,"),
+        "{v}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
