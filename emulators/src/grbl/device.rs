@@ -18,8 +18,8 @@
 //! Its reported position (MPos) comes from the machine's step counters divided by
 //! `$100`/`$101`, never from the truth. Time: [`Clock::Scaled`] runs motion at a multiple
 //! of the wall clock; [`Clock::Unconstrained`] completes motion as soon as anything
-//! depends on it (a status report, planner room, a buffer sync), so tests never wait on
-//! wall time for motion.
+//! depends on it (right after a status report, when the planner needs room, at a buffer
+//! sync), so tests never wait on wall time for motion.
 
 use crate::machine::MachineRefusal;
 use crate::rig::SimRig;
@@ -907,21 +907,20 @@ impl GrblDevice {
             return;
         }
         self.status_requested = false;
-        if self.cfg.clock == Clock::Unconstrained
-            && (self.running.is_some() || !self.planner.is_empty() || self.busy.is_some())
-        {
-            // Complete everything, then let the main loop take what was waiting,
-            // until nothing moves any more.
+        let line = self.status_line();
+        self.send(&line);
+        if self.cfg.clock == Clock::Unconstrained {
+            // The report shows the moment it was asked (a full planner shows as
+            // full); then everything queued runs to its end, and the main loop takes
+            // what was waiting, until nothing moves any more.
             for _ in 0..100_000 {
-                self.complete_all();
-                self.main_loop();
                 if self.running.is_none() && self.planner.is_empty() && self.busy.is_none() {
                     break;
                 }
+                self.complete_all();
+                self.main_loop();
             }
         }
-        let line = self.status_line();
-        self.send(&line);
     }
 
     fn status_line(&mut self) -> String {
@@ -1399,6 +1398,9 @@ mod tests {
         assert_eq!(h.status().state, MachineState::Alarm);
         assert_eq!(h.send(b"$H\n"), vec![Response::Ok]);
         assert_eq!(h.send(b"G1X10.00013Y5F3000\n"), vec![Response::Ok]);
+        // Unconstrained clock: the first report shows the move starting, then it runs.
+        let s = h.status();
+        assert_eq!((s.state, s.position[0]), (MachineState::Run, 0.0));
         let s = h.status();
         assert_eq!(s.state, MachineState::Idle);
         // 2000 steps/mm: 10.00013 mm is 20000.26 steps -> 20000 steps -> 10.000 mm.
