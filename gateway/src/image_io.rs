@@ -5,12 +5,8 @@ use std::path::Path;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ImageFileError {
-    #[error("{path}: cannot open: {source}")]
-    Open {
-        path: String,
-        #[source]
-        source: std::io::Error,
-    },
+    #[error("{path}: cannot open: {cause}")]
+    Open { path: String, cause: std::io::Error },
     #[error("{path}: not a readable image: {message}")]
     Decode { path: String, message: String },
     #[error("{path}: the image is {found}; the localizer needs 8- or 16-bit greyscale (convert colour frames to luminance first)")]
@@ -22,9 +18,9 @@ pub enum ImageFileError {
 pub fn load_png(path: &Path) -> Result<MonoImage, ImageFileError> {
     let p = path.display().to_string();
     let reader = image::ImageReader::open(path)
-        .map_err(|source| ImageFileError::Open { path: p.clone(), source })?
+        .map_err(|cause| ImageFileError::Open { path: p.clone(), cause })?
         .with_guessed_format()
-        .map_err(|source| ImageFileError::Open { path: p.clone(), source })?;
+        .map_err(|cause| ImageFileError::Open { path: p.clone(), cause })?;
     let img = reader
         .decode()
         .map_err(|e| ImageFileError::Decode { path: p.clone(), message: e.to_string() })?;

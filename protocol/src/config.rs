@@ -11,12 +11,10 @@ use std::path::{Path, PathBuf};
 /// A configuration problem, located as precisely as the file allows.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
-    #[error("{file}: cannot read: {source}")]
-    Io {
-        file: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
+    // The cause is part of the message (not a `source`), so it prints once however the
+    // error is displayed.
+    #[error("{file}: cannot read: {cause}")]
+    Io { file: PathBuf, cause: std::io::Error },
     #[error("{location}: {message}")]
     Invalid {
         location: Location,
@@ -73,9 +71,9 @@ pub struct ConfigDoc {
 
 impl ConfigDoc {
     pub fn read(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io {
+        let text = std::fs::read_to_string(path).map_err(|cause| ConfigError::Io {
             file: path.to_path_buf(),
-            source,
+            cause,
         })?;
         Ok(Self {
             name: path.display().to_string(),
