@@ -68,6 +68,18 @@ struct RawJob {
 enum RawStage {
     /// The in-process simulated machine.
     Sim { machine: String },
+    /// A GRBL controller on a serial port (`port`, `baud`), or with `emulate` (a
+    /// machine file) the GRBL emulator on a pseudo-terminal driving that machine.
+    Grbl {
+        port: Option<String>,
+        #[serde(default = "default_baud")]
+        baud: u32,
+        emulate: Option<String>,
+    },
+}
+
+fn default_baud() -> u32 {
+    115_200
 }
 
 #[derive(Deserialize)]
@@ -134,6 +146,8 @@ struct RawGrid {
 #[derive(Clone, Debug)]
 pub enum StageSpec {
     Sim { machine: MachineConfig },
+    /// GRBL over serial: a real port, or the emulator on a pseudo-terminal (`emulate`).
+    Grbl { port: Option<String>, baud: u32, emulate: Option<MachineConfig> },
 }
 
 #[derive(Clone, Debug)]
@@ -178,6 +192,22 @@ impl Job {
             RawStage::Sim { machine } => {
                 let m = doc.read_relative("stage.machine", &machine)?;
                 StageSpec::Sim { machine: MachineConfig::from_doc(&m)? }
+            }
+            RawStage::Grbl { port, baud, emulate } => {
+                if port.is_some() == emulate.is_some() {
+                    return Err(doc.invalid(
+                        "stage.port",
+                        "the grbl stage needs either `port` (a serial port) or `emulate` (a machine file for the GRBL emulator)",
+                    ));
+                }
+                if baud == 0 {
+                    return Err(doc.invalid("stage.baud", "must be a positive baud rate"));
+                }
+                let emulate = match emulate {
+                    Some(rel) => Some(MachineConfig::from_doc(&doc.read_relative("stage.emulate", &rel)?)?),
+                    None => None,
+                };
+                StageSpec::Grbl { port, baud, emulate }
             }
         };
         let camera = match raw.camera.driver.as_str() {

@@ -7,6 +7,7 @@
 
 pub mod config;
 pub mod correction;
+pub mod grbl_stage;
 pub mod image_io;
 pub mod localize;
 pub mod orchestrator;

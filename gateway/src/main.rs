@@ -5,7 +5,7 @@ use clap::{Parser, Subcommand};
 use gateway::config::Job;
 use gateway::localize::{localize, LocalizeParams, Method, PixelAxes};
 use gateway::report::Report;
-use gateway::run::{open_devices, run_job};
+use gateway::run::{open_devices_async, run_job};
 use indicatif::{ProgressBar, ProgressStyle};
 use protocol::Board;
 use serde_json::json;
@@ -31,6 +31,10 @@ enum Cmd {
         /// Localization method: fit (default) or four-point (the patent's formula).
         #[arg(long)]
         method: Option<String>,
+        /// Stage backend: `sim` (in-process) or `grbl` (the GRBL emulator on a real
+        /// pseudo-terminal, driven by the GRBL serial driver).
+        #[arg(long, default_value = "sim")]
+        stage: String,
     },
     /// Run the compensation job described by a configuration file.
     Compensate {
@@ -112,8 +116,13 @@ fn main() -> ExitCode {
 
 fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     match cli.cmd {
-        Cmd::Demo { json, method } => {
+        Cmd::Demo { json, method, stage } => {
             let mut job = Job::demo();
+            match stage.as_str() {
+                "sim" => {}
+                "grbl" => gateway::grbl_stage::over_grbl(&mut job)?,
+                other => anyhow::bail!("--stage `{other}`: this build knows sim and grbl"),
+            }
             if let Some(m) = method {
                 job.localize.method = parse_method(&m)?;
             }
@@ -164,7 +173,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
 
 fn compensate(job: Job, json: bool) -> anyhow::Result<ExitCode> {
     let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
-    let mut devices = open_devices(&job)?;
+    let mut devices = rt.block_on(open_devices_async(&job))?;
     let bar = if json { ProgressBar::hidden() } else { ProgressBar::new(job.targets.len() as u64) };
     bar.set_style(
         ProgressStyle::with_template("{spinner} compensating [{bar:30}] {pos}/{len} targets {elapsed}")

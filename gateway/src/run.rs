@@ -29,6 +29,19 @@ pub fn open_devices(job: &Job) -> Result<Devices, DriverError> {
                 rig: Some(rig),
             })
         }
+        (StageSpec::Grbl { .. }, _) => Err(DriverError::NotAvailable {
+            backend: "grbl".into(),
+            reason: "a GRBL stage is opened inside the async runtime: use run::open_devices_async".into(),
+        }),
+    }
+}
+
+/// Open the devices of any job, including those that need the async runtime to
+/// connect (GRBL). Call from inside the runtime that will run the job.
+pub async fn open_devices_async(job: &Job) -> Result<Devices, DriverError> {
+    match &job.stage {
+        StageSpec::Grbl { .. } => crate::grbl_stage::open(job).await,
+        StageSpec::Sim { .. } => open_devices(job),
     }
 }
 

@@ -1,0 +1,71 @@
+//! The demo job with its stage behind the GRBL emulator on a real pseudo-terminal,
+//! driven by the GRBL serial driver: the same figures as the in-process demo
+//! (`compensation.rs` holds the in-process run to the same bounds).
+
+use gateway::config::{Job, StageSpec};
+use gateway::grbl_stage::over_grbl;
+use gateway::run::{open_devices_async, run_job};
+
+fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap()
+}
+
+#[test]
+fn demo_over_grbl_compensates_to_within_a_micrometre_like_the_in_process_demo() {
+    let rt = runtime();
+    let mut job = Job::demo();
+    over_grbl(&mut job).unwrap();
+    assert!(matches!(
+        job.stage,
+        StageSpec::Grbl {
+            emulate: Some(_),
+            ..
+        }
+    ));
+    let report = rt.block_on(async {
+        let mut devices = open_devices_async(&job).await.unwrap();
+        assert!(
+            devices.stage.info().name.contains("GRBL 1.1h"),
+            "{}",
+            devices.stage.info().name
+        );
+        run_job(&job, &mut devices, &mut |_, _| {}).await
+    });
+    assert!(report.error.is_none(), "{:?}", report.error);
+    assert_eq!(report.converged, report.targets, "{}", report.to_text());
+    let before = report.before_um.unwrap();
+    let after = report.after_um.unwrap();
+    assert!(before.max >= 20.0, "uncompensated max {} um", before.max);
+    assert!(
+        after.max <= 1.0,
+        "compensated max {} um\n{}",
+        after.max,
+        report.to_text()
+    );
+}
+
+#[test]
+fn grbl_stage_config_needs_a_port_or_an_emulated_machine() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/gateway");
+    let job = Job::load(&dir.join("grbl-demo.toml")).unwrap();
+    assert!(matches!(
+        job.stage,
+        StageSpec::Grbl {
+            emulate: Some(_),
+            port: None,
+            baud: 115_200
+        }
+    ));
+    // A real port with the simulated camera is refused when opened, clearly.
+    let mut real = job.clone();
+    real.stage = StageSpec::Grbl {
+        port: Some("/dev/ttyUSB0".into()),
+        baud: 115_200,
+        emulate: None,
+    };
+    let e = runtime().block_on(open_devices_async(&real)).err().unwrap();
+    assert!(e.to_string().contains("simulated camera"), "{e}");
+}
