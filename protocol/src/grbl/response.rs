@@ -352,6 +352,39 @@ mod tests {
         assert_eq!(out.len(), 5);
     }
 
+    /// Random bytes (biased towards GRBL's own characters) never panic the decoder or
+    /// the parsers, and a clean line after a newline always decodes.
+    #[test]
+    fn random_input_never_panics_and_decoding_resynchronises() {
+        let alphabet =
+            b"<>|:,.-0123456789okerrorALARM[]MSG$=GrblIdleRunMPosWPosBfFSOvWCO\r\n \xff\x00";
+        let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        for _ in 0..2000 {
+            let n = (next() % 300) as usize;
+            let bytes: Vec<u8> = (0..n)
+                .map(|_| alphabet[(next() % alphabet.len() as u64) as usize])
+                .collect();
+            let mut d = LineDecoder::new();
+            let mut out = Vec::new();
+            for chunk in bytes.chunks(1 + (next() % 7) as usize) {
+                d.feed(chunk, &mut out);
+            }
+            let text = String::from_utf8_lossy(&bytes);
+            let _ = StatusReport::parse(&text);
+            let _ = crate::grbl::gcode::Interpreter::new()
+                .execute(&crate::grbl::gcode::filter_bytes(&bytes).0, false);
+            out.clear();
+            d.feed(b"\nok\r\n", &mut out);
+            assert_eq!(out.last(), Some(&Response::Ok), "{bytes:?}");
+        }
+    }
+
     #[test]
     fn banners_of_forks_and_non_banners() {
         assert!(matches!(
