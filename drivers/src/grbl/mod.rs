@@ -18,6 +18,9 @@ mod stream;
 pub use link::Transport;
 pub use stream::{StreamError, StreamOptions, StreamReport};
 
+#[cfg(test)]
+mod tests;
+
 use crate::error::DriverError;
 use crate::stage::{Axis, AxisInfo, AxisValues, Stage, StageInfo, StageState, StageStatus};
 use async_trait::async_trait;
