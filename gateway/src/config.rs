@@ -348,3 +348,33 @@ fn resolve_targets(doc: &ConfigDoc, t: &RawTargets, board: &Board) -> Result<Vec
     }
     Ok(out)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_embedded_demo_job_is_valid_and_spread_over_the_travel() {
+        let job = Job::demo();
+        assert!(job.targets.len() >= 25);
+        assert_eq!(job.board.certified_points, (job.board.cols * job.board.rows) as usize);
+        let StageSpec::Sim { machine } = &job.stage else { unreachable!("the demo job is simulated") };
+        let (tx, ty) = (machine.axes.x.travel_mm, machine.axes.y.travel_mm);
+        let cmds: Vec<[f64; 2]> = job.targets.iter().map(|t| job.command_for(*t)).collect();
+        let span = |k: usize| {
+            let v = cmds.iter().map(|c| c[k]);
+            v.clone().fold(f64::MIN, f64::max) - v.fold(f64::MAX, f64::min)
+        };
+        assert!(span(0) > 0.9 * tx && span(1) > 0.9 * ty);
+    }
+
+    #[test]
+    fn hint_tolerance_must_stay_below_half_the_pitch() {
+        let doc = ConfigDoc::embedded(DEMO_JOB, EMBEDDED).unwrap();
+        let mut doc = doc.clone();
+        doc.text = doc.text.replace("hint_tolerance_mm = 0.1", "hint_tolerance_mm = 0.3");
+        let e = Job::from_doc(&doc).unwrap_err().to_string();
+        assert!(e.contains("localize.hint_tolerance_mm") && e.contains("half the board pitch"), "{e}");
+        assert!(e.contains("demo.toml (built in):"), "{e}");
+    }
+}
