@@ -8,6 +8,7 @@ pub mod board;
 pub mod config;
 pub mod grbl;
 pub mod image;
+pub mod modbus;
 
 pub use board::{Board, Polarity};
 pub use config::ConfigError;
