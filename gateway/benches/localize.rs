@@ -1,1 +1,347 @@
-fn main() {}
+//! Localizer benchmark: speed on one core and accuracy over a sweep of camera conditions.
+//!
+//! `cargo bench -p gateway --bench localize`
+//!
+//! Frames are rendered once (by `emulators::render`, which also gives the true dot
+//! centres and the true position), then `localize()` is timed on the decoded frame, many
+//! times, and reported as median and 90th percentile. A plain pass over the same frame
+//! (summing every pixel) is timed the same way, so the ratio says how many "frame reads"
+//! the localizer costs independent of the machine. The machine may be shared: medians,
+//! not means.
+//!
+//! Set `LOCALIZE_BENCH_RUNS` to change the number of timed runs (default 101, at least
+//! 50) and `LOCALIZE_BENCH_ONLY=speed` or `=accuracy` to run one half.
+
+use emulators::camera::{CameraModel, CameraPose};
+use emulators::plate::{manufacture, PlateErrors};
+use emulators::render::{render, RenderedFrame};
+use gateway::localize::{detect_dots, localize, LocalizeParams, Method};
+use protocol::{Board, MonoImage, Pixels, Polarity};
+use std::hint::black_box;
+use std::path::Path;
+use std::time::Instant;
+
+fn board() -> Board {
+    let mut b = Board::nominal(
+        "bench",
+        0.5,
+        0.25,
+        Polarity::DarkOnLight,
+        200,
+        160,
+        [0.0, 0.0],
+    );
+    manufacture(&mut b, PlateErrors::default(), 11);
+    b
+}
+
+fn load_camera(file: &str) -> CameraModel {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../config/cameras")
+        .join(file);
+    match CameraModel::load(&path) {
+        Ok(c) => c,
+        Err(e) => panic!("cannot load {}: {e}", path.display()),
+    }
+}
+
+/// Sum of all pixels: the cheapest thing that reads the whole frame once (u32 partial
+/// sums per chunk so that the compiler vectorises it; a u64 running sum would make this
+/// "plain pass" several times slower than it needs to be and flatter the ratio).
+fn plain_pass(img: &MonoImage) -> u64 {
+    match &img.pixels {
+        Pixels::Mono8(p) => p
+            .chunks(1 << 16)
+            .map(|c| c.iter().map(|&v| v as u32).sum::<u32>() as u64)
+            .sum(),
+        Pixels::Mono16(p) => p
+            .chunks(1 << 15)
+            .map(|c| c.iter().map(|&v| v as u32).sum::<u32>() as u64)
+            .sum(),
+    }
+}
+
+/// (median, p90) in milliseconds of `runs` timed calls.
+fn time_ms(runs: usize, mut f: impl FnMut()) -> (f64, f64) {
+    f(); // warm caches
+    let mut t: Vec<f64> = (0..runs)
+        .map(|_| {
+            let s = Instant::now();
+            f();
+            s.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    t.sort_by(|a, b| a.total_cmp(b));
+    (t[t.len() / 2], t[(t.len() * 9 / 10).min(t.len() - 1)])
+}
+
+fn speed(runs: usize) {
+    println!("== speed (one core, release, frame already decoded; {runs} runs each) ==");
+    let b = board();
+    let cams = [
+        ("mono-1.3mp.toml", None),
+        ("mono-5mp.toml", None),
+        ("mono-5mp.toml", Some(8u8)),
+    ];
+    for (file, bits) in cams {
+        let mut cam = load_camera(file);
+        if let Some(bits) = bits {
+            cam.bit_depth = bits;
+            cam.noise_sigma = 2.3;
+        }
+        let truth = [40.1234, 30.5678];
+        let f = render(
+            &b,
+            &cam,
+            &CameraPose {
+                centre_mm: truth,
+                rotation_rad: 0.0,
+            },
+            5,
+        );
+        let mut p = LocalizeParams::new([truth[0] + 0.02, truth[1] - 0.03]);
+        p.um_per_px = Some(cam.um_per_px);
+        let o = match localize(&f.image, &b, &p) {
+            Ok(o) => o,
+            Err(e) => {
+                println!("{file}: localize failed: {e}");
+                continue;
+            }
+        };
+        let err = (o.x_mm - truth[0]).hypot(o.y_mm - truth[1]) * 1e3;
+        let (loc_med, loc_p90) = time_ms(runs, || {
+            black_box(localize(black_box(&f.image), &b, &p).ok());
+        });
+        let (det_med, _) = time_ms(runs, || {
+            black_box(detect_dots(black_box(&f.image), Polarity::DarkOnLight));
+        });
+        let (sum_med, sum_p90) = time_ms(runs, || {
+            black_box(plain_pass(black_box(&f.image)));
+        });
+        let p_none = LocalizeParams {
+            um_per_px: None,
+            ..p.clone()
+        };
+        let (none_med, _) = time_ms(runs, || {
+            black_box(localize(black_box(&f.image), &b, &p_none).ok());
+        });
+        println!(
+            "{}x{} {:>2}-bit ({} dots used, error {:.4} um): localize median {:.3} ms, p90 {:.3} ms \
+             (of which detect_dots {:.3} ms; without nominal scale {:.3} ms) | plain pass median {:.3} ms, p90 {:.3} ms | ratio localize/plain {:.1}",
+            cam.width,
+            cam.height,
+            f.image.bit_depth(),
+            o.points,
+            err,
+            loc_med,
+            loc_p90,
+            det_med,
+            none_med,
+            sum_med,
+            sum_p90,
+            loc_med / sum_med
+        );
+    }
+}
+
+/// Dot-centre errors (px) of one frame against the renderer's true centres.
+fn dot_errors(f: &RenderedFrame) -> Vec<f64> {
+    let dots = detect_dots(&f.image, Polarity::DarkOnLight);
+    dots.iter()
+        .filter_map(|d| {
+            let e = f
+                .dots
+                .iter()
+                .map(|t| (t.centre_px[0] - d.x).hypot(t.centre_px[1] - d.y))
+                .fold(f64::INFINITY, f64::min);
+            (e < 2.0).then_some(e)
+        })
+        .collect()
+}
+
+#[derive(Default)]
+struct Stats {
+    dot_sq: f64,
+    dots: usize,
+    fit: Vec<f64>,
+    four: Vec<f64>,
+    refused: usize,
+}
+
+impl Stats {
+    fn add(&mut self, o: &Stats) {
+        self.dot_sq += o.dot_sq;
+        self.dots += o.dots;
+        self.fit.extend(&o.fit);
+        self.four.extend(&o.four);
+        self.refused += o.refused;
+    }
+    fn dot_rms(&self) -> f64 {
+        (self.dot_sq / self.dots.max(1) as f64).sqrt()
+    }
+}
+
+fn mean(v: &[f64]) -> f64 {
+    v.iter().sum::<f64>() / v.len().max(1) as f64
+}
+
+fn max(v: &[f64]) -> f64 {
+    v.iter().copied().fold(0.0, f64::max)
+}
+
+fn accuracy() {
+    println!();
+    println!("== accuracy: 1280x1024 8-bit, 4 um/px, pitch 0.5 mm, dots 0.25 mm, gradient 0.15, vignetting 0.05, certified plate ==");
+    println!("   errors against the renderer's truth; centre errors are the 2-D distance, um; 3 sub-pixel poses per row");
+    let b = board();
+    let poses = [[40.1234, 30.5678], [40.3101, 30.4417], [40.0625, 30.1876]];
+    println!(
+        "{:>7} {:>5} {:>6} {:>5} | {:>12} | {:>9} {:>9} | {:>9} {:>9}",
+        "rot_deg",
+        "blur",
+        "noise",
+        "dist",
+        "dot_rms_px",
+        "fit_mean",
+        "fit_max",
+        "4pt_mean",
+        "4pt_max"
+    );
+    let mut all = Stats::default();
+    let mut by_rot: Vec<(f64, Stats)> = Vec::new();
+    for rot in [0.0, 0.5, 1.0, 2.0] {
+        let mut rs = Stats::default();
+        for blur in [0.7, 1.5] {
+            for noise in [2.0, 4.0] {
+                for dist in [0.0, 1.6] {
+                    let mut cam = load_camera("mono-1.3mp.toml");
+                    cam.rotation_deg = rot;
+                    cam.blur_sigma_px = blur;
+                    cam.noise_sigma = noise;
+                    cam.distortion_px_at_corner = dist;
+                    cam.illumination_gradient = 0.15;
+                    cam.vignetting = 0.05;
+                    let mut s = Stats::default();
+                    for (k, truth) in poses.iter().enumerate() {
+                        let f = render(
+                            &b,
+                            &cam,
+                            &CameraPose {
+                                centre_mm: *truth,
+                                rotation_rad: 0.0,
+                            },
+                            100 + k as u64,
+                        );
+                        for e in dot_errors(&f) {
+                            s.dot_sq += e * e;
+                            s.dots += 1;
+                        }
+                        let hint = [truth[0] - 0.04, truth[1] + 0.05];
+                        let mut p = LocalizeParams::new(hint);
+                        p.um_per_px = Some(4.0);
+                        match localize(&f.image, &b, &p) {
+                            Ok(o) => s
+                                .fit
+                                .push((o.x_mm - truth[0]).hypot(o.y_mm - truth[1]) * 1e3),
+                            Err(e) => {
+                                println!("   refused (fit): {e}");
+                                s.refused += 1;
+                            }
+                        }
+                        p.method = Method::FourPoint;
+                        match localize(&f.image, &b, &p) {
+                            Ok(o) => s
+                                .four
+                                .push((o.x_mm - truth[0]).hypot(o.y_mm - truth[1]) * 1e3),
+                            Err(e) => {
+                                println!("   refused (four-point): {e}");
+                                s.refused += 1;
+                            }
+                        }
+                    }
+                    println!(
+                        "{:>7.1} {:>5.1} {:>6.1} {:>5.1} | {:>12.4} | {:>9.4} {:>9.4} | {:>9.3} {:>9.3}",
+                        rot,
+                        blur,
+                        noise,
+                        dist,
+                        s.dot_rms(),
+                        mean(&s.fit),
+                        max(&s.fit),
+                        mean(&s.four),
+                        max(&s.four)
+                    );
+                    rs.add(&s);
+                }
+            }
+        }
+        all.add(&rs);
+        by_rot.push((rot, rs));
+    }
+    println!();
+    println!("per rotation (four-point bias grows with rotation; the fit does not):");
+    for (rot, s) in &by_rot {
+        println!(
+            "  rotation {rot:.1} deg: dot RMS {:.4} px | fit mean {:.4} um, max {:.4} um | four-point mean {:.3} um, max {:.3} um",
+            s.dot_rms(),
+            mean(&s.fit),
+            max(&s.fit),
+            mean(&s.four),
+            max(&s.four)
+        );
+    }
+    println!(
+        "overall ({} frames, {} dots): dot RMS {:.4} px (2-D; per axis {:.4} px) | fit mean {:.4} um, max {:.4} um | four-point mean {:.3} um, max {:.3} um | refused {}",
+        all.fit.len(),
+        all.dots,
+        all.dot_rms(),
+        all.dot_rms() / std::f64::consts::SQRT_2,
+        mean(&all.fit),
+        max(&all.fit),
+        mean(&all.four),
+        max(&all.four),
+        all.refused
+    );
+}
+
+fn main() {
+    // `cargo bench` passes `--bench`; accept and ignore harness-style arguments.
+    let runs: usize = std::env::var("LOCALIZE_BENCH_RUNS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(101);
+    let only = std::env::var("LOCALIZE_BENCH_ONLY").unwrap_or_default();
+    if only == "loop" {
+        // For `perf stat`: localize the 5 MP 16-bit frame `runs` times, nothing else.
+        let b = board();
+        let cam =
+            load_camera(&std::env::var("LOCALIZE_BENCH_CAMERA").unwrap_or("mono-5mp.toml".into()));
+        let truth = [40.1234, 30.5678];
+        let f = render(
+            &b,
+            &cam,
+            &CameraPose {
+                centre_mm: truth,
+                rotation_rad: 0.0,
+            },
+            5,
+        );
+        let mut p = LocalizeParams::new(truth);
+        p.um_per_px = Some(cam.um_per_px);
+        let t = Instant::now();
+        for _ in 0..runs {
+            black_box(localize(black_box(&f.image), &b, &p).ok());
+        }
+        println!(
+            "loop: {:.3} ms per call (wall)",
+            t.elapsed().as_secs_f64() * 1e3 / runs as f64
+        );
+        return;
+    }
+    if only != "accuracy" {
+        speed(runs.max(50));
+    }
+    if only != "speed" {
+        accuracy();
+    }
+}

@@ -1,0 +1,258 @@
+//! Identification: which board point is each dot.
+//!
+//! The dots alone give a lattice up to an integer offset. The lattice (two basis
+//! vectors) comes from nearest-neighbour differences; integer lattice indices are grown
+//! outwards from the dot nearest the image centre through each dot's near neighbours,
+//! and checked against one affine lattice-to-pixel model so that a dot off the lattice
+//! (dirt, a noise blob) or a wrong step cannot keep an index. The integer offset on the
+//! board is chosen later, from the hint (see `super::choose_offset`).
+
+use super::detect::{median, SpatialGrid};
+
+/// Two lattice basis vectors in pixels: `u` is the one nearest image +x, `v` the one
+/// nearest image +y.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Lattice {
+    pub u: [f64; 2],
+    pub v: [f64; 2],
+    /// Angle of `u` from image +x, radians, in image coordinates (y down).
+    pub theta: f64,
+}
+
+/// Affine model `pixel = t + a U + b V` of lattice index (a, b).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Affine {
+    pub t: [f64; 2],
+    pub u: [f64; 2],
+    pub v: [f64; 2],
+}
+
+impl Affine {
+    /// Real lattice coordinates of a pixel position.
+    pub(crate) fn inverse(&self, p: [f64; 2]) -> Option<[f64; 2]> {
+        let det = self.u[0] * self.v[1] - self.u[1] * self.v[0];
+        if det.abs() < 1e-12 {
+            return None;
+        }
+        let d = [p[0] - self.t[0], p[1] - self.t[1]];
+        Some([
+            (d[0] * self.v[1] - d[1] * self.v[0]) / det,
+            (self.u[0] * d[1] - self.u[1] * d[0]) / det,
+        ])
+    }
+
+    fn apply(&self, a: f64, b: f64) -> [f64; 2] {
+        [
+            self.t[0] + a * self.u[0] + b * self.v[0],
+            self.t[1] + a * self.u[1] + b * self.v[1],
+        ]
+    }
+}
+
+/// Neighbour lists shared by lattice estimation and indexing.
+pub(crate) struct Neighbours {
+    pub lists: Vec<Vec<(f64, usize)>>,
+}
+
+pub(crate) fn neighbours(pts: &[[f64; 2]], cell: f64) -> Neighbours {
+    let grid = SpatialGrid::new(pts, cell);
+    Neighbours {
+        lists: (0..pts.len())
+            .map(|i| grid.knn(pts, i, 8, f64::MAX))
+            .collect(),
+    }
+}
+
+/// Estimate the lattice basis. Err explains why the dots do not form a square grid.
+pub(crate) fn estimate_lattice(pts: &[[f64; 2]], nb: &Neighbours) -> Result<Lattice, String> {
+    let mut first: Vec<f64> = nb
+        .lists
+        .iter()
+        .filter_map(|l| l.first().map(|e| e.0))
+        .collect();
+    let nn = median(&mut first).ok_or_else(|| "fewer than two dots".to_string())?;
+    // Axis neighbours are at one pitch, diagonal ones at 1.41 pitch.
+    let reach = 1.25 * nn;
+    let mut vecs: Vec<[f64; 2]> = Vec::new();
+    let (mut c4, mut s4) = (0.0, 0.0);
+    for (i, l) in nb.lists.iter().enumerate() {
+        for &(d, j) in l {
+            if d <= reach && d > 0.0 {
+                let dv = [pts[j][0] - pts[i][0], pts[j][1] - pts[i][1]];
+                let phi = dv[1].atan2(dv[0]);
+                c4 += (4.0 * phi).cos();
+                s4 += (4.0 * phi).sin();
+                vecs.push(dv);
+            }
+        }
+    }
+    if vecs.len() < 4 {
+        return Err(format!(
+            "only {} neighbour pairs among {} dots",
+            vecs.len() / 2,
+            pts.len()
+        ));
+    }
+    // The square lattice is 90° symmetric: average 4φ to get its orientation.
+    let coherence = (c4 * c4 + s4 * s4).sqrt() / vecs.len() as f64;
+    if coherence < 0.7 {
+        return Err(format!(
+            "the {} dots do not form a square grid (neighbour directions agree only {:.0} %)",
+            pts.len(),
+            coherence * 100.0
+        ));
+    }
+    let theta = s4.atan2(c4) / 4.0;
+    let (u0, v0) = ([theta.cos(), theta.sin()], [-theta.sin(), theta.cos()]);
+    let (mut su, mut sv, mut nu, mut nv) = ([0.0; 2], [0.0; 2], 0.0, 0.0);
+    for d in &vecs {
+        let pu = d[0] * u0[0] + d[1] * u0[1];
+        let pv = d[0] * v0[0] + d[1] * v0[1];
+        if pu.abs() >= pv.abs() {
+            let sg = pu.signum();
+            su = [su[0] + sg * d[0], su[1] + sg * d[1]];
+            nu += 1.0;
+        } else {
+            let sg = pv.signum();
+            sv = [sv[0] + sg * d[0], sv[1] + sg * d[1]];
+            nv += 1.0;
+        }
+    }
+    if nu < 1.0 || nv < 1.0 {
+        return Err(format!("the {} dots form a line, not a grid", pts.len()));
+    }
+    let u = [su[0] / nu, su[1] / nu];
+    let v = [sv[0] / nv, sv[1] / nv];
+    let (lu, lv) = (u[0].hypot(u[1]), v[0].hypot(v[1]));
+    if (lu / lv - 1.0).abs() > 0.15 {
+        return Err(format!(
+            "the dot spacing differs between the two grid directions ({lu:.1} px and {lv:.1} px): not a square grid"
+        ));
+    }
+    Ok(Lattice { u, v, theta })
+}
+
+/// Lattice index of every dot (None when not on the lattice), relative to the dot
+/// nearest `centre` (index (0, 0)), plus the affine lattice model fitted to them.
+pub(crate) fn index_dots(
+    pts: &[[f64; 2]],
+    nb: &Neighbours,
+    lat: &Lattice,
+    centre: [f64; 2],
+) -> Option<(Vec<Option<[i64; 2]>>, Affine)> {
+    let n = pts.len();
+    let start = (0..n).min_by(|&a, &b| {
+        let da = (pts[a][0] - centre[0]).powi(2) + (pts[a][1] - centre[1]).powi(2);
+        let db = (pts[b][0] - centre[0]).powi(2) + (pts[b][1] - centre[1]).powi(2);
+        da.total_cmp(&db)
+    })?;
+    let aff0 = Affine {
+        t: pts[start],
+        u: lat.u,
+        v: lat.v,
+    };
+    let mut idx: Vec<Option<[i64; 2]>> = vec![None; n];
+    let mut conflict = vec![false; n];
+    idx[start] = Some([0, 0]);
+    let mut queue = std::collections::VecDeque::from([start]);
+    while let Some(i) = queue.pop_front() {
+        let Some(ii) = idx[i] else { continue };
+        for &(_, j) in &nb.lists[i] {
+            let rel = Affine { t: pts[i], ..aff0 };
+            let Some(ab) = rel.inverse(pts[j]) else {
+                continue;
+            };
+            let (ra, rb) = (ab[0].round(), ab[1].round());
+            // Steps of up to two pitches (so a missing dot does not cut the growth),
+            // landing within 0.3 pitch of a lattice node.
+            if (ab[0] - ra).abs() > 0.3
+                || (ab[1] - rb).abs() > 0.3
+                || ra.abs() > 2.0
+                || rb.abs() > 2.0
+            {
+                continue;
+            }
+            let want = [ii[0] + ra as i64, ii[1] + rb as i64];
+            match idx[j] {
+                None => {
+                    idx[j] = Some(want);
+                    queue.push_back(j);
+                }
+                Some(have) if have != want => conflict[j] = true,
+                _ => {}
+            }
+        }
+    }
+    for k in 0..n {
+        if conflict[k] {
+            idx[k] = None;
+        }
+    }
+
+    // One affine model for all indexed dots; a dot whose position does not round back
+    // to its own index is not on the lattice. Two passes: the second without the
+    // rejected dots.
+    for _ in 0..2 {
+        let aff = fit_affine(pts, &idx)?;
+        let tol = 0.25;
+        for k in 0..n {
+            if let Some(ab) = idx[k] {
+                let q = aff.inverse(pts[k])?;
+                if (q[0] - ab[0] as f64).abs() > tol || (q[1] - ab[1] as f64).abs() > tol {
+                    idx[k] = None;
+                }
+            }
+        }
+    }
+    // Two dots on one index: neither can be trusted.
+    let mut seen: std::collections::HashMap<[i64; 2], usize> = std::collections::HashMap::new();
+    let mut dup = vec![false; n];
+    for k in 0..n {
+        if let Some(ab) = idx[k] {
+            if let Some(&other) = seen.get(&ab) {
+                dup[k] = true;
+                dup[other] = true;
+            } else {
+                seen.insert(ab, k);
+            }
+        }
+    }
+    for k in 0..n {
+        if dup[k] {
+            idx[k] = None;
+        }
+    }
+    let aff = fit_affine(pts, &idx)?;
+    Some((idx, aff))
+}
+
+/// Least-squares affine lattice model over the indexed dots.
+fn fit_affine(pts: &[[f64; 2]], idx: &[Option<[i64; 2]>]) -> Option<Affine> {
+    let mut ata = nalgebra::Matrix3::<f64>::zeros();
+    let mut atx = nalgebra::Vector3::<f64>::zeros();
+    let mut aty = nalgebra::Vector3::<f64>::zeros();
+    let mut count = 0;
+    for (p, ab) in pts.iter().zip(idx) {
+        if let Some(ab) = ab {
+            let r = nalgebra::Vector3::new(1.0, ab[0] as f64, ab[1] as f64);
+            ata += r * r.transpose();
+            atx += r * p[0];
+            aty += r * p[1];
+            count += 1;
+        }
+    }
+    if count < 3 {
+        return None;
+    }
+    let inv = ata.try_inverse()?;
+    let cx = inv * atx;
+    let cy = inv * aty;
+    let aff = Affine {
+        t: [cx[0], cy[0]],
+        u: [cx[1], cy[1]],
+        v: [cx[2], cy[2]],
+    };
+    // Degenerate (all dots on one line) shows up as a vanishing determinant.
+    aff.inverse(aff.apply(0.0, 0.0))?;
+    Some(aff)
+}
