@@ -5,9 +5,13 @@
 //! every data file gets the same error reporting (file, line, key).
 
 pub mod board;
+pub mod can;
+pub mod canopen;
+pub mod cia402;
 pub mod config;
 pub mod grbl;
 pub mod image;
+pub mod slcan;
 pub mod modbus;
 
 pub use board::{Board, Polarity};
