@@ -7,6 +7,7 @@
 pub mod camera;
 pub mod grbl;
 pub mod machine;
+pub mod modbus;
 pub mod plate;
 pub mod render;
 pub mod rig;

@@ -1,0 +1,558 @@
+//! Modbus positioning drives on the simulated machine, sans-IO: a request PDU and the
+//! wall time go in, a response PDU comes out, and moves happen on the shared
+//! [`SimMachine`](crate::machine::SimMachine).
+//!
+//! Several unit ids (one per drive) share one machine; each unit is mapped to machine
+//! axis X or Y. The registers are the ones a [`DriveProfile`] names, with the profile's
+//! types and word order:
+//! * a read of any address the profile does not name is answered with exception 02
+//!   (illegal data address), as is a write to a register that is not writable (status,
+//!   position, alarm code) or a write that splits a 32-bit register;
+//! * functions other than 3, 4, 6 and 16 get exception 01 (illegal function); bad
+//!   quantities, a trigger or command value the profile does not know, or a move with
+//!   no speed get exception 03 (illegal data value), and nothing is written;
+//! * writing the move block's trigger value starts an absolute move of the unit's axis
+//!   (the other axis keeps going to its own target), counted in [`ModbusStats`];
+//! * commands act on their rising edge (profiles with `release`) or on every write of
+//!   their value (trigger-register style);
+//! * a move before homing or beyond the travel puts the unit in alarm with the
+//!   profile's codes, until an alarm reset.
+//!
+//! Time: [`Clock::Scaled`] runs motion at a multiple of the wall clock;
+//! [`Clock::Unconstrained`] completes motion and homing right after a read of a
+//! status or position register has been answered (so the first poll after a start
+//! sees the drive busy, the next sees it arrived), and tests never wait on wall time.
+
+use crate::grbl::{Clock, SharedRig};
+use crate::machine::MachineRefusal;
+use crate::rig::SimRig;
+use protocol::modbus::frame::{Exception, Request, Response};
+use protocol::modbus::profile::{DriveProfile, Register, Table};
+use std::collections::{BTreeMap, HashMap};
+use std::sync::{Arc, MutexGuard};
+
+/// Which machine axis a unit drives.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MachineAxis {
+    X,
+    Y,
+}
+
+impl MachineAxis {
+    fn index(self) -> usize {
+        match self {
+            MachineAxis::X => 0,
+            MachineAxis::Y => 1,
+        }
+    }
+}
+
+/// Counters for tests, benchmarks and the stand-alone binary.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct ModbusStats {
+    /// Requests addressed to a served unit (or broadcast).
+    pub requests: u64,
+    pub exceptions: u64,
+    /// Moves started, per unit id: a duplicated or lost trigger shows here.
+    pub triggers: BTreeMap<u8, u64>,
+    pub homings: u64,
+    pub stops: u64,
+    pub alarm_resets: u64,
+    /// Frames dropped by the RTU server for a bad CRC.
+    pub crc_errors: u64,
+    /// Replies dropped, corrupted or delayed by fault injection.
+    pub faults_applied: u64,
+}
+
+impl ModbusStats {
+    pub fn triggers_of(&self, unit: u8) -> u64 {
+        self.triggers.get(&unit).copied().unwrap_or(0)
+    }
+}
+
+#[derive(Clone, Debug)]
+struct Unit {
+    id: u8,
+    axis: MachineAxis,
+    /// Contents of the writable registers (move block and command registers).
+    memory: HashMap<u16, u16>,
+    alarm: Option<u32>,
+    /// Moving on its own command (cleared when the machine stops).
+    active: bool,
+    /// Latched target, drive counts.
+    target: Option<i64>,
+    /// Simulated seconds of homing left (busy meanwhile).
+    homing_left_s: f64,
+}
+
+/// The drives of one bus (or one TCP gateway) on one simulated machine.
+pub struct DriveSet {
+    rig: SharedRig,
+    profile: Arc<DriveProfile>,
+    clock: Clock,
+    units: Vec<Unit>,
+    last_wall: Option<f64>,
+    stats: ModbusStats,
+}
+
+fn lock(rig: &SharedRig) -> MutexGuard<'_, SimRig> {
+    rig.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+enum Action {
+    Home,
+    Stop,
+    AlarmReset,
+}
+
+/// What a read of one register returns, for the status registers that are computed.
+enum Source {
+    Memory,
+    Status,
+    Actual,
+    AlarmCode,
+    Readback,
+}
+
+impl DriveSet {
+    /// Drives with these unit ids (1..=247) on these axes. Panics on a duplicate or
+    /// out-of-range unit id (a configuration error of the caller, checked by the CLI).
+    pub fn new(
+        rig: SharedRig,
+        profile: Arc<DriveProfile>,
+        units: &[(u8, MachineAxis)],
+        clock: Clock,
+    ) -> Self {
+        let mut seen = Vec::new();
+        for (id, _) in units {
+            assert!((1..=247).contains(id), "unit id {id} is outside 1..=247");
+            assert!(!seen.contains(id), "unit id {id} given twice");
+            seen.push(*id);
+        }
+        let units = units
+            .iter()
+            .map(|&(id, axis)| Unit {
+                id,
+                axis,
+                memory: HashMap::new(),
+                alarm: None,
+                active: false,
+                target: None,
+                homing_left_s: 0.0,
+            })
+            .collect();
+        Self {
+            rig,
+            profile,
+            clock,
+            units,
+            last_wall: None,
+            stats: ModbusStats::default(),
+        }
+    }
+
+    pub fn profile(&self) -> &DriveProfile {
+        &self.profile
+    }
+
+    pub fn unit_ids(&self) -> Vec<u8> {
+        self.units.iter().map(|u| u.id).collect()
+    }
+
+    pub fn serves(&self, unit: u8) -> bool {
+        self.units.iter().any(|u| u.id == unit)
+    }
+
+    pub fn stats(&self) -> &ModbusStats {
+        &self.stats
+    }
+
+    pub fn stats_mut(&mut self) -> &mut ModbusStats {
+        &mut self.stats
+    }
+
+    /// Answer one request PDU addressed to `unit` at wall time `now` (seconds, any
+    /// origin). `None`: no reply (a unit not served here, or a broadcast, which the
+    /// served units execute silently).
+    pub fn handle(&mut self, unit: u8, pdu: &[u8], now: f64) -> Option<Vec<u8>> {
+        self.tick(now);
+        if unit == 0 {
+            // Broadcast: writes act on every unit, nothing is answered.
+            self.stats.requests += 1;
+            if let Ok(req @ (Request::WriteSingle { .. } | Request::WriteMultiple { .. })) =
+                Request::parse(pdu)
+            {
+                for k in 0..self.units.len() {
+                    let _ = self.execute(k, &req);
+                }
+            }
+            return None;
+        }
+        let k = self.units.iter().position(|u| u.id == unit)?;
+        self.stats.requests += 1;
+        let response = match Request::parse(pdu) {
+            Err((function, exception)) => Response::Exception {
+                function,
+                exception,
+            },
+            Ok(req) => match self.execute(k, &req) {
+                Ok(r) => r,
+                Err(exception) => Response::Exception {
+                    function: req.function(),
+                    exception,
+                },
+            },
+        };
+        if matches!(response, Response::Exception { .. }) {
+            self.stats.exceptions += 1;
+        }
+        Some(response.encode())
+    }
+
+    fn tick(&mut self, now: f64) {
+        let dt = self.last_wall.map_or(0.0, |t| (now - t).max(0.0));
+        self.last_wall = Some(now);
+        if let Clock::Scaled(k) = self.clock {
+            let dt = dt * k;
+            lock(&self.rig).machine.advance(dt);
+            for u in &mut self.units {
+                u.homing_left_s = (u.homing_left_s - dt).max(0.0);
+            }
+        }
+        let moving = lock(&self.rig).machine.is_moving();
+        if !moving {
+            for u in &mut self.units {
+                u.active = false;
+            }
+        }
+    }
+
+    /// Unconstrained clock: run motion and homing to their end.
+    fn complete(&mut self) {
+        if self.clock == Clock::Unconstrained {
+            lock(&self.rig).machine.finish_motion();
+            for u in &mut self.units {
+                u.active = false;
+                u.homing_left_s = 0.0;
+            }
+        }
+    }
+
+    fn source(&self, r: &Register) -> Source {
+        let p = &self.profile;
+        if *r == p.status.reg {
+            Source::Status
+        } else if *r == p.position {
+            Source::Actual
+        } else if p.alarm_code.as_ref() == Some(r) {
+            Source::AlarmCode
+        } else if *r == p.readback && p.readback != p.motion.position {
+            Source::Readback
+        } else {
+            Source::Memory
+        }
+    }
+
+    fn find(&self, table: Table, address: u16) -> Option<&Register> {
+        self.profile
+            .registers()
+            .into_iter()
+            .find(|r| r.contains(table, address))
+    }
+
+    fn execute(&mut self, k: usize, req: &Request) -> Result<Response, Exception> {
+        match req {
+            Request::ReadHolding { address, count } => {
+                self.read(k, Table::Holding, *address, *count, 3)
+            }
+            Request::ReadInput { address, count } => {
+                self.read(k, Table::Input, *address, *count, 4)
+            }
+            Request::WriteSingle { address, value } => {
+                self.write(k, *address, &[*value])?;
+                Ok(Response::WroteSingle {
+                    address: *address,
+                    value: *value,
+                })
+            }
+            Request::WriteMultiple { address, values } => {
+                self.write(k, *address, values)?;
+                Ok(Response::WroteMultiple {
+                    address: *address,
+                    count: values.len() as u16,
+                })
+            }
+            Request::Other { .. } => Err(Exception::IllegalFunction),
+        }
+    }
+
+    fn read(
+        &mut self,
+        k: usize,
+        table: Table,
+        address: u16,
+        count: u16,
+        function: u8,
+    ) -> Result<Response, Exception> {
+        if address as u32 + count as u32 > 0x1_0000 {
+            return Err(Exception::IllegalDataAddress);
+        }
+        let mut values = Vec::with_capacity(count as usize);
+        let mut live = false;
+        let mut a = address as u32;
+        let end = address as u32 + count as u32;
+        while a < end {
+            let r = self
+                .find(table, a as u16)
+                .ok_or(Exception::IllegalDataAddress)?
+                .clone();
+            let source = self.source(&r);
+            live |= matches!(source, Source::Status | Source::Actual);
+            let words = self.register_words(k, &r, source);
+            for (i, w) in words.iter().enumerate() {
+                let at = r.address as u32 + i as u32;
+                if at >= a && at < end {
+                    values.push(*w);
+                }
+            }
+            a = r.last() as u32 + 1;
+        }
+        let response = Response::Registers { function, values };
+        if live {
+            self.complete();
+        }
+        Ok(response)
+    }
+
+    fn register_words(&self, k: usize, r: &Register, source: Source) -> Vec<u16> {
+        let u = &self.units[k];
+        let p = &self.profile;
+        let value: i64 = match source {
+            Source::Memory => {
+                return (0..r.words())
+                    .map(|i| u.memory.get(&(r.address + i)).copied().unwrap_or(0))
+                    .collect();
+            }
+            Source::Status => self.status_word(k) as i64,
+            Source::Actual => {
+                let mm = lock(&self.rig).machine.position_mm()[u.axis.index()];
+                p.counts(mm)
+            }
+            Source::AlarmCode => u.alarm.unwrap_or(0) as i64,
+            Source::Readback => u.target.unwrap_or(0),
+        };
+        // Values that do not fit (a position beyond an i16 register) wrap as a
+        // drive's own counter would.
+        let (min, max) = r.ty.range();
+        let span = max - min + 1;
+        let v = (value - min).rem_euclid(span) + min;
+        r.encode(v).unwrap_or_else(|_| vec![0; r.words() as usize])
+    }
+
+    fn status_word(&self, k: usize) -> u32 {
+        let u = &self.units[k];
+        let s = &self.profile.status;
+        let (homed, counts) = {
+            let r = lock(&self.rig);
+            (
+                r.machine.is_homed(),
+                self.profile.counts(r.machine.position_mm()[u.axis.index()]),
+            )
+        };
+        let busy = u.active || u.homing_left_s > 0.0;
+        let in_pos = !busy && u.target.is_none_or(|t| (t - counts).abs() <= 1);
+        let mut w = 0;
+        let mut set = |m: Option<u32>, on: bool| {
+            if let (Some(m), true) = (m, on) {
+                w |= m;
+            }
+        };
+        set(s.ready, u.alarm.is_none() && !busy);
+        set(s.busy, busy);
+        set(s.in_position, in_pos);
+        set(Some(s.alarm), u.alarm.is_some());
+        set(s.home_done, homed);
+        w
+    }
+
+    fn write(&mut self, k: usize, address: u16, values: &[u16]) -> Result<(), Exception> {
+        let p = self.profile.clone();
+        let end = address as u32 + values.len() as u32;
+        if end > 0x1_0000 {
+            return Err(Exception::IllegalDataAddress);
+        }
+        // Every register touched must be writable and written whole.
+        let writable = |r: &Register| {
+            p.motion.position == *r
+                || p.motion.trigger.reg == *r
+                || p.motion.fixed.iter().any(|f| f.reg == *r)
+                || [&p.motion.speed, &p.motion.accel, &p.motion.decel]
+                    .into_iter()
+                    .flatten()
+                    .any(|s| s.reg == *r)
+                || p.commands().iter().any(|c| c.reg.address == r.address)
+        };
+        let mut touched: Vec<Register> = Vec::new();
+        let mut a = address as u32;
+        while a < end {
+            let r = self
+                .find(Table::Holding, a as u16)
+                .ok_or(Exception::IllegalDataAddress)?
+                .clone();
+            if !writable(&r) || (r.address as u32) < address as u32 || r.last() as u32 >= end {
+                return Err(Exception::IllegalDataAddress);
+            }
+            a = r.last() as u32 + 1;
+            touched.push(r);
+        }
+        let new_value = |r: &Register| {
+            let at = (r.address - address) as usize;
+            r.decode(&values[at..at + r.words() as usize])
+        };
+        let u = &self.units[k];
+        let old_value = |r: &Register| {
+            let w: Vec<u16> = (0..r.words())
+                .map(|i| u.memory.get(&(r.address + i)).copied().unwrap_or(0))
+                .collect();
+            r.decode(&w)
+        };
+        // Check values before anything is written (an exception means "not done").
+        let mut start = false;
+        let mut actions: Vec<Action> = Vec::new();
+        for r in &touched {
+            let v = new_value(r);
+            if *r == p.motion.trigger.reg {
+                if v == p.motion.trigger.value {
+                    start = true;
+                } else if v != 0 {
+                    return Err(Exception::IllegalDataValue);
+                }
+            }
+            let cmds: Vec<_> = p
+                .commands()
+                .into_iter()
+                .filter(|c| c.reg.address == r.address)
+                .collect();
+            if cmds.is_empty() {
+                continue;
+            }
+            let edge = cmds.iter().any(|c| c.release.is_some());
+            let old = old_value(r);
+            if !edge && v != 0 && !cmds.iter().any(|c| c.value == v) {
+                return Err(Exception::IllegalDataValue);
+            }
+            for c in cmds {
+                let acts = if edge {
+                    (v & !old) & c.value == c.value
+                } else {
+                    v == c.value
+                };
+                if acts {
+                    actions.push(if std::ptr::eq(c, &p.home) {
+                        Action::Home
+                    } else if std::ptr::eq(c, &p.stop) {
+                        Action::Stop
+                    } else {
+                        Action::AlarmReset
+                    });
+                }
+            }
+        }
+        if start {
+            // The speed the move will use: from this write or from memory.
+            if let Some(s) = &p.motion.speed {
+                let raw = if touched.contains(&s.reg) {
+                    new_value(&s.reg)
+                } else {
+                    old_value(&s.reg)
+                };
+                if raw <= 0 {
+                    return Err(Exception::IllegalDataValue);
+                }
+            }
+        }
+        let u = &mut self.units[k];
+        for (i, v) in values.iter().enumerate() {
+            u.memory.insert(address + i as u16, *v);
+        }
+        for a in actions {
+            match a {
+                Action::Home => self.home(k),
+                Action::Stop => self.stop(),
+                Action::AlarmReset => {
+                    self.units[k].alarm = None;
+                    self.stats.alarm_resets += 1;
+                }
+            }
+        }
+        if start {
+            self.start_move(k);
+        }
+        Ok(())
+    }
+
+    fn home(&mut self, k: usize) {
+        let took = {
+            let mut r = lock(&self.rig);
+            r.machine.stop();
+            let t0 = r.machine.now_s();
+            r.machine.home();
+            r.machine.now_s() - t0
+        };
+        for u in &mut self.units {
+            u.active = false;
+            u.target = None;
+        }
+        self.units[k].homing_left_s = took.max(1e-6);
+        self.stats.homings += 1;
+    }
+
+    fn stop(&mut self) {
+        lock(&self.rig).machine.stop();
+        for u in &mut self.units {
+            u.active = false;
+        }
+        self.stats.stops += 1;
+    }
+
+    fn start_move(&mut self, k: usize) {
+        let p = self.profile.clone();
+        let u = &self.units[k];
+        *self.stats.triggers.entry(u.id).or_insert(0) += 1;
+        if u.alarm.is_some() {
+            // A drive in alarm does not start.
+            return;
+        }
+        let word = |r: &Register| -> i64 {
+            let w: Vec<u16> = (0..r.words())
+                .map(|i| u.memory.get(&(r.address + i)).copied().unwrap_or(0))
+                .collect();
+            r.decode(&w)
+        };
+        let target = word(&p.motion.position);
+        let speed_mm_s = match &p.motion.speed {
+            Some(s) => p.mechanics.from_register(s.unit, word(&s.reg) as f64),
+            None => p.max_speed_mm_min / 60.0,
+        };
+        let axis = u.axis.index();
+        let mut to = lock(&self.rig).machine.position_mm();
+        // The other axis keeps heading for its own target.
+        for o in &self.units {
+            if o.active && o.axis != u.axis {
+                if let Some(t) = o.target {
+                    to[o.axis.index()] = p.mm(t);
+                }
+            }
+        }
+        to[axis] = p.mm(target);
+        let result = lock(&self.rig).machine.start_move(to, speed_mm_s * 60.0);
+        let u = &mut self.units[k];
+        u.target = Some(target);
+        match result {
+            Ok(_) => u.active = true,
+            Err(MachineRefusal::NotHomed) => u.alarm = Some(p.not_homed_code),
+            Err(MachineRefusal::OutOfTravel { .. }) => u.alarm = Some(p.overtravel_code),
+            Err(MachineRefusal::BadFeed(_)) => u.alarm = Some(p.overtravel_code),
+        }
+    }
+}
