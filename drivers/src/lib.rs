@@ -13,6 +13,8 @@
 pub mod camera;
 pub mod error;
 pub mod grbl;
+#[cfg(feature = "modbus")]
+pub mod modbus;
 pub mod multi_axis;
 #[cfg(feature = "sim")]
 pub mod sim;
