@@ -30,6 +30,8 @@ use tokio_serial::SerialStream;
 /// What a fault does to a reply.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Fault {
+    /// Lose the request on its way: not executed, not answered.
+    DropRequest,
     /// Execute the request, send nothing.
     DropReply,
     /// Execute, send a reply the client must reject (RTU: bad CRC; TCP: another
@@ -128,7 +130,9 @@ impl ModbusDevice {
     fn serve(&self, unit: u8, pdu: &[u8]) -> Option<(Vec<u8>, Option<Fault>)> {
         let now = self.t0.elapsed().as_secs_f64();
         let mut set = self.drives();
-        let reply = set.handle(unit, pdu, now)?;
+        if !set.serves(unit) && unit != 0 {
+            return None;
+        }
         let function = pdu.first().copied().unwrap_or(0);
         let fault = {
             let mut rules = self.faults.lock().unwrap_or_else(|p| p.into_inner());
@@ -137,6 +141,10 @@ impl ModbusDevice {
         if fault.is_some() {
             set.stats_mut().faults_applied += 1;
         }
+        if fault == Some(Fault::DropRequest) {
+            return None;
+        }
+        let reply = set.handle(unit, pdu, now)?;
         Some((reply, fault))
     }
 }
@@ -241,7 +249,7 @@ async fn serve_tcp_connection(device: Arc<ModbusDevice>, mut s: TcpStream) {
         };
         let mut tid = h.transaction;
         match fault {
-            Some(Fault::DropReply) => continue,
+            Some(Fault::DropReply | Fault::DropRequest) => continue,
             Some(Fault::CorruptReply) => tid = tid.wrapping_add(0x5A5A),
             Some(Fault::SlowReply(d)) => tokio::time::sleep(d).await,
             None => {}
@@ -373,7 +381,7 @@ async fn serve_rtu(
             };
             let mut out = rtu_frame(unit, &reply);
             match fault {
-                Some(Fault::DropReply) => continue,
+                Some(Fault::DropReply | Fault::DropRequest) => continue,
                 Some(Fault::CorruptReply) => {
                     let last = out.len() - 1;
                     out[last] ^= 0x01;

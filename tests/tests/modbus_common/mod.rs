@@ -1,0 +1,112 @@
+//! Shared set-up of the Modbus system tests: a simulated rig, the drive emulator on a
+//! TCP port of the loopback interface or on a real pseudo-terminal, and the driver.
+
+#![allow(dead_code)]
+
+use drivers::modbus::{Endpoint, ModbusAxis, ModbusAxisConfig, ModbusBus, ModbusOptions, Parity};
+use drivers::Axis;
+use emulators::camera::CameraModel;
+use emulators::grbl::{Clock, SharedRig};
+use emulators::machine::{MachineConfig, SimMachine};
+use emulators::modbus::{DriveSet, MachineAxis, ModbusDevice, ModbusRtu, ModbusTcp};
+use emulators::rig::SimRig;
+use protocol::modbus::DriveProfile;
+use protocol::Board;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+pub fn config_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../config")
+}
+
+pub fn rig() -> SharedRig {
+    let d = config_dir();
+    let m = MachineConfig::load(&d.join("machines/c5-stage.toml")).unwrap();
+    let c = CameraModel::load(&d.join("cameras/mono-1.3mp.toml")).unwrap();
+    let b = Board::load(&d.join("boards/dot-grid-0.5mm.toml")).unwrap();
+    Arc::new(Mutex::new(SimRig::new(SimMachine::new(m), b, c)))
+}
+
+pub fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap()
+}
+
+pub fn profile(name: &str) -> Arc<DriveProfile> {
+    Arc::new(DriveProfile::load(&config_dir().join(format!("drives/{name}.toml"))).unwrap())
+}
+
+/// The drives `units` (id, axis) of `profile` on the rig, motion unconstrained.
+pub fn device(
+    rig: &SharedRig,
+    profile: &Arc<DriveProfile>,
+    units: &[(u8, MachineAxis)],
+) -> Arc<ModbusDevice> {
+    ModbusDevice::new(DriveSet::new(
+        rig.clone(),
+        profile.clone(),
+        units,
+        Clock::Unconstrained,
+    ))
+}
+
+pub async fn tcp(device: &Arc<ModbusDevice>) -> ModbusTcp {
+    ModbusTcp::bind(device.clone(), "127.0.0.1:0".parse().unwrap())
+        .await
+        .unwrap()
+}
+
+pub fn rtu(device: &Arc<ModbusDevice>) -> ModbusRtu {
+    ModbusRtu::spawn(device.clone(), None).expect("pseudo-terminal")
+}
+
+/// Short deadlines: a broken test fails in seconds, and fault tests stay fast.
+pub fn options() -> ModbusOptions {
+    ModbusOptions {
+        timeout: Duration::from_millis(150),
+        retries: 2,
+        connect_timeout: Duration::from_secs(2),
+        motion_timeout: Duration::from_secs(10),
+        poll_interval: Duration::from_millis(1),
+        rtu_gap: None,
+        rtu_quiet: None,
+    }
+}
+
+pub fn rtu_endpoint(path: &str) -> Endpoint {
+    Endpoint::Rtu {
+        path: path.to_string(),
+        baud: 115_200,
+        parity: Parity::None,
+    }
+}
+
+pub fn axis_cfg(axis: Axis, unit: u8) -> ModbusAxisConfig {
+    let max_mm = if axis == Axis::X { 200.0 } else { 150.0 };
+    ModbusAxisConfig {
+        axis,
+        unit,
+        min_mm: 0.0,
+        max_mm,
+        max_feed_mm_min: None,
+    }
+}
+
+/// One axis on its own bus.
+pub async fn axis(
+    endpoint: Endpoint,
+    profile: &Arc<DriveProfile>,
+    axis: Axis,
+    unit: u8,
+) -> ModbusAxis {
+    let bus = ModbusBus::new(endpoint, options()).shared();
+    ModbusAxis::new(bus, profile.clone(), &axis_cfg(axis, unit)).await
+}
+
+/// The controller's counts of the simulated machine, in mm.
+pub fn machine_mm(rig: &SharedRig) -> [f64; 2] {
+    rig.lock().unwrap().machine.position_mm()
+}
