@@ -54,6 +54,10 @@ enum Cmd {
         #[arg(long, default_value = "1")]
         time_scale: String,
     },
+    /// Serve Modbus positioning drives (a profile's register map, several unit ids)
+    /// driving the simulated machine, over TCP and/or RTU on a new pseudo-terminal;
+    /// prints the address or port path and serves until killed.
+    Modbus(emulators::modbus::cli::ModbusArgs),
 }
 
 fn parse_clock(s: &str) -> anyhow::Result<emulators::grbl::Clock> {
@@ -111,6 +115,7 @@ fn serve_grbl(
 
 fn main() -> anyhow::Result<()> {
     match Cli::parse().cmd {
+        Cmd::Modbus(args) => emulators::modbus::cli::serve(args)?,
         Cmd::Grbl {
             machine,
             board,

@@ -3,6 +3,7 @@
 //! (sans-IO), [`server`] serves them on a TCP socket and on a real pseudo-terminal,
 //! with fault injection.
 
+pub mod cli;
 pub mod device;
 pub mod server;
 
