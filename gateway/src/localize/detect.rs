@@ -911,8 +911,8 @@ fn level_relation(preps: &[Prep]) -> (f64, f64) {
 /// 4 grey levels of noise it moves the centre by ~0.002 px, and on bright-on-dark
 /// boards, where `B-o` is small, by ~0.01 px), while real illumination (gradient,
 /// vignetting) is smooth: so `g` is fitted as a low-order polynomial in frame position
-/// (quadratic with >= 40 dots, linear with >= 12, constant with >= 3), with outliers
-/// (dirt in a ring) trimmed.
+/// (quadratic with >= 30 dots, linear with >= 6), with outliers (dirt in a ring)
+/// trimmed.
 fn smooth_gradients(preps: &[Prep], o: f64, size: [f64; 2]) -> Vec<[f64; 2]> {
     // Per-dot estimates with variances.
     let est: Vec<([f64; 2], [f64; 2])> = preps
@@ -943,12 +943,13 @@ fn smooth_gradients(preps: &[Prep], o: f64, size: [f64; 2]) -> Vec<[f64; 2]> {
         })
         .collect();
     let n = preps.len();
-    let nterms = if n >= 40 {
+    // Vignetting makes g vary linearly across the frame, so never less than a plane;
+    // with very few dots (which are then large, with precise rings of their own) use
+    // each dot's own estimate.
+    let nterms = if n >= 30 {
         6
-    } else if n >= 12 {
+    } else if n >= 6 {
         3
-    } else if n >= 3 {
-        1
     } else {
         return est.iter().map(|e| e.0).collect();
     };

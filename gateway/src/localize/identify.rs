@@ -256,3 +256,68 @@ fn fit_affine(pts: &[[f64; 2]], idx: &[Option<[i64; 2]>]) -> Option<Affine> {
     aff.inverse(aff.apply(0.0, 0.0))?;
     Some(aff)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A rotated, slightly distorted lattice with holes and strays.
+    fn scene() -> (Vec<[f64; 2]>, Vec<Option<[i64; 2]>>) {
+        let (s, t) = (125.0, 3f64.to_radians());
+        let mut pts = Vec::new();
+        let mut truth = Vec::new();
+        for b in -4..=4 {
+            for a in -5..=5 {
+                if (a, b) == (2, 1) || (a, b) == (-3, -2) {
+                    continue; // missing dots
+                }
+                let (x, y) = (a as f64 * s, b as f64 * s);
+                let f = 1.0 + 2e-9 * (x * x + y * y);
+                pts.push([
+                    640.0 + 30.0 + f * (t.cos() * x - t.sin() * y),
+                    512.0 - 20.0 + f * (t.sin() * x + t.cos() * y),
+                ]);
+                truth.push(Some([a, b]));
+            }
+        }
+        // Strays between lattice nodes.
+        pts.push([640.0 + 30.0 + 0.5 * s, 512.0 - 20.0 + 0.45 * s]);
+        truth.push(None);
+        pts.push([100.0, 980.0]);
+        truth.push(None);
+        (pts, truth)
+    }
+
+    #[test]
+    fn indexes_a_rotated_lattice_with_holes_and_rejects_strays() {
+        let (pts, truth) = scene();
+        let nb = neighbours(&pts, 250.0);
+        let lat = estimate_lattice(&pts, &nb).unwrap();
+        assert!((lat.theta.to_degrees() - 3.0).abs() < 0.1, "{lat:?}");
+        let (idx, aff) = index_dots(&pts, &nb, &lat, [639.5, 511.5]).unwrap();
+        // Index (0, 0) is the dot nearest the centre; compare up to that offset.
+        let r = truth[idx.iter().position(|i| *i == Some([0, 0])).unwrap()].unwrap();
+        for (got, want) in idx.iter().zip(&truth) {
+            assert_eq!(*got, want.map(|w| [w[0] - r[0], w[1] - r[1]]));
+        }
+        let c = aff.inverse([639.5, 511.5]).unwrap();
+        assert!(
+            (c[0] + r[0] as f64 + 0.24).abs() < 0.02 && (c[1] + r[1] as f64 - 0.16).abs() < 0.02,
+            "{c:?}"
+        );
+    }
+
+    #[test]
+    fn refuses_dots_that_are_not_a_square_grid() {
+        let pts: Vec<[f64; 2]> = (0..40)
+            .map(|k| [(k * 37 % 400) as f64 * 3.1, (k * 91 % 300) as f64 * 2.7])
+            .collect();
+        let nb = neighbours(&pts, 100.0);
+        assert!(estimate_lattice(&pts, &nb).is_err());
+        let stretched: Vec<[f64; 2]> = (0..30)
+            .map(|k| [(k % 6) as f64 * 100.0, (k / 6) as f64 * 120.0])
+            .collect();
+        let e = estimate_lattice(&stretched, &neighbours(&stretched, 200.0)).unwrap_err();
+        assert!(e.contains("spacing differs"), "{e}");
+    }
+}

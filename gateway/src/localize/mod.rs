@@ -424,7 +424,12 @@ pub fn localize(
             board_mm: board.dot_diameter_mm,
         });
     }
-    let rot = lat.theta.to_degrees();
+    // Lattice angle (image coordinates, y down) as a rotation on the board, the same
+    // convention as `Observation::rotation_deg`: the sign flips with the handedness of
+    // the pixel axes.
+    let (ex, ey) = (p.pixel_axes.image_x.unit(), p.pixel_axes.image_y.unit());
+    let handed = -(ex[0] * ey[1] - ex[1] * ey[0]) as f64;
+    let rot = handed * lat.theta.to_degrees();
     if rot.abs() > MAX_ROTATION_DEG {
         return Err(LocalizeError::RotationOutOfRange {
             measured_deg: rot,
@@ -450,7 +455,6 @@ pub fn localize(
     let ac = aff
         .inverse(centre)
         .ok_or_else(|| LocalizeError::Degenerate("the dot grid has no extent".to_string()))?;
-    let (ex, ey) = (p.pixel_axes.image_x.unit(), p.pixel_axes.image_y.unit());
     // Board index offset of the image centre from the reference dot, in pitches.
     let off = [
         ac[0] * ex[0] as f64 + ac[1] * ey[0] as f64,
