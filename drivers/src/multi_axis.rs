@@ -49,7 +49,13 @@ impl MultiAxisStage {
             }
             axes.push(d.info().clone());
         }
-        Ok(Self { info: StageInfo { name: name.to_string(), axes }, drives })
+        Ok(Self {
+            info: StageInfo {
+                name: name.to_string(),
+                axes,
+            },
+            drives,
+        })
     }
 
     fn drive_mut(&mut self, a: Axis) -> Option<&mut Box<dyn AxisDrive>> {
@@ -81,7 +87,11 @@ impl Stage for MultiAxisStage {
         for (a, v, d) in deltas {
             // Each axis gets its share of the path feed (at least a small floor so a
             // zero-length axis move is still a valid command).
-            let speed = if length > 0.0 { (feed_mm_min * d / length).max(1.0) } else { feed_mm_min };
+            let speed = if length > 0.0 {
+                (feed_mm_min * d / length).max(1.0)
+            } else {
+                feed_mm_min
+            };
             let drive = self.drive_mut(a).ok_or_else(|| DriverError::Unsupported {
                 device: "stage".into(),
                 message: format!("no drive for axis {a}"),

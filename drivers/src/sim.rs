@@ -81,7 +81,10 @@ impl Stage for SimStage {
             target.get(Axis::X).unwrap_or(here[0]),
             target.get(Axis::Y).unwrap_or(here[1]),
         ];
-        r.machine.start_move(to, feed_mm_min).map(|_| ()).map_err(refusal)
+        r.machine
+            .start_move(to, feed_mm_min)
+            .map(|_| ())
+            .map_err(refusal)
     }
 
     async fn position(&mut self) -> Result<AxisValues, DriverError> {
@@ -110,7 +113,10 @@ impl Stage for SimStage {
         } else {
             StageState::Idle
         };
-        Ok(StageStatus { state, position: AxisValues::xy(p[0], p[1]) })
+        Ok(StageStatus {
+            state,
+            position: AxisValues::xy(p[0], p[1]),
+        })
     }
 }
 

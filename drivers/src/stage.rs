@@ -61,7 +61,9 @@ impl AxisValues {
 
     /// The axes that have a value, in X..C order.
     pub fn iter(&self) -> impl Iterator<Item = (Axis, f64)> + '_ {
-        Axis::ALL.into_iter().filter_map(|a| self.get(a).map(|v| (a, v)))
+        Axis::ALL
+            .into_iter()
+            .filter_map(|a| self.get(a).map(|v| (a, v)))
     }
 
     pub fn is_empty(&self) -> bool {

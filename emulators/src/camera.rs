@@ -90,16 +90,25 @@ impl CameraModel {
         if !(m.um_per_px > 0.0 && m.um_per_px.is_finite()) {
             return Err(bad("um_per_px", "must be positive"));
         }
-        for (k, v) in [("background_level", m.background_level), ("dot_level", m.dot_level)] {
+        for (k, v) in [
+            ("background_level", m.background_level),
+            ("dot_level", m.dot_level),
+        ] {
             if !(0.0..=1.0).contains(&v) {
                 return Err(bad(k, "must be a fraction of full scale, 0..1"));
             }
         }
         if (m.background_level - m.dot_level).abs() < 0.05 {
-            return Err(bad("dot_level", "dots need at least 5 % contrast against the background"));
+            return Err(bad(
+                "dot_level",
+                "dots need at least 5 % contrast against the background",
+            ));
         }
         if m.blur_sigma_px < 0.0 || m.noise_sigma < 0.0 || m.vignetting < 0.0 {
-            return Err(bad("blur_sigma_px", "blur, noise and vignetting cannot be negative"));
+            return Err(bad(
+                "blur_sigma_px",
+                "blur, noise and vignetting cannot be negative",
+            ));
         }
         Ok(m)
     }
@@ -135,7 +144,10 @@ impl CameraModel {
         let (ex, ey) = self.axes(pose);
         let v = [b[0] - pose.centre_mm[0], b[1] - pose.centre_mm[1]];
         let s = self.um_per_px / 1000.0;
-        let d = [(v[0] * ex[0] + v[1] * ex[1]) / s, (v[0] * ey[0] + v[1] * ey[1]) / s];
+        let d = [
+            (v[0] * ex[0] + v[1] * ex[1]) / s,
+            (v[0] * ey[0] + v[1] * ey[1]) / s,
+        ];
         let f = 1.0 + self.distortion_k() * (d[0] * d[0] + d[1] * d[1]);
         let c = self.centre();
         [c[0] + d[0] * f, c[1] + d[1] * f]
@@ -200,16 +212,28 @@ mod tests {
     #[test]
     fn centre_maps_to_pose_and_round_trips() {
         let m = model();
-        let pose = CameraPose { centre_mm: [10.0, 20.0], rotation_rad: 1e-4 };
+        let pose = CameraPose {
+            centre_mm: [10.0, 20.0],
+            rotation_rad: 1e-4,
+        };
         let c = m.board_to_pixel(&pose, [10.0, 20.0]);
         assert!((c[0] - 639.5).abs() < 1e-12 && (c[1] - 511.5).abs() < 1e-12);
         for p in [[0.0, 0.0], [1279.0, 1023.0], [100.0, 900.0]] {
             let b = m.pixel_to_board(&pose, p);
             let q = m.board_to_pixel(&pose, b);
-            assert!((p[0] - q[0]).abs() < 1e-9 && (p[1] - q[1]).abs() < 1e-9, "{p:?} {q:?}");
+            assert!(
+                (p[0] - q[0]).abs() < 1e-9 && (p[1] - q[1]).abs() < 1e-9,
+                "{p:?} {q:?}"
+            );
         }
         // A board point 1 mm towards +y appears above the centre (smaller image y).
-        let up = m.board_to_pixel(&CameraPose { centre_mm: [0.0, 0.0], rotation_rad: -m.rotation_deg.to_radians() }, [0.0, 1.0]);
+        let up = m.board_to_pixel(
+            &CameraPose {
+                centre_mm: [0.0, 0.0],
+                rotation_rad: -m.rotation_deg.to_radians(),
+            },
+            [0.0, 1.0],
+        );
         assert!((up[1] - (511.5 - 250.0)).abs() < 0.5, "{up:?}");
     }
 

@@ -59,7 +59,9 @@ pub fn lead_tolerance_um(class: LeadClass, travel_mm: f64) -> Option<f64> {
         LeadClass::C3 => 3,
         LeadClass::C5 => 4,
     };
-    ROWS.iter().find(|(upto, _)| travel_mm <= *upto).map(|(_, v)| v[col])
+    ROWS.iter()
+        .find(|(upto, _)| travel_mm <= *upto)
+        .map(|(_, v)| v[col])
 }
 
 #[derive(Clone, Debug, Deserialize)]
@@ -208,14 +210,22 @@ impl Wander {
         let mut terms: Vec<(f64, f64, f64)> = (0..n)
             .map(|k| {
                 let cycles = rng.range(0.3, max_cycles.max(0.4)) + k as f64 * 0.2;
-                (rng.range(0.5, 1.0) / (k + 1) as f64, cycles, rng.range(0.0, 2.0 * PI))
+                (
+                    rng.range(0.5, 1.0) / (k + 1) as f64,
+                    cycles,
+                    rng.range(0.0, 2.0 * PI),
+                )
             })
             .collect();
         // Normalise so the peak over [0, 1] is 1.
         let peak = (0..=400)
             .map(|i| {
                 let u = i as f64 / 400.0;
-                terms.iter().map(|(a, c, p)| a * (2.0 * PI * c * u + p).sin()).sum::<f64>().abs()
+                terms
+                    .iter()
+                    .map(|(a, c, p)| a * (2.0 * PI * c * u + p).sin())
+                    .sum::<f64>()
+                    .abs()
             })
             .fold(0.0, f64::max)
             .max(1e-9);
@@ -226,7 +236,10 @@ impl Wander {
     }
 
     fn at(&self, u: f64) -> f64 {
-        self.terms.iter().map(|(a, c, p)| a * (2.0 * PI * c * u + p).sin()).sum()
+        self.terms
+            .iter()
+            .map(|(a, c, p)| a * (2.0 * PI * c * u + p).sin())
+            .sum()
     }
 }
 
@@ -244,7 +257,8 @@ struct AxisErrors {
 
 impl AxisErrors {
     fn draw(rng: &mut Rng, a: &AxisConfig) -> Self {
-        let tol = lead_tolerance_um(a.lead_class, a.travel_mm).unwrap_or(0.0) * a.lead_tolerance_use;
+        let tol =
+            lead_tolerance_um(a.lead_class, a.travel_mm).unwrap_or(0.0) * a.lead_tolerance_use;
         let sign = if rng.uniform() < 0.5 { -1.0 } else { 1.0 };
         Self {
             lead_slope_um: sign * tol * rng.range(0.6, 0.75),
@@ -302,7 +316,15 @@ impl Motion {
         } else {
             (feed_mm_s, 2.0 * t_acc + (length - 2.0 * d_acc) / feed_mm_s)
         };
-        Self { from, to, length, v, a: accel, elapsed: 0.0, duration }
+        Self {
+            from,
+            to,
+            length,
+            v,
+            a: accel,
+            elapsed: 0.0,
+            duration,
+        }
     }
 
     /// Distance along the path after `t` seconds.
@@ -337,7 +359,11 @@ impl Motion {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum MachineRefusal {
     #[error("axis {axis}: target {target_mm:.4} mm is outside the travel 0..{travel_mm} mm")]
-    OutOfTravel { axis: char, target_mm: f64, travel_mm: f64 },
+    OutOfTravel {
+        axis: char,
+        target_mm: f64,
+        travel_mm: f64,
+    },
     #[error("the machine is not homed")]
     NotHomed,
     #[error("feed {0} mm/min is not positive")]
@@ -366,7 +392,12 @@ impl SimMachine {
             AxisErrors::draw(&mut err_rng, &cfg.axes.x),
             AxisErrors::draw(&mut err_rng, &cfg.axes.y),
         ];
-        let axis = AxisState { counts: 0, home_offset_mm: 0.0, carriage_mm: 0.0, settle_um: 0.0 };
+        let axis = AxisState {
+            counts: 0,
+            home_offset_mm: 0.0,
+            carriage_mm: 0.0,
+            settle_um: 0.0,
+        };
         Self {
             cfg,
             rng,
@@ -446,7 +477,11 @@ impl SimMachine {
 
     /// Start a straight-line move to a controller position (mm, machine coordinates).
     /// The position is quantised to counts as a real controller does.
-    pub fn start_move(&mut self, target_mm: [f64; 2], feed_mm_min: f64) -> Result<f64, MachineRefusal> {
+    pub fn start_move(
+        &mut self,
+        target_mm: [f64; 2],
+        feed_mm_min: f64,
+    ) -> Result<f64, MachineRefusal> {
         if !self.homed {
             return Err(MachineRefusal::NotHomed);
         }
@@ -456,7 +491,11 @@ impl SimMachine {
         for (k, name) in [(0, 'X'), (1, 'Y')] {
             let travel = self.axis_cfg(k).travel_mm;
             if !(target_mm[k] >= 0.0 && target_mm[k] <= travel) {
-                return Err(MachineRefusal::OutOfTravel { axis: name, target_mm: target_mm[k], travel_mm: travel });
+                return Err(MachineRefusal::OutOfTravel {
+                    axis: name,
+                    target_mm: target_mm[k],
+                    travel_mm: travel,
+                });
             }
         }
         self.finish_motion();
@@ -464,7 +503,13 @@ impl SimMachine {
             (target_mm[0] * self.cfg.axes.x.counts_per_mm).round() / self.cfg.axes.x.counts_per_mm,
             (target_mm[1] * self.cfg.axes.y.counts_per_mm).round() / self.cfg.axes.y.counts_per_mm,
         ];
-        let feed = (feed_mm_min.min(self.cfg.axes.x.max_feed_mm_min.min(self.cfg.axes.y.max_feed_mm_min))) / 60.0;
+        let feed = (feed_mm_min.min(
+            self.cfg
+                .axes
+                .x
+                .max_feed_mm_min
+                .min(self.cfg.axes.y.max_feed_mm_min),
+        )) / 60.0;
         let accel = self.cfg.axes.x.accel_mm_s2.min(self.cfg.axes.y.accel_mm_s2);
         let m = Motion::new(self.position_mm(), to, feed, accel);
         let d = m.duration;
@@ -476,7 +521,9 @@ impl SimMachine {
     pub fn advance(&mut self, dt_s: f64) {
         let dt = dt_s.max(0.0);
         self.now_s += dt;
-        let Some(mut m) = self.motion.take() else { return };
+        let Some(mut m) = self.motion.take() else {
+            return;
+        };
         m.elapsed += dt;
         let p = m.point_at(m.elapsed);
         self.set_counts_from_mm(p);
@@ -525,7 +572,12 @@ impl SimMachine {
         let a = self.axis_cfg(k);
         let u = counts as f64 / a.counts_per_mm + self.axes[k].home_offset_mm;
         let thermal = match &self.cfg.thermal {
-            Some(t) => t.expansion_per_k * t.screw_rise_k * (1.0 - (-self.now_s / t.time_constant_s).exp()) * u,
+            Some(t) => {
+                t.expansion_per_k
+                    * t.screw_rise_k
+                    * (1.0 - (-self.now_s / t.time_constant_s).exp())
+                    * u
+            }
             None => 0.0,
         };
         u + self.errors[k].lead_um(a, u) / 1000.0 + thermal
@@ -560,7 +612,10 @@ impl SimMachine {
             + pitch_y * h
             + self.axes[1].settle_um * um;
         let o = self.cfg.machine.board_at_home_mm;
-        CameraPose { centre_mm: [o[0] + true_x, o[1] + true_y], rotation_rad: yaw_x + yaw_y }
+        CameraPose {
+            centre_mm: [o[0] + true_x, o[1] + true_y],
+            rotation_rad: yaw_x + yaw_y,
+        }
     }
 
     /// Uncompensated error (um) at a controller position, approached from the negative
@@ -590,7 +645,8 @@ mod tests {
 
     pub(crate) fn config() -> MachineConfig {
         let text = include_str!("../../config/machines/c5-stage.toml");
-        MachineConfig::from_doc(&ConfigDoc::from_text("c5-stage.toml", text, Path::new("."))).unwrap()
+        MachineConfig::from_doc(&ConfigDoc::from_text("c5-stage.toml", text, Path::new(".")))
+            .unwrap()
     }
 
     #[test]
@@ -616,7 +672,10 @@ mod tests {
         let tol = lead_tolerance_um(a.lead_class, a.travel_mm).unwrap();
         for i in 0..=200 {
             let e = m.errors[0].lead_um(a, i as f64) - a.periodic_um * 0.0;
-            assert!(e.abs() <= tol + a.periodic_um, "lead error {e} um at {i} mm");
+            assert!(
+                e.abs() <= tol + a.periodic_um,
+                "lead error {e} um at {i} mm"
+            );
         }
     }
 
@@ -629,7 +688,11 @@ mod tests {
         assert_eq!(a.camera_pose(), b.camera_pose());
         let first = a.camera_pose().centre_mm;
         a.home();
-        assert_ne!(first, a.camera_pose().centre_mm, "homing error must change per homing");
+        assert_ne!(
+            first,
+            a.camera_pose().centre_mm,
+            "homing error must change per homing"
+        );
         let d = (first[0] - a.camera_pose().centre_mm[0]).abs() * 1000.0;
         assert!(d < 30.0, "homing change {d} um is implausible");
     }
@@ -637,7 +700,10 @@ mod tests {
     #[test]
     fn moves_quantise_take_time_and_need_homing() {
         let mut m = SimMachine::new(config());
-        assert_eq!(m.start_move([1.0, 1.0], 1000.0), Err(MachineRefusal::NotHomed));
+        assert_eq!(
+            m.start_move([1.0, 1.0], 1000.0),
+            Err(MachineRefusal::NotHomed)
+        );
         m.home();
         let t0 = m.now_s();
         let d = m.start_move([10.00013, 5.0], 3000.0).unwrap();
@@ -675,6 +741,9 @@ mod tests {
         m.finish_motion();
         let from_above = m.camera_pose().centre_mm[0];
         let lost = (from_above - from_below) * 1000.0;
-        assert!((lost - b).abs() < 0.01, "lost motion {lost} um, backlash {b} um");
+        assert!(
+            (lost - b).abs() < 0.01,
+            "lost motion {lost} um, backlash {b} um"
+        );
     }
 }

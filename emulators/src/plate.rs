@@ -21,7 +21,11 @@ pub struct PlateErrors {
 
 impl Default for PlateErrors {
     fn default() -> Self {
-        Self { scale_ppm: 2.0, bow_um: 0.6, dot_sigma_um: 0.15 }
+        Self {
+            scale_ppm: 2.0,
+            bow_um: 0.6,
+            dot_sigma_um: 0.15,
+        }
     }
 }
 
@@ -36,10 +40,16 @@ pub fn manufacture(board: &mut Board, errors: PlateErrors, seed: u64) {
         for i in 0..board.cols {
             let n = board.nominal_xy(i as i64, j as i64);
             let u = [(n[0] - lo[0]) / span[0], (n[1] - lo[1]) / span[1]];
-            let bow_x = (std::f64::consts::PI * u[1] + phase[0]).sin() * (2.1 * u[0] + phase[1]).cos();
-            let bow_y = (std::f64::consts::PI * u[0] + phase[2]).sin() * (1.7 * u[1] + phase[3]).cos();
-            let dx = errors.scale_ppm * 1e-6 * (n[0] - lo[0]) + errors.bow_um * um * bow_x + errors.dot_sigma_um * um * rng.normal();
-            let dy = errors.scale_ppm * 1e-6 * (n[1] - lo[1]) + errors.bow_um * um * bow_y + errors.dot_sigma_um * um * rng.normal();
+            let bow_x =
+                (std::f64::consts::PI * u[1] + phase[0]).sin() * (2.1 * u[0] + phase[1]).cos();
+            let bow_y =
+                (std::f64::consts::PI * u[0] + phase[2]).sin() * (1.7 * u[1] + phase[3]).cos();
+            let dx = errors.scale_ppm * 1e-6 * (n[0] - lo[0])
+                + errors.bow_um * um * bow_x
+                + errors.dot_sigma_um * um * rng.normal();
+            let dy = errors.scale_ppm * 1e-6 * (n[1] - lo[1])
+                + errors.bow_um * um * bow_y
+                + errors.dot_sigma_um * um * rng.normal();
             board.set_true_xy(i, j, [n[0] + dx, n[1] + dy]);
         }
     }
@@ -65,7 +75,10 @@ mod tests {
                 worst = worst.max((t[0] - n[0]).abs()).max((t[1] - n[1]).abs());
             }
         }
-        assert!(worst > 0.0002 && worst < 0.002, "worst plate error {worst} mm");
+        assert!(
+            worst > 0.0002 && worst < 0.002,
+            "worst plate error {worst} mm"
+        );
         let mut c = Board::nominal("t", 0.5, 0.25, Polarity::DarkOnLight, 40, 30, [0.0, 0.0]);
         c.apply_certificate("cert", &a.certificate_csv()).unwrap();
         for (i, j) in [(0, 0), (17, 11), (39, 29)] {

@@ -31,14 +31,25 @@ pub struct SimRig {
 impl SimRig {
     pub fn new(machine: SimMachine, board: Board, camera: CameraModel) -> Self {
         let noise_seed = machine.config().machine.seed ^ 0x00C0_FFEE;
-        Self { machine, board, camera, noise_seed, frames: 0 }
+        Self {
+            machine,
+            board,
+            camera,
+            noise_seed,
+            frames: 0,
+        }
     }
 
     /// Expose one frame where the camera really is (motion continues during exposure).
     pub fn grab(&mut self) -> (MonoImage, SimFrameInfo) {
-        let info = SimFrameInfo { sequence: self.frames, time_s: self.machine.now_s() };
+        let info = SimFrameInfo {
+            sequence: self.frames,
+            time_s: self.machine.now_s(),
+        };
         let pose = self.machine.camera_pose();
-        let seed = self.noise_seed.wrapping_add(self.frames.wrapping_mul(0x9E37_79B9));
+        let seed = self
+            .noise_seed
+            .wrapping_add(self.frames.wrapping_mul(0x9E37_79B9));
         let frame = render(&self.board, &self.camera, &pose, seed);
         self.frames += 1;
         self.machine.advance(FRAME_TIME_S);

@@ -48,7 +48,12 @@ pub struct CorrectionPolicy {
 
 impl Default for CorrectionPolicy {
     fn default() -> Self {
-        Self { tolerance_um: 0.5, max_iterations: 5, max_correction_mm: 0.15, approach_mm: 0.05 }
+        Self {
+            tolerance_um: 0.5,
+            max_iterations: 5,
+            max_correction_mm: 0.15,
+            approach_mm: 0.05,
+        }
     }
 }
 
@@ -87,7 +92,11 @@ pub enum CorrectionError {
         max_mm: f64,
     },
     #[error("the correction would total {correction_um:.1} um on axis {axis}, more than the bound of {bound_um:.1} um; nothing was moved (a wrong set-up or a lost position, not a stage error)")]
-    ExceedsBound { axis: char, correction_um: f64, bound_um: f64 },
+    ExceedsBound {
+        axis: char,
+        correction_um: f64,
+        bound_um: f64,
+    },
 }
 
 /// One positioning: where to go, and where to start the final approach from.
@@ -105,13 +114,19 @@ pub fn plan_positioning(
 ) -> Result<Positioning, CorrectionError> {
     limits.check("the command", command_mm)?;
     let approach_from_mm = if policy.approach_mm > 0.0 {
-        let a = [command_mm[0] - policy.approach_mm, command_mm[1] - policy.approach_mm];
+        let a = [
+            command_mm[0] - policy.approach_mm,
+            command_mm[1] - policy.approach_mm,
+        ];
         limits.check("the backlash approach point", a)?;
         Some(a)
     } else {
         None
     };
-    Ok(Positioning { command_mm, approach_from_mm })
+    Ok(Positioning {
+        command_mm,
+        approach_from_mm,
+    })
 }
 
 /// What to do after a measurement.
@@ -161,7 +176,10 @@ pub fn next_step(
 mod tests {
     use super::*;
 
-    const LIMITS: SoftLimits = SoftLimits { min_mm: [0.0, 0.0], max_mm: [200.0, 150.0] };
+    const LIMITS: SoftLimits = SoftLimits {
+        min_mm: [0.0, 0.0],
+        max_mm: [200.0, 150.0],
+    };
 
     #[test]
     fn deviation_is_observed_minus_target() {
@@ -175,7 +193,9 @@ mod tests {
         let p = CorrectionPolicy::default();
         let d = deviation([50.012, 30.0], [50.0, 30.007]);
         let step = next_step([45.0, 25.0], [45.0, 25.0], d, 0, &p, &LIMITS).unwrap();
-        let NextStep::Correct(pos) = step else { panic!("{step:?}") };
+        let NextStep::Correct(pos) = step else {
+            panic!("{step:?}")
+        };
         assert!((pos.command_mm[0] - 44.988).abs() < 1e-9);
         assert!((pos.command_mm[1] - 25.007).abs() < 1e-9);
         let a = pos.approach_from_mm.unwrap();
@@ -186,9 +206,15 @@ mod tests {
     fn converges_and_exhausts() {
         let p = CorrectionPolicy::default();
         let small = deviation([10.0003, 10.0], [10.0, 10.0]);
-        assert_eq!(next_step([5.0; 2], [5.0; 2], small, 0, &p, &LIMITS), Ok(NextStep::Converged));
+        assert_eq!(
+            next_step([5.0; 2], [5.0; 2], small, 0, &p, &LIMITS),
+            Ok(NextStep::Converged)
+        );
         let big = deviation([10.003, 10.0], [10.0, 10.0]);
-        assert_eq!(next_step([5.0; 2], [5.0; 2], big, p.max_iterations, &p, &LIMITS), Ok(NextStep::Exhausted));
+        assert_eq!(
+            next_step([5.0; 2], [5.0; 2], big, p.max_iterations, &p, &LIMITS),
+            Ok(NextStep::Exhausted)
+        );
     }
 
     #[test]
@@ -197,10 +223,16 @@ mod tests {
         // Total correction counts from the nominal command, not from the last step.
         let d = deviation([10.1, 10.0], [10.0, 10.0]);
         let e = next_step([5.0; 2], [4.94, 5.0], d, 1, &p, &LIMITS).unwrap_err();
-        assert!(matches!(e, CorrectionError::ExceedsBound { axis: 'X', .. }), "{e}");
+        assert!(
+            matches!(e, CorrectionError::ExceedsBound { axis: 'X', .. }),
+            "{e}"
+        );
         let d = deviation([10.0, 10.01], [10.0, 10.0]);
         let e = next_step([0.0, 149.999], [0.0, 149.995], d, 0, &p, &LIMITS).unwrap_err();
-        assert!(e.to_string().contains("axis X") && e.to_string().contains("approach"), "{e}");
+        assert!(
+            e.to_string().contains("axis X") && e.to_string().contains("approach"),
+            "{e}"
+        );
         let e = plan_positioning([201.0, 3.0], &p, &LIMITS).unwrap_err();
         assert!(e.to_string().contains("201.0000"), "{e}");
     }

@@ -43,7 +43,9 @@ impl TargetOutcome {
     }
 
     pub fn last(&self) -> &Measurement {
-        self.measurements.last().expect("an outcome has at least one measurement")
+        self.measurements
+            .last()
+            .expect("an outcome has at least one measurement")
     }
 
     /// Corrective moves made after the first positioning.
@@ -57,8 +59,14 @@ impl TargetOutcome {
 #[derive(Debug)]
 pub enum Event<'a> {
     Homed,
-    Measured { target_index: usize, measurement: &'a Measurement },
-    TargetDone { outcome: &'a TargetOutcome, of: usize },
+    Measured {
+        target_index: usize,
+        measurement: &'a Measurement,
+    },
+    TargetDone {
+        outcome: &'a TargetOutcome,
+        of: usize,
+    },
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -103,11 +111,17 @@ impl Orchestrator<'_> {
         let info = self.stage.info();
         let x = info.axis(Axis::X).ok_or(JobError::MissingAxis(Axis::X))?;
         let y = info.axis(Axis::Y).ok_or(JobError::MissingAxis(Axis::Y))?;
-        Ok(SoftLimits { min_mm: [x.min_mm, y.min_mm], max_mm: [x.max_mm, y.max_mm] })
+        Ok(SoftLimits {
+            min_mm: [x.min_mm, y.min_mm],
+            max_mm: [x.max_mm, y.max_mm],
+        })
     }
 
     /// Home, then compensate every target of the job in order.
-    pub async fn run(&mut self, on_event: &mut dyn FnMut(Event)) -> Result<Vec<TargetOutcome>, JobFailure> {
+    pub async fn run(
+        &mut self,
+        on_event: &mut dyn FnMut(Event),
+    ) -> Result<Vec<TargetOutcome>, JobFailure> {
         let mut completed = Vec::new();
         let fail = |completed: Vec<TargetOutcome>, error: JobError| JobFailure { completed, error };
         if let Err(e) = self.stage.home().await {
@@ -121,7 +135,10 @@ impl Orchestrator<'_> {
         for (index, &target) in self.job.targets.iter().enumerate() {
             match self.compensate(index, target, on_event).await {
                 Ok(outcome) => {
-                    on_event(Event::TargetDone { outcome: &outcome, of: n });
+                    on_event(Event::TargetDone {
+                        outcome: &outcome,
+                        of: n,
+                    });
                     completed.push(outcome);
                 }
                 Err(error) => {
@@ -144,16 +161,26 @@ impl Orchestrator<'_> {
         let limits = self.limits()?;
         let policy = &self.job.policy;
         let nominal = self.job.command_for(target_mm);
-        let correction_err = |source| JobError::Correction { index, target_mm, source };
+        let correction_err = |source| JobError::Correction {
+            index,
+            target_mm,
+            source,
+        };
         let mut positioning = plan_positioning(nominal, policy, &limits).map_err(correction_err)?;
         let mut measurements: Vec<Measurement> = Vec::new();
         loop {
             self.position(&positioning).await?;
             let frame = self.camera.grab().await?;
             let params = self.localize_params(target_mm);
-            let observation = localize(&frame.image, &self.job.board, &params).map_err(|source| {
-                JobError::Localize { index, target_mm, measurement: measurements.len(), source }
-            })?;
+            let observation =
+                localize(&frame.image, &self.job.board, &params).map_err(|source| {
+                    JobError::Localize {
+                        index,
+                        target_mm,
+                        measurement: measurements.len(),
+                        source,
+                    }
+                })?;
             let d = deviation([observation.x_mm, observation.y_mm], target_mm);
             let m = Measurement {
                 command_mm: positioning.command_mm,
@@ -161,17 +188,30 @@ impl Orchestrator<'_> {
                 deviation: d,
                 frame_sequence: frame.meta.sequence,
             };
-            on_event(Event::Measured { target_index: index, measurement: &m });
+            on_event(Event::Measured {
+                target_index: index,
+                measurement: &m,
+            });
             measurements.push(m);
             let done = (measurements.len() - 1) as u32;
             match next_step(nominal, positioning.command_mm, d, done, policy, &limits)
                 .map_err(correction_err)?
             {
                 NextStep::Converged => {
-                    return Ok(TargetOutcome { index, target_mm, measurements, converged: true })
+                    return Ok(TargetOutcome {
+                        index,
+                        target_mm,
+                        measurements,
+                        converged: true,
+                    })
                 }
                 NextStep::Exhausted => {
-                    return Ok(TargetOutcome { index, target_mm, measurements, converged: false })
+                    return Ok(TargetOutcome {
+                        index,
+                        target_mm,
+                        measurements,
+                        converged: false,
+                    })
                 }
                 NextStep::Correct(next) => positioning = next,
             }
@@ -186,7 +226,9 @@ impl Orchestrator<'_> {
             self.stage.move_to(AxisValues::xy(a[0], a[1]), feed).await?;
             self.stage.wait_idle().await?;
         }
-        self.stage.move_to(AxisValues::xy(p.command_mm[0], p.command_mm[1]), feed).await?;
+        self.stage
+            .move_to(AxisValues::xy(p.command_mm[0], p.command_mm[1]), feed)
+            .await?;
         self.stage.wait_idle().await?;
         Ok(())
     }

@@ -119,7 +119,9 @@ impl Report {
             .collect();
         let all_truth = !rows.is_empty() && rows.iter().all(|r| r.truth.is_some());
         let truth_stats = |f: fn(&TruthAt) -> [f64; 2]| {
-            all_truth.then(|| Stats::of(rows.iter().map(|r| norm(f(r.truth.as_ref().unwrap()))))).flatten()
+            all_truth
+                .then(|| Stats::of(rows.iter().map(|r| norm(f(r.truth.as_ref().unwrap())))))
+                .flatten()
         };
         Report {
             job: job.to_string(),
@@ -153,9 +155,14 @@ impl Report {
             Some(v) => format!("max {:7.3} um   rms {:7.3} um", v.max, v.rms),
             None => "n/a".to_string(),
         };
-        s.push_str(&format!("job:     {}\nstage:   {}\ncamera:  {}\nmethod:  {:?}\n\n", self.job, self.stage, self.camera, self.method));
+        s.push_str(&format!(
+            "job:     {}\nstage:   {}\ncamera:  {}\nmethod:  {:?}\n\n",
+            self.job, self.stage, self.camera, self.method
+        ));
         let has_truth = self.per_target.iter().any(|r| r.truth.is_some());
-        s.push_str("  #   target X    target Y   corr  gateway D before (um)  gateway D after (um)");
+        s.push_str(
+            "  #   target X    target Y   corr  gateway D before (um)  gateway D after (um)",
+        );
         if has_truth {
             s.push_str("   true err before   true err after");
         }
@@ -174,17 +181,36 @@ impl Report {
                 r.estimate_after_um[1],
             ));
             if let Some(t) = &r.truth {
-                s.push_str(&format!("    {:9.3} um    {:9.3} um", norm(t.before_um), norm(t.after_um)));
+                s.push_str(&format!(
+                    "    {:9.3} um    {:9.3} um",
+                    norm(t.before_um),
+                    norm(t.after_um)
+                ));
             }
             s.push('\n');
         }
-        s.push_str(&format!("\ntargets: {} of {} ({} within tolerance)\n", self.targets, self.targets_planned, self.converged));
+        s.push_str(&format!(
+            "\ntargets: {} of {} ({} within tolerance)\n",
+            self.targets, self.targets_planned, self.converged
+        ));
         if has_truth {
-            s.push_str(&format!("error vs truth, before compensation: {}\n", f(&self.before_um)));
-            s.push_str(&format!("error vs truth, after compensation:  {}\n", f(&self.after_um)));
+            s.push_str(&format!(
+                "error vs truth, before compensation: {}\n",
+                f(&self.before_um)
+            ));
+            s.push_str(&format!(
+                "error vs truth, after compensation:  {}\n",
+                f(&self.after_um)
+            ));
         }
-        s.push_str(&format!("gateway's own estimate, before:      {}\n", f(&self.estimate_before_um)));
-        s.push_str(&format!("gateway's own estimate, after:       {}\n", f(&self.estimate_after_um)));
+        s.push_str(&format!(
+            "gateway's own estimate, before:      {}\n",
+            f(&self.estimate_before_um)
+        ));
+        s.push_str(&format!(
+            "gateway's own estimate, after:       {}\n",
+            f(&self.estimate_after_um)
+        ));
         s.push_str(&format!(
             "corrective moves per target: mean {:.2}, max {}\nwall time: {:.2} s\n",
             self.iterations.mean, self.iterations.max, self.wall_time_s

@@ -7,11 +7,17 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 fn gateway(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_gateway")).args(args).output().expect("gateway runs")
+    Command::new(env!("CARGO_BIN_EXE_gateway"))
+        .args(args)
+        .output()
+        .expect("gateway runs")
 }
 
 fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .unwrap()
+        .to_path_buf()
 }
 
 fn scratch(name: &str) -> PathBuf {
@@ -33,8 +39,20 @@ fn frame_at(dir: &Path, centre_mm: [f64; 2], sixteen_bit: bool) -> PathBuf {
         cam.bit_depth = 16;
         cam.noise_sigma *= 257.0;
     }
-    let f = render(&board, &cam, &CameraPose { centre_mm, rotation_rad: 0.0 }, 3);
-    let path = dir.join(if sixteen_bit { "frame16.png" } else { "frame8.png" });
+    let f = render(
+        &board,
+        &cam,
+        &CameraPose {
+            centre_mm,
+            rotation_rad: 0.0,
+        },
+        3,
+    );
+    let path = dir.join(if sixteen_bit {
+        "frame16.png"
+    } else {
+        "frame8.png"
+    });
     gateway::image_io::save_png(&f.image, &path).unwrap();
     path
 }
@@ -96,22 +114,53 @@ fn localize_refuses_bad_input_with_clear_errors() {
     // Not an image.
     let junk = dir.join("junk.png");
     std::fs::write(&junk, b"this is not a png").unwrap();
-    let out = gateway(&["localize", junk.to_str().unwrap(), "--board", b, "--near", "1,1"]);
+    let out = gateway(&[
+        "localize",
+        junk.to_str().unwrap(),
+        "--board",
+        b,
+        "--near",
+        "1,1",
+    ]);
     assert!(!out.status.success());
     let err = stderr(&out);
-    assert!(err.contains("junk.png") && err.contains("not a readable image"), "{err}");
+    assert!(
+        err.contains("junk.png") && err.contains("not a readable image"),
+        "{err}"
+    );
     // Missing file.
-    let out = gateway(&["localize", "/nonexistent/f.png", "--board", b, "--near", "1,1"]);
+    let out = gateway(&[
+        "localize",
+        "/nonexistent/f.png",
+        "--board",
+        b,
+        "--near",
+        "1,1",
+    ]);
     assert!(stderr(&out).contains("/nonexistent/f.png"));
     // Colour image.
     let rgb = dir.join("rgb.png");
     image::RgbImage::new(64, 64).save(&rgb).unwrap();
-    let out = gateway(&["localize", rgb.to_str().unwrap(), "--board", b, "--near", "1,1"]);
+    let out = gateway(&[
+        "localize",
+        rgb.to_str().unwrap(),
+        "--board",
+        b,
+        "--near",
+        "1,1",
+    ]);
     let err = stderr(&out);
     assert!(err.contains("greyscale") && err.contains("Rgb8"), "{err}");
     // A hint that is not a coordinate.
     let png = frame_at(&dir, [30.0, 30.0], false);
-    let out = gateway(&["localize", png.to_str().unwrap(), "--board", b, "--near", "thirty"]);
+    let out = gateway(&[
+        "localize",
+        png.to_str().unwrap(),
+        "--board",
+        b,
+        "--near",
+        "thirty",
+    ]);
     assert!(stderr(&out).contains("--near `thirty`"));
     // A hint 0.15 mm from the truth: beyond the 0.1 mm tolerance, so the dots cannot be
     // identified safely. (A hint off by whole pitches cannot be told apart on a plain
@@ -130,8 +179,17 @@ fn localize_refuses_bad_input_with_clear_errors() {
     assert!(v["error"].as_str().unwrap().contains("hint"), "{v}");
     // A blank frame: no board in view.
     let blank = dir.join("blank.png");
-    image::GrayImage::from_pixel(640, 512, image::Luma([200u8])).save(&blank).unwrap();
-    let out = gateway(&["localize", blank.to_str().unwrap(), "--board", b, "--near", "30,30"]);
+    image::GrayImage::from_pixel(640, 512, image::Luma([200u8]))
+        .save(&blank)
+        .unwrap();
+    let out = gateway(&[
+        "localize",
+        blank.to_str().unwrap(),
+        "--board",
+        b,
+        "--near",
+        "30,30",
+    ]);
     assert!(!out.status.success());
     assert!(stderr(&out).contains("blank.png"));
 }
@@ -183,14 +241,22 @@ fn compensate_from_a_config_file_prints_the_json_report() {
 fn malformed_job_files_name_file_line_and_key() {
     let dir = scratch("badjob");
     let cases = [
-        ("um_per_px = 4.0", "um_per_px = \"four\"", "camera.um_per_px"),
+        (
+            "um_per_px = 4.0",
+            "um_per_px = \"four\"",
+            "camera.um_per_px",
+        ),
         ("[targets]", "[targets]\nspeed = 3", "speed"),
         (
             "board_at_machine_zero_mm = [5.0, 5.0]",
             "board_at_machine_zero_mm = [5.0]",
             "setup.board_at_machine_zero_mm",
         ),
-        ("driver = \"sim\"\nmodel", "driver = \"usb-webcam\"\nmodel", "camera.driver"),
+        (
+            "driver = \"sim\"\nmodel",
+            "driver = \"usb-webcam\"\nmodel",
+            "camera.driver",
+        ),
     ];
     for (from, to, key) in cases {
         assert!(SMALL_JOB.contains(from), "{from}");
@@ -202,10 +268,19 @@ fn malformed_job_files_name_file_line_and_key() {
         assert!(err.contains(key), "{key}: {err}");
     }
     // A target off the board, and a referenced file that is missing.
-    let job = write_job(&dir, &SMALL_JOB.replace("[150.5, 100.25]", "[150.5, 400.0]"));
+    let job = write_job(
+        &dir,
+        &SMALL_JOB.replace("[150.5, 100.25]", "[150.5, 400.0]"),
+    );
     let err = stderr(&gateway(&["compensate", "--config", job.to_str().unwrap()]));
-    assert!(err.contains("targets.points") && err.contains("off the board"), "{err}");
+    assert!(
+        err.contains("targets.points") && err.contains("off the board"),
+        "{err}"
+    );
     let job = write_job(&dir, &SMALL_JOB.replace("c5-stage.toml", "missing.toml"));
     let err = stderr(&gateway(&["compensate", "--config", job.to_str().unwrap()]));
-    assert!(err.contains("stage.machine") && err.contains("missing.toml"), "{err}");
+    assert!(
+        err.contains("stage.machine") && err.contains("missing.toml"),
+        "{err}"
+    );
 }

@@ -113,11 +113,18 @@ impl Board {
         if !(s.dot_diameter_mm > 0.0 && s.dot_diameter_mm < s.pitch_mm) {
             return Err(doc.invalid(
                 "board.dot_diameter_mm",
-                format!("must be positive and smaller than the pitch ({} mm)", s.pitch_mm),
+                format!(
+                    "must be positive and smaller than the pitch ({} mm)",
+                    s.pitch_mm
+                ),
             ));
         }
         if s.cols < 2 || s.rows < 2 {
-            let key = if s.cols < 2 { "board.cols" } else { "board.rows" };
+            let key = if s.cols < 2 {
+                "board.cols"
+            } else {
+                "board.rows"
+            };
             return Err(doc.invalid(key, "a board needs at least 2 x 2 points"));
         }
         if (s.cols as u64) * (s.rows as u64) > 50_000_000 {
@@ -163,27 +170,45 @@ impl Board {
             }
             let fields: Vec<&str> = line.split(',').map(str::trim).collect();
             if fields.len() != 4 {
-                return Err(err(line_no, format!("expected 4 fields i,j,x_mm,y_mm, got {}", fields.len())));
+                return Err(err(
+                    line_no,
+                    format!("expected 4 fields i,j,x_mm,y_mm, got {}", fields.len()),
+                ));
             }
             if fields[0] == "i" {
                 continue; // header
             }
-            let i: u32 = fields[0]
-                .parse()
-                .map_err(|_| err(line_no, format!("column i: `{}` is not a point index", fields[0])))?;
-            let j: u32 = fields[1]
-                .parse()
-                .map_err(|_| err(line_no, format!("column j: `{}` is not a point index", fields[1])))?;
-            let x: f64 = fields[2]
-                .parse()
-                .map_err(|_| err(line_no, format!("column x_mm: `{}` is not a number", fields[2])))?;
-            let y: f64 = fields[3]
-                .parse()
-                .map_err(|_| err(line_no, format!("column y_mm: `{}` is not a number", fields[3])))?;
+            let i: u32 = fields[0].parse().map_err(|_| {
+                err(
+                    line_no,
+                    format!("column i: `{}` is not a point index", fields[0]),
+                )
+            })?;
+            let j: u32 = fields[1].parse().map_err(|_| {
+                err(
+                    line_no,
+                    format!("column j: `{}` is not a point index", fields[1]),
+                )
+            })?;
+            let x: f64 = fields[2].parse().map_err(|_| {
+                err(
+                    line_no,
+                    format!("column x_mm: `{}` is not a number", fields[2]),
+                )
+            })?;
+            let y: f64 = fields[3].parse().map_err(|_| {
+                err(
+                    line_no,
+                    format!("column y_mm: `{}` is not a number", fields[3]),
+                )
+            })?;
             if i >= self.cols || j >= self.rows {
                 return Err(err(
                     line_no,
-                    format!("point ({i},{j}) is outside the {}x{} board", self.cols, self.rows),
+                    format!(
+                        "point ({i},{j}) is outside the {}x{} board",
+                        self.cols, self.rows
+                    ),
                 ));
             }
             let nom = self.nominal_xy(i as i64, j as i64);
@@ -285,7 +310,10 @@ mod tests {
     fn rejects_bad_geometry_with_key_and_line() {
         let bad = GOOD.replace("dot_diameter_mm = 0.25", "dot_diameter_mm = 0.6");
         let e = Board::from_doc(&doc(&bad)).unwrap_err().to_string();
-        assert!(e.starts_with("b.toml:3: key `board.dot_diameter_mm`"), "{e}");
+        assert!(
+            e.starts_with("b.toml:3: key `board.dot_diameter_mm`"),
+            "{e}"
+        );
         let bad = GOOD.replace("\"dark-on-light\"", "\"plaid\"");
         let e = Board::from_doc(&doc(&bad)).unwrap_err().to_string();
         assert!(e.contains("b.toml:4") && e.contains("polarity"), "{e}");
@@ -294,13 +322,18 @@ mod tests {
     #[test]
     fn certificate_overrides_listed_points_and_rejects_nonsense() {
         let mut b = Board::from_doc(&doc(GOOD)).unwrap();
-        b.apply_certificate("c.csv", "i,j,x_mm,y_mm\n2,3,2.0004,3.4998\n").unwrap();
+        b.apply_certificate("c.csv", "i,j,x_mm,y_mm\n2,3,2.0004,3.4998\n")
+            .unwrap();
         assert_eq!(b.true_xy(2, 3), Some([2.0004, 3.4998]));
         assert_eq!(b.true_xy(3, 3), Some([2.5, 3.5]));
         assert_eq!(b.certified_points, 1);
-        let e = b.apply_certificate("c.csv", "i,j,x_mm,y_mm\n2,3,7.0,3.5\n").unwrap_err();
+        let e = b
+            .apply_certificate("c.csv", "i,j,x_mm,y_mm\n2,3,7.0,3.5\n")
+            .unwrap_err();
         assert!(e.to_string().starts_with("c.csv:2:"), "{e}");
-        let e = b.apply_certificate("c.csv", "1,1,1.5,2.5\n1,1,1.5,2.5\n").unwrap_err();
+        let e = b
+            .apply_certificate("c.csv", "1,1,1.5,2.5\n1,1,1.5,2.5\n")
+            .unwrap_err();
         assert!(e.to_string().contains("listed twice"), "{e}");
         let e = b.apply_certificate("c.csv", "1,x,1.5,2.5\n").unwrap_err();
         assert!(e.to_string().contains("column j"), "{e}");

@@ -14,12 +14,12 @@ pub enum ConfigError {
     // The cause is part of the message (not a `source`), so it prints once however the
     // error is displayed.
     #[error("{file}: cannot read: {cause}")]
-    Io { file: PathBuf, cause: std::io::Error },
-    #[error("{location}: {message}")]
-    Invalid {
-        location: Location,
-        message: String,
+    Io {
+        file: PathBuf,
+        cause: std::io::Error,
     },
+    #[error("{location}: {message}")]
+    Invalid { location: Location, message: String },
 }
 
 /// Where in which file: `file:line:column: key `a.b``.
@@ -205,7 +205,10 @@ fn normalize(p: &Path) -> PathBuf {
 fn line_col(text: &str, offset: usize) -> (usize, usize) {
     let before = &text[..offset.min(text.len())];
     let line = before.matches('\n').count() + 1;
-    let col = before.rfind('\n').map_or(before.len(), |i| before.len() - i - 1) + 1;
+    let col = before
+        .rfind('\n')
+        .map_or(before.len(), |i| before.len() - i - 1)
+        + 1;
     (line, col)
 }
 
@@ -219,7 +222,12 @@ pub fn find_key_line(text: &str, dotted: &str) -> Option<usize> {
     for (n, raw) in text.lines().enumerate() {
         let line = raw.trim();
         if line.starts_with("[[") {
-            let name = line.trim_start_matches("[[").split("]]").next().unwrap_or("").trim();
+            let name = line
+                .trim_start_matches("[[")
+                .split("]]")
+                .next()
+                .unwrap_or("")
+                .trim();
             let c = array_counts.entry(name.to_string()).or_insert(0);
             table = name.split('.').map(|s| s.trim().to_string()).collect();
             if let Some(last) = table.last_mut() {
@@ -227,11 +235,21 @@ pub fn find_key_line(text: &str, dotted: &str) -> Option<usize> {
             }
             *c += 1;
         } else if line.starts_with('[') {
-            let name = line.trim_start_matches('[').split(']').next().unwrap_or("").trim();
+            let name = line
+                .trim_start_matches('[')
+                .split(']')
+                .next()
+                .unwrap_or("")
+                .trim();
             table = name.split('.').map(|s| s.trim().to_string()).collect();
         } else if let Some((k, _)) = line.split_once('=') {
             let mut full = table.clone();
-            full.extend(k.trim().trim_matches('"').split('.').map(|s| s.trim().to_string()));
+            full.extend(
+                k.trim()
+                    .trim_matches('"')
+                    .split('.')
+                    .map(|s| s.trim().to_string()),
+            );
             if full == parts {
                 return Some(n + 1);
             }
@@ -292,7 +310,9 @@ mod tests {
 
     #[test]
     fn syntax_error_has_a_line() {
-        let err = doc("[stage]\nname = \"a\ntravel_mm = 1\n").parse::<Doc>().unwrap_err();
+        let err = doc("[stage]\nname = \"a\ntravel_mm = 1\n")
+            .parse::<Doc>()
+            .unwrap_err();
         assert_eq!(err.location().unwrap().line, Some(2), "{err}");
     }
 
@@ -310,14 +330,25 @@ mod tests {
     #[test]
     fn embedded_documents_resolve_each_other_first() {
         static FILES: &[(&str, &str)] = &[
-            ("config/gateway/demo.toml", "[stage]\nmachine = \"../machines/m.toml\"\n"),
+            (
+                "config/gateway/demo.toml",
+                "[stage]\nmachine = \"../machines/m.toml\"\n",
+            ),
             ("config/machines/m.toml", "x = 1\n"),
         ];
         let d = ConfigDoc::embedded("config/gateway/demo.toml", FILES).unwrap();
-        let m = d.read_relative("stage.machine", "../machines/m.toml").unwrap();
+        let m = d
+            .read_relative("stage.machine", "../machines/m.toml")
+            .unwrap();
         assert_eq!(m.text, "x = 1\n");
-        let e = d.read_relative("stage.machine", "../machines/nope.toml").unwrap_err();
-        assert!(e.to_string().contains("demo.toml (built in):2: key `stage.machine`"), "{e}");
+        let e = d
+            .read_relative("stage.machine", "../machines/nope.toml")
+            .unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("demo.toml (built in):2: key `stage.machine`"),
+            "{e}"
+        );
     }
 
     #[test]

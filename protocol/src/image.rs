@@ -33,9 +33,18 @@ impl MonoImage {
             Pixels::Mono16(p) => p.len(),
         };
         if want != got {
-            return Err(SizeMismatch { width, height, want, got });
+            return Err(SizeMismatch {
+                width,
+                height,
+                want,
+                got,
+            });
         }
-        Ok(Self { width, height, pixels })
+        Ok(Self {
+            width,
+            height,
+            pixels,
+        })
     }
 
     pub fn bit_depth(&self) -> u8 {

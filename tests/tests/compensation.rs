@@ -11,7 +11,10 @@ use protocol::{MonoImage, Pixels};
 use std::sync::{Arc, Mutex};
 
 fn block_on<F: std::future::Future>(f: F) -> F::Output {
-    tokio::runtime::Builder::new_current_thread().build().unwrap().block_on(f)
+    tokio::runtime::Builder::new_current_thread()
+        .build()
+        .unwrap()
+        .block_on(f)
 }
 
 #[test]
@@ -24,14 +27,28 @@ fn demo_job_compensates_a_c5_stage_to_within_a_micrometre() {
     assert_eq!(report.converged, report.targets, "{}", report.to_text());
     let before = report.before_um.unwrap();
     let after = report.after_um.unwrap();
-    assert!(before.max >= 20.0, "uncompensated max {} um: not an ordinary stage", before.max);
-    assert!(after.max <= 1.0, "compensated max {} um\n{}", after.max, report.to_text());
+    assert!(
+        before.max >= 20.0,
+        "uncompensated max {} um: not an ordinary stage",
+        before.max
+    );
+    assert!(
+        after.max <= 1.0,
+        "compensated max {} um\n{}",
+        after.max,
+        report.to_text()
+    );
     // The gateway's own estimate agrees with the truth to well under a micrometre.
     for row in &report.per_target {
         let t = row.truth.unwrap();
         let est = row.estimate_before_um;
         let diff = (t.before_um[0] - est[0]).hypot(t.before_um[1] - est[1]);
-        assert!(diff < 0.3, "target {}: estimate {est:?} vs truth {:?}", row.index, t.before_um);
+        assert!(
+            diff < 0.3,
+            "target {}: estimate {est:?} vs truth {:?}",
+            row.index,
+            t.before_um
+        );
     }
 }
 
@@ -61,7 +78,10 @@ fn four_point_method_is_exact_when_aligned_and_biased_when_rotated() {
     let after = aligned.after_um.unwrap().max;
     assert!(after <= 1.0, "aligned camera: {after} um");
     let rotated = run(0.8).after_um.unwrap().max;
-    assert!(rotated > 2.0, "a 0.8 deg camera should show the formula's bias: {rotated} um");
+    assert!(
+        rotated > 2.0,
+        "a 0.8 deg camera should show the formula's bias: {rotated} um"
+    );
 }
 
 /// A stage wrapper that records every command sent to the stage.
@@ -113,7 +133,8 @@ impl Camera for GoesBlank {
         self.grabbed += 1;
         if self.grabbed > self.good {
             let n = (f.image.width * f.image.height) as usize;
-            f.image = MonoImage::new(f.image.width, f.image.height, Pixels::Mono8(vec![190; n])).unwrap();
+            f.image =
+                MonoImage::new(f.image.width, f.image.height, Pixels::Mono8(vec![190; n])).unwrap();
         }
         Ok(f)
     }
@@ -128,13 +149,24 @@ fn run_recorded_on(
 ) -> (Result<usize, JobError>, Vec<[f64; 2]>) {
     let devices = open_devices(rig_job).unwrap();
     let moves = Arc::new(Mutex::new(Vec::new()));
-    let mut stage = Recording { inner: devices.stage, moves: moves.clone() };
+    let mut stage = Recording {
+        inner: devices.stage,
+        moves: moves.clone(),
+    };
     let mut camera: Box<dyn Camera> = match blank_after {
-        Some(good) => Box::new(GoesBlank { inner: devices.camera, good, grabbed: 0 }),
+        Some(good) => Box::new(GoesBlank {
+            inner: devices.camera,
+            good,
+            grabbed: 0,
+        }),
         None => devices.camera,
     };
     let result = block_on(async {
-        let mut o = Orchestrator { stage: &mut stage, camera: camera.as_mut(), job };
+        let mut o = Orchestrator {
+            stage: &mut stage,
+            camera: camera.as_mut(),
+            job,
+        };
         o.run(&mut |_| {}).await
     });
     let moves = moves.lock().unwrap().clone();
@@ -160,7 +192,11 @@ fn a_camera_that_sees_no_board_stops_the_job_without_moving() {
     // Moves made: only those up to the failing frame; no correction was sent after it.
     let corrections_before_failure = moves.len();
     assert!(corrections_before_failure < baseline.len());
-    assert_eq!(&baseline[..moves.len()], &moves[..], "the moves before the failure are the same");
+    assert_eq!(
+        &baseline[..moves.len()],
+        &moves[..],
+        "the moves before the failure are the same"
+    );
 }
 
 #[test]
@@ -187,7 +223,10 @@ fn out_of_travel_targets_are_refused_before_any_motion() {
     let err = err.unwrap_err();
     let msg = err.to_string();
     assert!(matches!(err, JobError::Correction { .. }), "{msg}");
-    assert!(msg.contains("soft limits") && msg.contains("axis X"), "{msg}");
+    assert!(
+        msg.contains("soft limits") && msg.contains("axis X"),
+        "{msg}"
+    );
     assert!(moves.is_empty(), "{moves:?}");
 }
 
@@ -197,7 +236,9 @@ fn a_correction_beyond_the_bound_is_refused() {
     job.targets.truncate(1);
     // The set-up is off by 80 um (within what localization accepts) but the job allows
     // corrections of only 30 um.
-    let StageSpec::Sim { machine } = &mut job.stage else { unreachable!("the demo job is simulated") };
+    let StageSpec::Sim { machine } = &mut job.stage else {
+        unreachable!("the demo job is simulated")
+    };
     machine.machine.board_at_home_mm[0] += 0.08;
     job.policy.max_correction_mm = 0.03;
     let (err, moves) = run_recorded(&job, None);
