@@ -76,6 +76,9 @@ enum RawStage {
         baud: u32,
         emulate: Option<String>,
     },
+    /// Modbus positioning drives, one per axis, over TCP or RTU through a drive
+    /// profile; or with `emulate` the drive emulator (see `modbus_stage`).
+    Modbus(crate::modbus_stage::RawModbusStage),
 }
 
 fn default_baud() -> u32 {
@@ -148,6 +151,8 @@ pub enum StageSpec {
     Sim { machine: MachineConfig },
     /// GRBL over serial: a real port, or the emulator on a pseudo-terminal (`emulate`).
     Grbl { port: Option<String>, baud: u32, emulate: Option<MachineConfig> },
+    /// Modbus drives (TCP, RTU, or the emulator), register maps from a drive profile.
+    Modbus(crate::modbus_stage::ModbusStageSpec),
 }
 
 #[derive(Clone, Debug)]
@@ -209,6 +214,7 @@ impl Job {
                 };
                 StageSpec::Grbl { port, baud, emulate }
             }
+            RawStage::Modbus(raw) => StageSpec::Modbus(crate::modbus_stage::resolve(doc, raw)?),
         };
         let camera = match raw.camera.driver.as_str() {
             "sim" => {

@@ -63,6 +63,10 @@ pub fn over_grbl(job: &mut Job) -> Result<(), DriverError> {
             Ok(())
         }
         StageSpec::Grbl { .. } => Ok(()),
+        StageSpec::Modbus(_) => Err(DriverError::Unsupported {
+            device: "job".into(),
+            message: "--stage grbl replaces the simulated stage of the demo job".into(),
+        }),
     }
 }
 

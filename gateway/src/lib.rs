@@ -10,6 +10,7 @@ pub mod correction;
 pub mod grbl_stage;
 pub mod image_io;
 pub mod localize;
+pub mod modbus_stage;
 pub mod orchestrator;
 pub mod report;
 pub mod run;

@@ -35,6 +35,10 @@ enum Cmd {
         /// pseudo-terminal, driven by the GRBL serial driver).
         #[arg(long, default_value = "sim")]
         stage: String,
+        /// With `--stage modbus`: `tcp` (drive emulator on a loopback port) or `rtu`
+        /// (on a real pseudo-terminal).
+        #[arg(long, default_value = "tcp")]
+        transport: String,
     },
     /// Run the compensation job described by a configuration file.
     Compensate {
@@ -116,12 +120,17 @@ fn main() -> ExitCode {
 
 fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     match cli.cmd {
-        Cmd::Demo { json, method, stage } => {
+        Cmd::Demo { json, method, stage, transport } => {
             let mut job = Job::demo();
             match stage.as_str() {
                 "sim" => {}
                 "grbl" => gateway::grbl_stage::over_grbl(&mut job)?,
-                other => anyhow::bail!("--stage `{other}`: this build knows sim and grbl"),
+                "modbus" => match transport.as_str() {
+                    "tcp" => gateway::modbus_stage::over_modbus(&mut job, false)?,
+                    "rtu" => gateway::modbus_stage::over_modbus(&mut job, true)?,
+                    other => anyhow::bail!("--transport `{other}`: expected tcp or rtu"),
+                },
+                other => anyhow::bail!("--stage `{other}`: this build knows sim, grbl and modbus"),
             }
             if let Some(m) = method {
                 job.localize.method = parse_method(&m)?;
