@@ -5,6 +5,7 @@
 //! through the bytes and frames a real device would send.
 
 pub mod camera;
+pub mod canopen;
 pub mod grbl;
 pub mod machine;
 pub mod modbus;
