@@ -120,7 +120,12 @@ fn main() -> ExitCode {
 
 fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     match cli.cmd {
-        Cmd::Demo { json, method, stage, transport } => {
+        Cmd::Demo {
+            json,
+            method,
+            stage,
+            transport,
+        } => {
             let mut job = Job::demo();
             match stage.as_str() {
                 "sim" => {}

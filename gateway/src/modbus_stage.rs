@@ -96,7 +96,7 @@ pub enum ModbusLink {
     },
     /// The drive emulator in-process, on this transport, driving this machine.
     Emulate {
-        machine: MachineConfig,
+        machine: Box<MachineConfig>,
         rtu: bool,
     },
 }
@@ -210,7 +210,10 @@ pub fn resolve(doc: &ConfigDoc, raw: RawModbusStage) -> Result<ModbusStageSpec, 
             }
         };
         check_emulated(&profile, &machine, &axes).map_err(|m| doc.invalid("stage.profile", m))?;
-        ModbusLink::Emulate { machine, rtu }
+        ModbusLink::Emulate {
+            machine: Box::new(machine),
+            rtu,
+        }
     };
     Ok(ModbusStageSpec {
         profile,
@@ -285,7 +288,7 @@ pub fn over_modbus(job: &mut Job, rtu: bool) -> Result<(), DriverError> {
     job.stage = StageSpec::Modbus(ModbusStageSpec {
         profile: Arc::new(profile),
         link: ModbusLink::Emulate {
-            machine: machine.clone(),
+            machine: Box::new(machine.clone()),
             rtu,
         },
         axes,
@@ -350,7 +353,7 @@ pub async fn open(job: &Job) -> Result<Devices, DriverError> {
     let mut opts = spec.options();
     match (&spec.link, &job.camera) {
         (ModbusLink::Emulate { machine, rtu }, CameraSpec::Sim { model }) => {
-            let rig = SimRig::new(SimMachine::new(machine.clone()), job.board.clone(), model.clone());
+            let rig = SimRig::new(SimMachine::new((**machine).clone()), job.board.clone(), model.clone());
             let rig: SharedRig = Arc::new(Mutex::new(rig));
             let units: Vec<(u8, MachineAxis)> = spec
                 .axes

@@ -35,7 +35,9 @@ pub fn open_devices(job: &Job) -> Result<Devices, DriverError> {
         }),
         (StageSpec::Modbus(_), _) => Err(DriverError::NotAvailable {
             backend: "modbus".into(),
-            reason: "a Modbus stage is opened inside the async runtime: use run::open_devices_async".into(),
+            reason:
+                "a Modbus stage is opened inside the async runtime: use run::open_devices_async"
+                    .into(),
         }),
     }
 }

@@ -277,8 +277,13 @@ impl ModbusBus {
             self.stats.link_errors += 1;
             return Err(Failure::Link(e.to_string()));
         }
+        // Only sleep when there is something to wait for: tokio's timer works in whole
+        // milliseconds, so even an elapsed deadline would cost a tick.
         if let Some(t) = self.last_frame {
-            tokio::time::sleep_until(t + self.gap()).await;
+            let gap = self.gap();
+            if !gap.is_zero() && Instant::now() < t + gap {
+                tokio::time::sleep_until(t + gap).await;
+            }
         }
         self.rx.lock().unwrap_or_else(|p| p.into_inner()).clear();
         let req = match *op {

@@ -88,7 +88,7 @@ impl FaultRule {
             return None;
         }
         self.seen += 1;
-        if self.seen % self.every == 0 {
+        if self.seen.is_multiple_of(self.every) {
             self.applied += 1;
             Some(self.fault)
         } else {
