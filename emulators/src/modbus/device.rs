@@ -556,3 +556,116 @@ impl DriveSet {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::CameraModel;
+    use crate::machine::{MachineConfig, SimMachine};
+    use protocol::modbus::frame::Request as Req;
+    use protocol::Board;
+    use std::path::Path;
+    use std::sync::Mutex;
+
+    fn drives() -> DriveSet {
+        let d = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config");
+        let m = MachineConfig::load(&d.join("machines/c5-stage.toml")).unwrap();
+        let c = CameraModel::load(&d.join("cameras/mono-1.3mp.toml")).unwrap();
+        let b = Board::load(&d.join("boards/dot-grid-0.5mm.toml")).unwrap();
+        let rig = Arc::new(Mutex::new(SimRig::new(SimMachine::new(m), b, c)));
+        let p = Arc::new(DriveProfile::load(&d.join("drives/generic.toml")).unwrap());
+        DriveSet::new(
+            rig,
+            p,
+            &[(1, MachineAxis::X), (2, MachineAxis::Y)],
+            Clock::Unconstrained,
+        )
+    }
+
+    #[test]
+    fn exceptions_for_functions_addresses_and_values() {
+        let mut d = drives();
+        assert_eq!(
+            d.handle(1, &[0x01, 0, 0, 0, 1], 0.0),
+            Some(vec![0x81, 0x01]),
+            "read coils"
+        );
+        let unmapped = Req::ReadHolding {
+            address: 0x0500,
+            count: 1,
+        }
+        .encode();
+        assert_eq!(d.handle(1, &unmapped, 0.0), Some(vec![0x83, 0x02]));
+        // Input registers are not holding registers.
+        let wrong_table = Req::ReadHolding {
+            address: 0x0020,
+            count: 1,
+        }
+        .encode();
+        assert_eq!(d.handle(1, &wrong_table, 0.0), Some(vec![0x83, 0x02]));
+        // Half of the 32-bit target.
+        let split = Req::WriteSingle {
+            address: 0x0001,
+            value: 5,
+        }
+        .encode();
+        assert_eq!(d.handle(1, &split, 0.0), Some(vec![0x86, 0x02]));
+        let bad_trigger = Req::WriteSingle {
+            address: 0x0008,
+            value: 9,
+        }
+        .encode();
+        assert_eq!(d.handle(1, &bad_trigger, 0.0), Some(vec![0x86, 0x03]));
+        // A move with speed 0 is an illegal value, and nothing is written.
+        let zero_speed = Req::WriteMultiple {
+            address: 0,
+            values: vec![0, 100, 0, 0, 0, 1, 0, 1, 1],
+        }
+        .encode();
+        assert_eq!(d.handle(1, &zero_speed, 0.0), Some(vec![0x90, 0x03]));
+        assert_eq!(d.stats().triggers_of(1), 0);
+        assert_eq!(d.stats().exceptions, 6);
+        assert_eq!(
+            d.handle(9, &unmapped, 0.0),
+            None,
+            "a unit not on the line stays silent"
+        );
+    }
+
+    #[test]
+    fn edge_commands_act_once_per_rising_edge_and_broadcasts_are_not_answered() {
+        let mut d = drives();
+        let home = Req::WriteSingle {
+            address: 0x0010,
+            value: 0x0001,
+        }
+        .encode();
+        let release = Req::WriteSingle {
+            address: 0x0010,
+            value: 0,
+        }
+        .encode();
+        assert_eq!(d.handle(1, &home, 0.0), Some(home.clone()), "echo");
+        d.handle(1, &home, 0.0);
+        assert_eq!(d.stats().homings, 1, "the bit stayed set: no second edge");
+        d.handle(1, &release, 0.0);
+        assert_eq!(d.handle(0, &home, 0.0), None, "broadcast");
+        assert_eq!(d.stats().homings, 3, "the broadcast homed both units");
+        // Status: busy (homing) on the first read, then done and homed.
+        let status = Req::ReadInput {
+            address: 0x0020,
+            count: 1,
+        }
+        .encode();
+        assert_eq!(
+            d.handle(1, &status, 0.0),
+            Some(vec![4, 2, 0, 0x12]),
+            "busy + home done"
+        );
+        assert_eq!(
+            d.handle(1, &status, 0.0),
+            Some(vec![4, 2, 0, 0x15]),
+            "ready + in position + home done"
+        );
+    }
+}
