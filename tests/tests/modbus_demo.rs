@@ -51,12 +51,12 @@ fn check(report: &gateway::report::Report) {
 
 #[test]
 fn demo_over_modbus_tcp_compensates_to_within_a_micrometre() {
-    check(&run(Job::demo(), false, 6));
+    check(&run(Job::demo(), false, 4));
 }
 
 #[test]
 fn demo_over_modbus_rtu_on_a_pty_compensates_to_within_a_micrometre() {
-    check(&run(Job::demo(), true, 4));
+    check(&run(Job::demo(), true, 3));
 }
 
 #[test]
