@@ -3,31 +3,35 @@
 //!
 //! Two stages, because the frame is large and the dots are few:
 //!
-//! 1. **Coarse**: sample the frame on a grid of stride `s` (chosen from the dot size so a
-//!    dot spans about seven samples), threshold every sample against a local threshold
-//!    (mid-way between the darkest and brightest sample of the surrounding blocks, so an
-//!    illumination gradient or vignetting does not matter), and label connected
-//!    components. Blobs touching the frame border, merged blobs and blobs whose area or
-//!    shape is far from the median dot are dropped. This touches about 1/s² of the frame.
-//! 2. **Refine** each blob in a local window, reading only the pixels that carry
-//!    information:
-//!    * a background plane `B` is fitted on a ring of pure background around the dot,
-//!      and the dot level `F` measured inside it;
+//! 1. **Coarse** (`coarse`): sample the frame on a grid of stride `s` (chosen from the
+//!    dot size so a dot spans about seven samples), threshold every sample against a
+//!    local threshold (mid-way between the darkest and brightest sample of the
+//!    surrounding blocks, so an illumination gradient or vignetting does not matter),
+//!    and label connected components. Blobs touching the frame border, merged blobs and
+//!    blobs whose area or shape is far from the median dot are dropped. This reads
+//!    about 1/s² of the pixels.
+//! 2. **Refine** (`refine_all`), reading only the pixels that carry information:
+//!    * a background plane `B` is fitted on strips of pure background above and below
+//!      each dot, and the dot level `F` on a square inside it;
 //!    * the relative illumination gradient (`∇B/(B-o)`, `o` the black level) of every
 //!      dot is smoothed over the frame with a low-order polynomial, because the slope of
-//!      one dot's ring is too noisy to use alone (see [`smooth_gradients`]);
+//!      one dot's background is too noisy to use alone (see `smooth_gradients`);
 //!    * the centre is the centroid of the background-normalised weight
 //!      `w = (I - B(x)) / (F(x) - B(x))`, which cancels a multiplicative illumination
 //!      gradient (uncorrected it biases a 60 px dot by ~0.04 px). Noise is never clamped
 //!      (clamping biases the centroid towards the window centre). Instead, pixels
 //!      certainly inside the dot get `w = 1` exactly and pixels certainly outside get
-//!      `w = 0`, decided by their distance to the current centre estimate: both masks are
-//!      symmetric about that estimate and agree with the true weights, so they add no
-//!      bias, and only the thin edge band (where the position information is) adds
-//!      noise. The band's width comes from the measured edge blur.
-//!    * a quick pass on every second row centres the window and measures area and edge
-//!      blur; a full pass at that centre gives the result (a third pass runs only if the
-//!      second moved the centre noticeably).
+//!      `w = 0`, decided by their distance to the current centre estimate: both masks
+//!      are symmetric about that estimate and agree with the true weights, so they add
+//!      no bias, and only the thin edge band (where the position information is) adds
+//!      noise (`Band`);
+//!    * the band is placed by two horizontal chords (`chord_start`, ~0.1 px) and its
+//!      width set from the frame's edge blur, measured with a wide pass on 9 dots
+//!      (`frame_edge_sigma`); a dot whose band pass moves its centre by more than the
+//!      band's margin gets further passes of its own.
+//!
+//! The per-dot work is done in sweeps over the frame's rows (`RowPlan`), all dots at
+//! once, so the pixels are read in memory order.
 
 use protocol::{MonoImage, Pixels, Polarity};
 
@@ -40,8 +44,9 @@ pub struct Dot {
     pub y: f64,
     /// Area in pixels, from the normalised weights (independent of blur and threshold).
     pub area_px: f64,
-    /// Width of the edge transition (Gaussian sigma equivalent, pixels): optical blur
-    /// plus pixel integration.
+    /// Width of the edge transition (Gaussian sigma equivalent, pixels: optical blur
+    /// plus pixel integration) used for this dot's band: the frame's, measured on a few
+    /// dots, unless the dot needed passes of its own, which measure it.
     pub edge_sigma_px: f64,
     /// Dot level minus background level at the dot, grey levels (negative for dark dots).
     pub contrast: f64,
@@ -135,20 +140,30 @@ fn block_for(d: f64, s: usize) -> usize {
 fn detect_in<T: Px>(v: View<T>, dark: bool, dot_px: Option<f64>, full: f64) -> Vec<Dot> {
     let (mut s, mut bs) = match dot_px {
         Some(d) if d.is_finite() && d > 0.0 => (stride_for(d), block_for(d, stride_for(d))),
-        _ => (4, 16),
+        // Unknown scale: a first guess that finds dots from ~15 px up cheaply.
+        _ => (6, 12),
     };
     let mut blobs = coarse(v, dark, s, bs, full);
     // Re-sample once if the first guess of stride or block size does not suit the dots
-    // found: dots under ~4 samples across are poorly located and may be missed, and a
-    // neighbourhood smaller than a few dots may lie entirely inside one.
-    if let Some(d) = median_diameter(&blobs) {
-        let too_coarse = d / (s as f64) < 4.0 && s > 1;
-        let blocks_small = ((3 * bs * s) as f64) < 4.0 * d;
-        if too_coarse || blocks_small {
-            s = stride_for(d);
-            bs = block_for(d, s);
+    // found: dots under ~4 samples across are poorly located and may be missed (when
+    // none at all are found, they may be too small for the stride), and a neighbourhood
+    // smaller than a few dots may lie entirely inside one.
+    match median_diameter(&blobs) {
+        Some(d) => {
+            let too_coarse = d / (s as f64) < 4.0 && s > 1;
+            let blocks_small = ((3 * bs * s) as f64) < 4.0 * d;
+            if too_coarse || blocks_small {
+                s = stride_for(d);
+                bs = block_for(d, s);
+                blobs = coarse(v, dark, s, bs, full);
+            }
+        }
+        None if s > 2 => {
+            s = 2;
+            bs = 16;
             blobs = coarse(v, dark, s, bs, full);
         }
+        None => {}
     }
     let blobs = filter_blobs(blobs);
     refine_all(v, dark, &blobs, s)
@@ -648,6 +663,9 @@ struct Prep {
     py: i64,
     ring: PlaneFit,
     inner: Option<PlaneFit>,
+    /// Mean of the 3x3 pixels at (px, py): the dot level of a dot too small for an
+    /// interior square.
+    f_centre: f64,
 }
 
 /// The illumination model at one dot: `B(x) = b0 + (b0 - o) g·(x - p)` and
@@ -742,11 +760,7 @@ fn refine_all<T: Px>(v: View<T>, dark: bool, blobs: &[Blob], s: usize) -> Vec<Do
     }
     let mut accs = vec![PlaneAcc::default(); 2 * geos.len()];
     let half = |g: &Geo, item: u32| if item & 1 == 0 { g.a2 } else { g.ri };
-    let touch = |y: usize, item: u32| {
-        let g = &geos[item as usize / 2];
-        let h = half(g, item);
-        touch_span(v.row(y), g.px - h, g.px + h)
-    };
+    let touch = |y: usize| touch_row(v.row(y));
     RowPlan::new(v.h, &pairs).for_each(touch, |y, item| {
         let g = &geos[item as usize / 2];
         let h = half(g, item);
@@ -772,6 +786,19 @@ fn refine_all<T: Px>(v: View<T>, dark: bool, blobs: &[Blob], s: usize) -> Vec<Do
             } else {
                 None
             };
+            let (x, y) = (
+                g.px.clamp(1, v.w as i64 - 2) as usize,
+                g.py.clamp(1, v.h as i64 - 2) as usize,
+            );
+            let f_centre = (y - 1..=y + 1)
+                .map(|yy| {
+                    v.row(yy)[x - 1..=x + 1]
+                        .iter()
+                        .map(|p| p.val() as f64)
+                        .sum::<f64>()
+                })
+                .sum::<f64>()
+                / 9.0;
             Some(Prep {
                 c0: g.c0,
                 r0: g.r0,
@@ -782,6 +809,7 @@ fn refine_all<T: Px>(v: View<T>, dark: bool, blobs: &[Blob], s: usize) -> Vec<Do
                 py: g.py,
                 ring,
                 inner,
+                f_centre,
             })
         })
         .collect();
@@ -789,12 +817,11 @@ fn refine_all<T: Px>(v: View<T>, dark: bool, blobs: &[Blob], s: usize) -> Vec<Do
         return Vec::new();
     }
 
-    let (a, kappa) = level_relation(&preps);
+    let levels = level_relation(&preps);
     // Black level o: where F and B would meet (F - o = kappa (B - o)).
-    let o = if (1.0 - kappa).abs() > 1e-3 {
-        a / (1.0 - kappa)
-    } else {
-        0.0
+    let o = match levels {
+        Some((a, kappa)) if (1.0 - kappa).abs() > 1e-3 => a / (1.0 - kappa),
+        _ => 0.0,
     };
     let gs = smooth_gradients(&preps, o, [v.w as f64, v.h as f64]);
 
@@ -805,7 +832,14 @@ fn refine_all<T: Px>(v: View<T>, dark: bool, blobs: &[Blob], s: usize) -> Vec<Do
         .zip(gs)
         .filter_map(|(p, g)| {
             let b0 = p.ring.b0;
-            let f0 = p.inner.map_or(a + kappa * b0, |f| f.b0);
+            // Dot level: its interior, else the frame's level relation, else the
+            // centre pixels (tiny dots; blur may keep them short of the true level,
+            // which only slows the centroid's convergence).
+            let f0 = match (p.inner, levels) {
+                (Some(f), _) => f.b0,
+                (None, Some((a, kappa))) => a + kappa * b0,
+                (None, None) => p.f_centre,
+            };
             let d0 = f0 - b0;
             let wrong = (dark && d0 >= 0.0) || (!dark && d0 <= 0.0);
             (!wrong && d0.abs() >= 6.0 * p.ring.sigma.max(0.5)).then_some((
@@ -845,14 +879,7 @@ fn refine_all<T: Px>(v: View<T>, dark: bool, blobs: &[Blob], s: usize) -> Vec<Do
             pairs.extend((y0..=y1).map(|y| (y, k as u32)));
         }
     }
-    let spans: Vec<(i64, i64)> = bands
-        .iter()
-        .map(|b| b.as_ref().map_or((0, -1), |b| b.cols()))
-        .collect();
-    let touch = |y: usize, k: u32| {
-        let (xa, xb) = spans[k as usize];
-        touch_span(v.row(y), xa, xb)
-    };
+    let touch = |y: usize| touch_row(v.row(y));
     RowPlan::new(v.h, &pairs).for_each(touch, |y, k| {
         if let Some(b) = &mut bands[k as usize] {
             b.add_row::<T, false>(v.row(y), y as i64);
@@ -877,7 +904,7 @@ fn refine_all<T: Px>(v: View<T>, dark: bool, blobs: &[Blob], s: usize) -> Vec<Do
 /// (a straight line through the illumination variation; `a` is the sensor's black
 /// level times (1 - kappa)). When the illumination is nearly flat the slope is pulled
 /// to the pure multiplicative model `a = 0`.
-fn level_relation(preps: &[Prep]) -> (f64, f64) {
+fn level_relation(preps: &[Prep]) -> Option<(f64, f64)> {
     let pairs: Vec<(f64, f64)> = preps
         .iter()
         .filter_map(|p| p.inner.map(|f| (p.ring.b0, f.b0)))
@@ -887,9 +914,7 @@ fn level_relation(preps: &[Prep]) -> (f64, f64) {
         .filter(|(b, _)| b.abs() > 1e-9)
         .map(|(b, f)| f / b)
         .collect();
-    let Some(k0) = median(&mut ratios) else {
-        return (0.0, 0.0);
-    };
+    let k0 = median(&mut ratios)?;
     let n = pairs.len() as f64;
     let bm = pairs.iter().map(|p| p.0).sum::<f64>() / n;
     let fm = pairs.iter().map(|p| p.1).sum::<f64>() / n;
@@ -901,7 +926,7 @@ fn level_relation(preps: &[Prep]) -> (f64, f64) {
     // Ridge weight: as if kappa0 were supported by a 2 % spread of background levels.
     let lambda = n * (0.02 * bm).powi(2);
     let kappa = (sxy + lambda * k0) / (sxx + lambda);
-    (fm - kappa * bm, kappa)
+    Some((fm - kappa * bm, kappa))
 }
 
 /// Relative illumination gradient at every dot, smoothed over the frame.
@@ -1118,27 +1143,26 @@ impl RowPlan {
         Self { start, items }
     }
 
-    /// Call `f(row, item)` for every pair in row order. Before each row, `touch(row,
-    /// item)` is called for the items of the row `AHEAD` rows further on: it should
-    /// read one pixel per cache line the item will need there. Those reads do not
-    /// depend on anything, so the processor keeps many of them in flight, and by the
-    /// time `f` gets to that row its pixels are in cache (without this, most of the
-    /// localizer's time was spent waiting for the first pixel of each run).
-    fn for_each(&self, mut touch: impl FnMut(usize, u32) -> u32, mut f: impl FnMut(usize, u32)) {
+    /// Call `f(row, item)` for every pair in row order. Before each row, `touch(row)`
+    /// is called for the row `AHEAD` rows further on (if it has items): it should read
+    /// one pixel per cache line of that row. Those reads depend on nothing, so the
+    /// processor keeps many in flight and the prefetcher sees one sequential stream;
+    /// by the time `f` gets to the row, its pixels are in cache. (Without it, most of
+    /// the time went into waiting for the first pixel of each run; touching only the
+    /// items' own spans helped less than whole rows.)
+    fn for_each(&self, mut touch: impl FnMut(usize) -> u32, mut f: impl FnMut(usize, u32)) {
         const AHEAD: usize = 4;
         let rows = self.start.len() - 1;
         let items = |y: usize| &self.items[self.start[y] as usize..self.start[y + 1] as usize];
         let mut sink = 0u32;
         for y in 0..AHEAD.min(rows) {
-            for &it in items(y) {
-                sink = sink.wrapping_add(touch(y, it));
+            if !items(y).is_empty() {
+                sink = sink.wrapping_add(touch(y));
             }
         }
         for y in 0..rows {
-            if y + AHEAD < rows {
-                for &it in items(y + AHEAD) {
-                    sink = sink.wrapping_add(touch(y + AHEAD, it));
-                }
+            if y + AHEAD < rows && !items(y + AHEAD).is_empty() {
+                sink = sink.wrapping_add(touch(y + AHEAD));
             }
             for &it in items(y) {
                 f(y, it);
@@ -1148,21 +1172,13 @@ impl RowPlan {
     }
 }
 
-/// Read one pixel per cache line of `row[xa..=xb]` (see [`RowPlan::for_each`]).
+/// Read one pixel per cache line of a row (see `RowPlan::for_each`).
 #[inline]
-fn touch_span<T: Px>(row: &[T], xa: i64, xb: i64) -> u32 {
+fn touch_row<T: Px>(row: &[T]) -> u32 {
     let step = (64 / std::mem::size_of::<T>()).max(1);
-    let (xa, xb) = (xa.max(0) as usize, xb.min(row.len() as i64 - 1));
-    if xb < 0 {
-        return 0;
-    }
-    let mut acc = 0u32;
-    let mut x = xa;
-    while x <= xb as usize {
-        acc = acc.wrapping_add(row[x].val());
-        x += step;
-    }
-    acc.wrapping_add(row[xb as usize].val())
+    row.iter()
+        .step_by(step)
+        .fold(0u32, |a, p| a.wrapping_add(p.val()))
 }
 
 /// Where a dot's narrow band goes: centre, radius and edge sigma.
@@ -1187,10 +1203,10 @@ impl Start {
 ///
 /// Speed: the weight `w = (I - B)(1 - t)/d0` (B, t linear in position) is never formed
 /// per pixel. Per pixel only exact integer sums Σv, Σv·k, Σv·k² (and Σv² when `SQ`)
-/// are taken ([`run_sums`]); per run they become the dot's intensity moments
+/// are taken (`run_sums`); per run they become the dot's intensity moments
 /// (Σv, ΣvX, ΣvY, ΣvX², ΣvXY, ΣvY²), per row the band's pixel moments are added in
 /// closed form, and the illumination algebra is done once per dot in
-/// [`Band::finish`]. Only the t² term of the weight is dropped: it is symmetric about
+/// `Band::finish`. Only the t² term of the weight is dropped: it is symmetric about
 /// the window centre, so it moves the centre by < 1e-5 px.
 #[derive(Clone, Copy, Debug)]
 struct Band {
@@ -1254,12 +1270,6 @@ impl Band {
             sx_int: 0.0,
             sy_int: 0.0,
         })
-    }
-
-    /// First and last column of the window.
-    fn cols(&self) -> (i64, i64) {
-        let r = self.ro2.sqrt();
-        (fceil(self.cx - r), ffloor(self.cx + r))
     }
 
     /// First and last row of the window.
@@ -1371,7 +1381,7 @@ impl Band {
     }
 }
 
-/// One centroid pass over every `step`-th row of one dot (see [`Band`]).
+/// One centroid pass over every `step`-th row of one dot (see `Band`).
 fn centroid_pass<T: Px, const SQ: bool>(
     v: View<T>,
     c: [f64; 2],

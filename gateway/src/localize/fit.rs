@@ -76,9 +76,6 @@ pub(crate) struct FitOut {
     pub n_inliers: usize,
     /// RMS of the inliers' residual vectors, mm.
     pub rms_mm: f64,
-    /// Whether k1 was estimated (it is held at 0 with few points).
-    #[allow(dead_code)]
-    pub with_k1: bool,
 }
 
 /// Smallest robust sigma used for rejection (mm): below this, residuals are at the
@@ -132,10 +129,9 @@ pub(crate) fn fit(corr: &[Corr], centre: [f64; 2]) -> Option<FitOut> {
     model.h = dlt(&q, &b, &inlier)?;
 
     let mut rms = 0.0;
-    let mut with_k1 = false;
     for _round in 0..5 {
-        let m = inlier.iter().filter(|&&x| x).count();
-        with_k1 = m >= 12;
+        // k1 only with enough points to tell it from scale and perspective.
+        let with_k1 = inlier.iter().filter(|&&x| x).count() >= 12;
         gauss_newton(&mut model, &q, &b, &inlier, with_k1)?;
         // Residuals of every point (mm), robust sigma from the inliers' median.
         let res: Vec<f64> = q

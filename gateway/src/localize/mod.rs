@@ -2,15 +2,15 @@
 //! coordinate under the image centre (= where the tool really is).
 //!
 //! Pipeline ([`localize`]):
-//! 1. [`detect_dots`]: sub-pixel centres of every complete dot ([`detect`]).
-//! 2. Identification ([`identify`]): lattice basis, integer indices, mapping of lattice
+//! 1. [`detect_dots`]: sub-pixel centres of every complete dot (`detect`).
+//! 2. Identification (`identify`): lattice basis, integer indices, mapping of lattice
 //!    axes to board axes through the nominal [`PixelAxes`], and the integer offset on the
 //!    board chosen so the implied position lands nearest the hint. Refused when that is
 //!    not unambiguous.
 //! 3. [`Method::Fit`]: homography + radial distortion fitted to the certified
-//!    coordinates of all identified dots, evaluated at the image centre ([`fit`]).
+//!    coordinates of all identified dots, evaluated at the image centre (`fit`).
 //!    [`Method::FourPoint`]: the patent's formula on the cell around the centre
-//!    ([`four_point`]), kept exactly as written for comparison.
+//!    (`four_point`), kept exactly as written for comparison.
 //! 4. Every doubtful case is refused with a [`LocalizeError`] that says what was wrong,
 //!    with the numbers: a wrong position is worse than none, since the controller would
 //!    move the tool by it.
