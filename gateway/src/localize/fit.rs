@@ -164,7 +164,6 @@ pub(crate) fn fit(corr: &[Corr], centre: [f64; 2]) -> Option<FitOut> {
         inlier,
         n_inliers,
         rms_mm: rms,
-        with_k1,
     })
 }
 
