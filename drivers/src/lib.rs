@@ -11,6 +11,8 @@
 //! through controller counts and rendered frames, as a real device would.
 
 pub mod camera;
+pub mod can;
+pub mod canopen;
 pub mod error;
 pub mod grbl;
 #[cfg(feature = "modbus")]

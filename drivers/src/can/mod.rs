@@ -1,0 +1,90 @@
+//! CAN buses: one small async trait ([`CanBus`]) with two implementations, an SLCAN
+//! adapter on a serial port ([`slcan::SlcanBus`], cargo feature `serial`) and a Linux
+//! SocketCAN interface ([`socketcan::SocketCanBus`], cargo feature `socketcan`, Linux
+//! only). Protocols above (CANopen) see frames only, never the adapter.
+
+#[cfg(feature = "serial")]
+pub mod slcan;
+#[cfg(all(target_os = "linux", feature = "socketcan"))]
+pub mod socketcan;
+
+use crate::error::DriverError;
+use async_trait::async_trait;
+use protocol::can::CanFrame;
+
+pub use protocol::can::{CanFrame as Frame, CanId};
+
+/// Counters every bus keeps.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct BusStats {
+    pub frames_sent: u64,
+    pub frames_received: u64,
+    /// Lines from an SLCAN adapter that were not valid SLCAN (skipped).
+    pub malformed: u64,
+    /// Commands the adapter refused (SLCAN BEL), e.g. a frame sent while closed.
+    pub adapter_errors: u64,
+}
+
+/// A CAN bus as the protocol layers see it.
+///
+/// `recv` must be cancel-safe (a frame is never lost when its future is dropped), so a
+/// dispatcher can wait for a frame and for its own commands at once.
+#[async_trait]
+pub trait CanBus: Send {
+    /// What it is, for messages (`slcan /dev/ttyACM0 @ 1000000`, `socketcan can0`).
+    fn name(&self) -> &str;
+    async fn send(&mut self, frame: &CanFrame) -> Result<(), DriverError>;
+    async fn recv(&mut self) -> Result<CanFrame, DriverError>;
+    fn stats(&self) -> BusStats;
+}
+
+/// Where a bus is.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum BusSpec {
+    /// An SLCAN (Lawicel) adapter on a serial port, at a CAN bitrate (bits/s).
+    Slcan { port: String, bitrate: u32 },
+    /// A SocketCAN interface (`can0`, `vcan0`), already configured and up.
+    SocketCan { interface: String },
+}
+
+impl std::fmt::Display for BusSpec {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            BusSpec::Slcan { port, bitrate } => write!(f, "slcan {port} @ {bitrate} bit/s"),
+            BusSpec::SocketCan { interface } => write!(f, "socketcan {interface}"),
+        }
+    }
+}
+
+/// Open a bus (inside a tokio runtime).
+pub async fn open_bus(spec: &BusSpec) -> Result<Box<dyn CanBus>, DriverError> {
+    match spec {
+        #[cfg(feature = "serial")]
+        BusSpec::Slcan { port, bitrate } => {
+            Ok(Box::new(slcan::SlcanBus::open(port, *bitrate).await?))
+        }
+        #[cfg(not(feature = "serial"))]
+        BusSpec::Slcan { .. } => Err(DriverError::NotAvailable {
+            backend: "slcan".into(),
+            reason: "this build has no serial port support (cargo feature `serial`)".into(),
+        }),
+        BusSpec::SocketCan { interface } => open_socketcan(interface),
+    }
+}
+
+#[cfg(all(target_os = "linux", feature = "socketcan"))]
+fn open_socketcan(interface: &str) -> Result<Box<dyn CanBus>, DriverError> {
+    Ok(Box::new(socketcan::SocketCanBus::open(interface)?))
+}
+
+#[cfg(not(all(target_os = "linux", feature = "socketcan")))]
+fn open_socketcan(interface: &str) -> Result<Box<dyn CanBus>, DriverError> {
+    Err(DriverError::NotAvailable {
+        backend: format!("socketcan {interface}"),
+        reason: if cfg!(target_os = "linux") {
+            "this build has no SocketCAN support (cargo feature `socketcan`)".into()
+        } else {
+            "SocketCAN exists only on Linux".into()
+        },
+    })
+}

@@ -1,0 +1,85 @@
+//! Shared set-up of the CANopen system tests: a simulated rig, the CiA 402 drive
+//! emulator behind an SLCAN adapter on a real pseudo-terminal, and the driver
+//! connected to it by path.
+
+#![allow(dead_code)]
+
+use drivers::can::slcan::SlcanBus;
+use drivers::canopen::{open_stage, AxisConfig, CanopenOptions, Network};
+use drivers::{Axis, MultiAxisStage};
+use emulators::camera::CameraModel;
+use emulators::canopen::{DriveSet, DriveSetConfig, SharedRig, SharedSet, SlcanPty};
+use emulators::grbl::Clock;
+use emulators::machine::{MachineConfig, SimMachine};
+use emulators::rig::SimRig;
+use protocol::Board;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+pub const X_NODE: u8 = 1;
+pub const Y_NODE: u8 = 2;
+
+pub fn config_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../config")
+}
+
+pub fn rig() -> SharedRig {
+    let d = config_dir();
+    let m = MachineConfig::load(&d.join("machines/c5-stage.toml")).unwrap();
+    let c = CameraModel::load(&d.join("cameras/mono-1.3mp.toml")).unwrap();
+    let b = Board::load(&d.join("boards/dot-grid-0.5mm.toml")).unwrap();
+    Arc::new(Mutex::new(SimRig::new(SimMachine::new(m), b, c)))
+}
+
+pub fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap()
+}
+
+/// The drives (X = node 1, Y = node 2) on a fresh SLCAN pseudo-terminal.
+pub fn emulator(rig: &SharedRig, clock: Clock) -> SlcanPty {
+    let set = DriveSet::new(rig.clone(), &DriveSetConfig::xy(X_NODE, Y_NODE, clock), 0.0).unwrap();
+    let set: SharedSet = Arc::new(Mutex::new(set));
+    SlcanPty::spawn(set, None).expect("pseudo-terminal")
+}
+
+/// The axes as the gateway would configure them for the simulated C5 stage.
+pub fn axes() -> Vec<AxisConfig> {
+    let a = |axis, node, travel| AxisConfig {
+        axis,
+        node,
+        counts_per_mm: 2000.0,
+        min_mm: 0.0,
+        max_mm: travel,
+        max_feed_mm_min: 6000.0,
+        accel_mm_s2: 800.0,
+        homing_method: 17,
+    };
+    vec![a(Axis::X, X_NODE, 200.0), a(Axis::Y, Y_NODE, 150.0)]
+}
+
+/// Short timeouts: a broken test fails in seconds.
+pub fn options() -> CanopenOptions {
+    CanopenOptions {
+        sdo_timeout: Duration::from_millis(500),
+        heartbeat_ms: 50,
+        heartbeat_timeout: Duration::from_millis(300),
+        state_timeout: Duration::from_secs(1),
+        motion_timeout: Duration::from_secs(20),
+        homing_timeout: Duration::from_secs(20),
+        position_inhibit_100us: 20,
+        position_event_ms: 100,
+    }
+}
+
+pub async fn connect(path: &str, axes: Vec<AxisConfig>) -> (MultiAxisStage, Network) {
+    let bus = SlcanBus::open(path, 1_000_000)
+        .await
+        .expect("open the SLCAN adapter");
+    open_stage(Box::new(bus), axes, options())
+        .await
+        .expect("bring up the drives")
+}
