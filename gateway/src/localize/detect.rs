@@ -929,44 +929,54 @@ fn level_relation(preps: &[Prep]) -> Option<(f64, f64)> {
     Some((fm - kappa * bm, kappa))
 }
 
-/// Relative illumination gradient at every dot, smoothed over the frame.
+/// Relative illumination gradient `g = ∇B/(B-o)` at every dot, from the background
+/// slope smoothed over the frame.
 ///
-/// Each dot gives `g = ∇B/(B-o)` from its background ring and `∇F/(F-o)` from its
-/// interior (inverse-variance weighted). One ring's slope is noisy (on a 60 px dot with
-/// 4 grey levels of noise it moves the centre by ~0.002 px, and on bright-on-dark
-/// boards, where `B-o` is small, by ~0.01 px), while real illumination (gradient,
-/// vignetting) is smooth: so `g` is fitted as a low-order polynomial in frame position
-/// (quadratic with >= 30 dots, linear with >= 6), with outliers (dirt in a ring)
-/// trimmed.
+/// Each dot gives the background slope `∇B` from its strips and, from its interior,
+/// `∇F (B-o)/(F-o)` (the same slope if the illumination is multiplicative), inverse-
+/// variance weighted. One dot's slope is noisy (on a 60 px dot with 4 grey levels of
+/// noise it moves the centre by ~0.002 px, and on bright-on-dark boards, where `B-o`
+/// is small, by ~0.01 px), while real illumination is smooth: so `∇B` is fitted as a
+/// low-order polynomial in frame position (quadratic with >= 30 dots, linear with
+/// >= 6), with outliers (dirt) trimmed. `∇B` rather than `g`: a linear gradient plus
+/// quadratic vignetting has an exactly linear `∇B`, whereas `g` has the illumination
+/// in its denominator and is far from polynomial when the illumination varies a lot.
 fn smooth_gradients(preps: &[Prep], o: f64, size: [f64; 2]) -> Vec<[f64; 2]> {
-    // Per-dot estimates with variances.
+    // Per-dot estimates of ∇B with their weights (inverse variances).
     let est: Vec<([f64; 2], [f64; 2])> = preps
         .iter()
         .map(|p| {
             let mut acc = [(0.0, 0.0); 2];
-            let mut add = |f: &PlaneFit, level: f64| {
-                let l = level - o;
-                if l.abs() < 1e-9 {
-                    return;
-                }
+            let mut add = |f: &PlaneFit, scale: f64| {
                 for (c, (gv, var)) in [(f.gx, f.var_gx), (f.gy, f.var_gy)].into_iter().enumerate() {
-                    let (gr, vr) = (gv / l, (var / (l * l)).max(1e-30));
+                    let (gr, vr) = (gv * scale, (var * scale * scale).max(1e-30));
                     acc[c].0 += gr / vr;
                     acc[c].1 += 1.0 / vr;
                 }
             };
-            add(&p.ring, p.ring.b0);
+            add(&p.ring, 1.0);
             if let Some(f) = &p.inner {
-                add(f, f.b0);
+                let lf = f.b0 - o;
+                if lf.abs() > 1e-9 {
+                    add(f, (p.ring.b0 - o) / lf);
+                }
             }
             let g = [
                 acc[0].0 / acc[0].1.max(1e-300),
                 acc[1].0 / acc[1].1.max(1e-300),
             ];
-            let w = [acc[0].1, acc[1].1];
-            (g, w)
+            (g, [acc[0].1, acc[1].1])
         })
         .collect();
+    // ∇B -> g at each dot.
+    let rel = |k: usize, grad: [f64; 2]| {
+        let l = preps[k].ring.b0 - o;
+        if l.abs() > 1e-9 {
+            [grad[0] / l, grad[1] / l]
+        } else {
+            [0.0, 0.0]
+        }
+    };
     let n = preps.len();
     // Vignetting makes g vary linearly across the frame, so never less than a plane;
     // with very few dots (which are then large, with precise rings of their own) use
@@ -976,7 +986,7 @@ fn smooth_gradients(preps: &[Prep], o: f64, size: [f64; 2]) -> Vec<[f64; 2]> {
     } else if n >= 6 {
         3
     } else {
-        return est.iter().map(|e| e.0).collect();
+        return est.iter().enumerate().map(|(k, e)| rel(k, e.0)).collect();
     };
     let basis = |c: [f64; 2]| -> [f64; 6] {
         let u = (c[0] - 0.5 * size[0]) / (0.5 * size[0]);
@@ -1032,7 +1042,7 @@ fn smooth_gradients(preps: &[Prep], o: f64, size: [f64; 2]) -> Vec<[f64; 2]> {
             out[k][comp] = (0..nterms).map(|r| coef[r] * b[r]).sum();
         }
     }
-    out
+    out.iter().enumerate().map(|(k, g)| rel(k, *g)).collect()
 }
 
 /// Result of one centroid pass.
