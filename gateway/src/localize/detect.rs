@@ -937,8 +937,8 @@ fn level_relation(preps: &[Prep]) -> Option<(f64, f64)> {
 /// variance weighted. One dot's slope is noisy (on a 60 px dot with 4 grey levels of
 /// noise it moves the centre by ~0.002 px, and on bright-on-dark boards, where `B-o`
 /// is small, by ~0.01 px), while real illumination is smooth: so `∇B` is fitted as a
-/// low-order polynomial in frame position (quadratic with >= 30 dots, linear with
-/// >= 6), with outliers (dirt) trimmed. `∇B` rather than `g`: a linear gradient plus
+/// low-order polynomial in frame position (quadratic with at least 30 dots, linear
+/// with at least 6), with outliers (dirt) trimmed. `∇B` rather than `g`: a linear gradient plus
 /// quadratic vignetting has an exactly linear `∇B`, whereas `g` has the illumination
 /// in its denominator and is far from polynomial when the illumination varies a lot.
 fn smooth_gradients(preps: &[Prep], o: f64, size: [f64; 2]) -> Vec<[f64; 2]> {
