@@ -271,11 +271,12 @@ pub struct Observation {
 pub enum LocalizeError {
     #[error("no calibration board in the image: {reason}")]
     NoBoard { reason: String },
-    #[error("only {found} calibration points usable ({off_board} more fell off the board), at least {need} needed")]
+    #[error("only {found} calibration points usable, at least {need} needed ({off_board} more fell off the board, {rejected} were rejected as outliers by the fit)")]
     TooFewPoints {
         found: usize,
         need: usize,
         off_board: usize,
+        rejected: usize,
     },
     #[error("cannot tell which board points are in view (hint ({:.4}, {:.4}) mm, tolerance {tolerance_mm} mm): {detail}", hint_mm[0], hint_mm[1])]
     Ambiguous {
@@ -395,6 +396,7 @@ pub fn localize(
             found: dots.len(),
             need: p.min_points,
             off_board: 0,
+            rejected: 0,
         });
     }
 
@@ -450,6 +452,7 @@ pub fn localize(
             found: identified,
             need: p.min_points,
             off_board: 0,
+            rejected: 0,
         });
     }
     let ac = aff
@@ -505,6 +508,7 @@ pub fn localize(
             found: corr.len(),
             need: p.min_points,
             off_board,
+            rejected: 0,
         });
     }
 
@@ -519,6 +523,7 @@ pub fn localize(
             found: f.n_inliers,
             need: p.min_points,
             off_board,
+            rejected: corr.len() - f.n_inliers,
         });
     }
     let rms_um = f.rms_mm * 1000.0;
