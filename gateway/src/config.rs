@@ -79,6 +79,9 @@ enum RawStage {
     /// Modbus positioning drives, one per axis, over TCP or RTU through a drive
     /// profile; or with `emulate` the drive emulator (see `modbus_stage`).
     Modbus(crate::modbus_stage::RawModbusStage),
+    /// CiA 402 drives on CAN (SLCAN adapter or SocketCAN interface), one node per
+    /// axis; or with `emulate` the drive emulator (see `canopen_stage`).
+    Canopen(crate::canopen_stage::RawCanopenStage),
 }
 
 fn default_baud() -> u32 {
@@ -153,6 +156,8 @@ pub enum StageSpec {
     Grbl { port: Option<String>, baud: u32, emulate: Option<MachineConfig> },
     /// Modbus drives (TCP, RTU, or the emulator), register maps from a drive profile.
     Modbus(crate::modbus_stage::ModbusStageSpec),
+    /// CANopen CiA 402 drives (SLCAN, SocketCAN, or the emulator on an SLCAN pty).
+    Canopen(crate::canopen_stage::CanopenStageSpec),
 }
 
 #[derive(Clone, Debug)]
@@ -215,6 +220,7 @@ impl Job {
                 StageSpec::Grbl { port, baud, emulate }
             }
             RawStage::Modbus(raw) => StageSpec::Modbus(crate::modbus_stage::resolve(doc, raw)?),
+            RawStage::Canopen(raw) => StageSpec::Canopen(crate::canopen_stage::resolve(doc, raw)?),
         };
         let camera = match raw.camera.driver.as_str() {
             "sim" => {

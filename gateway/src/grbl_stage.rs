@@ -63,7 +63,7 @@ pub fn over_grbl(job: &mut Job) -> Result<(), DriverError> {
             Ok(())
         }
         StageSpec::Grbl { .. } => Ok(()),
-        StageSpec::Modbus(_) => Err(DriverError::Unsupported {
+        StageSpec::Modbus(_) | StageSpec::Canopen(_) => Err(DriverError::Unsupported {
             device: "job".into(),
             message: "--stage grbl replaces the simulated stage of the demo job".into(),
         }),

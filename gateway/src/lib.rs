@@ -5,6 +5,7 @@
 //! observation in, numbers or moves out); only `orchestrator` does I/O, and only through
 //! the `drivers` traits.
 
+pub mod canopen_stage;
 pub mod config;
 pub mod correction;
 pub mod grbl_stage;

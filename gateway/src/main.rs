@@ -32,7 +32,9 @@ enum Cmd {
         #[arg(long)]
         method: Option<String>,
         /// Stage backend: `sim` (in-process) or `grbl` (the GRBL emulator on a real
-        /// pseudo-terminal, driven by the GRBL serial driver).
+        /// pseudo-terminal, driven by the GRBL serial driver); `modbus` (the Modbus
+        /// drive emulator); `canopen` (CiA 402 drive emulator behind an SLCAN adapter
+        /// on a real pseudo-terminal, driven by the CANopen driver).
         #[arg(long, default_value = "sim")]
         stage: String,
         /// With `--stage modbus`: `tcp` (drive emulator on a loopback port) or `rtu`
@@ -135,7 +137,8 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     "rtu" => gateway::modbus_stage::over_modbus(&mut job, true)?,
                     other => anyhow::bail!("--transport `{other}`: expected tcp or rtu"),
                 },
-                other => anyhow::bail!("--stage `{other}`: this build knows sim, grbl and modbus"),
+                "canopen" => gateway::canopen_stage::over_canopen(&mut job)?,
+                other => anyhow::bail!("--stage `{other}`: this build knows sim, grbl, modbus and canopen"),
             }
             if let Some(m) = method {
                 job.localize.method = parse_method(&m)?;

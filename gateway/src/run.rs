@@ -33,6 +33,10 @@ pub fn open_devices(job: &Job) -> Result<Devices, DriverError> {
             backend: "grbl".into(),
             reason: "a GRBL stage is opened inside the async runtime: use run::open_devices_async".into(),
         }),
+        (StageSpec::Canopen(_), _) => Err(DriverError::NotAvailable {
+            backend: "canopen".into(),
+            reason: "a CANopen stage is opened inside the async runtime: use run::open_devices_async".into(),
+        }),
         (StageSpec::Modbus(_), _) => Err(DriverError::NotAvailable {
             backend: "modbus".into(),
             reason:
@@ -48,6 +52,7 @@ pub async fn open_devices_async(job: &Job) -> Result<Devices, DriverError> {
     match &job.stage {
         StageSpec::Grbl { .. } => crate::grbl_stage::open(job).await,
         StageSpec::Modbus(_) => crate::modbus_stage::open(job).await,
+        StageSpec::Canopen(_) => crate::canopen_stage::open(job).await,
         StageSpec::Sim { .. } => open_devices(job),
     }
 }

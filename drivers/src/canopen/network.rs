@@ -87,6 +87,9 @@ pub struct NetStats {
     pub sdo_aborts: u64,
     pub heartbeat_losses: u64,
     pub stop_frames_sent: u64,
+    /// Times the bus task found itself woken late (busy runtime) and restarted its
+    /// timeout windows rather than judge them.
+    pub stalls: u64,
 }
 
 #[derive(Default)]
@@ -409,6 +412,9 @@ async fn run(
         };
         let wake = [hb, poll_at].into_iter().flatten().min();
         let r = tokio::select! {
+            // Frames first: a backlog that arrived while the task was not scheduled
+            // is read before any timeout is judged.
+            biased;
             f = t.bus.recv() => match f {
                 Ok(frame) => t.route(frame).await,
                 Err(e) => Err(e),
@@ -417,7 +423,9 @@ async fn run(
                 Some(c) => t.command(c).await,
                 None => break None,
             },
-            _ = async { tokio::time::sleep_until(wake.expect("guarded")).await }, if wake.is_some() => t.timers().await,
+            _ = async { tokio::time::sleep_until(wake.expect("guarded")).await }, if wake.is_some() => {
+                t.timers(wake.expect("guarded")).await
+            }
         };
         t.publish_stats();
         if let Err(e) = r {
@@ -558,8 +566,26 @@ impl Task {
         self.start_next_sdo(node).await
     }
 
-    async fn timers(&mut self) -> Result<(), DriverError> {
+    async fn timers(&mut self, scheduled: Instant) -> Result<(), DriverError> {
         let now = self.now();
+        // Woken much later than asked: this task (or the whole runtime) was busy, so
+        // silence and missing answers may be ours. Restart the windows instead of
+        // judging them; a node that is really gone is found one timeout later.
+        let late = Instant::now()
+            .saturating_duration_since(scheduled)
+            .as_secs_f64();
+        let threshold = self
+            .heartbeats
+            .min_timeout()
+            .map_or(0.05, |t| (t / 4.0).max(0.02));
+        if late > threshold {
+            self.heartbeats.restart_windows(now);
+            for ch in self.sdo.values_mut() {
+                ch.client.extend(now);
+            }
+            self.shared.lock().stats.stalls += 1;
+            return Ok(());
+        }
         let nodes: Vec<u8> = self.sdo.keys().copied().collect();
         for k in nodes {
             let step = self.sdo.get_mut(&k).and_then(|ch| ch.client.poll(now));
@@ -568,7 +594,11 @@ impl Task {
                     .await?;
             }
         }
-        let lost = self.heartbeats.check(now);
+        let mut lost = self.heartbeats.check(now);
+        if !lost.is_empty() {
+            self.confirm_silence().await?;
+            lost.retain(|l| self.heartbeats.is_lost(l.node));
+        }
         if !lost.is_empty() {
             {
                 let mut s = self.shared.lock();
@@ -584,6 +614,30 @@ impl Task {
                 self.shared.lock().stats.stop_frames_sent += 1;
             }
             self.shared.changed.notify_waiters();
+        }
+        Ok(())
+    }
+
+    /// Before a lapse is declared: stay responsive for a short quiet period, reading
+    /// the bus and letting every other task run. A heartbeat that was only waiting for
+    /// this task (or for the producer's task, in-process) to be scheduled is heard now,
+    /// and clears the lapse; a node that is really gone stays silent.
+    async fn confirm_silence(&mut self) -> Result<(), DriverError> {
+        const STEP: Duration = Duration::from_millis(5);
+        let mut quiet = 0;
+        for _ in 0..1000 {
+            if quiet >= 10 {
+                break;
+            }
+            let t = Instant::now();
+            tokio::select! {
+                biased;
+                f = self.bus.recv() => self.route(f?).await?,
+                _ = tokio::time::sleep(STEP) => {
+                    // Only a sleep that ended on time shows we were being scheduled.
+                    quiet = if t.elapsed() < STEP + Duration::from_millis(3) { quiet + 1 } else { 0 };
+                }
+            }
         }
         Ok(())
     }

@@ -171,6 +171,20 @@ impl HeartbeatConsumer {
         out
     }
 
+    /// Restart every running window at `now` (lapsed producers stay lapsed). For a
+    /// consumer that was itself not scheduled for a while: the silence it would see is
+    /// its own, not the producers'.
+    pub fn restart_windows(&mut self, now: f64) {
+        for w in self.watched.iter_mut().filter(|w| !w.lost) {
+            w.since = w.since.max(now);
+        }
+    }
+
+    /// The shortest timeout watched.
+    pub fn min_timeout(&self) -> Option<f64> {
+        self.watched.iter().map(|w| w.timeout_s).reduce(f64::min)
+    }
+
     /// Whether `node`'s heartbeat is currently lapsed.
     pub fn is_lost(&self, node: NodeId) -> bool {
         self.watched.iter().any(|w| w.node == node && w.lost)
@@ -234,6 +248,11 @@ mod tests {
         assert_eq!(lost[0].node, n);
         assert!(c.is_lost(n));
         assert!(c.check(5.0).is_empty(), "reported once");
+        let m = NodeId::new(3).unwrap();
+        c.watch(m, 0.3, 5.0);
+        c.restart_windows(6.0);
+        assert!(c.check(6.2).is_empty(), "window restarted at 6.0");
+        assert_eq!(c.min_timeout(), Some(0.3));
         c.on_frame(&heartbeat_frame(n, NmtState::Operational), 5.1);
         assert!(!c.is_lost(n));
         assert_eq!(c.state(n), Some(NmtState::Operational));

@@ -265,6 +265,14 @@ impl SdoClient {
         (self.transfer.is_some() && now >= self.deadline).then(|| self.fail(AbortCode::TIMEOUT))
     }
 
+    /// Restart the timeout of a transfer in progress at `now` (for an owner that was
+    /// not scheduled for a while and so could not have seen the answer).
+    pub fn extend(&mut self, now: f64) {
+        if self.transfer.is_some() {
+            self.deadline = self.deadline.max(now + self.timeout_s);
+        }
+    }
+
     /// Abort the transfer in progress (e.g. the caller gave up); returns the frame.
     pub fn cancel(&mut self, code: AbortCode) -> Option<CanFrame> {
         self.transfer.as_ref()?;
