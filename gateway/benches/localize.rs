@@ -4,13 +4,17 @@
 //!
 //! Frames are rendered once (by `emulators::render`, which also gives the true dot
 //! centres and the true position), then `localize()` is timed on the decoded frame, many
-//! times, and reported as median and 90th percentile. A plain pass over the same frame
-//! (summing every pixel) is timed the same way, so the ratio says how many "frame reads"
-//! the localizer costs independent of the machine. The machine may be shared: medians,
-//! not means.
+//! times, and reported as median, 90th percentile and minimum. A plain pass over the
+//! same frame (summing every pixel) is timed in the same loop, interleaved, so the ratio
+//! says how many "frame reads" the localizer costs independent of the machine and of
+//! load from other processes. The machine may be shared: medians, not means.
 //!
-//! Set `LOCALIZE_BENCH_RUNS` to change the number of timed runs (default 101, at least
-//! 50) and `LOCALIZE_BENCH_ONLY=speed` or `=accuracy` to run one half.
+//! Environment:
+//! * `LOCALIZE_BENCH_RUNS`: timed runs (default 101, at least 50 for the speed table);
+//! * `LOCALIZE_BENCH_ONLY=speed` or `=accuracy`: run one half;
+//! * `LOCALIZE_BENCH_ONLY=loop`: only call `localize()` `LOCALIZE_BENCH_RUNS` times on one
+//!   frame (camera file `LOCALIZE_BENCH_CAMERA`, default `mono-5mp.toml`), for profilers
+//!   such as `perf record` or `valgrind --tool=cachegrind`.
 
 use emulators::camera::{CameraModel, CameraPose};
 use emulators::plate::{manufacture, PlateErrors};
@@ -323,7 +327,7 @@ fn accuracy() {
 }
 
 fn main() {
-    // `cargo bench` passes `--bench`; accept and ignore harness-style arguments.
+    // `cargo bench` passes `--bench`: harness-style arguments are ignored.
     let runs: usize = std::env::var("LOCALIZE_BENCH_RUNS")
         .ok()
         .and_then(|v| v.parse().ok())
