@@ -58,6 +58,9 @@ enum Cmd {
     /// driving the simulated machine, over TCP and/or RTU on a new pseudo-terminal;
     /// prints the address or port path and serves until killed.
     Modbus(emulators::modbus::cli::ModbusArgs),
+    /// Serve CiA 402 drive nodes (one per machine axis) behind an SLCAN adapter on a
+    /// new pseudo-terminal, driving the simulated machine; prints `slcan: /dev/pts/N`.
+    Canopen(emulators::canopen::cli::CanopenArgs),
 }
 
 fn parse_clock(s: &str) -> anyhow::Result<emulators::grbl::Clock> {
@@ -116,6 +119,7 @@ fn serve_grbl(
 fn main() -> anyhow::Result<()> {
     match Cli::parse().cmd {
         Cmd::Modbus(args) => emulators::modbus::cli::serve(args)?,
+        Cmd::Canopen(args) => emulators::canopen::cli::serve(args)?,
         Cmd::Grbl {
             machine,
             board,

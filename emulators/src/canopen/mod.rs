@@ -4,6 +4,7 @@
 //! driving one axis of the shared simulated machine, and [`pty`] serves them behind an
 //! emulated SLCAN adapter on a real pseudo-terminal (`emulators canopen`).
 
+pub mod cli;
 pub mod drives;
 pub mod node;
 pub mod pty;

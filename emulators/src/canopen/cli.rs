@@ -1,0 +1,111 @@
+//! The `emulators canopen` command: CiA 402 drive nodes on the simulated machine,
+//! behind an emulated SLCAN adapter on a new pseudo-terminal (prints
+//! `slcan: /dev/pts/N`), served until killed.
+
+use super::drives::{DriveSet, DriveSetConfig, DRIVE_EDS, DRIVE_EDS_NAME};
+use super::pty::SlcanPty;
+use crate::grbl::Clock;
+use anyhow::Context;
+use std::io::Write;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+
+/// Serve CiA 402 drives (one node per machine axis) behind an SLCAN adapter on a new
+/// pseudo-terminal; prints the port path and serves until killed.
+#[derive(clap::Args, Debug)]
+pub struct CanopenArgs {
+    /// Node ids as ID=AXIS (axis x or y); repeat for each drive on the bus.
+    #[arg(long = "node", default_values_t = ["1=x".to_string(), "2=y".to_string()])]
+    pub nodes: Vec<String>,
+    /// EDS of the drives (default: the built-in config/canopen/drive.eds).
+    #[arg(long)]
+    pub eds: Option<PathBuf>,
+    /// Also create a symlink to the port at this path (a stable name for clients).
+    #[arg(long)]
+    pub link: Option<PathBuf>,
+    /// Simulated machine file.
+    #[arg(long, default_value = "config/machines/c5-stage.toml")]
+    pub machine: PathBuf,
+    /// Board the camera sees (the rig's board).
+    #[arg(long, default_value = "config/boards/dot-grid-0.5mm.toml")]
+    pub board: PathBuf,
+    /// Camera optics file.
+    #[arg(long, default_value = "config/cameras/mono-1.3mp.toml")]
+    pub camera: PathBuf,
+    /// Simulated seconds per wall second, or `unconstrained` (a motion completes right
+    /// after the frames that reported its start).
+    #[arg(long, default_value = "1")]
+    pub time_scale: String,
+}
+
+fn parse_clock(s: &str) -> anyhow::Result<Clock> {
+    if s.eq_ignore_ascii_case("unconstrained") {
+        return Ok(Clock::Unconstrained);
+    }
+    let k: f64 = s
+        .parse()
+        .with_context(|| format!("--time-scale `{s}`: a positive number or `unconstrained`"))?;
+    anyhow::ensure!(
+        k.is_finite() && k > 0.0,
+        "--time-scale `{s}`: must be positive"
+    );
+    Ok(Clock::Scaled(k))
+}
+
+fn parse_node(s: &str) -> anyhow::Result<(u8, usize)> {
+    let (id, axis) = s
+        .split_once('=')
+        .with_context(|| format!("--node `{s}`: expected ID=AXIS, like 1=x"))?;
+    let id: u8 = id
+        .trim()
+        .parse()
+        .with_context(|| format!("--node `{s}`: the id is 1..127"))?;
+    anyhow::ensure!((1..=127).contains(&id), "--node `{s}`: the id is 1..127");
+    let axis = match axis.trim().to_ascii_lowercase().as_str() {
+        "x" => 0,
+        "y" => 1,
+        other => anyhow::bail!("--node `{s}`: axis `{other}`: the simulated machine has x and y"),
+    };
+    Ok((id, axis))
+}
+
+pub fn serve(args: CanopenArgs) -> anyhow::Result<()> {
+    let clock = parse_clock(&args.time_scale)?;
+    let nodes = args
+        .nodes
+        .iter()
+        .map(|s| parse_node(s))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let eds = match &args.eds {
+        Some(p) => (
+            p.display().to_string(),
+            std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
+        ),
+        None => (DRIVE_EDS_NAME.to_string(), DRIVE_EDS.to_string()),
+    };
+    let m = crate::machine::MachineConfig::load(&args.machine)?;
+    let b = protocol::Board::load(&args.board)?;
+    let c = crate::camera::CameraModel::load(&args.camera)?;
+    let rig = crate::rig::SimRig::new(crate::machine::SimMachine::new(m), b, c);
+    let rig = Arc::new(Mutex::new(rig));
+    let set = DriveSet::new(rig, &DriveSetConfig { clock, nodes, eds }, 0.0)?;
+    let ids = set.node_ids();
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    rt.block_on(async move {
+        let mut pty = SlcanPty::spawn(Arc::new(Mutex::new(set)), args.link.as_deref())
+            .context("creating the pseudo-terminal")?;
+        println!("slcan: {}", pty.path());
+        if let Some(l) = pty.link() {
+            println!("link: {}", l.display());
+        }
+        println!(
+            "nodes: {}",
+            ids.iter().map(u8::to_string).collect::<Vec<_>>().join(",")
+        );
+        std::io::stdout().flush()?;
+        pty.closed().await;
+        Ok(())
+    })
+}
