@@ -216,13 +216,13 @@ impl CommandPacket {
         let command = match code {
             CMD_DISCOVERY => Command::Discovery,
             CMD_READREG => {
-                if p.is_empty() || p.len() % 4 != 0 {
+                if p.is_empty() || p.len() & 3 != 0 {
                     return Err(malformed("READREG needs a multiple of 4 bytes"));
                 }
                 Command::ReadReg(p.chunks(4).map(|c| get32(c, 0)).collect())
             }
             CMD_WRITEREG => {
-                if p.is_empty() || p.len() % 8 != 0 {
+                if p.is_empty() || p.len() & 7 != 0 {
                     return Err(malformed("WRITEREG needs address/value pairs"));
                 }
                 Command::WriteReg(p.chunks(8).map(|c| (get32(c, 0), get32(c, 4))).collect())
@@ -380,7 +380,7 @@ impl Ack {
         } else {
             match code {
                 c if c == CMD_DISCOVERY + 1 => AckBody::Discovery(p.to_vec()),
-                c if c == CMD_READREG + 1 && p.len() % 4 == 0 => {
+                c if c == CMD_READREG + 1 && p.len() & 3 == 0 => {
                     AckBody::ReadReg(p.chunks(4).map(|c| get32(c, 0)).collect())
                 }
                 c if c == CMD_WRITEREG + 1 && p.len() >= 4 => {
