@@ -94,12 +94,6 @@ pub struct Cia402Axis {
     boot_ups: u64,
 }
 
-/// The statusword carried by the last TPDO2 (statusword + position).
-fn tpdo2_status(v: &NodeView) -> Option<u16> {
-    let d = v.tpdo_data[1].as_ref()?;
-    Some(u16::from_le_bytes([*d.first()?, *d.get(1)?]))
-}
-
 fn device_name(node: NodeId) -> String {
     format!("CANopen node {}", node.get())
 }
@@ -148,7 +142,11 @@ impl Cia402Axis {
     }
 
     async fn read(&self, index: u16, sub: u8) -> Result<Vec<u8>, DriverError> {
-        self.net.sdo_read(self.node, index, sub).await
+        match self.net.sdo_read(self.node, index, sub).await {
+            Ok(v) => Ok(v),
+            // A node that is gone is reported as such, not as an unanswered SDO.
+            Err(e) => Err(self.check_alive().err().unwrap_or(e)),
+        }
     }
 
     async fn read_u32(&self, index: u16, sub: u8) -> Result<u32, DriverError> {
@@ -168,7 +166,10 @@ impl Cia402Axis {
     }
 
     async fn write(&self, index: u16, sub: u8, data: &[u8]) -> Result<(), DriverError> {
-        self.net.sdo_write(self.node, index, sub, data).await
+        match self.net.sdo_write(self.node, index, sub, data).await {
+            Ok(()) => Ok(()),
+            Err(e) => Err(self.check_alive().err().unwrap_or(e)),
+        }
     }
 
     async fn start_up(&mut self) -> Result<(), DriverError> {
@@ -605,21 +606,25 @@ impl AxisDrive for Cia402Axis {
             .view(self.node, |v| v.tpdo_count[0] + v.tpdo_count[1]);
         self.controlword(cw::ENABLE_OPERATION_CMD | cw::NEW_SET_POINT | cw::CHANGE_IMMEDIATELY)
             .await?;
-        let mut ack_at = 0;
+        let mut ack_seq = 0;
         let s = self
             .wait_status(
                 self.opts.state_timeout,
                 "set-point acknowledge (statusword bit 12)",
-                |s, v| {
-                    if v.tpdo_count[0] + v.tpdo_count[1] > before && s & sw::SET_POINT_ACK != 0 {
-                        // TPDO2s from here on reflect the new set-point; so does the latest
-                        // one if it already shows the acknowledge (it was sent after it).
-                        let latest_acked =
-                            tpdo2_status(v).is_some_and(|x| x & sw::SET_POINT_ACK != 0);
-                        ack_at = v.tpdo_count[1] - u64::from(latest_acked);
-                        return true;
+                |_, v| {
+                    // Every statusword is looked at, not only the latest: several may have
+                    // arrived together.
+                    match v
+                        .statuswords
+                        .iter()
+                        .find(|(k, x)| *k > before && x & sw::SET_POINT_ACK != 0)
+                    {
+                        Some((k, _)) => {
+                            ack_seq = *k;
+                            true
+                        }
+                        None => false,
                     }
-                    false
                 },
             )
             .await?;
@@ -628,7 +633,7 @@ impl AxisDrive for Cia402Axis {
             return Err(self.fault_error("move").await);
         }
         self.controlword(cw::ENABLE_OPERATION_CMD).await?;
-        self.moving_since = Some(ack_at);
+        self.moving_since = Some(ack_seq);
         Ok(())
     }
 
@@ -669,14 +674,17 @@ impl AxisDrive for Cia402Axis {
             self.check_alive()?;
             return Ok(());
         };
+        // "Target reached" in a statusword that came after the acknowledge belongs to
+        // this set-point (the drive clears it when it takes one, and only a new one
+        // clears it again).
         let s = self
             .wait_status(
                 self.opts.motion_timeout,
                 "target reached (statusword bit 10)",
                 |_, v| {
-                    // The statusword of TPDO2 itself, so the position beside it is final.
-                    v.tpdo_count[1] > since
-                        && tpdo2_status(v).is_some_and(|x| x & sw::TARGET_REACHED != 0)
+                    v.statuswords
+                        .back()
+                        .is_some_and(|(k, x)| *k >= since && x & sw::TARGET_REACHED != 0)
                 },
             )
             .await?;
@@ -684,6 +692,11 @@ impl AxisDrive for Cia402Axis {
         if State::from_statusword(s) == State::Fault {
             return Err(self.fault_error("move").await);
         }
+        // The final position, asked for: a TPDO2 may still wait out its inhibit time,
+        // or not come at all when nothing it carries changed.
+        let pos = self.read(obj::POSITION_ACTUAL, 0).await?;
+        self.net
+            .store_value(self.node, obj::POSITION_ACTUAL, 0, pos);
         Ok(())
     }
 

@@ -298,6 +298,17 @@ impl Network {
             .or_insert(bytes);
     }
 
+    /// Put a value read by SDO into the process image, replacing what a TPDO brought
+    /// (the newer of the two).
+    pub fn store_value(&self, node: NodeId, index: u16, sub: u8, bytes: Vec<u8>) {
+        let mut s = self.shared.lock();
+        s.nodes
+            .entry(node.get())
+            .or_default()
+            .values
+            .insert((index, sub), bytes);
+    }
+
     /// Nodes whose heartbeat is lapsed now.
     pub fn lost_nodes(&self) -> Vec<(u8, HeartbeatLost)> {
         let s = self.shared.lock();
