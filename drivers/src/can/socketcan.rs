@@ -27,8 +27,19 @@ pub fn unavailable(interface: &str) -> Option<String> {
 }
 
 fn explain(interface: &str, e: &std::io::Error) -> String {
+    // The interface name is looked up before the socket is made, so "no such device"
+    // may hide a kernel without CAN at all: ask for an AF_CAN socket bound to any
+    // interface (index 0) to tell them apart.
+    let no_af_can = |e: &std::io::Error| e.raw_os_error() == Some(97);
+    if no_af_can(e) {
+        return format!("the kernel has no CAN support (socket(AF_CAN) failed: {e})");
+    }
+    if let Err(probe) = socketcan::CanSocket::open_iface(0) {
+        if no_af_can(&probe) {
+            return format!("the kernel has no CAN support (socket(AF_CAN) failed: {probe})");
+        }
+    }
     match e.raw_os_error() {
-        Some(97) => format!("the kernel has no CAN support (socket(AF_CAN) failed: {e})"),
         Some(19) => format!("there is no CAN interface `{interface}` ({e})"),
         _ => format!("cannot open CAN interface `{interface}`: {e}"),
     }

@@ -36,6 +36,10 @@ pub struct CanopenArgs {
     /// after the frames that reported its start).
     #[arg(long, default_value = "1")]
     pub time_scale: String,
+    /// Serve on this SocketCAN interface (vcan0, can0) instead of an SLCAN pty
+    /// (Linux, cargo feature `socketcan`); prints `socketcan: IFACE`.
+    #[arg(long)]
+    pub socketcan: Option<String>,
 }
 
 fn parse_clock(s: &str) -> anyhow::Result<Clock> {
@@ -93,9 +97,13 @@ pub fn serve(args: CanopenArgs) -> anyhow::Result<()> {
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
+    let set = Arc::new(Mutex::new(set));
+    if let Some(iface) = &args.socketcan {
+        return serve_socketcan(&rt, set, iface, &ids);
+    }
     rt.block_on(async move {
-        let mut pty = SlcanPty::spawn(Arc::new(Mutex::new(set)), args.link.as_deref())
-            .context("creating the pseudo-terminal")?;
+        let mut pty =
+            SlcanPty::spawn(set, args.link.as_deref()).context("creating the pseudo-terminal")?;
         println!("slcan: {}", pty.path());
         if let Some(l) = pty.link() {
             println!("link: {}", l.display());
@@ -108,4 +116,35 @@ pub fn serve(args: CanopenArgs) -> anyhow::Result<()> {
         pty.closed().await;
         Ok(())
     })
+}
+
+#[cfg(all(target_os = "linux", feature = "socketcan"))]
+fn serve_socketcan(
+    rt: &tokio::runtime::Runtime,
+    set: super::SharedSet,
+    iface: &str,
+    ids: &[u8],
+) -> anyhow::Result<()> {
+    rt.block_on(async move {
+        let mut port = super::socketcan::SocketCanPort::spawn(set, iface)
+            .with_context(|| format!("opening SocketCAN interface {iface}"))?;
+        println!("socketcan: {iface}");
+        println!(
+            "nodes: {}",
+            ids.iter().map(u8::to_string).collect::<Vec<_>>().join(",")
+        );
+        std::io::stdout().flush()?;
+        port.closed().await;
+        Ok(())
+    })
+}
+
+#[cfg(not(all(target_os = "linux", feature = "socketcan")))]
+fn serve_socketcan(
+    _rt: &tokio::runtime::Runtime,
+    _set: super::SharedSet,
+    iface: &str,
+    _ids: &[u8],
+) -> anyhow::Result<()> {
+    anyhow::bail!("--socketcan {iface}: this build has no SocketCAN support (Linux, cargo feature `socketcan`)")
 }

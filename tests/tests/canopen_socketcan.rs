@@ -1,0 +1,94 @@
+//! The CANopen driver and the drive emulator on a Linux SocketCAN interface. Runs where
+//! the kernel has CAN support and a vcan interface is up (`modprobe vcan; ip link add
+//! vcan0 type vcan; ip link set vcan0 up`; another name with CANOPEN_VCAN=name);
+//! elsewhere it prints why it skips and passes. Opening a missing interface is checked
+//! everywhere: it is `NotAvailable` with the reason, never a panic or a hang.
+
+mod canopen_common;
+
+use canopen_common::*;
+use drivers::can::socketcan::{unavailable, SocketCanBus};
+use drivers::can::{open_bus, BusSpec};
+use drivers::canopen::open_stage;
+use drivers::{AxisValues, DriverError, Stage};
+use emulators::canopen::socketcan::SocketCanPort;
+use emulators::canopen::{DriveSet, DriveSetConfig};
+use emulators::grbl::Clock;
+use std::sync::{Arc, Mutex};
+
+fn interface() -> String {
+    std::env::var("CANOPEN_VCAN").unwrap_or_else(|_| "vcan0".into())
+}
+
+#[test]
+fn a_missing_interface_is_not_available_with_the_reason() {
+    let e = runtime()
+        .block_on(open_bus(&BusSpec::SocketCan {
+            interface: "nocan9".into(),
+        }))
+        .err()
+        .expect("no interface nocan9");
+    match &e {
+        DriverError::NotAvailable { backend, reason } => {
+            assert_eq!(backend, "socketcan nocan9");
+            assert!(
+                reason.contains("the kernel has no CAN support")
+                    || reason.contains("no CAN interface `nocan9`"),
+                "{reason}"
+            );
+        }
+        other => panic!("{other}"),
+    }
+}
+
+#[test]
+fn driver_and_emulated_drives_on_a_vcan_interface() {
+    let iface = interface();
+    if let Some(why) = unavailable(&iface) {
+        eprintln!("SKIPPED: SocketCAN test on {iface}: {why}");
+        return;
+    }
+    let rig = rig();
+    runtime().block_on(async {
+        let set = DriveSet::new(
+            rig.clone(),
+            &DriveSetConfig::xy(X_NODE, Y_NODE, Clock::Unconstrained),
+            0.0,
+        )
+        .unwrap();
+        let _emu = SocketCanPort::spawn(Arc::new(Mutex::new(set)), &iface)
+            .expect("emulator on the interface");
+        let bus = SocketCanBus::open(&iface).unwrap();
+        let (mut stage, net) = open_stage(Box::new(bus), axes(), options()).await.unwrap();
+        assert!(
+            stage.info().name.contains(&format!("socketcan {iface}")),
+            "{}",
+            stage.info().name
+        );
+        stage.home().await.unwrap();
+        stage
+            .move_to(AxisValues::xy(33.0, 44.5), 3000.0)
+            .await
+            .unwrap();
+        stage.wait_idle().await.unwrap();
+        assert_eq!(
+            stage.position().await.unwrap().to_xy().unwrap(),
+            [33.0, 44.5]
+        );
+        assert_eq!(rig.lock().unwrap().machine.counts(), [66_000, 89_000]);
+        let e = net
+            .sdo_read(protocol::canopen::NodeId::new(1).unwrap(), 0x2000, 0)
+            .await
+            .unwrap_err();
+        assert!(
+            matches!(
+                e,
+                DriverError::Refused {
+                    code: 0x0602_0000,
+                    ..
+                }
+            ),
+            "{e}"
+        );
+    });
+}
