@@ -138,7 +138,9 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     other => anyhow::bail!("--transport `{other}`: expected tcp or rtu"),
                 },
                 "canopen" => gateway::canopen_stage::over_canopen(&mut job)?,
-                other => anyhow::bail!("--stage `{other}`: this build knows sim, grbl, modbus and canopen"),
+                other => anyhow::bail!(
+                    "--stage `{other}`: this build knows sim, grbl, modbus and canopen"
+                ),
             }
             if let Some(m) = method {
                 job.localize.method = parse_method(&m)?;

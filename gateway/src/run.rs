@@ -35,7 +35,9 @@ pub fn open_devices(job: &Job) -> Result<Devices, DriverError> {
         }),
         (StageSpec::Canopen(_), _) => Err(DriverError::NotAvailable {
             backend: "canopen".into(),
-            reason: "a CANopen stage is opened inside the async runtime: use run::open_devices_async".into(),
+            reason:
+                "a CANopen stage is opened inside the async runtime: use run::open_devices_async"
+                    .into(),
         }),
         (StageSpec::Modbus(_), _) => Err(DriverError::NotAvailable {
             backend: "modbus".into(),

@@ -12,8 +12,8 @@ pub mod config;
 pub mod gige;
 pub mod grbl;
 pub mod image;
-pub mod slcan;
 pub mod modbus;
+pub mod slcan;
 
 pub use board::{Board, Polarity};
 pub use config::ConfigError;
