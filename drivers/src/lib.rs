@@ -14,6 +14,7 @@ pub mod camera;
 pub mod can;
 pub mod canopen;
 pub mod error;
+pub mod gige;
 pub mod grbl;
 #[cfg(feature = "modbus")]
 pub mod modbus;

@@ -6,6 +6,7 @@
 
 pub mod camera;
 pub mod canopen;
+pub mod gige;
 pub mod grbl;
 pub mod machine;
 pub mod modbus;

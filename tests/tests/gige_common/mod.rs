@@ -1,0 +1,79 @@
+//! Shared set-up of the GigE Vision system tests: a simulated rig (optionally with a
+//! smaller sensor so debug builds stay fast), the emulated camera on a loopback port
+//! and the driver connected to it.
+
+#![allow(dead_code)]
+
+use drivers::gige::{GigeCamera, GigeOptions};
+use emulators::camera::CameraModel;
+use emulators::gige::{GigeCameraServer, GigeConfig, GigeServerOptions};
+use emulators::machine::{MachineConfig, SimMachine};
+use emulators::rig::SimRig;
+use protocol::Board;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+pub type SharedRig = Arc<Mutex<SimRig>>;
+
+pub fn config_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../config")
+}
+
+/// The demo rig, its camera cropped to `w` x `h` at `bit_depth` (None: as configured).
+pub fn rig(size: Option<(u32, u32)>, bit_depth: Option<u8>) -> SharedRig {
+    let d = config_dir();
+    let m = MachineConfig::load(&d.join("machines/c5-stage.toml")).unwrap();
+    let mut c = CameraModel::load(&d.join("cameras/mono-1.3mp.toml")).unwrap();
+    if let Some((w, h)) = size {
+        c.width = w;
+        c.height = h;
+    }
+    if let Some(b) = bit_depth {
+        c.bit_depth = b;
+        if b == 16 {
+            c.noise_sigma *= 257.0;
+        }
+    }
+    let b = Board::load(&d.join("boards/dot-grid-0.5mm.toml")).unwrap();
+    Arc::new(Mutex::new(SimRig::new(SimMachine::new(m), b, c)))
+}
+
+pub fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap()
+}
+
+pub async fn emulator(rig: &SharedRig, config: GigeConfig) -> GigeCameraServer {
+    GigeCameraServer::spawn(
+        rig.clone(),
+        GigeServerOptions {
+            config,
+            ..Default::default()
+        },
+    )
+    .await
+    .expect("emulated camera on loopback")
+}
+
+/// Short timeouts: a broken test fails in seconds.
+pub fn options() -> GigeOptions {
+    GigeOptions {
+        timeout: Duration::from_millis(300),
+        retries: 2,
+        packet_size: 8192,
+        frame_timeout: Duration::from_secs(20),
+        packet_timeout: Duration::from_millis(200),
+        resend_rounds: 3,
+        heartbeat_timeout_ms: None,
+    }
+}
+
+pub async fn connect(emu: &GigeCameraServer, opts: GigeOptions) -> GigeCamera {
+    GigeCamera::open(&emu.control_addr().to_string(), opts)
+        .await
+        .expect("driver opens the emulated camera")
+}
