@@ -7,6 +7,7 @@
 
 pub mod cli;
 pub mod drives;
+pub mod hub;
 pub mod node;
 pub mod pty;
 #[cfg(all(target_os = "linux", feature = "socketcan"))]
@@ -15,4 +16,5 @@ pub mod socketcan;
 pub use drives::{
     DriveSet, DriveSetConfig, SetStats, SharedRig, Trapezoid, DRIVE_EDS, DRIVE_EDS_NAME,
 };
+pub use hub::SlcanHub;
 pub use pty::{AdapterStats, SharedSet, SlcanAdapter, SlcanPty};
