@@ -644,3 +644,49 @@ mod tests {
             .contains("bitrate code"));
     }
 }
+
+#[cfg(test)]
+mod random_input {
+    use super::*;
+
+    /// A small deterministic generator (no dependency for a test).
+    struct Lcg(u64);
+    impl Lcg {
+        fn next(&mut self) -> u8 {
+            self.0 = self
+                .0
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (self.0 >> 33) as u8
+        }
+    }
+
+    #[test]
+    fn random_bytes_never_panic_and_a_good_line_after_them_is_read() {
+        let alphabet = b"tTrRzZFVN0123456789ABCDEFabcdef\r\x07\n\xFF";
+        let good = Message::Frame {
+            frame: CanFrame::std(0x181, &[1, 2, 3]),
+            timestamp_ms: None,
+        };
+        let mut rng = Lcg(7);
+        for round in 0..2000 {
+            let len = usize::from(rng.next()) % 80;
+            let noise: Vec<u8> = (0..len)
+                .map(|_| alphabet[usize::from(rng.next()) % alphabet.len()])
+                .collect();
+            let mut d = MessageDecoder::new();
+            let mut out = Vec::new();
+            d.feed(&noise, &mut out);
+            // A CR ends whatever the noise left open; then a good frame is read.
+            d.feed(b"\r", &mut out);
+            out.clear();
+            d.feed(&good.encode(), &mut out);
+            assert_eq!(out, vec![good.clone()], "round {round}: noise {noise:?}");
+            let mut c = CommandDecoder::new();
+            let mut cmds = Vec::new();
+            c.feed(&noise, &mut cmds);
+            c.feed(b"\rO\r", &mut cmds);
+            assert_eq!(cmds.last(), Some(&Ok(Command::Open)), "round {round}");
+        }
+    }
+}

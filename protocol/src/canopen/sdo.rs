@@ -836,3 +836,57 @@ mod tests {
         );
     }
 }
+
+#[cfg(test)]
+mod random_input {
+    use super::*;
+
+    struct Od;
+    impl ObjectAccess for Od {
+        fn read(&mut self, index: u16, _sub: u8) -> Result<Vec<u8>, AbortCode> {
+            match index {
+                0x1000 => Ok(vec![1, 2, 3, 4]),
+                0x1008 => Ok(vec![b'x'; 30]),
+                _ => Err(AbortCode::NO_OBJECT),
+            }
+        }
+        fn write(&mut self, index: u16, _sub: u8, _data: &[u8]) -> Result<(), AbortCode> {
+            if index == 0x2000 {
+                Ok(())
+            } else {
+                Err(AbortCode::READ_ONLY)
+            }
+        }
+    }
+
+    #[test]
+    fn random_requests_and_responses_never_panic() {
+        let mut x: u64 = 99;
+        let mut byte = || {
+            x = x
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (x >> 33) as u8
+        };
+        let mut server = SdoServer::new();
+        let mut client = SdoClient::new(NodeId::new(1).unwrap(), 1.0);
+        for i in 0..20_000 {
+            let len = usize::from(byte()) % 10;
+            let mut frame: Vec<u8> = (0..len).map(|_| byte()).collect();
+            // Bias towards real command specifiers and objects so deep states are hit.
+            if len > 3 && i % 2 == 0 {
+                frame[1] = [0x00, 0x08, 0x00][i % 3];
+                frame[2] = [0x10, 0x10, 0x20][i % 3];
+            }
+            let _ = server.on_request(&frame, &mut Od);
+            if !client.busy() {
+                match i % 3 {
+                    0 => drop(client.upload(0x1008, 0, 0.0)),
+                    1 => drop(client.download(0x2000, 0, &[1; 9], 0.0)),
+                    _ => drop(client.upload(0x1000, 0, 0.0)),
+                }
+            }
+            let _ = client.on_response(&frame, 0.0);
+        }
+    }
+}
