@@ -61,6 +61,11 @@ enum Cmd {
     /// Serve CiA 402 drive nodes (one per machine axis) behind an SLCAN adapter on a
     /// new pseudo-terminal, driving the simulated machine; prints `slcan: /dev/pts/N`.
     Canopen(emulators::canopen::cli::CanopenArgs),
+    /// Serve a GigE Vision camera rendering the board at the simulated machine's pose
+    /// (GVCP on 127.0.0.1:3956 by default), optionally with a stage emulator (`--stage
+    /// grbl|modbus`) on the same machine; prints `gige: ADDR:PORT` and the stage's port.
+    #[command(visible_alias = "rig")]
+    Gige(emulators::gige::cli::GigeArgs),
 }
 
 fn parse_clock(s: &str) -> anyhow::Result<emulators::grbl::Clock> {
@@ -120,6 +125,7 @@ fn main() -> anyhow::Result<()> {
     match Cli::parse().cmd {
         Cmd::Modbus(args) => emulators::modbus::cli::serve(args)?,
         Cmd::Canopen(args) => emulators::canopen::cli::serve(args)?,
+        Cmd::Gige(args) => emulators::gige::cli::serve(args)?,
         Cmd::Grbl {
             machine,
             board,

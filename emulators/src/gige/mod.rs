@@ -1,6 +1,7 @@
 //! A GigE Vision camera on the simulated machine: the sans-IO register device
-//! ([`device`]) and its UDP server ([`server`]).
+//! ([`device`]), its UDP server ([`server`]) and the stand-alone command ([`cli`]).
 
+pub mod cli;
 pub mod device;
 pub mod server;
 

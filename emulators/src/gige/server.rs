@@ -112,6 +112,8 @@ impl GigeCameraServer {
             block_id: 0,
             last: None,
             next_tick: None,
+            rendering: None,
+            queued: 0,
             buf: Vec::with_capacity(66_000),
         };
         let task = tokio::spawn(srv.run());
@@ -160,7 +162,20 @@ struct Server {
     last: Option<LastFrame>,
     /// Next continuous-mode frame.
     next_tick: Option<Instant>,
+    /// The frame being rendered (off the control loop, so GVCP stays responsive while a
+    /// large frame renders) and the triggers that arrived meanwhile.
+    rendering: Option<JoinHandle<(protocol::MonoImage, crate::rig::SimFrameInfo)>>,
+    queued: u32,
     buf: Vec<u8>,
+}
+
+async fn rendered(
+    r: &mut Option<JoinHandle<(protocol::MonoImage, crate::rig::SimFrameInfo)>>,
+) -> Option<(protocol::MonoImage, crate::rig::SimFrameInfo)> {
+    match r {
+        Some(h) => h.await.ok(),
+        None => std::future::pending().await,
+    }
 }
 
 async fn recv_opt(s: &Option<UdpSocket>, buf: &mut [u8]) -> std::io::Result<(usize, SocketAddr)> {
@@ -199,6 +214,17 @@ impl Server {
                     Ok((n, from)) => (rx2[..n].to_vec(), from, true),
                     Err(_) => continue,
                 },
+                f = rendered(&mut self.rendering) => {
+                    self.rendering = None;
+                    if let Some((image, info)) = f {
+                        self.stream_frame(image, info).await;
+                    }
+                    if self.queued > 0 {
+                        self.queued -= 1;
+                        self.start_render();
+                    }
+                    continue;
+                }
                 _ = sleep_opt(self.next_tick) => {
                     self.continuous_tick().await;
                     continue;
@@ -229,14 +255,14 @@ impl Server {
                 Event::AcquisitionStarted => {
                     if !self.device.software_triggered() {
                         if self.device.acquisition_mode() == 1 {
-                            self.send_frame().await;
+                            self.start_render();
                         } else {
                             self.next_tick = Some(Instant::now());
                         }
                     }
                 }
                 Event::AcquisitionStopped | Event::ControlReleased => self.next_tick = None,
-                Event::Trigger => self.send_frame().await,
+                Event::Trigger => self.start_render(),
                 Event::Resend {
                     block_id,
                     first,
@@ -255,18 +281,34 @@ impl Server {
             self.next_tick = None;
             return;
         }
-        self.send_frame().await;
+        // A frame still rendering is not queued behind: this tick is skipped.
+        if self.rendering.is_none() {
+            self.start_render();
+        }
         let period = std::time::Duration::from_secs_f32(1.0 / self.device.frame_rate_hz());
         let next = self.next_tick.unwrap_or_else(Instant::now) + period;
         // Never queue up frames behind a slow render: skip to the next period from now.
         self.next_tick = Some(next.max(Instant::now()));
     }
 
-    async fn send_frame(&mut self) {
+    /// Exposes a frame now: the rig is read at this moment (the trigger), rendered on
+    /// the blocking pool.
+    fn start_render(&mut self) {
+        if self.device.stream_destination().is_none() {
+            return;
+        }
+        if self.rendering.is_some() {
+            self.queued += 1;
+            return;
+        }
+        let rig = self.rig.clone();
+        self.rendering = Some(tokio::task::spawn_blocking(move || lock(&rig).grab()));
+    }
+
+    async fn stream_frame(&mut self, image: protocol::MonoImage, info: crate::rig::SimFrameInfo) {
         let Some(dest) = self.device.stream_destination() else {
             return;
         };
-        let (image, info) = lock(&self.rig).grab();
         let data = match image.pixels {
             Pixels::Mono8(p) => p,
             // PFNC Mono16 is little-endian on the wire unless SCPS bit 29 is set.
