@@ -1011,6 +1011,36 @@ mod tests {
     }
 
     #[test]
+    fn synchronous_and_remote_tpdos_and_a_short_rpdo() {
+        let mut h = Host::new();
+        h.send(NmtCommand::Start.frame(NodeId::new(1)));
+        // TPDO3 (following error + error code, disabled in the EDS): every 2nd SYNC.
+        assert_eq!(h.write(1, 0x1802, 2, &[2]), ClientStep::Downloaded);
+        assert_eq!(
+            h.write(1, 0x1802, 1, &0x381u32.to_le_bytes()),
+            ClientStep::Downloaded
+        );
+        let count = |h: &Host| h.seen.iter().filter(|f| f.id().raw() == 0x381).count();
+        h.send(protocol::canopen::sync_frame());
+        assert_eq!(count(&h), 0);
+        h.send(protocol::canopen::sync_frame());
+        assert_eq!(count(&h), 1);
+        // An RTR for TPDO1 is answered with its data now.
+        let rtr = CanFrame::remote(protocol::can::CanId::Standard(0x181), 3).unwrap();
+        let out = h.send(rtr);
+        assert!(
+            out.iter()
+                .any(|f| f.id().raw() == 0x181 && f.data().len() == 3),
+            "{out:?}"
+        );
+        // RPDO1 maps 3 bytes; 2 are too few: EMCY 0x8210, nothing written.
+        h.send(CanFrame::std(0x201, &[0x06, 0x00]));
+        let last = h.seen.iter().rev().find_map(Emcy::parse).unwrap().1;
+        assert_eq!(last.code, 0x8210);
+        assert_eq!(h.set.node_state(1).unwrap().0, State::SwitchOnDisabled);
+    }
+
+    #[test]
     fn homing_mode_homes_the_machine() {
         let mut h = Host::new();
         h.enable(1);
