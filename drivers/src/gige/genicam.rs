@@ -97,14 +97,43 @@ impl GenICam {
                 continue;
             }
             if let Some(addr) = child(body, "Address") {
-                if child(body, "pAddress").is_some() || child(body, "pIndex").is_some() {
+                if child(body, "pAddress").is_some() {
                     return Err(format!(
-                        "`{feature}` (node `{name}`) uses a computed address (pAddress/pIndex), which this driver does not evaluate"
+                        "`{feature}` (node `{name}`) uses a computed address (pAddress), which this driver does not evaluate"
                     ));
                 }
                 let address =
                     parse_int(addr).ok_or_else(|| format!("`{name}`: bad Address `{addr}`"))?;
                 let length = child(body, "Length").and_then(parse_int).unwrap_or(4) as u32;
+                // `<pIndex Offset="k">Selector</pIndex>`: address + k * selector, when the
+                // selector is a constant (as in Aravis's fake camera).
+                let address = match body.find("<pIndex") {
+                    None => address,
+                    Some(i) => {
+                        let open_end =
+                            body[i..].find('>').map(|e| e + i + 1).ok_or("bad pIndex")?;
+                        let tag = &body[i..open_end];
+                        let offset = tag
+                            .split("Offset=\"")
+                            .nth(1)
+                            .and_then(|r| r.split('"').next())
+                            .and_then(parse_int)
+                            .unwrap_or(length as i64);
+                        let close = body[open_end..]
+                            .find("</pIndex>")
+                            .map(|e| e + open_end)
+                            .ok_or("bad pIndex")?;
+                        let selector = body[open_end..close].trim();
+                        match self.locate(selector)? {
+                            Location::Constant(v) => address + offset * v,
+                            Location::Register { .. } => {
+                                return Err(format!(
+                                    "`{feature}` (node `{name}`) is indexed by the register `{selector}`, which this driver does not evaluate"
+                                ))
+                            }
+                        }
+                    }
+                };
                 let little_endian = child(body, "Endianess") == Some("LittleEndian");
                 let field = if tag == "MaskedIntReg" {
                     let bits = length * 8;
@@ -217,7 +246,8 @@ mod tests {
   <IntReg Name="TriggerModeRegister"><Address>0x300</Address><Length>4</Length><Endianess>BigEndian</Endianess></IntReg>
   <Command Name="AcquisitionStop"><pValue>Acq</pValue><CommandValue>0</CommandValue></Command>
   <IntReg Name="Acq"><Address>0x124</Address><Length>4</Length></IntReg>
-  <Integer Name="Sel"><Value>0</Value></Integer>
+  <Integer Name="Sel"><Value>2</Value></Integer>
+  <IntReg Name="Src"><Address>0x304</Address><pIndex Offset="0x20">Sel</pIndex><Length>4</Length></IntReg>
   <MaskedIntReg Name="Ps"><Address>0xd04</Address><Length>4</Length><LSB>31</LSB><MSB>16</MSB><Endianess>BigEndian</Endianess></MaskedIntReg>
 </RegisterDescription>"#;
 
@@ -237,7 +267,11 @@ mod tests {
         assert_eq!(g.enum_value("TriggerMode", "On").unwrap(), 1);
         assert_eq!(g.enum_name("TriggerMode", 0).as_deref(), Some("Off"));
         assert_eq!(g.command_value("AcquisitionStop").unwrap(), 0);
-        assert_eq!(g.locate("Sel").unwrap(), Location::Constant(0));
+        assert_eq!(g.locate("Sel").unwrap(), Location::Constant(2));
+        assert!(matches!(
+            g.locate("Src").unwrap(),
+            Location::Register { address: 0x344, .. }
+        ));
         assert!(matches!(
             g.locate("Ps").unwrap(),
             Location::Register {

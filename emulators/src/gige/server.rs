@@ -43,6 +43,7 @@ pub struct GigeCameraServer {
     addr: SocketAddr,
     silent: Arc<AtomicBool>,
     frames: Arc<AtomicU64>,
+    frames_tx: tokio::sync::watch::Receiver<u64>,
     task: JoinHandle<()>,
 }
 
@@ -100,6 +101,7 @@ impl GigeCameraServer {
         device.set_stream_source_port(stream.local_addr()?.port());
         let silent = Arc::new(AtomicBool::new(false));
         let frames = Arc::new(AtomicU64::new(0));
+        let (frames_tx, frames_rx) = tokio::sync::watch::channel(0u64);
         let srv = Server {
             rig,
             device,
@@ -108,6 +110,7 @@ impl GigeCameraServer {
             stream,
             silent: silent.clone(),
             frames: frames.clone(),
+            frames_tx,
             start: Instant::now(),
             block_id: 0,
             last: None,
@@ -121,6 +124,7 @@ impl GigeCameraServer {
             addr,
             silent,
             frames,
+            frames_tx: frames_rx,
             task,
         })
     }
@@ -133,6 +137,11 @@ impl GigeCameraServer {
     /// Makes the camera stop answering (a dead or unplugged camera) or answer again.
     pub fn set_silent(&self, silent: bool) {
         self.silent.store(silent, Ordering::SeqCst);
+    }
+
+    /// Follows the number of frames streamed (to await a count without polling).
+    pub fn frames_watch(&self) -> tokio::sync::watch::Receiver<u64> {
+        self.frames_tx.clone()
     }
 
     /// Frames streamed so far.
@@ -157,6 +166,7 @@ struct Server {
     stream: UdpSocket,
     silent: Arc<AtomicBool>,
     frames: Arc<AtomicU64>,
+    frames_tx: tokio::sync::watch::Sender<u64>,
     start: Instant,
     block_id: u16,
     last: Option<LastFrame>,
@@ -343,7 +353,8 @@ impl Server {
             }
         }
         self.last = Some(frame);
-        self.frames.fetch_add(1, Ordering::SeqCst);
+        let n = self.frames.fetch_add(1, Ordering::SeqCst) + 1;
+        self.frames_tx.send_replace(n);
     }
 
     async fn send_packet(&mut self, f: &LastFrame, id: u32) {
