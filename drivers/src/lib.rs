@@ -27,3 +27,14 @@ pub use camera::{Camera, CameraInfo, Frame, FrameMeta};
 pub use error::DriverError;
 pub use multi_axis::{AxisDrive, AxisStatus, MultiAxisStage};
 pub use stage::{Axis, AxisInfo, AxisValues, Stage, StageInfo, StageState, StageStatus};
+
+/// Run CPU-heavy work (rendering, localization: milliseconds) from async code without
+/// stalling the other tasks of the runtime, such as a CAN bus task supervising
+/// heartbeats: on a multi-thread runtime the worker hands its other tasks over first;
+/// on a current-thread runtime (tests) it simply runs.
+pub fn blocking<R>(f: impl FnOnce() -> R) -> R {
+    match tokio::runtime::Handle::try_current().map(|h| h.runtime_flavor()) {
+        Ok(tokio::runtime::RuntimeFlavor::MultiThread) => tokio::task::block_in_place(f),
+        _ => f(),
+    }
+}

@@ -148,7 +148,7 @@ impl Camera for SimCamera {
     }
 
     async fn grab(&mut self) -> Result<Frame, DriverError> {
-        let (image, info) = lock(&self.rig).grab();
+        let (image, info) = crate::blocking(|| lock(&self.rig).grab());
         Ok(Frame {
             image,
             meta: FrameMeta {

@@ -191,7 +191,12 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
 }
 
 fn compensate(job: Job, json: bool) -> anyhow::Result<ExitCode> {
-    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
+    // Two workers: bus tasks (heartbeats, status polling, emulators in-process) keep
+    // running while a frame is rendered or localized on the other (see drivers::blocking).
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()?;
     let mut devices = rt.block_on(open_devices_async(&job))?;
     let bar = if json { ProgressBar::hidden() } else { ProgressBar::new(job.targets.len() as u64) };
     bar.set_style(

@@ -172,14 +172,13 @@ impl Orchestrator<'_> {
             self.position(&positioning).await?;
             let frame = self.camera.grab().await?;
             let params = self.localize_params(target_mm);
-            let observation =
-                localize(&frame.image, &self.job.board, &params).map_err(|source| {
-                    JobError::Localize {
-                        index,
-                        target_mm,
-                        measurement: measurements.len(),
-                        source,
-                    }
+            let board = &self.job.board;
+            let observation = drivers::blocking(|| localize(&frame.image, board, &params))
+                .map_err(|source| JobError::Localize {
+                    index,
+                    target_mm,
+                    measurement: measurements.len(),
+                    source,
                 })?;
             let d = deviation([observation.x_mm, observation.y_mm], target_mm);
             let m = Measurement {
