@@ -92,8 +92,15 @@ fn default_baud() -> u32 {
 #[serde(deny_unknown_fields)]
 struct RawCamera {
     driver: String,
-    /// `sim`: the simulated camera's optics file.
+    /// `sim`: the simulated camera's optics file. `gige`: the optics the GigE Vision
+    /// emulator serves (when `camera` is not given).
     model: Option<String>,
+    /// `gige`: a real camera's address (`ip`, `ip:port`) or device name.
+    camera: Option<String>,
+    /// `gige`: stream packet size, bytes (default 1500; jumbo frames allow up to 9000).
+    packet_size: Option<u32>,
+    /// `replay`: the folder of PNG frames.
+    folder: Option<String>,
     #[serde(default)]
     pixel_axes: Option<String>,
     um_per_px: Option<f64>,
@@ -172,6 +179,8 @@ pub struct Job {
     pub source: String,
     pub stage: StageSpec,
     pub camera: CameraSpec,
+    /// How frames arrive (GigE Vision, replay), on top of `camera`.
+    pub camera_link: crate::camera_link::CameraLink,
     pub pixel_axes: PixelAxes,
     pub um_per_px: Option<f64>,
     pub board: Board,
@@ -222,7 +231,56 @@ impl Job {
             RawStage::Modbus(raw) => StageSpec::Modbus(crate::modbus_stage::resolve(doc, raw)?),
             RawStage::Canopen(raw) => StageSpec::Canopen(crate::canopen_stage::resolve(doc, raw)?),
         };
+        let mut camera_link = crate::camera_link::CameraLink::Direct;
         let camera = match raw.camera.driver.as_str() {
+            "gige" | "replay" => {
+                // The simulated optics: emulated by GigE Vision, or (for a real camera
+                // and replayed frames) the embedded default, used by nothing but kept
+                // so that a job always names its camera model.
+                let model = match (&raw.camera.model, &raw.camera.camera) {
+                    (Some(_), Some(_)) => {
+                        return Err(doc.invalid(
+                            "camera.camera",
+                            "give `camera` (a real camera) or `model` (the optics to emulate), not both",
+                        ))
+                    }
+                    (Some(rel), None) => {
+                        CameraModel::from_doc(&doc.read_relative("camera.model", rel)?)?
+                    }
+                    (None, _) => CameraModel::from_doc(&ConfigDoc::from_text(
+                        "config/cameras/mono-1.3mp.toml (built in)",
+                        include_str!("../../config/cameras/mono-1.3mp.toml"),
+                        Path::new("config/cameras"),
+                    ))?,
+                };
+                if raw.camera.driver == "gige" {
+                    let packet_size = raw.camera.packet_size.unwrap_or(1500);
+                    if !(576..=16_000).contains(&packet_size) {
+                        return Err(doc.invalid(
+                            "camera.packet_size",
+                            "must be 576..16000 bytes (1500 on plain Ethernet, up to 9000 with jumbo frames)",
+                        ));
+                    }
+                    if raw.camera.model.is_none() && raw.camera.camera.is_none() {
+                        return Err(doc.invalid(
+                            "camera.camera",
+                            "the gige camera needs `camera` (address or device name) or `model` (optics file to emulate)",
+                        ));
+                    }
+                    camera_link = crate::camera_link::CameraLink::Gige {
+                        camera: raw.camera.camera.clone(),
+                        packet_size,
+                    };
+                } else {
+                    let Some(folder) = &raw.camera.folder else {
+                        return Err(doc.invalid("camera.folder", "the replay camera needs `folder`, a folder of PNG frames"));
+                    };
+                    camera_link = crate::camera_link::CameraLink::Replay {
+                        folder: doc.resolve(folder),
+                    };
+                }
+                CameraSpec::Sim { model }
+            }
             "sim" => {
                 let Some(rel) = &raw.camera.model else {
                     return Err(doc.invalid("camera.model", "the sim camera needs `model`, its optics file"));
@@ -233,7 +291,7 @@ impl Job {
             other => {
                 return Err(doc.invalid(
                     "camera.driver",
-                    format!("unknown camera driver `{other}`; this build knows: sim"),
+                    format!("unknown camera driver `{other}`; this build knows: sim, gige, replay"),
                 ))
             }
         };
@@ -292,6 +350,7 @@ impl Job {
             source: doc.name.clone(),
             stage,
             camera,
+            camera_link,
             pixel_axes,
             um_per_px: raw.camera.um_per_px,
             board,

@@ -5,6 +5,7 @@
 //! observation in, numbers or moves out); only `orchestrator` does I/O, and only through
 //! the `drivers` traits.
 
+pub mod camera_link;
 pub mod canopen_stage;
 pub mod config;
 pub mod correction;

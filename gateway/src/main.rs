@@ -41,6 +41,10 @@ enum Cmd {
         /// (on a real pseudo-terminal).
         #[arg(long, default_value = "tcp")]
         transport: String,
+        /// Camera link: `sim` (in-process) or `gige` (the GigE Vision emulator on a
+        /// loopback UDP port, rendering the same machine, read by the GigE driver).
+        #[arg(long, default_value = "sim")]
+        camera: String,
     },
     /// Run the compensation job described by a configuration file.
     Compensate {
@@ -127,8 +131,14 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             method,
             stage,
             transport,
+            camera,
         } => {
             let mut job = Job::demo();
+            match camera.as_str() {
+                "sim" => {}
+                "gige" => gateway::camera_link::over_gige(&mut job),
+                other => anyhow::bail!("--camera `{other}`: this build knows sim and gige"),
+            }
             match stage.as_str() {
                 "sim" => {}
                 "grbl" => gateway::grbl_stage::over_grbl(&mut job)?,

@@ -19,6 +19,16 @@ pub struct Devices {
 }
 
 pub fn open_devices(job: &Job) -> Result<Devices, DriverError> {
+    if job.camera_link != crate::camera_link::CameraLink::Direct {
+        return Err(DriverError::NotAvailable {
+            backend: "camera link".into(),
+            reason: "a GigE Vision or replay camera is opened inside the async runtime: use run::open_devices_async".into(),
+        });
+    }
+    open_sim(job)
+}
+
+fn open_sim(job: &Job) -> Result<Devices, DriverError> {
     match (&job.stage, &job.camera) {
         (StageSpec::Sim { machine }, CameraSpec::Sim { model }) => {
             let rig = SimRig::new(SimMachine::new(machine.clone()), job.board.clone(), model.clone());
@@ -51,12 +61,15 @@ pub fn open_devices(job: &Job) -> Result<Devices, DriverError> {
 /// Open the devices of any job, including those that need the async runtime to
 /// connect (GRBL). Call from inside the runtime that will run the job.
 pub async fn open_devices_async(job: &Job) -> Result<Devices, DriverError> {
-    match &job.stage {
+    let mut devices = match &job.stage {
         StageSpec::Grbl { .. } => crate::grbl_stage::open(job).await,
         StageSpec::Modbus(_) => crate::modbus_stage::open(job).await,
         StageSpec::Canopen(_) => crate::canopen_stage::open(job).await,
-        StageSpec::Sim { .. } => open_devices(job),
-    }
+        StageSpec::Sim { .. } => open_sim(job),
+    }?;
+    // GigE Vision or replayed frames instead of the in-process camera.
+    crate::camera_link::attach(&job.camera_link, &mut devices).await?;
+    Ok(devices)
 }
 
 /// Progress callback: (targets done, targets planned).

@@ -1,0 +1,250 @@
+//! Camera links other than the in-process simulated camera: GigE Vision (a real camera
+//! by address or device name, or, for the demo, the GigE Vision emulator serving the
+//! simulated camera on a loopback port and sharing the rig with the stage) and the
+//! replay of PNG files from a folder. The stage side of a job is opened as before; the
+//! camera is then replaced by the one the link names, so every stage backend (sim,
+//! grbl, modbus, canopen) works with every camera link.
+
+use crate::image_io::load_png;
+use crate::run::Devices;
+use async_trait::async_trait;
+use drivers::gige::{GigeCamera, GigeOptions};
+use drivers::{Camera, CameraInfo, DriverError, Frame, FrameMeta};
+use emulators::gige::{GigeCameraServer, GigeServerOptions};
+use std::path::{Path, PathBuf};
+
+/// How frames reach the gateway.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub enum CameraLink {
+    /// The camera of `[camera]` as it is (the in-process simulated camera).
+    #[default]
+    Direct,
+    /// GigE Vision. `camera`: an address (`ip` or `ip:port`) or a device name
+    /// (`vendor-model-serial`, serial or user name, found by discovery); None: the
+    /// emulator on loopback serving the simulated camera of the job's rig.
+    Gige {
+        camera: Option<String>,
+        packet_size: u32,
+    },
+    /// PNG frames from a folder, in file-name order, sizes checked.
+    Replay { folder: PathBuf },
+}
+
+/// Serve the job's simulated camera over GigE Vision (`gateway demo --camera gige`):
+/// the emulator renders the same rig the stage moves, the GigE driver reads it.
+pub fn over_gige(job: &mut crate::config::Job) {
+    job.camera_link = CameraLink::Gige {
+        camera: None,
+        // Loopback carries jumbo packets: fewer datagrams per frame.
+        packet_size: 8192,
+    };
+}
+
+/// Replaces the simulated camera of opened devices by the one `link` names.
+pub async fn attach(link: &CameraLink, devices: &mut Devices) -> Result<(), DriverError> {
+    match link {
+        CameraLink::Direct => Ok(()),
+        CameraLink::Gige {
+            camera: None,
+            packet_size,
+        } => {
+            let rig = devices
+                .rig
+                .clone()
+                .ok_or_else(|| DriverError::NotAvailable {
+                    backend: "gige (emulated)".into(),
+                    reason: "the GigE Vision emulator needs a simulated machine to look at".into(),
+                })?;
+            let server = GigeCameraServer::spawn(rig, GigeServerOptions::default())
+                .await
+                .map_err(|e| DriverError::Transport {
+                    device: "GigE Vision emulator".into(),
+                    message: format!("cannot bind a loopback UDP port: {e}"),
+                })?;
+            let opts = GigeOptions {
+                packet_size: *packet_size,
+                ..Default::default()
+            };
+            let camera = GigeCamera::open_addr(server.control_addr(), opts).await?;
+            devices.camera = Box::new(EmulatedGige {
+                camera,
+                _server: server,
+            });
+            Ok(())
+        }
+        CameraLink::Gige {
+            camera: Some(name),
+            packet_size,
+        } => {
+            if devices.rig.is_some() {
+                return Err(DriverError::NotAvailable {
+                    backend: "gige".into(),
+                    reason: format!(
+                        "a real camera (`{name}`) cannot see a simulated machine: use a real stage, or leave out `camera` to emulate the camera"
+                    ),
+                });
+            }
+            let opts = GigeOptions {
+                packet_size: *packet_size,
+                ..Default::default()
+            };
+            devices.camera = Box::new(GigeCamera::open(name, opts).await?);
+            Ok(())
+        }
+        CameraLink::Replay { folder } => {
+            devices.camera = Box::new(ReplayCamera::open(folder)?);
+            Ok(())
+        }
+    }
+}
+
+/// The GigE driver connected to the in-process emulator, which lives as long as it.
+pub struct EmulatedGige {
+    camera: GigeCamera,
+    _server: GigeCameraServer,
+}
+
+#[async_trait]
+impl Camera for EmulatedGige {
+    fn info(&self) -> &CameraInfo {
+        self.camera.info()
+    }
+    async fn grab(&mut self) -> Result<Frame, DriverError> {
+        self.camera.grab().await
+    }
+}
+
+/// Frames replayed from PNG files (8- or 16-bit greyscale) in a folder, in file-name
+/// order: re-running the pipeline on recorded frames. Every file must have the size and
+/// bit depth of the first; running out of files is an error, never a repeat.
+pub struct ReplayCamera {
+    files: Vec<PathBuf>,
+    next: usize,
+    info: CameraInfo,
+    device: String,
+}
+
+impl ReplayCamera {
+    pub fn open(folder: &Path) -> Result<Self, DriverError> {
+        let device = format!("replay camera ({})", folder.display());
+        let unavailable = |reason: String| DriverError::NotAvailable {
+            backend: "replay".into(),
+            reason,
+        };
+        let rd = std::fs::read_dir(folder).map_err(|e| {
+            unavailable(format!("{}: cannot read the folder: {e}", folder.display()))
+        })?;
+        let mut files: Vec<PathBuf> = rd
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case("png")))
+            .collect();
+        files.sort();
+        let first = files
+            .first()
+            .ok_or_else(|| unavailable(format!("{}: no .png files", folder.display())))?;
+        let img = load_png(first).map_err(|e| unavailable(e.to_string()))?;
+        Ok(Self {
+            info: CameraInfo {
+                model: "PNG replay".into(),
+                serial: folder.display().to_string(),
+                width: img.width,
+                height: img.height,
+                bit_depth: img.bit_depth(),
+            },
+            files,
+            next: 0,
+            device,
+        })
+    }
+
+    /// Files left to replay.
+    pub fn remaining(&self) -> usize {
+        self.files.len() - self.next
+    }
+}
+
+#[async_trait]
+impl Camera for ReplayCamera {
+    fn info(&self) -> &CameraInfo {
+        &self.info
+    }
+
+    async fn grab(&mut self) -> Result<Frame, DriverError> {
+        let Some(path) = self.files.get(self.next) else {
+            return Err(DriverError::InvalidState {
+                device: self.device.clone(),
+                message: format!("all {} frames have been replayed", self.files.len()),
+            });
+        };
+        // A refused file is consumed too: the next grab moves on.
+        self.next += 1;
+        let image = load_png(path).map_err(|e| DriverError::Protocol {
+            device: self.device.clone(),
+            message: e.to_string(),
+        })?;
+        if (image.width, image.height, image.bit_depth())
+            != (self.info.width, self.info.height, self.info.bit_depth)
+        {
+            return Err(DriverError::Protocol {
+                device: self.device.clone(),
+                message: format!(
+                    "{}: {}x{} {}-bit, but the first frame was {}x{} {}-bit; frame refused",
+                    path.display(),
+                    image.width,
+                    image.height,
+                    image.bit_depth(),
+                    self.info.width,
+                    self.info.height,
+                    self.info.bit_depth
+                ),
+            });
+        }
+        let sequence = self.next as u64 - 1;
+        Ok(Frame {
+            image,
+            meta: FrameMeta {
+                sequence,
+                timestamp_ns: 0,
+                exposure_us: f64::NAN,
+                gain_db: f64::NAN,
+            },
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::image_io::save_png;
+    use protocol::{MonoImage, Pixels};
+
+    #[test]
+    fn replay_plays_files_in_order_checks_sizes_and_ends() {
+        let dir = std::env::temp_dir().join(format!("replay-test-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let img = |w, v| MonoImage::new(w, 3, Pixels::Mono8(vec![v; w as usize * 3])).unwrap();
+        save_png(&img(4, 1), &dir.join("a.png")).unwrap();
+        save_png(&img(4, 2), &dir.join("b.png")).unwrap();
+        save_png(&img(5, 3), &dir.join("c.png")).unwrap();
+        std::fs::write(dir.join("notes.txt"), "not a frame").unwrap();
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .build()
+            .unwrap();
+        let mut cam = ReplayCamera::open(&dir).unwrap();
+        assert_eq!((cam.info().width, cam.info().bit_depth), (4, 8));
+        assert_eq!(cam.remaining(), 3);
+        let f = rt.block_on(cam.grab()).unwrap();
+        assert_eq!((f.meta.sequence, f.image.get(0, 0)), (0, 1));
+        assert_eq!(rt.block_on(cam.grab()).unwrap().image.get(0, 0), 2);
+        let e = rt.block_on(cam.grab()).unwrap_err().to_string();
+        assert!(
+            e.contains("c.png") && e.contains("5x3") && e.contains("frame refused"),
+            "{e}"
+        );
+        let e = rt.block_on(cam.grab()).unwrap_err().to_string();
+        assert!(e.contains("all 3 frames have been replayed"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+        let e = ReplayCamera::open(&dir).err().unwrap().to_string();
+        assert!(e.contains("cannot read the folder"), "{e}");
+    }
+}
