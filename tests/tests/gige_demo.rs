@@ -65,7 +65,7 @@ fn gige_demo_config_emulates_the_camera_and_refuses_bad_keys() {
     let bad = |from: &str, to: &str| {
         let t = text.replace(from, to);
         let doc = protocol::config::ConfigDoc::from_text("bad.toml", &t, &dir);
-        Job::from_doc(&doc).err().expect("refused").to_string()
+        Job::from_doc(&doc).expect_err("refused").to_string()
     };
     let e = bad("packet_size = 8192", "packet_size = 100");
     assert!(e.contains("camera.packet_size"), "{e}");
