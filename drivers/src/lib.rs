@@ -10,6 +10,7 @@
 //! read the simulated truth; the `sim` backend reaches the simulated machine only
 //! through controller counts and rendered frames, as a real device would.
 
+pub mod aravis;
 pub mod camera;
 pub mod can;
 pub mod canopen;
