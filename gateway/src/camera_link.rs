@@ -40,6 +40,41 @@ pub fn over_gige(job: &mut crate::config::Job) {
     };
 }
 
+impl CameraLink {
+    /// A camera outside this process (a real GigE Vision camera, recorded frames): it
+    /// goes with a real stage, not with the simulated machine.
+    pub fn is_external(&self) -> bool {
+        matches!(
+            self,
+            CameraLink::Gige {
+                camera: Some(_),
+                ..
+            } | CameraLink::Replay { .. }
+        )
+    }
+}
+
+/// Opens an external camera link (see [`CameraLink::is_external`]).
+pub async fn open_external(link: &CameraLink) -> Result<Box<dyn Camera>, DriverError> {
+    match link {
+        CameraLink::Gige {
+            camera: Some(name),
+            packet_size,
+        } => {
+            let opts = GigeOptions {
+                packet_size: *packet_size,
+                ..Default::default()
+            };
+            Ok(Box::new(GigeCamera::open(name, opts).await?))
+        }
+        CameraLink::Replay { folder } => Ok(Box::new(ReplayCamera::open(folder)?)),
+        _ => Err(DriverError::Unsupported {
+            device: "camera link".into(),
+            message: "the in-process or emulated camera is not an external camera".into(),
+        }),
+    }
+}
+
 /// Replaces the simulated camera of opened devices by the one `link` names.
 pub async fn attach(link: &CameraLink, devices: &mut Devices) -> Result<(), DriverError> {
     match link {

@@ -61,6 +61,15 @@ fn open_sim(job: &Job) -> Result<Devices, DriverError> {
 /// Open the devices of any job, including those that need the async runtime to
 /// connect (GRBL). Call from inside the runtime that will run the job.
 pub async fn open_devices_async(job: &Job) -> Result<Devices, DriverError> {
+    // A real GRBL controller with a real camera (or an emulator process serving both
+    // on one simulated machine, `emulators gige --stage grbl`): no in-process rig.
+    if let (StageSpec::Grbl { port: Some(port), baud, emulate: None }, true) =
+        (&job.stage, job.camera_link.is_external())
+    {
+        let camera = crate::camera_link::open_external(&job.camera_link).await?;
+        let stage = drivers::grbl::GrblStage::open(port, *baud, Default::default()).await?;
+        return Ok(Devices { stage: Box::new(stage), camera, rig: None });
+    }
     let mut devices = match &job.stage {
         StageSpec::Grbl { .. } => crate::grbl_stage::open(job).await,
         StageSpec::Modbus(_) => crate::modbus_stage::open(job).await,
