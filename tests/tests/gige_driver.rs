@@ -180,3 +180,36 @@ fn nothing_listening_is_a_timeout_naming_the_address() {
         );
     });
 }
+
+#[test]
+fn frames_of_another_size_or_pixel_format_than_declared_are_refused() {
+    let rt = runtime();
+    rt.block_on(async {
+        let rig = rig(Some((160, 120)), None);
+        let emu = emulator(&rig, GigeConfig::default()).await;
+        let mut cam = connect(&emu, options()).await;
+        cam.grab().await.unwrap();
+        // The camera changes behind the driver's back: another width...
+        rig.lock().unwrap().camera.width = 200;
+        let m = cam.grab().await.unwrap_err().to_string();
+        assert!(
+            m.contains("is 200x120 Mono8 but the camera declared 160x120 Mono8")
+                && m.contains("frame refused"),
+            "{m}"
+        );
+        // ...then another pixel format.
+        {
+            let mut r = rig.lock().unwrap();
+            r.camera.width = 160;
+            r.camera.bit_depth = 16;
+        }
+        let m = cam.grab().await.unwrap_err().to_string();
+        assert!(
+            m.contains("160x120 Mono16 but the camera declared 160x120 Mono8"),
+            "{m}"
+        );
+        // Back as declared: frames flow again.
+        rig.lock().unwrap().camera.bit_depth = 8;
+        cam.grab().await.unwrap();
+    });
+}

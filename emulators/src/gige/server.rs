@@ -319,6 +319,12 @@ impl Server {
         let Some(dest) = self.device.stream_destination() else {
             return;
         };
+        // The leader describes what was rendered (a camera reconfigured behind the
+        // client's back sends what it now is; the client must notice).
+        let pixel_format = match image.pixels {
+            Pixels::Mono8(_) => protocol::gige::pfnc::MONO8,
+            Pixels::Mono16(_) => protocol::gige::pfnc::MONO16,
+        };
         let data = match image.pixels {
             Pixels::Mono8(p) => p,
             // PFNC Mono16 is little-endian on the wire unless SCPS bit 29 is set.
@@ -331,7 +337,7 @@ impl Server {
         };
         let leader = ImageLeader {
             timestamp: (info.time_s * 1e9).round() as u64,
-            pixel_format: self.device.pixel_format(),
+            pixel_format,
             width: image.width,
             height: image.height,
             offset_x: 0,
