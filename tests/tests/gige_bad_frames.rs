@@ -1,0 +1,106 @@
+//! No motion is based on a bad frame: the compensation job over a GigE Vision camera
+//! whose packets are lost for good (resends lost too) stops at the first grab with the
+//! incomplete-frame error, and after that grab the stage receives no command at all.
+
+mod gige_common;
+
+use async_trait::async_trait;
+use drivers::sim::SimStage;
+use drivers::{AxisValues, Camera, CameraInfo, DriverError, Frame, Stage, StageInfo, StageStatus};
+use emulators::gige::GigeConfig;
+use gateway::config::Job;
+use gateway::run::{run_job, Devices};
+use gige_common::*;
+use std::sync::{Arc, Mutex};
+
+type Log = Arc<Mutex<Vec<String>>>;
+
+struct LoggedStage(SimStage, Log);
+struct LoggedCamera(drivers::gige::GigeCamera, Log);
+
+#[async_trait]
+impl Stage for LoggedStage {
+    fn info(&self) -> &StageInfo {
+        self.0.info()
+    }
+    async fn home(&mut self) -> Result<(), DriverError> {
+        self.1.lock().unwrap().push("home".into());
+        self.0.home().await
+    }
+    async fn move_to(&mut self, t: AxisValues, f: f64) -> Result<(), DriverError> {
+        self.1.lock().unwrap().push("move".into());
+        self.0.move_to(t, f).await
+    }
+    async fn move_by(&mut self, d: AxisValues, f: f64) -> Result<(), DriverError> {
+        self.1.lock().unwrap().push("move".into());
+        self.0.move_by(d, f).await
+    }
+    async fn position(&mut self) -> Result<AxisValues, DriverError> {
+        self.0.position().await
+    }
+    async fn wait_idle(&mut self) -> Result<(), DriverError> {
+        self.0.wait_idle().await
+    }
+    async fn stop(&mut self) -> Result<(), DriverError> {
+        self.0.stop().await
+    }
+    async fn status(&mut self) -> Result<StageStatus, DriverError> {
+        self.0.status().await
+    }
+}
+
+#[async_trait]
+impl Camera for LoggedCamera {
+    fn info(&self) -> &CameraInfo {
+        self.0.info()
+    }
+    async fn grab(&mut self) -> Result<Frame, DriverError> {
+        let r = self.0.grab().await;
+        self.1
+            .lock()
+            .unwrap()
+            .push(if r.is_ok() { "grab ok" } else { "grab failed" }.into());
+        r
+    }
+}
+
+#[test]
+fn a_frame_lost_for_good_stops_the_job_before_any_motion_based_on_it() {
+    let rt = runtime();
+    rt.block_on(async {
+        let job = Job::demo();
+        let rig = rig(None, None);
+        let emu = emulator(
+            &rig,
+            GigeConfig {
+                drop_every: Some(50),
+                loss_on_resend: true,
+                ..Default::default()
+            },
+        )
+        .await;
+        let log: Log = Arc::default();
+        let mut opts = options();
+        opts.resend_rounds = 1;
+        opts.packet_timeout = std::time::Duration::from_millis(50);
+        let camera = connect(&emu, opts).await;
+        let mut devices = Devices {
+            stage: Box::new(LoggedStage(SimStage::new(rig.clone()), log.clone())),
+            camera: Box::new(LoggedCamera(camera, log.clone())),
+            rig: Some(rig.clone()),
+        };
+        let report = run_job(&job, &mut devices, &mut |_, _| {}).await;
+        let err = report.error.clone().expect("the job stops");
+        assert!(err.contains("incomplete frame"), "{err}");
+        let log = log.lock().unwrap().clone();
+        let first_bad = log
+            .iter()
+            .position(|e| e == "grab failed")
+            .unwrap_or_else(|| panic!("{log:?}"));
+        assert!(
+            !log[first_bad..].iter().any(|e| e == "move"),
+            "motion after a bad frame: {log:?}"
+        );
+        assert_eq!(report.converged, 0);
+    });
+}
