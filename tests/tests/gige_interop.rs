@@ -226,3 +226,30 @@ fn our_driver_grabs_from_arv_fake_gv_camera() {
     assert_eq!(info.model, "Aravis Fake");
     assert_eq!(seqs, vec![0, 1, 2]);
 }
+
+#[test]
+fn our_driver_finds_our_emulator_by_device_name() {
+    // No Aravis here: discovery is ours on both sides, but it needs port 3956.
+    let _g = PORT_3956.lock().unwrap_or_else(|p| p.into_inner());
+    let rt = runtime();
+    let rig = rig(Some((160, 120)), None);
+    rt.block_on(async {
+        let _emu = emulator_on_3956(&rig).await;
+        let mut cam = drivers::gige::GigeCamera::open("XYGateway-SimMono-INTEROP1", options())
+            .await
+            .unwrap();
+        assert_eq!(cam.info().serial, "INTEROP1");
+        cam.grab().await.unwrap();
+        drop(cam);
+        let e = drivers::gige::GigeCamera::open("NoSuch-Camera-0", options())
+            .await
+            .err()
+            .expect("unknown name");
+        let m = e.to_string();
+        assert!(
+            m.contains("no GigE Vision camera named `NoSuch-Camera-0`")
+                && m.contains("XYGateway-SimMono-INTEROP1 at 127.0.0.1:3956"),
+            "{m}"
+        );
+    });
+}
