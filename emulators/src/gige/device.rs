@@ -373,7 +373,9 @@ impl GigeDevice {
                 last,
                 ..
             } => {
-                if is_controller {
+                // Aravis asks from its stream socket, not the control one: any port of
+                // the controlling host may ask.
+                if self.controller.map(|c| c.ip()) == Some(from.ip()) {
                     events.push(Event::Resend {
                         block_id,
                         first,

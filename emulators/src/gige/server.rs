@@ -78,7 +78,9 @@ fn udp(addr: SocketAddr, reuse: bool) -> std::io::Result<UdpSocket> {
 impl GigeCameraServer {
     /// Binds the sockets and starts serving frames of `rig` (inside a tokio runtime).
     pub async fn spawn(rig: Arc<Mutex<SimRig>>, opts: GigeServerOptions) -> std::io::Result<Self> {
-        let control = udp(opts.bind, opts.broadcast)?;
+        // No address reuse on the control socket: a second device on the same port must
+        // fail to start, not silently share its datagrams.
+        let control = udp(opts.bind, false)?;
         let addr = control.local_addr()?;
         let bcast = if opts.broadcast {
             Some(udp(
