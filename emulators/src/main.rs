@@ -63,7 +63,8 @@ enum Cmd {
     Canopen(emulators::canopen::cli::CanopenArgs),
     /// Serve a GigE Vision camera rendering the board at the simulated machine's pose
     /// (GVCP on 127.0.0.1:3956 by default), optionally with a stage emulator (`--stage
-    /// grbl|modbus`) on the same machine; prints `gige: ADDR:PORT` and the stage's port.
+    /// grbl|modbus|canopen`) on the same machine; prints `gige: ADDR:PORT` and the
+    /// stage's port.
     #[command(visible_alias = "rig")]
     Gige(emulators::gige::cli::GigeArgs),
 }

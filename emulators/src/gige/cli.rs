@@ -1,8 +1,9 @@
 //! The `emulators gige` command (alias `rig`): the GigE Vision camera on a simulated
 //! machine, optionally with a stage emulator (GRBL on a pseudo-terminal, Modbus drives
-//! on TCP) driving the same machine, so that a separate gateway process runs the whole
-//! loop over real links. Prints `gige: ADDR:PORT` (and `grbl: /dev/pts/N` or
-//! `modbus tcp: ADDR:PORT`) and serves until killed.
+//! on TCP, CiA 402 drives behind an SLCAN adapter on a pseudo-terminal) driving the same
+//! machine, so that a separate gateway process runs the whole loop over real links.
+//! Prints `gige: ADDR:PORT` (and `grbl: /dev/pts/N`, `modbus tcp: ADDR:PORT` or
+//! `slcan: /dev/pts/N`) and serves until killed.
 
 use super::device::GigeConfig;
 use super::server::{GigeCameraServer, GigeServerOptions};
@@ -18,6 +19,7 @@ pub enum StageKind {
     None,
     Grbl,
     Modbus,
+    Canopen,
 }
 
 /// Serve a GigE Vision camera (and optionally a stage) on one simulated machine.
@@ -46,10 +48,11 @@ pub struct GigeArgs {
     /// Drop the resent packets too (frames can then only arrive incomplete).
     #[arg(long)]
     pub loss_on_resend: bool,
-    /// Also host a stage emulator on the same machine.
+    /// Also host a stage emulator on the same machine (GRBL on a pseudo-terminal, Modbus
+    /// drives on TCP, CiA 402 drives behind SLCAN on a pseudo-terminal).
     #[arg(long, value_enum, default_value = "none")]
     pub stage: StageKind,
-    /// GRBL: also create a symlink to the port at this path.
+    /// GRBL or CANopen: also create a symlink to the port at this path.
     #[arg(long)]
     pub link: Option<PathBuf>,
     /// Modbus: TCP address of the drives (port 0: a free port, printed).
@@ -118,6 +121,7 @@ pub fn serve(a: GigeArgs) -> anyhow::Result<()> {
         println!("device id: XYGateway-SimMono-{}", a.serial);
         let mut grbl = None;
         let mut _modbus = None;
+        let mut slcan = None;
         match a.stage {
             StageKind::None => {}
             StageKind::Grbl => {
@@ -149,11 +153,29 @@ pub fn serve(a: GigeArgs) -> anyhow::Result<()> {
                 println!("modbus tcp: {} (units 1=x, 2=y)", s.local_addr());
                 _modbus = Some(s);
             }
+            StageKind::Canopen => {
+                use crate::canopen::drives::{DriveSet, DriveSetConfig, DRIVE_EDS, DRIVE_EDS_NAME};
+                let cfg = DriveSetConfig {
+                    clock,
+                    nodes: vec![(1, 0), (2, 1)],
+                    eds: (DRIVE_EDS_NAME.to_string(), DRIVE_EDS.to_string()),
+                };
+                let set = DriveSet::new(rig.clone(), &cfg, 0.0)?;
+                let pty =
+                    crate::canopen::SlcanPty::spawn(Arc::new(Mutex::new(set)), a.link.as_deref())
+                        .context("creating the pseudo-terminal")?;
+                println!("slcan: {} (nodes 1=x, 2=y)", pty.path());
+                if let Some(l) = pty.link() {
+                    println!("link: {}", l.display());
+                }
+                slcan = Some(pty);
+            }
         }
         std::io::stdout().flush()?;
-        match &mut grbl {
-            Some(p) => p.closed().await,
-            None => std::future::pending::<()>().await,
+        match (&mut grbl, &mut slcan) {
+            (Some(p), _) => p.closed().await,
+            (None, Some(p)) => p.closed().await,
+            _ => std::future::pending::<()>().await,
         }
         drop(cam);
         Ok(())
