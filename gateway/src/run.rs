@@ -70,6 +70,28 @@ pub async fn open_devices_async(job: &Job) -> Result<Devices, DriverError> {
         let stage = drivers::grbl::GrblStage::open(port, *baud, Default::default()).await?;
         return Ok(Devices { stage: Box::new(stage), camera, rig: None });
     }
+    // Real Modbus drives (TCP or RTU) with a real camera, likewise.
+    if let (StageSpec::Modbus(spec), true) = (&job.stage, job.camera_link.is_external()) {
+        use crate::modbus_stage::ModbusLink;
+        use drivers::modbus::{open_stage, Endpoint, ModbusOptions};
+        let endpoint = match &spec.link {
+            ModbusLink::Tcp(a) => Some(Endpoint::Tcp(*a)),
+            ModbusLink::Rtu { port, baud, parity } => {
+                Some(Endpoint::Rtu { path: port.clone(), baud: *baud, parity: *parity })
+            }
+            ModbusLink::Emulate { .. } => None,
+        };
+        if let Some(endpoint) = endpoint {
+            let camera = crate::camera_link::open_external(&job.camera_link).await?;
+            let opts = ModbusOptions {
+                timeout: std::time::Duration::from_millis(spec.timeout_ms),
+                retries: spec.retries,
+                ..Default::default()
+            };
+            let stage = open_stage(endpoint, opts, spec.profile.clone(), &spec.axes).await?;
+            return Ok(Devices { stage: Box::new(stage), camera, rig: None });
+        }
+    }
     let mut devices = match &job.stage {
         StageSpec::Grbl { .. } => crate::grbl_stage::open(job).await,
         StageSpec::Modbus(_) => crate::modbus_stage::open(job).await,
