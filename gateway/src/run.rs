@@ -92,6 +92,16 @@ pub async fn open_devices_async(job: &Job) -> Result<Devices, DriverError> {
             return Ok(Devices { stage: Box::new(stage), camera, rig: None });
         }
     }
+    // Real CiA 402 drives on a CAN bus (SLCAN or SocketCAN) with a real camera, likewise.
+    if let (StageSpec::Canopen(spec), true) = (&job.stage, job.camera_link.is_external()) {
+        if let crate::canopen_stage::CanopenLink::Bus(bus) = &spec.link {
+            let camera = crate::camera_link::open_external(&job.camera_link).await?;
+            let bus = drivers::can::open_bus(bus).await?;
+            let (stage, _network) =
+                drivers::canopen::open_stage(bus, spec.axes.clone(), spec.options.clone()).await?;
+            return Ok(Devices { stage: Box::new(stage), camera, rig: None });
+        }
+    }
     let mut devices = match &job.stage {
         StageSpec::Grbl { .. } => crate::grbl_stage::open(job).await,
         StageSpec::Modbus(_) => crate::modbus_stage::open(job).await,

@@ -1,6 +1,6 @@
 //! The whole loop over real links against a separate emulator process: `emulators gige
-//! --stage grbl|modbus` hosts the GRBL controller (on a pseudo-terminal) or Modbus
-//! drives (on TCP) and the GigE Vision camera (on a loopback UDP port) on ONE simulated
+//! --stage grbl|modbus|canopen` hosts the GRBL controller (on a pseudo-terminal), Modbus
+//! drives (on TCP) or CiA 402 drives (behind SLCAN on a pseudo-terminal) and the GigE Vision camera (on a loopback UDP port) on ONE simulated
 //! machine; the gateway opens a job naming the port and the camera address, as it would
 //! a real machine, and compensates.
 //! There is no truth on this side of the links: the test checks convergence and the
@@ -159,6 +159,30 @@ axes = [
         &stage,
     );
     assert!(text.contains("driver = \"modbus\""), "{text}");
+    let report = run(&text);
+    drop(child);
+    check(&report);
+}
+
+#[test]
+fn gateway_compensates_over_canopen_slcan_and_gige_against_an_emulator_process() {
+    let (child, gige, slcan) = rig_process("canopen", "slcan: ");
+    let stage = format!(
+        r#"[stage]
+driver = "canopen"
+slcan = "{slcan}"
+bitrate = 1000000
+axes = [
+  {{ axis = "x", node = 1, counts_per_mm = 2000.0, min_mm = 0.0, max_mm = 200.0 }},
+  {{ axis = "y", node = 2, counts_per_mm = 2000.0, min_mm = 0.0, max_mm = 150.0 }},
+]
+"#
+    );
+    let text = demo_text(&gige).replace(
+        "[stage]\ndriver = \"grbl\"\nemulate = \"../machines/c5-stage.toml\"\n",
+        &stage,
+    );
+    assert!(text.contains("driver = \"canopen\""), "{text}");
     let report = run(&text);
     drop(child);
     check(&report);
