@@ -1,10 +1,10 @@
 //! The whole loop over real links against a separate emulator process: `emulators gige
 //! --stage grbl|modbus|canopen` hosts the GRBL controller (on a pseudo-terminal), Modbus
-//! drives (on TCP) or CiA 402 drives (behind SLCAN on a pseudo-terminal) and the GigE Vision camera (on a loopback UDP port) on ONE simulated
-//! machine; the gateway opens a job naming the port and the camera address, as it would
-//! a real machine, and compensates.
-//! There is no truth on this side of the links: the test checks convergence and the
-//! gateway's own estimate.
+//! drives (on TCP) or CiA 402 drives (behind SLCAN on a pseudo-terminal) and the GigE
+//! Vision camera (on a loopback UDP port) on ONE simulated machine; the gateway opens a
+//! job naming the port and the camera address, as it would a real machine, and
+//! compensates. There is no truth on this side of the links: the test checks convergence
+//! and the gateway's own estimate.
 
 use gateway::camera_link::CameraLink;
 use gateway::config::Job;
