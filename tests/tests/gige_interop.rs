@@ -280,3 +280,55 @@ fn our_driver_finds_our_emulator_by_device_name() {
         );
     });
 }
+
+#[test]
+fn our_driver_refuses_incomplete_frames_from_a_lossy_arv_fake_gv_camera() {
+    if !tool("arv-fake-gv-camera-0.8") {
+        return;
+    }
+    let _g = PORT_3956.lock().unwrap_or_else(|p| p.into_inner());
+    // 10 % of the stream packets lost; the fake camera does not offer PACKETRESEND, so
+    // a 512 x 512 frame (180 packets of 1464 bytes) cannot arrive whole (P < 1e-8).
+    let mut fake = Command::new("arv-fake-gv-camera-0.8")
+        .args(["-i", "127.0.0.1", "-r", "100"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("spawn arv-fake-gv-camera-0.8");
+    let rt = runtime();
+    let errors = rt.block_on(async {
+        let mut opts = options();
+        opts.packet_size = 1500;
+        opts.packet_timeout = Duration::from_millis(50);
+        let mut cam = None;
+        for _ in 0..10 {
+            match drivers::gige::GigeCamera::open("127.0.0.1", opts.clone()).await {
+                Ok(c) => {
+                    cam = Some(c);
+                    break;
+                }
+                Err(drivers::DriverError::Timeout { .. }) => {}
+                Err(e) => return Err(format!("open: {e}")),
+            }
+        }
+        let mut cam = cam.ok_or("the fake camera never answered")?;
+        let mut errors = Vec::new();
+        for _ in 0..3 {
+            match cam.grab().await {
+                Ok(_) => return Err("a frame arrived whole through 10 % loss".to_string()),
+                Err(e) => errors.push(e.to_string()),
+            }
+        }
+        Ok(errors)
+    });
+    let _ = fake.kill();
+    let _ = fake.wait();
+    for m in errors.unwrap() {
+        assert!(
+            m.contains("incomplete frame")
+                && m.contains("the camera cannot resend")
+                && m.contains("frame refused"),
+            "{m}"
+        );
+    }
+}
