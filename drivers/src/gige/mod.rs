@@ -346,6 +346,29 @@ impl GigeCamera {
 
     pub async fn open_addr(addr: SocketAddr, opts: GigeOptions) -> Result<Self, DriverError> {
         let mut ctl = Gvcp::connect(addr, opts.timeout, opts.retries).await?;
+        match Self::set_up(&mut ctl, addr, opts).await {
+            Ok(finish) => Ok(finish(ctl)),
+            Err(e) => {
+                // Give control back at once rather than blocking every client until the
+                // heartbeat expires (pointless if the camera is not answering at all).
+                if !matches!(
+                    e,
+                    DriverError::Timeout { .. } | DriverError::Transport { .. }
+                ) {
+                    let _ = ctl.write_reg(bs::CCP, 0).await;
+                }
+                Err(e)
+            }
+        }
+    }
+
+    /// Everything of `open_addr` that talks to the camera; returns how to finish once
+    /// the control channel is handed over.
+    async fn set_up(
+        ctl: &mut Gvcp,
+        addr: SocketAddr,
+        opts: GigeOptions,
+    ) -> Result<impl FnOnce(Gvcp) -> Self, DriverError> {
         let device = ctl.device.clone();
         // Who is it (and is anything there at all).
         let ident = ctl.read_mem(0, bs::DISCOVERY_LEN).await?;
@@ -377,9 +400,9 @@ impl GigeCamera {
         let xml = ctl.read_mem(xml_addr, xml_size as usize).await?;
         let xml = GenICam::new(cstr(&xml));
         let f = Features { xml };
-        let width = read_feature(&mut ctl, &f.reg(&device, "Width")?).await? as u32;
-        let height = read_feature(&mut ctl, &f.reg(&device, "Height")?).await? as u32;
-        let pixel_format = read_feature(&mut ctl, &f.reg(&device, "PixelFormat")?).await? as u32;
+        let width = read_feature(ctl, &f.reg(&device, "Width")?).await? as u32;
+        let height = read_feature(ctl, &f.reg(&device, "Height")?).await? as u32;
+        let pixel_format = read_feature(ctl, &f.reg(&device, "PixelFormat")?).await? as u32;
         let bit_depth = match pixel_format {
             pfnc::MONO8 => 8,
             pfnc::MONO16 => 16,
@@ -408,7 +431,7 @@ impl GigeCamera {
                 .xml
                 .command_value("AcquisitionStop")
                 .map_err(|m| ctl.violation(m))?;
-            write_feature(&mut ctl, &loc, v, "AcquisitionStop").await?;
+            write_feature(ctl, &loc, v, "AcquisitionStop").await?;
         }
         // Stream channel: to a local socket on the interface that reaches the camera.
         let local_ip = {
@@ -473,7 +496,7 @@ impl GigeCamera {
                     device: device.clone(),
                     message: m,
                 })?;
-            write_feature(&mut ctl, &loc, v, name).await?;
+            write_feature(ctl, &loc, v, name).await?;
         }
         let trigger = (
             f.reg(&device, "TriggerSoftware")?,
@@ -486,44 +509,46 @@ impl GigeCamera {
             .xml
             .command_value("AcquisitionStart")
             .map_err(|m| ctl.violation(m))?;
-        write_feature(&mut ctl, &start, v, "AcquisitionStart").await?;
+        write_feature(ctl, &start, v, "AcquisitionStart").await?;
         let exposure = ["ExposureTime", "ExposureTimeAbs"]
             .iter()
             .find_map(|n| f.xml.locate(n).ok());
         let gain = ["Gain", "GainRaw"]
             .iter()
             .find_map(|n| f.xml.locate(n).ok());
-        let ctl = Arc::new(tokio::sync::Mutex::new(ctl));
-        let heartbeat_error = Arc::new(Mutex::new(None));
-        let heartbeat = tokio::spawn(heartbeat(
-            ctl.clone(),
-            heartbeat_error.clone(),
-            Duration::from_millis(hb_ms as u64 / 3),
-        ));
-        Ok(Self {
-            ctl,
-            stream,
-            info: CameraInfo {
-                model: format!("{vendor} {model}"),
-                serial,
-                width,
-                height,
-                bit_depth,
-            },
-            device,
-            opts,
-            pixel_format,
-            packet_size,
-            resend: caps & bs::CAP_PACKETRESEND != 0,
-            trigger,
-            exposure,
-            gain,
-            tick_hz: tick_hz.max(1),
-            last_block: None,
-            heartbeat_error,
-            heartbeat,
-            sequence: 0,
-            rx: vec![0u8; 65536],
+        Ok(move |ctl: Gvcp| {
+            let ctl = Arc::new(tokio::sync::Mutex::new(ctl));
+            let heartbeat_error = Arc::new(Mutex::new(None));
+            let heartbeat = tokio::spawn(heartbeat(
+                ctl.clone(),
+                heartbeat_error.clone(),
+                Duration::from_millis(hb_ms as u64 / 3),
+            ));
+            Self {
+                ctl,
+                stream,
+                info: CameraInfo {
+                    model: format!("{vendor} {model}"),
+                    serial,
+                    width,
+                    height,
+                    bit_depth,
+                },
+                device,
+                opts,
+                pixel_format,
+                packet_size,
+                resend: caps & bs::CAP_PACKETRESEND != 0,
+                trigger,
+                exposure,
+                gain,
+                tick_hz: tick_hz.max(1),
+                last_block: None,
+                heartbeat_error,
+                heartbeat,
+                sequence: 0,
+                rx: vec![0u8; 65536],
+            }
         })
     }
 
