@@ -213,3 +213,23 @@ fn frames_of_another_size_or_pixel_format_than_declared_are_refused() {
         cam.grab().await.unwrap();
     });
 }
+
+#[test]
+fn a_zipped_genicam_xml_is_read_like_a_plain_one() {
+    let rt = runtime();
+    rt.block_on(async {
+        let rig = rig(Some((160, 120)), None);
+        let emu = emulator(
+            &rig,
+            GigeConfig {
+                zip_xml: true,
+                ..Default::default()
+            },
+        )
+        .await;
+        let mut cam = connect(&emu, options()).await;
+        assert_eq!((cam.info().width, cam.info().height), (160, 120));
+        let expected = rig.lock().unwrap().clone().grab().0;
+        assert!(cam.grab().await.unwrap().image == expected);
+    });
+}

@@ -36,6 +36,17 @@ async fn emulator_on_3956(rig: &SharedRig) -> GigeCameraServer {
 }
 
 async fn lossy_emulator_on_3956(rig: &SharedRig, drop_every: Option<u32>) -> GigeCameraServer {
+    emulator_on_3956_with(
+        rig,
+        GigeConfig {
+            drop_every,
+            ..Default::default()
+        },
+    )
+    .await
+}
+
+async fn emulator_on_3956_with(rig: &SharedRig, config: GigeConfig) -> GigeCameraServer {
     GigeCameraServer::spawn(
         rig.clone(),
         GigeServerOptions {
@@ -44,8 +55,7 @@ async fn lossy_emulator_on_3956(rig: &SharedRig, drop_every: Option<u32>) -> Gig
             config: GigeConfig {
                 serial: "INTEROP1".into(),
                 frame_rate_hz: 20.0,
-                drop_every,
-                ..Default::default()
+                ..config
             },
         },
     )
@@ -331,4 +341,30 @@ fn our_driver_refuses_incomplete_frames_from_a_lossy_arv_fake_gv_camera() {
             "{m}"
         );
     }
+}
+
+#[test]
+fn arv_tool_reads_our_zipped_genicam_xml() {
+    if !tool("arv-tool-0.8") {
+        return;
+    }
+    let _g = PORT_3956.lock().unwrap_or_else(|p| p.into_inner());
+    let rt = runtime();
+    let rig = rig(Some((320, 240)), None);
+    let _emu = rt.block_on(emulator_on_3956_with(
+        &rig,
+        GigeConfig {
+            zip_xml: true,
+            ..Default::default()
+        },
+    ));
+    let (ok, out) = run(
+        Command::new("arv-tool-0.8").args(["-a", "127.0.0.1", "control", "Width", "PixelFormat"]),
+        Duration::from_secs(20),
+    );
+    assert!(ok, "{out}");
+    assert!(
+        out.contains("Width = 320") && out.contains("PixelFormat = Mono8"),
+        "{out}"
+    );
 }

@@ -1,6 +1,6 @@
 //! The `gige` camera backend: a pure-Rust GigE Vision client (GVCP control, GVSP
 //! stream) that always builds, works with our emulator, Aravis's
-//! `arv-fake-gv-camera-0.8` and real cameras whose GenICam XML is uncompressed.
+//! `arv-fake-gv-camera-0.8` and real cameras (GenICam XML plain or zipped; Mono8, Mono16).
 //!
 //! Open: take control (CCP), read the XML from the first URL register, resolve the
 //! features it needs, open stream channel 0 towards a local UDP socket, put the camera
@@ -391,14 +391,19 @@ impl GigeCamera {
                     cstr(&url)
                 ),
             })?;
-        if file.to_ascii_lowercase().ends_with(".zip") {
-            return Err(DriverError::Unsupported {
-                device,
-                message: format!("the GenICam XML `{file}` is zipped; this driver reads uncompressed XML only (use the `aravis` backend)"),
-            });
-        }
-        let xml = ctl.read_mem(xml_addr, xml_size as usize).await?;
-        let xml = GenICam::new(cstr(&xml));
+        let raw = ctl.read_mem(xml_addr, xml_size as usize).await?;
+        // Many cameras ship their XML zipped (one file in the archive).
+        let xml = if file.to_ascii_lowercase().ends_with(".zip") {
+            let (_, x) =
+                protocol::gige::zip::first_file(&raw).map_err(|m| DriverError::Protocol {
+                    device: device.clone(),
+                    message: format!("GenICam XML `{file}`: {m}"),
+                })?;
+            String::from_utf8_lossy(&x).into_owned()
+        } else {
+            cstr(&raw)
+        };
+        let xml = GenICam::new(xml);
         let f = Features { xml };
         let width = read_feature(ctl, &f.reg(&device, "Width")?).await? as u32;
         let height = read_feature(ctl, &f.reg(&device, "Height")?).await? as u32;

@@ -48,6 +48,9 @@ pub struct GigeArgs {
     /// Drop the resent packets too (frames can then only arrive incomplete).
     #[arg(long)]
     pub loss_on_resend: bool,
+    /// Serve the GenICam XML zipped, as many real cameras do.
+    #[arg(long)]
+    pub zip_xml: bool,
     /// Also host a stage emulator on the same machine (GRBL on a pseudo-terminal, Modbus
     /// drives on TCP, CiA 402 drives behind SLCAN on a pseudo-terminal).
     #[arg(long, value_enum, default_value = "none")]
@@ -111,6 +114,7 @@ pub fn serve(a: GigeArgs) -> anyhow::Result<()> {
                     frame_rate_hz: a.frame_rate,
                     drop_every: a.drop_every,
                     loss_on_resend: a.loss_on_resend,
+                    zip_xml: a.zip_xml,
                     ..Default::default()
                 },
             },

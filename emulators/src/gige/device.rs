@@ -61,6 +61,8 @@ pub struct GigeConfig {
     pub drop_every: Option<u32>,
     /// Drop the resent packets too, so a frame can only arrive incomplete.
     pub loss_on_resend: bool,
+    /// Serve the GenICam XML zipped (`Local:sim-camera.zip;...`), as many real cameras do.
+    pub zip_xml: bool,
 }
 
 impl Default for GigeConfig {
@@ -74,6 +76,7 @@ impl Default for GigeConfig {
             frame_rate_hz: 10.0,
             drop_every: None,
             loss_on_resend: false,
+            zip_xml: false,
         }
     }
 }
@@ -119,7 +122,11 @@ impl GigeDevice {
     pub fn new(cfg: GigeConfig, width: u32, height: u32, bit_depth: u8, ip: Ipv4Addr) -> Self {
         let mut d = Self {
             mem: vec![0; MEM_END + (reg::END - reg::BASE) as usize],
-            xml: XML.as_bytes().to_vec(),
+            xml: if cfg.zip_xml {
+                protocol::gige::zip::store_one(XML_FILE, XML.as_bytes(), true)
+            } else {
+                XML.as_bytes().to_vec()
+            },
             controller: None,
             last_heard_ms: 0,
             acquiring: false,
@@ -158,7 +165,12 @@ impl GigeDevice {
         w(&mut d, bs::TICK_FREQUENCY_HIGH, 0);
         w(&mut d, bs::TICK_FREQUENCY_LOW, 1_000_000_000);
         w(&mut d, bs::SCPS0, 1500);
-        let url = format!("Local:{XML_FILE};{XML_ADDRESS:X};{:X}", XML.len());
+        let url = if d.cfg.zip_xml {
+            let zipped = protocol::gige::zip::store_one(XML_FILE, XML.as_bytes(), true);
+            format!("Local:sim-camera.zip;{XML_ADDRESS:X};{:X}", zipped.len())
+        } else {
+            format!("Local:{XML_FILE};{XML_ADDRESS:X};{:X}", XML.len())
+        };
         put_str(&mut d.mem, bs::FIRST_URL, bs::URL_LEN, &url);
         put_str(&mut d.mem, bs::SECOND_URL, bs::URL_LEN, &url);
         let c = d.cfg.clone();

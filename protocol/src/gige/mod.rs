@@ -4,6 +4,7 @@
 
 pub mod gvcp;
 pub mod gvsp;
+pub mod zip;
 
 /// Bootstrap register addresses (GigE Vision 2.x, section "bootstrap registers").
 pub mod bootstrap {
