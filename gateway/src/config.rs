@@ -37,10 +37,22 @@ use std::path::Path;
 
 /// The files of the embedded default job (the demo), compiled in.
 pub static EMBEDDED: &[(&str, &str)] = &[
-    ("config/gateway/demo.toml", include_str!("../../config/gateway/demo.toml")),
-    ("config/machines/c5-stage.toml", include_str!("../../config/machines/c5-stage.toml")),
-    ("config/cameras/mono-1.3mp.toml", include_str!("../../config/cameras/mono-1.3mp.toml")),
-    ("config/boards/dot-grid-0.5mm.toml", include_str!("../../config/boards/dot-grid-0.5mm.toml")),
+    (
+        "config/gateway/demo.toml",
+        include_str!("../../config/gateway/demo.toml"),
+    ),
+    (
+        "config/machines/c5-stage.toml",
+        include_str!("../../config/machines/c5-stage.toml"),
+    ),
+    (
+        "config/cameras/mono-1.3mp.toml",
+        include_str!("../../config/cameras/mono-1.3mp.toml"),
+    ),
+    (
+        "config/boards/dot-grid-0.5mm.toml",
+        include_str!("../../config/boards/dot-grid-0.5mm.toml"),
+    ),
     (
         "config/boards/dot-grid-0.5mm.certified.csv",
         include_str!("../../config/boards/dot-grid-0.5mm.certified.csv"),
@@ -135,7 +147,12 @@ pub struct RawLocalize {
 
 impl Default for RawLocalize {
     fn default() -> Self {
-        Self { method: Method::Fit, hint_tolerance_mm: 0.1, max_residual_um: 2.0, min_points: 8 }
+        Self {
+            method: Method::Fit,
+            hint_tolerance_mm: 0.1,
+            max_residual_um: 2.0,
+            min_points: 8,
+        }
     }
 }
 
@@ -158,9 +175,15 @@ struct RawGrid {
 /// The stage backend and its resolved settings.
 #[derive(Clone, Debug)]
 pub enum StageSpec {
-    Sim { machine: MachineConfig },
+    Sim {
+        machine: MachineConfig,
+    },
     /// GRBL over serial: a real port, or the emulator on a pseudo-terminal (`emulate`).
-    Grbl { port: Option<String>, baud: u32, emulate: Option<MachineConfig> },
+    Grbl {
+        port: Option<String>,
+        baud: u32,
+        emulate: Option<MachineConfig>,
+    },
     /// Modbus drives (TCP, RTU, or the emulator), register maps from a drive profile.
     Modbus(crate::modbus_stage::ModbusStageSpec),
     /// CANopen CiA 402 drives (SLCAN, SocketCAN, or the emulator on an SLCAN pty).
@@ -210,9 +233,15 @@ impl Job {
         let stage = match raw.stage {
             RawStage::Sim { machine } => {
                 let m = doc.read_relative("stage.machine", &machine)?;
-                StageSpec::Sim { machine: MachineConfig::from_doc(&m)? }
+                StageSpec::Sim {
+                    machine: MachineConfig::from_doc(&m)?,
+                }
             }
-            RawStage::Grbl { port, baud, emulate } => {
+            RawStage::Grbl {
+                port,
+                baud,
+                emulate,
+            } => {
                 if port.is_some() == emulate.is_some() {
                     return Err(doc.invalid(
                         "stage.port",
@@ -223,10 +252,16 @@ impl Job {
                     return Err(doc.invalid("stage.baud", "must be a positive baud rate"));
                 }
                 let emulate = match emulate {
-                    Some(rel) => Some(MachineConfig::from_doc(&doc.read_relative("stage.emulate", &rel)?)?),
+                    Some(rel) => Some(MachineConfig::from_doc(
+                        &doc.read_relative("stage.emulate", &rel)?,
+                    )?),
                     None => None,
                 };
-                StageSpec::Grbl { port, baud, emulate }
+                StageSpec::Grbl {
+                    port,
+                    baud,
+                    emulate,
+                }
             }
             RawStage::Modbus(raw) => StageSpec::Modbus(crate::modbus_stage::resolve(doc, raw)?),
             RawStage::Canopen(raw) => StageSpec::Canopen(crate::canopen_stage::resolve(doc, raw)?),
@@ -273,7 +308,10 @@ impl Job {
                     };
                 } else {
                     let Some(folder) = &raw.camera.folder else {
-                        return Err(doc.invalid("camera.folder", "the replay camera needs `folder`, a folder of PNG frames"));
+                        return Err(doc.invalid(
+                            "camera.folder",
+                            "the replay camera needs `folder`, a folder of PNG frames",
+                        ));
                     };
                     camera_link = crate::camera_link::CameraLink::Replay {
                         folder: doc.resolve(folder),
@@ -283,10 +321,15 @@ impl Job {
             }
             "sim" => {
                 let Some(rel) = &raw.camera.model else {
-                    return Err(doc.invalid("camera.model", "the sim camera needs `model`, its optics file"));
+                    return Err(doc.invalid(
+                        "camera.model",
+                        "the sim camera needs `model`, its optics file",
+                    ));
                 };
                 let m = doc.read_relative("camera.model", rel)?;
-                CameraSpec::Sim { model: CameraModel::from_doc(&m)? }
+                CameraSpec::Sim {
+                    model: CameraModel::from_doc(&m)?,
+                }
             }
             other => {
                 return Err(doc.invalid(
@@ -307,7 +350,12 @@ impl Job {
             }
         }
         let board = Board::from_doc(&doc.read_relative("board.file", &raw.board.file)?)?;
-        if !raw.setup.board_at_machine_zero_mm.iter().all(|v| v.is_finite()) {
+        if !raw
+            .setup
+            .board_at_machine_zero_mm
+            .iter()
+            .all(|v| v.is_finite())
+        {
             return Err(doc.invalid("setup.board_at_machine_zero_mm", "must be finite"));
         }
         if !(raw.setup.feed_mm_min > 0.0 && raw.setup.feed_mm_min.is_finite()) {
@@ -371,9 +419,17 @@ impl Job {
     }
 }
 
-fn resolve_targets(doc: &ConfigDoc, t: &RawTargets, board: &Board) -> Result<Vec<[f64; 2]>, ConfigError> {
+fn resolve_targets(
+    doc: &ConfigDoc,
+    t: &RawTargets,
+    board: &Board,
+) -> Result<Vec<[f64; 2]>, ConfigError> {
     let mut out = Vec::new();
-    let key = if t.grid.is_some() { "targets.grid" } else { "targets.points" };
+    let key = if t.grid.is_some() {
+        "targets.grid"
+    } else {
+        "targets.points"
+    };
     match (&t.grid, &t.points) {
         (Some(_), Some(_)) => {
             return Err(doc.invalid("targets", "give either `grid` or `points`, not both"))
@@ -381,7 +437,10 @@ fn resolve_targets(doc: &ConfigDoc, t: &RawTargets, board: &Board) -> Result<Vec
         (None, None) => return Err(doc.invalid("targets", "give `grid` or `points`")),
         (Some(g), None) => {
             if g.nx < 1 || g.ny < 1 || g.nx * g.ny > 100_000 {
-                return Err(doc.invalid("targets.grid", "nx and ny must be 1.. (at most 100000 targets)"));
+                return Err(doc.invalid(
+                    "targets.grid",
+                    "nx and ny must be 1.. (at most 100000 targets)",
+                ));
             }
             let at = |r: [f64; 2], n: u32, k: u32| {
                 if n == 1 {
@@ -428,8 +487,13 @@ mod tests {
     fn the_embedded_demo_job_is_valid_and_spread_over_the_travel() {
         let job = Job::demo();
         assert!(job.targets.len() >= 25);
-        assert_eq!(job.board.certified_points, (job.board.cols * job.board.rows) as usize);
-        let StageSpec::Sim { machine } = &job.stage else { unreachable!("the demo job is simulated") };
+        assert_eq!(
+            job.board.certified_points,
+            (job.board.cols * job.board.rows) as usize
+        );
+        let StageSpec::Sim { machine } = &job.stage else {
+            unreachable!("the demo job is simulated")
+        };
         let (tx, ty) = (machine.axes.x.travel_mm, machine.axes.y.travel_mm);
         let cmds: Vec<[f64; 2]> = job.targets.iter().map(|t| job.command_for(*t)).collect();
         let span = |k: usize| {
@@ -443,9 +507,14 @@ mod tests {
     fn hint_tolerance_must_stay_below_half_the_pitch() {
         let doc = ConfigDoc::embedded(DEMO_JOB, EMBEDDED).unwrap();
         let mut doc = doc.clone();
-        doc.text = doc.text.replace("hint_tolerance_mm = 0.1", "hint_tolerance_mm = 0.3");
+        doc.text = doc
+            .text
+            .replace("hint_tolerance_mm = 0.1", "hint_tolerance_mm = 0.3");
         let e = Job::from_doc(&doc).unwrap_err().to_string();
-        assert!(e.contains("localize.hint_tolerance_mm") && e.contains("half the board pitch"), "{e}");
+        assert!(
+            e.contains("localize.hint_tolerance_mm") && e.contains("half the board pitch"),
+            "{e}"
+        );
         assert!(e.contains("demo.toml (built in):"), "{e}");
     }
 }

@@ -14,7 +14,11 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 #[derive(Parser)]
-#[command(name = "gateway", version, about = "Camera + calibration board compensation gateway for X-Y stages and CNC machines")]
+#[command(
+    name = "gateway",
+    version,
+    about = "Camera + calibration board compensation gateway for X-Y stages and CNC machines"
+)]
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,
@@ -157,14 +161,28 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             }
             compensate(job, json)
         }
-        Cmd::Compensate { config, json, method } => {
+        Cmd::Compensate {
+            config,
+            json,
+            method,
+        } => {
             let mut job = Job::load(&config)?;
             if let Some(m) = method {
                 job.localize.method = parse_method(&m)?;
             }
             compensate(job, json)
         }
-        Cmd::Localize { image, board, near, method, um_per_px, pixel_axes, hint_tolerance_mm, max_residual_um, json } => {
+        Cmd::Localize {
+            image,
+            board,
+            near,
+            method,
+            um_per_px,
+            pixel_axes,
+            hint_tolerance_mm,
+            max_residual_um,
+            json,
+        } => {
             let board = Board::load(&board)?;
             let img = gateway::image_io::load_png(&image)?;
             let mut p = LocalizeParams::new(parse_xy(&near)?);
@@ -189,7 +207,10 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     })
                 );
             } else {
-                println!("board coordinate at the image centre: X {:.5} mm  Y {:.5} mm", obs.x_mm, obs.y_mm);
+                println!(
+                    "board coordinate at the image centre: X {:.5} mm  Y {:.5} mm",
+                    obs.x_mm, obs.y_mm
+                );
                 println!(
                     "method {:?}, {} points, residual {:.3} um rms, scale {:.4} um/px, rotation {:.4} deg, {:.3} ms",
                     obs.method, obs.points, obs.residual_rms_um, obs.um_per_px, obs.rotation_deg, elapsed_ms
@@ -208,13 +229,21 @@ fn compensate(job: Job, json: bool) -> anyhow::Result<ExitCode> {
         .enable_all()
         .build()?;
     let mut devices = rt.block_on(open_devices_async(&job))?;
-    let bar = if json { ProgressBar::hidden() } else { ProgressBar::new(job.targets.len() as u64) };
+    let bar = if json {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(job.targets.len() as u64)
+    };
     bar.set_style(
-        ProgressStyle::with_template("{spinner} compensating [{bar:30}] {pos}/{len} targets {elapsed}")
-            .expect("valid template")
-            .progress_chars("=> "),
+        ProgressStyle::with_template(
+            "{spinner} compensating [{bar:30}] {pos}/{len} targets {elapsed}",
+        )
+        .expect("valid template")
+        .progress_chars("=> "),
     );
-    let report: Report = rt.block_on(run_job(&job, &mut devices, &mut |done, _| bar.set_position(done as u64)));
+    let report: Report = rt.block_on(run_job(&job, &mut devices, &mut |done, _| {
+        bar.set_position(done as u64)
+    }));
     bar.finish_and_clear();
     if json {
         println!("{}", serde_json::to_string(&report)?);
@@ -222,5 +251,9 @@ fn compensate(job: Job, json: bool) -> anyhow::Result<ExitCode> {
         print!("{}", report.to_text());
     }
     let ok = report.error.is_none() && report.converged == report.targets;
-    Ok(if ok { ExitCode::SUCCESS } else { ExitCode::FAILURE })
+    Ok(if ok {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    })
 }

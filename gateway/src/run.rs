@@ -31,7 +31,11 @@ pub fn open_devices(job: &Job) -> Result<Devices, DriverError> {
 fn open_sim(job: &Job) -> Result<Devices, DriverError> {
     match (&job.stage, &job.camera) {
         (StageSpec::Sim { machine }, CameraSpec::Sim { model }) => {
-            let rig = SimRig::new(SimMachine::new(machine.clone()), job.board.clone(), model.clone());
+            let rig = SimRig::new(
+                SimMachine::new(machine.clone()),
+                job.board.clone(),
+                model.clone(),
+            );
             let rig: SharedRig = Arc::new(Mutex::new(rig));
             Ok(Devices {
                 stage: Box::new(SimStage::new(rig.clone())),
@@ -41,7 +45,8 @@ fn open_sim(job: &Job) -> Result<Devices, DriverError> {
         }
         (StageSpec::Grbl { .. }, _) => Err(DriverError::NotAvailable {
             backend: "grbl".into(),
-            reason: "a GRBL stage is opened inside the async runtime: use run::open_devices_async".into(),
+            reason: "a GRBL stage is opened inside the async runtime: use run::open_devices_async"
+                .into(),
         }),
         (StageSpec::Canopen(_), _) => Err(DriverError::NotAvailable {
             backend: "canopen".into(),
@@ -63,12 +68,22 @@ fn open_sim(job: &Job) -> Result<Devices, DriverError> {
 pub async fn open_devices_async(job: &Job) -> Result<Devices, DriverError> {
     // A real GRBL controller with a real camera (or an emulator process serving both
     // on one simulated machine, `emulators gige --stage grbl`): no in-process rig.
-    if let (StageSpec::Grbl { port: Some(port), baud, emulate: None }, true) =
-        (&job.stage, job.camera_link.is_external())
+    if let (
+        StageSpec::Grbl {
+            port: Some(port),
+            baud,
+            emulate: None,
+        },
+        true,
+    ) = (&job.stage, job.camera_link.is_external())
     {
         let camera = crate::camera_link::open_external(&job.camera_link).await?;
         let stage = drivers::grbl::GrblStage::open(port, *baud, Default::default()).await?;
-        return Ok(Devices { stage: Box::new(stage), camera, rig: None });
+        return Ok(Devices {
+            stage: Box::new(stage),
+            camera,
+            rig: None,
+        });
     }
     // Real Modbus drives (TCP or RTU) with a real camera, likewise.
     if let (StageSpec::Modbus(spec), true) = (&job.stage, job.camera_link.is_external()) {
@@ -76,9 +91,11 @@ pub async fn open_devices_async(job: &Job) -> Result<Devices, DriverError> {
         use drivers::modbus::{open_stage, Endpoint, ModbusOptions};
         let endpoint = match &spec.link {
             ModbusLink::Tcp(a) => Some(Endpoint::Tcp(*a)),
-            ModbusLink::Rtu { port, baud, parity } => {
-                Some(Endpoint::Rtu { path: port.clone(), baud: *baud, parity: *parity })
-            }
+            ModbusLink::Rtu { port, baud, parity } => Some(Endpoint::Rtu {
+                path: port.clone(),
+                baud: *baud,
+                parity: *parity,
+            }),
             ModbusLink::Emulate { .. } => None,
         };
         if let Some(endpoint) = endpoint {
@@ -89,7 +106,11 @@ pub async fn open_devices_async(job: &Job) -> Result<Devices, DriverError> {
                 ..Default::default()
             };
             let stage = open_stage(endpoint, opts, spec.profile.clone(), &spec.axes).await?;
-            return Ok(Devices { stage: Box::new(stage), camera, rig: None });
+            return Ok(Devices {
+                stage: Box::new(stage),
+                camera,
+                rig: None,
+            });
         }
     }
     // Real CiA 402 drives on a CAN bus (SLCAN or SocketCAN) with a real camera, likewise.
@@ -99,7 +120,11 @@ pub async fn open_devices_async(job: &Job) -> Result<Devices, DriverError> {
             let bus = drivers::can::open_bus(bus).await?;
             let (stage, _network) =
                 drivers::canopen::open_stage(bus, spec.axes.clone(), spec.options.clone()).await?;
-            return Ok(Devices { stage: Box::new(stage), camera, rig: None });
+            return Ok(Devices {
+                stage: Box::new(stage),
+                camera,
+                rig: None,
+            });
         }
     }
     let mut devices = match &job.stage {
@@ -128,10 +153,21 @@ pub async fn run_job(job: &Job, devices: &mut Devices, progress: Progress<'_>) -
             if let Some(rig) = &rig {
                 let pose = rig.lock().unwrap_or_else(|p| p.into_inner()).truth();
                 let t = job.targets[target_index];
-                let err = [(pose.centre_mm[0] - t[0]) * 1000.0, (pose.centre_mm[1] - t[1]) * 1000.0];
+                let err = [
+                    (pose.centre_mm[0] - t[0]) * 1000.0,
+                    (pose.centre_mm[1] - t[1]) * 1000.0,
+                ];
                 match &mut current {
                     Some((i, at)) if *i == target_index => at.after_um = err,
-                    _ => current = Some((target_index, TruthAt { before_um: err, after_um: err })),
+                    _ => {
+                        current = Some((
+                            target_index,
+                            TruthAt {
+                                before_um: err,
+                                after_um: err,
+                            },
+                        ))
+                    }
                 }
             }
         }
@@ -143,7 +179,11 @@ pub async fn run_job(job: &Job, devices: &mut Devices, progress: Progress<'_>) -
     };
     let stage_name = devices.stage.info().name.clone();
     let camera_name = devices.camera.info().model.clone();
-    let mut orch = Orchestrator { stage: devices.stage.as_mut(), camera: devices.camera.as_mut(), job };
+    let mut orch = Orchestrator {
+        stage: devices.stage.as_mut(),
+        camera: devices.camera.as_mut(),
+        job,
+    };
     let result = orch.run(&mut on_event).await;
     let (outcomes, error) = match result {
         Ok(o) => (o, None),
