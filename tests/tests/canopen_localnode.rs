@@ -14,16 +14,9 @@ use emulators::canopen::SlcanHub;
 use protocol::canopen::NodeId;
 use std::io::{BufRead, BufReader};
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::Duration;
-
-struct Kill(Child);
-impl Drop for Kill {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
+use system_tests::Kill;
 
 #[test]
 fn our_master_talks_to_a_python_canopen_local_node() {

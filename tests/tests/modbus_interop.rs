@@ -10,15 +10,8 @@ use drivers::modbus::{open_stage, Endpoint};
 use drivers::{Axis, AxisValues, Stage};
 use modbus_common::*;
 use std::io::{BufRead, BufReader, Read};
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-
-fn workspace() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("..")
-        .canonicalize()
-        .unwrap()
-}
+use std::process::{Command, Stdio};
+use system_tests::{emulators_binary, workspace, Kill};
 
 fn pymodbus_available() -> bool {
     match Command::new("python3")
@@ -37,31 +30,6 @@ fn pymodbus_available() -> bool {
             false
         }
         Ok(_) => true,
-    }
-}
-
-/// The `emulators` binary next to this test's executable, built if missing.
-fn emulators_binary() -> PathBuf {
-    let exe = std::env::current_exe().unwrap();
-    let dir = exe.parent().and_then(Path::parent).unwrap().to_path_buf();
-    let bin = dir.join("emulators");
-    if !bin.exists() {
-        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-        let status = Command::new(cargo)
-            .args(["build", "-p", "emulators", "--bin", "emulators"])
-            .current_dir(workspace())
-            .status()
-            .expect("cargo build");
-        assert!(status.success(), "building the emulators binary failed");
-    }
-    bin
-}
-
-struct Kill(Child);
-impl Drop for Kill {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
     }
 }
 
