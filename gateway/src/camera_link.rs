@@ -1,14 +1,14 @@
-//! Camera links other than the in-process simulated camera: GigE Vision (a real camera
-//! by address or device name, or, for the demo, the GigE Vision emulator serving the
-//! simulated camera on a loopback port and sharing the rig with the stage) and the
-//! replay of PNG files from a folder. The stage side of a job is opened as before; the
-//! camera is then replaced by the one the link names, so every stage backend (sim,
-//! grbl, modbus, canopen) works with every camera link.
+//! How frames reach the gateway: the in-process simulated camera, GigE Vision (a real
+//! camera by address or device name, or, for the demo, the GigE Vision emulator serving
+//! the simulated camera on a loopback port and sharing the rig with the stage) or the
+//! replay of PNG files from a folder. The camera is opened after the stage, from the
+//! rig the stage backend gave (if any), so every stage backend (sim, grbl, modbus,
+//! canopen) works with every camera link.
 
 use crate::image_io::load_png;
-use crate::run::Devices;
 use async_trait::async_trait;
 use drivers::gige::{GigeCamera, GigeOptions};
+use drivers::sim::{SharedRig, SimCamera};
 use drivers::{Camera, CameraInfo, DriverError, Frame, FrameMeta};
 use emulators::gige::{GigeCameraServer, GigeServerOptions};
 use std::path::{Path, PathBuf};
@@ -40,56 +40,46 @@ pub fn over_gige(job: &mut crate::config::Job) {
     };
 }
 
-impl CameraLink {
-    /// A camera outside this process (a real GigE Vision camera, recorded frames): it
-    /// goes with a real stage, not with the simulated machine.
-    pub fn is_external(&self) -> bool {
-        matches!(
-            self,
-            CameraLink::Gige {
-                camera: Some(_),
-                ..
-            } | CameraLink::Replay { .. }
-        )
-    }
-}
-
-/// Opens an external camera link (see [`CameraLink::is_external`]).
-pub async fn open_external(link: &CameraLink) -> Result<Box<dyn Camera>, DriverError> {
-    match link {
-        CameraLink::Gige {
-            camera: Some(name),
-            packet_size,
-        } => {
-            let opts = GigeOptions {
-                packet_size: *packet_size,
-                ..Default::default()
-            };
-            Ok(Box::new(GigeCamera::open(name, opts).await?))
-        }
-        CameraLink::Replay { folder } => Ok(Box::new(ReplayCamera::open(folder)?)),
-        _ => Err(DriverError::Unsupported {
-            device: "camera link".into(),
-            message: "the in-process or emulated camera is not an external camera".into(),
+/// Refuse a camera that cannot see the machine: a simulated camera (in-process or
+/// emulated over GigE Vision) needs a simulated machine, a real GigE Vision camera a
+/// real one. Checked before anything is opened.
+pub fn check_pairing(link: &CameraLink, machine_simulated: bool) -> Result<(), DriverError> {
+    match (link, machine_simulated) {
+        (CameraLink::Direct, false) => Err(DriverError::NotAvailable {
+            backend: "sim camera".into(),
+            reason: "a simulated camera cannot see a real machine: use `emulate` for the demo, or a real camera".into(),
         }),
+        (CameraLink::Gige { camera: None, .. }, false) => Err(DriverError::NotAvailable {
+            backend: "gige (emulated)".into(),
+            reason: "the GigE Vision emulator needs a simulated machine to look at".into(),
+        }),
+        (CameraLink::Gige { camera: Some(name), .. }, true) => Err(DriverError::NotAvailable {
+            backend: "gige".into(),
+            reason: format!(
+                "a real camera (`{name}`) cannot see a simulated machine: use a real stage, or leave out `camera` to emulate the camera"
+            ),
+        }),
+        _ => Ok(()),
     }
 }
 
-/// Replaces the simulated camera of opened devices by the one `link` names.
-pub async fn attach(link: &CameraLink, devices: &mut Devices) -> Result<(), DriverError> {
-    match link {
-        CameraLink::Direct => Ok(()),
-        CameraLink::Gige {
-            camera: None,
-            packet_size,
-        } => {
-            let rig = devices
-                .rig
-                .clone()
-                .ok_or_else(|| DriverError::NotAvailable {
-                    backend: "gige (emulated)".into(),
-                    reason: "the GigE Vision emulator needs a simulated machine to look at".into(),
-                })?;
+/// Open the camera of a job: `rig` is the simulated machine when the stage is
+/// simulated (directly or behind an emulated bus), None for a real machine.
+pub async fn open(
+    link: &CameraLink,
+    rig: Option<&SharedRig>,
+) -> Result<Box<dyn Camera>, DriverError> {
+    check_pairing(link, rig.is_some())?;
+    match (link, rig) {
+        (CameraLink::Direct, Some(rig)) => Ok(Box::new(SimCamera::new(rig.clone()))),
+        (
+            CameraLink::Gige {
+                camera: None,
+                packet_size,
+            },
+            Some(rig),
+        ) => {
+            let rig = rig.clone();
             let server = GigeCameraServer::spawn(rig, GigeServerOptions::default())
                 .await
                 .map_err(|e| DriverError::Transport {
@@ -101,35 +91,27 @@ pub async fn attach(link: &CameraLink, devices: &mut Devices) -> Result<(), Driv
                 ..Default::default()
             };
             let camera = GigeCamera::open_addr(server.control_addr(), opts).await?;
-            devices.camera = Box::new(EmulatedGige {
+            Ok(Box::new(EmulatedGige {
                 camera,
                 _server: server,
-            });
-            Ok(())
+            }))
         }
-        CameraLink::Gige {
-            camera: Some(name),
-            packet_size,
-        } => {
-            if devices.rig.is_some() {
-                return Err(DriverError::NotAvailable {
-                    backend: "gige".into(),
-                    reason: format!(
-                        "a real camera (`{name}`) cannot see a simulated machine: use a real stage, or leave out `camera` to emulate the camera"
-                    ),
-                });
-            }
+        (
+            CameraLink::Gige {
+                camera: Some(name),
+                packet_size,
+            },
+            None,
+        ) => {
             let opts = GigeOptions {
                 packet_size: *packet_size,
                 ..Default::default()
             };
-            devices.camera = Box::new(GigeCamera::open(name, opts).await?);
-            Ok(())
+            Ok(Box::new(GigeCamera::open(name, opts).await?))
         }
-        CameraLink::Replay { folder } => {
-            devices.camera = Box::new(ReplayCamera::open(folder)?);
-            Ok(())
-        }
+        (CameraLink::Replay { folder }, _) => Ok(Box::new(ReplayCamera::open(folder)?)),
+        // The pairings `check_pairing` refuses.
+        (CameraLink::Direct | CameraLink::Gige { .. }, _) => unreachable!("checked above"),
     }
 }
 

@@ -20,17 +20,14 @@
 //! ]                                   # + max_feed_mm_min (6000), accel_mm_s2 (800)
 //! ```
 
-use crate::config::{CameraSpec, Job, StageSpec};
-use crate::run::Devices;
-use async_trait::async_trait;
+use crate::config::{Job, StageSpec};
+use crate::run::{new_rig, EmulatedStage, OpenedStage};
 use drivers::can::{open_bus, BusSpec};
 use drivers::canopen::{open_stage, AxisConfig, CanopenOptions};
-use drivers::sim::{SharedRig, SimCamera};
-use drivers::{Axis, AxisValues, DriverError, MultiAxisStage, Stage, StageInfo, StageStatus};
+use drivers::{Axis, DriverError};
 use emulators::canopen::{DriveSet, DriveSetConfig, SlcanPty, DRIVE_EDS, DRIVE_EDS_NAME};
 use emulators::grbl::Clock;
-use emulators::machine::{MachineConfig, SimMachine};
-use emulators::rig::SimRig;
+use emulators::machine::MachineConfig;
 use protocol::canopen::od::ObjectDictionary;
 use protocol::canopen::NodeId;
 use protocol::config::{ConfigDoc, ConfigError};
@@ -319,76 +316,54 @@ pub fn over_canopen(job: &mut Job) -> Result<(), DriverError> {
     Ok(())
 }
 
-/// A CANopen stage whose drives are the in-process emulator: it lives as long as the
-/// stage.
-pub struct EmulatedCanopenStage {
-    stage: MultiAxisStage,
-    _emulator: SlcanPty,
-}
-
-#[async_trait]
-impl Stage for EmulatedCanopenStage {
-    fn info(&self) -> &StageInfo {
-        self.stage.info()
-    }
-    async fn home(&mut self) -> Result<(), DriverError> {
-        self.stage.home().await
-    }
-    async fn move_to(&mut self, target: AxisValues, feed_mm_min: f64) -> Result<(), DriverError> {
-        self.stage.move_to(target, feed_mm_min).await
-    }
-    async fn move_by(&mut self, delta: AxisValues, feed_mm_min: f64) -> Result<(), DriverError> {
-        self.stage.move_by(delta, feed_mm_min).await
-    }
-    async fn position(&mut self) -> Result<AxisValues, DriverError> {
-        self.stage.position().await
-    }
-    async fn wait_idle(&mut self) -> Result<(), DriverError> {
-        self.stage.wait_idle().await
-    }
-    async fn stop(&mut self) -> Result<(), DriverError> {
-        self.stage.stop().await
-    }
-    async fn status(&mut self) -> Result<StageStatus, DriverError> {
-        self.stage.status().await
-    }
-}
-
-/// Open a job whose stage is `canopen`. Must run inside the tokio runtime that will run
-/// the job (the bus task and the emulator are tasks of that runtime).
-pub async fn open(job: &Job) -> Result<Devices, DriverError> {
+/// Open a job's `canopen` stage: the nodes on a real bus, or the drive emulator on an
+/// SLCAN pseudo-terminal driving a new simulated machine (returned as the rig). Must
+/// run inside the tokio runtime that will run the job (the bus task and the emulator
+/// are tasks of that runtime).
+pub async fn open(job: &Job) -> Result<OpenedStage, DriverError> {
     let StageSpec::Canopen(spec) = &job.stage else {
         return Err(DriverError::Unsupported {
             device: "job".into(),
             message: "not a canopen stage".into(),
         });
     };
-    match (&spec.link, &job.camera) {
-        (CanopenLink::Emulate { machine, eds }, CameraSpec::Sim { model }) => {
-            let rig = SimRig::new(SimMachine::new((**machine).clone()), job.board.clone(), model.clone());
-            let rig: SharedRig = Arc::new(Mutex::new(rig));
-            let nodes = spec.axes.iter().map(|a| (a.node, if a.axis == Axis::X { 0 } else { 1 })).collect();
+    match &spec.link {
+        CanopenLink::Emulate { machine, eds } => {
+            let rig = new_rig(job, machine);
+            let nodes = spec
+                .axes
+                .iter()
+                .map(|a| (a.node, if a.axis == Axis::X { 0 } else { 1 }))
+                .collect();
             // Motion completes as soon as the driver has seen it start.
-            let cfg = DriveSetConfig { clock: Clock::Unconstrained, nodes, eds: eds.clone() };
-            let set = DriveSet::new(rig.clone(), &cfg, 0.0).map_err(|e| DriverError::Unsupported {
-                device: "CiA 402 drive emulator".into(),
-                message: e.to_string(),
+            let cfg = DriveSetConfig {
+                clock: Clock::Unconstrained,
+                nodes,
+                eds: eds.clone(),
+            };
+            let set =
+                DriveSet::new(rig.clone(), &cfg, 0.0).map_err(|e| DriverError::Unsupported {
+                    device: "CiA 402 drive emulator".into(),
+                    message: e.to_string(),
+                })?;
+            let emulator = SlcanPty::spawn(Arc::new(Mutex::new(set)), None).map_err(|e| {
+                DriverError::Transport {
+                    device: "CiA 402 drive emulator".into(),
+                    message: format!("cannot create a pseudo-terminal: {e}"),
+                }
             })?;
-            let emulator = SlcanPty::spawn(Arc::new(Mutex::new(set)), None).map_err(|e| DriverError::Transport {
-                device: "CiA 402 drive emulator".into(),
-                message: format!("cannot create a pseudo-terminal: {e}"),
-            })?;
-            let bus = open_bus(&BusSpec::Slcan { port: emulator.path().to_string(), bitrate: 1_000_000 }).await?;
-            let (stage, _net) = open_stage(bus, spec.axes.clone(), spec.options.clone()).await?;
-            Ok(Devices {
-                stage: Box::new(EmulatedCanopenStage { stage, _emulator: emulator }),
-                camera: Box::new(SimCamera::new(rig.clone())),
-                rig: Some(rig),
+            let bus = open_bus(&BusSpec::Slcan {
+                port: emulator.path().to_string(),
+                bitrate: 1_000_000,
             })
+            .await?;
+            let (stage, _net) = open_stage(bus, spec.axes.clone(), spec.options.clone()).await?;
+            Ok((Box::new(EmulatedStage::new(stage, emulator)), Some(rig)))
         }
-        (CanopenLink::Bus(bus), CameraSpec::Sim { .. }) => Err(DriverError::NotAvailable {
-            backend: format!("canopen on {bus} + sim camera"),
-            reason: "a simulated camera cannot see a real machine: use `emulate` for the demo, or a real camera".into(),
-        }),
+        CanopenLink::Bus(bus) => {
+            let bus = open_bus(bus).await?;
+            let (stage, _net) = open_stage(bus, spec.axes.clone(), spec.options.clone()).await?;
+            Ok((Box::new(stage), None))
+        }
     }
 }

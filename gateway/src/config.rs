@@ -190,6 +190,23 @@ pub enum StageSpec {
     Canopen(crate::canopen_stage::CanopenStageSpec),
 }
 
+impl StageSpec {
+    /// Whether the machine behind this stage is simulated in this process (directly or
+    /// behind an emulator of its bus), so that only a simulated camera can see it.
+    pub fn is_simulated(&self) -> bool {
+        match self {
+            StageSpec::Sim { .. } => true,
+            StageSpec::Grbl { emulate, .. } => emulate.is_some(),
+            StageSpec::Modbus(spec) => {
+                matches!(spec.link, crate::modbus_stage::ModbusLink::Emulate { .. })
+            }
+            StageSpec::Canopen(spec) => {
+                matches!(spec.link, crate::canopen_stage::CanopenLink::Emulate { .. })
+            }
+        }
+    }
+}
+
 #[derive(Clone, Debug)]
 pub enum CameraSpec {
     Sim { model: CameraModel },

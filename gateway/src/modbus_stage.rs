@@ -17,22 +17,19 @@
 //! timeout_ms = 500                    # per request; retries = 2
 //! ```
 
-use crate::config::{CameraSpec, Job, StageSpec};
-use crate::run::Devices;
-use async_trait::async_trait;
+use crate::config::{Job, StageSpec};
+use crate::run::{new_rig, EmulatedStage, OpenedStage};
 use drivers::modbus::{open_stage, Endpoint, ModbusAxisConfig, ModbusOptions, Parity};
-use drivers::sim::{SharedRig, SimCamera};
-use drivers::{Axis, AxisValues, DriverError, MultiAxisStage, Stage, StageInfo, StageStatus};
+use drivers::{Axis, DriverError};
 use emulators::grbl::Clock;
-use emulators::machine::{MachineConfig, SimMachine};
+use emulators::machine::MachineConfig;
 use emulators::modbus::{DriveSet, MachineAxis, ModbusDevice, ModbusRtu, ModbusTcp};
-use emulators::rig::SimRig;
 use protocol::config::{ConfigDoc, ConfigError};
 use protocol::modbus::DriveProfile;
 use serde::Deserialize;
 use std::net::SocketAddr;
 use std::path::Path;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::Duration;
 
 /// The profile the demo uses, compiled in.
@@ -298,52 +295,11 @@ pub fn over_modbus(job: &mut Job, rtu: bool) -> Result<(), DriverError> {
     Ok(())
 }
 
-/// What keeps the in-process emulator serving (held, never read: dropping it stops
-/// the server).
-#[allow(dead_code)]
-enum Emulator {
-    Tcp(ModbusTcp),
-    Rtu(ModbusRtu),
-}
-
-/// A Modbus stage whose drives are the in-process emulator: it lives as long as the
-/// stage.
-pub struct EmulatedModbusStage {
-    stage: MultiAxisStage,
-    _emulator: Emulator,
-}
-
-#[async_trait]
-impl Stage for EmulatedModbusStage {
-    fn info(&self) -> &StageInfo {
-        self.stage.info()
-    }
-    async fn home(&mut self) -> Result<(), DriverError> {
-        self.stage.home().await
-    }
-    async fn move_to(&mut self, target: AxisValues, feed_mm_min: f64) -> Result<(), DriverError> {
-        self.stage.move_to(target, feed_mm_min).await
-    }
-    async fn move_by(&mut self, delta: AxisValues, feed_mm_min: f64) -> Result<(), DriverError> {
-        self.stage.move_by(delta, feed_mm_min).await
-    }
-    async fn position(&mut self) -> Result<AxisValues, DriverError> {
-        self.stage.position().await
-    }
-    async fn wait_idle(&mut self) -> Result<(), DriverError> {
-        self.stage.wait_idle().await
-    }
-    async fn stop(&mut self) -> Result<(), DriverError> {
-        self.stage.stop().await
-    }
-    async fn status(&mut self) -> Result<StageStatus, DriverError> {
-        self.stage.status().await
-    }
-}
-
-/// Open a job whose stage is `modbus`. Must run inside the tokio runtime that will run
-/// the job (the emulator serves from tasks of that runtime).
-pub async fn open(job: &Job) -> Result<Devices, DriverError> {
+/// Open a job's `modbus` stage: the drives on their TCP address or RTU port, or the
+/// drive emulator on a loopback port or a pseudo-terminal driving a new simulated
+/// machine (returned as the rig). Must run inside the tokio runtime that will run the
+/// job (the emulator serves from tasks of that runtime).
+pub async fn open(job: &Job) -> Result<OpenedStage, DriverError> {
     let StageSpec::Modbus(spec) = &job.stage else {
         return Err(DriverError::Unsupported {
             device: "job".into(),
@@ -351,42 +307,64 @@ pub async fn open(job: &Job) -> Result<Devices, DriverError> {
         });
     };
     let mut opts = spec.options();
-    match (&spec.link, &job.camera) {
-        (ModbusLink::Emulate { machine, rtu }, CameraSpec::Sim { model }) => {
-            let rig = SimRig::new(SimMachine::new((**machine).clone()), job.board.clone(), model.clone());
-            let rig: SharedRig = Arc::new(Mutex::new(rig));
+    let real = |endpoint| open_stage(endpoint, spec.options(), spec.profile.clone(), &spec.axes);
+    match &spec.link {
+        ModbusLink::Tcp(addr) => Ok((Box::new(real(Endpoint::Tcp(*addr)).await?), None)),
+        ModbusLink::Rtu { port, baud, parity } => {
+            let endpoint = Endpoint::Rtu {
+                path: port.clone(),
+                baud: *baud,
+                parity: *parity,
+            };
+            Ok((Box::new(real(endpoint).await?), None))
+        }
+        ModbusLink::Emulate { machine, rtu } => {
+            let rig = new_rig(job, machine);
             let units: Vec<(u8, MachineAxis)> = spec
                 .axes
                 .iter()
-                .map(|a| (a.unit, if a.axis == Axis::X { MachineAxis::X } else { MachineAxis::Y }))
+                .map(|a| {
+                    (
+                        a.unit,
+                        if a.axis == Axis::X {
+                            MachineAxis::X
+                        } else {
+                            MachineAxis::Y
+                        },
+                    )
+                })
                 .collect();
             // Motion completes as soon as the driver has seen it start.
-            let set = DriveSet::new(rig.clone(), spec.profile.clone(), &units, Clock::Unconstrained);
+            let set = DriveSet::new(
+                rig.clone(),
+                spec.profile.clone(),
+                &units,
+                Clock::Unconstrained,
+            );
             let device = ModbusDevice::new(set);
             let emulator_error = |e: std::io::Error| DriverError::Transport {
                 device: "Modbus drive emulator".into(),
                 message: e.to_string(),
             };
-            let (endpoint, emulator) = if *rtu {
-                let line = ModbusRtu::spawn(device, None).map_err(emulator_error)?;
-                let ep = Endpoint::Rtu { path: line.path().to_string(), baud: 115_200, parity: Parity::None };
-                (ep, Emulator::Rtu(line))
-            } else {
-                let server = ModbusTcp::bind(device, ([127, 0, 0, 1], 0).into()).await.map_err(emulator_error)?;
-                (Endpoint::Tcp(server.local_addr()), Emulator::Tcp(server))
-            };
             opts.poll_interval = Duration::from_millis(1);
-            let stage = open_stage(endpoint, opts, spec.profile.clone(), &spec.axes).await?;
-            Ok(Devices {
-                stage: Box::new(EmulatedModbusStage { stage, _emulator: emulator }),
-                camera: Box::new(SimCamera::new(rig.clone())),
-                rig: Some(rig),
-            })
+            let stage = if *rtu {
+                let line = ModbusRtu::spawn(device, None).map_err(emulator_error)?;
+                let ep = Endpoint::Rtu {
+                    path: line.path().to_string(),
+                    baud: 115_200,
+                    parity: Parity::None,
+                };
+                let stage = open_stage(ep, opts, spec.profile.clone(), &spec.axes).await?;
+                EmulatedStage::new(stage, line)
+            } else {
+                let server = ModbusTcp::bind(device, ([127, 0, 0, 1], 0).into())
+                    .await
+                    .map_err(emulator_error)?;
+                let ep = Endpoint::Tcp(server.local_addr());
+                let stage = open_stage(ep, opts, spec.profile.clone(), &spec.axes).await?;
+                EmulatedStage::new(stage, server)
+            };
+            Ok((Box::new(stage), Some(rig)))
         }
-        (ModbusLink::Tcp(_) | ModbusLink::Rtu { .. }, CameraSpec::Sim { .. }) => Err(DriverError::NotAvailable {
-            backend: "modbus + sim camera".into(),
-            reason: "a simulated camera cannot see a real machine: use `emulate` for the demo, or a real camera"
-                .into(),
-        }),
     }
 }

@@ -1,12 +1,15 @@
 //! Opening the devices a job names, and running the job to a report.
 
+use crate::camera_link::CameraLink;
 use crate::config::{CameraSpec, Job, StageSpec};
 use crate::orchestrator::{Event, Orchestrator};
 use crate::report::{Report, TruthAt};
+use async_trait::async_trait;
 use drivers::sim::{SharedRig, SimCamera, SimStage};
-use drivers::{Camera, DriverError, Stage};
-use emulators::machine::SimMachine;
+use drivers::{AxisValues, Camera, DriverError, Stage, StageInfo, StageStatus};
+use emulators::machine::{MachineConfig, SimMachine};
 use emulators::rig::SimRig;
+use std::any::Any;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
@@ -18,124 +21,99 @@ pub struct Devices {
     pub rig: Option<SharedRig>,
 }
 
-pub fn open_devices(job: &Job) -> Result<Devices, DriverError> {
-    if job.camera_link != crate::camera_link::CameraLink::Direct {
-        return Err(DriverError::NotAvailable {
-            backend: "camera link".into(),
-            reason: "a GigE Vision or replay camera is opened inside the async runtime: use run::open_devices_async".into(),
-        });
-    }
-    open_sim(job)
+/// A stage whose controller or drives are emulated in this process: the emulator (a
+/// pseudo-terminal, a server) is kept alive exactly as long as the stage.
+pub struct EmulatedStage {
+    stage: Box<dyn Stage>,
+    _emulator: Box<dyn Any + Send>,
 }
 
-fn open_sim(job: &Job) -> Result<Devices, DriverError> {
-    match (&job.stage, &job.camera) {
-        (StageSpec::Sim { machine }, CameraSpec::Sim { model }) => {
-            let rig = SimRig::new(
-                SimMachine::new(machine.clone()),
-                job.board.clone(),
-                model.clone(),
-            );
-            let rig: SharedRig = Arc::new(Mutex::new(rig));
+impl EmulatedStage {
+    pub fn new(stage: impl Stage + 'static, emulator: impl Any + Send) -> Self {
+        Self {
+            stage: Box::new(stage),
+            _emulator: Box::new(emulator),
+        }
+    }
+}
+
+#[async_trait]
+impl Stage for EmulatedStage {
+    fn info(&self) -> &StageInfo {
+        self.stage.info()
+    }
+    async fn home(&mut self) -> Result<(), DriverError> {
+        self.stage.home().await
+    }
+    async fn move_to(&mut self, target: AxisValues, feed_mm_min: f64) -> Result<(), DriverError> {
+        self.stage.move_to(target, feed_mm_min).await
+    }
+    async fn move_by(&mut self, delta: AxisValues, feed_mm_min: f64) -> Result<(), DriverError> {
+        self.stage.move_by(delta, feed_mm_min).await
+    }
+    async fn position(&mut self) -> Result<AxisValues, DriverError> {
+        self.stage.position().await
+    }
+    async fn wait_idle(&mut self) -> Result<(), DriverError> {
+        self.stage.wait_idle().await
+    }
+    async fn stop(&mut self) -> Result<(), DriverError> {
+        self.stage.stop().await
+    }
+    async fn status(&mut self) -> Result<StageStatus, DriverError> {
+        self.stage.status().await
+    }
+}
+
+/// What a stage backend opens: the stage, and the rig when the machine is simulated.
+pub type OpenedStage = (Box<dyn Stage>, Option<SharedRig>);
+
+/// The simulated machine of a job: `machine` with the job's board, seen by the job's
+/// camera optics.
+pub fn new_rig(job: &Job, machine: &MachineConfig) -> SharedRig {
+    let CameraSpec::Sim { model } = &job.camera;
+    let rig = SimRig::new(
+        SimMachine::new(machine.clone()),
+        job.board.clone(),
+        model.clone(),
+    );
+    Arc::new(Mutex::new(rig))
+}
+
+/// Open the devices of a fully in-process job (simulated stage and camera) without an
+/// async runtime. Jobs with real or emulated links use [`open_devices_async`].
+pub fn open_devices(job: &Job) -> Result<Devices, DriverError> {
+    match (&job.stage, &job.camera_link) {
+        (StageSpec::Sim { machine }, CameraLink::Direct) => {
+            let rig = new_rig(job, machine);
             Ok(Devices {
                 stage: Box::new(SimStage::new(rig.clone())),
                 camera: Box::new(SimCamera::new(rig.clone())),
                 rig: Some(rig),
             })
         }
-        (StageSpec::Grbl { .. }, _) => Err(DriverError::NotAvailable {
-            backend: "grbl".into(),
-            reason: "a GRBL stage is opened inside the async runtime: use run::open_devices_async"
-                .into(),
-        }),
-        (StageSpec::Canopen(_), _) => Err(DriverError::NotAvailable {
-            backend: "canopen".into(),
-            reason:
-                "a CANopen stage is opened inside the async runtime: use run::open_devices_async"
-                    .into(),
-        }),
-        (StageSpec::Modbus(_), _) => Err(DriverError::NotAvailable {
-            backend: "modbus".into(),
-            reason:
-                "a Modbus stage is opened inside the async runtime: use run::open_devices_async"
-                    .into(),
+        _ => Err(DriverError::NotAvailable {
+            backend: "devices over real links".into(),
+            reason: "this job's stage or camera connects over a link (serial, CAN, Modbus, GigE Vision), which is opened inside the async runtime: use run::open_devices_async".into(),
         }),
     }
 }
 
-/// Open the devices of any job, including those that need the async runtime to
-/// connect (GRBL). Call from inside the runtime that will run the job.
+/// Open the devices of any job. Call from inside the runtime that will run the job
+/// (emulators in-process and bus tasks are tasks of that runtime).
 pub async fn open_devices_async(job: &Job) -> Result<Devices, DriverError> {
-    // A real GRBL controller with a real camera (or an emulator process serving both
-    // on one simulated machine, `emulators gige --stage grbl`): no in-process rig.
-    if let (
-        StageSpec::Grbl {
-            port: Some(port),
-            baud,
-            emulate: None,
-        },
-        true,
-    ) = (&job.stage, job.camera_link.is_external())
-    {
-        let camera = crate::camera_link::open_external(&job.camera_link).await?;
-        let stage = drivers::grbl::GrblStage::open(port, *baud, Default::default()).await?;
-        return Ok(Devices {
-            stage: Box::new(stage),
-            camera,
-            rig: None,
-        });
-    }
-    // Real Modbus drives (TCP or RTU) with a real camera, likewise.
-    if let (StageSpec::Modbus(spec), true) = (&job.stage, job.camera_link.is_external()) {
-        use crate::modbus_stage::ModbusLink;
-        use drivers::modbus::{open_stage, Endpoint, ModbusOptions};
-        let endpoint = match &spec.link {
-            ModbusLink::Tcp(a) => Some(Endpoint::Tcp(*a)),
-            ModbusLink::Rtu { port, baud, parity } => Some(Endpoint::Rtu {
-                path: port.clone(),
-                baud: *baud,
-                parity: *parity,
-            }),
-            ModbusLink::Emulate { .. } => None,
-        };
-        if let Some(endpoint) = endpoint {
-            let camera = crate::camera_link::open_external(&job.camera_link).await?;
-            let opts = ModbusOptions {
-                timeout: std::time::Duration::from_millis(spec.timeout_ms),
-                retries: spec.retries,
-                ..Default::default()
-            };
-            let stage = open_stage(endpoint, opts, spec.profile.clone(), &spec.axes).await?;
-            return Ok(Devices {
-                stage: Box::new(stage),
-                camera,
-                rig: None,
-            });
+    crate::camera_link::check_pairing(&job.camera_link, job.stage.is_simulated())?;
+    let (stage, rig): OpenedStage = match &job.stage {
+        StageSpec::Sim { machine } => {
+            let rig = new_rig(job, machine);
+            (Box::new(SimStage::new(rig.clone())), Some(rig))
         }
-    }
-    // Real CiA 402 drives on a CAN bus (SLCAN or SocketCAN) with a real camera, likewise.
-    if let (StageSpec::Canopen(spec), true) = (&job.stage, job.camera_link.is_external()) {
-        if let crate::canopen_stage::CanopenLink::Bus(bus) = &spec.link {
-            let camera = crate::camera_link::open_external(&job.camera_link).await?;
-            let bus = drivers::can::open_bus(bus).await?;
-            let (stage, _network) =
-                drivers::canopen::open_stage(bus, spec.axes.clone(), spec.options.clone()).await?;
-            return Ok(Devices {
-                stage: Box::new(stage),
-                camera,
-                rig: None,
-            });
-        }
-    }
-    let mut devices = match &job.stage {
-        StageSpec::Grbl { .. } => crate::grbl_stage::open(job).await,
-        StageSpec::Modbus(_) => crate::modbus_stage::open(job).await,
-        StageSpec::Canopen(_) => crate::canopen_stage::open(job).await,
-        StageSpec::Sim { .. } => open_sim(job),
-    }?;
-    // GigE Vision or replayed frames instead of the in-process camera.
-    crate::camera_link::attach(&job.camera_link, &mut devices).await?;
-    Ok(devices)
+        StageSpec::Grbl { .. } => crate::grbl_stage::open(job).await?,
+        StageSpec::Modbus(_) => crate::modbus_stage::open(job).await?,
+        StageSpec::Canopen(_) => crate::canopen_stage::open(job).await?,
+    };
+    let camera = crate::camera_link::open(&job.camera_link, rig.as_ref()).await?;
+    Ok(Devices { stage, camera, rig })
 }
 
 /// Progress callback: (targets done, targets planned).
