@@ -43,3 +43,46 @@ impl Drop for Kill {
         let _ = self.0.wait();
     }
 }
+
+/// A current-thread runtime for one test.
+pub fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("a tokio runtime")
+}
+
+/// A two-worker runtime, as the `gateway` binary uses (bus tasks keep running while a
+/// frame is rendered or localized).
+pub fn runtime_two_workers() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .expect("a tokio runtime")
+}
+
+/// The demo's promise over any link: the job ran to the end, every target converged,
+/// the stage really was off by at least `min_before_um` before compensation, and ends
+/// within 1 um of the truth after it.
+pub fn assert_demo_figure(report: &gateway::report::Report, min_before_um: f64) {
+    assert!(report.error.is_none(), "{:?}", report.error);
+    assert_eq!(report.converged, report.targets, "{}", report.to_text());
+    let before = report
+        .before_um
+        .expect("a simulated machine reports the truth");
+    let after = report
+        .after_um
+        .expect("a simulated machine reports the truth");
+    assert!(
+        before.max >= min_before_um,
+        "uncompensated max {} um",
+        before.max
+    );
+    assert!(
+        after.max <= 1.0,
+        "compensated max {} um\n{}",
+        after.max,
+        report.to_text()
+    );
+}

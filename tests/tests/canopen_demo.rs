@@ -5,13 +5,7 @@
 use gateway::canopen_stage::{over_canopen, CanopenLink};
 use gateway::config::{Job, StageSpec};
 use gateway::run::{open_devices_async, run_job};
-
-fn runtime() -> tokio::runtime::Runtime {
-    tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap()
-}
+use system_tests::{assert_demo_figure, runtime};
 
 #[test]
 fn demo_over_canopen_compensates_to_within_a_micrometre() {
@@ -28,17 +22,7 @@ fn demo_over_canopen_compensates_to_within_a_micrometre() {
         assert!(name.ends_with("X = node 1, Y = node 2"), "{name}");
         run_job(&job, &mut devices, &mut |_, _| {}).await
     });
-    assert!(report.error.is_none(), "{:?}", report.error);
-    assert_eq!(report.converged, report.targets, "{}", report.to_text());
-    let before = report.before_um.unwrap();
-    let after = report.after_um.unwrap();
-    assert!(before.max >= 20.0, "uncompensated max {} um", before.max);
-    assert!(
-        after.max <= 1.0,
-        "compensated max {} um\n{}",
-        after.max,
-        report.to_text()
-    );
+    assert_demo_figure(&report, 20.0);
 }
 
 #[test]

@@ -7,14 +7,7 @@ use gateway::camera_link::{over_gige, CameraLink};
 use gateway::config::Job;
 use gateway::grbl_stage::over_grbl;
 use gateway::run::{open_devices, open_devices_async, run_job};
-
-fn runtime() -> tokio::runtime::Runtime {
-    tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .unwrap()
-}
+use system_tests::{assert_demo_figure, runtime_two_workers};
 
 fn few_targets(job: &mut Job) {
     job.targets = vec![[12.0, 12.0], [105.0, 80.0], [198.0, 148.0], [12.0, 148.0]];
@@ -22,7 +15,7 @@ fn few_targets(job: &mut Job) {
 
 #[test]
 fn demo_over_gige_and_grbl_compensates_to_within_a_micrometre() {
-    let rt = runtime();
+    let rt = runtime_two_workers();
     let mut job = Job::demo();
     over_grbl(&mut job).unwrap();
     over_gige(&mut job);
@@ -34,17 +27,7 @@ fn demo_over_gige_and_grbl_compensates_to_within_a_micrometre() {
         assert_eq!((info.width, info.height, info.bit_depth), (1280, 1024, 8));
         run_job(&job, &mut devices, &mut |_, _| {}).await
     });
-    assert!(report.error.is_none(), "{:?}", report.error);
-    assert_eq!(report.converged, report.targets, "{}", report.to_text());
-    let before = report.before_um.unwrap();
-    let after = report.after_um.unwrap();
-    assert!(before.max >= 10.0, "uncompensated max {} um", before.max);
-    assert!(
-        after.max <= 1.0,
-        "compensated max {} um\n{}",
-        after.max,
-        report.to_text()
-    );
+    assert_demo_figure(&report, 10.0);
 }
 
 #[test]
@@ -85,7 +68,7 @@ fn gige_demo_config_emulates_the_camera_and_refuses_bad_keys() {
 
 #[test]
 fn a_real_camera_address_with_a_simulated_machine_is_refused_clearly() {
-    let rt = runtime();
+    let rt = runtime_two_workers();
     let mut job = Job::demo();
     job.camera_link = CameraLink::Gige {
         camera: Some("127.0.0.1:9".into()),

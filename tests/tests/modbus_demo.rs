@@ -5,13 +5,7 @@
 use gateway::config::{Job, StageSpec};
 use gateway::modbus_stage::{over_modbus, ModbusLink};
 use gateway::run::{open_devices_async, run_job};
-
-fn runtime() -> tokio::runtime::Runtime {
-    tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap()
-}
+use system_tests::{assert_demo_figure, runtime};
 
 fn run(mut job: Job, rtu: bool, targets: usize) -> gateway::report::Report {
     over_modbus(&mut job, rtu).unwrap();
@@ -35,28 +29,14 @@ fn run(mut job: Job, rtu: bool, targets: usize) -> gateway::report::Report {
     })
 }
 
-fn check(report: &gateway::report::Report) {
-    assert!(report.error.is_none(), "{:?}", report.error);
-    assert_eq!(report.converged, report.targets, "{}", report.to_text());
-    let before = report.before_um.unwrap();
-    let after = report.after_um.unwrap();
-    assert!(before.max >= 20.0, "uncompensated max {} um", before.max);
-    assert!(
-        after.max <= 1.0,
-        "compensated max {} um\n{}",
-        after.max,
-        report.to_text()
-    );
-}
-
 #[test]
 fn demo_over_modbus_tcp_compensates_to_within_a_micrometre() {
-    check(&run(Job::demo(), false, 4));
+    assert_demo_figure(&run(Job::demo(), false, 4), 20.0);
 }
 
 #[test]
 fn demo_over_modbus_rtu_on_a_pty_compensates_to_within_a_micrometre() {
-    check(&run(Job::demo(), true, 3));
+    assert_demo_figure(&run(Job::demo(), true, 3), 20.0);
 }
 
 #[test]

@@ -2,7 +2,8 @@
 //! emulator behind an SLCAN adapter on a real pseudo-terminal, and the driver
 //! connected to it by path.
 
-#![allow(dead_code)]
+// Not every test binary that includes this module uses all of it.
+#![allow(dead_code, unused_imports)]
 
 use drivers::can::slcan::SlcanBus;
 use drivers::canopen::{open_stage, AxisConfig, CanopenOptions, Network};
@@ -32,12 +33,7 @@ pub fn rig() -> SharedRig {
     Arc::new(Mutex::new(SimRig::new(SimMachine::new(m), b, c)))
 }
 
-pub fn runtime() -> tokio::runtime::Runtime {
-    tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap()
-}
+pub use system_tests::runtime;
 
 /// The drives (X = node 1, Y = node 2) on a fresh SLCAN pseudo-terminal.
 pub fn emulator(rig: &SharedRig, clock: Clock) -> SlcanPty {

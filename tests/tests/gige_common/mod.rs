@@ -2,7 +2,8 @@
 //! smaller sensor so debug builds stay fast), the emulated camera on a loopback port
 //! and the driver connected to it.
 
-#![allow(dead_code)]
+// Not every test binary that includes this module uses all of it.
+#![allow(dead_code, unused_imports)]
 
 use drivers::gige::{GigeCamera, GigeOptions};
 use emulators::camera::CameraModel;
@@ -39,13 +40,7 @@ pub fn rig(size: Option<(u32, u32)>, bit_depth: Option<u8>) -> SharedRig {
     Arc::new(Mutex::new(SimRig::new(SimMachine::new(m), b, c)))
 }
 
-pub fn runtime() -> tokio::runtime::Runtime {
-    tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .unwrap()
-}
+pub use system_tests::runtime_two_workers as runtime;
 
 pub async fn emulator(rig: &SharedRig, config: GigeConfig) -> GigeCameraServer {
     GigeCameraServer::spawn(

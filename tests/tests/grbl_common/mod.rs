@@ -1,7 +1,8 @@
 //! Shared set-up of the GRBL system tests: a simulated rig, the GRBL emulator on a real
 //! pseudo-terminal, and the driver connected to it by path.
 
-#![allow(dead_code)]
+// Not every test binary that includes this module uses all of it.
+#![allow(dead_code, unused_imports)]
 
 use drivers::grbl::{GrblOptions, GrblStage};
 use emulators::camera::CameraModel;
@@ -25,12 +26,7 @@ pub fn rig() -> SharedRig {
     Arc::new(Mutex::new(SimRig::new(SimMachine::new(m), b, c)))
 }
 
-pub fn runtime() -> tokio::runtime::Runtime {
-    tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap()
-}
+pub use system_tests::runtime;
 
 /// The emulator on a fresh pseudo-terminal (inside a runtime).
 pub fn emulator(

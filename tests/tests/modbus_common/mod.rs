@@ -1,7 +1,8 @@
 //! Shared set-up of the Modbus system tests: a simulated rig, the drive emulator on a
 //! TCP port of the loopback interface or on a real pseudo-terminal, and the driver.
 
-#![allow(dead_code)]
+// Not every test binary that includes this module uses all of it.
+#![allow(dead_code, unused_imports)]
 
 use drivers::modbus::{Endpoint, ModbusAxis, ModbusAxisConfig, ModbusBus, ModbusOptions, Parity};
 use drivers::Axis;
@@ -28,12 +29,7 @@ pub fn rig() -> SharedRig {
     Arc::new(Mutex::new(SimRig::new(SimMachine::new(m), b, c)))
 }
 
-pub fn runtime() -> tokio::runtime::Runtime {
-    tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap()
-}
+pub use system_tests::runtime;
 
 pub fn profile(name: &str) -> Arc<DriveProfile> {
     Arc::new(DriveProfile::load(&config_dir().join(format!("drives/{name}.toml"))).unwrap())
