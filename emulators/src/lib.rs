@@ -11,6 +11,7 @@ pub mod grbl;
 pub mod machine;
 pub mod modbus;
 pub mod plate;
+pub mod pty;
 pub mod render;
 pub mod rig;
 pub mod rng;

@@ -8,16 +8,16 @@
 //! and answers malformed lines with BEL (counted, never fatal).
 
 use super::drives::DriveSet;
+use crate::pty::PtyPort;
 use protocol::can::CanFrame;
 use protocol::slcan::{Command, CommandDecoder, Message};
 use std::io;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::sync::oneshot;
-use tokio::task::JoinHandle;
-use tokio_serial::{SerialPort, SerialStream};
+use tokio_serial::SerialStream;
 
 /// The drive set, shared between the serving task and the test or binary around it.
 pub type SharedSet = Arc<Mutex<DriveSet>>;
@@ -157,12 +157,9 @@ pub struct AdapterStats {
 
 /// A running SLCAN adapter with drives behind it, on a pseudo-terminal.
 pub struct SlcanPty {
-    path: String,
-    link: Option<PathBuf>,
+    port: PtyPort,
     set: SharedSet,
     stats: Arc<Mutex<AdapterStats>>,
-    stop: Option<oneshot::Sender<()>>,
-    task: Option<JoinHandle<()>>,
 }
 
 impl SlcanPty {
@@ -170,36 +167,27 @@ impl SlcanPty {
     /// `link`, a symlink to the slave path is made there. `set` should have been made
     /// with `now = 0`: the adapter's clock starts at spawn.
     pub fn spawn(set: SharedSet, link: Option<&Path>) -> io::Result<SlcanPty> {
-        let (master, slave) = SerialStream::pair().map_err(|e| io::Error::other(e.to_string()))?;
-        let path = slave
-            .name()
-            .ok_or_else(|| io::Error::other("the pseudo-terminal has no slave path"))?;
-        if let Some(l) = link {
-            if l.symlink_metadata().is_ok() {
-                std::fs::remove_file(l)?;
-            }
-            std::os::unix::fs::symlink(&path, l)?;
-        }
         let stats = Arc::new(Mutex::new(AdapterStats::default()));
-        let (tx, rx) = oneshot::channel();
-        let task = tokio::spawn(serve(set.clone(), master, slave, rx, stats.clone()));
-        Ok(SlcanPty {
-            path,
-            link: link.map(Path::to_path_buf),
-            set,
-            stats,
-            stop: Some(tx),
-            task: Some(task),
-        })
+        let (drives, counters) = (set.clone(), stats.clone());
+        let port = PtyPort::spawn(link, move |master, slave, stop| {
+            serve(drives, master, slave, stop, counters)
+        })?;
+        Ok(SlcanPty { port, set, stats })
     }
 
-    /// The slave path (`/dev/pts/N`).
+    /// The slave path (`/dev/pts/N`) clients open.
     pub fn path(&self) -> &str {
-        &self.path
+        self.port.path()
     }
 
+    /// The symlink, if one was asked for.
     pub fn link(&self) -> Option<&Path> {
-        self.link.as_deref()
+        self.port.link()
+    }
+
+    /// Close the pseudo-terminal: the port disappears for its client.
+    pub async fn hang_up(self) {
+        self.port.hang_up().await
     }
 
     /// The drives (for fault injection and inspection).
@@ -211,29 +199,9 @@ impl SlcanPty {
         self.stats.lock().unwrap_or_else(|p| p.into_inner()).clone()
     }
 
-    /// Unplug the adapter: the port disappears for its client.
-    pub async fn hang_up(mut self) {
-        if let Some(tx) = self.stop.take() {
-            let _ = tx.send(());
-        }
-        if let Some(t) = self.task.take() {
-            let _ = t.await;
-        }
-    }
-
     /// Wait until the runner ends (it serves until stopped or the port fails).
     pub async fn closed(&mut self) {
-        if let Some(t) = self.task.take() {
-            let _ = t.await;
-        }
-    }
-}
-
-impl Drop for SlcanPty {
-    fn drop(&mut self) {
-        if let Some(tx) = self.stop.take() {
-            let _ = tx.send(());
-        }
+        self.port.closed().await
     }
 }
 

@@ -7,21 +7,18 @@
 //! which is what a client sees when a USB adapter is unplugged.
 
 use super::device::{DeviceStats, GrblDevice};
+use crate::pty::PtyPort;
 use std::io;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::sync::oneshot;
-use tokio::task::JoinHandle;
 use tokio_serial::{SerialPort, SerialStream};
 
 /// A running emulator on a pseudo-terminal.
 pub struct GrblPty {
-    path: String,
-    link: Option<PathBuf>,
-    stop: Option<oneshot::Sender<()>>,
-    task: Option<JoinHandle<()>>,
+    port: PtyPort,
     stats: Arc<Mutex<DeviceStats>>,
 }
 
@@ -34,68 +31,36 @@ impl GrblPty {
     /// called inside a tokio runtime. With `link`, a symlink to the slave path is
     /// created there (replacing an old one), so clients can use a stable name.
     pub fn spawn(device: GrblDevice, link: Option<&Path>) -> io::Result<GrblPty> {
-        // The slave side stays without any lock (no flock, no TIOCEXCL), so clients
-        // may open it exclusively as they do real ports.
-        let (master, slave) = SerialStream::pair().map_err(io_err)?;
-        let path = slave
-            .name()
-            .ok_or_else(|| io::Error::other("the pseudo-terminal has no slave path"))?;
-        if let Some(l) = link {
-            if l.symlink_metadata().is_ok() {
-                std::fs::remove_file(l)?;
-            }
-            std::os::unix::fs::symlink(&path, l)?;
-        }
         let stats = Arc::new(Mutex::new(DeviceStats::default()));
-        let (tx, rx) = oneshot::channel();
-        let task = tokio::spawn(serve(device, master, slave, rx, stats.clone()));
-        Ok(GrblPty {
-            path,
-            link: link.map(Path::to_path_buf),
-            stop: Some(tx),
-            task: Some(task),
-            stats,
-        })
+        let counters = stats.clone();
+        let port = PtyPort::spawn(link, move |master, slave, stop| {
+            serve(device, master, slave, stop, counters)
+        })?;
+        Ok(GrblPty { port, stats })
     }
 
-    /// The slave path (`/dev/pts/N`).
+    /// The slave path (`/dev/pts/N`) clients open.
     pub fn path(&self) -> &str {
-        &self.path
+        self.port.path()
     }
 
     /// The symlink, if one was asked for.
     pub fn link(&self) -> Option<&Path> {
-        self.link.as_deref()
+        self.port.link()
+    }
+
+    /// Close the pseudo-terminal: the port disappears for its client.
+    pub async fn hang_up(self) {
+        self.port.hang_up().await
     }
 
     pub fn stats(&self) -> DeviceStats {
         self.stats.lock().unwrap_or_else(|p| p.into_inner()).clone()
     }
 
-    /// Close the pseudo-terminal: the port disappears for its client. The symlink
-    /// stays (a replugged adapter gets the same name back).
-    pub async fn hang_up(mut self) {
-        if let Some(tx) = self.stop.take() {
-            let _ = tx.send(());
-        }
-        if let Some(t) = self.task.take() {
-            let _ = t.await;
-        }
-    }
-
     /// Wait until the runner ends by itself (after the device's answer limit).
     pub async fn closed(&mut self) {
-        if let Some(t) = self.task.take() {
-            let _ = t.await;
-        }
-    }
-}
-
-impl Drop for GrblPty {
-    fn drop(&mut self) {
-        if let Some(tx) = self.stop.take() {
-            let _ = tx.send(());
-        }
+        self.port.closed().await
     }
 }
 

@@ -15,10 +15,11 @@
 //!   a flipped CRC bit; TCP: a wrong transaction id), or send it late.
 
 use super::device::{DriveSet, ModbusStats};
+use crate::pty::PtyPort;
 use protocol::modbus::frame::{rtu_crc_ok, rtu_frame, rtu_request_len, FrameLen, Mbap};
 use std::io;
 use std::net::SocketAddr;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -265,73 +266,37 @@ async fn serve_tcp_connection(device: Arc<ModbusDevice>, mut s: TcpStream) {
 
 /// A Modbus RTU line on a new pseudo-terminal.
 pub struct ModbusRtu {
-    path: String,
-    link: Option<PathBuf>,
-    stop: Option<oneshot::Sender<()>>,
-    task: Option<JoinHandle<()>>,
-}
-
-fn serial_err(e: tokio_serial::Error) -> io::Error {
-    io::Error::other(e.to_string())
+    port: PtyPort,
 }
 
 impl ModbusRtu {
     /// Create the pseudo-terminal and serve on it (inside a tokio runtime). With
     /// `link`, a symlink to the slave path is made there (replacing an old one).
     pub fn spawn(device: Arc<ModbusDevice>, link: Option<&Path>) -> io::Result<ModbusRtu> {
-        use tokio_serial::SerialPort;
-        let (master, slave) = SerialStream::pair().map_err(serial_err)?;
-        let path = slave
-            .name()
-            .ok_or_else(|| io::Error::other("the pseudo-terminal has no slave path"))?;
-        if let Some(l) = link {
-            if l.symlink_metadata().is_ok() {
-                std::fs::remove_file(l)?;
-            }
-            std::os::unix::fs::symlink(&path, l)?;
-        }
-        let (tx, rx) = oneshot::channel();
-        let task = tokio::spawn(serve_rtu(device, master, slave, rx));
-        Ok(ModbusRtu {
-            path,
-            link: link.map(Path::to_path_buf),
-            stop: Some(tx),
-            task: Some(task),
-        })
+        let port = PtyPort::spawn(link, move |master, slave, stop| {
+            serve_rtu(device, master, slave, stop)
+        })?;
+        Ok(ModbusRtu { port })
     }
 
     /// The slave path (`/dev/pts/N`) clients open.
     pub fn path(&self) -> &str {
-        &self.path
+        self.port.path()
     }
 
+    /// The symlink, if one was asked for.
     pub fn link(&self) -> Option<&Path> {
-        self.link.as_deref()
+        self.port.link()
     }
 
-    /// Close the line (the port disappears for its client).
-    pub async fn hang_up(mut self) {
-        if let Some(tx) = self.stop.take() {
-            let _ = tx.send(());
-        }
-        if let Some(t) = self.task.take() {
-            let _ = t.await;
-        }
+    /// Close the pseudo-terminal: the port disappears for its client.
+    pub async fn hang_up(self) {
+        self.port.hang_up().await
     }
 
-    /// Wait until the line is closed.
+    /// Wait until the runner ends (by itself or stopped).
     pub async fn closed(&mut self) {
-        if let Some(t) = self.task.take() {
-            let _ = t.await;
-        }
-    }
-}
-
-impl Drop for ModbusRtu {
-    fn drop(&mut self) {
-        if let Some(tx) = self.stop.take() {
-            let _ = tx.send(());
-        }
+        self.port.closed().await
     }
 }
 
