@@ -86,3 +86,20 @@ pub fn assert_demo_figure(report: &gateway::report::Report, min_before_um: f64) 
         report.to_text()
     );
 }
+
+/// Why an interoperation test cannot run here: python3 missing, or `modules` (a Python
+/// import list such as `"canopen, can, serial"`) not importable; `packages` is what to
+/// `pip install`. None when the peer can run. Callers print the reason and skip.
+pub fn python_missing(modules: &str, packages: &str) -> Option<String> {
+    match Command::new("python3")
+        .args(["-c", &format!("import {modules}")])
+        .output()
+    {
+        Err(e) => Some(format!("python3 is not available ({e})")),
+        Ok(o) if !o.status.success() => Some(format!(
+            "{packages} not installed (python3 -m pip install {packages}): {}",
+            String::from_utf8_lossy(&o.stderr).trim()
+        )),
+        Ok(_) => None,
+    }
+}

@@ -7,26 +7,13 @@
 
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
-use system_tests::{emulators_binary, workspace, Kill};
+use system_tests::{emulators_binary, python_missing, workspace, Kill};
 
 #[test]
 fn python_canopen_master_runs_our_emulated_cia402_drive_over_slcan() {
-    let probe = Command::new("python3")
-        .args(["-c", "import canopen, can, serial"])
-        .output();
-    match probe {
-        Err(e) => {
-            eprintln!("SKIPPED: python3 is not available ({e})");
-            return;
-        }
-        Ok(o) if !o.status.success() => {
-            eprintln!(
-                "SKIPPED: python canopen / python-can / pyserial are not installed (python3 -m pip install canopen python-can pyserial): {}",
-                String::from_utf8_lossy(&o.stderr).trim()
-            );
-            return;
-        }
-        Ok(_) => {}
+    if let Some(why) = python_missing("canopen, can, serial", "canopen python-can pyserial") {
+        eprintln!("SKIPPED: {why}");
+        return;
     }
     let child = Command::new(emulators_binary())
         .args(["canopen", "--time-scale", "unconstrained"])

@@ -16,26 +16,13 @@ use std::io::{BufRead, BufReader};
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
-use system_tests::Kill;
+use system_tests::{python_missing, Kill};
 
 #[test]
 fn our_master_talks_to_a_python_canopen_local_node() {
-    let probe = Command::new("python3")
-        .args(["-c", "import canopen, can, serial"])
-        .output();
-    match probe {
-        Err(e) => {
-            eprintln!("SKIPPED: python3 is not available ({e})");
-            return;
-        }
-        Ok(o) if !o.status.success() => {
-            eprintln!(
-                "SKIPPED: python canopen / python-can / pyserial are not installed (python3 -m pip install canopen python-can pyserial): {}",
-                String::from_utf8_lossy(&o.stderr).trim()
-            );
-            return;
-        }
-        Ok(_) => {}
+    if let Some(why) = python_missing("canopen, can, serial", "canopen python-can pyserial") {
+        eprintln!("SKIPPED: {why}");
+        return;
     }
     let ws = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     runtime().block_on(async {

@@ -5,26 +5,13 @@
 
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
-use system_tests::{emulators_binary, workspace, Kill};
+use system_tests::{emulators_binary, python_missing, workspace, Kill};
 
 #[test]
 fn pyserial_sender_connects_like_ugs_and_streams_by_character_counting() {
-    let probe = Command::new("python3")
-        .args(["-c", "import serial"])
-        .output();
-    match probe {
-        Err(e) => {
-            eprintln!("SKIPPED: python3 is not available ({e})");
-            return;
-        }
-        Ok(o) if !o.status.success() => {
-            eprintln!(
-                "SKIPPED: pyserial is not installed (python3 -m pip install pyserial): {}",
-                String::from_utf8_lossy(&o.stderr).trim()
-            );
-            return;
-        }
-        Ok(_) => {}
+    if let Some(why) = python_missing("serial", "pyserial") {
+        eprintln!("SKIPPED: {why}");
+        return;
     }
     let dir = std::env::temp_dir().join(format!("grbl-interop-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();

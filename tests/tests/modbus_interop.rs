@@ -11,25 +11,15 @@ use drivers::{Axis, AxisValues, Stage};
 use modbus_common::*;
 use std::io::{BufRead, BufReader, Read};
 use std::process::{Command, Stdio};
-use system_tests::{emulators_binary, workspace, Kill};
+use system_tests::{emulators_binary, python_missing, workspace, Kill};
 
 fn pymodbus_available() -> bool {
-    match Command::new("python3")
-        .args(["-c", "import pymodbus, serial"])
-        .output()
-    {
-        Err(e) => {
-            eprintln!("SKIPPED: python3 is not available ({e})");
+    match python_missing("pymodbus, serial", "pymodbus pyserial") {
+        Some(why) => {
+            eprintln!("SKIPPED: {why}");
             false
         }
-        Ok(o) if !o.status.success() => {
-            eprintln!(
-                "SKIPPED: pymodbus is not installed (python3 -m pip install pymodbus pyserial): {}",
-                String::from_utf8_lossy(&o.stderr).trim()
-            );
-            false
-        }
-        Ok(_) => true,
+        None => true,
     }
 }
 
