@@ -9,17 +9,16 @@
 use drivers::can::slcan::SlcanBus;
 use drivers::canopen::{open_stage, AxisConfig, CanopenOptions};
 use drivers::{Axis, AxisValues, Stage};
-use emulators::camera::CameraModel;
 use emulators::canopen::{DriveSet, DriveSetConfig, SlcanPty};
-use emulators::grbl::Clock;
-use emulators::machine::{MachineConfig, SimMachine};
-use emulators::rig::SimRig;
 use protocol::can::{bus_capacity_frames_per_s, CanFrame};
 use protocol::canopen::NodeId;
 use protocol::Board;
 use std::path::Path;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
+use world::camera::CameraModel;
+use world::machine::MachineConfig;
+use world::Clock;
 
 fn percentile(sorted: &[f64], p: f64) -> f64 {
     let i = ((sorted.len() as f64 - 1.0) * p).round() as usize;
@@ -31,7 +30,7 @@ fn main() {
     let m = MachineConfig::load(&cfg.join("machines/c5-stage.toml")).unwrap();
     let c = CameraModel::load(&cfg.join("cameras/mono-1.3mp.toml")).unwrap();
     let b = Board::load(&cfg.join("boards/dot-grid-0.5mm.toml")).unwrap();
-    let rig = Arc::new(Mutex::new(SimRig::new(SimMachine::new(m), b, c)));
+    let rig = world::shared_rig(m, b, c);
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()

@@ -7,16 +7,15 @@
 
 use drivers::grbl::{GrblOptions, GrblStage, StreamOptions};
 use drivers::Stage;
-use emulators::camera::CameraModel;
-use emulators::grbl::{Clock, GrblConfig, GrblDevice, GrblPty};
-use emulators::machine::{MachineConfig, SimMachine};
-use emulators::rig::SimRig;
+use emulators::grbl::{GrblConfig, GrblDevice, GrblPty};
 use protocol::grbl::gcode::filter_line;
 use protocol::grbl::Command;
 use protocol::Board;
 use std::path::Path;
-use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
+use world::camera::CameraModel;
+use world::machine::MachineConfig;
+use world::Clock;
 
 /// 115200 baud, 8N1: 10 bits per byte.
 const BAUD_BYTES_PER_S: f64 = 115_200.0 / 10.0;
@@ -31,7 +30,7 @@ fn main() {
     let m = MachineConfig::load(&cfg.join("machines/c5-stage.toml")).unwrap();
     let c = CameraModel::load(&cfg.join("cameras/mono-1.3mp.toml")).unwrap();
     let b = Board::load(&cfg.join("boards/dot-grid-0.5mm.toml")).unwrap();
-    let rig = Arc::new(Mutex::new(SimRig::new(SimMachine::new(m), b, c)));
+    let rig = world::shared_rig(m, b, c);
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()

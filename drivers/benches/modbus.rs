@@ -11,17 +11,16 @@
 //! pymodbus; skipped with a note otherwise).
 
 use drivers::modbus::{Endpoint, ModbusBus, ModbusOptions, Op, Parity};
-use emulators::camera::CameraModel;
-use emulators::grbl::Clock;
-use emulators::machine::{MachineConfig, SimMachine};
 use emulators::modbus::{DriveSet, MachineAxis, ModbusDevice, ModbusRtu, ModbusTcp};
-use emulators::rig::SimRig;
 use protocol::modbus::DriveProfile;
 use protocol::Board;
 use std::path::Path;
 use std::process::Command;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
+use world::camera::CameraModel;
+use world::machine::MachineConfig;
+use world::Clock;
 
 const N: usize = 4000;
 const CONNECTIONS: usize = 4;
@@ -109,7 +108,7 @@ fn main() {
     let m = MachineConfig::load(&cfg.join("machines/c5-stage.toml")).unwrap();
     let c = CameraModel::load(&cfg.join("cameras/mono-1.3mp.toml")).unwrap();
     let b = Board::load(&cfg.join("boards/dot-grid-0.5mm.toml")).unwrap();
-    let rig = Arc::new(Mutex::new(SimRig::new(SimMachine::new(m), b, c)));
+    let rig = world::shared_rig(m, b, c);
     let profile = Arc::new(DriveProfile::load(&cfg.join("drives/generic.toml")).unwrap());
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)

@@ -6,18 +6,8 @@ use crate::camera::{Camera, CameraInfo, Frame, FrameMeta};
 use crate::error::DriverError;
 use crate::stage::{Axis, AxisInfo, AxisValues, Stage, StageInfo, StageState, StageStatus};
 use async_trait::async_trait;
-use emulators::machine::MachineRefusal;
-use emulators::rig::SimRig;
-use std::sync::{Arc, Mutex, MutexGuard};
-
-/// A rig shared by the sim stage and the sim camera.
-pub type SharedRig = Arc<Mutex<SimRig>>;
-
-fn lock(rig: &SharedRig) -> MutexGuard<'_, SimRig> {
-    // A panic while holding the lock leaves the simulation unusable anyway; keep going
-    // with the data rather than poisoning every later call.
-    rig.lock().unwrap_or_else(|p| p.into_inner())
-}
+use world::machine::MachineRefusal;
+use world::{lock, SharedRig};
 
 const DEVICE: &str = "sim stage";
 
@@ -30,8 +20,8 @@ impl SimStage {
     pub fn new(rig: SharedRig) -> Self {
         let info = {
             let r = lock(&rig);
-            let c = r.machine.config();
-            let axis = |axis, a: &emulators::machine::AxisConfig| AxisInfo {
+            let c = r.machine().config();
+            let axis = |axis, a: &world::machine::AxisConfig| AxisInfo {
                 axis,
                 min_mm: 0.0,
                 max_mm: a.travel_mm,
@@ -69,46 +59,46 @@ impl Stage for SimStage {
     }
 
     async fn home(&mut self) -> Result<(), DriverError> {
-        lock(&self.rig).machine.home();
+        lock(&self.rig).machine_mut().home();
         Ok(())
     }
 
     async fn move_to(&mut self, target: AxisValues, feed_mm_min: f64) -> Result<(), DriverError> {
         self.info.check_limits(&target)?;
         let mut r = lock(&self.rig);
-        let here = r.machine.position_mm();
+        let here = r.machine().position_mm();
         let to = [
             target.get(Axis::X).unwrap_or(here[0]),
             target.get(Axis::Y).unwrap_or(here[1]),
         ];
-        r.machine
+        r.machine_mut()
             .start_move(to, feed_mm_min)
             .map(|_| ())
             .map_err(refusal)
     }
 
     async fn position(&mut self) -> Result<AxisValues, DriverError> {
-        let p = lock(&self.rig).machine.position_mm();
+        let p = lock(&self.rig).machine().position_mm();
         Ok(AxisValues::xy(p[0], p[1]))
     }
 
     async fn wait_idle(&mut self) -> Result<(), DriverError> {
         // Simulated time: the move runs to its end at once.
-        lock(&self.rig).machine.finish_motion();
+        lock(&self.rig).machine_mut().finish_motion();
         Ok(())
     }
 
     async fn stop(&mut self) -> Result<(), DriverError> {
-        lock(&self.rig).machine.stop();
+        lock(&self.rig).machine_mut().stop();
         Ok(())
     }
 
     async fn status(&mut self) -> Result<StageStatus, DriverError> {
         let r = lock(&self.rig);
-        let p = r.machine.position_mm();
-        let state = if !r.machine.is_homed() {
+        let p = r.machine().position_mm();
+        let state = if !r.machine().is_homed() {
             StageState::NotHomed
-        } else if r.machine.is_moving() {
+        } else if r.machine().is_moving() {
             StageState::Moving
         } else {
             StageState::Idle
@@ -130,11 +120,11 @@ impl SimCamera {
         let info = {
             let r = lock(&rig);
             CameraInfo {
-                model: r.camera.model.clone(),
+                model: r.camera().model.clone(),
                 serial: "SIM-0001".into(),
-                width: r.camera.width,
-                height: r.camera.height,
-                bit_depth: r.camera.bit_depth,
+                width: r.camera().width,
+                height: r.camera().height,
+                bit_depth: r.camera().bit_depth,
             }
         };
         Self { rig, info }

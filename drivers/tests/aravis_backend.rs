@@ -37,15 +37,11 @@ fn aravis_streams_our_emulator_bit_for_bit() {
     use drivers::Camera;
     use emulators::gige::{GigeCameraServer, GigeConfig, GigeServerOptions};
     let d = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config");
-    let m = emulators::machine::MachineConfig::load(&d.join("machines/c5-stage.toml")).unwrap();
-    let mut c = emulators::camera::CameraModel::load(&d.join("cameras/mono-1.3mp.toml")).unwrap();
+    let m = world::machine::MachineConfig::load(&d.join("machines/c5-stage.toml")).unwrap();
+    let mut c = world::camera::CameraModel::load(&d.join("cameras/mono-1.3mp.toml")).unwrap();
     (c.width, c.height) = (320, 240);
     let b = protocol::Board::load(&d.join("boards/dot-grid-0.5mm.toml")).unwrap();
-    let rig = std::sync::Arc::new(std::sync::Mutex::new(emulators::rig::SimRig::new(
-        emulators::machine::SimMachine::new(m),
-        b,
-        c,
-    )));
+    let rig = world::shared_rig(m, b, c);
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()

@@ -3,10 +3,10 @@
 //!
 //! Run with `cargo run --release -p emulators --example render_speed [frames]`.
 
-use emulators::camera::{CameraModel, CameraPose};
-use emulators::render::render;
 use protocol::{Board, Polarity};
 use std::time::Instant;
+use world::camera::{CameraModel, CameraPose};
+use world::render::render;
 
 fn camera(width: u32, height: u32, bit_depth: u8) -> CameraModel {
     CameraModel {

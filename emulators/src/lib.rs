@@ -1,17 +1,13 @@
-//! Software devices for every bus, all driven by one simulated imperfect machine.
+//! Software bus devices, all driving one simulated imperfect machine (the `world` crate):
+//! sans-IO device state machines for GRBL, CANopen CiA 402, Modbus drives and a GigE
+//! Vision camera, their servers and pseudo-terminal ports, and the stand-alone CLI.
 //!
-//! Architecture invariant: this crate depends on `protocol`, never on `drivers` or
-//! `gateway`; the truth it holds (where the tool really is) reaches the gateway only
-//! through the bytes and frames a real device would send.
+//! Architecture invariant: this crate depends on `protocol` and `world`, never on
+//! `drivers` or `gateway`; the truth the world holds (where the tool really is) reaches
+//! the gateway only through the bytes and frames a real device would send.
 
-pub mod camera;
 pub mod canopen;
 pub mod gige;
 pub mod grbl;
-pub mod machine;
 pub mod modbus;
-pub mod plate;
 pub mod pty;
-pub mod render;
-pub mod rig;
-pub mod rng;

@@ -2,9 +2,9 @@
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
-use emulators::plate::{manufacture, PlateErrors};
 use protocol::Board;
 use std::path::PathBuf;
+use world::plate::{manufacture, PlateErrors};
 
 #[derive(Parser)]
 #[command(
@@ -69,21 +69,6 @@ enum Cmd {
     Gige(emulators::gige::cli::GigeArgs),
 }
 
-fn parse_clock(s: &str) -> anyhow::Result<emulators::grbl::Clock> {
-    use emulators::grbl::Clock;
-    if s.eq_ignore_ascii_case("unconstrained") {
-        return Ok(Clock::Unconstrained);
-    }
-    let k: f64 = s
-        .parse()
-        .with_context(|| format!("--time-scale `{s}`: a positive number or `unconstrained`"))?;
-    anyhow::ensure!(
-        k.is_finite() && k > 0.0,
-        "--time-scale `{s}`: must be positive"
-    );
-    Ok(Clock::Scaled(k))
-}
-
 fn serve_grbl(
     machine: PathBuf,
     board: PathBuf,
@@ -93,11 +78,11 @@ fn serve_grbl(
 ) -> anyhow::Result<()> {
     use emulators::grbl::{GrblConfig, GrblDevice, GrblPty};
     use std::io::Write;
-    let clock = parse_clock(&time_scale)?;
-    let m = emulators::machine::MachineConfig::load(&machine)?;
+    let clock = time_scale.parse::<world::Clock>().context("--time-scale")?;
+    let m = world::machine::MachineConfig::load(&machine)?;
     let b = Board::load(&board)?;
-    let c = emulators::camera::CameraModel::load(&camera)?;
-    let rig = emulators::rig::SimRig::new(emulators::machine::SimMachine::new(m), b, c);
+    let c = world::camera::CameraModel::load(&camera)?;
+    let rig = world::rig::SimRig::new(world::machine::SimMachine::new(m), b, c);
     let rig = std::sync::Arc::new(std::sync::Mutex::new(rig));
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()

@@ -41,7 +41,7 @@ fn main() {
         ("mono-1.3mp.toml", 1280, 1024),
         ("mono-5mp.toml", 2448, 2048),
     ] {
-        let mut model = emulators::camera::CameraModel::load(&cams.join(file)).unwrap();
+        let mut model = world::camera::CameraModel::load(&cams.join(file)).unwrap();
         assert_eq!((model.width, model.height), (w, h));
         if model.bit_depth == 16 {
             model.bit_depth = 8;

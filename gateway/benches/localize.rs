@@ -2,7 +2,7 @@
 //!
 //! `cargo bench -p gateway --bench localize`
 //!
-//! Frames are rendered once (by `emulators::render`, which also gives the true dot
+//! Frames are rendered once (by `world::render`, which also gives the true dot
 //! centres and the true position), then `localize()` is timed on the decoded frame, many
 //! times, and reported as median, 90th percentile and minimum. A plain pass over the
 //! same frame (summing every pixel) is timed in the same loop, interleaved, so the ratio
@@ -16,14 +16,14 @@
 //!   frame (camera file `LOCALIZE_BENCH_CAMERA`, default `mono-5mp.toml`), for profilers
 //!   such as `perf record` or `valgrind --tool=cachegrind`.
 
-use emulators::camera::{CameraModel, CameraPose};
-use emulators::plate::{manufacture, PlateErrors};
-use emulators::render::{render, RenderedFrame};
 use gateway::localize::{detect_dots, localize, LocalizeParams, Method};
 use protocol::{Board, MonoImage, Pixels, Polarity};
 use std::hint::black_box;
 use std::path::Path;
 use std::time::Instant;
+use world::camera::{CameraModel, CameraPose};
+use world::plate::{manufacture, PlateErrors};
+use world::render::{render, RenderedFrame};
 
 fn board() -> Board {
     let mut b = Board::nominal(

@@ -8,10 +8,11 @@
 use crate::image_io::load_png;
 use async_trait::async_trait;
 use drivers::gige::{GigeCamera, GigeOptions};
-use drivers::sim::{SharedRig, SimCamera};
+use drivers::sim::SimCamera;
 use drivers::{Camera, CameraInfo, DriverError, Frame, FrameMeta};
 use emulators::gige::{GigeCameraServer, GigeServerOptions};
 use std::path::{Path, PathBuf};
+use world::SharedRig;
 
 /// How frames reach the gateway.
 #[derive(Clone, Debug, Default, PartialEq)]

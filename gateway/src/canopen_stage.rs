@@ -26,14 +26,14 @@ use drivers::can::{open_bus, BusSpec};
 use drivers::canopen::{open_stage, AxisConfig, CanopenOptions};
 use drivers::{Axis, DriverError};
 use emulators::canopen::{DriveSet, DriveSetConfig, SlcanPty, DRIVE_EDS, DRIVE_EDS_NAME};
-use emulators::grbl::Clock;
-use emulators::machine::MachineConfig;
 use protocol::canopen::od::ObjectDictionary;
 use protocol::canopen::NodeId;
 use protocol::config::{ConfigDoc, ConfigError};
 use serde::Deserialize;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
+use world::machine::MachineConfig;
+use world::Clock;
 
 /// `[stage]` with `driver = "canopen"`, as written.
 #[derive(Deserialize, Debug)]
@@ -291,7 +291,7 @@ pub fn over_canopen(job: &mut Job) -> Result<(), DriverError> {
             message: "--stage canopen replaces the simulated stage of the demo job".into(),
         });
     };
-    let axis = |axis, node, a: &emulators::machine::AxisConfig| AxisConfig {
+    let axis = |axis, node, a: &world::machine::AxisConfig| AxisConfig {
         axis,
         node,
         counts_per_mm: a.counts_per_mm,

@@ -28,12 +28,12 @@
 
 use crate::correction::CorrectionPolicy;
 use crate::localize::{Method, PixelAxes};
-use emulators::camera::CameraModel;
-use emulators::machine::MachineConfig;
 use protocol::config::{ConfigDoc, ConfigError};
 use protocol::Board;
 use serde::Deserialize;
 use std::path::Path;
+use world::camera::CameraModel;
+use world::machine::MachineConfig;
 
 /// The files of the embedded default job (the demo), compiled in.
 pub static EMBEDDED: &[(&str, &str)] = &[

@@ -7,8 +7,9 @@ use crate::config::{Job, StageSpec};
 use crate::run::{new_rig, EmulatedStage, OpenedStage};
 use drivers::grbl::{GrblOptions, GrblStage};
 use drivers::DriverError;
-use emulators::grbl::{Clock, GrblConfig, GrblDevice, GrblPty};
+use emulators::grbl::{GrblConfig, GrblDevice, GrblPty};
 use std::time::Duration;
+use world::Clock;
 
 /// Replace a simulated job's stage by the same machine behind the GRBL emulator
 /// (`gateway demo --stage grbl`).

@@ -21,8 +21,6 @@ use crate::config::{Job, StageSpec};
 use crate::run::{new_rig, EmulatedStage, OpenedStage};
 use drivers::modbus::{open_stage, Endpoint, ModbusAxisConfig, ModbusOptions, Parity};
 use drivers::{Axis, DriverError};
-use emulators::grbl::Clock;
-use emulators::machine::MachineConfig;
 use emulators::modbus::{DriveSet, MachineAxis, ModbusDevice, ModbusRtu, ModbusTcp};
 use protocol::config::{ConfigDoc, ConfigError};
 use protocol::modbus::DriveProfile;
@@ -31,6 +29,8 @@ use std::net::SocketAddr;
 use std::path::Path;
 use std::sync::Arc;
 use std::time::Duration;
+use world::machine::MachineConfig;
+use world::Clock;
 
 /// The profile the demo uses, compiled in.
 const GENERIC_PROFILE: &str = include_str!("../../config/drives/generic.toml");

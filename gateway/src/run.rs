@@ -5,13 +5,12 @@ use crate::config::{CameraSpec, Job, StageSpec};
 use crate::orchestrator::{Event, Orchestrator};
 use crate::report::{Report, TruthAt};
 use async_trait::async_trait;
-use drivers::sim::{SharedRig, SimCamera, SimStage};
+use drivers::sim::{SimCamera, SimStage};
 use drivers::{AxisValues, Camera, DriverError, Stage, StageInfo, StageStatus};
-use emulators::machine::{MachineConfig, SimMachine};
-use emulators::rig::SimRig;
 use std::any::Any;
-use std::sync::{Arc, Mutex};
 use std::time::Instant;
+use world::machine::MachineConfig;
+use world::SharedRig;
 
 /// The devices of a job. `rig` is set when the machine is simulated: it is how reports
 /// learn the truth; the pipeline never receives it.
@@ -72,12 +71,7 @@ pub type OpenedStage = (Box<dyn Stage>, Option<SharedRig>);
 /// camera optics.
 pub fn new_rig(job: &Job, machine: &MachineConfig) -> SharedRig {
     let CameraSpec::Sim { model } = &job.camera;
-    let rig = SimRig::new(
-        SimMachine::new(machine.clone()),
-        job.board.clone(),
-        model.clone(),
-    );
-    Arc::new(Mutex::new(rig))
+    world::shared_rig(machine.clone(), job.board.clone(), model.clone())
 }
 
 /// Open the devices of a fully in-process job (simulated stage and camera) without an

@@ -1,10 +1,10 @@
 //! The `gateway` binary as a user runs it: real files in, exit codes and output checked.
 
-use emulators::camera::{CameraModel, CameraPose};
-use emulators::render::render;
 use protocol::config::ConfigDoc;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
+use world::camera::{CameraModel, CameraPose};
+use world::render::render;
 
 fn gateway(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_gateway"))

@@ -34,6 +34,33 @@ pub fn emulators_binary() -> PathBuf {
     bin
 }
 
+/// The repository's `config/` folder (machines, cameras, boards, drive profiles).
+pub fn config_dir() -> PathBuf {
+    workspace().join("config")
+}
+
+/// The reference rig of the system tests: the C5 ballscrew stage, the 1.3 MP mono
+/// camera and the 0.5 mm dot grid, as the demo uses them.
+pub fn reference_rig() -> world::SharedRig {
+    reference_rig_with_camera(|_| {})
+}
+
+/// The reference rig with its camera adjusted first (a smaller sensor keeps debug
+/// builds fast; another bit depth exercises other pixel formats).
+pub fn reference_rig_with_camera(
+    adjust: impl FnOnce(&mut world::camera::CameraModel),
+) -> world::SharedRig {
+    let d = config_dir();
+    let machine = world::machine::MachineConfig::load(&d.join("machines/c5-stage.toml"))
+        .expect("config/machines/c5-stage.toml loads");
+    let mut camera = world::camera::CameraModel::load(&d.join("cameras/mono-1.3mp.toml"))
+        .expect("config/cameras/mono-1.3mp.toml loads");
+    adjust(&mut camera);
+    let board = protocol::Board::load(&d.join("boards/dot-grid-0.5mm.toml"))
+        .expect("config/boards/dot-grid-0.5mm.toml loads");
+    world::shared_rig(machine, board, camera)
+}
+
 /// A child process that is killed and reaped when the test ends, pass or fail.
 pub struct Kill(pub Child);
 

@@ -6,9 +6,9 @@ mod canopen_common;
 
 use canopen_common::*;
 use drivers::{AxisValues, DriverError, Stage, StageState};
-use emulators::grbl::Clock;
 use protocol::canopen::NodeId;
 use protocol::cia402::State;
+use world::Clock;
 
 fn node(n: u8) -> NodeId {
     NodeId::new(n).unwrap()
@@ -32,13 +32,13 @@ fn brings_up_homes_and_moves_both_axes_to_the_count() {
         assert_eq!(stage.status().await.unwrap().state, StageState::NotHomed);
         stage.home().await.unwrap();
         stage.wait_idle().await.unwrap();
-        assert!(rig.lock().unwrap().machine.is_homed());
+        assert!(rig.lock().unwrap().machine().is_homed());
         for (x, y) in [(50.0, 40.0), (12.3455, 148.0005), (199.9995, 0.0)] {
             stage.move_to(AxisValues::xy(x, y), 3000.0).await.unwrap();
             stage.wait_idle().await.unwrap();
             let p = stage.position().await.unwrap();
             assert_eq!(p.to_xy().unwrap(), [x, y]);
-            let counts = rig.lock().unwrap().machine.counts();
+            let counts = rig.lock().unwrap().machine().counts();
             assert_eq!(
                 counts,
                 [(x * 2000.0).round() as i64, (y * 2000.0).round() as i64]
@@ -141,7 +141,7 @@ fn following_error_and_limit_faults_surface_with_their_emcy_codes_and_homing_rec
             matches!(s.state, StageState::Alarm(ref m) if m.contains("0x8611")),
             "{s:?}"
         );
-        let x = rig.lock().unwrap().machine.counts()[0];
+        let x = rig.lock().unwrap().machine().counts()[0];
         assert!(
             x > 0 && x < 300_000,
             "stopped where the lag passed the window: {x}"
@@ -215,10 +215,10 @@ fn a_node_that_stops_its_heartbeat_stops_the_stage_and_is_reported() {
         );
         let (state, _) = emu.set().lock().unwrap().node_state(Y_NODE).unwrap();
         assert_eq!(state, State::QuickStopActive);
-        let y = rig.lock().unwrap().machine.counts()[1];
+        let y = rig.lock().unwrap().machine().counts()[1];
         // Stopped well short of 140 mm (280 000 counts), wherever the loss was seen.
         assert!(y < 250_000, "Y stopped at {y} counts");
-        assert!(!rig.lock().unwrap().machine.is_moving());
+        assert!(!rig.lock().unwrap().machine().is_moving());
         let e = stage
             .move_to(AxisValues::xy(1.0, 1.0), 600.0)
             .await

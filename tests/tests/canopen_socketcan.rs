@@ -13,8 +13,8 @@ use drivers::canopen::open_stage;
 use drivers::{AxisValues, DriverError, Stage};
 use emulators::canopen::socketcan::SocketCanPort;
 use emulators::canopen::{DriveSet, DriveSetConfig};
-use emulators::grbl::Clock;
 use std::sync::{Arc, Mutex};
+use world::Clock;
 
 fn interface() -> String {
     std::env::var("CANOPEN_VCAN").unwrap_or_else(|_| "vcan0".into())
@@ -75,7 +75,7 @@ fn driver_and_emulated_drives_on_a_vcan_interface() {
             stage.position().await.unwrap().to_xy().unwrap(),
             [33.0, 44.5]
         );
-        assert_eq!(rig.lock().unwrap().machine.counts(), [66_000, 89_000]);
+        assert_eq!(rig.lock().unwrap().machine().counts(), [66_000, 89_000]);
         let e = net
             .sdo_read(protocol::canopen::NodeId::new(1).unwrap(), 0x2000, 0)
             .await

@@ -15,7 +15,7 @@ fn frames_received_equal_frames_rendered_bit_for_bit() {
     let rt = runtime();
     rt.block_on(async {
         let rig = rig(None, None);
-        rig.lock().unwrap().machine.home();
+        rig.lock().unwrap().machine_mut().home();
         let emu = emulator(&rig, GigeConfig::default()).await;
         let mut cam = connect(&emu, options()).await;
         let info = cam.info().clone();
@@ -190,7 +190,7 @@ fn frames_of_another_size_or_pixel_format_than_declared_are_refused() {
         let mut cam = connect(&emu, options()).await;
         cam.grab().await.unwrap();
         // The camera changes behind the driver's back: another width...
-        rig.lock().unwrap().camera.width = 200;
+        rig.lock().unwrap().camera_mut().width = 200;
         let m = cam.grab().await.unwrap_err().to_string();
         assert!(
             m.contains("is 200x120 Mono8 but the camera declared 160x120 Mono8")
@@ -200,8 +200,8 @@ fn frames_of_another_size_or_pixel_format_than_declared_are_refused() {
         // ...then another pixel format.
         {
             let mut r = rig.lock().unwrap();
-            r.camera.width = 160;
-            r.camera.bit_depth = 16;
+            r.camera_mut().width = 160;
+            r.camera_mut().bit_depth = 16;
         }
         let m = cam.grab().await.unwrap_err().to_string();
         assert!(
@@ -209,7 +209,7 @@ fn frames_of_another_size_or_pixel_format_than_declared_are_refused() {
             "{m}"
         );
         // Back as declared: frames flow again.
-        rig.lock().unwrap().camera.bit_depth = 8;
+        rig.lock().unwrap().camera_mut().bit_depth = 8;
         cam.grab().await.unwrap();
     });
 }

@@ -6,10 +6,11 @@ mod grbl_common;
 
 use drivers::grbl::GrblStage;
 use drivers::{Axis, AxisValues, DriverError, Stage, StageState};
-use emulators::grbl::{Clock, Foreign, ForeignPty};
+use emulators::grbl::{Foreign, ForeignPty};
 use grbl_common::*;
 use protocol::grbl::Command;
 use std::time::Duration;
+use world::Clock;
 
 #[test]
 fn connects_homes_and_moves_to_the_step() {
@@ -36,7 +37,7 @@ fn connects_homes_and_moves_to_the_step() {
             .unwrap();
         g.wait_idle().await.unwrap();
         // Sent with 4 decimals (10.1235), quantised by the machine to 0.5 um steps.
-        assert_eq!(rig.lock().unwrap().machine.counts(), [20247, 41000]);
+        assert_eq!(rig.lock().unwrap().machine().counts(), [20247, 41000]);
         let p = g.position().await.unwrap();
         assert!(
             (p.get(Axis::X).unwrap() - 10.1235).abs() <= 0.0005 + 1e-9,
@@ -49,7 +50,7 @@ fn connects_homes_and_moves_to_the_step() {
             .await
             .unwrap();
         g.wait_idle().await.unwrap();
-        assert_eq!(rig.lock().unwrap().machine.counts(), [20248, 41000]);
+        assert_eq!(rig.lock().unwrap().machine().counts(), [20248, 41000]);
     });
 }
 
@@ -225,7 +226,7 @@ fn check_mode_and_settings_by_send_response() {
             .await
             .unwrap();
         assert_eq!(
-            rig.lock().unwrap().machine.counts(),
+            rig.lock().unwrap().machine().counts(),
             [0, 0],
             "check mode moves nothing"
         );

@@ -6,9 +6,9 @@ mod grbl_common;
 
 use drivers::grbl::StreamOptions;
 use drivers::{Axis, DriverError, Stage};
-use emulators::grbl::Clock;
 use grbl_common::*;
 use protocol::grbl::Command;
+use world::Clock;
 
 /// A zig-zag of short moves inside the travel, `n` lines, with comments and blank lines
 /// as real files have them.

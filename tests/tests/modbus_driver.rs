@@ -9,7 +9,7 @@ use drivers::{Axis, AxisDrive, AxisValues, DriverError, Stage, StageState};
 use emulators::modbus::MachineAxis;
 use modbus_common::*;
 
-async fn home_move_and_check(stage: &mut dyn Stage, rig: &emulators::grbl::SharedRig) {
+async fn home_move_and_check(stage: &mut dyn Stage, rig: &world::SharedRig) {
     stage.home().await.unwrap();
     let st = stage.status().await.unwrap();
     assert_eq!(st.state, StageState::Idle, "{st:?}");

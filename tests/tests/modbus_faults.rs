@@ -6,7 +6,6 @@ mod modbus_common;
 
 use drivers::modbus::{Endpoint, ModbusAxis};
 use drivers::{Axis, AxisDrive, DriverError};
-use emulators::grbl::SharedRig;
 use emulators::modbus::{Fault, FaultRule, MachineAxis, ModbusDevice};
 use modbus_common::*;
 use protocol::modbus::frame::function::{
@@ -14,13 +13,14 @@ use protocol::modbus::frame::function::{
 };
 use std::sync::Arc;
 use std::time::Duration;
+use world::SharedRig;
 
 const MOVE: u8 = WRITE_MULTIPLE_REGISTERS;
 
 async fn homed_x(ep: Endpoint, rig: &SharedRig) -> ModbusAxis {
     let mut a = axis(ep, &profile("generic"), Axis::X, 1).await;
     a.home().await.unwrap();
-    assert!(rig.lock().unwrap().machine.is_homed());
+    assert!(rig.lock().unwrap().machine().is_homed());
     a
 }
 

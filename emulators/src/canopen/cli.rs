@@ -4,7 +4,6 @@
 
 use super::drives::{DriveSet, DriveSetConfig, DRIVE_EDS, DRIVE_EDS_NAME};
 use super::pty::SlcanPty;
-use crate::grbl::Clock;
 use anyhow::Context;
 use std::io::Write;
 use std::path::PathBuf;
@@ -42,20 +41,6 @@ pub struct CanopenArgs {
     pub socketcan: Option<String>,
 }
 
-fn parse_clock(s: &str) -> anyhow::Result<Clock> {
-    if s.eq_ignore_ascii_case("unconstrained") {
-        return Ok(Clock::Unconstrained);
-    }
-    let k: f64 = s
-        .parse()
-        .with_context(|| format!("--time-scale `{s}`: a positive number or `unconstrained`"))?;
-    anyhow::ensure!(
-        k.is_finite() && k > 0.0,
-        "--time-scale `{s}`: must be positive"
-    );
-    Ok(Clock::Scaled(k))
-}
-
 fn parse_node(s: &str) -> anyhow::Result<(u8, usize)> {
     let (id, axis) = s
         .split_once('=')
@@ -74,7 +59,10 @@ fn parse_node(s: &str) -> anyhow::Result<(u8, usize)> {
 }
 
 pub fn serve(args: CanopenArgs) -> anyhow::Result<()> {
-    let clock = parse_clock(&args.time_scale)?;
+    let clock = args
+        .time_scale
+        .parse::<world::Clock>()
+        .context("--time-scale")?;
     let nodes = args
         .nodes
         .iter()
@@ -87,10 +75,10 @@ pub fn serve(args: CanopenArgs) -> anyhow::Result<()> {
         ),
         None => (DRIVE_EDS_NAME.to_string(), DRIVE_EDS.to_string()),
     };
-    let m = crate::machine::MachineConfig::load(&args.machine)?;
+    let m = world::machine::MachineConfig::load(&args.machine)?;
     let b = protocol::Board::load(&args.board)?;
-    let c = crate::camera::CameraModel::load(&args.camera)?;
-    let rig = crate::rig::SimRig::new(crate::machine::SimMachine::new(m), b, c);
+    let c = world::camera::CameraModel::load(&args.camera)?;
+    let rig = world::rig::SimRig::new(world::machine::SimMachine::new(m), b, c);
     let rig = Arc::new(Mutex::new(rig));
     let set = DriveSet::new(rig, &DriveSetConfig { clock, nodes, eds }, 0.0)?;
     let ids = set.node_ids();

@@ -18,12 +18,9 @@
 //! [`Clock::Unconstrained`], where a motion completes right after the frames that
 //! reported its start, so tests never wait on wall time for motion.
 //!
-//! [`SimMachine::start_move`]: crate::machine::SimMachine::start_move
+//! [`SimMachine::start_move`]: world::machine::SimMachine::start_move
 
 use super::node::{Effect, Homing, Live, Node, HOMING_METHODS};
-use crate::grbl::Clock;
-use crate::machine::MachineRefusal;
-use crate::rig::SimRig;
 use protocol::can::CanFrame;
 use protocol::canopen::emcy::codes;
 use protocol::canopen::nmt::NmtCommand;
@@ -31,14 +28,10 @@ use protocol::canopen::od::ObjectDictionary;
 use protocol::canopen::{classify, Function, NodeId};
 use protocol::cia402::{self, cw, obj, PpAction, SetPoint, State};
 use protocol::config::ConfigError;
-use std::sync::{Arc, Mutex, MutexGuard};
-
-/// The rig the drives move (shared with the emulated camera).
-pub type SharedRig = Arc<Mutex<SimRig>>;
-
-fn lock(rig: &SharedRig) -> MutexGuard<'_, SimRig> {
-    rig.lock().unwrap_or_else(|p| p.into_inner())
-}
+use std::sync::Arc;
+use world::machine::MachineRefusal;
+use world::Clock;
+use world::{lock, SharedRig};
 
 /// The EDS of the emulated drive, compiled in (`config/canopen/drive.eds`).
 pub const DRIVE_EDS: &str = include_str!("../../../config/canopen/drive.eds");
@@ -190,7 +183,7 @@ impl DriveSet {
     /// machine's travel and the feed constant to its resolution.
     pub fn new(rig: SharedRig, cfg: &DriveSetConfig, now: f64) -> Result<Self, ConfigError> {
         let (name, text) = &cfg.eds;
-        let machine = lock(&rig).machine.config().clone();
+        let machine = lock(&rig).machine().config().clone();
         let mut nodes = Vec::new();
         for &(id, axis) in &cfg.nodes {
             let node = NodeId::new(id).ok_or_else(|| ConfigError::Invalid {
@@ -403,17 +396,17 @@ impl DriveSet {
         }
         let mut left = dt;
         for _ in 0..16 {
-            let now_s = lock(&self.rig).machine.now_s();
+            let now_s = lock(&self.rig).machine().now_s();
             let fault = self.next_fault();
             match fault {
                 Some((k, at)) if at <= now_s + left => {
                     let step = (at - now_s).max(0.0);
-                    lock(&self.rig).machine.advance(step);
+                    lock(&self.rig).machine_mut().advance(step);
                     left -= step;
                     self.following_error(k);
                 }
                 _ => {
-                    lock(&self.rig).machine.advance(left);
+                    lock(&self.rig).machine_mut().advance(left);
                     break;
                 }
             }
@@ -442,20 +435,20 @@ impl DriveSet {
             match fault {
                 Some((k, at)) => {
                     // Does the move end before the lag passes the window?
-                    let now_s = r.machine.now_s();
-                    let mut probe = r.machine.clone();
+                    let now_s = r.machine().now_s();
+                    let mut probe = r.machine().clone();
                     probe.finish_motion();
                     if at < probe.now_s() {
-                        r.machine.advance((at - now_s).max(0.0));
+                        r.machine_mut().advance((at - now_s).max(0.0));
                         drop(r);
                         self.following_error(k);
                     } else {
-                        r.machine.finish_motion();
+                        r.machine_mut().finish_motion();
                         drop(r);
                     }
                 }
                 None => {
-                    r.machine.finish_motion();
+                    r.machine_mut().finish_motion();
                     drop(r);
                 }
             }
@@ -472,7 +465,7 @@ impl DriveSet {
     }
 
     fn check_completion(&mut self) {
-        if lock(&self.rig).machine.is_moving() {
+        if lock(&self.rig).machine().is_moving() {
             return;
         }
         for k in 0..self.nodes.len() {
@@ -488,7 +481,7 @@ impl DriveSet {
     fn refresh_live(&mut self) {
         let (counts, now_s) = {
             let r = lock(&self.rig);
-            (r.machine.counts(), r.machine.now_s())
+            (r.machine().counts(), r.machine().now_s())
         };
         for (n, a) in self.nodes.iter_mut().zip(&self.aux) {
             let position = counts[n.axis].clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32;
@@ -574,7 +567,7 @@ impl DriveSet {
     fn stop_axis(&mut self, k: usize) {
         if self.aux[k].demand.take().is_some() {
             self.nodes[k].target_reached = true;
-            let counts = lock(&self.rig).machine.counts();
+            let counts = lock(&self.rig).machine().counts();
             self.aux[k].last_target = counts[self.nodes[k].axis];
             self.replan();
         }
@@ -599,14 +592,14 @@ impl DriveSet {
         }
         let (from, machine_v, machine_a) = {
             let mut r = lock(&self.rig);
-            if !r.machine.is_homed() {
+            if !r.machine().is_homed() {
                 // Not homed: the power-on position is the reference (counts are 0).
-                r.machine.home();
+                r.machine_mut().home();
             }
-            let c = r.machine.config();
+            let c = r.machine().config();
             let a = if n.axis == 0 { &c.axes.x } else { &c.axes.y };
             (
-                r.machine.counts()[n.axis],
+                r.machine().counts()[n.axis],
                 a.max_feed_mm_min / 60.0 * a.counts_per_mm,
                 a.accel_mm_s2 * a.counts_per_mm,
             )
@@ -626,7 +619,7 @@ impl DriveSet {
             dec.min(machine_a),
         );
         let window = n.int(obj::FOLLOWING_ERROR_WINDOW, 0);
-        let t0 = lock(&self.rig).machine.now_s();
+        let t0 = lock(&self.rig).machine().now_s();
         let fault_at = if window <= 0 || window >= i64::from(u32::MAX) {
             None
         } else {
@@ -658,11 +651,11 @@ impl DriveSet {
     /// line, timed by the slowest axis's remaining profile.
     fn replan(&mut self) {
         let mut r = lock(&self.rig);
-        r.machine.stop();
-        let cfg = r.machine.config().clone();
+        r.machine_mut().stop();
+        let cfg = r.machine().config().clone();
         let cpm = [cfg.axes.x.counts_per_mm, cfg.axes.y.counts_per_mm];
-        let counts = r.machine.counts();
-        let now_s = r.machine.now_s();
+        let counts = r.machine().counts();
+        let now_s = r.machine().now_s();
         let mut target = counts;
         let mut t_left: f64 = 0.0;
         let mut any = false;
@@ -688,7 +681,7 @@ impl DriveSet {
         } else {
             vmax
         };
-        match r.machine.start_move(to, feed * 60.0) {
+        match r.machine_mut().start_move(to, feed * 60.0) {
             Ok(_) => {}
             Err(MachineRefusal::OutOfTravel { .. }) => {
                 drop(r);
@@ -738,24 +731,24 @@ impl DriveSet {
         self.stop_axis(k);
         let took = {
             let mut r = lock(&self.rig);
-            r.machine.stop();
-            let other = r.machine.counts()[1 - axis];
-            let t0 = r.machine.now_s();
-            if !r.machine.is_homed() || other == 0 {
+            r.machine_mut().stop();
+            let other = r.machine().counts()[1 - axis];
+            let t0 = r.machine().now_s();
+            if !r.machine().is_homed() || other == 0 {
                 // The simulated machine homes both axes together; the other axis is at
                 // its zero already, so only this one visibly moves.
-                r.machine.home();
-                r.machine.now_s() - t0
+                r.machine_mut().home();
+                r.machine().now_s() - t0
             } else {
                 // Re-homing one axis while the other is away from zero: run this axis
                 // back to its switch (zero) without disturbing the other.
-                let mut to = r.machine.position_mm();
+                let mut to = r.machine().position_mm();
                 to[axis] = 0.0;
-                let feed = r.machine.config().axes.x.max_feed_mm_min;
-                match r.machine.start_move(to, feed) {
+                let feed = r.machine().config().axes.x.max_feed_mm_min;
+                match r.machine_mut().start_move(to, feed) {
                     Ok(_) => {
-                        r.machine.finish_motion();
-                        r.machine.now_s() - t0
+                        r.machine_mut().finish_motion();
+                        r.machine().now_s() - t0
                     }
                     Err(_) => {
                         drop(r);
@@ -787,13 +780,13 @@ impl DriveSet {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::camera::CameraModel;
-    use crate::machine::{MachineConfig, SimMachine};
     use protocol::canopen::emcy::Emcy;
     use protocol::canopen::sdo::{ClientStep, SdoClient};
     use protocol::config::ConfigDoc;
     use protocol::{Board, Polarity};
     use std::path::Path;
+    use world::camera::CameraModel;
+    use world::machine::MachineConfig;
 
     fn rig() -> SharedRig {
         let m = include_str!("../../../config/machines/c5-stage.toml");
@@ -803,7 +796,7 @@ mod tests {
         let c =
             CameraModel::from_doc(&ConfigDoc::from_text("cam.toml", c, Path::new("."))).unwrap();
         let b = Board::nominal("t", 0.5, 0.25, Polarity::DarkOnLight, 40, 30, [0.0, 0.0]);
-        Arc::new(Mutex::new(SimRig::new(SimMachine::new(m), b, c)))
+        world::shared_rig(m, b, c)
     }
 
     /// A master on the bus: SDO by the protocol crate's client, PDOs by hand.
@@ -951,7 +944,7 @@ mod tests {
         assert_eq!(sw & 0x0400, 0x0400, "target reached: {sw:#06x}");
         assert_eq!(sw & 0x1000, 0, "ack dropped with bit 4");
         assert_eq!(h.set.stats().set_points, 1);
-        assert_eq!(lock(&h.set.rig).machine.counts()[0], 20_000);
+        assert_eq!(lock(&h.set.rig).machine().counts()[0], 20_000);
         // Relative set-point.
         let id = 0x301;
         let d = 500i32.to_le_bytes();
@@ -985,7 +978,7 @@ mod tests {
         let (state, sw) = h.set.node_state(2).unwrap();
         assert_eq!(state, State::Fault);
         assert_ne!(sw & 0x2000, 0, "following error bit");
-        let stopped = lock(&h.set.rig).machine.counts()[1];
+        let stopped = lock(&h.set.rig).machine().counts()[1];
         assert!(
             stopped > 0 && stopped < 200_000,
             "stopped where it faulted: {stopped}"
@@ -1054,7 +1047,7 @@ mod tests {
             0x1400,
             "homing attained and target reached: {sw:#06x}"
         );
-        assert!(lock(&h.set.rig).machine.is_homed());
+        assert!(lock(&h.set.rig).machine().is_homed());
         // The TPDO showed homing in progress before it was attained.
         let sws: Vec<u16> = h
             .seen

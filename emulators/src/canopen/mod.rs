@@ -13,8 +13,6 @@ pub mod pty;
 #[cfg(all(target_os = "linux", feature = "socketcan"))]
 pub mod socketcan;
 
-pub use drives::{
-    DriveSet, DriveSetConfig, SetStats, SharedRig, Trapezoid, DRIVE_EDS, DRIVE_EDS_NAME,
-};
+pub use drives::{DriveSet, DriveSetConfig, SetStats, Trapezoid, DRIVE_EDS, DRIVE_EDS_NAME};
 pub use hub::SlcanHub;
 pub use pty::{AdapterStats, SharedSet, SlcanAdapter, SlcanPty};

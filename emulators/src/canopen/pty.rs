@@ -13,18 +13,15 @@ use protocol::can::CanFrame;
 use protocol::slcan::{Command, CommandDecoder, Message};
 use std::io;
 use std::path::Path;
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::sync::oneshot;
 use tokio_serial::SerialStream;
+use world::lock;
 
 /// The drive set, shared between the serving task and the test or binary around it.
 pub type SharedSet = Arc<Mutex<DriveSet>>;
-
-fn lock(s: &SharedSet) -> MutexGuard<'_, DriveSet> {
-    s.lock().unwrap_or_else(|p| p.into_inner())
-}
 
 /// Adapter-side SLCAN state, sans-IO.
 #[derive(Debug, Default)]

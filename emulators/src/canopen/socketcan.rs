@@ -9,14 +9,10 @@ use super::pty::SharedSet;
 use protocol::can::{CanFrame, CanId};
 use socketcan::{EmbeddedFrame, ExtendedId, Id, StandardId};
 use std::io;
-use std::sync::MutexGuard;
 use std::time::{Duration, Instant};
 use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
-
-fn lock(s: &SharedSet) -> MutexGuard<'_, super::DriveSet> {
-    s.lock().unwrap_or_else(|p| p.into_inner())
-}
+use world::lock;
 
 /// The drive set served on a SocketCAN interface.
 pub struct SocketCanPort {

@@ -7,7 +7,6 @@
 
 use super::device::GigeConfig;
 use super::server::{GigeCameraServer, GigeServerOptions};
-use crate::grbl::Clock;
 use anyhow::Context;
 use std::io::Write;
 use std::net::SocketAddr;
@@ -78,26 +77,15 @@ pub struct GigeArgs {
     pub camera: PathBuf,
 }
 
-fn parse_clock(s: &str) -> anyhow::Result<Clock> {
-    if s.eq_ignore_ascii_case("unconstrained") {
-        return Ok(Clock::Unconstrained);
-    }
-    let k: f64 = s
-        .parse()
-        .with_context(|| format!("--time-scale `{s}`: a positive number or `unconstrained`"))?;
-    anyhow::ensure!(
-        k.is_finite() && k > 0.0,
-        "--time-scale `{s}`: must be positive"
-    );
-    Ok(Clock::Scaled(k))
-}
-
 pub fn serve(a: GigeArgs) -> anyhow::Result<()> {
-    let clock = parse_clock(&a.time_scale)?;
-    let m = crate::machine::MachineConfig::load(&a.machine)?;
+    let clock = a
+        .time_scale
+        .parse::<world::Clock>()
+        .context("--time-scale")?;
+    let m = world::machine::MachineConfig::load(&a.machine)?;
     let b = protocol::Board::load(&a.board)?;
-    let c = crate::camera::CameraModel::load(&a.camera)?;
-    let rig = crate::rig::SimRig::new(crate::machine::SimMachine::new(m), b, c);
+    let c = world::camera::CameraModel::load(&a.camera)?;
+    let rig = world::rig::SimRig::new(world::machine::SimMachine::new(m), b, c);
     let rig = Arc::new(Mutex::new(rig));
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()

@@ -7,7 +7,6 @@
 //! frame. The last frame is kept for PACKETRESEND.
 
 use super::device::{Event, GigeConfig, GigeDevice};
-use crate::rig::SimRig;
 use protocol::gige::gvsp::{self, ImageLeader};
 use protocol::Pixels;
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
@@ -16,6 +15,8 @@ use std::sync::{Arc, Mutex};
 use tokio::net::UdpSocket;
 use tokio::task::JoinHandle;
 use tokio::time::Instant;
+use world::lock;
+use world::rig::SimRig;
 
 /// Where and how to serve.
 #[derive(Clone, Debug)]
@@ -51,10 +52,6 @@ impl Drop for GigeCameraServer {
     fn drop(&mut self) {
         self.task.abort();
     }
-}
-
-fn lock(rig: &Mutex<SimRig>) -> std::sync::MutexGuard<'_, SimRig> {
-    rig.lock().unwrap_or_else(|p| p.into_inner())
 }
 
 fn udp(addr: SocketAddr, reuse: bool) -> std::io::Result<UdpSocket> {
@@ -97,7 +94,7 @@ impl GigeCameraServer {
         };
         let (w, h, depth) = {
             let r = lock(&rig);
-            (r.camera.width, r.camera.height, r.camera.bit_depth)
+            (r.camera().width, r.camera().height, r.camera().bit_depth)
         };
         let mut device = GigeDevice::new(opts.config, w, h, depth, ip);
         device.set_stream_source_port(stream.local_addr()?.port());
@@ -176,14 +173,14 @@ struct Server {
     next_tick: Option<Instant>,
     /// The frame being rendered (off the control loop, so GVCP stays responsive while a
     /// large frame renders) and the triggers that arrived meanwhile.
-    rendering: Option<JoinHandle<(protocol::MonoImage, crate::rig::SimFrameInfo)>>,
+    rendering: Option<JoinHandle<(protocol::MonoImage, world::rig::SimFrameInfo)>>,
     queued: u32,
     buf: Vec<u8>,
 }
 
 async fn rendered(
-    r: &mut Option<JoinHandle<(protocol::MonoImage, crate::rig::SimFrameInfo)>>,
-) -> Option<(protocol::MonoImage, crate::rig::SimFrameInfo)> {
+    r: &mut Option<JoinHandle<(protocol::MonoImage, world::rig::SimFrameInfo)>>,
+) -> Option<(protocol::MonoImage, world::rig::SimFrameInfo)> {
     match r {
         Some(h) => h.await.ok(),
         None => std::future::pending().await,
@@ -317,7 +314,7 @@ impl Server {
         self.rendering = Some(tokio::task::spawn_blocking(move || lock(&rig).grab()));
     }
 
-    async fn stream_frame(&mut self, image: protocol::MonoImage, info: crate::rig::SimFrameInfo) {
+    async fn stream_frame(&mut self, image: protocol::MonoImage, info: world::rig::SimFrameInfo) {
         let Some(dest) = self.device.stream_destination() else {
             return;
         };

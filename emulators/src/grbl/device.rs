@@ -21,8 +21,6 @@
 //! depends on it (right after a status report, when the planner needs room, at a buffer
 //! sync), so tests never wait on wall time for motion.
 
-use crate::machine::MachineRefusal;
-use crate::rig::SimRig;
 use protocol::grbl::codes::{alarm, status as st};
 use protocol::grbl::gcode::{filter_bytes, Action, Interpreter, Rate, MM_PER_INCH, N_AXIS};
 use protocol::grbl::realtime::{classify, Realtime, RxByte};
@@ -30,25 +28,14 @@ use protocol::grbl::settings::Settings;
 use protocol::grbl::status::{MachineState, PositionKind, StatusReport};
 use protocol::grbl::{GRBL_VERSION, PLANNER_BLOCKS};
 use std::collections::VecDeque;
-use std::sync::{Arc, Mutex, MutexGuard};
-
-/// The rig the emulated controller drives (shared with the emulated camera).
-pub type SharedRig = Arc<Mutex<SimRig>>;
+use world::machine::MachineRefusal;
+use world::{lock, Clock, SharedRig};
 
 /// Build date GRBL 1.1h reports in `[VER:]`.
 pub const BUILD_DATE: &str = "20190830";
 /// Compile-time options this emulated build reports in `[OPT:]`: variable spindle (V),
 /// line numbers (N), homing forces the origin (Z).
 pub const BUILD_OPTIONS: &str = "VNZ";
-
-/// How emulated time relates to the wall clock.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Clock {
-    /// Simulated seconds per wall second (1.0 = real time).
-    Scaled(f64),
-    /// Motion completes as soon as something depends on it.
-    Unconstrained,
-}
 
 /// Build-time options of the emulated controller.
 #[derive(Clone, Debug)]
@@ -162,10 +149,6 @@ pub struct GrblDevice {
     stats: DeviceStats,
 }
 
-fn lock(rig: &SharedRig) -> MutexGuard<'_, SimRig> {
-    rig.lock().unwrap_or_else(|p| p.into_inner())
-}
-
 impl GrblDevice {
     /// A controller configured for the rig's machine: `$100/$101` are its counts per
     /// mm, `$110/$111` its maximum feeds, `$120/$121` its accelerations, `$130/$131` its
@@ -175,7 +158,7 @@ impl GrblDevice {
         let mut s = Settings::defaults();
         {
             let r = lock(&rig);
-            let c = r.machine.config();
+            let c = r.machine().config();
             for (k, a) in [&c.axes.x, &c.axes.y].into_iter().enumerate() {
                 let k = k as u16;
                 s.insert(100 + k, a.counts_per_mm);
@@ -370,13 +353,13 @@ impl GrblDevice {
                 if dt < left {
                     self.busy = Some((left - dt, kind));
                     if dwell {
-                        lock(&self.rig).machine.advance(dt);
+                        lock(&self.rig).machine_mut().advance(dt);
                     }
                     return;
                 }
                 dt -= left;
                 if dwell {
-                    lock(&self.rig).machine.advance(left);
+                    lock(&self.rig).machine_mut().advance(left);
                 }
                 self.busy = None;
                 if let BusyKind::Homing = kind {
@@ -394,11 +377,11 @@ impl GrblDevice {
                 let left = (run.duration - run.elapsed).max(0.0);
                 let step = dt.min(left);
                 let mut r = lock(&self.rig);
-                r.machine.advance(step);
+                r.machine_mut().advance(step);
                 run.elapsed += step;
                 dt -= step;
-                if run.elapsed >= run.duration || !r.machine.is_moving() {
-                    r.machine.finish_motion();
+                if run.elapsed >= run.duration || !r.machine().is_moving() {
+                    r.machine_mut().finish_motion();
                     drop(r);
                     self.planner.pop_front();
                     if let Some(fail) = run.block.probe {
@@ -438,7 +421,7 @@ impl GrblDevice {
         let spm = [self.steps_per_mm(0), self.steps_per_mm(1)];
         let (feed, duration) = {
             let mut r = lock(&self.rig);
-            let cfg = r.machine.config().clone();
+            let cfg = r.machine().config().clone();
             let cpm = [cfg.axes.x.counts_per_mm, cfg.axes.y.counts_per_mm];
             // Steps commanded by GRBL, turned into where the motor takes the axis.
             let to = [
@@ -454,11 +437,11 @@ impl GrblDevice {
                 Rate::Rapid => max * f64::from(self.overrides[1]) / 100.0,
                 Rate::Feed(f) => (f * f64::from(self.overrides[0]) / 100.0).min(max),
             };
-            if !r.machine.is_homed() {
+            if !r.machine().is_homed() {
                 // Unlocked without homing: the power-on position is the reference.
-                r.machine.home();
+                r.machine_mut().home();
             }
-            match r.machine.start_move(to, feed.max(1e-3)) {
+            match r.machine_mut().start_move(to, feed.max(1e-3)) {
                 Ok(d) => (feed, d),
                 Err(MachineRefusal::OutOfTravel { .. }) => {
                     drop(r);
@@ -510,10 +493,10 @@ impl GrblDevice {
 
     /// Machine position from the step counters (X, Y from the machine, Z phantom).
     fn mpos_3(&self) -> [f64; N_AXIS] {
-        let counts = lock(&self.rig).machine.counts();
+        let counts = lock(&self.rig).machine().counts();
         let cpm = {
             let r = lock(&self.rig);
-            let c = r.machine.config();
+            let c = r.machine().config();
             [c.axes.x.counts_per_mm, c.axes.y.counts_per_mm]
         };
         // Machine counts are motor steps scaled by the motor's own resolution: GRBL's
@@ -729,7 +712,7 @@ impl GrblDevice {
     // ------------------------------------------------------------------ alarms, reset
 
     fn stop_motion(&mut self) {
-        lock(&self.rig).machine.stop();
+        lock(&self.rig).machine_mut().stop();
         self.running = None;
         self.planner.clear();
         self.busy = None;
@@ -885,7 +868,7 @@ impl GrblDevice {
     /// deceleration model); the rest of the block runs again from there on resume.
     fn hold_motion(&mut self) {
         if let Some(run) = self.running.take() {
-            lock(&self.rig).machine.stop();
+            lock(&self.rig).machine_mut().stop();
             let _ = run;
         }
     }
@@ -1269,9 +1252,9 @@ impl GrblDevice {
         self.state = State::Homing;
         let took = {
             let mut r = lock(&self.rig);
-            let t0 = r.machine.now_s();
-            r.machine.home();
-            r.machine.now_s() - t0
+            let t0 = r.machine().now_s();
+            r.machine_mut().home();
+            r.machine().now_s() - t0
         };
         self.z_steps = 0;
         match self.cfg.clock {
@@ -1315,12 +1298,12 @@ fn parse_grbl_float(s: &str) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::camera::CameraModel;
-    use crate::machine::{MachineConfig, SimMachine};
     use protocol::config::ConfigDoc;
     use protocol::grbl::response::{LineDecoder, Response};
     use protocol::{Board, Polarity};
     use std::path::Path;
+    use world::camera::CameraModel;
+    use world::machine::MachineConfig;
 
     pub(crate) fn rig() -> SharedRig {
         let m = include_str!("../../../config/machines/c5-stage.toml");
@@ -1330,7 +1313,7 @@ mod tests {
         let c =
             CameraModel::from_doc(&ConfigDoc::from_text("cam.toml", c, Path::new("."))).unwrap();
         let b = Board::nominal("t", 0.5, 0.25, Polarity::DarkOnLight, 40, 30, [0.0, 0.0]);
-        Arc::new(Mutex::new(SimRig::new(SimMachine::new(m), b, c)))
+        world::shared_rig(m, b, c)
     }
 
     struct Host {
@@ -1405,7 +1388,7 @@ mod tests {
         assert_eq!(s.state, MachineState::Idle);
         // 2000 steps/mm: 10.00013 mm is 20000.26 steps -> 20000 steps -> 10.000 mm.
         assert_eq!(s.position, vec![10.0, 5.0, 0.0]);
-        let counts = h.dev.rig.lock().unwrap().machine.counts();
+        let counts = h.dev.rig.lock().unwrap().machine().counts();
         assert_eq!(counts, [20000, 10000]);
     }
 

@@ -5,5 +5,5 @@
 pub mod device;
 pub mod pty;
 
-pub use device::{Clock, DeviceStats, GrblConfig, GrblDevice, SharedRig};
+pub use device::{DeviceStats, GrblConfig, GrblDevice};
 pub use pty::{Foreign, ForeignPty, GrblPty};

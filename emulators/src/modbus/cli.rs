@@ -3,7 +3,6 @@
 
 use super::device::{DriveSet, MachineAxis};
 use super::server::{Fault, FaultRule, ModbusDevice, ModbusRtu, ModbusTcp};
-use crate::grbl::Clock;
 use anyhow::Context;
 use protocol::modbus::DriveProfile;
 use std::io::Write;
@@ -79,20 +78,6 @@ fn parse_unit(s: &str) -> anyhow::Result<(u8, MachineAxis)> {
     Ok((id, axis))
 }
 
-fn parse_clock(s: &str) -> anyhow::Result<Clock> {
-    if s.eq_ignore_ascii_case("unconstrained") {
-        return Ok(Clock::Unconstrained);
-    }
-    let k: f64 = s
-        .parse()
-        .with_context(|| format!("--time-scale `{s}`: a positive number or `unconstrained`"))?;
-    anyhow::ensure!(
-        k.is_finite() && k > 0.0,
-        "--time-scale `{s}`: must be positive"
-    );
-    Ok(Clock::Scaled(k))
-}
-
 /// The fault rules the flags ask for.
 pub fn faults(a: &ModbusArgs) -> Vec<FaultRule> {
     let mut v = Vec::new();
@@ -120,7 +105,10 @@ pub fn serve(a: ModbusArgs) -> anyhow::Result<()> {
         a.tcp.is_some() || a.rtu,
         "give --tcp ADDR:PORT and/or --rtu"
     );
-    let clock = parse_clock(&a.time_scale)?;
+    let clock = a
+        .time_scale
+        .parse::<world::Clock>()
+        .context("--time-scale")?;
     let mut units = Vec::new();
     for u in &a.units {
         let (id, axis) = parse_unit(u)?;
@@ -138,10 +126,10 @@ pub fn serve(a: ModbusArgs) -> anyhow::Result<()> {
         ),
         None => None,
     };
-    let m = crate::machine::MachineConfig::load(&a.machine)?;
+    let m = world::machine::MachineConfig::load(&a.machine)?;
     let b = protocol::Board::load(&a.board)?;
-    let c = crate::camera::CameraModel::load(&a.camera)?;
-    let rig = crate::rig::SimRig::new(crate::machine::SimMachine::new(m), b, c);
+    let c = world::camera::CameraModel::load(&a.camera)?;
+    let rig = world::rig::SimRig::new(world::machine::SimMachine::new(m), b, c);
     let rig = Arc::new(Mutex::new(rig));
     let device = ModbusDevice::new(DriveSet::new(rig, profile.clone(), &units, clock));
     device.set_faults(faults(&a));

@@ -1,6 +1,6 @@
 //! Modbus positioning drives on the simulated machine, sans-IO: a request PDU and the
 //! wall time go in, a response PDU comes out, and moves happen on the shared
-//! [`SimMachine`](crate::machine::SimMachine).
+//! [`SimMachine`](world::machine::SimMachine).
 //!
 //! Several unit ids (one per drive) share one machine; each unit is mapped to machine
 //! axis X or Y. The registers are the ones a [`DriveProfile`] names, with the profile's
@@ -23,13 +23,13 @@
 //! status or position register has been answered (so the first poll after a start
 //! sees the drive busy, the next sees it arrived), and tests never wait on wall time.
 
-use crate::grbl::{Clock, SharedRig};
-use crate::machine::MachineRefusal;
-use crate::rig::SimRig;
 use protocol::modbus::frame::{Exception, Request, Response};
 use protocol::modbus::profile::{DriveProfile, Register, Table};
 use std::collections::{BTreeMap, HashMap};
-use std::sync::{Arc, MutexGuard};
+use std::sync::Arc;
+use world::lock;
+use world::machine::MachineRefusal;
+use world::{Clock, SharedRig};
 
 /// Which machine axis a unit drives.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -93,10 +93,6 @@ pub struct DriveSet {
     units: Vec<Unit>,
     last_wall: Option<f64>,
     stats: ModbusStats,
-}
-
-fn lock(rig: &SharedRig) -> MutexGuard<'_, SimRig> {
-    rig.lock().unwrap_or_else(|p| p.into_inner())
 }
 
 enum Action {
@@ -214,12 +210,12 @@ impl DriveSet {
         self.last_wall = Some(now);
         if let Clock::Scaled(k) = self.clock {
             let dt = dt * k;
-            lock(&self.rig).machine.advance(dt);
+            lock(&self.rig).machine_mut().advance(dt);
             for u in &mut self.units {
                 u.homing_left_s = (u.homing_left_s - dt).max(0.0);
             }
         }
-        let moving = lock(&self.rig).machine.is_moving();
+        let moving = lock(&self.rig).machine().is_moving();
         if !moving {
             for u in &mut self.units {
                 u.active = false;
@@ -230,7 +226,7 @@ impl DriveSet {
     /// Unconstrained clock: run motion and homing to their end.
     fn complete(&mut self) {
         if self.clock == Clock::Unconstrained {
-            lock(&self.rig).machine.finish_motion();
+            lock(&self.rig).machine_mut().finish_motion();
             for u in &mut self.units {
                 u.active = false;
                 u.homing_left_s = 0.0;
@@ -335,7 +331,7 @@ impl DriveSet {
             }
             Source::Status => self.status_word(k) as i64,
             Source::Actual => {
-                let mm = lock(&self.rig).machine.position_mm()[u.axis.index()];
+                let mm = lock(&self.rig).machine().position_mm()[u.axis.index()];
                 p.counts(mm)
             }
             Source::AlarmCode => u.alarm.unwrap_or(0) as i64,
@@ -355,8 +351,9 @@ impl DriveSet {
         let (homed, counts) = {
             let r = lock(&self.rig);
             (
-                r.machine.is_homed(),
-                self.profile.counts(r.machine.position_mm()[u.axis.index()]),
+                r.machine().is_homed(),
+                self.profile
+                    .counts(r.machine().position_mm()[u.axis.index()]),
             )
         };
         let busy = u.active || u.homing_left_s > 0.0;
@@ -494,10 +491,10 @@ impl DriveSet {
     fn home(&mut self, k: usize) {
         let took = {
             let mut r = lock(&self.rig);
-            r.machine.stop();
-            let t0 = r.machine.now_s();
-            r.machine.home();
-            r.machine.now_s() - t0
+            r.machine_mut().stop();
+            let t0 = r.machine().now_s();
+            r.machine_mut().home();
+            r.machine().now_s() - t0
         };
         for u in &mut self.units {
             u.active = false;
@@ -508,7 +505,7 @@ impl DriveSet {
     }
 
     fn stop(&mut self) {
-        lock(&self.rig).machine.stop();
+        lock(&self.rig).machine_mut().stop();
         for u in &mut self.units {
             u.active = false;
         }
@@ -535,7 +532,7 @@ impl DriveSet {
             None => p.max_speed_mm_min / 60.0,
         };
         let axis = u.axis.index();
-        let mut to = lock(&self.rig).machine.position_mm();
+        let mut to = lock(&self.rig).machine().position_mm();
         // The other axis keeps heading for its own target.
         for o in &self.units {
             if o.active && o.axis != u.axis {
@@ -545,7 +542,9 @@ impl DriveSet {
             }
         }
         to[axis] = p.mm(target);
-        let result = lock(&self.rig).machine.start_move(to, speed_mm_s * 60.0);
+        let result = lock(&self.rig)
+            .machine_mut()
+            .start_move(to, speed_mm_s * 60.0);
         let u = &mut self.units[k];
         u.target = Some(target);
         match result {
@@ -560,19 +559,18 @@ impl DriveSet {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::camera::CameraModel;
-    use crate::machine::{MachineConfig, SimMachine};
     use protocol::modbus::frame::Request as Req;
     use protocol::Board;
     use std::path::Path;
-    use std::sync::Mutex;
+    use world::camera::CameraModel;
+    use world::machine::MachineConfig;
 
     fn drives() -> DriveSet {
         let d = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config");
         let m = MachineConfig::load(&d.join("machines/c5-stage.toml")).unwrap();
         let c = CameraModel::load(&d.join("cameras/mono-1.3mp.toml")).unwrap();
         let b = Board::load(&d.join("boards/dot-grid-0.5mm.toml")).unwrap();
-        let rig = Arc::new(Mutex::new(SimRig::new(SimMachine::new(m), b, c)));
+        let rig = world::shared_rig(m, b, c);
         let p = Arc::new(DriveProfile::load(&d.join("drives/generic.toml")).unwrap());
         DriveSet::new(
             rig,

@@ -1,9 +1,9 @@
 //! Test helpers: simulated cameras, boards and frames (from `emulators`, test-only).
 
 use super::Dot;
-use emulators::camera::{CameraModel, CameraPose};
-use emulators::render::{render, RenderedFrame};
 use protocol::{Board, Polarity};
+use world::camera::{CameraModel, CameraPose};
+use world::render::{render, RenderedFrame};
 
 /// The acceptance-criteria camera: 4 um/px, 8-bit, with the given size, rotation, blur,
 /// noise and distortion, illumination gradient 0.15 and vignetting 0.05.

@@ -1,4 +1,4 @@
-//! Behaviour of the whole localizer on rendered frames (`emulators::render`, whose dot
+//! Behaviour of the whole localizer on rendered frames (`world::render`, whose dot
 //! centres and pose are the truth). Frames are few and mostly small so the suite stays
 //! fast in debug builds: two 1280x1024 frames for the accuracy figures, the rest
 //! 640x512 or smaller.
@@ -12,7 +12,7 @@ fn err_um(o: &Observation, truth: [f64; 2]) -> f64 {
 }
 
 /// A small frame (640x512, 20 dots) at the default conditions.
-fn small_frame(truth: [f64; 2]) -> emulators::render::RenderedFrame {
+fn small_frame(truth: [f64; 2]) -> world::render::RenderedFrame {
     frame(
         &board(Polarity::DarkOnLight),
         &camera(640, 512, 0.8, 1.0, 2.0, 0.4),
@@ -183,7 +183,7 @@ fn refuses_an_ambiguous_or_contradicted_hint() {
 fn refuses_frames_without_a_usable_board() {
     let b = board(Polarity::DarkOnLight);
     // Blank (uniform grey plus noise).
-    let mut rng = emulators::rng::Rng::new(1);
+    let mut rng = world::rng::Rng::new(1);
     let px: Vec<u8> = (0..640 * 512)
         .map(|_| (180.0 + 3.0 * rng.normal()) as u8)
         .collect();
@@ -276,7 +276,7 @@ fn certificate_errors_are_caught_by_the_robust_fit() {
     assert!(e.to_string().contains("(40,41) rejected"), "{e}");
 
     // Every point off by a few micrometres: not a board this certificate describes.
-    let mut rng = emulators::rng::Rng::new(9);
+    let mut rng = world::rng::Rng::new(9);
     let mut noisy = b.clone();
     for j in 35..46 {
         for i in 35..46 {

@@ -8,32 +8,17 @@
 use drivers::can::slcan::SlcanBus;
 use drivers::canopen::{open_stage, AxisConfig, CanopenOptions, Network};
 use drivers::{Axis, MultiAxisStage};
-use emulators::camera::CameraModel;
-use emulators::canopen::{DriveSet, DriveSetConfig, SharedRig, SharedSet, SlcanPty};
-use emulators::grbl::Clock;
-use emulators::machine::{MachineConfig, SimMachine};
-use emulators::rig::SimRig;
-use protocol::Board;
-use std::path::{Path, PathBuf};
+use emulators::canopen::{DriveSet, DriveSetConfig, SharedSet, SlcanPty};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
+use world::Clock;
+pub use world::SharedRig;
 
 pub const X_NODE: u8 = 1;
 pub const Y_NODE: u8 = 2;
 
-pub fn config_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../config")
-}
-
-pub fn rig() -> SharedRig {
-    let d = config_dir();
-    let m = MachineConfig::load(&d.join("machines/c5-stage.toml")).unwrap();
-    let c = CameraModel::load(&d.join("cameras/mono-1.3mp.toml")).unwrap();
-    let b = Board::load(&d.join("boards/dot-grid-0.5mm.toml")).unwrap();
-    Arc::new(Mutex::new(SimRig::new(SimMachine::new(m), b, c)))
-}
-
 pub use system_tests::runtime;
+pub use system_tests::{config_dir, reference_rig as rig};
 
 /// The drives (X = node 1, Y = node 2) on a fresh SLCAN pseudo-terminal.
 pub fn emulator(rig: &SharedRig, clock: Clock) -> SlcanPty {

@@ -6,40 +6,28 @@
 #![allow(dead_code, unused_imports)]
 
 use drivers::gige::{GigeCamera, GigeOptions};
-use emulators::camera::CameraModel;
 use emulators::gige::{GigeCameraServer, GigeConfig, GigeServerOptions};
-use emulators::machine::{MachineConfig, SimMachine};
-use emulators::rig::SimRig;
-use protocol::Board;
-use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-pub type SharedRig = Arc<Mutex<SimRig>>;
-
-pub fn config_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../config")
-}
+pub use world::SharedRig;
 
 /// The demo rig, its camera cropped to `w` x `h` at `bit_depth` (None: as configured).
 pub fn rig(size: Option<(u32, u32)>, bit_depth: Option<u8>) -> SharedRig {
-    let d = config_dir();
-    let m = MachineConfig::load(&d.join("machines/c5-stage.toml")).unwrap();
-    let mut c = CameraModel::load(&d.join("cameras/mono-1.3mp.toml")).unwrap();
-    if let Some((w, h)) = size {
-        c.width = w;
-        c.height = h;
-    }
-    if let Some(b) = bit_depth {
-        c.bit_depth = b;
-        if b == 16 {
-            c.noise_sigma *= 257.0;
+    system_tests::reference_rig_with_camera(|c| {
+        if let Some((w, h)) = size {
+            c.width = w;
+            c.height = h;
         }
-    }
-    let b = Board::load(&d.join("boards/dot-grid-0.5mm.toml")).unwrap();
-    Arc::new(Mutex::new(SimRig::new(SimMachine::new(m), b, c)))
+        if let Some(b) = bit_depth {
+            c.bit_depth = b;
+            if b == 16 {
+                c.noise_sigma *= 257.0;
+            }
+        }
+    })
 }
 
+pub use system_tests::config_dir;
 pub use system_tests::runtime_two_workers as runtime;
 
 pub async fn emulator(rig: &SharedRig, config: GigeConfig) -> GigeCameraServer {

@@ -5,26 +5,12 @@
 #![allow(dead_code, unused_imports)]
 
 use drivers::grbl::{GrblOptions, GrblStage};
-use emulators::camera::CameraModel;
-use emulators::grbl::{Clock, GrblConfig, GrblDevice, GrblPty, SharedRig};
-use emulators::machine::{MachineConfig, SimMachine};
-use emulators::rig::SimRig;
-use protocol::Board;
+use emulators::grbl::{GrblConfig, GrblDevice, GrblPty};
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex};
 use std::time::Duration;
+use world::{Clock, SharedRig};
 
-pub fn config_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../config")
-}
-
-pub fn rig() -> SharedRig {
-    let d = config_dir();
-    let m = MachineConfig::load(&d.join("machines/c5-stage.toml")).unwrap();
-    let c = CameraModel::load(&d.join("cameras/mono-1.3mp.toml")).unwrap();
-    let b = Board::load(&d.join("boards/dot-grid-0.5mm.toml")).unwrap();
-    Arc::new(Mutex::new(SimRig::new(SimMachine::new(m), b, c)))
-}
+pub use system_tests::{config_dir, reference_rig as rig};
 
 pub use system_tests::runtime;
 

@@ -6,28 +6,15 @@
 
 use drivers::modbus::{Endpoint, ModbusAxis, ModbusAxisConfig, ModbusBus, ModbusOptions, Parity};
 use drivers::Axis;
-use emulators::camera::CameraModel;
-use emulators::grbl::{Clock, SharedRig};
-use emulators::machine::{MachineConfig, SimMachine};
 use emulators::modbus::{DriveSet, MachineAxis, ModbusDevice, ModbusRtu, ModbusTcp};
-use emulators::rig::SimRig;
 use protocol::modbus::DriveProfile;
-use protocol::Board;
-use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::Duration;
+use world::{Clock, SharedRig};
 
-pub fn config_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../config")
-}
+pub use system_tests::config_dir;
 
-pub fn rig() -> SharedRig {
-    let d = config_dir();
-    let m = MachineConfig::load(&d.join("machines/c5-stage.toml")).unwrap();
-    let c = CameraModel::load(&d.join("cameras/mono-1.3mp.toml")).unwrap();
-    let b = Board::load(&d.join("boards/dot-grid-0.5mm.toml")).unwrap();
-    Arc::new(Mutex::new(SimRig::new(SimMachine::new(m), b, c)))
-}
+pub use system_tests::reference_rig as rig;
 
 pub use system_tests::runtime;
 
@@ -104,5 +91,5 @@ pub async fn axis(
 
 /// The controller's counts of the simulated machine, in mm.
 pub fn machine_mm(rig: &SharedRig) -> [f64; 2] {
-    rig.lock().unwrap().machine.position_mm()
+    rig.lock().unwrap().machine().position_mm()
 }

@@ -4,9 +4,30 @@
 //! commanded over any link changes what the camera sees.
 
 use crate::camera::{CameraModel, CameraPose};
-use crate::machine::SimMachine;
+use crate::machine::{MachineConfig, SimMachine};
 use crate::render::render;
 use protocol::{Board, MonoImage};
+use std::sync::{Arc, Mutex, MutexGuard};
+
+/// The rig as every emulated device of a process shares it.
+pub type SharedRig = Arc<Mutex<SimRig>>;
+
+/// Locks state shared between emulated devices (the rig, a set of drives), tolerating
+/// poison: a device thread that panicked mid-update leaves plain numbers (positions,
+/// time, registers) that are still meaningful, and the other devices must keep answering.
+pub fn lock<T>(shared: &Mutex<T>) -> MutexGuard<'_, T> {
+    shared.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// A rig shared by every device of a process: the machine built from its description,
+/// the board on the machine frame, the camera on the carriage.
+pub fn shared_rig(machine: MachineConfig, board: Board, camera: CameraModel) -> SharedRig {
+    Arc::new(Mutex::new(SimRig::new(
+        SimMachine::new(machine),
+        board,
+        camera,
+    )))
+}
 
 /// Simulated exposure + readout time of one frame.
 const FRAME_TIME_S: f64 = 0.01;
@@ -21,9 +42,9 @@ pub struct SimFrameInfo {
 
 #[derive(Clone, Debug)]
 pub struct SimRig {
-    pub machine: SimMachine,
-    pub board: Board,
-    pub camera: CameraModel,
+    machine: SimMachine,
+    board: Board,
+    camera: CameraModel,
     noise_seed: u64,
     frames: u64,
 }
@@ -38,6 +59,31 @@ impl SimRig {
             noise_seed,
             frames: 0,
         }
+    }
+
+    /// The machine as its controllers see and drive it: commands, encoder counts, time.
+    pub fn machine(&self) -> &SimMachine {
+        &self.machine
+    }
+
+    /// The machine, to command moves, homing and stops, or to advance its time.
+    pub fn machine_mut(&mut self) -> &mut SimMachine {
+        &mut self.machine
+    }
+
+    /// The calibration board fixed to the machine frame.
+    pub fn board(&self) -> &Board {
+        &self.board
+    }
+
+    /// The camera's optics and sensor.
+    pub fn camera(&self) -> &CameraModel {
+        &self.camera
+    }
+
+    /// The camera, to change what its device configures (sensor window, bit depth).
+    pub fn camera_mut(&mut self) -> &mut CameraModel {
+        &mut self.camera
     }
 
     /// Expose one frame where the camera really is (motion continues during exposure).

@@ -584,9 +584,9 @@ impl SimMachine {
     }
 
     /// Where the camera really looks on the board, and its extra rotation (yaw). The
-    /// gateway never calls this; the camera emulator renders frames at this pose and
-    /// tests compare against it.
-    pub fn camera_pose(&self) -> CameraPose {
+    /// gateway never calls this; the rig renders frames at this pose and hands it out
+    /// only as [`crate::rig::SimRig::truth`], the one door to the truth.
+    pub(crate) fn camera_pose(&self) -> CameraPose {
         let (x, y) = (self.axes[0].carriage_mm, self.axes[1].carriage_mm);
         let ax = &self.cfg.axes.x;
         let ay = &self.cfg.axes.y;
@@ -644,7 +644,7 @@ mod tests {
     use super::*;
 
     pub(crate) fn config() -> MachineConfig {
-        let text = include_str!("../../config/machines/c5-stage.toml");
+        let text = include_str!("../../../config/machines/c5-stage.toml");
         MachineConfig::from_doc(&ConfigDoc::from_text("c5-stage.toml", text, Path::new(".")))
             .unwrap()
     }
