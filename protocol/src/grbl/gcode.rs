@@ -1338,3 +1338,6 @@ mod tests {
         assert_eq!(BlockWriter::new().g(38.2).to_string(), "G38.2");
     }
 }
+
+#[cfg(test)]
+mod characterization;
