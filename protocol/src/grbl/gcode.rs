@@ -8,7 +8,12 @@
 //! nothing, as on the device. It is sans-IO: what a block asks for comes back as
 //! [`Action`]s (moves in machine millimetres, dwells, syncs) for a caller to execute.
 
+mod error;
+
+pub use error::GcodeError;
+
 use super::codes::status as e;
+use crate::nc;
 use std::f64::consts::PI;
 use std::fmt;
 
@@ -99,34 +104,6 @@ fn filtered_len(raw: &[u8]) -> usize {
     n
 }
 
-/// GRBL's `read_float`: optional sign, digits with at most one point, at least one
-/// digit. Returns the value and the bytes consumed.
-fn read_float(s: &[u8]) -> Option<(f64, usize)> {
-    let mut i = 0;
-    if i < s.len() && (s[i] == b'-' || s[i] == b'+') {
-        i += 1;
-    }
-    let mut digits = 0;
-    let mut point = false;
-    while i < s.len() {
-        match s[i] {
-            b'0'..=b'9' => digits += 1,
-            b'.' if !point => point = true,
-            _ => break,
-        }
-        i += 1;
-    }
-    if digits == 0 {
-        return None;
-    }
-    let text = std::str::from_utf8(&s[..i]).ok()?;
-    let v: f64 = text
-        .parse()
-        .ok()
-        .or_else(|| format!("{text}0").parse().ok())?;
-    Some((v, i))
-}
-
 /// One word of a block.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Word {
@@ -137,23 +114,35 @@ pub struct Word {
 /// Split a filtered line into words (GRBL step 1): error 1 for a missing letter,
 /// error 2 for a missing or malformed number.
 pub fn words(line: &str) -> Result<Vec<Word>, u8> {
-    let b = line.as_bytes();
-    let mut i = 0;
-    let mut out = Vec::new();
-    while i < b.len() {
-        let letter = b[i];
-        if !letter.is_ascii_uppercase() {
-            return Err(e::EXPECTED_COMMAND_LETTER);
-        }
-        i += 1;
-        let (value, n) = read_float(&b[i..]).ok_or(e::BAD_NUMBER_FORMAT)?;
-        i += n;
-        out.push(Word {
-            letter: letter as char,
-            value,
-        });
+    grbl_words(line).map_err(|e| e.code())
+}
+
+/// The nc lexer's words, read as GRBL reads a filtered line: upper-case letters each
+/// followed at once by a number. What the lexer accepts besides (spaces, comments,
+/// `/`, `%`, lower case) GRBL's filter would have removed, so here it is a character
+/// where a letter should be (error 1), or for a space after the letter a missing
+/// number (error 2). Errors come in the order the characters do, as on the device.
+fn grbl_words(line: &str) -> Result<Vec<Word>, GcodeError> {
+    nc::lex(line, 1).map(grbl_word).collect()
+}
+
+fn grbl_word(token: Result<nc::Token<'_>, nc::NcError>) -> Result<Word, GcodeError> {
+    let token = token.map_err(|e| GcodeError::from_lex(&e))?;
+    let nc::TokenKind::Word {
+        letter,
+        value,
+        number,
+    } = token.kind
+    else {
+        return Err(GcodeError::ExpectedCommandLetter);
+    };
+    if !token.text.starts_with(|c: char| c.is_ascii_uppercase()) {
+        return Err(GcodeError::ExpectedCommandLetter);
     }
-    Ok(out)
+    if token.text.len() != 1 + number.len() {
+        return Err(GcodeError::BadNumberFormat);
+    }
+    Ok(Word { letter, value })
 }
 
 /// Motion modal group.
