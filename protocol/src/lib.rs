@@ -13,6 +13,7 @@ pub mod gige;
 pub mod grbl;
 pub mod image;
 pub mod modbus;
+pub mod nc;
 pub mod slcan;
 
 pub use board::{Board, Polarity};

@@ -1,0 +1,51 @@
+//! GRBL's arc segmentation (`mc_arc`): an arc becomes chords within the arc tolerance.
+
+use super::N_AXIS;
+use std::f64::consts::PI;
+
+const ARC_ANGULAR_TRAVEL_EPSILON: f64 = 5e-7;
+
+/// Chord end points of an arc (GRBL's `mc_arc`): as many segments as keep the chord
+/// within the arc tolerance; the last point is exactly the target.
+pub(super) fn arc_points(
+    position: [f64; N_AXIS],
+    target: [f64; N_AXIS],
+    offset: [f64; N_AXIS],
+    (a0, a1, lin): (usize, usize, usize),
+    clockwise: bool,
+    tolerance: f64,
+) -> Vec<[f64; N_AXIS]> {
+    let c0 = position[a0] + offset[a0];
+    let c1 = position[a1] + offset[a1];
+    let r0 = -offset[a0];
+    let r1 = -offset[a1];
+    let rt0 = target[a0] - c0;
+    let rt1 = target[a1] - c1;
+    let radius = r0.hypot(r1);
+    let mut travel = (r0 * rt1 - r1 * rt0).atan2(r0 * rt0 + r1 * rt1);
+    if clockwise {
+        if travel >= -ARC_ANGULAR_TRAVEL_EPSILON {
+            travel -= 2.0 * PI;
+        }
+    } else if travel <= ARC_ANGULAR_TRAVEL_EPSILON {
+        travel += 2.0 * PI;
+    }
+    let tol = tolerance.max(1e-6);
+    let segments = ((0.5 * travel * radius).abs() / (tol * (2.0 * radius - tol)).max(1e-12).sqrt())
+        .floor() as usize;
+    let mut pts = Vec::with_capacity(segments + 1);
+    for k in 1..segments.max(1) {
+        if segments <= 1 {
+            break;
+        }
+        let a = travel * k as f64 / segments as f64;
+        let (s, c) = a.sin_cos();
+        let mut p = position;
+        p[a0] = c0 + r0 * c - r1 * s;
+        p[a1] = c1 + r0 * s + r1 * c;
+        p[lin] = position[lin] + (target[lin] - position[lin]) * k as f64 / segments as f64;
+        pts.push(p);
+    }
+    pts.push(target);
+    pts
+}
