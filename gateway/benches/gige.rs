@@ -13,12 +13,12 @@
 //! the render time alone and the difference (the GigE link: protocol, copies, sockets).
 //! Medians and 90th percentiles: the machine may be shared.
 
-use gateway::camera_link::over_gige;
-use gateway::config::{CameraSpec, Job};
-use gateway::localize::{localize, LocalizeParams};
-use gateway::run::open_devices_async;
+use devices::open_devices_async;
+use job::demo::over_gige;
+use job::{CameraSpec, Job};
 use std::path::Path;
 use std::time::Instant;
+use vision::localize::{localize, LocalizeParams};
 
 fn pct(v: &mut [f64], p: f64) -> f64 {
     v.sort_by(|a, b| a.partial_cmp(b).unwrap());
@@ -52,7 +52,7 @@ fn main() {
         job.camera = CameraSpec::Sim {
             model: model.clone(),
         };
-        over_gige(&mut job);
+        over_gige(&mut job).expect("the demo job runs over GigE");
         let rt = tokio::runtime::Builder::new_multi_thread()
             .worker_threads(2)
             .enable_all()
@@ -72,10 +72,9 @@ fn main() {
                 .unwrap();
             dev.stage.wait_idle().await.unwrap();
             let rig = dev.rig.clone().unwrap();
-            let mut p = LocalizeParams::new(target);
+            let mut p = LocalizeParams::with_settings(target, &job.localize);
             p.pixel_axes = job.pixel_axes;
             p.um_per_px = job.um_per_px;
-            p.min_points = job.localize.min_points;
             let (mut render, mut grab, mut obs) = (Vec::new(), Vec::new(), Vec::new());
             // One warm-up frame.
             dev.camera.grab().await.unwrap();
@@ -92,7 +91,7 @@ fn main() {
             let total = all.elapsed().as_secs_f64();
             // The render alone, on a copy of the rig in the same state.
             for _ in 0..frames.min(10) {
-                let mut r = rig.lock().unwrap().clone();
+                let mut r = world::lock(&rig).clone();
                 let t = Instant::now();
                 std::hint::black_box(r.grab());
                 render.push(t.elapsed().as_secs_f64() * 1e3);

@@ -2,16 +2,17 @@
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
-use gateway::config::Job;
-use gateway::localize::{localize, LocalizeParams, Method, PixelAxes};
-use gateway::report::Report;
-use gateway::run::{open_devices_async, run_job};
+use compensation::report::Report;
+use devices::open_devices_async;
 use indicatif::{ProgressBar, ProgressStyle};
+use job::Job;
 use protocol::Board;
+use runner::run_job;
 use serde_json::json;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
+use vision::localize::{localize, LocalizeParams, LocalizeSettings, Method, PixelAxes};
 
 #[derive(Parser)]
 #[command(
@@ -69,7 +70,7 @@ enum Cmd {
         /// Expected board coordinate at the image centre, "X,Y" in mm.
         #[arg(long)]
         near: String,
-        #[arg(long, default_value = "fit")]
+        #[arg(long, default_value_t = LocalizeSettings::default().method.to_string())]
         method: String,
         /// Nominal scale; the measured scale must agree within 10 %.
         #[arg(long)]
@@ -78,22 +79,22 @@ enum Cmd {
         #[arg(long, default_value = "+x,-y")]
         pixel_axes: String,
         /// How far the true position may be from --near, mm.
-        #[arg(long, default_value_t = 0.1)]
+        #[arg(long, default_value_t = LocalizeSettings::default().hint_tolerance_mm)]
         hint_tolerance_mm: f64,
         /// Refuse when the fit's RMS residual exceeds this, um.
-        #[arg(long, default_value_t = 2.0)]
+        #[arg(long, default_value_t = LocalizeSettings::default().max_residual_um)]
         max_residual_um: f64,
+        /// Fewest identified on-board points accepted.
+        #[arg(long, default_value_t = LocalizeSettings::default().min_points)]
+        min_points: usize,
         #[arg(long)]
         json: bool,
     },
 }
 
 fn parse_method(s: &str) -> anyhow::Result<Method> {
-    match s {
-        "fit" => Ok(Method::Fit),
-        "four-point" => Ok(Method::FourPoint),
-        other => anyhow::bail!("--method `{other}`: expected `fit` or `four-point`"),
-    }
+    s.parse()
+        .map_err(|e| anyhow::anyhow!("--method `{s}`: {e}"))
 }
 
 fn parse_xy(s: &str) -> anyhow::Result<[f64; 2]> {
@@ -140,18 +141,18 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             let mut job = Job::demo();
             match camera.as_str() {
                 "sim" => {}
-                "gige" => gateway::camera_link::over_gige(&mut job),
+                "gige" => job::demo::over_gige(&mut job)?,
                 other => anyhow::bail!("--camera `{other}`: this build knows sim and gige"),
             }
             match stage.as_str() {
                 "sim" => {}
-                "grbl" => gateway::grbl_stage::over_grbl(&mut job)?,
+                "grbl" => job::demo::over_grbl(&mut job)?,
                 "modbus" => match transport.as_str() {
-                    "tcp" => gateway::modbus_stage::over_modbus(&mut job, false)?,
-                    "rtu" => gateway::modbus_stage::over_modbus(&mut job, true)?,
+                    "tcp" => job::demo::over_modbus(&mut job, false)?,
+                    "rtu" => job::demo::over_modbus(&mut job, true)?,
                     other => anyhow::bail!("--transport `{other}`: expected tcp or rtu"),
                 },
-                "canopen" => gateway::canopen_stage::over_canopen(&mut job)?,
+                "canopen" => job::demo::over_canopen(&mut job)?,
                 other => anyhow::bail!(
                     "--stage `{other}`: this build knows sim, grbl, modbus and canopen"
                 ),
@@ -181,18 +182,22 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             pixel_axes,
             hint_tolerance_mm,
             max_residual_um,
+            min_points,
             json,
         } => {
             let board = Board::load(&board)?;
-            let img = gateway::image_io::load_png(&image)?;
-            let mut p = LocalizeParams::new(parse_xy(&near)?);
-            p.method = parse_method(&method)?;
+            let img = vision::image_io::load_png(&image)?;
+            let settings = LocalizeSettings {
+                method: parse_method(&method)?,
+                hint_tolerance_mm,
+                max_residual_um,
+                min_points,
+            };
+            let mut p = LocalizeParams::with_settings(parse_xy(&near)?, &settings);
             p.um_per_px = um_per_px;
             p.pixel_axes = pixel_axes
                 .parse::<PixelAxes>()
                 .map_err(|e| anyhow::anyhow!("--pixel-axes `{pixel_axes}`: {e}"))?;
-            p.hint_tolerance_mm = hint_tolerance_mm;
-            p.max_residual_um = max_residual_um;
             let t0 = Instant::now();
             let obs = localize(&img, &board, &p).with_context(|| format!("{}", image.display()))?;
             let elapsed_ms = t0.elapsed().as_secs_f64() * 1000.0;

@@ -53,7 +53,7 @@ fn frame_at(dir: &Path, centre_mm: [f64; 2], sixteen_bit: bool) -> PathBuf {
     } else {
         "frame8.png"
     });
-    gateway::image_io::save_png(&f.image, &path).unwrap();
+    vision::image_io::save_png(&f.image, &path).unwrap();
     path
 }
 

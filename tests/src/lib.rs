@@ -92,7 +92,7 @@ pub fn runtime_two_workers() -> tokio::runtime::Runtime {
 /// The demo's promise over any link: the job ran to the end, every target converged,
 /// the stage really was off by at least `min_before_um` before compensation, and ends
 /// within 1 um of the truth after it.
-pub fn assert_demo_figure(report: &gateway::report::Report, min_before_um: f64) {
+pub fn assert_demo_figure(report: &compensation::report::Report, min_before_um: f64) {
     assert!(report.error.is_none(), "{:?}", report.error);
     assert_eq!(report.converged, report.targets, "{}", report.to_text());
     let before = report

@@ -2,9 +2,11 @@
 //! pseudo-terminal, driven by the CANopen driver: the in-process demo's figure
 //! (after-compensation max <= 1 um) must hold over CANopen too.
 
-use gateway::canopen_stage::{over_canopen, CanopenLink};
-use gateway::config::{Job, StageSpec};
-use gateway::run::{open_devices_async, run_job};
+use devices::open_devices_async;
+use job::canopen::CanopenLink;
+use job::demo::over_canopen;
+use job::{Job, StageSpec};
+use runner::run_job;
 use system_tests::{assert_demo_figure, runtime};
 
 #[test]

@@ -2,13 +2,13 @@
 //! promises, and the refusals (no motion on a guess).
 
 use async_trait::async_trait;
+use devices::open_devices;
 use drivers::{AxisValues, Camera, CameraInfo, DriverError, Frame, Stage, StageInfo, StageStatus};
-use gateway::config::{CameraSpec, Job, StageSpec};
-use gateway::localize::Method;
-use gateway::orchestrator::{JobError, Orchestrator};
-use gateway::run::{open_devices, run_job};
+use job::{CameraSpec, Job, StageSpec};
 use protocol::{MonoImage, Pixels};
+use runner::{run_job, JobError, Orchestrator};
 use std::sync::{Arc, Mutex};
+use vision::localize::Method;
 
 fn block_on<F: std::future::Future>(f: F) -> F::Output {
     tokio::runtime::Builder::new_current_thread()
@@ -64,7 +64,9 @@ fn four_point_method_is_exact_when_aligned_and_biased_when_rotated() {
         let mut job = Job::demo();
         job.localize.method = Method::FourPoint;
         job.targets.truncate(4);
-        let CameraSpec::Sim { model } = &mut job.camera;
+        let CameraSpec::Sim { model } = &mut job.camera else {
+            unreachable!("the demo job simulates its camera")
+        };
         model.rotation_deg = rotation_deg;
         model.distortion_px_at_corner = 0.0;
         let mut devices = open_devices(&job).unwrap();

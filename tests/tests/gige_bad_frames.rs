@@ -5,12 +5,13 @@
 mod gige_common;
 
 use async_trait::async_trait;
+use devices::Devices;
 use drivers::sim::SimStage;
 use drivers::{AxisValues, Camera, CameraInfo, DriverError, Frame, Stage, StageInfo, StageStatus};
 use emulators::gige::GigeConfig;
-use gateway::config::Job;
-use gateway::run::{run_job, Devices};
 use gige_common::*;
+use job::Job;
+use runner::run_job;
 use std::sync::{Arc, Mutex};
 
 type Log = Arc<Mutex<Vec<String>>>;

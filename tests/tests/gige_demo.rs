@@ -3,10 +3,10 @@
 //! links, one simulated machine; the same figure as the in-process demo (after
 //! compensation, max error <= 1 um). A few targets keep the debug build fast.
 
-use gateway::camera_link::{over_gige, CameraLink};
-use gateway::config::Job;
-use gateway::grbl_stage::over_grbl;
-use gateway::run::{open_devices, open_devices_async, run_job};
+use devices::{open_devices, open_devices_async};
+use job::demo::{over_gige, over_grbl};
+use job::{CameraSpec, Job};
+use runner::run_job;
 use system_tests::{assert_demo_figure, runtime_two_workers};
 
 fn few_targets(job: &mut Job) {
@@ -18,7 +18,7 @@ fn demo_over_gige_and_grbl_compensates_to_within_a_micrometre() {
     let rt = runtime_two_workers();
     let mut job = Job::demo();
     over_grbl(&mut job).unwrap();
-    over_gige(&mut job);
+    over_gige(&mut job).unwrap();
     few_targets(&mut job);
     let report = rt.block_on(async {
         let mut devices = open_devices_async(&job).await.unwrap();
@@ -34,12 +34,16 @@ fn demo_over_gige_and_grbl_compensates_to_within_a_micrometre() {
 fn gige_demo_config_emulates_the_camera_and_refuses_bad_keys() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/gateway");
     let job = Job::load(&dir.join("gige-demo.toml")).unwrap();
-    assert_eq!(
-        job.camera_link,
-        CameraLink::Gige {
-            camera: None,
-            packet_size: 8192
-        }
+    assert!(
+        matches!(
+            job.camera,
+            CameraSpec::EmulatedGige {
+                packet_size: 8192,
+                ..
+            }
+        ),
+        "{:?}",
+        job.camera
     );
     // The synchronous opener says where GigE cameras are opened.
     let e = open_devices(&job).err().unwrap().to_string();
@@ -70,8 +74,8 @@ fn gige_demo_config_emulates_the_camera_and_refuses_bad_keys() {
 fn a_real_camera_address_with_a_simulated_machine_is_refused_clearly() {
     let rt = runtime_two_workers();
     let mut job = Job::demo();
-    job.camera_link = CameraLink::Gige {
-        camera: Some("127.0.0.1:9".into()),
+    job.camera = CameraSpec::Gige {
+        device: "127.0.0.1:9".into(),
         packet_size: 1500,
     };
     let e = rt

@@ -6,9 +6,9 @@
 //! compensates. There is no truth on this side of the links: the test checks convergence
 //! and the gateway's own estimate.
 
-use gateway::camera_link::CameraLink;
-use gateway::config::Job;
-use gateway::run::{open_devices_async, run_job};
+use devices::open_devices_async;
+use job::{CameraSpec, Job};
+use runner::run_job;
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
 use std::time::Duration;
@@ -55,17 +55,11 @@ fn rig_process(stage: &str, stage_prefix: &str) -> (Kill, String, String) {
     )
 }
 
-fn run(text: &str) -> gateway::report::Report {
+fn run(text: &str) -> compensation::report::Report {
     let dir = workspace().join("config/gateway");
     let doc = protocol::config::ConfigDoc::from_text("rig-process.toml", text, &dir);
     let job = Job::from_doc(&doc).unwrap();
-    assert!(matches!(
-        job.camera_link,
-        CameraLink::Gige {
-            camera: Some(_),
-            ..
-        }
-    ));
+    assert!(matches!(job.camera, CameraSpec::Gige { .. }));
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
@@ -92,7 +86,7 @@ fn demo_text(gige: &str) -> String {
         .replace("nx = 6, ny = 5", "nx = 2, ny = 2")
 }
 
-fn check(report: &gateway::report::Report) {
+fn check(report: &compensation::report::Report) {
     assert!(report.error.is_none(), "{:?}", report.error);
     assert_eq!(report.targets, 4);
     assert_eq!(report.converged, report.targets, "{}", report.to_text());

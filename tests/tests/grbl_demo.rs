@@ -2,9 +2,10 @@
 //! driven by the GRBL serial driver: the same figures as the in-process demo
 //! (`compensation.rs` holds the in-process run to the same bounds).
 
-use gateway::config::{Job, StageSpec};
-use gateway::grbl_stage::over_grbl;
-use gateway::run::{open_devices_async, run_job};
+use devices::open_devices_async;
+use job::demo::over_grbl;
+use job::{Job, StageSpec};
+use runner::run_job;
 use system_tests::{assert_demo_figure, runtime};
 
 #[test]

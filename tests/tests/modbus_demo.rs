@@ -2,12 +2,14 @@
 //! real pseudo-terminal), driven by the Modbus driver: the in-process demo's figure
 //! (after-compensation max <= 1 um) must hold over Modbus too.
 
-use gateway::config::{Job, StageSpec};
-use gateway::modbus_stage::{over_modbus, ModbusLink};
-use gateway::run::{open_devices_async, run_job};
+use devices::open_devices_async;
+use job::demo::over_modbus;
+use job::modbus::ModbusLink;
+use job::{Job, StageSpec};
+use runner::run_job;
 use system_tests::{assert_demo_figure, runtime};
 
-fn run(mut job: Job, rtu: bool, targets: usize) -> gateway::report::Report {
+fn run(mut job: Job, rtu: bool, targets: usize) -> compensation::report::Report {
     over_modbus(&mut job, rtu).unwrap();
     // A few targets spread over the travel keep the debug-build test fast.
     let n = job.targets.len();

@@ -16,11 +16,11 @@
 //!   frame (camera file `LOCALIZE_BENCH_CAMERA`, default `mono-5mp.toml`), for profilers
 //!   such as `perf record` or `valgrind --tool=cachegrind`.
 
-use gateway::localize::{detect_dots, localize, LocalizeParams, Method};
 use protocol::{Board, MonoImage, Pixels, Polarity};
 use std::hint::black_box;
 use std::path::Path;
 use std::time::Instant;
+use vision::localize::{detect_dots, localize, LocalizeParams, Method};
 use world::camera::{CameraModel, CameraPose};
 use world::plate::{manufacture, PlateErrors};
 use world::render::{render, RenderedFrame};

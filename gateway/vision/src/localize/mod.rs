@@ -230,18 +230,50 @@ pub struct LocalizeParams {
     pub min_points: usize,
 }
 
-impl LocalizeParams {
-    /// Defaults: fit method, camera above the board (`+x,-y`), scale unknown,
-    /// 0.1 mm hint tolerance, 2 um residual limit, 8 points.
-    pub fn new(hint_mm: [f64; 2]) -> Self {
+/// The tunable part of [`LocalizeParams`], as a job's `[localize]` section gives it.
+/// These defaults are the only ones: the job file, the CLI and [`LocalizeParams::new`]
+/// all take them from here.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LocalizeSettings {
+    pub method: Method,
+    /// See [`LocalizeParams::hint_tolerance_mm`].
+    pub hint_tolerance_mm: f64,
+    /// See [`LocalizeParams::max_residual_um`].
+    pub max_residual_um: f64,
+    /// See [`LocalizeParams::min_points`].
+    pub min_points: usize,
+}
+
+impl Default for LocalizeSettings {
+    /// Fit method, 0.1 mm hint tolerance, 2 um residual limit, 8 points.
+    fn default() -> Self {
         Self {
             method: Method::Fit,
-            pixel_axes: PixelAxes::default(),
-            um_per_px: None,
-            hint_mm,
             hint_tolerance_mm: 0.1,
             max_residual_um: 2.0,
             min_points: 8,
+        }
+    }
+}
+
+impl LocalizeParams {
+    /// Defaults ([`LocalizeSettings::default`]), camera above the board (`+x,-y`),
+    /// scale unknown.
+    pub fn new(hint_mm: [f64; 2]) -> Self {
+        Self::with_settings(hint_mm, &LocalizeSettings::default())
+    }
+
+    /// The given settings, camera above the board (`+x,-y`), scale unknown.
+    pub fn with_settings(hint_mm: [f64; 2], settings: &LocalizeSettings) -> Self {
+        Self {
+            method: settings.method,
+            pixel_axes: PixelAxes::default(),
+            um_per_px: None,
+            hint_mm,
+            hint_tolerance_mm: settings.hint_tolerance_mm,
+            max_residual_um: settings.max_residual_um,
+            min_points: settings.min_points,
         }
     }
 }

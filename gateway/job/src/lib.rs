@@ -26,36 +26,42 @@
 //! grid = { x_mm = [10.0, 190.0], y_mm = [10.0, 140.0], nx = 6, ny = 5 }
 //! ```
 
-use crate::correction::CorrectionPolicy;
-use crate::localize::{Method, PixelAxes};
+pub mod camera;
+pub mod canopen;
+pub mod demo;
+pub mod modbus;
+
+pub use camera::{CameraSpec, PairingError};
+use compensation::correction::CorrectionPolicy;
+use compensation::session::Target;
 use protocol::config::{ConfigDoc, ConfigError};
 use protocol::Board;
 use serde::Deserialize;
 use std::path::Path;
-use world::camera::CameraModel;
+use vision::localize::{LocalizeSettings, PixelAxes};
 use world::machine::MachineConfig;
 
 /// The files of the embedded default job (the demo), compiled in.
 pub static EMBEDDED: &[(&str, &str)] = &[
     (
         "config/gateway/demo.toml",
-        include_str!("../../config/gateway/demo.toml"),
+        include_str!("../../../config/gateway/demo.toml"),
     ),
     (
         "config/machines/c5-stage.toml",
-        include_str!("../../config/machines/c5-stage.toml"),
+        include_str!("../../../config/machines/c5-stage.toml"),
     ),
     (
         "config/cameras/mono-1.3mp.toml",
-        include_str!("../../config/cameras/mono-1.3mp.toml"),
+        include_str!("../../../config/cameras/mono-1.3mp.toml"),
     ),
     (
         "config/boards/dot-grid-0.5mm.toml",
-        include_str!("../../config/boards/dot-grid-0.5mm.toml"),
+        include_str!("../../../config/boards/dot-grid-0.5mm.toml"),
     ),
     (
         "config/boards/dot-grid-0.5mm.certified.csv",
-        include_str!("../../config/boards/dot-grid-0.5mm.certified.csv"),
+        include_str!("../../../config/boards/dot-grid-0.5mm.certified.csv"),
     ),
 ];
 
@@ -65,11 +71,11 @@ pub const DEMO_JOB: &str = "config/gateway/demo.toml";
 #[serde(deny_unknown_fields)]
 struct RawJob {
     stage: RawStage,
-    camera: RawCamera,
+    camera: camera::RawCamera,
     board: RawBoard,
     setup: RawSetup,
     #[serde(default)]
-    localize: RawLocalize,
+    localize: LocalizeSettings,
     #[serde(default)]
     compensation: CorrectionPolicy,
     targets: RawTargets,
@@ -90,32 +96,14 @@ enum RawStage {
     },
     /// Modbus positioning drives, one per axis, over TCP or RTU through a drive
     /// profile; or with `emulate` the drive emulator (see `modbus_stage`).
-    Modbus(crate::modbus_stage::RawModbusStage),
+    Modbus(crate::modbus::RawModbusStage),
     /// CiA 402 drives on CAN (SLCAN adapter or SocketCAN interface), one node per
     /// axis; or with `emulate` the drive emulator (see `canopen_stage`).
-    Canopen(crate::canopen_stage::RawCanopenStage),
+    Canopen(crate::canopen::RawCanopenStage),
 }
 
 fn default_baud() -> u32 {
     115_200
-}
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct RawCamera {
-    driver: String,
-    /// `sim`: the simulated camera's optics file. `gige`: the optics the GigE Vision
-    /// emulator serves (when `camera` is not given).
-    model: Option<String>,
-    /// `gige`: a real camera's address (`ip`, `ip:port`) or device name.
-    camera: Option<String>,
-    /// `gige`: stream packet size, bytes (default 1500; jumbo frames allow up to 9000).
-    packet_size: Option<u32>,
-    /// `replay`: the folder of PNG frames.
-    folder: Option<String>,
-    #[serde(default)]
-    pixel_axes: Option<String>,
-    um_per_px: Option<f64>,
 }
 
 #[derive(Deserialize)]
@@ -134,26 +122,6 @@ struct RawSetup {
 
 fn default_feed() -> f64 {
     3000.0
-}
-
-#[derive(Deserialize, Clone, Debug, PartialEq)]
-#[serde(deny_unknown_fields, default)]
-pub struct RawLocalize {
-    pub method: Method,
-    pub hint_tolerance_mm: f64,
-    pub max_residual_um: f64,
-    pub min_points: usize,
-}
-
-impl Default for RawLocalize {
-    fn default() -> Self {
-        Self {
-            method: Method::Fit,
-            hint_tolerance_mm: 0.1,
-            max_residual_um: 2.0,
-            min_points: 8,
-        }
-    }
 }
 
 #[derive(Deserialize)]
@@ -185,9 +153,9 @@ pub enum StageSpec {
         emulate: Option<MachineConfig>,
     },
     /// Modbus drives (TCP, RTU, or the emulator), register maps from a drive profile.
-    Modbus(crate::modbus_stage::ModbusStageSpec),
+    Modbus(crate::modbus::ModbusStageSpec),
     /// CANopen CiA 402 drives (SLCAN, SocketCAN, or the emulator on an SLCAN pty).
-    Canopen(crate::canopen_stage::CanopenStageSpec),
+    Canopen(crate::canopen::CanopenStageSpec),
 }
 
 impl StageSpec {
@@ -198,18 +166,13 @@ impl StageSpec {
             StageSpec::Sim { .. } => true,
             StageSpec::Grbl { emulate, .. } => emulate.is_some(),
             StageSpec::Modbus(spec) => {
-                matches!(spec.link, crate::modbus_stage::ModbusLink::Emulate { .. })
+                matches!(spec.link, crate::modbus::ModbusLink::Emulate { .. })
             }
             StageSpec::Canopen(spec) => {
-                matches!(spec.link, crate::canopen_stage::CanopenLink::Emulate { .. })
+                matches!(spec.link, crate::canopen::CanopenLink::Emulate { .. })
             }
         }
     }
-}
-
-#[derive(Clone, Debug)]
-pub enum CameraSpec {
-    Sim { model: CameraModel },
 }
 
 /// A resolved, checked job.
@@ -219,8 +182,6 @@ pub struct Job {
     pub source: String,
     pub stage: StageSpec,
     pub camera: CameraSpec,
-    /// How frames arrive (GigE Vision, replay), on top of `camera`.
-    pub camera_link: crate::camera_link::CameraLink,
     pub pixel_axes: PixelAxes,
     pub um_per_px: Option<f64>,
     pub board: Board,
@@ -228,7 +189,7 @@ pub struct Job {
     /// target (board mm) - this.
     pub board_at_machine_zero_mm: [f64; 2],
     pub feed_mm_min: f64,
-    pub localize: RawLocalize,
+    pub localize: LocalizeSettings,
     pub policy: CorrectionPolicy,
     /// Targets in board coordinates, mm, in visiting order.
     pub targets: Vec<[f64; 2]>,
@@ -280,81 +241,10 @@ impl Job {
                     emulate,
                 }
             }
-            RawStage::Modbus(raw) => StageSpec::Modbus(crate::modbus_stage::resolve(doc, raw)?),
-            RawStage::Canopen(raw) => StageSpec::Canopen(crate::canopen_stage::resolve(doc, raw)?),
+            RawStage::Modbus(raw) => StageSpec::Modbus(crate::modbus::resolve(doc, raw)?),
+            RawStage::Canopen(raw) => StageSpec::Canopen(crate::canopen::resolve(doc, raw)?),
         };
-        let mut camera_link = crate::camera_link::CameraLink::Direct;
-        let camera = match raw.camera.driver.as_str() {
-            "gige" | "replay" => {
-                // The simulated optics: emulated by GigE Vision, or (for a real camera
-                // and replayed frames) the embedded default, used by nothing but kept
-                // so that a job always names its camera model.
-                let model = match (&raw.camera.model, &raw.camera.camera) {
-                    (Some(_), Some(_)) => {
-                        return Err(doc.invalid(
-                            "camera.camera",
-                            "give `camera` (a real camera) or `model` (the optics to emulate), not both",
-                        ))
-                    }
-                    (Some(rel), None) => {
-                        CameraModel::from_doc(&doc.read_relative("camera.model", rel)?)?
-                    }
-                    (None, _) => CameraModel::from_doc(&ConfigDoc::from_text(
-                        "config/cameras/mono-1.3mp.toml (built in)",
-                        include_str!("../../config/cameras/mono-1.3mp.toml"),
-                        Path::new("config/cameras"),
-                    ))?,
-                };
-                if raw.camera.driver == "gige" {
-                    let packet_size = raw.camera.packet_size.unwrap_or(1500);
-                    if !(576..=16_000).contains(&packet_size) {
-                        return Err(doc.invalid(
-                            "camera.packet_size",
-                            "must be 576..16000 bytes (1500 on plain Ethernet, up to 9000 with jumbo frames)",
-                        ));
-                    }
-                    if raw.camera.model.is_none() && raw.camera.camera.is_none() {
-                        return Err(doc.invalid(
-                            "camera.camera",
-                            "the gige camera needs `camera` (address or device name) or `model` (optics file to emulate)",
-                        ));
-                    }
-                    camera_link = crate::camera_link::CameraLink::Gige {
-                        camera: raw.camera.camera.clone(),
-                        packet_size,
-                    };
-                } else {
-                    let Some(folder) = &raw.camera.folder else {
-                        return Err(doc.invalid(
-                            "camera.folder",
-                            "the replay camera needs `folder`, a folder of PNG frames",
-                        ));
-                    };
-                    camera_link = crate::camera_link::CameraLink::Replay {
-                        folder: doc.resolve(folder),
-                    };
-                }
-                CameraSpec::Sim { model }
-            }
-            "sim" => {
-                let Some(rel) = &raw.camera.model else {
-                    return Err(doc.invalid(
-                        "camera.model",
-                        "the sim camera needs `model`, its optics file",
-                    ));
-                };
-                let m = doc.read_relative("camera.model", rel)?;
-                CameraSpec::Sim {
-                    model: CameraModel::from_doc(&m)?,
-                }
-            }
-            other => {
-                return Err(doc.invalid(
-                    "camera.driver",
-                    format!("unknown camera driver `{other}`; this build knows: sim, gige, replay"),
-                ))
-            }
-        };
+        let camera = raw.camera.resolve(doc)?;
         let pixel_axes = match &raw.camera.pixel_axes {
             Some(s) => s
                 .parse::<PixelAxes>()
@@ -415,7 +305,6 @@ impl Job {
             source: doc.name.clone(),
             stage,
             camera,
-            camera_link,
             pixel_axes,
             um_per_px: raw.camera.um_per_px,
             board,
@@ -425,6 +314,23 @@ impl Job {
             policy: raw.compensation,
             targets,
         })
+    }
+
+    /// The targets as the compensation session takes them: board coordinate and
+    /// nominal machine command.
+    pub fn session_targets(&self) -> Vec<Target> {
+        self.targets
+            .iter()
+            .map(|&board_mm| Target {
+                board_mm,
+                command_mm: self.command_for(board_mm),
+            })
+            .collect()
+    }
+
+    /// Whether the camera can see the machine (see [`CameraSpec::check_pairing`]).
+    pub fn check_pairing(&self) -> Result<(), PairingError> {
+        self.camera.check_pairing(self.stage.is_simulated())
     }
 
     /// Machine command (mm) of a target given in board coordinates.
@@ -453,7 +359,7 @@ fn resolve_targets(
         }
         (None, None) => return Err(doc.invalid("targets", "give `grid` or `points`")),
         (Some(g), None) => {
-            if g.nx < 1 || g.ny < 1 || g.nx * g.ny > 100_000 {
+            if g.nx < 1 || g.ny < 1 || u64::from(g.nx) * u64::from(g.ny) > 100_000 {
                 return Err(doc.invalid(
                     "targets.grid",
                     "nx and ny must be 1.. (at most 100000 targets)",

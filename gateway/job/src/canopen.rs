@@ -20,20 +20,15 @@
 //! ]                                   # + max_feed_mm_min (6000), accel_mm_s2 (800)
 //! ```
 
-use crate::config::{Job, StageSpec};
-use crate::run::{new_rig, EmulatedStage, OpenedStage};
-use drivers::can::{open_bus, BusSpec};
-use drivers::canopen::{open_stage, AxisConfig, CanopenOptions};
-use drivers::{Axis, DriverError};
-use emulators::canopen::{DriveSet, DriveSetConfig, SlcanPty, DRIVE_EDS, DRIVE_EDS_NAME};
+use drivers::can::BusSpec;
+use drivers::canopen::{AxisConfig, CanopenOptions};
+use drivers::Axis;
 use protocol::canopen::od::ObjectDictionary;
 use protocol::canopen::NodeId;
 use protocol::config::{ConfigDoc, ConfigError};
 use serde::Deserialize;
-use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use world::machine::MachineConfig;
-use world::Clock;
 
 /// `[stage]` with `driver = "canopen"`, as written.
 #[derive(Deserialize, Debug)]
@@ -71,13 +66,13 @@ struct RawCanopenAxis {
 fn default_bitrate() -> u32 {
     1_000_000
 }
-fn default_homing() -> i8 {
+pub(crate) fn default_homing() -> i8 {
     17
 }
-fn default_heartbeat() -> u16 {
+pub(crate) fn default_heartbeat() -> u16 {
     100
 }
-fn default_sdo_timeout() -> u64 {
+pub(crate) fn default_sdo_timeout() -> u64 {
     500
 }
 fn default_feed() -> f64 {
@@ -95,7 +90,9 @@ pub enum CanopenLink {
     /// driving this machine.
     Emulate {
         machine: Box<MachineConfig>,
-        eds: (String, String),
+        /// The EDS the emulated drives describe themselves by (name, text); None: the
+        /// emulator's own.
+        eds: Option<(String, String)>,
     },
 }
 
@@ -242,7 +239,6 @@ pub fn resolve(doc: &ConfigDoc, raw: RawCanopenStage) -> Result<CanopenStageSpec
         let rel = raw.emulate.unwrap_or_default();
         let machine = MachineConfig::from_doc(&doc.read_relative("stage.emulate", &rel)?)?;
         check_emulated(&machine, &axes).map_err(|m| doc.invalid("stage.axes", m))?;
-        let eds = eds.unwrap_or_else(|| (DRIVE_EDS_NAME.to_string(), DRIVE_EDS.to_string()));
         CanopenLink::Emulate {
             machine: Box::new(machine),
             eds,
@@ -255,7 +251,7 @@ pub fn resolve(doc: &ConfigDoc, raw: RawCanopenStage) -> Result<CanopenStageSpec
     })
 }
 
-fn options(heartbeat_ms: u16, sdo_timeout_ms: u64) -> CanopenOptions {
+pub(crate) fn options(heartbeat_ms: u16, sdo_timeout_ms: u64) -> CanopenOptions {
     CanopenOptions {
         sdo_timeout: Duration::from_millis(sdo_timeout_ms),
         heartbeat_ms,
@@ -280,90 +276,4 @@ fn check_emulated(m: &MachineConfig, axes: &[AxisConfig]) -> Result<(), String> 
         }
     }
     Ok(())
-}
-
-/// Replace a simulated job's stage by the same machine behind the CiA 402 drive
-/// emulator on an SLCAN pseudo-terminal (`gateway demo --stage canopen`).
-pub fn over_canopen(job: &mut Job) -> Result<(), DriverError> {
-    let StageSpec::Sim { machine } = &job.stage else {
-        return Err(DriverError::Unsupported {
-            device: "job".into(),
-            message: "--stage canopen replaces the simulated stage of the demo job".into(),
-        });
-    };
-    let axis = |axis, node, a: &world::machine::AxisConfig| AxisConfig {
-        axis,
-        node,
-        counts_per_mm: a.counts_per_mm,
-        min_mm: 0.0,
-        max_mm: a.travel_mm,
-        max_feed_mm_min: a.max_feed_mm_min,
-        accel_mm_s2: a.accel_mm_s2,
-        homing_method: default_homing(),
-    };
-    let axes = vec![
-        axis(Axis::X, 1, &machine.axes.x),
-        axis(Axis::Y, 2, &machine.axes.y),
-    ];
-    job.stage = StageSpec::Canopen(CanopenStageSpec {
-        link: CanopenLink::Emulate {
-            machine: Box::new(machine.clone()),
-            eds: (DRIVE_EDS_NAME.to_string(), DRIVE_EDS.to_string()),
-        },
-        axes,
-        options: options(default_heartbeat(), default_sdo_timeout()),
-    });
-    Ok(())
-}
-
-/// Open a job's `canopen` stage: the nodes on a real bus, or the drive emulator on an
-/// SLCAN pseudo-terminal driving a new simulated machine (returned as the rig). Must
-/// run inside the tokio runtime that will run the job (the bus task and the emulator
-/// are tasks of that runtime).
-pub async fn open(job: &Job) -> Result<OpenedStage, DriverError> {
-    let StageSpec::Canopen(spec) = &job.stage else {
-        return Err(DriverError::Unsupported {
-            device: "job".into(),
-            message: "not a canopen stage".into(),
-        });
-    };
-    match &spec.link {
-        CanopenLink::Emulate { machine, eds } => {
-            let rig = new_rig(job, machine);
-            let nodes = spec
-                .axes
-                .iter()
-                .map(|a| (a.node, if a.axis == Axis::X { 0 } else { 1 }))
-                .collect();
-            // Motion completes as soon as the driver has seen it start.
-            let cfg = DriveSetConfig {
-                clock: Clock::Unconstrained,
-                nodes,
-                eds: eds.clone(),
-            };
-            let set =
-                DriveSet::new(rig.clone(), &cfg, 0.0).map_err(|e| DriverError::Unsupported {
-                    device: "CiA 402 drive emulator".into(),
-                    message: e.to_string(),
-                })?;
-            let emulator = SlcanPty::spawn(Arc::new(Mutex::new(set)), None).map_err(|e| {
-                DriverError::Transport {
-                    device: "CiA 402 drive emulator".into(),
-                    message: format!("cannot create a pseudo-terminal: {e}"),
-                }
-            })?;
-            let bus = open_bus(&BusSpec::Slcan {
-                port: emulator.path().to_string(),
-                bitrate: 1_000_000,
-            })
-            .await?;
-            let (stage, _net) = open_stage(bus, spec.axes.clone(), spec.options.clone()).await?;
-            Ok((Box::new(EmulatedStage::new(stage, emulator)), Some(rig)))
-        }
-        CanopenLink::Bus(bus) => {
-            let bus = open_bus(bus).await?;
-            let (stage, _net) = open_stage(bus, spec.axes.clone(), spec.options.clone()).await?;
-            Ok((Box::new(stage), None))
-        }
-    }
 }

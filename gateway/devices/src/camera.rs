@@ -1,119 +1,60 @@
-//! How frames reach the gateway: the in-process simulated camera, GigE Vision (a real
-//! camera by address or device name, or, for the demo, the GigE Vision emulator serving
-//! the simulated camera on a loopback port and sharing the rig with the stage) or the
-//! replay of PNG files from a folder. The camera is opened after the stage, from the
-//! rig the stage backend gave (if any), so every stage backend (sim, grbl, modbus,
-//! canopen) works with every camera link.
+//! Opening the camera of a job: the in-process simulated camera, GigE Vision (a real
+//! camera by address or device name, or the GigE Vision emulator serving the simulated
+//! camera on a loopback port and sharing the rig with the stage) or the replay of PNG
+//! files from a folder. The camera is opened after the stage, from the rig the stage
+//! gave (if any), so every stage link works with every camera link.
 
-use crate::image_io::load_png;
+use crate::OpenError;
 use async_trait::async_trait;
 use drivers::gige::{GigeCamera, GigeOptions};
 use drivers::sim::SimCamera;
 use drivers::{Camera, CameraInfo, DriverError, Frame, FrameMeta};
 use emulators::gige::{GigeCameraServer, GigeServerOptions};
+use job::CameraSpec;
 use std::path::{Path, PathBuf};
+use vision::image_io::load_png;
 use world::SharedRig;
-
-/// How frames reach the gateway.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub enum CameraLink {
-    /// The camera of `[camera]` as it is (the in-process simulated camera).
-    #[default]
-    Direct,
-    /// GigE Vision. `camera`: an address (`ip` or `ip:port`) or a device name
-    /// (`vendor-model-serial`, serial or user name, found by discovery); None: the
-    /// emulator on loopback serving the simulated camera of the job's rig.
-    Gige {
-        camera: Option<String>,
-        packet_size: u32,
-    },
-    /// PNG frames from a folder, in file-name order, sizes checked.
-    Replay { folder: PathBuf },
-}
-
-/// Serve the job's simulated camera over GigE Vision (`gateway demo --camera gige`):
-/// the emulator renders the same rig the stage moves, the GigE driver reads it.
-pub fn over_gige(job: &mut crate::config::Job) {
-    job.camera_link = CameraLink::Gige {
-        camera: None,
-        // Loopback carries jumbo packets: fewer datagrams per frame.
-        packet_size: 8192,
-    };
-}
-
-/// Refuse a camera that cannot see the machine: a simulated camera (in-process or
-/// emulated over GigE Vision) needs a simulated machine, a real GigE Vision camera a
-/// real one. Checked before anything is opened.
-pub fn check_pairing(link: &CameraLink, machine_simulated: bool) -> Result<(), DriverError> {
-    match (link, machine_simulated) {
-        (CameraLink::Direct, false) => Err(DriverError::NotAvailable {
-            backend: "sim camera".into(),
-            reason: "a simulated camera cannot see a real machine: use `emulate` for the demo, or a real camera".into(),
-        }),
-        (CameraLink::Gige { camera: None, .. }, false) => Err(DriverError::NotAvailable {
-            backend: "gige (emulated)".into(),
-            reason: "the GigE Vision emulator needs a simulated machine to look at".into(),
-        }),
-        (CameraLink::Gige { camera: Some(name), .. }, true) => Err(DriverError::NotAvailable {
-            backend: "gige".into(),
-            reason: format!(
-                "a real camera (`{name}`) cannot see a simulated machine: use a real stage, or leave out `camera` to emulate the camera"
-            ),
-        }),
-        _ => Ok(()),
-    }
-}
 
 /// Open the camera of a job: `rig` is the simulated machine when the stage is
 /// simulated (directly or behind an emulated bus), None for a real machine.
-pub async fn open(
-    link: &CameraLink,
+pub async fn open_camera(
+    spec: &CameraSpec,
     rig: Option<&SharedRig>,
-) -> Result<Box<dyn Camera>, DriverError> {
-    check_pairing(link, rig.is_some())?;
-    match (link, rig) {
-        (CameraLink::Direct, Some(rig)) => Ok(Box::new(SimCamera::new(rig.clone()))),
-        (
-            CameraLink::Gige {
-                camera: None,
-                packet_size,
-            },
-            Some(rig),
-        ) => {
-            let rig = rig.clone();
-            let server = GigeCameraServer::spawn(rig, GigeServerOptions::default())
+) -> Result<Box<dyn Camera>, OpenError> {
+    spec.check_pairing(rig.is_some())?;
+    let gige_options = |packet_size: u32| GigeOptions {
+        packet_size,
+        ..Default::default()
+    };
+    Ok(match (spec, rig) {
+        (CameraSpec::Sim { .. }, Some(rig)) => Box::new(SimCamera::new(rig.clone())),
+        (CameraSpec::EmulatedGige { packet_size, .. }, Some(rig)) => {
+            let server = GigeCameraServer::spawn(rig.clone(), GigeServerOptions::default())
                 .await
                 .map_err(|e| DriverError::Transport {
                     device: "GigE Vision emulator".into(),
                     message: format!("cannot bind a loopback UDP port: {e}"),
                 })?;
-            let opts = GigeOptions {
-                packet_size: *packet_size,
-                ..Default::default()
-            };
-            let camera = GigeCamera::open_addr(server.control_addr(), opts).await?;
-            Ok(Box::new(EmulatedGige {
+            let camera =
+                GigeCamera::open_addr(server.control_addr(), gige_options(*packet_size)).await?;
+            Box::new(EmulatedGige {
                 camera,
                 _server: server,
-            }))
+            })
         }
         (
-            CameraLink::Gige {
-                camera: Some(name),
+            CameraSpec::Gige {
+                device,
                 packet_size,
             },
             None,
-        ) => {
-            let opts = GigeOptions {
-                packet_size: *packet_size,
-                ..Default::default()
-            };
-            Ok(Box::new(GigeCamera::open(name, opts).await?))
-        }
-        (CameraLink::Replay { folder }, _) => Ok(Box::new(ReplayCamera::open(folder)?)),
+        ) => Box::new(GigeCamera::open(device, gige_options(*packet_size)).await?),
+        (CameraSpec::Replay { folder }, _) => Box::new(ReplayCamera::open(folder)?),
         // The pairings `check_pairing` refuses.
-        (CameraLink::Direct | CameraLink::Gige { .. }, _) => unreachable!("checked above"),
-    }
+        (CameraSpec::Sim { .. } | CameraSpec::EmulatedGige { .. } | CameraSpec::Gige { .. }, _) => {
+            unreachable!("checked above")
+        }
+    })
 }
 
 /// The GigE driver connected to the in-process emulator, which lives as long as it.
@@ -233,8 +174,8 @@ impl Camera for ReplayCamera {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::image_io::save_png;
     use protocol::{MonoImage, Pixels};
+    use vision::image_io::save_png;
 
     #[test]
     fn replay_plays_files_in_order_checks_sizes_and_ends() {

@@ -4,9 +4,9 @@
 //! only when the machine is simulated (the simulator knows where the camera really was);
 //! "estimate" figures are the gateway's own measurements, available on any machine.
 
-use crate::localize::Method;
-use crate::orchestrator::TargetOutcome;
+use crate::session::TargetOutcome;
 use serde::Serialize;
+use vision::localize::Method;
 
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct Stats {

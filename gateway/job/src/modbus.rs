@@ -17,23 +17,18 @@
 //! timeout_ms = 500                    # per request; retries = 2
 //! ```
 
-use crate::config::{Job, StageSpec};
-use crate::run::{new_rig, EmulatedStage, OpenedStage};
-use drivers::modbus::{open_stage, Endpoint, ModbusAxisConfig, ModbusOptions, Parity};
-use drivers::{Axis, DriverError};
-use emulators::modbus::{DriveSet, MachineAxis, ModbusDevice, ModbusRtu, ModbusTcp};
+use drivers::modbus::{ModbusAxisConfig, ModbusOptions, Parity};
+use drivers::Axis;
 use protocol::config::{ConfigDoc, ConfigError};
 use protocol::modbus::DriveProfile;
 use serde::Deserialize;
 use std::net::SocketAddr;
-use std::path::Path;
 use std::sync::Arc;
 use std::time::Duration;
 use world::machine::MachineConfig;
-use world::Clock;
 
 /// The profile the demo uses, compiled in.
-const GENERIC_PROFILE: &str = include_str!("../../config/drives/generic.toml");
+pub(crate) const GENERIC_PROFILE: &str = include_str!("../../../config/drives/generic.toml");
 
 /// `[stage]` with `driver = "modbus"`, as written.
 #[derive(Deserialize, Debug)]
@@ -75,10 +70,10 @@ fn default_parity() -> String {
 fn default_transport() -> String {
     "tcp".into()
 }
-fn default_timeout_ms() -> u64 {
+pub(crate) fn default_timeout_ms() -> u64 {
     500
 }
-fn default_retries() -> u32 {
+pub(crate) fn default_retries() -> u32 {
     2
 }
 
@@ -109,7 +104,8 @@ pub struct ModbusStageSpec {
 }
 
 impl ModbusStageSpec {
-    fn options(&self) -> ModbusOptions {
+    /// The driver options this stage asks for.
+    pub fn options(&self) -> ModbusOptions {
         ModbusOptions {
             timeout: Duration::from_millis(self.timeout_ms),
             retries: self.retries,
@@ -223,7 +219,7 @@ pub fn resolve(doc: &ConfigDoc, raw: RawModbusStage) -> Result<ModbusStageSpec, 
 
 /// The emulated machine must have the profile's resolution (its counts are the
 /// drives' counts) and only X and Y.
-fn check_emulated(
+pub(crate) fn check_emulated(
     profile: &DriveProfile,
     m: &MachineConfig,
     axes: &[ModbusAxisConfig],
@@ -242,129 +238,4 @@ fn check_emulated(
         return Err(format!("the emulated machine has no {} axis", a.axis));
     }
     Ok(())
-}
-
-/// Replace a simulated job's stage by the same machine behind the Modbus drive
-/// emulator with the generic profile, over TCP or RTU (`gateway demo --stage modbus`).
-pub fn over_modbus(job: &mut Job, rtu: bool) -> Result<(), DriverError> {
-    let StageSpec::Sim { machine } = &job.stage else {
-        return Err(DriverError::Unsupported {
-            device: "job".into(),
-            message: "--stage modbus replaces the simulated stage of the demo job".into(),
-        });
-    };
-    let doc = ConfigDoc::from_text(
-        "config/drives/generic.toml (built in)",
-        GENERIC_PROFILE,
-        Path::new("config/drives"),
-    );
-    let profile = DriveProfile::from_doc(&doc).map_err(|e| DriverError::Unsupported {
-        device: "built-in generic profile".into(),
-        message: e.to_string(),
-    })?;
-    let axes = vec![
-        ModbusAxisConfig {
-            axis: Axis::X,
-            unit: 1,
-            min_mm: 0.0,
-            max_mm: machine.axes.x.travel_mm,
-            max_feed_mm_min: None,
-        },
-        ModbusAxisConfig {
-            axis: Axis::Y,
-            unit: 2,
-            min_mm: 0.0,
-            max_mm: machine.axes.y.travel_mm,
-            max_feed_mm_min: None,
-        },
-    ];
-    check_emulated(&profile, machine, &axes).map_err(|m| DriverError::Unsupported {
-        device: "job".into(),
-        message: m,
-    })?;
-    job.stage = StageSpec::Modbus(ModbusStageSpec {
-        profile: Arc::new(profile),
-        link: ModbusLink::Emulate {
-            machine: Box::new(machine.clone()),
-            rtu,
-        },
-        axes,
-        timeout_ms: default_timeout_ms(),
-        retries: default_retries(),
-    });
-    Ok(())
-}
-
-/// Open a job's `modbus` stage: the drives on their TCP address or RTU port, or the
-/// drive emulator on a loopback port or a pseudo-terminal driving a new simulated
-/// machine (returned as the rig). Must run inside the tokio runtime that will run the
-/// job (the emulator serves from tasks of that runtime).
-pub async fn open(job: &Job) -> Result<OpenedStage, DriverError> {
-    let StageSpec::Modbus(spec) = &job.stage else {
-        return Err(DriverError::Unsupported {
-            device: "job".into(),
-            message: "not a modbus stage".into(),
-        });
-    };
-    let mut opts = spec.options();
-    let real = |endpoint| open_stage(endpoint, spec.options(), spec.profile.clone(), &spec.axes);
-    match &spec.link {
-        ModbusLink::Tcp(addr) => Ok((Box::new(real(Endpoint::Tcp(*addr)).await?), None)),
-        ModbusLink::Rtu { port, baud, parity } => {
-            let endpoint = Endpoint::Rtu {
-                path: port.clone(),
-                baud: *baud,
-                parity: *parity,
-            };
-            Ok((Box::new(real(endpoint).await?), None))
-        }
-        ModbusLink::Emulate { machine, rtu } => {
-            let rig = new_rig(job, machine);
-            let units: Vec<(u8, MachineAxis)> = spec
-                .axes
-                .iter()
-                .map(|a| {
-                    (
-                        a.unit,
-                        if a.axis == Axis::X {
-                            MachineAxis::X
-                        } else {
-                            MachineAxis::Y
-                        },
-                    )
-                })
-                .collect();
-            // Motion completes as soon as the driver has seen it start.
-            let set = DriveSet::new(
-                rig.clone(),
-                spec.profile.clone(),
-                &units,
-                Clock::Unconstrained,
-            );
-            let device = ModbusDevice::new(set);
-            let emulator_error = |e: std::io::Error| DriverError::Transport {
-                device: "Modbus drive emulator".into(),
-                message: e.to_string(),
-            };
-            opts.poll_interval = Duration::from_millis(1);
-            let stage = if *rtu {
-                let line = ModbusRtu::spawn(device, None).map_err(emulator_error)?;
-                let ep = Endpoint::Rtu {
-                    path: line.path().to_string(),
-                    baud: 115_200,
-                    parity: Parity::None,
-                };
-                let stage = open_stage(ep, opts, spec.profile.clone(), &spec.axes).await?;
-                EmulatedStage::new(stage, line)
-            } else {
-                let server = ModbusTcp::bind(device, ([127, 0, 0, 1], 0).into())
-                    .await
-                    .map_err(emulator_error)?;
-                let ep = Endpoint::Tcp(server.local_addr());
-                let stage = open_stage(ep, opts, spec.profile.clone(), &spec.axes).await?;
-                EmulatedStage::new(stage, server)
-            };
-            Ok((Box::new(stage), Some(rig)))
-        }
-    }
 }

@@ -1,0 +1,263 @@
+//! Runs a job: performs the actions of a [`CompensationSession`] on a [`Stage`] and a
+//! [`Camera`], localizes each frame, and builds the report.
+//!
+//! Every decision (where to go, whether to correct, when to stop) is the session's; this
+//! crate only does the I/O it asks for. A failed localization, a refused correction or a
+//! device error stops the job before any further motion: the stage is told to stop and
+//! the targets finished so far are kept.
+
+use compensation::correction::SoftLimits;
+use compensation::correction::{CorrectionError, Positioning};
+use compensation::report::{Report, TruthAt};
+use compensation::session::{
+    Action, CompensationSession, Measurement, SessionError, TargetOutcome,
+};
+use devices::Devices;
+use drivers::{Axis, AxisValues, Camera, DriverError, Stage};
+use job::Job;
+use std::time::Instant;
+use vision::localize::{localize, LocalizeError, LocalizeParams};
+
+/// Progress notifications; the runner's own report uses `Measured` to read the simulated
+/// truth at the moment of each measurement.
+#[derive(Debug)]
+pub enum Event<'a> {
+    Homed,
+    Measured {
+        target_index: usize,
+        measurement: &'a Measurement,
+    },
+    TargetDone {
+        outcome: &'a TargetOutcome,
+        of: usize,
+    },
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum JobError {
+    #[error("stage or camera: {0}")]
+    Driver(#[from] DriverError),
+    #[error("target #{index} ({:.3}, {:.3}) mm, measurement {measurement}: {source}; the stage was not moved on this frame", target_mm[0], target_mm[1])]
+    Localize {
+        index: usize,
+        target_mm: [f64; 2],
+        measurement: usize,
+        #[source]
+        source: LocalizeError,
+    },
+    #[error("target #{index} ({:.3}, {:.3}) mm: {source}", target_mm[0], target_mm[1])]
+    Correction {
+        index: usize,
+        target_mm: [f64; 2],
+        #[source]
+        source: CorrectionError,
+    },
+    #[error("the stage reports no {0} axis; the compensation pipeline needs X and Y")]
+    MissingAxis(Axis),
+    /// A bug in this crate: it performed an action the session did not ask for.
+    #[error("internal: {0}")]
+    Session(SessionError),
+}
+
+impl From<SessionError> for JobError {
+    fn from(e: SessionError) -> Self {
+        match e {
+            SessionError::Correction {
+                index,
+                target_mm,
+                source,
+            } => JobError::Correction {
+                index,
+                target_mm,
+                source,
+            },
+            other => JobError::Session(other),
+        }
+    }
+}
+
+/// A job stopped by an error, with every target finished before it.
+#[derive(Debug)]
+pub struct JobFailure {
+    pub completed: Vec<TargetOutcome>,
+    pub error: JobError,
+}
+
+pub struct Orchestrator<'a> {
+    pub stage: &'a mut dyn Stage,
+    pub camera: &'a mut dyn Camera,
+    pub job: &'a Job,
+}
+
+impl Orchestrator<'_> {
+    /// Soft limits of X and Y from the stage.
+    pub fn limits(&self) -> Result<SoftLimits, JobError> {
+        let info = self.stage.info();
+        let x = info.axis(Axis::X).ok_or(JobError::MissingAxis(Axis::X))?;
+        let y = info.axis(Axis::Y).ok_or(JobError::MissingAxis(Axis::Y))?;
+        Ok(SoftLimits {
+            min_mm: [x.min_mm, y.min_mm],
+            max_mm: [x.max_mm, y.max_mm],
+        })
+    }
+
+    /// Home, then compensate every target of the job in order.
+    pub async fn run(
+        &mut self,
+        on_event: &mut dyn FnMut(Event),
+    ) -> Result<Vec<TargetOutcome>, JobFailure> {
+        let limits = self.limits().map_err(|error| JobFailure {
+            completed: Vec::new(),
+            error,
+        })?;
+        let mut session =
+            CompensationSession::new(self.job.session_targets(), self.job.policy.clone(), limits);
+        match self.drive(&mut session, on_event).await {
+            Ok(()) => Ok(session.into_completed()),
+            Err(error) => {
+                // Leave the machine still and safe, then report.
+                let _ = self.stage.stop().await;
+                Err(JobFailure {
+                    completed: session.into_completed(),
+                    error,
+                })
+            }
+        }
+    }
+
+    async fn drive(
+        &mut self,
+        session: &mut CompensationSession,
+        on_event: &mut dyn FnMut(Event),
+    ) -> Result<(), JobError> {
+        let of = self.job.targets.len();
+        let mut action = session.next_action();
+        loop {
+            action = match action {
+                Action::Home => {
+                    self.stage.home().await?;
+                    self.stage.wait_idle().await?;
+                    on_event(Event::Homed);
+                    session.homed()?
+                }
+                Action::Position { positioning, .. } => {
+                    self.position(&positioning).await?;
+                    session.positioned()?
+                }
+                Action::Measure {
+                    target_index,
+                    target_mm,
+                    hint_mm,
+                    measurement,
+                } => {
+                    let frame = self.camera.grab().await?;
+                    let params = self.localize_params(hint_mm);
+                    let board = &self.job.board;
+                    let observation = drivers::blocking(|| localize(&frame.image, board, &params))
+                        .map_err(|source| JobError::Localize {
+                            index: target_index,
+                            target_mm,
+                            measurement,
+                            source,
+                        })?;
+                    let step = session.measured(observation, frame.meta.sequence)?;
+                    on_event(Event::Measured {
+                        target_index,
+                        measurement: &step.measurement,
+                    });
+                    if let Some(outcome) = &step.finished {
+                        on_event(Event::TargetDone { outcome, of });
+                    }
+                    step.next
+                }
+                Action::Finished => return Ok(()),
+            };
+        }
+    }
+
+    async fn position(&mut self, p: &Positioning) -> Result<(), JobError> {
+        let feed = self.job.feed_mm_min;
+        if let Some(a) = p.approach_from_mm {
+            // Wait at the approach point: not every controller queues moves, and the
+            // final move must start from this side for backlash to be taken up.
+            self.stage.move_to(AxisValues::xy(a[0], a[1]), feed).await?;
+            self.stage.wait_idle().await?;
+        }
+        self.stage
+            .move_to(AxisValues::xy(p.command_mm[0], p.command_mm[1]), feed)
+            .await?;
+        self.stage.wait_idle().await?;
+        Ok(())
+    }
+
+    fn localize_params(&self, hint_mm: [f64; 2]) -> LocalizeParams {
+        let mut p = LocalizeParams::with_settings(hint_mm, &self.job.localize);
+        p.pixel_axes = self.job.pixel_axes;
+        p.um_per_px = self.job.um_per_px;
+        p
+    }
+}
+
+/// Progress callback: (targets done, targets planned).
+pub type Progress<'a> = &'a mut dyn FnMut(usize, usize);
+
+/// Run a job on opened devices and build its report (also when it stopped early).
+pub async fn run_job(job: &Job, devices: &mut Devices, progress: Progress<'_>) -> Report {
+    let started = Instant::now();
+    let rig = devices.rig.clone();
+    // Truth error (um) at the first and latest measurement of each target.
+    let mut truth: Vec<Option<TruthAt>> = Vec::new();
+    let mut current: Option<(usize, TruthAt)> = None;
+    let mut on_event = |e: Event| match e {
+        Event::Measured { target_index, .. } => {
+            if let Some(rig) = &rig {
+                let pose = world::lock(rig).truth();
+                let t = job.targets[target_index];
+                let err = [
+                    (pose.centre_mm[0] - t[0]) * 1000.0,
+                    (pose.centre_mm[1] - t[1]) * 1000.0,
+                ];
+                match &mut current {
+                    Some((i, at)) if *i == target_index => at.after_um = err,
+                    _ => {
+                        current = Some((
+                            target_index,
+                            TruthAt {
+                                before_um: err,
+                                after_um: err,
+                            },
+                        ))
+                    }
+                }
+            }
+        }
+        Event::TargetDone { outcome, of } => {
+            truth.push(current.take().map(|(_, at)| at));
+            progress(outcome.index + 1, of);
+        }
+        Event::Homed => {}
+    };
+    let stage_name = devices.stage.info().name.clone();
+    let camera_name = devices.camera.info().model.clone();
+    let mut orch = Orchestrator {
+        stage: devices.stage.as_mut(),
+        camera: devices.camera.as_mut(),
+        job,
+    };
+    let result = orch.run(&mut on_event).await;
+    let (outcomes, error) = match result {
+        Ok(o) => (o, None),
+        Err(f) => (f.completed, Some(f.error.to_string())),
+    };
+    Report::build(
+        &job.source,
+        &stage_name,
+        &camera_name,
+        job.localize.method,
+        job.targets.len(),
+        &outcomes,
+        &truth,
+        started.elapsed().as_secs_f64(),
+        error,
+    )
+}
