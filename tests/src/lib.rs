@@ -1,6 +1,8 @@
 //! Helpers shared by the system tests in `tests/tests/` (interoperation tests that run
 //! the stand-alone `emulators` binary and independent peers as separate processes).
 
+pub mod netns;
+
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command};
 
