@@ -2,37 +2,9 @@
 
 use crate::error::DriverError;
 use async_trait::async_trait;
-use serde::{Deserialize, Serialize};
-use std::fmt;
+use serde::Serialize;
 
-/// Machine axes by their usual letters.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
-pub enum Axis {
-    X,
-    Y,
-    Z,
-    A,
-    B,
-    C,
-}
-
-impl Axis {
-    pub const ALL: [Axis; 6] = [Axis::X, Axis::Y, Axis::Z, Axis::A, Axis::B, Axis::C];
-
-    pub fn index(self) -> usize {
-        self as usize
-    }
-
-    pub fn letter(self) -> char {
-        ['X', 'Y', 'Z', 'A', 'B', 'C'][self.index()]
-    }
-}
-
-impl fmt::Display for Axis {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{}", self.letter())
-    }
-}
+pub use link_spec::Axis;
 
 /// A value per axis; axes not mentioned are `None` (a move leaves them where they are).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]

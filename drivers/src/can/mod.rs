@@ -38,23 +38,7 @@ pub trait CanBus: Send {
     fn stats(&self) -> BusStats;
 }
 
-/// Where a bus is.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub enum BusSpec {
-    /// An SLCAN (Lawicel) adapter on a serial port, at a CAN bitrate (bits/s).
-    Slcan { port: String, bitrate: u32 },
-    /// A SocketCAN interface (`can0`, `vcan0`), already configured and up.
-    SocketCan { interface: String },
-}
-
-impl std::fmt::Display for BusSpec {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            BusSpec::Slcan { port, bitrate } => write!(f, "slcan {port} @ {bitrate} bit/s"),
-            BusSpec::SocketCan { interface } => write!(f, "socketcan {interface}"),
-        }
-    }
-}
+pub use link_spec::can::BusSpec;
 
 /// Open a bus (inside a tokio runtime).
 pub async fn open_bus(spec: &BusSpec) -> Result<Box<dyn CanBus>, DriverError> {

@@ -16,6 +16,7 @@ mod link;
 mod stream;
 
 pub use link::Transport;
+pub use link_spec::grbl::GrblOptions;
 pub use stream::{StreamError, StreamOptions, StreamReport};
 
 #[cfg(test)]
@@ -34,33 +35,6 @@ use protocol::grbl::stream::DEFAULT_RX_BUFFER;
 use protocol::grbl::{alarm_text, error_text, Realtime, PLANNER_BLOCKS};
 use std::time::Duration;
 use tokio::time::Instant;
-
-/// Timeouts and formats of the driver.
-#[derive(Clone, Debug)]
-pub struct GrblOptions {
-    /// Whole connect handshake (`$I`, `$$`, first status).
-    pub connect_timeout: Duration,
-    /// One send-response command or status request.
-    pub command_timeout: Duration,
-    /// Homing, waiting for motion to end, and no progress at all while streaming.
-    pub motion_timeout: Duration,
-    /// Status polling period while waiting for motion.
-    pub poll_interval: Duration,
-    /// Decimals of coordinates sent in moves.
-    pub decimals: usize,
-}
-
-impl Default for GrblOptions {
-    fn default() -> Self {
-        Self {
-            connect_timeout: Duration::from_secs(5),
-            command_timeout: Duration::from_secs(2),
-            motion_timeout: Duration::from_secs(120),
-            poll_interval: Duration::from_millis(20),
-            decimals: 4,
-        }
-    }
-}
 
 /// What `$I` told.
 #[derive(Clone, Debug, Default, PartialEq)]

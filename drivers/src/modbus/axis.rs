@@ -3,24 +3,12 @@
 use super::bus::{exception_error, Failure, Op, SharedBus};
 use crate::error::DriverError;
 use crate::multi_axis::{AxisDrive, AxisStatus};
-use crate::stage::{Axis, AxisInfo};
+use crate::stage::AxisInfo;
 use async_trait::async_trait;
+pub use link_spec::modbus::ModbusAxisConfig;
 use protocol::modbus::profile::{Command, DriveProfile, DriveStatus, Register, Table};
 use std::sync::Arc;
 use tokio::time::Instant;
-
-/// Which axis a unit drives and its limits.
-#[derive(Clone, Debug, PartialEq)]
-pub struct ModbusAxisConfig {
-    pub axis: Axis,
-    /// Unit (slave) id, 1..=247.
-    pub unit: u8,
-    /// Soft limits, mm (machine coordinates).
-    pub min_mm: f64,
-    pub max_mm: f64,
-    /// Defaults to the profile's `max_speed_mm_min`.
-    pub max_feed_mm_min: Option<f64>,
-}
 
 /// How the moves of an axis went, for tests and diagnostics.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]

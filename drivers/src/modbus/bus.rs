@@ -19,10 +19,10 @@
 //! a move trigger is not, and [`super::ModbusAxis`] never retries one blindly.
 
 use crate::error::DriverError;
+pub use link_spec::modbus::{Endpoint, ModbusOptions, Parity};
 use protocol::modbus::frame::{rtu_crc_ok, rtu_response_len, Exception, FrameLen};
 use std::fmt;
 use std::io;
-use std::net::SocketAddr;
 use std::pin::Pin;
 use std::sync::{Arc, Mutex};
 use std::task::{Context as TaskContext, Poll};
@@ -32,69 +32,6 @@ use tokio::time::Instant;
 use tokio_modbus::client::{Client, Context};
 use tokio_modbus::prelude::{Request, Response, SlaveContext};
 use tokio_modbus::Slave;
-
-/// Serial parity (Modbus RTU's default is even; many drives are set to none).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Parity {
-    None,
-    Even,
-    Odd,
-}
-
-/// Where the drives are.
-#[derive(Clone, Debug, PartialEq)]
-pub enum Endpoint {
-    Tcp(SocketAddr),
-    Rtu {
-        path: String,
-        baud: u32,
-        parity: Parity,
-    },
-}
-
-impl fmt::Display for Endpoint {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Endpoint::Tcp(a) => write!(f, "Modbus TCP {a}"),
-            Endpoint::Rtu { path, baud, .. } => write!(f, "Modbus RTU {path} @{baud}"),
-        }
-    }
-}
-
-/// Deadlines and bounds.
-#[derive(Clone, Debug)]
-pub struct ModbusOptions {
-    /// One request, from sending to the complete reply.
-    pub timeout: Duration,
-    /// Further attempts after a lost or garbled reply (exceptions are not retried).
-    pub retries: u32,
-    /// Opening the socket or the port.
-    pub connect_timeout: Duration,
-    /// Homing, and waiting for a move to end.
-    pub motion_timeout: Duration,
-    /// Status polling period while waiting for motion.
-    pub poll_interval: Duration,
-    /// RTU silent interval between frames; `None`: 3.5 characters at the baud rate
-    /// (1.75 ms above 19200 baud), as the serial-line specification says.
-    pub rtu_gap: Option<Duration>,
-    /// RTU, after a failure: discard input until the line is quiet this long; `None`:
-    /// the request timeout.
-    pub rtu_quiet: Option<Duration>,
-}
-
-impl Default for ModbusOptions {
-    fn default() -> Self {
-        Self {
-            timeout: Duration::from_millis(500),
-            retries: 2,
-            connect_timeout: Duration::from_secs(3),
-            motion_timeout: Duration::from_secs(120),
-            poll_interval: Duration::from_millis(10),
-            rtu_gap: None,
-            rtu_quiet: None,
-        }
-    }
-}
 
 /// One request.
 #[derive(Clone, Debug)]
