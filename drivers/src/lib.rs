@@ -15,6 +15,7 @@ pub mod camera;
 pub mod can;
 pub mod canopen;
 pub mod error;
+mod factory;
 pub mod gige;
 pub mod grbl;
 #[cfg(feature = "modbus")]
@@ -26,8 +27,12 @@ pub mod stage;
 
 pub use camera::{Camera, CameraInfo, Frame, FrameMeta};
 pub use error::DriverError;
+pub use factory::{open_camera, open_stage};
+pub use link_spec::{CameraLink, StageLink};
 pub use multi_axis::{AxisDrive, AxisStatus, MultiAxisStage};
-pub use stage::{Axis, AxisInfo, AxisValues, Stage, StageInfo, StageState, StageStatus};
+pub use stage::{
+    Axis, AxisInfo, AxisValues, Capabilities, Stage, StageInfo, StageState, StageStatus,
+};
 
 /// Run CPU-heavy work (rendering, localization: milliseconds) from async code without
 /// stalling the other tasks of the runtime, such as a CAN bus task supervising

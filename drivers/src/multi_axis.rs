@@ -2,7 +2,9 @@
 //! one [`Stage`].
 
 use crate::error::DriverError;
-use crate::stage::{Axis, AxisInfo, AxisValues, Stage, StageInfo, StageState, StageStatus};
+use crate::stage::{
+    Axis, AxisInfo, AxisValues, Capabilities, Stage, StageInfo, StageState, StageStatus,
+};
 use async_trait::async_trait;
 
 #[derive(Clone, Debug, PartialEq)]
@@ -67,6 +69,15 @@ impl MultiAxisStage {
 impl Stage for MultiAxisStage {
     fn info(&self) -> &StageInfo {
         &self.info
+    }
+
+    /// Positioning drives take one target at a time: no program, no table, no probing;
+    /// any A, B or C drive is a rotary axis.
+    fn capabilities(&self) -> Capabilities {
+        Capabilities {
+            rotary_axes: Capabilities::rotary_among(self.info.axes.iter().map(|a| a.axis)),
+            ..Capabilities::default()
+        }
     }
 
     async fn home(&mut self) -> Result<(), DriverError> {

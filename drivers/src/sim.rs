@@ -4,7 +4,9 @@
 
 use crate::camera::{Camera, CameraInfo, Frame, FrameMeta};
 use crate::error::DriverError;
-use crate::stage::{Axis, AxisInfo, AxisValues, Stage, StageInfo, StageState, StageStatus};
+use crate::stage::{
+    Axis, AxisInfo, AxisValues, Capabilities, Stage, StageInfo, StageState, StageStatus,
+};
 use async_trait::async_trait;
 use world::machine::MachineRefusal;
 use world::{lock, SharedRig};
@@ -56,6 +58,11 @@ fn refusal(e: MachineRefusal) -> DriverError {
 impl Stage for SimStage {
     fn info(&self) -> &StageInfo {
         &self.info
+    }
+
+    /// Point-to-point moves of X and Y only.
+    fn capabilities(&self) -> Capabilities {
+        Capabilities::default()
     }
 
     async fn home(&mut self) -> Result<(), DriverError> {

@@ -2,6 +2,7 @@
 
 use crate::error::DriverError;
 use async_trait::async_trait;
+pub use link_spec::Capabilities;
 use serde::Serialize;
 
 pub use link_spec::Axis;
@@ -119,6 +120,8 @@ pub struct StageStatus {
 #[async_trait]
 pub trait Stage: Send {
     fn info(&self) -> &StageInfo;
+    /// What the controller can do beyond point-to-point moves.
+    fn capabilities(&self) -> Capabilities;
     async fn home(&mut self) -> Result<(), DriverError>;
     async fn move_to(&mut self, target: AxisValues, feed_mm_min: f64) -> Result<(), DriverError>;
     /// Relative move: the default reads the controller position and moves to the sum.

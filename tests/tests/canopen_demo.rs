@@ -22,6 +22,10 @@ fn demo_over_canopen_compensates_to_within_a_micrometre() {
         let name = devices.stage.info().name.clone();
         assert!(name.starts_with("CANopen CiA 402 on slcan /dev/"), "{name}");
         assert!(name.ends_with("X = node 1, Y = node 2"), "{name}");
+        // Positioning drives: one target at a time, no program to stream.
+        let caps = devices.stage.capabilities();
+        assert!(!caps.program_streaming && !caps.probing, "{caps:?}");
+        assert!(caps.rotary_axes.is_empty(), "{caps:?}");
         run_job(&job, &mut devices, &mut |_, _| {}).await
     });
     assert_demo_figure(&report, 20.0);

@@ -97,6 +97,9 @@ impl Stage for Recording {
     fn info(&self) -> &StageInfo {
         self.inner.info()
     }
+    fn capabilities(&self) -> drivers::Capabilities {
+        self.inner.capabilities()
+    }
     async fn home(&mut self) -> Result<(), DriverError> {
         self.inner.home().await
     }

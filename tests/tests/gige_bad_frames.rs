@@ -24,6 +24,9 @@ impl Stage for LoggedStage {
     fn info(&self) -> &StageInfo {
         self.0.info()
     }
+    fn capabilities(&self) -> drivers::Capabilities {
+        self.0.capabilities()
+    }
     async fn home(&mut self) -> Result<(), DriverError> {
         self.1.lock().unwrap().push("home".into());
         self.0.home().await

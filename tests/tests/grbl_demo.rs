@@ -4,7 +4,7 @@
 
 use devices::open_devices_async;
 use job::demo::over_grbl;
-use job::{Job, StageSpec};
+use job::{GrblLink, Job, StageSpec};
 use runner::run_job;
 use system_tests::{assert_demo_figure, runtime};
 
@@ -16,7 +16,7 @@ fn demo_over_grbl_compensates_to_within_a_micrometre_like_the_in_process_demo() 
     assert!(matches!(
         job.stage,
         StageSpec::Grbl {
-            emulate: Some(_),
+            link: GrblLink::Emulate(_),
             ..
         }
     ));
@@ -26,6 +26,13 @@ fn demo_over_grbl_compensates_to_within_a_micrometre_like_the_in_process_demo() 
             devices.stage.info().name.contains("GRBL 1.1h"),
             "{}",
             devices.stage.info().name
+        );
+        // GRBL runs streamed programs and probes; it drives no rotary axis.
+        let caps = devices.stage.capabilities();
+        assert!(caps.program_streaming && caps.probing, "{caps:?}");
+        assert!(
+            !caps.table_upload && caps.rotary_axes.is_empty(),
+            "{caps:?}"
         );
         run_job(&job, &mut devices, &mut |_, _| {}).await
     });
@@ -39,17 +46,15 @@ fn grbl_stage_config_needs_a_port_or_an_emulated_machine() {
     assert!(matches!(
         job.stage,
         StageSpec::Grbl {
-            emulate: Some(_),
-            port: None,
+            link: GrblLink::Emulate(_),
             baud: 115_200
         }
     ));
     // A real port with the simulated camera is refused when opened, clearly.
     let mut real = job.clone();
     real.stage = StageSpec::Grbl {
-        port: Some("/dev/ttyUSB0".into()),
+        link: GrblLink::Port("/dev/ttyUSB0".into()),
         baud: 115_200,
-        emulate: None,
     };
     let e = runtime().block_on(open_devices_async(&real)).err().unwrap();
     assert!(e.to_string().contains("simulated camera"), "{e}");

@@ -21,6 +21,11 @@ impl Axis {
         self as usize
     }
 
+    /// A, B and C turn (degrees); X, Y and Z translate (mm).
+    pub fn is_rotary(self) -> bool {
+        matches!(self, Axis::A | Axis::B | Axis::C)
+    }
+
     pub fn letter(self) -> char {
         ['X', 'Y', 'Z', 'A', 'B', 'C'][self.index()]
     }

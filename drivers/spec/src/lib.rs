@@ -8,8 +8,12 @@
 pub mod axis;
 pub mod can;
 pub mod canopen;
+pub mod capabilities;
 pub mod gige;
 pub mod grbl;
+pub mod link;
 pub mod modbus;
 
 pub use axis::Axis;
+pub use capabilities::Capabilities;
+pub use link::{CameraLink, StageLink};

@@ -23,7 +23,9 @@ pub use stream::{StreamError, StreamOptions, StreamReport};
 mod tests;
 
 use crate::error::DriverError;
-use crate::stage::{Axis, AxisInfo, AxisValues, Stage, StageInfo, StageState, StageStatus};
+use crate::stage::{
+    Axis, AxisInfo, AxisValues, Capabilities, Stage, StageInfo, StageState, StageStatus,
+};
 use async_trait::async_trait;
 use link::Link;
 use protocol::grbl::command::Command;
@@ -559,6 +561,17 @@ fn open_port(path: &str, baud: u32) -> Result<Box<dyn Transport>, DriverError> {
 impl Stage for GrblStage {
     fn info(&self) -> &StageInfo {
         &self.info
+    }
+
+    /// GRBL 1.1 runs streamed programs (character counting, see [`GrblStage::stream_program`])
+    /// with G38.2-G38.5 probing; it has no compensation table and drives X, Y and Z only.
+    fn capabilities(&self) -> Capabilities {
+        Capabilities {
+            program_streaming: true,
+            table_upload: false,
+            probing: true,
+            rotary_axes: Vec::new(),
+        }
     }
 
     /// `$H` (needs `$22=1`; GRBL answers `error:5` otherwise). Clears a critical

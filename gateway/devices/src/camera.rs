@@ -6,9 +6,9 @@
 
 use crate::OpenError;
 use async_trait::async_trait;
-use drivers::gige::{GigeCamera, GigeOptions};
+use drivers::gige::GigeOptions;
 use drivers::sim::SimCamera;
-use drivers::{Camera, CameraInfo, DriverError, Frame, FrameMeta};
+use drivers::{Camera, CameraInfo, CameraLink, DriverError, Frame, FrameMeta};
 use emulators::gige::{GigeCameraServer, GigeServerOptions};
 use job::CameraSpec;
 use std::path::{Path, PathBuf};
@@ -22,21 +22,24 @@ pub async fn open_camera(
     rig: Option<&SharedRig>,
 ) -> Result<Box<dyn Camera>, OpenError> {
     spec.check_pairing(rig.is_some())?;
-    let gige_options = |packet_size: u32| GigeOptions {
-        packet_size,
-        ..Default::default()
+    let gige = |device: String, packet_size: u32| CameraLink::Gige {
+        device,
+        options: GigeOptions {
+            packet_size,
+            ..Default::default()
+        },
     };
     Ok(match (spec, rig) {
         (CameraSpec::Sim { .. }, Some(rig)) => Box::new(SimCamera::new(rig.clone())),
         (CameraSpec::EmulatedGige { packet_size, .. }, Some(rig)) => {
             let server = GigeCameraServer::spawn(rig.clone(), GigeServerOptions::default())
                 .await
-                .map_err(|e| DriverError::Transport {
-                    device: "GigE Vision emulator".into(),
+                .map_err(|e| OpenError::Emulator {
+                    what: "GigE Vision emulator",
                     message: format!("cannot bind a loopback UDP port: {e}"),
                 })?;
-            let camera =
-                GigeCamera::open_addr(server.control_addr(), gige_options(*packet_size)).await?;
+            let link = gige(server.control_addr().to_string(), *packet_size);
+            let camera = drivers::open_camera(&link).await?;
             Box::new(EmulatedGige {
                 camera,
                 _server: server,
@@ -48,7 +51,7 @@ pub async fn open_camera(
                 packet_size,
             },
             None,
-        ) => Box::new(GigeCamera::open(device, gige_options(*packet_size)).await?),
+        ) => drivers::open_camera(&gige(device.clone(), *packet_size)).await?,
         (CameraSpec::Replay { folder }, _) => Box::new(ReplayCamera::open(folder)?),
         // The pairings `check_pairing` refuses.
         (CameraSpec::Sim { .. } | CameraSpec::EmulatedGige { .. } | CameraSpec::Gige { .. }, _) => {
@@ -59,7 +62,7 @@ pub async fn open_camera(
 
 /// The GigE driver connected to the in-process emulator, which lives as long as it.
 pub struct EmulatedGige {
-    camera: GigeCamera,
+    camera: Box<dyn Camera>,
     _server: GigeCameraServer,
 }
 

@@ -1,22 +1,30 @@
 //! Opening a `canopen` stage: the nodes on a real bus, or the CiA 402 drive emulator
 //! behind an SLCAN adapter on a pseudo-terminal driving a new simulated machine.
 
-use crate::{new_rig, EmulatedStage, OpenedStage};
-use drivers::can::{open_bus, BusSpec};
-use drivers::canopen::open_stage;
-use drivers::{Axis, DriverError};
+use crate::{new_rig, EmulatedStage, OpenError, OpenedStage};
+use drivers::can::BusSpec;
+use drivers::{Axis, StageLink};
 use emulators::canopen::{DriveSet, DriveSetConfig, SlcanPty, DRIVE_EDS, DRIVE_EDS_NAME};
 use job::canopen::{CanopenLink, CanopenStageSpec};
 use job::Job;
 use std::sync::{Arc, Mutex};
 use world::Clock;
 
+fn link(spec: &CanopenStageSpec, bus: BusSpec) -> StageLink {
+    StageLink::Canopen {
+        bus,
+        options: spec.options.clone(),
+        axes: spec.axes.clone(),
+    }
+}
+
 /// Open a job's `canopen` stage: the nodes on a real bus, or the drive emulator on an
 /// SLCAN pseudo-terminal driving a new simulated machine (returned as the rig). Must
 /// run inside the tokio runtime that will run the job (the bus task and the emulator
 /// are tasks of that runtime).
-pub(crate) async fn open(job: &Job, spec: &CanopenStageSpec) -> Result<OpenedStage, DriverError> {
+pub(crate) async fn open(job: &Job, spec: &CanopenStageSpec) -> Result<OpenedStage, OpenError> {
     match &spec.link {
+        CanopenLink::Bus(bus) => Ok((drivers::open_stage(&link(spec, bus.clone())).await?, None)),
         CanopenLink::Emulate { machine, eds } => {
             let rig = new_rig(job, machine);
             let nodes = spec
@@ -32,29 +40,20 @@ pub(crate) async fn open(job: &Job, spec: &CanopenStageSpec) -> Result<OpenedSta
                     .clone()
                     .unwrap_or_else(|| (DRIVE_EDS_NAME.to_string(), DRIVE_EDS.to_string())),
             };
+            let emulator_error = |message: String| OpenError::Emulator {
+                what: "CiA 402 drive emulator",
+                message,
+            };
             let set =
-                DriveSet::new(rig.clone(), &cfg, 0.0).map_err(|e| DriverError::Unsupported {
-                    device: "CiA 402 drive emulator".into(),
-                    message: e.to_string(),
-                })?;
-            let emulator = SlcanPty::spawn(Arc::new(Mutex::new(set)), None).map_err(|e| {
-                DriverError::Transport {
-                    device: "CiA 402 drive emulator".into(),
-                    message: format!("cannot create a pseudo-terminal: {e}"),
-                }
-            })?;
-            let bus = open_bus(&BusSpec::Slcan {
+                DriveSet::new(rig.clone(), &cfg, 0.0).map_err(|e| emulator_error(e.to_string()))?;
+            let emulator = SlcanPty::spawn(Arc::new(Mutex::new(set)), None)
+                .map_err(|e| emulator_error(format!("cannot create a pseudo-terminal: {e}")))?;
+            let bus = BusSpec::Slcan {
                 port: emulator.path().to_string(),
                 bitrate: 1_000_000,
-            })
-            .await?;
-            let (stage, _net) = open_stage(bus, spec.axes.clone(), spec.options.clone()).await?;
+            };
+            let stage = drivers::open_stage(&link(spec, bus)).await?;
             Ok((Box::new(EmulatedStage::new(stage, emulator)), Some(rig)))
-        }
-        CanopenLink::Bus(bus) => {
-            let bus = open_bus(bus).await?;
-            let (stage, _net) = open_stage(bus, spec.axes.clone(), spec.options.clone()).await?;
-            Ok((Box::new(stage), None))
         }
     }
 }

@@ -1,27 +1,29 @@
 //! Opening a `grbl` stage: the controller on its serial port, or the GRBL emulator on a
 //! pseudo-terminal driving a new simulated machine.
 
-use crate::{new_rig, EmulatedStage, OpenedStage};
-use drivers::grbl::{GrblOptions, GrblStage};
-use drivers::DriverError;
+use crate::{new_rig, EmulatedStage, OpenError, OpenedStage};
+use drivers::grbl::GrblOptions;
+use drivers::StageLink;
 use emulators::grbl::{GrblConfig, GrblDevice, GrblPty};
-use job::Job;
+use job::{GrblLink, Job};
 use std::time::Duration;
-use world::machine::MachineConfig;
 use world::Clock;
 
 /// Open a job's `grbl` stage: the controller on its serial port, or the emulator on a
 /// pseudo-terminal driving a new simulated machine (returned as the rig). Must run
 /// inside the tokio runtime that will run the job (the emulator serves its
 /// pseudo-terminal from a task of that runtime).
-pub(crate) async fn open(
-    job: &Job,
-    port: Option<&str>,
-    baud: u32,
-    emulate: Option<&MachineConfig>,
-) -> Result<OpenedStage, DriverError> {
-    match (emulate, port) {
-        (Some(machine), _) => {
+pub(crate) async fn open(job: &Job, link: &GrblLink, baud: u32) -> Result<OpenedStage, OpenError> {
+    match link {
+        GrblLink::Port(port) => {
+            let link = StageLink::Grbl {
+                port: port.clone(),
+                baud,
+                options: GrblOptions::default(),
+            };
+            Ok((drivers::open_stage(&link).await?, None))
+        }
+        GrblLink::Emulate(machine) => {
             let rig = new_rig(job, machine);
             // The motion clock is unconstrained: moves end as soon as the driver polls.
             let dev = GrblDevice::new(
@@ -31,24 +33,20 @@ pub(crate) async fn open(
                     ..Default::default()
                 },
             );
-            let emulator = GrblPty::spawn(dev, None).map_err(|e| DriverError::Transport {
-                device: "GRBL emulator".into(),
+            let emulator = GrblPty::spawn(dev, None).map_err(|e| OpenError::Emulator {
+                what: "GRBL emulator",
                 message: format!("cannot create a pseudo-terminal: {e}"),
             })?;
-            let opts = GrblOptions {
-                poll_interval: Duration::from_millis(1),
-                ..Default::default()
+            let link = StageLink::Grbl {
+                port: emulator.path().to_string(),
+                baud,
+                options: GrblOptions {
+                    poll_interval: Duration::from_millis(1),
+                    ..Default::default()
+                },
             };
-            let stage = GrblStage::open(emulator.path(), baud, opts).await?;
+            let stage = drivers::open_stage(&link).await?;
             Ok((Box::new(EmulatedStage::new(stage, emulator)), Some(rig)))
         }
-        (None, Some(port)) => {
-            let stage = GrblStage::open(port, baud, GrblOptions::default()).await?;
-            Ok((Box::new(stage), None))
-        }
-        (None, None) => Err(DriverError::Unsupported {
-            device: "grbl stage".into(),
-            message: "needs `port` (a serial port) or `emulate` (a machine file)".into(),
-        }),
     }
 }

@@ -15,7 +15,7 @@ pub use camera::{open_camera, EmulatedGige, ReplayCamera};
 
 use async_trait::async_trait;
 use drivers::sim::{SimCamera, SimStage};
-use drivers::{AxisValues, Camera, DriverError, Stage, StageInfo, StageStatus};
+use drivers::{AxisValues, Camera, Capabilities, DriverError, Stage, StageInfo, StageStatus};
 use job::{CameraSpec, Job, PairingError, StageSpec};
 use protocol::config::ConfigDoc;
 use std::any::Any;
@@ -33,6 +33,10 @@ pub enum OpenError {
     /// A device, its link or an in-process emulator failed.
     #[error(transparent)]
     Driver(#[from] DriverError),
+    /// An emulator this process was to run could not start (no pseudo-terminal, no
+    /// loopback port, a drive description it cannot serve).
+    #[error("cannot start the {what}: {message}")]
+    Emulator { what: &'static str, message: String },
     /// [`open_devices`] was asked for links that open inside an async runtime.
     #[error("this job's stage or camera connects over a link (serial, CAN, Modbus, GigE Vision), which is opened inside the async runtime: use devices::open_devices_async")]
     NeedsRuntime,
@@ -54,9 +58,9 @@ pub struct EmulatedStage {
 }
 
 impl EmulatedStage {
-    pub fn new(stage: impl Stage + 'static, emulator: impl Any + Send) -> Self {
+    pub fn new(stage: Box<dyn Stage>, emulator: impl Any + Send) -> Self {
         Self {
-            stage: Box::new(stage),
+            stage,
             _emulator: Box::new(emulator),
         }
     }
@@ -66,6 +70,9 @@ impl EmulatedStage {
 impl Stage for EmulatedStage {
     fn info(&self) -> &StageInfo {
         self.stage.info()
+    }
+    fn capabilities(&self) -> Capabilities {
+        self.stage.capabilities()
     }
     async fn home(&mut self) -> Result<(), DriverError> {
         self.stage.home().await
@@ -139,11 +146,7 @@ pub async fn open_devices_async(job: &Job) -> Result<Devices, OpenError> {
             let rig = new_rig(job, machine);
             (Box::new(SimStage::new(rig.clone())), Some(rig))
         }
-        StageSpec::Grbl {
-            port,
-            baud,
-            emulate,
-        } => grbl::open(job, port.as_deref(), *baud, emulate.as_ref()).await?,
+        StageSpec::Grbl { link, baud } => grbl::open(job, link, *baud).await?,
         StageSpec::Modbus(spec) => modbus::open(job, spec).await?,
         StageSpec::Canopen(spec) => canopen::open(job, spec).await?,
     };

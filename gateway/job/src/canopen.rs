@@ -20,9 +20,9 @@
 //! ]                                   # + max_feed_mm_min (6000), accel_mm_s2 (800)
 //! ```
 
-use drivers::can::BusSpec;
-use drivers::canopen::{AxisConfig, CanopenOptions};
-use drivers::Axis;
+use link_spec::can::BusSpec;
+use link_spec::canopen::{check_drive_eds, AxisConfig, CanopenOptions};
+use link_spec::Axis;
 use protocol::canopen::od::ObjectDictionary;
 use protocol::canopen::NodeId;
 use protocol::config::{ConfigDoc, ConfigError};
@@ -104,36 +104,6 @@ pub struct CanopenStageSpec {
     pub options: CanopenOptions,
 }
 
-/// Objects the driver reads, writes or maps: an EDS without them describes a drive
-/// this driver cannot run.
-const REQUIRED: [(u16, &str, bool); 10] = [
-    (0x1000, "device type", false),
-    (0x1017, "producer heartbeat time", false),
-    (0x6040, "controlword", true),
-    (0x6041, "statusword", true),
-    (0x6060, "modes of operation", false),
-    (0x6061, "modes of operation display", true),
-    (0x6064, "position actual value", true),
-    (0x607A, "target position", true),
-    (0x6081, "profile velocity", true),
-    (0x6098, "homing method", false),
-];
-
-fn check_eds(od: &ObjectDictionary) -> Result<(), String> {
-    for (index, name, mapped) in REQUIRED {
-        let v = od
-            .variable(index, 0)
-            .map_err(|_| format!("{}: no object 0x{index:04X} ({name})", od.source))?;
-        if mapped && !v.pdo_mappable {
-            return Err(format!(
-                "{}: 0x{index:04X} ({name}) is not PDO-mappable",
-                od.source
-            ));
-        }
-    }
-    Ok(())
-}
-
 /// Check a `[stage]` of driver `canopen` (errors name the job file, line and key).
 pub fn resolve(doc: &ConfigDoc, raw: RawCanopenStage) -> Result<CanopenStageSpec, ConfigError> {
     let given = [
@@ -180,7 +150,7 @@ pub fn resolve(doc: &ConfigDoc, raw: RawCanopenStage) -> Result<CanopenStageSpec
         let node = NodeId::new(raw.axes.first().map_or(1, |a| a.node))
             .unwrap_or(NodeId::new(1).expect("1 is a node id"));
         let od = ObjectDictionary::from_eds(name, text, node)?;
-        check_eds(&od).map_err(|m| doc.invalid("stage.eds", m))?;
+        check_drive_eds(&od).map_err(|m| doc.invalid("stage.eds", m))?;
     }
     let mut axes: Vec<AxisConfig> = Vec::new();
     for (i, a) in raw.axes.iter().enumerate() {

@@ -6,10 +6,10 @@ use crate::canopen::{default_heartbeat, default_homing, default_sdo_timeout, opt
 use crate::canopen::{CanopenLink, CanopenStageSpec};
 use crate::modbus::{check_emulated, default_retries, default_timeout_ms, GENERIC_PROFILE};
 use crate::modbus::{ModbusLink, ModbusStageSpec};
-use crate::{CameraSpec, Job, StageSpec};
-use drivers::canopen::AxisConfig;
-use drivers::modbus::ModbusAxisConfig;
-use drivers::Axis;
+use crate::{CameraSpec, GrblLink, Job, StageSpec};
+use link_spec::canopen::AxisConfig;
+use link_spec::modbus::ModbusAxisConfig;
+use link_spec::Axis;
 use protocol::config::{ConfigDoc, ConfigError};
 use protocol::modbus::DriveProfile;
 use std::path::Path;
@@ -34,9 +34,8 @@ pub fn over_grbl(job: &mut Job) -> Result<(), DemoError> {
     match &job.stage {
         StageSpec::Sim { machine } => {
             job.stage = StageSpec::Grbl {
-                port: None,
+                link: GrblLink::Emulate(machine.clone()),
                 baud: 115_200,
-                emulate: Some(machine.clone()),
             };
             Ok(())
         }

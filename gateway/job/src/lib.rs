@@ -146,16 +146,26 @@ pub enum StageSpec {
     Sim {
         machine: MachineConfig,
     },
-    /// GRBL over serial: a real port, or the emulator on a pseudo-terminal (`emulate`).
+    /// GRBL over serial: a real port, or the emulator on a pseudo-terminal.
     Grbl {
-        port: Option<String>,
+        link: GrblLink,
         baud: u32,
-        emulate: Option<MachineConfig>,
     },
     /// Modbus drives (TCP, RTU, or the emulator), register maps from a drive profile.
     Modbus(crate::modbus::ModbusStageSpec),
     /// CANopen CiA 402 drives (SLCAN, SocketCAN, or the emulator on an SLCAN pty).
     Canopen(crate::canopen::CanopenStageSpec),
+}
+
+/// Where a GRBL controller is.
+#[derive(Clone, Debug)]
+// Built once per job; boxing the machine would only add noise at every use.
+#[allow(clippy::large_enum_variant)]
+pub enum GrblLink {
+    /// A serial port (`/dev/ttyUSB0`, `/dev/ttyACM0`).
+    Port(String),
+    /// The GRBL emulator on a pseudo-terminal, driving this simulated machine.
+    Emulate(MachineConfig),
 }
 
 impl StageSpec {
@@ -164,7 +174,7 @@ impl StageSpec {
     pub fn is_simulated(&self) -> bool {
         match self {
             StageSpec::Sim { .. } => true,
-            StageSpec::Grbl { emulate, .. } => emulate.is_some(),
+            StageSpec::Grbl { link, .. } => matches!(link, GrblLink::Emulate(_)),
             StageSpec::Modbus(spec) => {
                 matches!(spec.link, crate::modbus::ModbusLink::Emulate { .. })
             }
@@ -229,17 +239,14 @@ impl Job {
                 if baud == 0 {
                     return Err(doc.invalid("stage.baud", "must be a positive baud rate"));
                 }
-                let emulate = match emulate {
-                    Some(rel) => Some(MachineConfig::from_doc(
+                let link = match (port, emulate) {
+                    (Some(port), _) => GrblLink::Port(port),
+                    (None, Some(rel)) => GrblLink::Emulate(MachineConfig::from_doc(
                         &doc.read_relative("stage.emulate", &rel)?,
                     )?),
-                    None => None,
+                    (None, None) => unreachable!("checked above"),
                 };
-                StageSpec::Grbl {
-                    port,
-                    baud,
-                    emulate,
-                }
+                StageSpec::Grbl { link, baud }
             }
             RawStage::Modbus(raw) => StageSpec::Modbus(crate::modbus::resolve(doc, raw)?),
             RawStage::Canopen(raw) => StageSpec::Canopen(crate::canopen::resolve(doc, raw)?),

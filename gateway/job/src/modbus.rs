@@ -17,8 +17,8 @@
 //! timeout_ms = 500                    # per request; retries = 2
 //! ```
 
-use drivers::modbus::{ModbusAxisConfig, ModbusOptions, Parity};
-use drivers::Axis;
+use link_spec::modbus::{ModbusAxisConfig, ModbusOptions, Parity};
+use link_spec::Axis;
 use protocol::config::{ConfigDoc, ConfigError};
 use protocol::modbus::DriveProfile;
 use serde::Deserialize;
