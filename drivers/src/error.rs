@@ -2,7 +2,7 @@
 //! alarm, an SDO abort, a Modbus exception) are kept apart from transport failures, so
 //! callers can tell "the device said no" from "the link is broken".
 
-use crate::stage::Axis;
+use link_spec::Axis;
 
 #[derive(Debug, thiserror::Error)]
 pub enum DriverError {

@@ -3,6 +3,7 @@
 //! SocketCAN interface ([`socketcan::SocketCanBus`], cargo feature `socketcan`, Linux
 //! only). Protocols above (CANopen) see frames only, never the adapter.
 
+mod open;
 #[cfg(feature = "serial")]
 pub mod slcan;
 #[cfg(all(target_os = "linux", feature = "socketcan"))]
@@ -39,36 +40,4 @@ pub trait CanBus: Send {
 }
 
 pub use link_spec::can::BusSpec;
-
-/// Open a bus (inside a tokio runtime).
-pub async fn open_bus(spec: &BusSpec) -> Result<Box<dyn CanBus>, DriverError> {
-    match spec {
-        #[cfg(feature = "serial")]
-        BusSpec::Slcan { port, bitrate } => {
-            Ok(Box::new(slcan::SlcanBus::open(port, *bitrate).await?))
-        }
-        #[cfg(not(feature = "serial"))]
-        BusSpec::Slcan { .. } => Err(DriverError::NotAvailable {
-            backend: "slcan".into(),
-            reason: "this build has no serial port support (cargo feature `serial`)".into(),
-        }),
-        BusSpec::SocketCan { interface } => open_socketcan(interface),
-    }
-}
-
-#[cfg(all(target_os = "linux", feature = "socketcan"))]
-fn open_socketcan(interface: &str) -> Result<Box<dyn CanBus>, DriverError> {
-    Ok(Box::new(socketcan::SocketCanBus::open(interface)?))
-}
-
-#[cfg(not(all(target_os = "linux", feature = "socketcan")))]
-fn open_socketcan(interface: &str) -> Result<Box<dyn CanBus>, DriverError> {
-    Err(DriverError::NotAvailable {
-        backend: format!("socketcan {interface}"),
-        reason: if cfg!(target_os = "linux") {
-            "this build has no SocketCAN support (cargo feature `socketcan`)".into()
-        } else {
-            "SocketCAN exists only on Linux".into()
-        },
-    })
-}
+pub use open::open_bus;

@@ -196,9 +196,9 @@ impl GrblStage {
             }
             if let Ok(p) = self.position().await {
                 interp.position = [
-                    p.get(crate::Axis::X).unwrap_or(0.0),
-                    p.get(crate::Axis::Y).unwrap_or(0.0),
-                    p.get(crate::Axis::Z).unwrap_or(0.0),
+                    p.get(crate::stage::Axis::X).unwrap_or(0.0),
+                    p.get(crate::stage::Axis::Y).unwrap_or(0.0),
+                    p.get(crate::stage::Axis::Z).unwrap_or(0.0),
                 ];
             }
             for (i, l) in stream.lines().iter().enumerate() {

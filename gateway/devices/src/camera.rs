@@ -4,7 +4,7 @@
 //! files from a folder. The camera is opened after the stage, from the rig the stage
 //! gave (if any), so every stage link works with every camera link.
 
-use crate::OpenError;
+use crate::error::OpenError;
 use async_trait::async_trait;
 use drivers::gige::GigeOptions;
 use drivers::sim::SimCamera;

@@ -1,7 +1,8 @@
 //! Opening a `canopen` stage: the nodes on a real bus, or the CiA 402 drive emulator
 //! behind an SLCAN adapter on a pseudo-terminal driving a new simulated machine.
 
-use crate::{new_rig, EmulatedStage, OpenError, OpenedStage};
+use crate::emulated::{new_rig, EmulatedStage, OpenedStage};
+use crate::error::OpenError;
 use drivers::can::BusSpec;
 use drivers::{Axis, StageLink};
 use emulators::canopen::{DriveSet, DriveSetConfig, SlcanPty, DRIVE_EDS, DRIVE_EDS_NAME};

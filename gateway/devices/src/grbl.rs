@@ -1,7 +1,8 @@
 //! Opening a `grbl` stage: the controller on its serial port, or the GRBL emulator on a
 //! pseudo-terminal driving a new simulated machine.
 
-use crate::{new_rig, EmulatedStage, OpenError, OpenedStage};
+use crate::emulated::{new_rig, EmulatedStage, OpenedStage};
+use crate::error::OpenError;
 use drivers::grbl::GrblOptions;
 use drivers::StageLink;
 use emulators::grbl::{GrblConfig, GrblDevice, GrblPty};

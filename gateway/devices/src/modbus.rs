@@ -1,7 +1,8 @@
 //! Opening a `modbus` stage: the drives on their TCP address or RTU port, or the drive
 //! emulator on a loopback port or a pseudo-terminal driving a new simulated machine.
 
-use crate::{new_rig, EmulatedStage, OpenError, OpenedStage};
+use crate::emulated::{new_rig, EmulatedStage, OpenedStage};
+use crate::error::OpenError;
 use drivers::modbus::{Endpoint, ModbusOptions, Parity};
 use drivers::{Axis, StageLink};
 use emulators::modbus::{DriveSet, MachineAxis, ModbusDevice, ModbusRtu, ModbusTcp};

@@ -1,6 +1,6 @@
 //! GRBL's arc segmentation (`mc_arc`): an arc becomes chords within the arc tolerance.
 
-use super::N_AXIS;
+use super::state::N_AXIS;
 use std::f64::consts::PI;
 
 const ARC_ANGULAR_TRAVEL_EPSILON: f64 = 5e-7;

@@ -5,7 +5,7 @@
 
 use super::error::GcodeError;
 use super::read::{group, AxisCommand, BlockWords, NonModal, Values};
-use super::{Interpreter, Motion, MM_PER_INCH, N_AXIS};
+use super::state::{Interpreter, Motion, MM_PER_INCH, N_AXIS};
 
 const MAX_LINE_NUMBER: f64 = 10_000_000.0;
 

@@ -4,7 +4,7 @@
 //! violation; unsupported letter, repeated word, negative value, tool number).
 
 use super::error::GcodeError;
-use super::{Modal, Motion, Plane, ProgramFlow, Spindle, Word, N_AXIS};
+use super::state::{Modal, Motion, Plane, ProgramFlow, Spindle, Word, N_AXIS};
 
 const MAX_TOOL_NUMBER: f64 = 255.0;
 

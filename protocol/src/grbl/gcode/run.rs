@@ -5,7 +5,7 @@
 use super::arc::arc_points;
 use super::check::{ArcCentre, Plan};
 use super::read::NonModal;
-use super::{Action, Interpreter, Modal, Motion, Plane, ProgramFlow, Rate, Spindle, N_AXIS};
+use super::state::{Action, Interpreter, Modal, Motion, Plane, ProgramFlow, Rate, Spindle, N_AXIS};
 
 impl Interpreter {
     /// Executes a planned block; it cannot fail any more.
