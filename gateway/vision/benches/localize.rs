@@ -1,6 +1,6 @@
 //! Localizer benchmark: speed on one core and accuracy over a sweep of camera conditions.
 //!
-//! `cargo bench -p gateway --bench localize`
+//! `cargo bench -p vision --bench localize`
 //!
 //! Frames are rendered once (by `world::render`, which also gives the true dot
 //! centres and the true position), then `localize()` is timed on the decoded frame, many
