@@ -7,7 +7,7 @@ use devices::open_devices_async;
 use indicatif::{ProgressBar, ProgressStyle};
 use job::Job;
 use protocol::Board;
-use runner::run_job;
+use runner::run_job_until;
 use serde_json::json;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -246,9 +246,20 @@ fn compensate(job: Job, json: bool) -> anyhow::Result<ExitCode> {
         .expect("valid template")
         .progress_chars("=> "),
     );
-    let report: Report = rt.block_on(run_job(&job, &mut devices, &mut |done, _| {
-        bar.set_position(done as u64)
-    }));
+    // Ctrl-C stops the job cleanly: the stage is told to stop and the report printed
+    // with everything measured so far.
+    let interrupted = async {
+        if tokio::signal::ctrl_c().await.is_err() {
+            // No signal handling here: never interrupt.
+            std::future::pending::<()>().await;
+        }
+    };
+    let report: Report = rt.block_on(run_job_until(
+        &job,
+        &mut devices,
+        &mut |done, _| bar.set_position(done as u64),
+        interrupted,
+    ));
     bar.finish_and_clear();
     if json {
         println!("{}", serde_json::to_string(&report)?);

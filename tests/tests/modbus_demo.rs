@@ -61,6 +61,17 @@ fn modbus_stage_config_is_checked_with_file_line_and_key() {
         e.contains("job.toml:") && e.contains("key `stage.axes[1].unit`") && e.contains("twice"),
         "{e}"
     );
+    // A feed limit of 0 or below would stall every move: refused at load.
+    for feed in ["0.0", "-100.0", "nan"] {
+        let e = bad(
+            "{ axis = \"x\", unit = 1, min_mm = 0.0, max_mm = 200.0 }",
+            &format!("{{ axis = \"x\", unit = 1, min_mm = 0.0, max_mm = 200.0, max_feed_mm_min = {feed} }}"),
+        );
+        assert!(
+            e.contains("key `stage.axes[0].max_feed_mm_min`"),
+            "{feed}: {e}"
+        );
+    }
     let e = bad("transport = \"tcp\"", "transport = \"udp\"");
     assert!(e.contains("key `stage.transport`"), "{e}");
     let e = bad(

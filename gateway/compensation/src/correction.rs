@@ -32,8 +32,10 @@ pub fn deviation(observed_mm: [f64; 2], target_mm: [f64; 2]) -> Deviation {
     }
 }
 
+/// How the loop corrects. Every key of a job's `[compensation]` section is optional
+/// and defaults to the value below.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(deny_unknown_fields, default)]
 pub struct CorrectionPolicy {
     /// Stop correcting once |D| is at most this.
     pub tolerance_um: f64,
@@ -44,6 +46,21 @@ pub struct CorrectionPolicy {
     /// Every positioning ends with a move from this far on the negative side of both
     /// axes, so backlash is always taken up the same way. 0 disables it.
     pub approach_mm: f64,
+    /// A corrective move must leave at most this fraction of the deviation it was to
+    /// cancel (the model predicts none is left); a loop that does worse, while above
+    /// [`Self::noise_floor_um`], is stopped before its next move.
+    pub divergence_ratio: f64,
+    /// Before the first target, check the camera's orientation and scale against the
+    /// machine: three small moves, no correction (see the session).
+    pub check_orientation: bool,
+}
+
+impl CorrectionPolicy {
+    /// Deviations below this are noise to the divergence check: three times the
+    /// tolerance.
+    pub fn noise_floor_um(&self) -> f64 {
+        3.0 * self.tolerance_um
+    }
 }
 
 impl Default for CorrectionPolicy {
@@ -53,6 +70,8 @@ impl Default for CorrectionPolicy {
             max_iterations: 5,
             max_correction_mm: 0.15,
             approach_mm: 0.05,
+            divergence_ratio: 0.7,
+            check_orientation: true,
         }
     }
 }
@@ -96,6 +115,12 @@ pub enum CorrectionError {
         axis: char,
         correction_um: f64,
         bound_um: f64,
+    },
+    #[error("the corrective move left {after_um:.2} um of the {before_um:.2} um it was to cancel (more than {:.0} %): the camera's orientation or scale, or the stage, does not behave as the correction assumes; stopped before another move", ratio * 100.0)]
+    NotConverging {
+        before_um: f64,
+        after_um: f64,
+        ratio: f64,
     },
 }
 
@@ -143,17 +168,30 @@ pub enum NextStep {
 /// Decide the next step for a target.
 ///
 /// `nominal_mm` is the uncorrected command for the target, `current_mm` the command the
-/// measurement was taken at, `corrections_done` how many corrective moves were made.
+/// measurement was taken at, `previous` the deviation measured before the corrective
+/// move that led here (None after the first positioning), `corrections_done` how many
+/// corrective moves were made.
 pub fn next_step(
     nominal_mm: [f64; 2],
     current_mm: [f64; 2],
     d: Deviation,
+    previous: Option<Deviation>,
     corrections_done: u32,
     policy: &CorrectionPolicy,
     limits: &SoftLimits,
 ) -> Result<NextStep, CorrectionError> {
     if d.magnitude_um() <= policy.tolerance_um {
         return Ok(NextStep::Converged);
+    }
+    if let Some(before) = previous {
+        let (before_um, after_um) = (before.magnitude_um(), d.magnitude_um());
+        if after_um > policy.noise_floor_um() && after_um > policy.divergence_ratio * before_um {
+            return Err(CorrectionError::NotConverging {
+                before_um,
+                after_um,
+                ratio: policy.divergence_ratio,
+            });
+        }
     }
     if corrections_done >= policy.max_iterations {
         return Ok(NextStep::Exhausted);
@@ -192,7 +230,7 @@ mod tests {
     fn correction_cancels_the_deviation_and_keeps_the_approach() {
         let p = CorrectionPolicy::default();
         let d = deviation([50.012, 30.0], [50.0, 30.007]);
-        let step = next_step([45.0, 25.0], [45.0, 25.0], d, 0, &p, &LIMITS).unwrap();
+        let step = next_step([45.0, 25.0], [45.0, 25.0], d, None, 0, &p, &LIMITS).unwrap();
         let NextStep::Correct(pos) = step else {
             panic!("{step:?}")
         };
@@ -207,12 +245,12 @@ mod tests {
         let p = CorrectionPolicy::default();
         let small = deviation([10.0003, 10.0], [10.0, 10.0]);
         assert_eq!(
-            next_step([5.0; 2], [5.0; 2], small, 0, &p, &LIMITS),
+            next_step([5.0; 2], [5.0; 2], small, None, 0, &p, &LIMITS),
             Ok(NextStep::Converged)
         );
         let big = deviation([10.003, 10.0], [10.0, 10.0]);
         assert_eq!(
-            next_step([5.0; 2], [5.0; 2], big, p.max_iterations, &p, &LIMITS),
+            next_step([5.0; 2], [5.0; 2], big, None, p.max_iterations, &p, &LIMITS),
             Ok(NextStep::Exhausted)
         );
     }
@@ -222,18 +260,38 @@ mod tests {
         let p = CorrectionPolicy::default();
         // Total correction counts from the nominal command, not from the last step.
         let d = deviation([10.1, 10.0], [10.0, 10.0]);
-        let e = next_step([5.0; 2], [4.94, 5.0], d, 1, &p, &LIMITS).unwrap_err();
+        let e = next_step([5.0; 2], [4.94, 5.0], d, None, 1, &p, &LIMITS).unwrap_err();
         assert!(
             matches!(e, CorrectionError::ExceedsBound { axis: 'X', .. }),
             "{e}"
         );
         let d = deviation([10.0, 10.01], [10.0, 10.0]);
-        let e = next_step([0.0, 149.999], [0.0, 149.995], d, 0, &p, &LIMITS).unwrap_err();
+        let e = next_step([0.0, 149.999], [0.0, 149.995], d, None, 0, &p, &LIMITS).unwrap_err();
         assert!(
             e.to_string().contains("axis X") && e.to_string().contains("approach"),
             "{e}"
         );
         let e = plan_positioning([201.0, 3.0], &p, &LIMITS).unwrap_err();
         assert!(e.to_string().contains("201.0000"), "{e}");
+    }
+
+    #[test]
+    fn a_correction_that_does_not_shrink_the_deviation_stops_the_loop() {
+        let p = CorrectionPolicy::default();
+        let before = deviation([10.012, 10.0], [10.0, 10.0]);
+        // A camera turned by 90 degrees: the move cancelled X, the error reappears in Y.
+        let after = deviation([10.0, 10.012], [10.0, 10.0]);
+        let e = next_step([5.0; 2], [4.988, 5.0], after, Some(before), 1, &p, &LIMITS).unwrap_err();
+        assert!(
+            matches!(e, CorrectionError::NotConverging { .. })
+                && e.to_string().contains("12.00 um"),
+            "{e}"
+        );
+        // Halving it is progress; noise below the floor is never judged.
+        let half = deviation([10.006, 10.0], [10.0, 10.0]);
+        assert!(next_step([5.0; 2], [4.988, 5.0], half, Some(before), 1, &p, &LIMITS).is_ok());
+        let tiny = deviation([10.0012, 10.0], [10.0, 10.0]);
+        let tinier = deviation([10.0011, 10.0], [10.0, 10.0]);
+        assert!(next_step([5.0; 2], [5.0; 2], tinier, Some(tiny), 2, &p, &LIMITS).is_ok());
     }
 }

@@ -4,7 +4,7 @@
 //! only when the machine is simulated (the simulator knows where the camera really was);
 //! "estimate" figures are the gateway's own measurements, available on any machine.
 
-use crate::session::TargetOutcome;
+use crate::session::{OrientationResult, TargetOutcome};
 use serde::Serialize;
 use vision::localize::Method;
 
@@ -48,6 +48,9 @@ pub struct TargetRow {
     pub final_command_mm: [f64; 2],
     pub corrections: usize,
     pub converged: bool,
+    /// The job stopped while working on this target: its measurements so far, not a
+    /// finished result (left out of the statistics).
+    pub stopped: bool,
     /// The gateway's measured deviation D before and after, um.
     pub estimate_before_um: [f64; 2],
     pub estimate_after_um: [f64; 2],
@@ -69,6 +72,10 @@ pub struct Report {
     pub stage: String,
     pub camera: String,
     pub method: Method,
+    /// What the orientation check at the start measured (when it ran).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub orientation: Option<OrientationResult>,
+    /// Targets finished (converged or out of iterations).
     pub targets: usize,
     pub targets_planned: usize,
     pub converged: usize,
@@ -110,6 +117,7 @@ impl Report {
                 final_command_mm: o.last().command_mm,
                 corrections: o.corrections(),
                 converged: o.converged,
+                stopped: o.stopped,
                 estimate_before_um: o.first().deviation.um(),
                 estimate_after_um: o.last().deviation.um(),
                 points: o.last().observation.points,
@@ -117,10 +125,11 @@ impl Report {
                 truth: truth.get(k).copied().flatten(),
             })
             .collect();
-        let all_truth = !rows.is_empty() && rows.iter().all(|r| r.truth.is_some());
+        let finished: Vec<&TargetRow> = rows.iter().filter(|r| !r.stopped).collect();
+        let all_truth = !finished.is_empty() && finished.iter().all(|r| r.truth.is_some());
         let truth_stats = |f: fn(&TruthAt) -> [f64; 2]| {
             all_truth
-                .then(|| Stats::of(rows.iter().map(|r| norm(f(r.truth.as_ref().unwrap())))))
+                .then(|| Stats::of(finished.iter().map(|r| norm(f(r.truth.as_ref().unwrap())))))
                 .flatten()
         };
         Report {
@@ -128,20 +137,22 @@ impl Report {
             stage: stage.to_string(),
             camera: camera.to_string(),
             method,
-            targets: rows.len(),
+            orientation: None,
+            targets: finished.len(),
             targets_planned,
-            converged: rows.iter().filter(|r| r.converged).count(),
+            converged: finished.iter().filter(|r| r.converged).count(),
             before_um: truth_stats(|t| t.before_um),
             after_um: truth_stats(|t| t.after_um),
-            estimate_before_um: Stats::of(rows.iter().map(|r| norm(r.estimate_before_um))),
-            estimate_after_um: Stats::of(rows.iter().map(|r| norm(r.estimate_after_um))),
+            estimate_before_um: Stats::of(finished.iter().map(|r| norm(r.estimate_before_um))),
+            estimate_after_um: Stats::of(finished.iter().map(|r| norm(r.estimate_after_um))),
             iterations: Iterations {
-                mean: if rows.is_empty() {
+                mean: if finished.is_empty() {
                     0.0
                 } else {
-                    rows.iter().map(|r| r.corrections as f64).sum::<f64>() / rows.len() as f64
+                    finished.iter().map(|r| r.corrections as f64).sum::<f64>()
+                        / finished.len() as f64
                 },
-                max: rows.iter().map(|r| r.corrections).max().unwrap_or(0),
+                max: finished.iter().map(|r| r.corrections).max().unwrap_or(0),
             },
             wall_time_s,
             error,
@@ -174,7 +185,13 @@ impl Report {
                 r.target_mm[0],
                 r.target_mm[1],
                 r.corrections,
-                if r.converged { " " } else { "!" },
+                if r.stopped {
+                    "x"
+                } else if r.converged {
+                    " "
+                } else {
+                    "!"
+                },
                 r.estimate_before_um[0],
                 r.estimate_before_um[1],
                 r.estimate_after_um[0],
@@ -193,6 +210,12 @@ impl Report {
             "\ntargets: {} of {} ({} within tolerance)\n",
             self.targets, self.targets_planned, self.converged
         ));
+        if self.per_target.iter().any(|r| r.stopped) {
+            s.push_str("(x: the job stopped on this target; its measurements so far are shown and left out of the figures below)\n");
+        }
+        if let Some(o) = &self.orientation {
+            s.push_str(&format!("orientation check: {o}\n"));
+        }
         if has_truth {
             s.push_str(&format!(
                 "error vs truth, before compensation: {}\n",

@@ -3,7 +3,7 @@
 
 use async_trait::async_trait;
 use drivers::{AxisValues, Capabilities, DriverError, Stage, StageInfo, StageStatus};
-use job::{CameraSpec, Job};
+use job::Job;
 use protocol::config::ConfigDoc;
 use std::any::Any;
 use std::path::Path;
@@ -64,12 +64,9 @@ pub type OpenedStage = (Box<dyn Stage>, Option<SharedRig>);
 /// The simulated machine of a job: `machine` with the job's board, seen by the job's
 /// camera optics.
 pub fn new_rig(job: &Job, machine: &MachineConfig) -> SharedRig {
-    let model = match &job.camera {
-        CameraSpec::Sim { model } | CameraSpec::EmulatedGige { model, .. } => model.clone(),
-        // Replayed frames on a simulated machine: the rig still needs optics; they are
-        // never rendered.
-        CameraSpec::Gige { .. } | CameraSpec::Replay { .. } => reference_camera(),
-    };
+    // Replayed frames on a simulated machine: the rig still needs optics; they are
+    // never rendered.
+    let model = job.camera.model().cloned().unwrap_or_else(reference_camera);
     world::shared_rig(machine.clone(), job.board.clone(), model)
 }
 

@@ -48,6 +48,15 @@ impl CameraSpec {
         )
     }
 
+    /// The optics of a simulated camera (None for a real camera or replayed frames,
+    /// whose optics the job does not describe).
+    pub fn model(&self) -> Option<&CameraModel> {
+        match self {
+            CameraSpec::Sim { model } | CameraSpec::EmulatedGige { model, .. } => Some(model),
+            CameraSpec::Gige { .. } | CameraSpec::Replay { .. } => None,
+        }
+    }
+
     /// A camera that cannot see the machine: a simulated camera needs a simulated
     /// machine, a real camera a real one (replayed frames go with either).
     pub fn check_pairing(&self, machine_simulated: bool) -> Result<(), PairingError> {

@@ -67,6 +67,13 @@ pub static EMBEDDED: &[(&str, &str)] = &[
 
 pub const DEMO_JOB: &str = "config/gateway/demo.toml";
 
+/// Feeds a job may ask for, mm/min: below, a move of a millimetre takes over ten
+/// minutes; above, no stage of this class moves.
+pub const MIN_FEED_MM_MIN: f64 = 1.0;
+pub const MAX_FEED_MM_MIN: f64 = 100_000.0;
+/// The largest fit residual a job may accept, um.
+pub const MAX_RESIDUAL_UM: f64 = 100.0;
+
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawJob {
@@ -112,10 +119,25 @@ struct RawBoard {
     file: String,
 }
 
+/// An (x, y) pair in mm from a two-element array. Serde's fixed-size arrays stop reading
+/// after two elements and the TOML reader does not complain about the rest, so `[x, y, z]`
+/// would silently lose its third value: read the whole list and insist on two.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Xy([f64; 2]);
+
+impl<'de> Deserialize<'de> for Xy {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let v = Vec::<f64>::deserialize(d)?;
+        <[f64; 2]>::try_from(v.as_slice())
+            .map(Xy)
+            .map_err(|_| serde::de::Error::invalid_length(v.len(), &"two numbers, [x, y] in mm"))
+    }
+}
+
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawSetup {
-    board_at_machine_zero_mm: [f64; 2],
+    board_at_machine_zero_mm: Xy,
     #[serde(default = "default_feed")]
     feed_mm_min: f64,
 }
@@ -128,14 +150,14 @@ fn default_feed() -> f64 {
 #[serde(deny_unknown_fields)]
 struct RawTargets {
     grid: Option<RawGrid>,
-    points: Option<Vec<[f64; 2]>>,
+    points: Option<Vec<Xy>>,
 }
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawGrid {
-    x_mm: [f64; 2],
-    y_mm: [f64; 2],
+    x_mm: Xy,
+    y_mm: Xy,
     nx: u32,
     ny: u32,
 }
@@ -264,16 +286,15 @@ impl Job {
             }
         }
         let board = Board::from_doc(&doc.read_relative("board.file", &raw.board.file)?)?;
-        if !raw
-            .setup
-            .board_at_machine_zero_mm
-            .iter()
-            .all(|v| v.is_finite())
-        {
+        let Xy(board_at_machine_zero_mm) = raw.setup.board_at_machine_zero_mm;
+        if !board_at_machine_zero_mm.iter().all(|v| v.is_finite()) {
             return Err(doc.invalid("setup.board_at_machine_zero_mm", "must be finite"));
         }
-        if !(raw.setup.feed_mm_min > 0.0 && raw.setup.feed_mm_min.is_finite()) {
-            return Err(doc.invalid("setup.feed_mm_min", "must be a positive feed in mm/min"));
+        if !(MIN_FEED_MM_MIN..=MAX_FEED_MM_MIN).contains(&raw.setup.feed_mm_min) {
+            return Err(doc.invalid(
+                "setup.feed_mm_min",
+                format!("must be a feed of {MIN_FEED_MM_MIN} to {MAX_FEED_MM_MIN} mm/min"),
+            ));
         }
         let l = &raw.localize;
         if !(l.hint_tolerance_mm > 0.0 && l.hint_tolerance_mm < board.pitch_mm / 2.0) {
@@ -285,11 +306,31 @@ impl Job {
                 ),
             ));
         }
-        if !(l.max_residual_um > 0.0) {
-            return Err(doc.invalid("localize.max_residual_um", "must be positive"));
+        if !(l.max_residual_um > 0.0 && l.max_residual_um <= MAX_RESIDUAL_UM) {
+            return Err(doc.invalid(
+                "localize.max_residual_um",
+                format!("must be positive and at most {MAX_RESIDUAL_UM} um (a fit worse than that is no measurement)"),
+            ));
         }
-        if l.min_points < 4 {
-            return Err(doc.invalid("localize.min_points", "at least 4 points are needed"));
+        let on_board = board.cols as usize * board.rows as usize;
+        let in_view = camera.model().map(|m| {
+            let field_mm = |px: u32| f64::from(px) * m.um_per_px / 1000.0;
+            let per_axis = |px: u32| (field_mm(px) / board.pitch_mm).floor() as usize + 1;
+            per_axis(m.width) * per_axis(m.height)
+        });
+        let most = in_view.map_or(on_board, |v| v.min(on_board));
+        if l.min_points < 4 || l.min_points > most {
+            return Err(doc.invalid(
+                "localize.min_points",
+                format!(
+                    "must be 4 to {most} (the dots {} can hold)",
+                    if in_view.is_some() {
+                        "one frame of this camera"
+                    } else {
+                        "the board"
+                    }
+                ),
+            ));
         }
         let p = &raw.compensation;
         if !(p.tolerance_um > 0.0 && p.tolerance_um.is_finite()) {
@@ -307,6 +348,12 @@ impl Job {
         if !(p.approach_mm >= 0.0 && p.approach_mm < 5.0) {
             return Err(doc.invalid("compensation.approach_mm", "must be 0..5 mm"));
         }
+        if !(p.divergence_ratio > 0.0 && p.divergence_ratio <= 1.0) {
+            return Err(doc.invalid(
+                "compensation.divergence_ratio",
+                "must be above 0 and at most 1 (the share of a deviation a correction may leave)",
+            ));
+        }
         let targets = resolve_targets(doc, &raw.targets, &board)?;
         Ok(Job {
             source: doc.name.clone(),
@@ -315,7 +362,7 @@ impl Job {
             pixel_axes,
             um_per_px: raw.camera.um_per_px,
             board,
-            board_at_machine_zero_mm: raw.setup.board_at_machine_zero_mm,
+            board_at_machine_zero_mm,
             feed_mm_min: raw.setup.feed_mm_min,
             localize: raw.localize,
             policy: raw.compensation,
@@ -372,6 +419,7 @@ fn resolve_targets(
                     "nx and ny must be 1.. (at most 100000 targets)",
                 ));
             }
+            let (Xy(gx), Xy(gy)) = (g.x_mm, g.y_mm);
             let at = |r: [f64; 2], n: u32, k: u32| {
                 if n == 1 {
                     r[0]
@@ -383,7 +431,7 @@ fn resolve_targets(
             for j in 0..g.ny {
                 for i in 0..g.nx {
                     let i = if j % 2 == 0 { i } else { g.nx - 1 - i };
-                    out.push([at(g.x_mm, g.nx, i), at(g.y_mm, g.ny, j)]);
+                    out.push([at(gx, g.nx, i), at(gy, g.ny, j)]);
                 }
             }
         }
@@ -391,7 +439,7 @@ fn resolve_targets(
             if p.is_empty() {
                 return Err(doc.invalid("targets.points", "the list is empty"));
             }
-            out.extend_from_slice(p);
+            out.extend(p.iter().map(|&Xy(xy)| xy));
         }
     }
     let (lo, hi) = board.extent();
@@ -446,5 +494,83 @@ mod tests {
             "{e}"
         );
         assert!(e.contains("demo.toml (built in):"), "{e}");
+    }
+
+    /// The demo job's text with `from` replaced by `to`, resolved.
+    fn demo_with(from: &str, to: &str) -> Result<Job, String> {
+        let mut doc = ConfigDoc::embedded(DEMO_JOB, EMBEDDED).unwrap();
+        assert!(doc.text.contains(from), "{from}");
+        doc.text = doc.text.replace(from, to);
+        Job::from_doc(&doc).map_err(|e| e.to_string())
+    }
+
+    #[test]
+    fn a_third_coordinate_is_refused_not_dropped() {
+        let e = demo_with("[5.0, 5.0]", "[5.0, 5.0, 1.0]").unwrap_err();
+        assert!(
+            e.contains("setup.board_at_machine_zero_mm") && e.contains("two numbers"),
+            "{e}"
+        );
+        let e = demo_with(
+            "grid = { x_mm = [12.0, 198.0], y_mm = [12.0, 148.0], nx = 6, ny = 5 }",
+            "points = [[12.0, 12.0], [20.0, 20.0, 3.0]]",
+        )
+        .unwrap_err();
+        assert!(
+            e.contains("targets.points") && e.contains("two numbers"),
+            "{e}"
+        );
+        let e = demo_with("x_mm = [12.0, 198.0]", "x_mm = [12.0]").unwrap_err();
+        assert!(e.contains("targets.grid.x_mm"), "{e}");
+    }
+
+    #[test]
+    fn a_partial_compensation_section_takes_the_defaults_for_the_rest() {
+        let job = demo_with(
+            "tolerance_um = 0.5\nmax_iterations = 5\nmax_correction_mm = 0.15\napproach_mm = 0.05",
+            "tolerance_um = 0.8",
+        )
+        .unwrap();
+        let d = CorrectionPolicy::default();
+        assert_eq!(job.policy.tolerance_um, 0.8);
+        assert_eq!(
+            (
+                job.policy.max_iterations,
+                job.policy.max_correction_mm,
+                job.policy.approach_mm
+            ),
+            (d.max_iterations, d.max_correction_mm, d.approach_mm)
+        );
+        assert!(job.policy.check_orientation);
+        let e = demo_with(
+            "tolerance_um = 0.5",
+            "tolerance_um = 0.5\ndivergence_ratio = 1.5",
+        )
+        .unwrap_err();
+        assert!(e.contains("compensation.divergence_ratio"), "{e}");
+    }
+
+    #[test]
+    fn values_that_would_fail_only_after_homing_are_refused_at_load() {
+        let e = demo_with("max_residual_um = 2.0", "max_residual_um = inf").unwrap_err();
+        assert!(e.contains("localize.max_residual_um"), "{e}");
+        let e = demo_with("min_points = 12", "min_points = 1000000").unwrap_err();
+        assert!(
+            e.contains("localize.min_points") && e.contains("one frame of this camera"),
+            "{e}"
+        );
+        for feed in ["1e-300", "1e300", "0.0", "nan"] {
+            let e =
+                demo_with("feed_mm_min = 3000.0", &format!("feed_mm_min = {feed}")).unwrap_err();
+            assert!(
+                e.contains("setup.feed_mm_min") && e.contains("mm/min"),
+                "{feed}: {e}"
+            );
+        }
+        let e = demo_with("nx = 6, ny = 5", "nx = 65536, ny = 65536").unwrap_err();
+        assert!(
+            e.contains("targets.grid") && e.contains("at most 100000"),
+            "{e}"
+        );
     }
 }

@@ -168,6 +168,14 @@ pub fn resolve(doc: &ConfigDoc, raw: RawModbusStage) -> Result<ModbusStageSpec, 
         if !(a.min_mm.is_finite() && a.max_mm.is_finite() && a.min_mm < a.max_mm) {
             return Err(doc.invalid(&key("max_mm"), "soft limits need min_mm < max_mm"));
         }
+        if let Some(f) = a.max_feed_mm_min {
+            if !(f > 0.0 && f.is_finite()) {
+                return Err(doc.invalid(
+                    &key("max_feed_mm_min"),
+                    "must be a positive feed in mm/min (leave it out for the profile's)",
+                ));
+            }
+        }
         axes.push(ModbusAxisConfig {
             axis,
             unit: a.unit,

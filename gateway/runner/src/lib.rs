@@ -10,7 +10,8 @@ use compensation::correction::SoftLimits;
 use compensation::correction::{CorrectionError, Positioning};
 use compensation::report::{Report, TruthAt};
 use compensation::session::{
-    Action, CompensationSession, Measurement, SessionError, TargetOutcome,
+    Action, CheckStep, CompensationSession, Measurement, OrientationCheck, OrientationResult,
+    SessionError, TargetOutcome,
 };
 use devices::Devices;
 use drivers::{Axis, AxisValues, Camera, DriverError, Stage};
@@ -54,6 +55,16 @@ pub enum JobError {
     },
     #[error("the stage reports no {0} axis; the compensation pipeline needs X and Y")]
     MissingAxis(Axis),
+    #[error("orientation check {step}: {source}; the board was not found where a camera mounted as `camera.pixel_axes` says would see it; nothing was corrected")]
+    CheckLocalize {
+        step: CheckStep,
+        #[source]
+        source: LocalizeError,
+    },
+    #[error(transparent)]
+    Orientation(SessionError),
+    #[error("cancelled by the operator; the stage was told to stop")]
+    Cancelled,
     /// A bug in this crate: it performed an action the session did not ask for.
     #[error("internal: {0}")]
     Session(SessionError),
@@ -71,16 +82,26 @@ impl From<SessionError> for JobError {
                 target_mm,
                 source,
             },
+            e @ SessionError::Orientation { .. } => JobError::Orientation(e),
             other => JobError::Session(other),
         }
     }
 }
 
-/// A job stopped by an error, with every target finished before it.
+/// A job stopped by an error, with every target worked on: the finished ones and the
+/// one it stopped on (marked `stopped`, with its measurements so far).
 #[derive(Debug)]
 pub struct JobFailure {
     pub completed: Vec<TargetOutcome>,
+    pub orientation: Option<OrientationResult>,
     pub error: JobError,
+}
+
+/// What a finished job did.
+#[derive(Debug)]
+pub struct JobSuccess {
+    pub completed: Vec<TargetOutcome>,
+    pub orientation: Option<OrientationResult>,
 }
 
 pub struct Orchestrator<'a> {
@@ -101,24 +122,48 @@ impl Orchestrator<'_> {
         })
     }
 
-    /// Home, then compensate every target of the job in order.
-    pub async fn run(
+    /// Home, check the camera's orientation, then compensate every target in order.
+    pub async fn run(&mut self, on_event: &mut dyn FnMut(Event)) -> Result<JobSuccess, JobFailure> {
+        self.run_until(on_event, std::future::pending()).await
+    }
+
+    /// [`Self::run`], stopped (the stage told to stop, every result kept) when `cancel`
+    /// completes.
+    pub async fn run_until(
         &mut self,
         on_event: &mut dyn FnMut(Event),
-    ) -> Result<Vec<TargetOutcome>, JobFailure> {
-        let limits = self.limits().map_err(|error| JobFailure {
+        cancel: impl std::future::Future<Output = ()>,
+    ) -> Result<JobSuccess, JobFailure> {
+        let nothing_done = |error| JobFailure {
             completed: Vec::new(),
+            orientation: None,
             error,
-        })?;
-        let mut session =
-            CompensationSession::new(self.job.session_targets(), self.job.policy.clone(), limits);
-        match self.drive(&mut session, on_event).await {
-            Ok(()) => Ok(session.into_completed()),
+        };
+        let limits = self.limits().map_err(nothing_done)?;
+        let check = OrientationCheck::for_pitch(self.job.board.pitch_mm);
+        let mut session = CompensationSession::new(
+            self.job.session_targets(),
+            self.job.policy.clone(),
+            limits,
+            Some(check),
+        )
+        .map_err(|e| nothing_done(e.into()))?;
+        let result = tokio::select! {
+            r = self.drive(&mut session, on_event) => r,
+            () = cancel => Err(JobError::Cancelled),
+        };
+        let orientation = session.orientation().copied();
+        match result {
+            Ok(()) => Ok(JobSuccess {
+                completed: session.into_completed(),
+                orientation,
+            }),
             Err(error) => {
                 // Leave the machine still and safe, then report.
                 let _ = self.stage.stop().await;
                 Err(JobFailure {
-                    completed: session.into_completed(),
+                    completed: session.into_outcomes(),
+                    orientation,
                     error,
                 })
             }
@@ -140,9 +185,23 @@ impl Orchestrator<'_> {
                     on_event(Event::Homed);
                     session.homed()?
                 }
-                Action::Position { positioning, .. } => {
+                Action::Position { positioning, .. }
+                | Action::CheckPosition { positioning, .. } => {
                     self.position(&positioning).await?;
                     session.positioned()?
+                }
+                Action::CheckMeasure {
+                    step,
+                    hint_mm,
+                    hint_tolerance_mm,
+                } => {
+                    let frame = self.camera.grab().await?;
+                    let mut params = self.localize_params(hint_mm);
+                    params.hint_tolerance_mm = hint_tolerance_mm;
+                    let board = &self.job.board;
+                    let observation = drivers::blocking(|| localize(&frame.image, board, &params))
+                        .map_err(|source| JobError::CheckLocalize { step, source })?;
+                    session.checked([observation.x_mm, observation.y_mm])?
                 }
                 Action::Measure {
                     target_index,
@@ -160,7 +219,22 @@ impl Orchestrator<'_> {
                             measurement,
                             source,
                         })?;
-                    let step = session.measured(observation, frame.meta.sequence)?;
+                    let step = match session.measured(observation, frame.meta.sequence) {
+                        Ok(step) => step,
+                        Err(e) => {
+                            // The measurement is kept (the session recorded it before
+                            // refusing the next move): report it like any other.
+                            if let Some((_, done)) = session.in_progress() {
+                                if let Some(measurement) = done.last() {
+                                    on_event(Event::Measured {
+                                        target_index,
+                                        measurement,
+                                    });
+                                }
+                            }
+                            return Err(e.into());
+                        }
+                    };
                     on_event(Event::Measured {
                         target_index,
                         measurement: &step.measurement,
@@ -203,6 +277,17 @@ pub type Progress<'a> = &'a mut dyn FnMut(usize, usize);
 
 /// Run a job on opened devices and build its report (also when it stopped early).
 pub async fn run_job(job: &Job, devices: &mut Devices, progress: Progress<'_>) -> Report {
+    run_job_until(job, devices, progress, std::future::pending()).await
+}
+
+/// [`run_job`], stopped when `cancel` completes (the operator's Ctrl-C): the stage is
+/// told to stop and the report keeps everything measured.
+pub async fn run_job_until(
+    job: &Job,
+    devices: &mut Devices,
+    progress: Progress<'_>,
+    cancel: impl std::future::Future<Output = ()>,
+) -> Report {
     let started = Instant::now();
     let rig = devices.rig.clone();
     // Truth error (um) at the first and latest measurement of each target.
@@ -244,12 +329,16 @@ pub async fn run_job(job: &Job, devices: &mut Devices, progress: Progress<'_>) -
         camera: devices.camera.as_mut(),
         job,
     };
-    let result = orch.run(&mut on_event).await;
-    let (outcomes, error) = match result {
-        Ok(o) => (o, None),
-        Err(f) => (f.completed, Some(f.error.to_string())),
+    let result = orch.run_until(&mut on_event, cancel).await;
+    let (outcomes, orientation, error) = match result {
+        Ok(o) => (o.completed, o.orientation, None),
+        Err(f) => (f.completed, f.orientation, Some(f.error.to_string())),
     };
-    Report::build(
+    // The target the job stopped on (if any) has its truth still in `current`.
+    if let Some((_, at)) = current {
+        truth.push(Some(at));
+    }
+    let mut report = Report::build(
         &job.source,
         &stage_name,
         &camera_name,
@@ -259,5 +348,7 @@ pub async fn run_job(job: &Job, devices: &mut Devices, progress: Progress<'_>) -
         &truth,
         started.elapsed().as_secs_f64(),
         error,
-    )
+    );
+    report.orientation = orientation;
+    report
 }
