@@ -379,3 +379,72 @@ fn a_stop_mid_target_keeps_its_measurements_in_the_report() {
         .to_text()
         .contains("x: the job stopped on this target"));
 }
+
+/// The operator's Ctrl-C (any cancel future) stops the job between two device actions:
+/// the stage is told to stop and the report keeps what was done.
+#[test]
+fn a_cancelled_job_stops_the_stage_and_keeps_its_results() {
+    let mut job = Job::demo();
+    job.targets.truncate(4);
+    let devices = open_devices(&job).unwrap();
+    let stops = Arc::new(Mutex::new(0usize));
+    struct CountsStops {
+        inner: Box<dyn Stage>,
+        stops: Arc<Mutex<usize>>,
+    }
+    #[async_trait]
+    impl Stage for CountsStops {
+        fn info(&self) -> &StageInfo {
+            self.inner.info()
+        }
+        fn capabilities(&self) -> drivers::Capabilities {
+            self.inner.capabilities()
+        }
+        async fn home(&mut self) -> Result<(), DriverError> {
+            self.inner.home().await
+        }
+        async fn move_to(&mut self, t: AxisValues, f: f64) -> Result<(), DriverError> {
+            self.inner.move_to(t, f).await
+        }
+        async fn position(&mut self) -> Result<AxisValues, DriverError> {
+            self.inner.position().await
+        }
+        async fn wait_idle(&mut self) -> Result<(), DriverError> {
+            self.inner.wait_idle().await
+        }
+        async fn stop(&mut self) -> Result<(), DriverError> {
+            *self.stops.lock().unwrap() += 1;
+            self.inner.stop().await
+        }
+        async fn status(&mut self) -> Result<StageStatus, DriverError> {
+            self.inner.status().await
+        }
+    }
+    let mut devices = devices::Devices {
+        stage: Box::new(CountsStops {
+            inner: devices.stage,
+            stops: stops.clone(),
+        }),
+        camera: devices.camera,
+        rig: devices.rig,
+    };
+    let (tx, rx) = tokio::sync::watch::channel(false);
+    let cancel = async move {
+        let mut rx = rx;
+        let _ = rx.wait_for(|c| *c).await;
+    };
+    let report = block_on(runner::run_job_until(
+        &job,
+        &mut devices,
+        &mut |done, _| {
+            if done == 2 {
+                tx.send_replace(true);
+            }
+        },
+        cancel,
+    ));
+    let error = report.error.clone().expect("cancelled");
+    assert!(error.contains("cancelled"), "{error}");
+    assert_eq!(report.targets, 2, "{}", report.to_text());
+    assert_eq!(*stops.lock().unwrap(), 1, "the stage was told to stop once");
+}

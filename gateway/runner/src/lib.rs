@@ -178,6 +178,9 @@ impl Orchestrator<'_> {
         let of = self.job.targets.len();
         let mut action = session.next_action();
         loop {
+            // Between two device actions: let a cancel (Ctrl-C) be seen even when the
+            // devices answer without ever waiting (the in-process simulation).
+            tokio::task::yield_now().await;
             action = match action {
                 Action::Home => {
                     self.stage.home().await?;
