@@ -102,7 +102,6 @@ struct Running {
     block: Block,
     elapsed: f64,
     duration: f64,
-    feed_mm_min: f64,
 }
 
 /// A line being executed whose remaining actions wait for a condition.
@@ -419,7 +418,7 @@ impl GrblDevice {
             return false;
         };
         let spm = [self.steps_per_mm(0), self.steps_per_mm(1)];
-        let (feed, duration) = {
+        let duration = {
             let mut r = lock(&self.rig);
             let cfg = r.machine().config().clone();
             let cpm = [cfg.axes.x.counts_per_mm, cfg.axes.y.counts_per_mm];
@@ -433,23 +432,28 @@ impl GrblDevice {
                 .max_rate_mm_min(0)
                 .unwrap_or(500.0)
                 .min(self.settings.max_rate_mm_min(1).unwrap_or(500.0));
-            let feed = match block.rate {
-                Rate::Rapid => max * f64::from(self.overrides[1]) / 100.0,
-                Rate::Feed(f) => (f * f64::from(self.overrides[0]) / 100.0).min(max),
+            // Jog motions are exempt from the feed and rapid overrides (GRBL 1.1
+            // jogging docs); other blocks take the override in force when they start
+            // and again whenever it changes (see `set_override`).
+            let feed = match (block.rate, block.jog) {
+                (Rate::Feed(f), true) => f.min(max),
+                (Rate::Rapid, true) => max,
+                (Rate::Rapid, false) => max * f64::from(self.overrides[1]) / 100.0,
+                (Rate::Feed(f), false) => (f * f64::from(self.overrides[0]) / 100.0).min(max),
             };
             if !r.machine().is_homed() {
                 // Unlocked without homing: the power-on position is the reference.
                 r.machine_mut().home();
             }
             match r.machine_mut().start_move(to, feed.max(1e-3)) {
-                Ok(d) => (feed, d),
+                Ok(d) => d,
                 Err(MachineRefusal::OutOfTravel { .. }) => {
                     drop(r);
                     // The carriage would run into the end of travel: the limit switch.
                     self.alarm(alarm::HARD_LIMIT, true);
                     return false;
                 }
-                Err(_) => (feed, 0.0),
+                Err(_) => 0.0,
             }
         };
         self.z_steps =
@@ -461,7 +465,6 @@ impl GrblDevice {
             block,
             elapsed: 0.0,
             duration,
-            feed_mm_min: feed,
         });
         true
     }
@@ -861,6 +864,24 @@ impl GrblDevice {
         if self.overrides[which] != v {
             self.overrides[which] = v;
             self.ovr_counter = 0;
+            if which < 2 {
+                self.replan_running();
+            }
+        }
+    }
+
+    /// GRBL re-plans the whole planner on every feed or rapid override change, so the
+    /// move already running changes speed "within tens of milliseconds" (GRBL 1.1
+    /// interface docs): here the running block continues from where the axes are, to
+    /// the same target, at the new rate. Jogs are exempt, held motion restarts at the
+    /// new rate when resumed anyway. (The simulated stage starts the rest of the move
+    /// from rest, a brief dip in speed a real GRBL does not have.)
+    fn replan_running(&mut self) {
+        let affected =
+            self.state == State::Cycle && self.running.as_ref().is_some_and(|run| !run.block.jog);
+        if affected {
+            self.hold_motion();
+            self.start_block();
         }
     }
 
@@ -939,11 +960,13 @@ impl GrblDevice {
         if let Some(run) = &self.running {
             r.line_number = run.block.line_number;
         }
-        let feed = self
-            .running
-            .as_ref()
-            .map(|run| run.feed_mm_min)
-            .unwrap_or(0.0);
+        // GRBL reports the real-time rate of its step generator (`st_get_realtime_rate`),
+        // not the programmed feed: lower while accelerating, 0 when nothing moves.
+        let feed = if self.running.is_some() {
+            lock(&self.rig).machine().speed_mm_min()
+        } else {
+            0.0
+        };
         let spindle_on = self.interp.modal.spindle != protocol::grbl::gcode::Spindle::Off;
         r.feed = Some(feed * scale);
         r.spindle = Some(if spindle_on {
@@ -1489,6 +1512,62 @@ mod tests {
         let r = h.send(&[0x18]);
         assert_eq!(r[0], Response::Alarm(3));
         assert!(matches!(r[1], Response::Banner { .. }));
+    }
+
+    /// Homed, then a 150 mm move at F600 (10 mm/s) running for 1 s.
+    fn moving_at_f600(jog: bool) -> (Host, f64) {
+        let mut h = Host::new(Clock::Scaled(1.0));
+        h.send(b"$H\n");
+        h.pass(60.0);
+        let line: &[u8] = if jog {
+            b"$J=X150F600\n"
+        } else {
+            b"G1X150F600\n"
+        };
+        assert_eq!(h.send(line), vec![Response::Ok]);
+        h.pass(1.0);
+        let x = h.status().position[0];
+        (h, x)
+    }
+
+    #[test]
+    fn a_feed_override_changes_the_move_already_running_and_fs_shows_the_real_rate() {
+        let (mut plain, x0) = moving_at_f600(false);
+        assert!(
+            (plain.status().feed.unwrap() - 600.0).abs() < 1e-6,
+            "cruising at F600"
+        );
+        plain.pass(2.0);
+        let full = plain.status().position[0] - x0;
+        let (mut h, x0) = moving_at_f600(false);
+        // Five -10 % steps: 50 %, applied to the move under way.
+        h.send(&[0x92; 5]);
+        h.pass(2.0);
+        let s = h.status();
+        let halved = s.position[0] - x0;
+        assert!((full - 20.0).abs() < 0.1, "{full}");
+        assert!((halved - 10.0).abs() < 0.2, "{halved} mm in 2 s at 50 %");
+        assert!((s.feed.unwrap() - 300.0).abs() < 1e-6, "{s:?}");
+        assert_eq!(s.overrides.map(|o| o[0]), Some(50), "{s:?}");
+        // Back to 100 % mid-move: full speed again.
+        h.send(&[0x90]);
+        h.pass(1.0);
+        assert!((h.status().feed.unwrap() - 600.0).abs() < 1e-6);
+        // Nothing moving: FS:0.
+        h.pass(60.0);
+        let s = h.status();
+        assert_eq!((s.state, s.feed), (MachineState::Idle, Some(0.0)));
+    }
+
+    #[test]
+    fn jog_motions_ignore_the_feed_override() {
+        let (mut h, x0) = moving_at_f600(true);
+        h.send(&[0x92; 5]);
+        h.pass(2.0);
+        let s = h.status();
+        assert_eq!(s.state, MachineState::Jog);
+        assert!((s.position[0] - x0 - 20.0).abs() < 0.1, "{s:?}");
+        assert!((s.feed.unwrap() - 600.0).abs() < 1e-6, "{s:?}");
     }
 
     #[test]

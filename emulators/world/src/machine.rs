@@ -343,6 +343,21 @@ impl Motion {
         }
     }
 
+    /// Speed along the path after `t` seconds, mm/s.
+    fn speed_at(&self, t: f64) -> f64 {
+        if t >= self.duration || t < 0.0 {
+            return 0.0;
+        }
+        let t_acc = self.v / self.a;
+        if t < t_acc {
+            self.a * t
+        } else if t < self.duration - t_acc {
+            self.v
+        } else {
+            self.a * (self.duration - t)
+        }
+    }
+
     fn point_at(&self, t: f64) -> [f64; 2] {
         if self.length == 0.0 {
             return self.to;
@@ -543,6 +558,15 @@ impl SimMachine {
             let rest = m.duration - m.elapsed;
             self.advance(rest.max(0.0) + 1e-9);
         }
+    }
+
+    /// The speed along the path now, mm/min (0 when still): what a controller's step
+    /// generator is putting out at this moment (lower than the programmed feed while
+    /// accelerating or decelerating).
+    pub fn speed_mm_min(&self) -> f64 {
+        self.motion
+            .as_ref()
+            .map_or(0.0, |m| m.speed_at(m.elapsed) * 60.0)
     }
 
     /// Stop now (feed hold): the axes stop where they are (no deceleration modelled).
