@@ -233,3 +233,45 @@ fn a_zipped_genicam_xml_is_read_like_a_plain_one() {
         assert!(cam.grab().await.unwrap().image == expected);
     });
 }
+
+/// Frame timestamps follow the camera's device clock (wall time here, at the rate the
+/// tick frequency registers declare), not the simulated machine's clock: a client that
+/// divides by the tick frequency gets wall time. The bounds are causal (the trigger
+/// happened after the server started and within the grab), never a timing guess.
+#[test]
+fn frame_timestamps_follow_the_device_clock_and_its_declared_tick_rate() {
+    let rt = runtime();
+    rt.block_on(async {
+        let rig = rig(Some((320, 240)), None);
+        // An hour of simulated machine time: a timestamp taken from the simulation's
+        // clock would be far outside the bounds below.
+        rig.lock().unwrap().machine_mut().advance(3600.0);
+        for scale in [1.0, 25.0] {
+            let before_start = std::time::Instant::now();
+            let emu = emulator(
+                &rig,
+                GigeConfig {
+                    clock: world::Clock::Scaled(scale),
+                    ..Default::default()
+                },
+            )
+            .await;
+            let after_start = std::time::Instant::now();
+            let mut cam = connect(&emu, options()).await;
+            let mut last = 0;
+            for _ in 0..3 {
+                let grab_start = before_start.elapsed().as_nanos() as u64;
+                let f = cam.grab().await.unwrap();
+                let grab_end = before_start.elapsed().as_nanos() as u64;
+                let slack = (after_start - before_start).as_nanos() as u64;
+                let t = f.meta.timestamp_ns;
+                assert!(
+                    t + slack >= grab_start && t <= grab_end,
+                    "scale {scale}: timestamp {t} ns outside the grab [{grab_start}, {grab_end}] ns"
+                );
+                assert!(t > last, "timestamps increase");
+                last = t;
+            }
+        }
+    });
+}

@@ -103,6 +103,7 @@ pub fn serve(a: GigeArgs) -> anyhow::Result<()> {
                     drop_every: a.drop_every,
                     loss_on_resend: a.loss_on_resend,
                     zip_xml: a.zip_xml,
+                    clock,
                     ..Default::default()
                 },
             },

@@ -63,6 +63,20 @@ pub struct GigeConfig {
     pub loss_on_resend: bool,
     /// Serve the GenICam XML zipped (`Local:sim-camera.zip;...`), as many real cameras do.
     pub zip_xml: bool,
+    /// The device clock behind frame timestamps: wall time scaled by `k` (`k` = 1: real
+    /// time), declared as 1e9 * k ticks per wall second in the tick frequency
+    /// registers; or, unconstrained, the simulated machine's clock in ns.
+    pub clock: world::Clock,
+}
+
+impl GigeConfig {
+    /// Timestamp ticks per wall second (the bootstrap's tick frequency).
+    pub fn tick_frequency_hz(&self) -> u64 {
+        match self.clock {
+            world::Clock::Scaled(k) => (1e9 * k).round() as u64,
+            world::Clock::Unconstrained => 1_000_000_000,
+        }
+    }
 }
 
 impl Default for GigeConfig {
@@ -77,6 +91,7 @@ impl Default for GigeConfig {
             drop_every: None,
             loss_on_resend: false,
             zip_xml: false,
+            clock: world::Clock::Scaled(1.0),
         }
     }
 }
@@ -161,9 +176,10 @@ impl GigeDevice {
         );
         let hb = d.cfg.heartbeat_timeout_ms;
         w(&mut d, bs::HEARTBEAT_TIMEOUT, hb);
-        // 1 GHz timestamp ticks (ns).
-        w(&mut d, bs::TICK_FREQUENCY_HIGH, 0);
-        w(&mut d, bs::TICK_FREQUENCY_LOW, 1_000_000_000);
+        // Timestamp ticks: device-clock nanoseconds (see `GigeConfig::clock`).
+        let ticks = d.cfg.tick_frequency_hz();
+        w(&mut d, bs::TICK_FREQUENCY_HIGH, (ticks >> 32) as u32);
+        w(&mut d, bs::TICK_FREQUENCY_LOW, ticks as u32);
         w(&mut d, bs::SCPS0, 1500);
         let url = if d.cfg.zip_xml {
             let zipped = protocol::gige::zip::store_one(XML_FILE, XML.as_bytes(), true);

@@ -115,6 +115,7 @@ impl GigeCameraServer {
             last: None,
             next_tick: None,
             rendering: None,
+            exposure_ticks: None,
             queued: 0,
             buf: Vec::with_capacity(66_000),
         };
@@ -174,6 +175,8 @@ struct Server {
     /// The frame being rendered (off the control loop, so GVCP stays responsive while a
     /// large frame renders) and the triggers that arrived meanwhile.
     rendering: Option<JoinHandle<(protocol::MonoImage, world::rig::SimFrameInfo)>>,
+    /// Timestamp (device ticks) of the frame being rendered, latched at its trigger.
+    exposure_ticks: Option<u64>,
     queued: u32,
     buf: Vec<u8>,
 }
@@ -310,6 +313,11 @@ impl Server {
             self.queued += 1;
             return;
         }
+        // The timestamp is latched at the trigger, from the device clock.
+        self.exposure_ticks = match self.device.config().clock {
+            world::Clock::Scaled(k) => Some((self.start.elapsed().as_secs_f64() * 1e9 * k) as u64),
+            world::Clock::Unconstrained => None,
+        };
         let rig = self.rig.clone();
         self.rendering = Some(tokio::task::spawn_blocking(move || lock(&rig).grab()));
     }
@@ -335,7 +343,10 @@ impl Server {
             self.block_id + 1
         };
         let leader = ImageLeader {
-            timestamp: (info.time_s * 1e9).round() as u64,
+            // Device clock at the trigger; unconstrained: the simulated machine's.
+            timestamp: self
+                .exposure_ticks
+                .unwrap_or_else(|| (info.time_s * 1e9).round() as u64),
             pixel_format,
             width: image.width,
             height: image.height,
