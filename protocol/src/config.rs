@@ -8,6 +8,12 @@ use serde::de::DeserializeOwned;
 use std::fmt;
 use std::path::{Path, PathBuf};
 
+/// Largest data file the loader reads (16 MiB): the largest file the project ships, a
+/// board certificate of 135 000 points, is under 4 MiB; anything larger is the wrong file
+/// (or a device such as `/dev/zero`, refused before reading because it is not a regular
+/// file).
+pub const MAX_FILE_BYTES: u64 = 16 * 1024 * 1024;
+
 /// A configuration problem, located as precisely as the file allows.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
@@ -71,7 +77,7 @@ pub struct ConfigDoc {
 
 impl ConfigDoc {
     pub fn read(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|cause| ConfigError::Io {
+        let text = read_data_file(path).map_err(|cause| ConfigError::Io {
             file: path.to_path_buf(),
             cause,
         })?;
@@ -119,7 +125,7 @@ impl ConfigDoc {
                 embedded: self.embedded,
             });
         }
-        match std::fs::read_to_string(&path) {
+        match read_data_file(&path) {
             Ok(text) => Ok(ConfigDoc {
                 name: path.display().to_string(),
                 text,
@@ -183,6 +189,86 @@ impl ConfigDoc {
             self.dir.join(p)
         }
     }
+}
+
+/// Read a data file as text, bounded: only a regular file (a device such as `/dev/zero`,
+/// a FIFO or a directory is refused before anything is read) of at most
+/// [`MAX_FILE_BYTES`], in UTF-8; a leading byte-order mark is dropped. Every file the
+/// loader reads goes through here.
+pub fn read_data_file(path: &Path) -> std::io::Result<String> {
+    use std::io::{Error, ErrorKind, Read};
+    // Checked on the path first: opening a FIFO would block until a writer comes.
+    check_regular(&std::fs::metadata(path)?)?;
+    let file = std::fs::File::open(path)?;
+    let meta = file.metadata()?;
+    check_regular(&meta)?;
+    let too_big = |size: u64| {
+        Error::new(
+            ErrorKind::InvalidData,
+            format!(
+                "the file has {size} bytes, more than the {} MiB a data file may have",
+                MAX_FILE_BYTES / (1024 * 1024)
+            ),
+        )
+    };
+    if meta.len() > MAX_FILE_BYTES {
+        return Err(too_big(meta.len()));
+    }
+    let mut bytes = Vec::with_capacity(meta.len() as usize);
+    file.take(MAX_FILE_BYTES + 1).read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > MAX_FILE_BYTES {
+        // It grew while being read (or its size was not known).
+        return Err(too_big(bytes.len() as u64));
+    }
+    let text = String::from_utf8(bytes).map_err(|e| {
+        let at = e.utf8_error().valid_up_to();
+        let line = e.as_bytes()[..at].iter().filter(|&&b| b == b'\n').count() + 1;
+        Error::new(
+            ErrorKind::InvalidData,
+            format!("not UTF-8 text (line {line}, byte {at})"),
+        )
+    })?;
+    Ok(match text.strip_prefix('\u{FEFF}') {
+        Some(rest) => rest.to_string(),
+        None => text,
+    })
+}
+
+fn check_regular(meta: &std::fs::Metadata) -> std::io::Result<()> {
+    let t = meta.file_type();
+    if t.is_file() {
+        return Ok(());
+    }
+    let kind = if t.is_dir() {
+        "a directory"
+    } else {
+        special_kind(&t)
+    };
+    Err(std::io::Error::new(
+        std::io::ErrorKind::InvalidInput,
+        format!("not a regular file ({kind}); a data file must be a regular file"),
+    ))
+}
+
+#[cfg(unix)]
+fn special_kind(t: &std::fs::FileType) -> &'static str {
+    use std::os::unix::fs::FileTypeExt;
+    if t.is_char_device() {
+        "a character device"
+    } else if t.is_block_device() {
+        "a block device"
+    } else if t.is_fifo() {
+        "a FIFO"
+    } else if t.is_socket() {
+        "a socket"
+    } else {
+        "a special file"
+    }
+}
+
+#[cfg(not(unix))]
+fn special_kind(_: &std::fs::FileType) -> &'static str {
+    "a special file"
 }
 
 /// Lexical normalisation (`a/b/../c` -> `a/c`), so embedded names match.
@@ -356,5 +442,59 @@ mod tests {
         let text = "[[t]]\nx = 1\n[[t]]\nx = 2\n";
         assert_eq!(find_key_line(text, "t[1].x"), Some(4));
         assert_eq!(find_key_line(text, "t[0].x"), Some(2));
+    }
+    fn temp_dir(name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("protocol-config-{name}-{}", std::process::id()));
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    #[test]
+    fn special_files_are_refused_before_reading() {
+        let e = ConfigDoc::read(Path::new("/dev/zero"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("/dev/zero") && e.contains("not a regular file"),
+            "{e}"
+        );
+        let e = doc("[board]\nfile = \"/dev/zero\"\n")
+            .read_relative("board.file", "/dev/zero")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("machine.toml:2: key `board.file`") && e.contains("not a regular file"),
+            "{e}"
+        );
+        let dir = temp_dir("dir");
+        let e = ConfigDoc::read(&dir).unwrap_err().to_string();
+        assert!(e.contains("a directory"), "{e}");
+    }
+
+    #[test]
+    fn files_larger_than_the_limit_are_refused() {
+        let dir = temp_dir("big");
+        let big = dir.join("big.csv");
+        let f = std::fs::File::create(&big).unwrap();
+        f.set_len(MAX_FILE_BYTES + 1).unwrap(); // sparse: nothing is written
+        let e = ConfigDoc::read(&big).unwrap_err().to_string();
+        assert!(e.contains("16 MiB"), "{e}");
+        let ok = dir.join("ok.toml");
+        std::fs::write(&ok, "x = 1\n").unwrap();
+        assert_eq!(ConfigDoc::read(&ok).unwrap().text, "x = 1\n");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_leading_byte_order_mark_is_dropped() {
+        let dir = temp_dir("bom");
+        let p = dir.join("bom.toml");
+        std::fs::write(&p, "\u{FEFF}[stage]\nname = \"a\"\ntravel_mm = 1.0\n").unwrap();
+        let d = ConfigDoc::read(&p).unwrap();
+        assert!(d.text.starts_with("[stage]"));
+        d.parse::<Doc>().unwrap();
+        let r = doc("").read_relative("k", p.to_str().unwrap()).unwrap();
+        assert!(r.text.starts_with("[stage]"));
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }
