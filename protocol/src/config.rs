@@ -298,9 +298,91 @@ fn line_col(text: &str, offset: usize) -> (usize, usize) {
     (line, col)
 }
 
+/// Line of a key path as serde names it (`stage.axes[1].node`, `targets[3].x_mm`,
+/// `board.origin_mm[1]`): the line of the key itself, or of the array element for an
+/// index, found in the parsed document's spans, so keys inside inline tables and elements
+/// of inline arrays written over several lines are found. A document that does not parse
+/// falls back to a line scan of `[table]` headers and `key =` lines.
+pub fn find_key_line(text: &str, dotted: &str) -> Option<usize> {
+    match key_span(text, dotted) {
+        Some(offset) => Some(line_col(text, offset).0),
+        None => scan_key_line(text, dotted),
+    }
+}
+
+/// One step of a key path.
+#[derive(Debug, PartialEq)]
+enum Step<'a> {
+    Key(&'a str),
+    Index(usize),
+}
+
+/// `a.b[1].c` -> `a`, `b`, `[1]`, `c`; None for anything else (serde's `?`).
+fn key_path(dotted: &str) -> Option<Vec<Step<'_>>> {
+    let mut steps = Vec::new();
+    for part in dotted.split('.') {
+        let (name, mut rest) = part.split_at(part.find('[').unwrap_or(part.len()));
+        if !name.is_empty() {
+            steps.push(Step::Key(name.trim_matches('"')));
+        } else if steps.is_empty() || !rest.starts_with('[') {
+            return None;
+        }
+        while let Some(r) = rest.strip_prefix('[') {
+            let (n, after) = r.split_once(']')?;
+            steps.push(Step::Index(n.parse().ok()?));
+            rest = after;
+        }
+        if !rest.is_empty() {
+            return None;
+        }
+    }
+    Some(steps)
+}
+
+/// Byte offset of the last step of `dotted` in `text` (its key, or its array element).
+fn key_span(text: &str, dotted: &str) -> Option<usize> {
+    use toml_edit::{Item, TableLike, Value};
+    enum Node<'a> {
+        Item(&'a Item),
+        Value(&'a Value),
+        Table(&'a toml_edit::Table),
+    }
+    let doc = toml_edit::ImDocument::parse(text).ok()?;
+    let mut node = Node::Table(doc.as_table());
+    let mut at = None;
+    for step in key_path(dotted)? {
+        let (next, span) = match step {
+            Step::Key(k) => {
+                let table: &dyn TableLike = match node {
+                    Node::Table(t) => t,
+                    Node::Item(i) => i.as_table_like()?,
+                    Node::Value(Value::InlineTable(t)) => t,
+                    Node::Value(_) => return None,
+                };
+                let (key, item) = table.get_key_value(k)?;
+                (Node::Item(item), key.span().or_else(|| item.span()))
+            }
+            Step::Index(n) => match node {
+                Node::Item(Item::ArrayOfTables(a)) => {
+                    let t = a.get(n)?;
+                    (Node::Table(t), t.span())
+                }
+                Node::Item(Item::Value(Value::Array(a))) | Node::Value(Value::Array(a)) => {
+                    let v = a.get(n)?;
+                    (Node::Value(v), v.span())
+                }
+                _ => return None,
+            },
+        };
+        node = next;
+        at = span.map(|s| s.start).or(at);
+    }
+    at
+}
+
 /// Best-effort line of a dotted key: tracks `[table]` headers and matches `key =` lines.
 /// Array-of-table indices (`targets[3]`) are matched by counting `[[targets]]` headers.
-pub fn find_key_line(text: &str, dotted: &str) -> Option<usize> {
+fn scan_key_line(text: &str, dotted: &str) -> Option<usize> {
     let parts: Vec<String> = dotted.split('.').map(str::to_string).collect();
     let mut table: Vec<String> = Vec::new();
     let mut array_counts: std::collections::HashMap<String, usize> = Default::default();
@@ -438,6 +520,23 @@ mod tests {
     }
 
     #[test]
+    fn key_paths_are_split_like_serde_writes_them() {
+        use Step::*;
+        assert_eq!(
+            key_path("stage.axes[1].node"),
+            Some(vec![Key("stage"), Key("axes"), Index(1), Key("node")])
+        );
+        assert_eq!(
+            key_path("m[0][2]"),
+            Some(vec![Key("m"), Index(0), Index(2)])
+        );
+        assert_eq!(key_path("a.?"), Some(vec![Key("a"), Key("?")]));
+        assert_eq!(key_path("a[x]"), None);
+        // A document that does not parse still gets the line scan.
+        assert_eq!(find_key_line("[a]\nb = 1\nc = \"\n", "a.b"), Some(2));
+    }
+
+    #[test]
     fn array_of_tables_keys_are_found() {
         let text = "[[t]]\nx = 1\n[[t]]\nx = 2\n";
         assert_eq!(find_key_line(text, "t[1].x"), Some(4));
@@ -496,5 +595,68 @@ mod tests {
         let r = doc("").read_relative("k", p.to_str().unwrap()).unwrap();
         assert!(r.text.starts_with("[stage]"));
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+    #[derive(serde::Deserialize, Debug)]
+    #[serde(deny_unknown_fields)]
+    #[allow(dead_code)]
+    struct Axes {
+        stage: AxesStage,
+    }
+    #[derive(serde::Deserialize, Debug)]
+    #[serde(deny_unknown_fields)]
+    #[allow(dead_code)]
+    struct AxesStage {
+        name: String,
+        axes: Vec<Axis>,
+    }
+    #[derive(serde::Deserialize, Debug)]
+    #[serde(deny_unknown_fields)]
+    #[allow(dead_code)]
+    struct Axis {
+        node: u8,
+    }
+
+    #[test]
+    fn errors_inside_inline_arrays_name_the_line_of_the_element() {
+        let text = "[stage]\nname = \"a\"\naxes = [\n  { node = 1 },\n  { node = \"two\" },\n]\n";
+        let err = doc(text).parse::<Axes>().unwrap_err();
+        let loc = err.location().unwrap();
+        assert_eq!(loc.key.as_deref(), Some("stage.axes[1].node"), "{err}");
+        assert_eq!(loc.line, Some(5), "{err}");
+        // Checks made after parsing find the element too, and the key inside it.
+        let d = doc(text);
+        assert_eq!(
+            d.invalid("stage.axes[1].node", "m")
+                .location()
+                .unwrap()
+                .line,
+            Some(5)
+        );
+        assert_eq!(
+            d.invalid("stage.axes[0]", "m").location().unwrap().line,
+            Some(4)
+        );
+        assert_eq!(
+            d.invalid("stage.axes", "m").location().unwrap().line,
+            Some(3)
+        );
+        // An inline array of numbers, one element per line.
+        let d = doc("[board]\norigin_mm = [\n  1.0,\n  2.0,\n]\n");
+        assert_eq!(
+            d.invalid("board.origin_mm[1]", "m")
+                .location()
+                .unwrap()
+                .line,
+            Some(4)
+        );
+        // Inline tables and dotted keys.
+        let d = doc("stage = { name = \"a\", axes = [{ node = 1 },\n  { node = 300 }] }\n");
+        let err = d.parse::<Axes>().unwrap_err();
+        assert_eq!(err.location().unwrap().line, Some(2), "{err}");
+        let d = doc("[[t]]\nx = 1\n[[t]]\nx = [1,\n 2]\n");
+        assert_eq!(
+            d.invalid("t[1].x[1]", "m").location().unwrap().line,
+            Some(5)
+        );
     }
 }
