@@ -180,6 +180,63 @@ impl ConfigDoc {
         }
     }
 
+    /// Check a number read from `key` against `lo..=hi` (in `unit`, may be empty): a
+    /// non-finite value (TOML's `nan`, `inf`) or one outside the range is refused with a
+    /// message naming the range.
+    pub fn in_range(
+        &self,
+        key: &str,
+        value: f64,
+        lo: f64,
+        hi: f64,
+        unit: &str,
+    ) -> Result<f64, ConfigError> {
+        self.check_range(key, value, lo, hi, unit, false)
+    }
+
+    /// [`ConfigDoc::in_range`] for a quantity that must be more than zero: `0..=hi`,
+    /// zero excluded.
+    pub fn positive(&self, key: &str, value: f64, hi: f64, unit: &str) -> Result<f64, ConfigError> {
+        self.check_range(key, value, 0.0, hi, unit, true)
+    }
+
+    fn check_range(
+        &self,
+        key: &str,
+        value: f64,
+        lo: f64,
+        hi: f64,
+        unit: &str,
+        zero_excluded: bool,
+    ) -> Result<f64, ConfigError> {
+        let with_unit = |v: f64| {
+            if unit.is_empty() {
+                number(v)
+            } else {
+                format!("{} {unit}", number(v))
+            }
+        };
+        let range = format!(
+            "{}..={}{}",
+            number(lo),
+            with_unit(hi),
+            if zero_excluded { " (0 excluded)" } else { "" }
+        );
+        if !value.is_finite() {
+            return Err(self.invalid(
+                key,
+                format!("`{value}` is not a finite number: allowed {range}"),
+            ));
+        }
+        if value < lo || value > hi || (zero_excluded && value <= 0.0) {
+            return Err(self.invalid(
+                key,
+                format!("{} is outside the allowed range {range}", with_unit(value)),
+            ));
+        }
+        Ok(value)
+    }
+
     /// Resolve a path written inside the document relative to the document's folder.
     pub fn resolve(&self, rel: &str) -> PathBuf {
         let p = Path::new(rel);
@@ -188,6 +245,16 @@ impl ConfigDoc {
         } else {
             self.dir.join(p)
         }
+    }
+}
+
+/// A number as a reader writes it: `20`, `0.5`, `1e-5`, `1e300` (never 300 digits).
+fn number(v: f64) -> String {
+    let a = v.abs();
+    if a != 0.0 && !(1e-3..1e6).contains(&a) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
     }
 }
 
@@ -517,6 +584,30 @@ mod tests {
                 .contains("demo.toml (built in):2: key `stage.machine`"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn ranges_refuse_non_finite_and_outside_values_naming_the_range() {
+        let d = doc("[c]\nblur = 1e5\nn = nan\n");
+        assert_eq!(d.in_range("c.blur", 2.0, 0.0, 20.0, "px").unwrap(), 2.0);
+        let e = d.in_range("c.blur", 1e5, 0.0, 20.0, "px").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "machine.toml:2: key `c.blur`: 100000 px is outside the allowed range 0..=20 px"
+        );
+        let e = d.in_range("c.n", f64::NAN, 0.0, 1.0, "").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "machine.toml:3: key `c.n`: `NaN` is not a finite number: allowed 0..=1"
+        );
+        let e = d.positive("c.blur", 0.0, 1e6, "mm/min").unwrap_err();
+        assert!(
+            e.to_string()
+                .ends_with("0 mm/min is outside the allowed range 0..=1e6 mm/min (0 excluded)"),
+            "{e}"
+        );
+        let e = d.positive("c.blur", 1e300, 1e5, "mm").unwrap_err();
+        assert!(e.to_string().contains("1e300 mm is outside"), "{e}");
     }
 
     #[test]
