@@ -590,12 +590,7 @@ impl Stage for GrblStage {
 
     async fn move_to(&mut self, target: AxisValues, feed_mm_min: f64) -> Result<(), DriverError> {
         self.info.check_limits(&target)?;
-        if !(feed_mm_min > 0.0 && feed_mm_min.is_finite()) {
-            return Err(DriverError::Unsupported {
-                device: self.device(),
-                message: format!("feed {feed_mm_min} mm/min is not a positive number"),
-            });
-        }
+        crate::stage::check_feed(&self.device(), feed_mm_min)?;
         if target.is_empty() {
             return Ok(());
         }

@@ -93,3 +93,31 @@ async fn stock_grbl_negative_space_and_wpos_reports() {
         ["$I", "$$", "$H", "G21G53G1X-12.3457Y-1F1500", "G1X1Q1"]
     );
 }
+
+#[tokio::test]
+async fn a_feed_that_is_not_a_positive_number_is_refused_before_anything_is_sent() {
+    let (a, b) = tokio::io::duplex(4096);
+    let log = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+    tokio::spawn(fake_grbl(b, log.clone()));
+    let mut g = GrblStage::connect(Box::new(a), "fake".into(), GrblOptions::default())
+        .await
+        .unwrap();
+    g.home().await.unwrap();
+    for feed in [f64::NAN, 0.0, -1.0, f64::INFINITY] {
+        let e = g
+            .move_to(AxisValues::xy(-12.0, -1.0), feed)
+            .await
+            .unwrap_err();
+        assert!(
+            matches!(e, DriverError::Unsupported { .. }) && e.to_string().contains("feed"),
+            "{feed}: {e}"
+        );
+        let e = g
+            .move_by(AxisValues::xy(-1.0, 0.0), feed)
+            .await
+            .unwrap_err();
+        assert!(e.to_string().contains("feed"), "{feed}: {e}");
+    }
+    let log = log.lock().unwrap().clone();
+    assert_eq!(log, ["$I", "$$", "$H"]);
+}
