@@ -531,7 +531,7 @@ impl SimMachine {
         if !self.homed {
             return Err(MachineRefusal::NotHomed);
         }
-        if !(feed_mm_min > 0.0) {
+        if !(feed_mm_min.is_finite() && feed_mm_min > 0.0) {
             return Err(MachineRefusal::BadFeed(feed_mm_min));
         }
         for (k, name) in [(0, 'X'), (1, 'Y')] {
@@ -834,6 +834,12 @@ mod tests {
             Err(MachineRefusal::NotHomed)
         );
         m.home();
+        for bad in [f64::NAN, f64::INFINITY, 0.0, -1.0] {
+            assert!(matches!(
+                m.start_move([1.0, 1.0], bad),
+                Err(MachineRefusal::BadFeed(_))
+            ));
+        }
         let t0 = m.now_s();
         let d = m.start_move([10.00013, 5.0], 3000.0).unwrap();
         assert!(d > 0.2 && m.is_moving());
