@@ -121,3 +121,64 @@ async fn a_feed_that_is_not_a_positive_number_is_refused_before_anything_is_sent
     let log = log.lock().unwrap().clone();
     assert_eq!(log, ["$I", "$$", "$H"]);
 }
+
+/// A device that answers every byte it gets with `reply`, forever.
+async fn echo_device(io: tokio::io::DuplexStream, reply: &'static [u8]) {
+    let (mut r, mut w) = tokio::io::split(io);
+    let mut b = [0u8; 64];
+    while let Ok(n) = tokio::io::AsyncReadExt::read(&mut r, &mut b).await {
+        if n == 0 || w.write_all(reply).await.is_err() {
+            return;
+        }
+    }
+}
+
+fn quick() -> GrblOptions {
+    GrblOptions {
+        connect_timeout: std::time::Duration::from_millis(300),
+        ..GrblOptions::default()
+    }
+}
+
+#[tokio::test]
+async fn a_device_that_only_says_ok_is_not_said_to_have_sent_nothing() {
+    let (a, b) = tokio::io::duplex(4096);
+    tokio::spawn(echo_device(b, b"ok\r\nok\r\nok\r\n"));
+    let e = GrblStage::connect(Box::new(a), "fake".into(), quick())
+        .await
+        .err()
+        .expect("not GRBL");
+    let m = e.to_string();
+    assert!(!m.contains("sent nothing"), "{m}");
+    assert!(
+        m.contains("answered only `ok` 3 times") && m.contains("never a version report"),
+        "{m}"
+    );
+}
+
+#[tokio::test]
+async fn binary_garbage_from_a_device_is_shown_escaped_and_cut() {
+    static GARBAGE: [u8; 300] = {
+        let mut g = [0u8; 300];
+        let mut i = 0;
+        while i < 300 {
+            g[i] = (i as u8).wrapping_mul(37) | 0x80;
+            i += 1;
+        }
+        g
+    };
+    let (a, b) = tokio::io::duplex(4096);
+    tokio::spawn(echo_device(b, &GARBAGE));
+    let e = GrblStage::connect(Box::new(a), "fake".into(), quick())
+        .await
+        .err()
+        .expect("not GRBL");
+    let m = e.to_string();
+    assert!(m.contains("\\x80\\xA5"), "{m}");
+    assert!(m.contains(" bytes)"), "cut with the byte count: {m}");
+    assert!(
+        m.chars().all(|c| (' '..='~').contains(&c) || c == '…'),
+        "only printable characters: {m}"
+    );
+    assert!(m.len() < 600, "{} characters: {m}", m.len());
+}
