@@ -28,6 +28,24 @@ pub fn escape_bytes_max(bytes: &[u8], max_chars: usize) -> String {
     out
 }
 
+/// How many bytes [`hex_bytes`] shows before cutting.
+pub const SHOWN_HEX_BYTES: usize = 16;
+
+/// Binary device bytes (a Modbus RTU frame, a CAN payload) as hex, `01 83 02 C0 F1`;
+/// past [`SHOWN_HEX_BYTES`] bytes cut with `… (N bytes)` as [`escape_bytes`] does.
+pub fn hex_bytes(bytes: &[u8]) -> String {
+    let shown: Vec<String> = bytes
+        .iter()
+        .take(SHOWN_HEX_BYTES)
+        .map(|b| format!("{b:02X}"))
+        .collect();
+    let mut out = shown.join(" ");
+    if bytes.len() > SHOWN_HEX_BYTES {
+        out.push_str(&format!(" … ({} bytes)", bytes.len()));
+    }
+    out
+}
+
 /// A text with its non-printable characters escaped (`\xNN` for ASCII controls,
 /// `\u{XXXX}` for invisible or control Unicode characters such as a byte-order mark),
 /// not truncated: for names and values from files, whose length the file bounds.
@@ -93,6 +111,18 @@ mod tests {
         // Exactly at the limit: shown whole.
         let exact = vec![b'a'; SHOWN_CHARS];
         assert_eq!(escape_bytes(&exact), "a".repeat(SHOWN_CHARS));
+    }
+
+    #[test]
+    fn binary_bytes_are_shown_in_hex_and_cut_with_the_count() {
+        assert_eq!(hex_bytes(&[0x01, 0x83, 0x02, 0xC0, 0xF1]), "01 83 02 C0 F1");
+        assert_eq!(hex_bytes(&[]), "");
+        let long: Vec<u8> = (0..40).collect();
+        let s = hex_bytes(&long);
+        assert!(
+            s.starts_with("00 01 02") && s.ends_with("0F … (40 bytes)"),
+            "{s}"
+        );
     }
 
     #[test]
