@@ -3,7 +3,7 @@
 
 use crate::error::DriverError;
 use crate::stage::{
-    Axis, AxisInfo, AxisValues, Capabilities, Stage, StageInfo, StageState, StageStatus,
+    check_feed, Axis, AxisInfo, AxisValues, Capabilities, Stage, StageInfo, StageState, StageStatus,
 };
 use async_trait::async_trait;
 
@@ -89,6 +89,7 @@ impl Stage for MultiAxisStage {
 
     async fn move_to(&mut self, target: AxisValues, feed_mm_min: f64) -> Result<(), DriverError> {
         self.info.check_limits(&target)?;
+        check_feed(&self.info.name, feed_mm_min)?;
         let here = self.position().await?;
         let deltas: Vec<(Axis, f64, f64)> = target
             .iter()
@@ -158,5 +159,82 @@ impl Stage for MultiAxisStage {
             };
         }
         Ok(StageStatus { state, position })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::{Arc, Mutex};
+
+    /// A drive that records what it is told.
+    struct Recorder {
+        info: AxisInfo,
+        told: Arc<Mutex<Vec<(f64, f64)>>>,
+    }
+
+    #[async_trait]
+    impl AxisDrive for Recorder {
+        fn info(&self) -> &AxisInfo {
+            &self.info
+        }
+        fn device(&self) -> &str {
+            "recorder"
+        }
+        async fn home(&mut self) -> Result<(), DriverError> {
+            Ok(())
+        }
+        async fn start_move(&mut self, p: f64, s: f64) -> Result<(), DriverError> {
+            self.told.lock().unwrap().push((p, s));
+            Ok(())
+        }
+        async fn position(&mut self) -> Result<f64, DriverError> {
+            Ok(0.0)
+        }
+        async fn status(&mut self) -> Result<AxisStatus, DriverError> {
+            Ok(AxisStatus {
+                moving: false,
+                homed: true,
+                fault: None,
+                position_mm: 0.0,
+            })
+        }
+        async fn wait_idle(&mut self) -> Result<(), DriverError> {
+            Ok(())
+        }
+        async fn stop(&mut self) -> Result<(), DriverError> {
+            Ok(())
+        }
+    }
+
+    #[tokio::test]
+    async fn a_feed_that_is_not_a_positive_number_is_refused_before_any_drive_is_told() {
+        let told = Arc::new(Mutex::new(Vec::new()));
+        let drive = |axis| -> Box<dyn AxisDrive> {
+            Box::new(Recorder {
+                info: AxisInfo {
+                    axis,
+                    min_mm: 0.0,
+                    max_mm: 100.0,
+                    resolution_mm: 0.001,
+                    max_feed_mm_min: 6000.0,
+                },
+                told: told.clone(),
+            })
+        };
+        let mut s = MultiAxisStage::new("t", vec![drive(Axis::X), drive(Axis::Y)]).unwrap();
+        for feed in [f64::NAN, 0.0, -100.0, f64::INFINITY] {
+            let e = s
+                .move_to(AxisValues::xy(10.0, 20.0), feed)
+                .await
+                .unwrap_err();
+            assert!(
+                matches!(e, DriverError::Unsupported { .. }) && e.to_string().contains("feed"),
+                "{feed}: {e}"
+            );
+        }
+        assert!(told.lock().unwrap().is_empty());
+        s.move_to(AxisValues::xy(10.0, 20.0), 1000.0).await.unwrap();
+        assert_eq!(told.lock().unwrap().len(), 2);
     }
 }

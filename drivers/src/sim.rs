@@ -5,7 +5,7 @@
 use crate::camera::{Camera, CameraInfo, Frame, FrameMeta};
 use crate::error::DriverError;
 use crate::stage::{
-    Axis, AxisInfo, AxisValues, Capabilities, Stage, StageInfo, StageState, StageStatus,
+    check_feed, Axis, AxisInfo, AxisValues, Capabilities, Stage, StageInfo, StageState, StageStatus,
 };
 use async_trait::async_trait;
 use world::machine::MachineRefusal;
@@ -72,6 +72,7 @@ impl Stage for SimStage {
 
     async fn move_to(&mut self, target: AxisValues, feed_mm_min: f64) -> Result<(), DriverError> {
         self.info.check_limits(&target)?;
+        check_feed(DEVICE, feed_mm_min)?;
         let mut r = lock(&self.rig);
         let here = r.machine().position_mm();
         let to = [
@@ -155,5 +156,50 @@ impl Camera for SimCamera {
                 gain_db: 0.0,
             },
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use protocol::config::ConfigDoc;
+    use std::path::Path;
+
+    #[tokio::test]
+    async fn a_feed_that_is_not_a_positive_number_is_refused() {
+        let doc = |name: &str, text: &str| ConfigDoc::from_text(name, text, Path::new("."));
+        let machine = world::machine::MachineConfig::from_doc(&doc(
+            "m.toml",
+            include_str!("../../config/machines/c5-stage.toml"),
+        ))
+        .unwrap();
+        let camera = world::camera::CameraModel::from_doc(&doc(
+            "c.toml",
+            include_str!("../../config/cameras/mono-1.3mp.toml"),
+        ))
+        .unwrap();
+        let board = protocol::Board::nominal(
+            "b",
+            0.5,
+            0.25,
+            protocol::Polarity::DarkOnLight,
+            10,
+            10,
+            [0.0; 2],
+        );
+        let rig = world::shared_rig(machine, board, camera);
+        let mut s = SimStage::new(rig.clone());
+        s.home().await.unwrap();
+        for feed in [f64::NAN, 0.0, -1.0, f64::INFINITY] {
+            let e = s
+                .move_to(AxisValues::xy(10.0, 10.0), feed)
+                .await
+                .unwrap_err();
+            assert!(
+                matches!(e, DriverError::Unsupported { .. }) && e.to_string().contains("feed"),
+                "{feed}: {e}"
+            );
+        }
+        s.move_to(AxisValues::xy(10.0, 10.0), 1000.0).await.unwrap();
     }
 }

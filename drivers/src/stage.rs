@@ -49,6 +49,49 @@ impl AxisValues {
     }
 }
 
+/// Refuse a feed (or speed) that is not a positive finite number of mm/min before
+/// anything is sent: `NaN.min(max)` is `max`, so without this a NaN feed would silently
+/// become the axis's fastest.
+pub fn check_feed(device: &str, feed_mm_min: f64) -> Result<(), DriverError> {
+    if feed_mm_min.is_finite() && feed_mm_min > 0.0 {
+        return Ok(());
+    }
+    Err(DriverError::Unsupported {
+        device: device.to_string(),
+        message: format!(
+            "feed {feed_mm_min} mm/min is not a positive finite number: nothing was sent"
+        ),
+    })
+}
+
+/// Check an axis's configured limits and maximum feed (`what` names the axis for the
+/// message) before a device is opened.
+pub fn check_axis_config(
+    device: &str,
+    what: &str,
+    min_mm: f64,
+    max_mm: f64,
+    max_feed_mm_min: Option<f64>,
+) -> Result<(), DriverError> {
+    let bad = |message: String| DriverError::Unsupported {
+        device: device.to_string(),
+        message: format!("{what}: {message}"),
+    };
+    if !(min_mm.is_finite() && max_mm.is_finite() && min_mm < max_mm) {
+        return Err(bad(format!(
+            "soft limits {min_mm}..{max_mm} mm: need finite numbers with min_mm < max_mm"
+        )));
+    }
+    if let Some(f) = max_feed_mm_min {
+        if !(f.is_finite() && f > 0.0) {
+            return Err(bad(format!(
+                "max_feed_mm_min = {f}: must be a positive finite number of mm/min"
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// What a stage tells about one of its axes.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct AxisInfo {

@@ -17,6 +17,7 @@
 //! nominal position, so a board without a certificate is a perfect nominal grid.
 
 use crate::config::{ConfigDoc, ConfigError, Location};
+use crate::text::escape_text;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -160,6 +161,8 @@ impl Board {
             },
             message: msg,
         };
+        // A byte-order mark (some spreadsheets write one) is not part of the header.
+        let text = text.strip_prefix('\u{FEFF}').unwrap_or(text);
         let mut seen = vec![false; self.certified.len()];
         let mut count = 0;
         for (n, raw) in text.lines().enumerate() {
@@ -169,6 +172,7 @@ impl Board {
                 continue;
             }
             let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+            let shown = |k: usize| escape_text(fields[k]);
             if fields.len() != 4 {
                 return Err(err(
                     line_no,
@@ -181,25 +185,25 @@ impl Board {
             let i: u32 = fields[0].parse().map_err(|_| {
                 err(
                     line_no,
-                    format!("column i: `{}` is not a point index", fields[0]),
+                    format!("column i: `{}` is not a point index", shown(0)),
                 )
             })?;
             let j: u32 = fields[1].parse().map_err(|_| {
                 err(
                     line_no,
-                    format!("column j: `{}` is not a point index", fields[1]),
+                    format!("column j: `{}` is not a point index", shown(1)),
                 )
             })?;
             let x: f64 = fields[2].parse().map_err(|_| {
                 err(
                     line_no,
-                    format!("column x_mm: `{}` is not a number", fields[2]),
+                    format!("column x_mm: `{}` is not a number", shown(2)),
                 )
             })?;
             let y: f64 = fields[3].parse().map_err(|_| {
                 err(
                     line_no,
-                    format!("column y_mm: `{}` is not a number", fields[3]),
+                    format!("column y_mm: `{}` is not a number", shown(3)),
                 )
             })?;
             if i >= self.cols || j >= self.rows {
@@ -229,6 +233,20 @@ impl Board {
             seen[k] = true;
             self.certified[k] = [x, y];
             count += 1;
+        }
+        if count == 0 {
+            return Err(ConfigError::Invalid {
+                location: Location {
+                    file: file.to_string(),
+                    line: None,
+                    column: None,
+                    key: None,
+                },
+                message: "the certificate lists no points: a certificate is a header \
+                          `i,j,x_mm,y_mm` and one line per measured point (leave \
+                          `certified` out for a nominal board)"
+                    .to_string(),
+            });
         }
         self.certified_points = count;
         Ok(())
@@ -347,5 +365,39 @@ mod tests {
         let mut c = Board::from_doc(&doc(GOOD)).unwrap();
         c.apply_certificate("x", &csv).unwrap();
         assert_eq!(b.true_xy(4, 5), c.true_xy(4, 5));
+    }
+    #[test]
+    fn an_empty_certificate_is_refused() {
+        let mut b = Board::from_doc(&doc(GOOD)).unwrap();
+        for text in ["", "\n\n", "i,j,x_mm,y_mm\n", "# only a comment\n"] {
+            let e = b.apply_certificate("c.csv", text).unwrap_err().to_string();
+            assert!(
+                e.starts_with("c.csv") && e.contains("no points"),
+                "{text:?}: {e}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_certificate_with_a_byte_order_mark_is_read() {
+        let mut b = Board::from_doc(&doc(GOOD)).unwrap();
+        b.apply_certificate("c.csv", "\u{FEFF}i,j,x_mm,y_mm\n2,3,2.0004,3.4998\n")
+            .unwrap();
+        assert_eq!(b.true_xy(2, 3), Some([2.0004, 3.4998]));
+    }
+
+    #[test]
+    fn invisible_characters_in_a_certificate_are_shown_escaped() {
+        let mut b = Board::from_doc(&doc(GOOD)).unwrap();
+        let e = b
+            .apply_certificate("c.csv", "i,j,x_mm,y_mm\n2\u{200B},3,2.0,3.5\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("`2\\u{200B}`"), "{e}");
+        let e = b
+            .apply_certificate("c.csv", "i,j,x_mm,y_mm\n2,3,2.0\u{7},3.5\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("`2.0\\x07`"), "{e}");
     }
 }

@@ -8,6 +8,12 @@ use serde::de::DeserializeOwned;
 use std::fmt;
 use std::path::{Path, PathBuf};
 
+/// Largest data file the loader reads (16 MiB): the largest file the project ships, a
+/// board certificate of 135 000 points, is under 4 MiB; anything larger is the wrong file
+/// (or a device such as `/dev/zero`, refused before reading because it is not a regular
+/// file).
+pub const MAX_FILE_BYTES: u64 = 16 * 1024 * 1024;
+
 /// A configuration problem, located as precisely as the file allows.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
@@ -71,7 +77,7 @@ pub struct ConfigDoc {
 
 impl ConfigDoc {
     pub fn read(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|cause| ConfigError::Io {
+        let text = read_data_file(path).map_err(|cause| ConfigError::Io {
             file: path.to_path_buf(),
             cause,
         })?;
@@ -119,7 +125,7 @@ impl ConfigDoc {
                 embedded: self.embedded,
             });
         }
-        match std::fs::read_to_string(&path) {
+        match read_data_file(&path) {
             Ok(text) => Ok(ConfigDoc {
                 name: path.display().to_string(),
                 text,
@@ -174,6 +180,63 @@ impl ConfigDoc {
         }
     }
 
+    /// Check a number read from `key` against `lo..=hi` (in `unit`, may be empty): a
+    /// non-finite value (TOML's `nan`, `inf`) or one outside the range is refused with a
+    /// message naming the range.
+    pub fn in_range(
+        &self,
+        key: &str,
+        value: f64,
+        lo: f64,
+        hi: f64,
+        unit: &str,
+    ) -> Result<f64, ConfigError> {
+        self.check_range(key, value, lo, hi, unit, false)
+    }
+
+    /// [`ConfigDoc::in_range`] for a quantity that must be more than zero: `0..=hi`,
+    /// zero excluded.
+    pub fn positive(&self, key: &str, value: f64, hi: f64, unit: &str) -> Result<f64, ConfigError> {
+        self.check_range(key, value, 0.0, hi, unit, true)
+    }
+
+    fn check_range(
+        &self,
+        key: &str,
+        value: f64,
+        lo: f64,
+        hi: f64,
+        unit: &str,
+        zero_excluded: bool,
+    ) -> Result<f64, ConfigError> {
+        let with_unit = |v: f64| {
+            if unit.is_empty() {
+                number(v)
+            } else {
+                format!("{} {unit}", number(v))
+            }
+        };
+        let range = format!(
+            "{}..={}{}",
+            number(lo),
+            with_unit(hi),
+            if zero_excluded { " (0 excluded)" } else { "" }
+        );
+        if !value.is_finite() {
+            return Err(self.invalid(
+                key,
+                format!("`{value}` is not a finite number: allowed {range}"),
+            ));
+        }
+        if value < lo || value > hi || (zero_excluded && value <= 0.0) {
+            return Err(self.invalid(
+                key,
+                format!("{} is outside the allowed range {range}", with_unit(value)),
+            ));
+        }
+        Ok(value)
+    }
+
     /// Resolve a path written inside the document relative to the document's folder.
     pub fn resolve(&self, rel: &str) -> PathBuf {
         let p = Path::new(rel);
@@ -183,6 +246,96 @@ impl ConfigDoc {
             self.dir.join(p)
         }
     }
+}
+
+/// A number as a reader writes it: `20`, `0.5`, `1e-5`, `1e300` (never 300 digits).
+fn number(v: f64) -> String {
+    let a = v.abs();
+    if a != 0.0 && !(1e-3..1e6).contains(&a) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
+}
+
+/// Read a data file as text, bounded: only a regular file (a device such as `/dev/zero`,
+/// a FIFO or a directory is refused before anything is read) of at most
+/// [`MAX_FILE_BYTES`], in UTF-8; a leading byte-order mark is dropped. Every file the
+/// loader reads goes through here.
+pub fn read_data_file(path: &Path) -> std::io::Result<String> {
+    use std::io::{Error, ErrorKind, Read};
+    // Checked on the path first: opening a FIFO would block until a writer comes.
+    check_regular(&std::fs::metadata(path)?)?;
+    let file = std::fs::File::open(path)?;
+    let meta = file.metadata()?;
+    check_regular(&meta)?;
+    let too_big = |size: u64| {
+        Error::new(
+            ErrorKind::InvalidData,
+            format!(
+                "the file has {size} bytes, more than the {} MiB a data file may have",
+                MAX_FILE_BYTES / (1024 * 1024)
+            ),
+        )
+    };
+    if meta.len() > MAX_FILE_BYTES {
+        return Err(too_big(meta.len()));
+    }
+    let mut bytes = Vec::with_capacity(meta.len() as usize);
+    file.take(MAX_FILE_BYTES + 1).read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > MAX_FILE_BYTES {
+        // It grew while being read (or its size was not known).
+        return Err(too_big(bytes.len() as u64));
+    }
+    let text = String::from_utf8(bytes).map_err(|e| {
+        let at = e.utf8_error().valid_up_to();
+        let line = e.as_bytes()[..at].iter().filter(|&&b| b == b'\n').count() + 1;
+        Error::new(
+            ErrorKind::InvalidData,
+            format!("not UTF-8 text (line {line}, byte {at})"),
+        )
+    })?;
+    Ok(match text.strip_prefix('\u{FEFF}') {
+        Some(rest) => rest.to_string(),
+        None => text,
+    })
+}
+
+fn check_regular(meta: &std::fs::Metadata) -> std::io::Result<()> {
+    let t = meta.file_type();
+    if t.is_file() {
+        return Ok(());
+    }
+    let kind = if t.is_dir() {
+        "a directory"
+    } else {
+        special_kind(&t)
+    };
+    Err(std::io::Error::new(
+        std::io::ErrorKind::InvalidInput,
+        format!("not a regular file ({kind}); a data file must be a regular file"),
+    ))
+}
+
+#[cfg(unix)]
+fn special_kind(t: &std::fs::FileType) -> &'static str {
+    use std::os::unix::fs::FileTypeExt;
+    if t.is_char_device() {
+        "a character device"
+    } else if t.is_block_device() {
+        "a block device"
+    } else if t.is_fifo() {
+        "a FIFO"
+    } else if t.is_socket() {
+        "a socket"
+    } else {
+        "a special file"
+    }
+}
+
+#[cfg(not(unix))]
+fn special_kind(_: &std::fs::FileType) -> &'static str {
+    "a special file"
 }
 
 /// Lexical normalisation (`a/b/../c` -> `a/c`), so embedded names match.
@@ -212,9 +365,91 @@ fn line_col(text: &str, offset: usize) -> (usize, usize) {
     (line, col)
 }
 
+/// Line of a key path as serde names it (`stage.axes[1].node`, `targets[3].x_mm`,
+/// `board.origin_mm[1]`): the line of the key itself, or of the array element for an
+/// index, found in the parsed document's spans, so keys inside inline tables and elements
+/// of inline arrays written over several lines are found. A document that does not parse
+/// falls back to a line scan of `[table]` headers and `key =` lines.
+pub fn find_key_line(text: &str, dotted: &str) -> Option<usize> {
+    match key_span(text, dotted) {
+        Some(offset) => Some(line_col(text, offset).0),
+        None => scan_key_line(text, dotted),
+    }
+}
+
+/// One step of a key path.
+#[derive(Debug, PartialEq)]
+enum Step<'a> {
+    Key(&'a str),
+    Index(usize),
+}
+
+/// `a.b[1].c` -> `a`, `b`, `[1]`, `c`; None for anything else (serde's `?`).
+fn key_path(dotted: &str) -> Option<Vec<Step<'_>>> {
+    let mut steps = Vec::new();
+    for part in dotted.split('.') {
+        let (name, mut rest) = part.split_at(part.find('[').unwrap_or(part.len()));
+        if !name.is_empty() {
+            steps.push(Step::Key(name.trim_matches('"')));
+        } else if steps.is_empty() || !rest.starts_with('[') {
+            return None;
+        }
+        while let Some(r) = rest.strip_prefix('[') {
+            let (n, after) = r.split_once(']')?;
+            steps.push(Step::Index(n.parse().ok()?));
+            rest = after;
+        }
+        if !rest.is_empty() {
+            return None;
+        }
+    }
+    Some(steps)
+}
+
+/// Byte offset of the last step of `dotted` in `text` (its key, or its array element).
+fn key_span(text: &str, dotted: &str) -> Option<usize> {
+    use toml_edit::{Item, TableLike, Value};
+    enum Node<'a> {
+        Item(&'a Item),
+        Value(&'a Value),
+        Table(&'a toml_edit::Table),
+    }
+    let doc = toml_edit::ImDocument::parse(text).ok()?;
+    let mut node = Node::Table(doc.as_table());
+    let mut at = None;
+    for step in key_path(dotted)? {
+        let (next, span) = match step {
+            Step::Key(k) => {
+                let table: &dyn TableLike = match node {
+                    Node::Table(t) => t,
+                    Node::Item(i) => i.as_table_like()?,
+                    Node::Value(Value::InlineTable(t)) => t,
+                    Node::Value(_) => return None,
+                };
+                let (key, item) = table.get_key_value(k)?;
+                (Node::Item(item), key.span().or_else(|| item.span()))
+            }
+            Step::Index(n) => match node {
+                Node::Item(Item::ArrayOfTables(a)) => {
+                    let t = a.get(n)?;
+                    (Node::Table(t), t.span())
+                }
+                Node::Item(Item::Value(Value::Array(a))) | Node::Value(Value::Array(a)) => {
+                    let v = a.get(n)?;
+                    (Node::Value(v), v.span())
+                }
+                _ => return None,
+            },
+        };
+        node = next;
+        at = span.map(|s| s.start).or(at);
+    }
+    at
+}
+
 /// Best-effort line of a dotted key: tracks `[table]` headers and matches `key =` lines.
 /// Array-of-table indices (`targets[3]`) are matched by counting `[[targets]]` headers.
-pub fn find_key_line(text: &str, dotted: &str) -> Option<usize> {
+fn scan_key_line(text: &str, dotted: &str) -> Option<usize> {
     let parts: Vec<String> = dotted.split('.').map(str::to_string).collect();
     let mut table: Vec<String> = Vec::new();
     let mut array_counts: std::collections::HashMap<String, usize> = Default::default();
@@ -352,9 +587,167 @@ mod tests {
     }
 
     #[test]
+    fn ranges_refuse_non_finite_and_outside_values_naming_the_range() {
+        let d = doc("[c]\nblur = 1e5\nn = nan\n");
+        assert_eq!(d.in_range("c.blur", 2.0, 0.0, 20.0, "px").unwrap(), 2.0);
+        let e = d.in_range("c.blur", 1e5, 0.0, 20.0, "px").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "machine.toml:2: key `c.blur`: 100000 px is outside the allowed range 0..=20 px"
+        );
+        let e = d.in_range("c.n", f64::NAN, 0.0, 1.0, "").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "machine.toml:3: key `c.n`: `NaN` is not a finite number: allowed 0..=1"
+        );
+        let e = d.positive("c.blur", 0.0, 1e6, "mm/min").unwrap_err();
+        assert!(
+            e.to_string()
+                .ends_with("0 mm/min is outside the allowed range 0..=1e6 mm/min (0 excluded)"),
+            "{e}"
+        );
+        let e = d.positive("c.blur", 1e300, 1e5, "mm").unwrap_err();
+        assert!(e.to_string().contains("1e300 mm is outside"), "{e}");
+    }
+
+    #[test]
+    fn key_paths_are_split_like_serde_writes_them() {
+        use Step::*;
+        assert_eq!(
+            key_path("stage.axes[1].node"),
+            Some(vec![Key("stage"), Key("axes"), Index(1), Key("node")])
+        );
+        assert_eq!(
+            key_path("m[0][2]"),
+            Some(vec![Key("m"), Index(0), Index(2)])
+        );
+        assert_eq!(key_path("a.?"), Some(vec![Key("a"), Key("?")]));
+        assert_eq!(key_path("a[x]"), None);
+        // A document that does not parse still gets the line scan.
+        assert_eq!(find_key_line("[a]\nb = 1\nc = \"\n", "a.b"), Some(2));
+    }
+
+    #[test]
     fn array_of_tables_keys_are_found() {
         let text = "[[t]]\nx = 1\n[[t]]\nx = 2\n";
         assert_eq!(find_key_line(text, "t[1].x"), Some(4));
         assert_eq!(find_key_line(text, "t[0].x"), Some(2));
+    }
+    fn temp_dir(name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("protocol-config-{name}-{}", std::process::id()));
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    #[test]
+    fn special_files_are_refused_before_reading() {
+        let e = ConfigDoc::read(Path::new("/dev/zero"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("/dev/zero") && e.contains("not a regular file"),
+            "{e}"
+        );
+        let e = doc("[board]\nfile = \"/dev/zero\"\n")
+            .read_relative("board.file", "/dev/zero")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("machine.toml:2: key `board.file`") && e.contains("not a regular file"),
+            "{e}"
+        );
+        let dir = temp_dir("dir");
+        let e = ConfigDoc::read(&dir).unwrap_err().to_string();
+        assert!(e.contains("a directory"), "{e}");
+    }
+
+    #[test]
+    fn files_larger_than_the_limit_are_refused() {
+        let dir = temp_dir("big");
+        let big = dir.join("big.csv");
+        let f = std::fs::File::create(&big).unwrap();
+        f.set_len(MAX_FILE_BYTES + 1).unwrap(); // sparse: nothing is written
+        let e = ConfigDoc::read(&big).unwrap_err().to_string();
+        assert!(e.contains("16 MiB"), "{e}");
+        let ok = dir.join("ok.toml");
+        std::fs::write(&ok, "x = 1\n").unwrap();
+        assert_eq!(ConfigDoc::read(&ok).unwrap().text, "x = 1\n");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_leading_byte_order_mark_is_dropped() {
+        let dir = temp_dir("bom");
+        let p = dir.join("bom.toml");
+        std::fs::write(&p, "\u{FEFF}[stage]\nname = \"a\"\ntravel_mm = 1.0\n").unwrap();
+        let d = ConfigDoc::read(&p).unwrap();
+        assert!(d.text.starts_with("[stage]"));
+        d.parse::<Doc>().unwrap();
+        let r = doc("").read_relative("k", p.to_str().unwrap()).unwrap();
+        assert!(r.text.starts_with("[stage]"));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+    #[derive(serde::Deserialize, Debug)]
+    #[serde(deny_unknown_fields)]
+    #[allow(dead_code)]
+    struct Axes {
+        stage: AxesStage,
+    }
+    #[derive(serde::Deserialize, Debug)]
+    #[serde(deny_unknown_fields)]
+    #[allow(dead_code)]
+    struct AxesStage {
+        name: String,
+        axes: Vec<Axis>,
+    }
+    #[derive(serde::Deserialize, Debug)]
+    #[serde(deny_unknown_fields)]
+    #[allow(dead_code)]
+    struct Axis {
+        node: u8,
+    }
+
+    #[test]
+    fn errors_inside_inline_arrays_name_the_line_of_the_element() {
+        let text = "[stage]\nname = \"a\"\naxes = [\n  { node = 1 },\n  { node = \"two\" },\n]\n";
+        let err = doc(text).parse::<Axes>().unwrap_err();
+        let loc = err.location().unwrap();
+        assert_eq!(loc.key.as_deref(), Some("stage.axes[1].node"), "{err}");
+        assert_eq!(loc.line, Some(5), "{err}");
+        // Checks made after parsing find the element too, and the key inside it.
+        let d = doc(text);
+        assert_eq!(
+            d.invalid("stage.axes[1].node", "m")
+                .location()
+                .unwrap()
+                .line,
+            Some(5)
+        );
+        assert_eq!(
+            d.invalid("stage.axes[0]", "m").location().unwrap().line,
+            Some(4)
+        );
+        assert_eq!(
+            d.invalid("stage.axes", "m").location().unwrap().line,
+            Some(3)
+        );
+        // An inline array of numbers, one element per line.
+        let d = doc("[board]\norigin_mm = [\n  1.0,\n  2.0,\n]\n");
+        assert_eq!(
+            d.invalid("board.origin_mm[1]", "m")
+                .location()
+                .unwrap()
+                .line,
+            Some(4)
+        );
+        // Inline tables and dotted keys.
+        let d = doc("stage = { name = \"a\", axes = [{ node = 1 },\n  { node = 300 }] }\n");
+        let err = d.parse::<Axes>().unwrap_err();
+        assert_eq!(err.location().unwrap().line, Some(2), "{err}");
+        let d = doc("[[t]]\nx = 1\n[[t]]\nx = [1,\n 2]\n");
+        assert_eq!(
+            d.invalid("t[1].x[1]", "m").location().unwrap().line,
+            Some(5)
+        );
     }
 }

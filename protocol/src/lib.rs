@@ -15,6 +15,7 @@ pub mod image;
 pub mod modbus;
 pub mod nc;
 pub mod slcan;
+pub mod text;
 
 pub use board::{Board, Polarity};
 pub use config::ConfigError;

@@ -532,6 +532,7 @@ impl AxisDrive for Cia402Axis {
                 device: self.device.clone(),
                 message: e.to_string(),
             })?;
+        crate::stage::check_feed(&self.device, speed_mm_min)?;
         self.ready("move").await?;
         let speed = self
             .scaling

@@ -21,6 +21,15 @@ pub async fn open_stage(
     axes: Vec<AxisConfig>,
     opts: CanopenOptions,
 ) -> Result<(MultiAxisStage, Network), DriverError> {
+    for a in &axes {
+        crate::stage::check_axis_config(
+            &format!("CANopen node {}", a.node),
+            &format!("axis {}", a.axis),
+            a.min_mm,
+            a.max_mm,
+            Some(a.max_feed_mm_min),
+        )?;
+    }
     let net = Network::start(bus, opts.sdo_timeout);
     let mut drives: Vec<Box<dyn AxisDrive>> = Vec::new();
     let mut names = Vec::new();

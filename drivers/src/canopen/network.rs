@@ -750,3 +750,34 @@ fn sdo_error(node: NodeId, e: &SdoError, timeout: Duration) -> DriverError {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sdo_aborts_show_the_code_in_hex_with_the_standards_name() {
+        let node = NodeId::new(3).unwrap();
+        let e = SdoError::Aborted {
+            index: 0x6060,
+            sub: 0,
+            code: AbortCode::NO_OBJECT,
+        };
+        let m = sdo_error(node, &e, Duration::from_millis(100)).to_string();
+        assert_eq!(
+            m,
+            "CANopen node 3 refused SDO access to 0x6060:00: code 0x06020000: \
+             object does not exist in the object dictionary"
+        );
+        let e = SdoError::Aborted {
+            index: 0x607A,
+            sub: 0,
+            code: AbortCode::VALUE_TOO_HIGH,
+        };
+        let m = sdo_error(node, &e, Duration::from_millis(100)).to_string();
+        assert!(
+            m.contains("code 0x06090031: value of parameter written too high"),
+            "{m}"
+        );
+    }
+}

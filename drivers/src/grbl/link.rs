@@ -2,6 +2,7 @@
 
 use crate::error::DriverError;
 use protocol::grbl::response::{LineDecoder, Response};
+use protocol::text::escape_bytes;
 use std::collections::VecDeque;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::time::Instant;
@@ -15,8 +16,11 @@ pub(crate) struct Link {
     io: Box<dyn Transport>,
     decoder: LineDecoder,
     inbox: VecDeque<Response>,
-    /// Recent lines that were not GRBL messages (for "is this GRBL?" errors).
+    /// Recent lines that were not GRBL messages (for "is this GRBL?" errors), escaped.
     pub(crate) foreign: Vec<String>,
+    /// GRBL responses received since [`Link::listen`], by kind, in order of first
+    /// arrival: what a device that never sends the awaited answer did send.
+    heard: Vec<(&'static str, usize)>,
     pub(crate) device: String,
 }
 
@@ -27,6 +31,7 @@ impl Link {
             decoder: LineDecoder::new(),
             inbox: VecDeque::new(),
             foreign: Vec::new(),
+            heard: Vec::new(),
             device,
         }
     }
@@ -57,8 +62,15 @@ impl Link {
         loop {
             if let Some(r) = self.inbox.pop_front() {
                 if let Response::Other(s) = &r {
+                    // Already escaped and cut by the decoder.
                     if self.foreign.len() < 8 {
-                        self.foreign.push(s.chars().take(80).collect());
+                        self.foreign.push(s.clone());
+                    }
+                } else {
+                    let kind = kind(&r);
+                    match self.heard.iter_mut().find(|(k, _)| *k == kind) {
+                        Some((_, n)) => *n += 1,
+                        None => self.heard.push((kind, 1)),
                     }
                 }
                 return Ok(Some(r));
@@ -79,27 +91,62 @@ impl Link {
                 && self.foreign.len() < 8
                 && self.decoder.pending().len() > 64
             {
-                self.foreign
-                    .push(String::from_utf8_lossy(&self.decoder.pending()[..64]).into_owned());
+                self.foreign.push(format!(
+                    "{} (no line end yet)",
+                    escape_bytes(self.decoder.pending())
+                ));
             }
             self.inbox.extend(out);
         }
     }
 
-    /// What was received that was not GRBL, for an error message.
-    pub(crate) fn foreign_summary(&self) -> String {
-        let mut parts: Vec<String> = self.foreign.iter().map(|s| format!("`{s}`")).collect();
+    /// Start counting the responses received (for [`Link::heard_summary`]).
+    pub(crate) fn listen(&mut self) {
+        self.heard.clear();
+    }
+
+    /// What the device sent while `expected` never came, as a verb phrase for an error
+    /// message: "sent nothing", "answered only `ok` 37 times, never a status report",
+    /// "sent `\x80\xA5...` (no line end)"; device bytes escaped and cut.
+    pub(crate) fn heard_summary(&self, expected: &str) -> String {
+        let mut foreign: Vec<String> = self.foreign.iter().map(|s| format!("`{s}`")).collect();
         let pending = self.decoder.pending();
         if !pending.is_empty() {
-            parts.push(format!(
-                "`{}` (no line end)",
-                String::from_utf8_lossy(&pending[..pending.len().min(64)])
-            ));
+            foreign.push(format!("`{}` (no line end)", escape_bytes(pending)));
         }
-        if parts.is_empty() {
-            "nothing".into()
-        } else {
-            parts.join(", ")
+        let heard: Vec<String> = self
+            .heard
+            .iter()
+            .map(|(k, n)| match n {
+                1 => format!("{k} once"),
+                n => format!("{k} {n} times"),
+            })
+            .collect();
+        match (foreign.is_empty(), heard.is_empty()) {
+            (true, true) => "sent nothing".into(),
+            (true, false) => format!("answered only {}, never {expected}", heard.join(", ")),
+            (false, true) => format!("sent {}", foreign.join(", ")),
+            (false, false) => format!(
+                "sent {}, and {}, never {expected}",
+                foreign.join(", "),
+                heard.join(", ")
+            ),
         }
+    }
+}
+
+/// How a response is named in a message.
+fn kind(r: &Response) -> &'static str {
+    match r {
+        Response::Ok => "`ok`",
+        Response::Error(_) => "`error:N`",
+        Response::Alarm(_) => "`ALARM:N`",
+        Response::Status(_) => "a status report",
+        Response::Banner { .. } => "a start-up banner",
+        Response::Message(_) => "a `[MSG:]` message",
+        Response::Version { .. } => "a version report",
+        Response::Options { .. } => "a build options report",
+        Response::Setting { .. } => "a setting line",
+        _ => "other GRBL lines",
     }
 }

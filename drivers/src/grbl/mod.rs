@@ -112,14 +112,15 @@ impl GrblStage {
         let deadline = with_deadline(self.opts.connect_timeout);
         let device = self.link.device.clone();
         let after_ms = self.opts.connect_timeout.as_millis() as u64;
-        let timeout = move |link: &Link, what: &str| DriverError::Timeout {
+        let timeout = move |link: &Link, what: &str, expected: &str| DriverError::Timeout {
             device: device.clone(),
             what: format!(
-                "{what} (is this a GRBL 1.1 controller at the right baud rate? it sent {})",
-                link.foreign_summary()
+                "{what} (is this a GRBL 1.1 controller at the right baud rate? it {})",
+                link.heard_summary(expected)
             ),
             after_ms,
         };
+        self.link.listen();
         // $I until [VER:] + ok. A banner means the board (re)booted, maybe when the
         // port opened (Arduino boards reset on DTR), and may have dropped the $I: ask
         // again unless its answer follows the banner promptly.
@@ -139,7 +140,7 @@ impl GrblStage {
                     self.link.write(&Command::BuildInfo.encode()).await?;
                     continue;
                 }
-                return Err(timeout(&self.link, "$I"));
+                return Err(timeout(&self.link, "$I", "a version report `[VER:...]`"));
             };
             match r {
                 Response::Version { version, .. } => {
@@ -174,7 +175,7 @@ impl GrblStage {
         let mut settings = Settings::default();
         loop {
             let Some(r) = self.link.next(deadline).await? else {
-                return Err(timeout(&self.link, "$$"));
+                return Err(timeout(&self.link, "$$", "a setting line `$N=value`"));
             };
             match r {
                 Response::Setting { number, value } => {
@@ -377,13 +378,17 @@ impl GrblStage {
             // GRBL answers nothing in a critical alarm but a reset.
             return Err(self.alarm_error(self.last_alarm.unwrap_or(0)));
         }
+        self.link.listen();
         self.link.write(&[Realtime::StatusQuery.byte()]).await?;
         let deadline = with_deadline(self.opts.command_timeout);
         loop {
             let Some(r) = self.link.next(deadline).await? else {
                 return Err(DriverError::Timeout {
                     device: self.device(),
-                    what: "status request `?`".into(),
+                    what: format!(
+                        "status request `?` (it {})",
+                        self.link.heard_summary("a status report `<...>`")
+                    ),
                     after_ms: self.opts.command_timeout.as_millis() as u64,
                 });
             };
@@ -590,12 +595,7 @@ impl Stage for GrblStage {
 
     async fn move_to(&mut self, target: AxisValues, feed_mm_min: f64) -> Result<(), DriverError> {
         self.info.check_limits(&target)?;
-        if !(feed_mm_min > 0.0 && feed_mm_min.is_finite()) {
-            return Err(DriverError::Unsupported {
-                device: self.device(),
-                message: format!("feed {feed_mm_min} mm/min is not a positive number"),
-            });
-        }
+        crate::stage::check_feed(&self.device(), feed_mm_min)?;
         if target.is_empty() {
             return Ok(());
         }

@@ -93,3 +93,92 @@ async fn stock_grbl_negative_space_and_wpos_reports() {
         ["$I", "$$", "$H", "G21G53G1X-12.3457Y-1F1500", "G1X1Q1"]
     );
 }
+
+#[tokio::test]
+async fn a_feed_that_is_not_a_positive_number_is_refused_before_anything_is_sent() {
+    let (a, b) = tokio::io::duplex(4096);
+    let log = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+    tokio::spawn(fake_grbl(b, log.clone()));
+    let mut g = GrblStage::connect(Box::new(a), "fake".into(), GrblOptions::default())
+        .await
+        .unwrap();
+    g.home().await.unwrap();
+    for feed in [f64::NAN, 0.0, -1.0, f64::INFINITY] {
+        let e = g
+            .move_to(AxisValues::xy(-12.0, -1.0), feed)
+            .await
+            .unwrap_err();
+        assert!(
+            matches!(e, DriverError::Unsupported { .. }) && e.to_string().contains("feed"),
+            "{feed}: {e}"
+        );
+        let e = g
+            .move_by(AxisValues::xy(-1.0, 0.0), feed)
+            .await
+            .unwrap_err();
+        assert!(e.to_string().contains("feed"), "{feed}: {e}");
+    }
+    let log = log.lock().unwrap().clone();
+    assert_eq!(log, ["$I", "$$", "$H"]);
+}
+
+/// A device that answers every byte it gets with `reply`, forever.
+async fn echo_device(io: tokio::io::DuplexStream, reply: &'static [u8]) {
+    let (mut r, mut w) = tokio::io::split(io);
+    let mut b = [0u8; 64];
+    while let Ok(n) = tokio::io::AsyncReadExt::read(&mut r, &mut b).await {
+        if n == 0 || w.write_all(reply).await.is_err() {
+            return;
+        }
+    }
+}
+
+fn quick() -> GrblOptions {
+    GrblOptions {
+        connect_timeout: std::time::Duration::from_millis(300),
+        ..GrblOptions::default()
+    }
+}
+
+#[tokio::test]
+async fn a_device_that_only_says_ok_is_not_said_to_have_sent_nothing() {
+    let (a, b) = tokio::io::duplex(4096);
+    tokio::spawn(echo_device(b, b"ok\r\nok\r\nok\r\n"));
+    let e = GrblStage::connect(Box::new(a), "fake".into(), quick())
+        .await
+        .err()
+        .expect("not GRBL");
+    let m = e.to_string();
+    assert!(!m.contains("sent nothing"), "{m}");
+    assert!(
+        m.contains("answered only `ok` 3 times") && m.contains("never a version report"),
+        "{m}"
+    );
+}
+
+#[tokio::test]
+async fn binary_garbage_from_a_device_is_shown_escaped_and_cut() {
+    static GARBAGE: [u8; 300] = {
+        let mut g = [0u8; 300];
+        let mut i = 0;
+        while i < 300 {
+            g[i] = (i as u8).wrapping_mul(37) | 0x80;
+            i += 1;
+        }
+        g
+    };
+    let (a, b) = tokio::io::duplex(4096);
+    tokio::spawn(echo_device(b, &GARBAGE));
+    let e = GrblStage::connect(Box::new(a), "fake".into(), quick())
+        .await
+        .err()
+        .expect("not GRBL");
+    let m = e.to_string();
+    assert!(m.contains("\\x80\\xA5"), "{m}");
+    assert!(m.contains(" bytes)"), "cut with the byte count: {m}");
+    assert!(
+        m.chars().all(|c| (' '..='~').contains(&c) || c == '…'),
+        "only printable characters: {m}"
+    );
+    assert!(m.len() < 600, "{} characters: {m}", m.len());
+}

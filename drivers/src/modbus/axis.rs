@@ -281,6 +281,7 @@ impl AxisDrive for ModbusAxis {
                 max_mm: i.max_mm,
             });
         }
+        crate::stage::check_feed(&self.device, speed_mm_min)?;
         let speed = speed_mm_min.min(i.max_feed_mm_min) / 60.0;
         let block = &self.profile.motion;
         let words =

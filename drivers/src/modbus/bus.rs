@@ -21,6 +21,7 @@
 use crate::error::DriverError;
 pub use link_spec::modbus::{Endpoint, ModbusOptions, Parity};
 use protocol::modbus::frame::{rtu_crc_ok, rtu_response_len, Exception, FrameLen};
+use protocol::text::hex_bytes;
 use std::fmt;
 use std::io;
 use std::pin::Pin;
@@ -62,7 +63,7 @@ impl Failure {
             Failure::Exception(e) => e.to_string(),
             Failure::NoReply => "no reply".into(),
             Failure::Garbled(s) => s.clone(),
-            Failure::Link(s) => format!("link failed: {s}"),
+            Failure::Link(s) => s.clone(),
         }
     }
 }
@@ -257,7 +258,7 @@ impl ModbusBus {
                     Failure::Garbled(format!("undecodable reply ({e})"))
                 } else {
                     self.stats.link_errors += 1;
-                    Failure::Link(e.to_string())
+                    Failure::Link(link_failure(&self.endpoint, &e))
                 }
             }
             Err(_) => {
@@ -274,25 +275,7 @@ impl ModbusBus {
     /// After a timeout: nothing came, or something that was not a valid reply.
     fn explain_silence(&self) -> Failure {
         let got = self.rx.lock().unwrap_or_else(|p| p.into_inner()).clone();
-        if got.is_empty() {
-            return Failure::NoReply;
-        }
-        let hex: String = got.iter().take(16).map(|b| format!("{b:02X} ")).collect();
-        if let Endpoint::Rtu { .. } = self.endpoint {
-            if let FrameLen::Bytes(n) = rtu_response_len(&got) {
-                if n <= got.len() && !rtu_crc_ok(&got[..n]) {
-                    return Failure::Garbled(format!(
-                        "a reply with a bad CRC ({n} bytes: {})",
-                        hex.trim_end()
-                    ));
-                }
-            }
-        }
-        Failure::Garbled(format!(
-            "{} bytes that make no valid reply ({})",
-            got.len(),
-            hex.trim_end()
-        ))
+        explain_bytes(&got, &self.endpoint)
     }
 
     /// A request with retries on the rebuilt connection. `device` and `what` name the
@@ -328,9 +311,17 @@ impl ModbusBus {
                 what: summary,
                 after_ms: self.opts.timeout.as_millis() as u64,
             },
-            Some(Failure::Link(_)) => DriverError::Transport {
+            // What happened first, then what was being done.
+            Some(Failure::Link(last)) => DriverError::Transport {
                 device: device.to_string(),
-                message: summary,
+                message: if tried
+                    .iter()
+                    .all(|f| matches!(f, Failure::Link(s) if s == last))
+                {
+                    format!("{last}: {what}: {} attempts", tried.len())
+                } else {
+                    format!("{last}; {summary}")
+                },
             },
             _ => DriverError::Protocol {
                 device: device.to_string(),
@@ -338,6 +329,74 @@ impl ModbusBus {
             },
         }
     }
+}
+
+/// What the bytes received before a timeout were: nothing, an RTU frame with a bad CRC
+/// (the frame's bytes, then any that followed it), or bytes that make no reply. The
+/// count said is always the count of the bytes shown (cut with the total past 16).
+fn explain_bytes(got: &[u8], endpoint: &Endpoint) -> Failure {
+    if got.is_empty() {
+        return Failure::NoReply;
+    }
+    if let Endpoint::Rtu { .. } = endpoint {
+        if let FrameLen::Bytes(n) = rtu_response_len(got) {
+            if n <= got.len() && !rtu_crc_ok(&got[..n]) {
+                let mut m = format!(
+                    "a reply with a bad CRC ({n} bytes: {})",
+                    hex_bytes(&got[..n])
+                );
+                let rest = &got[n..];
+                if !rest.is_empty() {
+                    m.push_str(&format!(
+                        ", then {} more bytes ({})",
+                        rest.len(),
+                        hex_bytes(rest)
+                    ));
+                }
+                return Failure::Garbled(m);
+            }
+        }
+    }
+    Failure::Garbled(format!(
+        "{} bytes that make no valid reply ({})",
+        got.len(),
+        hex_bytes(got)
+    ))
+}
+
+/// A link failure in words, what happened first and the system's error after it:
+/// `Modbus RTU /dev/ttyUSB0 @19200: the port was closed or unplugged (Input/output
+/// error (os error 5))` rather than a bare `Inappropriate ioctl for device`.
+fn link_failure(endpoint: &Endpoint, e: &io::Error) -> String {
+    use io::ErrorKind as K;
+    let gone = matches!(
+        e.kind(),
+        K::BrokenPipe
+            | K::ConnectionReset
+            | K::ConnectionAborted
+            | K::UnexpectedEof
+            | K::NotConnected
+    );
+    let what = match endpoint {
+        Endpoint::Rtu { .. } => {
+            // EIO, ENXIO, ENODEV, ENOTTY: what a serial port or pty answers once its
+            // adapter is unplugged or the other side closed it.
+            let port_gone = gone || matches!(e.raw_os_error(), Some(5 | 6 | 19 | 25));
+            if port_gone {
+                "the port was closed or unplugged"
+            } else {
+                "the port failed"
+            }
+        }
+        Endpoint::Tcp(_) => {
+            if gone {
+                "the drive closed the connection"
+            } else {
+                "the connection failed"
+            }
+        }
+    };
+    format!("{endpoint}: {what} ({e})")
 }
 
 /// An exception response as the typed refusal, naming the register.
@@ -422,5 +481,76 @@ impl<T: AsyncWrite + Unpin> AsyncWrite for Tap<T> {
     }
     fn poll_shutdown(mut self: Pin<&mut Self>, cx: &mut TaskContext<'_>) -> Poll<io::Result<()>> {
         Pin::new(&mut self.inner).poll_shutdown(cx)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rtu() -> Endpoint {
+        Endpoint::Rtu {
+            path: "/dev/ttyX".into(),
+            baud: 19_200,
+            parity: Parity::Even,
+        }
+    }
+
+    #[test]
+    fn a_bad_crc_message_shows_the_bytes_it_counts() {
+        // An exception reply (5 bytes) with a wrong CRC, and 3 stray bytes after it.
+        let got = [0x01, 0x83, 0x02, 0x00, 0x00, 0xAA, 0xBB, 0xCC];
+        let Failure::Garbled(m) = explain_bytes(&got, &rtu()) else {
+            panic!("garbled")
+        };
+        assert!(m.contains("(5 bytes: 01 83 02 00 00)"), "{m}");
+        assert!(m.contains("3 more bytes (AA BB CC)"), "{m}");
+        // Exactly the frame: no tail.
+        let Failure::Garbled(m) = explain_bytes(&got[..5], &rtu()) else {
+            panic!("garbled")
+        };
+        assert_eq!(m, "a reply with a bad CRC (5 bytes: 01 83 02 00 00)");
+        // Many bytes: the count and the shown bytes agree (cut with the total).
+        let noise = [0x55u8; 40];
+        let Failure::Garbled(m) =
+            explain_bytes(&noise, &Endpoint::Tcp("127.0.0.1:502".parse().unwrap()))
+        else {
+            panic!("garbled")
+        };
+        assert!(
+            m.starts_with("40 bytes that make no valid reply (55 55"),
+            "{m}"
+        );
+        assert!(m.ends_with("… (40 bytes))"), "{m}");
+    }
+
+    #[test]
+    fn a_lost_port_says_what_happened_before_the_system_error() {
+        let e = io::Error::from_raw_os_error(25); // ENOTTY: the pty's other side is gone
+        let m = link_failure(&rtu(), &e);
+        assert!(
+            m.starts_with("Modbus RTU /dev/ttyX @19200: the port was closed or unplugged ("),
+            "{m}"
+        );
+        let e = io::Error::from(io::ErrorKind::BrokenPipe);
+        let m = link_failure(&Endpoint::Tcp("127.0.0.1:502".parse().unwrap()), &e);
+        assert!(
+            m.starts_with("Modbus TCP 127.0.0.1:502: the drive closed the connection ("),
+            "{m}"
+        );
+        let bus = ModbusBus::new(rtu(), ModbusOptions::default());
+        let d = bus.gave_up(
+            "unit 1",
+            "read status",
+            &[Failure::Link(link_failure(
+                &rtu(),
+                &io::Error::from_raw_os_error(5),
+            ))],
+        );
+        assert!(
+            d.to_string()
+                .starts_with("unit 1: link failed: Modbus RTU /dev/ttyX @19200: the port was closed or unplugged"),
+            "{d}"
+        );
     }
 }

@@ -29,6 +29,15 @@ pub async fn open_stage(
     profile: Arc<DriveProfile>,
     axes: &[ModbusAxisConfig],
 ) -> Result<MultiAxisStage, DriverError> {
+    for cfg in axes {
+        crate::stage::check_axis_config(
+            &format!("{endpoint} unit {}", cfg.unit),
+            &format!("axis {}", cfg.axis),
+            cfg.min_mm,
+            cfg.max_mm,
+            cfg.max_feed_mm_min,
+        )?;
+    }
     let bus = ModbusBus::new(endpoint.clone(), opts).shared();
     bus.lock().await.connect().await?;
     let mut drives: Vec<Box<dyn AxisDrive>> = Vec::new();
@@ -38,4 +47,48 @@ pub async fn open_stage(
         drives.push(Box::new(axis));
     }
     MultiAxisStage::new(&format!("{endpoint} ({})", profile.name), drives)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use link_spec::Axis;
+
+    #[tokio::test]
+    async fn an_axis_max_feed_that_is_not_a_positive_number_is_refused_before_connecting() {
+        let text = include_str!("../../../config/drives/generic.toml");
+        let profile = DriveProfile::from_doc(&protocol::config::ConfigDoc::from_text(
+            "generic.toml",
+            text,
+            std::path::Path::new("."),
+        ))
+        .unwrap();
+        // Nothing listens there: a connection attempt would fail differently.
+        let endpoint = Endpoint::Tcp("127.0.0.1:9".parse().unwrap());
+        for feed in [f64::NAN, 0.0, -5.0, f64::INFINITY] {
+            let axes = [ModbusAxisConfig {
+                axis: Axis::X,
+                unit: 1,
+                min_mm: 0.0,
+                max_mm: 100.0,
+                max_feed_mm_min: Some(feed),
+            }];
+            let e = open_stage(
+                endpoint.clone(),
+                ModbusOptions::default(),
+                Arc::new(profile.clone()),
+                &axes,
+            )
+            .await
+            .err()
+            .expect("refused");
+            let m = e.to_string();
+            assert!(
+                matches!(e, DriverError::Unsupported { .. })
+                    && m.contains("max_feed_mm_min")
+                    && m.contains("unit 1"),
+                "{feed}: {m}"
+            );
+        }
+    }
 }

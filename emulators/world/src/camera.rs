@@ -87,16 +87,34 @@ impl CameraModel {
         if m.bit_depth != 8 && m.bit_depth != 16 {
             return Err(bad("bit_depth", "must be 8 or 16"));
         }
-        if !(m.um_per_px > 0.0 && m.um_per_px.is_finite()) {
-            return Err(bad("um_per_px", "must be positive"));
-        }
-        for (k, v) in [
-            ("background_level", m.background_level),
-            ("dot_level", m.dot_level),
-        ] {
-            if !(0.0..=1.0).contains(&v) {
-                return Err(bad(k, "must be a fraction of full scale, 0..1"));
-            }
+        let key = |k: &str| format!("camera.{k}");
+        doc.positive(&key("um_per_px"), m.um_per_px, 1000.0, "um/px")?;
+        doc.in_range(&key("rotation_deg"), m.rotation_deg, -360.0, 360.0, "deg")?;
+        doc.in_range(
+            &key("distortion_px_at_corner"),
+            m.distortion_px_at_corner,
+            -100.0,
+            100.0,
+            "px",
+        )?;
+        // Rendering cost grows with the kernel (about 6 sigma): 20 px is already a frame
+        // no localizer can use, and 1e5 px would render for minutes.
+        doc.in_range(&key("blur_sigma_px"), m.blur_sigma_px, 0.0, 20.0, "px")?;
+        let full_scale = if m.bit_depth == 8 { 255.0 } else { 65535.0 };
+        doc.in_range(
+            &key("noise_sigma"),
+            m.noise_sigma,
+            0.0,
+            (full_scale / 4.0_f64).floor(),
+            "grey levels",
+        )?;
+        for k in ["background_level", "dot_level"] {
+            let v = if k == "dot_level" {
+                m.dot_level
+            } else {
+                m.background_level
+            };
+            doc.in_range(&key(k), v, 0.0, 1.0, "of full scale")?;
         }
         if (m.background_level - m.dot_level).abs() < 0.05 {
             return Err(bad(
@@ -104,12 +122,21 @@ impl CameraModel {
                 "dots need at least 5 % contrast against the background",
             ));
         }
-        if m.blur_sigma_px < 0.0 || m.noise_sigma < 0.0 || m.vignetting < 0.0 {
-            return Err(bad(
-                "blur_sigma_px",
-                "blur, noise and vignetting cannot be negative",
-            ));
-        }
+        doc.in_range(
+            &key("illumination_gradient"),
+            m.illumination_gradient,
+            -1.0,
+            1.0,
+            "",
+        )?;
+        doc.in_range(
+            &key("illumination_angle_deg"),
+            m.illumination_angle_deg,
+            -360.0,
+            360.0,
+            "deg",
+        )?;
+        doc.in_range(&key("vignetting"), m.vignetting, 0.0, 1.0, "")?;
         Ok(m)
     }
 
@@ -207,6 +234,73 @@ mod tests {
             illumination_angle_deg: 20.0,
             vignetting: 0.05,
         }
+    }
+
+    fn load_with(from: &str, to: &str) -> Result<CameraModel, ConfigError> {
+        let text = include_str!("../../../config/cameras/mono-1.3mp.toml");
+        assert!(text.contains(from), "{from}");
+        let text = text.replacen(from, to, 1);
+        CameraModel::from_doc(&ConfigDoc::from_text("c.toml", &text, Path::new(".")))
+    }
+
+    #[test]
+    fn non_finite_and_unphysical_optics_are_refused_at_load_naming_key_and_range() {
+        let cases = [
+            (
+                "blur_sigma_px = 1.0",
+                "blur_sigma_px = 1e5",
+                "camera.blur_sigma_px",
+            ),
+            (
+                "blur_sigma_px = 1.0",
+                "blur_sigma_px = nan",
+                "camera.blur_sigma_px",
+            ),
+            (
+                "noise_sigma = 2.0",
+                "noise_sigma = inf",
+                "camera.noise_sigma",
+            ),
+            (
+                "noise_sigma = 2.0",
+                "noise_sigma = 1000.0",
+                "camera.noise_sigma",
+            ),
+            ("um_per_px = 4.0", "um_per_px = 1e12", "camera.um_per_px"),
+            (
+                "rotation_deg = 0.8",
+                "rotation_deg = nan",
+                "camera.rotation_deg",
+            ),
+            (
+                "distortion_px_at_corner = 0.8",
+                "distortion_px_at_corner = inf",
+                "camera.distortion_px_at_corner",
+            ),
+            ("dot_level = 0.12", "dot_level = nan", "camera.dot_level"),
+            (
+                "illumination_gradient = 0.12",
+                "illumination_gradient = nan",
+                "camera.illumination_gradient",
+            ),
+            (
+                "illumination_angle_deg = 30.0",
+                "illumination_angle_deg = inf",
+                "camera.illumination_angle_deg",
+            ),
+            ("vignetting = 0.05", "vignetting = nan", "camera.vignetting"),
+            ("vignetting = 0.05", "vignetting = 7.0", "camera.vignetting"),
+        ];
+        for (from, to, key) in cases {
+            let e = load_with(from, to).unwrap_err().to_string();
+            assert!(e.contains(&format!("key `{key}`")), "{to}: {e}");
+            assert!(e.contains("..="), "{to}: the message names the range: {e}");
+        }
+        let e = load_with("blur_sigma_px = 1.0", "blur_sigma_px = 1e5")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("0..=20 px"), "{e}");
+        load_with("blur_sigma_px = 1.0", "blur_sigma_px = 20.0").unwrap();
     }
 
     #[test]

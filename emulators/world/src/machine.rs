@@ -150,50 +150,96 @@ impl MachineConfig {
         Self::from_doc(&ConfigDoc::read(path)?)
     }
 
+    /// Parse and check a machine file: every number finite and within a physically
+    /// meaningful range (errors name the key, its line and the allowed range), so that
+    /// a typo is refused here rather than surfacing later as a frame without a board.
     pub fn from_doc(doc: &ConfigDoc) -> Result<Self, ConfigError> {
         let cfg: MachineConfig = doc.parse()?;
+        let m = &cfg.machine;
+        for (i, v) in m.board_at_home_mm.iter().enumerate() {
+            doc.in_range(
+                &format!("machine.board_at_home_mm[{i}]"),
+                *v,
+                -10_000.0,
+                10_000.0,
+                "mm",
+            )
+            .map_err(|_| {
+                doc.invalid(
+                    "machine.board_at_home_mm",
+                    format!(
+                        "`{v}`: each coordinate must be a finite number within -10000..=10000 mm"
+                    ),
+                )
+            })?;
+        }
+        doc.in_range(
+            "machine.squareness_arcsec",
+            m.squareness_arcsec,
+            -3600.0,
+            3600.0,
+            "arcsec",
+        )?;
+        doc.in_range(
+            "machine.camera_height_mm",
+            m.camera_height_mm,
+            -1000.0,
+            1000.0,
+            "mm",
+        )?;
         for (name, a) in [("x", &cfg.axes.x), ("y", &cfg.axes.y)] {
             let key = |k: &str| format!("axes.{name}.{k}");
-            let positive = [
-                ("travel_mm", a.travel_mm),
-                ("counts_per_mm", a.counts_per_mm),
-                ("max_feed_mm_min", a.max_feed_mm_min),
-                ("accel_mm_s2", a.accel_mm_s2),
-                ("lead_mm", a.lead_mm),
-            ];
-            for (k, v) in positive {
-                if !(v.is_finite() && v > 0.0) {
-                    return Err(doc.invalid(&key(k), "must be a positive number"));
-                }
-            }
-            if lead_tolerance_um(a.lead_class, a.travel_mm).is_none() {
-                return Err(doc.invalid(
-                    &key("travel_mm"),
-                    "the ballscrew tolerance table covers travels up to 1600 mm",
-                ));
-            }
-            if !(0.0..=1.0).contains(&a.lead_tolerance_use) {
-                return Err(doc.invalid(&key("lead_tolerance_use"), "must be a fraction 0..1"));
-            }
+            doc.positive(
+                &key("travel_mm"),
+                a.travel_mm,
+                1600.0,
+                "mm (the ballscrew tolerance table's longest travel)",
+            )?;
+            doc.positive(&key("counts_per_mm"), a.counts_per_mm, 1e6, "counts/mm")?;
+            doc.positive(
+                &key("max_feed_mm_min"),
+                a.max_feed_mm_min,
+                200_000.0,
+                "mm/min",
+            )?;
+            doc.positive(&key("accel_mm_s2"), a.accel_mm_s2, 100_000.0, "mm/s²")?;
+            doc.positive(&key("lead_mm"), a.lead_mm, 100.0, "mm")?;
+            doc.in_range(
+                &key("lead_tolerance_use"),
+                a.lead_tolerance_use,
+                0.0,
+                1.0,
+                "of the class tolerance",
+            )?;
             let non_negative = [
-                ("periodic_um", a.periodic_um),
-                ("straightness_um", a.straightness_um),
-                ("yaw_arcsec", a.yaw_arcsec),
-                ("pitch_arcsec", a.pitch_arcsec),
-                ("backlash_um", a.backlash_um),
-                ("homing_repeatability_um", a.homing_repeatability_um),
-                ("settle_noise_um", a.settle_noise_um),
+                ("periodic_um", a.periodic_um, 100.0, "um"),
+                ("straightness_um", a.straightness_um, 1000.0, "um"),
+                ("yaw_arcsec", a.yaw_arcsec, 3600.0, "arcsec"),
+                ("pitch_arcsec", a.pitch_arcsec, 3600.0, "arcsec"),
+                ("backlash_um", a.backlash_um, 1000.0, "um"),
+                (
+                    "homing_repeatability_um",
+                    a.homing_repeatability_um,
+                    1000.0,
+                    "um",
+                ),
+                ("settle_noise_um", a.settle_noise_um, 100.0, "um"),
             ];
-            for (k, v) in non_negative {
-                if !(v.is_finite() && v >= 0.0) {
-                    return Err(doc.invalid(&key(k), "must be zero or positive"));
-                }
+            for (k, v, hi, unit) in non_negative {
+                doc.in_range(&key(k), v, 0.0, hi, unit)?;
             }
+            doc.in_range(&key("abbe_arm_mm"), a.abbe_arm_mm, -1000.0, 1000.0, "mm")?;
         }
         if let Some(t) = &cfg.thermal {
-            if !(t.time_constant_s > 0.0) {
-                return Err(doc.invalid("thermal.time_constant_s", "must be positive"));
-            }
+            doc.in_range("thermal.screw_rise_k", t.screw_rise_k, -50.0, 50.0, "K")?;
+            doc.positive("thermal.time_constant_s", t.time_constant_s, 1e6, "s")?;
+            doc.in_range(
+                "thermal.expansion_per_k",
+                t.expansion_per_k,
+                0.0,
+                1e-4,
+                "/K",
+            )?;
         }
         Ok(cfg)
     }
@@ -500,7 +546,7 @@ impl SimMachine {
         if !self.homed {
             return Err(MachineRefusal::NotHomed);
         }
-        if !(feed_mm_min > 0.0) {
+        if !(feed_mm_min.is_finite() && feed_mm_min > 0.0) {
             return Err(MachineRefusal::BadFeed(feed_mm_min));
         }
         for (k, name) in [(0, 'X'), (1, 'Y')] {
@@ -673,6 +719,89 @@ mod tests {
             .unwrap()
     }
 
+    fn load_with(from: &str, to: &str) -> Result<MachineConfig, ConfigError> {
+        let text = include_str!("../../../config/machines/c5-stage.toml");
+        assert!(text.contains(from), "{from}");
+        let text = text.replacen(from, to, 1);
+        MachineConfig::from_doc(&ConfigDoc::from_text("m.toml", &text, Path::new(".")))
+    }
+
+    #[test]
+    fn non_finite_and_unphysical_values_are_refused_at_load_naming_key_and_range() {
+        let cases = [
+            (
+                "abbe_arm_mm = 45.0",
+                "abbe_arm_mm = nan",
+                "axes.x.abbe_arm_mm",
+            ),
+            (
+                "abbe_arm_mm = 45.0",
+                "abbe_arm_mm = 1e9",
+                "axes.x.abbe_arm_mm",
+            ),
+            (
+                "squareness_arcsec = 25.0",
+                "squareness_arcsec = nan",
+                "machine.squareness_arcsec",
+            ),
+            (
+                "camera_height_mm = 60.0",
+                "camera_height_mm = inf",
+                "machine.camera_height_mm",
+            ),
+            (
+                "board_at_home_mm = [5.0, 5.0]",
+                "board_at_home_mm = [5.0, nan]",
+                "machine.board_at_home_mm",
+            ),
+            (
+                "screw_rise_k = 2.0",
+                "screw_rise_k = nan",
+                "thermal.screw_rise_k",
+            ),
+            (
+                "time_constant_s = 1800.0",
+                "time_constant_s = inf",
+                "thermal.time_constant_s",
+            ),
+            (
+                "[thermal]",
+                "[thermal]\nexpansion_per_k = nan",
+                "thermal.expansion_per_k",
+            ),
+            (
+                "backlash_um = 8.0",
+                "backlash_um = 5e6",
+                "axes.x.backlash_um",
+            ),
+            (
+                "settle_noise_um = 0.08",
+                "settle_noise_um = inf",
+                "axes.x.settle_noise_um",
+            ),
+            (
+                "accel_mm_s2 = 800.0",
+                "accel_mm_s2 = 1e300",
+                "axes.x.accel_mm_s2",
+            ),
+            (
+                "lead_tolerance_use = 0.9",
+                "lead_tolerance_use = nan",
+                "axes.x.lead_tolerance_use",
+            ),
+        ];
+        for (from, to, key) in cases {
+            let e = load_with(from, to).unwrap_err().to_string();
+            assert!(e.contains(&format!("key `{key}`")), "{to}: {e}");
+            assert!(e.contains("..="), "{to}: the message names the range: {e}");
+            assert!(e.starts_with("m.toml:"), "{e}");
+        }
+        let e = load_with("abbe_arm_mm = 45.0", "abbe_arm_mm = nan")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("not a finite number"), "{e}");
+    }
+
     #[test]
     fn tolerance_table_lookup() {
         assert_eq!(lead_tolerance_um(LeadClass::C5, 200.0), Some(20.0));
@@ -729,6 +858,12 @@ mod tests {
             Err(MachineRefusal::NotHomed)
         );
         m.home();
+        for bad in [f64::NAN, f64::INFINITY, 0.0, -1.0] {
+            assert!(matches!(
+                m.start_move([1.0, 1.0], bad),
+                Err(MachineRefusal::BadFeed(_))
+            ));
+        }
         let t0 = m.now_s();
         let d = m.start_move([10.00013, 5.0], 3000.0).unwrap();
         assert!(d > 0.2 && m.is_moving());

@@ -94,10 +94,10 @@ impl Emcy {
     }
 }
 
-/// A short name for an error code, most specific first.
+/// The CiA 301 / CiA 402 name of an error code, most specific first, else its class.
 pub fn describe(code: u16) -> &'static str {
     match code {
-        0x0000..=0x00FF => "error reset or no error",
+        0x0000..=0x00FF => "no error (error reset)",
         codes::CAN_OVERRUN => "CAN overrun (objects lost)",
         codes::CAN_ERROR_PASSIVE => "CAN in error passive mode",
         codes::HEARTBEAT_ERROR => "life guard or heartbeat error",
@@ -106,23 +106,68 @@ pub fn describe(code: u16) -> &'static str {
         0x8220 => "PDO length exceeded",
         codes::FOLLOWING_ERROR => "following error",
         codes::REFERENCE_LIMIT => "reference limit (position limit reached)",
-        0x2000..=0x2FFF => "current",
-        0x3000..=0x3FFF => "voltage",
-        0x4000..=0x4FFF => "temperature",
-        0x5000..=0x5FFF => "device hardware",
-        0x6000..=0x6FFF => "device software",
-        0x7000..=0x7FFF => "additional modules",
-        0x8000..=0x8FFF => "monitoring",
+        0x1000..=0x1FFF => "generic error",
+        0x2000..=0x2FFF => "current error",
+        0x3000..=0x3FFF => "voltage error",
+        0x4000..=0x4FFF => "temperature error",
+        0x5000..=0x5FFF => "device hardware error",
+        0x6000..=0x6FFF => "device software error",
+        0x7000..=0x7FFF => "additional modules error",
+        0x8000..=0x8FFF => "monitoring error",
         0x9000..=0x9FFF => "external error",
         0xF000..=0xFEFF => "additional functions",
         0xFF00..=0xFFFF => "device specific",
-        _ => "generic error",
+        _ => "unknown error code class",
+    }
+}
+
+impl std::fmt::Display for Emcy {
+    /// `0x8611 (following error), error register 0x21`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "0x{:04X} ({}), error register 0x{:02X}",
+            self.code,
+            self.describe(),
+            self.register
+        )
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn every_error_code_class_has_the_standards_name() {
+        for (code, name) in [
+            (0x0000, "no error (error reset)"),
+            (0x1000, "generic error"),
+            (0x2310, "current error"),
+            (0x3210, "voltage error"),
+            (0x4310, "temperature error"),
+            (0x5530, "device hardware error"),
+            (0x6100, "device software error"),
+            (0x7300, "additional modules error"),
+            (0x8400, "monitoring error"),
+            (0x8611, "following error"),
+            (0x9000, "external error"),
+            (0xF001, "additional functions"),
+            (0xFF00, "device specific"),
+            (0xA000, "unknown error code class"),
+            (0x0100, "unknown error code class"),
+        ] {
+            assert_eq!(describe(code), name, "0x{code:04X}");
+        }
+        let e = Emcy::new(
+            codes::FOLLOWING_ERROR,
+            register::GENERIC | register::PROFILE,
+        );
+        assert_eq!(
+            e.to_string(),
+            "0x8611 (following error), error register 0x21"
+        );
+    }
 
     #[test]
     fn emcy_round_trips_and_names_its_code() {

@@ -224,7 +224,7 @@ impl ObjectDictionary {
 
     /// Read an EDS file for a node (its `$NODEID` references resolved to `node`).
     pub fn load_eds(path: &Path, node: NodeId) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|cause| ConfigError::Io {
+        let text = crate::config::read_data_file(path).map_err(|cause| ConfigError::Io {
             file: path.to_path_buf(),
             cause,
         })?;

@@ -45,7 +45,9 @@ pub enum Response {
         line: String,
         status: Result<(), u8>,
     },
-    /// Anything else (a foreign device, line noise), kept verbatim for the error message.
+    /// Anything else (a foreign device, line noise), for the error message: shown as
+    /// [`crate::text::escape_bytes`] shows device bytes (printable ASCII as is, other
+    /// bytes as `\xNN`, cut at 80 characters with the line's byte count).
     Other(String),
 }
 
@@ -197,6 +199,14 @@ pub struct LineDecoder {
     overflowed: bool,
 }
 
+/// `bytes` without the carriage returns and NULs around them (as lines are trimmed).
+fn trim_bytes(bytes: &[u8]) -> &[u8] {
+    let keep = |b: &u8| *b != b'\r' && *b != 0;
+    let start = bytes.iter().position(keep).unwrap_or(bytes.len());
+    let end = bytes.iter().rposition(keep).map_or(start, |e| e + 1);
+    &bytes[start..end]
+}
+
 impl LineDecoder {
     pub fn new() -> Self {
         Self::default()
@@ -212,14 +222,21 @@ impl LineDecoder {
                     let text = String::from_utf8_lossy(&self.buf);
                     let text = text.trim_matches(['\r', '\0']);
                     if !text.is_empty() {
-                        out.push(Response::parse(text));
+                        out.push(match Response::parse(text) {
+                            // The bytes as received, not their lossy UTF-8 reading.
+                            Response::Other(_) => {
+                                Response::Other(crate::text::escape_bytes(trim_bytes(&self.buf)))
+                            }
+                            r => r,
+                        });
                     }
                 }
                 self.buf.clear();
             } else if self.overflowed {
                 // Discard until the next newline.
             } else if self.buf.len() >= MAX_LINE {
-                let head = String::from_utf8_lossy(&self.buf[..32]).into_owned();
+                // 20 bytes are at most 80 escaped characters: never cut again.
+                let head = crate::text::escape_bytes_max(&self.buf[..20], 80);
                 out.push(Response::Other(format!(
                     "{head}... (line longer than {MAX_LINE} bytes)"
                 )));
@@ -350,6 +367,17 @@ mod tests {
         assert!(matches!(&out[3], Response::Other(s) if s == "error:x"));
         assert_eq!(out[4], Response::Ok);
         assert_eq!(out.len(), 5);
+        // Foreign bytes are shown escaped, as received.
+        let mut out = Vec::new();
+        d.feed(b"\x00\xFFab\xC3\x28\r\n", &mut out);
+        assert_eq!(out, [Response::Other("\\xFFab\\xC3(".into())]);
+        let mut out = Vec::new();
+        d.feed(&[0xAA; 300], &mut out);
+        d.feed(b"\n", &mut out);
+        assert!(
+            matches!(&out[0], Response::Other(s) if s.starts_with("\\xAA\\xAA") && s.ends_with("... (line longer than 256 bytes)")),
+            "{out:?}"
+        );
     }
 
     /// Random bytes (biased towards GRBL's own characters) never panic the decoder or

@@ -201,7 +201,7 @@ impl Register {
 
     /// Address of its last word.
     pub fn last(&self) -> u16 {
-        self.address + self.words() - 1
+        self.address + (self.words() - 1)
     }
 
     pub fn contains(&self, table: Table, address: u16) -> bool {
@@ -477,6 +477,9 @@ impl DriveProfile {
         data.push(&actual);
         data.push(&status_reg);
         data.extend(alarm_code.as_ref());
+        for r in &data {
+            check_end(doc, r)?;
+        }
         check_overlaps(doc, &data)?;
 
         // The block must be contiguous: every register in it named.
@@ -534,6 +537,30 @@ impl DriveProfile {
                 }
             }
         }
+        // Each condition has its own bits: with shared bits, one flag would read as
+        // another (a drive "busy" whenever it is in position never ends a move).
+        let masks: Vec<(&str, u32)> = [
+            ("ready", s.ready),
+            ("busy", s.busy),
+            ("in_position", s.in_position),
+            ("alarm", Some(s.alarm)),
+            ("home_done", s.home_done),
+        ]
+        .into_iter()
+        .filter_map(|(k, v)| Some((k, v?)))
+        .collect();
+        for (i, (k, v)) in masks.iter().enumerate() {
+            if let Some((ok, ov)) = masks[..i].iter().find(|(_, ov)| ov & v != 0) {
+                return Err(doc.invalid(
+                    &format!("status.{k}"),
+                    format!(
+                        "bit mask 0x{v:04X} shares bits 0x{:04X} with `status.{ok}` (0x{ov:04X}): \
+                         each status condition needs its own bits",
+                        v & ov
+                    ),
+                ));
+            }
+        }
         if s.busy.is_none() && s.in_position.is_none() {
             return Err(doc.invalid(
                 "status",
@@ -544,6 +571,7 @@ impl DriveProfile {
         // Commands: may share a command register among themselves, never a data one.
         let command = |key: &str, c: &RawCommand| -> Result<Command, ConfigError> {
             let reg = holding(key, c.address, c.ty, c.word_order);
+            check_end(doc, &reg)?;
             fits(&reg, c.value, "value")?;
             if let Some(r) = c.release {
                 fits(&reg, r, "release")?;
@@ -792,6 +820,23 @@ impl DriveProfile {
     }
 }
 
+/// A register's words must all have addresses: a 32-bit register at 0xFFFF would need
+/// 0x10000.
+fn check_end(doc: &ConfigDoc, r: &Register) -> Result<(), ConfigError> {
+    let last = r.address as u32 + r.words() as u32 - 1;
+    if last > 0xFFFF {
+        return Err(doc.invalid(
+            &r.key,
+            format!(
+                "a {} register at 0x{:04X} needs addresses up to 0x{last:04X}, past the last \
+                 Modbus address 0xFFFF",
+                r.ty, r.address
+            ),
+        ));
+    }
+    Ok(())
+}
+
 fn check_overlaps(doc: &ConfigDoc, regs: &[&Register]) -> Result<(), ConfigError> {
     for (i, r) in regs.iter().enumerate() {
         if let Some(o) = regs[..i].iter().find(|o| o.overlaps(r)) {
@@ -915,5 +960,53 @@ mod tests {
             e.to_string().contains("`move.speed` (holding 0x6203, u16)"),
             "{e}"
         );
+    }
+    #[test]
+    fn overlapping_status_masks_are_rejected() {
+        let bad = GENERIC.replace("busy = 0x0002", "busy = 0x0006");
+        assert_ne!(bad, GENERIC);
+        let e = err(&bad);
+        assert!(
+            e.starts_with("drive.toml:")
+                && e.contains("key `status.in_position`")
+                && e.contains("0x0004")
+                && e.contains("`status.busy`"),
+            "{e}"
+        );
+        let bad = GENERIC.replace("home_done = 0x0010", "home_done = 0x0001");
+        let e = err(&bad);
+        assert!(
+            e.contains("key `status.home_done`") && e.contains("`status.ready`"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn registers_running_past_the_last_address_are_rejected() {
+        let bad = GENERIC.replace(
+            "[position]\naddress = 0x0021",
+            "[position]\naddress = 0xFFFF",
+        );
+        assert_ne!(bad, GENERIC);
+        let e = err(&bad);
+        assert!(
+            e.starts_with("drive.toml:") && e.contains("key `position`") && e.contains("0xFFFF"),
+            "{e}"
+        );
+        // A 16-bit register at 0xFFFF is fine.
+        let ok = GENERIC.replace(
+            "code = { address = 0x0023, type = \"u16\", table = \"input\" }",
+            "code = { address = 0xFFFF, type = \"u16\", table = \"input\" }",
+        );
+        assert_ne!(ok, GENERIC);
+        DriveProfile::from_doc(&doc(&ok)).unwrap();
+        // Commands too.
+        let bad = GENERIC.replace(
+            "stop = { address = 0x0010, value = 0x0002, release = 0 }",
+            "stop = { address = 0xFFFF, type = \"u32\", value = 0x0002, release = 0 }",
+        );
+        assert_ne!(bad, GENERIC);
+        let e = err(&bad);
+        assert!(e.contains("key `commands.stop`"), "{e}");
     }
 }
