@@ -351,12 +351,9 @@ impl GigeCamera {
         })?;
         let url = ctl.read_mem(bs::FIRST_URL, bs::URL_LEN).await?;
         let (file, xml_addr, xml_size) =
-            parse_local_url(&url).ok_or_else(|| DriverError::Unsupported {
+            parse_local_url(&url).map_err(|e| DriverError::Unsupported {
                 device: device.clone(),
-                message: format!(
-                    "GenICam XML URL `{}` is not a Local: URL this driver can read",
-                    cstr(&url)
-                ),
+                message: e.to_string(),
             })?;
         let raw = ctl.read_mem(xml_addr, xml_size as usize).await?;
         // Many cameras ship their XML zipped (one file in the archive).
