@@ -21,7 +21,7 @@ use async_trait::async_trait;
 use client::Gvcp;
 use genicam::{GenICam, Location};
 use protocol::gige::gvcp::{AckBody, Command, CommandPacket, FLAG_ACK_REQUIRED, PORT};
-use protocol::gige::gvsp::{self, Assembler, Packet};
+use protocol::gige::gvsp::{self, Assembler, GvspError, Negotiated, Packet};
 use protocol::gige::{bootstrap as bs, parse_local_url, pfnc};
 use protocol::{MonoImage, Pixels};
 use std::net::{IpAddr, SocketAddr};
@@ -272,6 +272,7 @@ pub struct GigeCamera {
     info: CameraInfo,
     opts: GigeOptions,
     pixel_format: u32,
+    negotiated: Negotiated,
     packet_size: u32,
     resend: bool,
     trigger: (Location, i64),
@@ -386,6 +387,12 @@ impl GigeCamera {
                 })
             }
         };
+        // Every leader must match this; nothing larger is ever allocated for a frame.
+        let negotiated =
+            Negotiated::new(width, height, pixel_format).map_err(|e| DriverError::Unsupported {
+                device: device.clone(),
+                message: e.to_string(),
+            })?;
         let caps = ctl.read_reg(bs::GVCP_CAPABILITY).await?;
         let tick_hz = ((ctl.read_reg(bs::TICK_FREQUENCY_HIGH).await? as u64) << 32)
             | ctl.read_reg(bs::TICK_FREQUENCY_LOW).await? as u64;
@@ -506,6 +513,7 @@ impl GigeCamera {
                 device,
                 opts,
                 pixel_format,
+                negotiated,
                 packet_size,
                 resend: caps & bs::CAP_PACKETRESEND != 0,
                 trigger,
@@ -524,6 +532,24 @@ impl GigeCamera {
     /// The stream packet size the camera accepted.
     pub fn packet_size(&self) -> u32 {
         self.packet_size
+    }
+
+    /// A leader the assembler refused (another format than negotiated at open).
+    fn refused_leader(&self, block: u16, p: &Packet<'_>, e: GvspError) -> DriverError {
+        let gvsp::Content::Leader(l) = p.content else {
+            return DriverError::Protocol {
+                device: self.device.clone(),
+                message: format!("frame (block {block}): {e}; frame refused"),
+            };
+        };
+        DriverError::Protocol {
+            device: self.device.clone(),
+            message: format!(
+                "frame (block {block}) is {}x{} {} but the camera declared {}x{} {} at open; frame refused ({e})",
+                l.width, l.height, pfnc::name(l.pixel_format),
+                self.info.width, self.info.height, pfnc::name(self.pixel_format)
+            ),
+        }
     }
 
     fn incomplete(&self, a: &Assembler, why: &str) -> DriverError {
@@ -650,10 +676,19 @@ impl Camera for GigeCamera {
                         if !is_newer(p.block_id, self.last_block) {
                             continue;
                         }
-                        asm = Some(Assembler::new(p.block_id, self.packet_size));
+                        asm = Some(Assembler::new(
+                            p.block_id,
+                            self.packet_size,
+                            self.negotiated,
+                        ));
                     }
                     let a = asm.as_mut().expect("set above");
-                    a.push(&p);
+                    if let Err(e) = a.push(&p) {
+                        // The camera streams another format than it declared: the
+                        // rest of this block is stale from now on.
+                        self.last_block = Some(a.block_id);
+                        return Err(self.refused_leader(a.block_id, &p, e));
+                    }
                     if a.is_complete() {
                         break;
                     }
