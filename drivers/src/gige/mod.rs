@@ -356,6 +356,14 @@ impl GigeCamera {
                 device: device.clone(),
                 message: e.to_string(),
             })?;
+        // The size is the camera's word: bounded like an archive's declared size.
+        if xml_size as usize > protocol::gige::MAX_XML_SIZE {
+            return Err(ctl.violation(format!(
+                "GenICam XML URL `{}`: size {xml_size} bytes is more than the {} bytes a GenICam XML may have (MAX_XML_SIZE)",
+                cstr(&url),
+                protocol::gige::MAX_XML_SIZE
+            )));
+        }
         let raw = ctl.read_mem(xml_addr, xml_size as usize).await?;
         // Many cameras ship their XML zipped (one file in the archive).
         let xml = if file.to_ascii_lowercase().ends_with(".zip") {

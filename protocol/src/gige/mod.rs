@@ -87,6 +87,11 @@ pub mod pfnc {
     }
 }
 
+/// Largest GenICam XML read from a camera, zipped or not: 16 MiB (GenICam XML files
+/// are at most a few MB). A URL register or an archive declaring more is refused
+/// before anything is read or inflated.
+pub const MAX_XML_SIZE: usize = 16 << 20;
+
 /// Bytes of IPv4 (20) + UDP (8) + GVSP standard header (8) that a stream packet size
 /// (SCPS) includes besides the image data: every payload packet but the last carries
 /// exactly `SCPS - 36` data bytes (Aravis places payload k at (k-1)*(SCPS-36)).
