@@ -284,6 +284,10 @@ pub struct GigeCamera {
     heartbeat: JoinHandle<()>,
     sequence: u64,
     rx: Vec<u8>,
+    /// Where GVSP comes from: the camera's address and stream source port (0: the
+    /// camera does not report it, any port of that address is taken).
+    camera_stream: SocketAddr,
+    stray: u64,
 }
 
 impl Drop for GigeCamera {
@@ -459,6 +463,10 @@ impl GigeCamera {
         }
         ctl.write_reg(bs::SCDA0, u32::from(ip4)).await?;
         ctl.write_reg(bs::SCP0, port as u32).await?;
+        // The port the camera streams from (GigE Vision 2.0; 0 or an error from an
+        // older camera: then its address alone identifies its packets).
+        let source_port = ctl.read_reg(bs::SCSP0).await.map_or(0, |v| v & 0xFFFF) as u16;
+        let camera_stream = SocketAddr::new(addr.ip(), source_port);
         // Software trigger, continuous acquisition: one frame per TriggerSoftware.
         let set_enum = |name: &'static str, entry: &'static str| (name, entry);
         let mut settings = vec![
@@ -533,8 +541,27 @@ impl GigeCamera {
                 heartbeat,
                 sequence: 0,
                 rx: vec![0u8; 65536],
+                camera_stream,
+                stray: 0,
             }
         })
+    }
+
+    /// The local address of the stream socket (where the camera sends GVSP).
+    pub fn stream_addr(&self) -> std::io::Result<SocketAddr> {
+        self.stream.local_addr()
+    }
+
+    /// Datagrams on the stream socket from anyone but the camera: dropped unread.
+    pub fn stray_packets(&self) -> u64 {
+        self.stray
+    }
+
+    /// Whether a datagram on the stream socket comes from the camera: its address,
+    /// and its stream source port when the camera reports one (SCSP0).
+    fn is_camera(&self, from: SocketAddr) -> bool {
+        from.ip() == self.camera_stream.ip()
+            && (self.camera_stream.port() == 0 || from.port() == self.camera_stream.port())
     }
 
     /// The stream packet size the camera accepted.
@@ -641,7 +668,11 @@ impl Camera for GigeCamera {
             });
         }
         // Packets of earlier frames (late resends) must not mix into this one.
-        while let Ok((n, _)) = self.stream.try_recv_from(&mut self.rx) {
+        while let Ok((n, from)) = self.stream.try_recv_from(&mut self.rx) {
+            if !self.is_camera(from) {
+                self.stray += 1;
+                continue;
+            }
             if let Ok(p) = Packet::decode(&self.rx[..n]) {
                 if is_newer(p.block_id, self.last_block) {
                     self.last_block = Some(p.block_id);
@@ -669,14 +700,24 @@ impl Camera for GigeCamera {
         let deadline = tokio::time::Instant::now() + self.opts.frame_timeout;
         let mut asm: Option<Assembler> = None;
         let mut rounds = 0;
+        // Silence is counted from the camera's last packet: stray datagrams must not
+        // keep a frame with holes from asking for them.
+        let mut last_heard = tokio::time::Instant::now();
         loop {
             let wait = if asm.is_some() {
-                deadline.min(tokio::time::Instant::now() + self.opts.packet_timeout)
+                deadline.min(last_heard + self.opts.packet_timeout)
             } else {
                 deadline
             };
             match tokio::time::timeout_at(wait, self.stream.recv_from(&mut self.rx)).await {
-                Ok(Ok((n, _))) => {
+                Ok(Ok((n, from))) => {
+                    if !self.is_camera(from) {
+                        // Anyone on the camera network can send here: never let it
+                        // near the assembler (or the block id bookkeeping).
+                        self.stray += 1;
+                        continue;
+                    }
+                    last_heard = tokio::time::Instant::now();
                     let Ok(p) = Packet::decode(&self.rx[..n]) else {
                         continue;
                     };
@@ -764,6 +805,8 @@ impl Camera for GigeCamera {
             for (first, last) in ranges(&missing) {
                 c.packet_resend(block, first, last).await?;
             }
+            // Give the resent packets their packet timeout.
+            last_heard = tokio::time::Instant::now();
         }
         let a = asm.expect("complete");
         let block = a.block_id;
