@@ -23,6 +23,8 @@ mod arc;
 mod characterization;
 mod check;
 mod error;
+#[cfg(test)]
+mod fuzz;
 mod read;
 mod run;
 mod state;
