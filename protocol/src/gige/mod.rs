@@ -2,6 +2,8 @@
 //! (GVSP, [`gvsp`]) as Aravis 0.8.26 and real cameras speak them, plus the bootstrap
 //! register map ([`bootstrap`]) and pixel format codes ([`pfnc`]). All big-endian.
 
+#[cfg(test)]
+mod fuzz;
 pub mod gvcp;
 pub mod gvsp;
 pub mod zip;
