@@ -203,12 +203,32 @@ async fn read_feature(ctl: &mut Gvcp, loc: &Location) -> Result<i64, DriverError
             } else {
                 raw
             };
-            Ok(match field {
-                Some((shift, width)) => ((raw >> shift) & ((1u64 << width) - 1)) as i64,
-                None => raw as i64,
-            })
+            Ok(field_value(raw, field) as i64)
         }
     }
+}
+
+/// `width` low bits set (all 64 for 64 or more, none for 0).
+fn low_bits(width: u32) -> u64 {
+    u64::MAX
+        .checked_shr(64u32.saturating_sub(width))
+        .unwrap_or(0)
+}
+
+/// A MaskedIntReg field `(shift, width)` of a register's value (the whole value
+/// without a field). Shifts are checked: a field outside the register reads as 0.
+fn field_value(raw: u64, field: Option<(u32, u32)>) -> u64 {
+    match field {
+        Some((shift, width)) => raw.checked_shr(shift).unwrap_or(0) & low_bits(width),
+        None => raw,
+    }
+}
+
+/// A 32-bit register `old` with its field `(shift, width)` set to `v` (a field outside
+/// the register changes nothing).
+fn merge_field(old: u32, v: u32, (shift, width): (u32, u32)) -> u32 {
+    let mask = low_bits(width).checked_shl(shift).unwrap_or(0) as u32;
+    (old & !mask) | (v.checked_shl(shift).unwrap_or(0) & mask)
 }
 
 async fn write_feature(
@@ -233,8 +253,7 @@ async fn write_feature(
             if let Some((shift, width)) = field {
                 let old = ctl.read_reg(address).await?;
                 let old = if little_endian { old.swap_bytes() } else { old };
-                let mask = (((1u64 << width) - 1) << shift) as u32;
-                v = (old & !mask) | ((v << shift) & mask);
+                v = merge_field(old, v, (shift, width));
             }
             if little_endian {
                 v = v.swap_bytes();
@@ -877,6 +896,21 @@ fn ranges(ids: &[u32]) -> Vec<(u32, u32)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn bit_fields_of_any_width_never_overflow() {
+        assert_eq!(field_value(0xABCD, Some((4, 8))), 0xBC);
+        assert_eq!(field_value(u64::MAX, Some((0, 64))), u64::MAX);
+        assert_eq!(field_value(u64::MAX, Some((63, 1))), 1);
+        assert_eq!(merge_field(0xFFFF_0000, 0x5, (4, 4)), 0xFFFF_0050);
+        assert_eq!(merge_field(0, u32::MAX, (0, 32)), u32::MAX);
+        // Fields a Location could hold though `locate` never makes them.
+        for f in [(64, 1), (0, 0), (0, 65), (200, 200), (u32::MAX, u32::MAX)] {
+            let r =
+                std::panic::catch_unwind(|| (field_value(u64::MAX, Some(f)), merge_field(1, 1, f)));
+            assert!(r.is_ok(), "{f:?} panicked");
+        }
+    }
 
     #[test]
     fn block_ids_wrap_and_runs_group() {
