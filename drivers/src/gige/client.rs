@@ -132,11 +132,28 @@ impl Gvcp {
             .map(|_| ())
     }
 
-    /// Reads `len` bytes (any length; split into 512-byte READMEMs rounded up to 4).
+    /// Reads `len` bytes (split into 512-byte READMEMs rounded up to 4), at most
+    /// [`protocol::gige::MAX_XML_SIZE`] and inside the 32-bit address space: lengths
+    /// come from the camera (URL register, GenICam XML).
     pub async fn read_mem(&mut self, addr: u32, len: usize) -> Result<Vec<u8>, DriverError> {
+        let max = protocol::gige::MAX_XML_SIZE;
+        if len > max {
+            return Err(self.violation(format!(
+                "READMEM 0x{addr:08X}: {len} bytes asked, more than the {max} bytes this driver reads from a camera"
+            )));
+        }
+        let last = u32::try_from(len.div_ceil(4) * 4)
+            .ok()
+            .and_then(|n| addr.checked_add(n.saturating_sub(1)));
+        if len > 0 && last.is_none() {
+            return Err(self.violation(format!(
+                "READMEM 0x{addr:08X}: {len} bytes run past the end of the 32-bit address space"
+            )));
+        }
         let mut out = Vec::with_capacity(len);
         while out.len() < len {
-            let at = addr + out.len() as u32;
+            // Inside the address space: checked above.
+            let at = addr.wrapping_add(out.len() as u32);
             let n = (len - out.len()).min(gvcp::MAX_MEM_BLOCK).div_ceil(4) * 4;
             match self
                 .request(Command::ReadMem {
@@ -202,5 +219,45 @@ impl Gvcp {
             device: self.device.clone(),
             message,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A peer that never answers: a read that reached the network would time out.
+    async fn silent() -> (UdpSocket, Gvcp) {
+        let peer = UdpSocket::bind("127.0.0.1:0").await.unwrap();
+        let c = Gvcp::connect(peer.local_addr().unwrap(), Duration::from_millis(50), 0)
+            .await
+            .unwrap();
+        (peer, c)
+    }
+
+    #[tokio::test]
+    async fn read_lengths_from_the_camera_are_bounded_before_reading() {
+        let (_peer, mut c) = silent().await;
+        let e = c
+            .read_mem(0x8000, 0xFFFF_FFFF)
+            .await
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("4294967295 bytes asked, more than the 16777216 bytes"),
+            "{e}"
+        );
+        let e = c
+            .read_mem(0xFFFF_FF00, 0x200)
+            .await
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("past the end of the 32-bit address space"),
+            "{e}"
+        );
+        // The last word of the address space is still readable (times out here).
+        let e = c.read_mem(0xFFFF_FFFC, 4).await.unwrap_err();
+        assert!(matches!(e, DriverError::Timeout { .. }), "{e}");
     }
 }

@@ -19,6 +19,26 @@ pub enum Location {
     Constant(i64),
 }
 
+/// Most `pIndex` selectors resolved inside one another (GenICam nests one or two).
+const MAX_DEPTH: usize = 8;
+
+/// (shift, width) of a MaskedIntReg field from its LSB and MSB bit numbers (bit 0 is
+/// the least significant in LittleEndian registers, the most significant in BigEndian
+/// ones), or `None` if the field is not inside the `length`-byte register.
+fn bit_field(lsb: i64, msb: i64, length: u32, little_endian: bool) -> Option<(u32, u32)> {
+    let bits = i64::from(length) * 8;
+    let inside = |b: i64| (0..bits).contains(&b);
+    if !inside(lsb) || !inside(msb) {
+        return None;
+    }
+    let (shift, width) = if little_endian {
+        (lsb, msb - lsb + 1)
+    } else {
+        (bits - 1 - lsb, lsb - msb + 1)
+    };
+    (width >= 1).then_some((shift as u32, width as u32))
+}
+
 /// A parsed GenICam description (the XML text, searched on demand).
 pub struct GenICam {
     xml: String,
@@ -85,8 +105,19 @@ impl GenICam {
         self.node(name).is_some()
     }
 
-    /// Resolves `feature` to its register or constant.
+    /// Resolves `feature` to its register or constant. The XML is the camera's: a
+    /// register comes back only if it is 1 to 8 bytes inside the 32-bit address space,
+    /// with its bit field inside it; link chains and index selectors are bounded.
     pub fn locate(&self, feature: &str) -> Result<Location, String> {
+        self.locate_at(feature, 0)
+    }
+
+    fn locate_at(&self, feature: &str, depth: usize) -> Result<Location, String> {
+        if depth > MAX_DEPTH {
+            return Err(format!(
+                "`{feature}`: pIndex selectors nested too deep (more than {MAX_DEPTH}; a loop?)"
+            ));
+        }
         let mut name = feature.to_string();
         for _ in 0..8 {
             let (tag, body) = self
@@ -104,7 +135,13 @@ impl GenICam {
                 }
                 let address =
                     parse_int(addr).ok_or_else(|| format!("`{name}`: bad Address `{addr}`"))?;
-                let length = child(body, "Length").and_then(parse_int).unwrap_or(4) as u32;
+                let length = child(body, "Length").and_then(parse_int).unwrap_or(4);
+                if !(1..=8).contains(&length) {
+                    return Err(format!(
+                        "`{feature}` (node `{name}`): register length {length} bytes (this driver reads 1 to 8)"
+                    ));
+                }
+                let length = length as u32;
                 // `<pIndex Offset="k">Selector</pIndex>`: address + k * selector, when the
                 // selector is a constant (as in Aravis's fake camera).
                 let address = match body.find("<pIndex") {
@@ -124,8 +161,11 @@ impl GenICam {
                             .map(|e| e + open_end)
                             .ok_or("bad pIndex")?;
                         let selector = body[open_end..close].trim();
-                        match self.locate(selector)? {
-                            Location::Constant(v) => address + offset * v,
+                        match self.locate_at(selector, depth + 1)? {
+                            Location::Constant(v) => offset
+                                .checked_mul(v)
+                                .and_then(|o| o.checked_add(address))
+                                .unwrap_or(i64::MIN),
                             Location::Register { .. } => {
                                 return Err(format!(
                                     "`{feature}` (node `{name}`) is indexed by the register `{selector}`, which this driver does not evaluate"
@@ -134,17 +174,20 @@ impl GenICam {
                         }
                     }
                 };
+                let address = u32::try_from(address).map_err(|_| {
+                    format!(
+                        "`{feature}` (node `{name}`): address {address:#X} (after pIndex) is outside the 32-bit address space"
+                    )
+                })?;
                 let little_endian = child(body, "Endianess") == Some("LittleEndian");
                 let field = if tag == "MaskedIntReg" {
-                    let bits = length * 8;
                     let (lsb, msb) =
                         match (child(body, "LSB"), child(body, "MSB"), child(body, "Bit")) {
-                            (Some(l), Some(m), _) => (
-                                parse_int(l).unwrap_or(0) as u32,
-                                parse_int(m).unwrap_or(0) as u32,
-                            ),
+                            (Some(l), Some(m), _) => {
+                                (parse_int(l).unwrap_or(0), parse_int(m).unwrap_or(0))
+                            }
                             (_, _, Some(b)) => {
-                                let b = parse_int(b).unwrap_or(0) as u32;
+                                let b = parse_int(b).unwrap_or(0);
                                 (b, b)
                             }
                             _ => {
@@ -153,16 +196,17 @@ impl GenICam {
                                 ))
                             }
                         };
-                    Some(if little_endian {
-                        (lsb, msb - lsb + 1)
-                    } else {
-                        (bits - 1 - lsb, lsb - msb + 1)
-                    })
+                    Some(bit_field(lsb, msb, length, little_endian).ok_or_else(|| {
+                        format!(
+                            "`{feature}` (node `{name}`): MaskedIntReg field LSB {lsb}, MSB {msb} is not inside its {length}-byte {} register",
+                            if little_endian { "LittleEndian" } else { "BigEndian" }
+                        )
+                    })?)
                 } else {
                     None
                 };
                 return Ok(Location::Register {
-                    address: address as u32,
+                    address,
                     length,
                     little_endian,
                     field,
@@ -304,5 +348,35 @@ mod tests {
             g.locate("ExposureTime"),
             Ok(Location::Register { float: true, .. })
         ));
+    }
+
+    #[test]
+    fn hostile_register_descriptions_are_errors_not_panics() {
+        let xml = r#"<RegisterDescription>
+  <MaskedIntReg Name="Inverted"><Address>0x10</Address><Length>4</Length><LSB>9</LSB><MSB>2</MSB><Endianess>LittleEndian</Endianess></MaskedIntReg>
+  <MaskedIntReg Name="Outside"><Address>0x10</Address><Length>4</Length><Bit>40</Bit></MaskedIntReg>
+  <MaskedIntReg Name="Negative"><Address>0x10</Address><Length>4</Length><LSB>-1</LSB><MSB>0</MSB></MaskedIntReg>
+  <IntReg Name="Loop"><Address>0x20</Address><pIndex>Loop</pIndex><Length>4</Length></IntReg>
+  <Integer Name="Big"><Value>0x7FFFFFFFFFFFFFFF</Value></Integer>
+  <IntReg Name="Far"><Address>0x30</Address><pIndex Offset="0x7FFFFFFFFFFFFFFF">Big</pIndex><Length>4</Length></IntReg>
+  <IntReg Name="Beyond"><Address>0x1FFFFFFFF</Address><Length>4</Length></IntReg>
+  <IntReg Name="Long"><Address>0x40</Address><Length>100</Length></IntReg>
+  <IntReg Name="NoLength"><Address>0x40</Address><Length>-4</Length></IntReg>
+</RegisterDescription>"#;
+        let g = GenICam::new(xml.into());
+        for (f, says) in [
+            ("Inverted", "LSB 9, MSB 2"),
+            ("Outside", "LSB 40, MSB 40"),
+            ("Negative", "LSB -1"),
+            ("Loop", "too deep"),
+            ("Far", "outside the 32-bit address space"),
+            ("Beyond", "outside the 32-bit address space"),
+            ("Long", "100 bytes"),
+            ("NoLength", "-4 bytes"),
+        ] {
+            let r = std::panic::catch_unwind(|| g.locate(f));
+            let e = r.unwrap_or_else(|_| panic!("`{f}` panicked")).expect_err(f);
+            assert!(e.contains(f) && e.contains(says), "{f}: {e}");
+        }
     }
 }

@@ -21,7 +21,7 @@ use async_trait::async_trait;
 use client::Gvcp;
 use genicam::{GenICam, Location};
 use protocol::gige::gvcp::{AckBody, Command, CommandPacket, FLAG_ACK_REQUIRED, PORT};
-use protocol::gige::gvsp::{self, Assembler, Packet};
+use protocol::gige::gvsp::{self, Assembler, GvspError, Negotiated, Packet};
 use protocol::gige::{bootstrap as bs, parse_local_url, pfnc};
 use protocol::{MonoImage, Pixels};
 use std::net::{IpAddr, SocketAddr};
@@ -203,12 +203,32 @@ async fn read_feature(ctl: &mut Gvcp, loc: &Location) -> Result<i64, DriverError
             } else {
                 raw
             };
-            Ok(match field {
-                Some((shift, width)) => ((raw >> shift) & ((1u64 << width) - 1)) as i64,
-                None => raw as i64,
-            })
+            Ok(field_value(raw, field) as i64)
         }
     }
+}
+
+/// `width` low bits set (all 64 for 64 or more, none for 0).
+fn low_bits(width: u32) -> u64 {
+    u64::MAX
+        .checked_shr(64u32.saturating_sub(width))
+        .unwrap_or(0)
+}
+
+/// A MaskedIntReg field `(shift, width)` of a register's value (the whole value
+/// without a field). Shifts are checked: a field outside the register reads as 0.
+fn field_value(raw: u64, field: Option<(u32, u32)>) -> u64 {
+    match field {
+        Some((shift, width)) => raw.checked_shr(shift).unwrap_or(0) & low_bits(width),
+        None => raw,
+    }
+}
+
+/// A 32-bit register `old` with its field `(shift, width)` set to `v` (a field outside
+/// the register changes nothing).
+fn merge_field(old: u32, v: u32, (shift, width): (u32, u32)) -> u32 {
+    let mask = low_bits(width).checked_shl(shift).unwrap_or(0) as u32;
+    (old & !mask) | (v.checked_shl(shift).unwrap_or(0) & mask)
 }
 
 async fn write_feature(
@@ -233,8 +253,7 @@ async fn write_feature(
             if let Some((shift, width)) = field {
                 let old = ctl.read_reg(address).await?;
                 let old = if little_endian { old.swap_bytes() } else { old };
-                let mask = (((1u64 << width) - 1) << shift) as u32;
-                v = (old & !mask) | ((v << shift) & mask);
+                v = merge_field(old, v, (shift, width));
             }
             if little_endian {
                 v = v.swap_bytes();
@@ -272,6 +291,7 @@ pub struct GigeCamera {
     info: CameraInfo,
     opts: GigeOptions,
     pixel_format: u32,
+    negotiated: Negotiated,
     packet_size: u32,
     resend: bool,
     trigger: (Location, i64),
@@ -283,6 +303,10 @@ pub struct GigeCamera {
     heartbeat: JoinHandle<()>,
     sequence: u64,
     rx: Vec<u8>,
+    /// Where GVSP comes from: the camera's address and stream source port (0: the
+    /// camera does not report it, any port of that address is taken).
+    camera_stream: SocketAddr,
+    stray: u64,
 }
 
 impl Drop for GigeCamera {
@@ -351,13 +375,18 @@ impl GigeCamera {
         })?;
         let url = ctl.read_mem(bs::FIRST_URL, bs::URL_LEN).await?;
         let (file, xml_addr, xml_size) =
-            parse_local_url(&url).ok_or_else(|| DriverError::Unsupported {
+            parse_local_url(&url).map_err(|e| DriverError::Unsupported {
                 device: device.clone(),
-                message: format!(
-                    "GenICam XML URL `{}` is not a Local: URL this driver can read",
-                    cstr(&url)
-                ),
+                message: e.to_string(),
             })?;
+        // The size is the camera's word: bounded like an archive's declared size.
+        if xml_size as usize > protocol::gige::MAX_XML_SIZE {
+            return Err(ctl.violation(format!(
+                "GenICam XML URL `{}`: size {xml_size} bytes is more than the {} bytes a GenICam XML may have (MAX_XML_SIZE)",
+                cstr(&url),
+                protocol::gige::MAX_XML_SIZE
+            )));
+        }
         let raw = ctl.read_mem(xml_addr, xml_size as usize).await?;
         // Many cameras ship their XML zipped (one file in the archive).
         let xml = if file.to_ascii_lowercase().ends_with(".zip") {
@@ -389,6 +418,12 @@ impl GigeCamera {
                 })
             }
         };
+        // Every leader must match this; nothing larger is ever allocated for a frame.
+        let negotiated =
+            Negotiated::new(width, height, pixel_format).map_err(|e| DriverError::Unsupported {
+                device: device.clone(),
+                message: e.to_string(),
+            })?;
         let caps = ctl.read_reg(bs::GVCP_CAPABILITY).await?;
         let tick_hz = ((ctl.read_reg(bs::TICK_FREQUENCY_HIGH).await? as u64) << 32)
             | ctl.read_reg(bs::TICK_FREQUENCY_LOW).await? as u64;
@@ -447,6 +482,10 @@ impl GigeCamera {
         }
         ctl.write_reg(bs::SCDA0, u32::from(ip4)).await?;
         ctl.write_reg(bs::SCP0, port as u32).await?;
+        // The port the camera streams from (GigE Vision 2.0; 0 or an error from an
+        // older camera: then its address alone identifies its packets).
+        let source_port = ctl.read_reg(bs::SCSP0).await.map_or(0, |v| v & 0xFFFF) as u16;
+        let camera_stream = SocketAddr::new(addr.ip(), source_port);
         // Software trigger, continuous acquisition: one frame per TriggerSoftware.
         let set_enum = |name: &'static str, entry: &'static str| (name, entry);
         let mut settings = vec![
@@ -509,6 +548,7 @@ impl GigeCamera {
                 device,
                 opts,
                 pixel_format,
+                negotiated,
                 packet_size,
                 resend: caps & bs::CAP_PACKETRESEND != 0,
                 trigger,
@@ -520,13 +560,50 @@ impl GigeCamera {
                 heartbeat,
                 sequence: 0,
                 rx: vec![0u8; 65536],
+                camera_stream,
+                stray: 0,
             }
         })
+    }
+
+    /// The local address of the stream socket (where the camera sends GVSP).
+    pub fn stream_addr(&self) -> std::io::Result<SocketAddr> {
+        self.stream.local_addr()
+    }
+
+    /// Datagrams on the stream socket from anyone but the camera: dropped unread.
+    pub fn stray_packets(&self) -> u64 {
+        self.stray
+    }
+
+    /// Whether a datagram on the stream socket comes from the camera: its address,
+    /// and its stream source port when the camera reports one (SCSP0).
+    fn is_camera(&self, from: SocketAddr) -> bool {
+        from.ip() == self.camera_stream.ip()
+            && (self.camera_stream.port() == 0 || from.port() == self.camera_stream.port())
     }
 
     /// The stream packet size the camera accepted.
     pub fn packet_size(&self) -> u32 {
         self.packet_size
+    }
+
+    /// A leader the assembler refused (another format than negotiated at open).
+    fn refused_leader(&self, block: u16, p: &Packet<'_>, e: GvspError) -> DriverError {
+        let gvsp::Content::Leader(l) = p.content else {
+            return DriverError::Protocol {
+                device: self.device.clone(),
+                message: format!("frame (block {block}): {e}; frame refused"),
+            };
+        };
+        DriverError::Protocol {
+            device: self.device.clone(),
+            message: format!(
+                "frame (block {block}) is {}x{} {} but the camera declared {}x{} {} at open; frame refused ({e})",
+                l.width, l.height, pfnc::name(l.pixel_format),
+                self.info.width, self.info.height, pfnc::name(self.pixel_format)
+            ),
+        }
     }
 
     fn incomplete(&self, a: &Assembler, why: &str) -> DriverError {
@@ -610,7 +687,11 @@ impl Camera for GigeCamera {
             });
         }
         // Packets of earlier frames (late resends) must not mix into this one.
-        while let Ok((n, _)) = self.stream.try_recv_from(&mut self.rx) {
+        while let Ok((n, from)) = self.stream.try_recv_from(&mut self.rx) {
+            if !self.is_camera(from) {
+                self.stray += 1;
+                continue;
+            }
             if let Ok(p) = Packet::decode(&self.rx[..n]) {
                 if is_newer(p.block_id, self.last_block) {
                     self.last_block = Some(p.block_id);
@@ -638,14 +719,24 @@ impl Camera for GigeCamera {
         let deadline = tokio::time::Instant::now() + self.opts.frame_timeout;
         let mut asm: Option<Assembler> = None;
         let mut rounds = 0;
+        // Silence is counted from the camera's last packet: stray datagrams must not
+        // keep a frame with holes from asking for them.
+        let mut last_heard = tokio::time::Instant::now();
         loop {
             let wait = if asm.is_some() {
-                deadline.min(tokio::time::Instant::now() + self.opts.packet_timeout)
+                deadline.min(last_heard + self.opts.packet_timeout)
             } else {
                 deadline
             };
             match tokio::time::timeout_at(wait, self.stream.recv_from(&mut self.rx)).await {
-                Ok(Ok((n, _))) => {
+                Ok(Ok((n, from))) => {
+                    if !self.is_camera(from) {
+                        // Anyone on the camera network can send here: never let it
+                        // near the assembler (or the block id bookkeeping).
+                        self.stray += 1;
+                        continue;
+                    }
+                    last_heard = tokio::time::Instant::now();
                     let Ok(p) = Packet::decode(&self.rx[..n]) else {
                         continue;
                     };
@@ -653,10 +744,19 @@ impl Camera for GigeCamera {
                         if !is_newer(p.block_id, self.last_block) {
                             continue;
                         }
-                        asm = Some(Assembler::new(p.block_id, self.packet_size));
+                        asm = Some(Assembler::new(
+                            p.block_id,
+                            self.packet_size,
+                            self.negotiated,
+                        ));
                     }
                     let a = asm.as_mut().expect("set above");
-                    a.push(&p);
+                    if let Err(e) = a.push(&p) {
+                        // The camera streams another format than it declared: the
+                        // rest of this block is stale from now on.
+                        self.last_block = Some(a.block_id);
+                        return Err(self.refused_leader(a.block_id, &p, e));
+                    }
                     if a.is_complete() {
                         break;
                     }
@@ -724,6 +824,8 @@ impl Camera for GigeCamera {
             for (first, last) in ranges(&missing) {
                 c.packet_resend(block, first, last).await?;
             }
+            // Give the resent packets their packet timeout.
+            last_heard = tokio::time::Instant::now();
         }
         let a = asm.expect("complete");
         let block = a.block_id;
@@ -794,6 +896,21 @@ fn ranges(ids: &[u32]) -> Vec<(u32, u32)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn bit_fields_of_any_width_never_overflow() {
+        assert_eq!(field_value(0xABCD, Some((4, 8))), 0xBC);
+        assert_eq!(field_value(u64::MAX, Some((0, 64))), u64::MAX);
+        assert_eq!(field_value(u64::MAX, Some((63, 1))), 1);
+        assert_eq!(merge_field(0xFFFF_0000, 0x5, (4, 4)), 0xFFFF_0050);
+        assert_eq!(merge_field(0, u32::MAX, (0, 32)), u32::MAX);
+        // Fields a Location could hold though `locate` never makes them.
+        for f in [(64, 1), (0, 0), (0, 65), (200, 200), (u32::MAX, u32::MAX)] {
+            let r =
+                std::panic::catch_unwind(|| (field_value(u64::MAX, Some(f)), merge_field(1, 1, f)));
+            assert!(r.is_ok(), "{f:?} panicked");
+        }
+    }
 
     #[test]
     fn block_ids_wrap_and_runs_group() {

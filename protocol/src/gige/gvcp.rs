@@ -9,8 +9,14 @@ pub const KEY: u8 = 0x42;
 pub const FLAG_ACK_REQUIRED: u8 = 0x01;
 /// DISCOVERY flag: the device may answer by broadcast.
 pub const FLAG_DISCOVERY_BROADCAST_ACK: u8 = 0x10;
-/// Largest READMEM/WRITEMEM data block.
+/// Largest READMEM/WRITEMEM data block this crate's client asks for.
 pub const MAX_MEM_BLOCK: usize = 512;
+/// Largest GVCP payload: a GVCP packet is at most 576 bytes with its IPv4 (20) and UDP
+/// (8) headers (GigE Vision 2.x), 548 bytes of GVCP, 540 after its 8-byte header. No
+/// length field beyond it is believed.
+pub const MAX_PAYLOAD: usize = 540;
+/// Largest READMEM count (and WRITEMEM data): the payload less the 4-byte address.
+pub const MAX_READMEM: usize = MAX_PAYLOAD - 4;
 
 pub const CMD_DISCOVERY: u16 = 0x0002;
 pub const CMD_PACKETRESEND: u16 = 0x0040;
@@ -69,6 +75,12 @@ pub enum GvcpError {
         what: &'static str,
         declared: usize,
         got: usize,
+    },
+    #[error("GVCP {what}: payload length field {declared} is more than the {max} bytes a GVCP packet holds")]
+    TooLong {
+        what: &'static str,
+        declared: usize,
+        max: usize,
     },
     #[error("GVCP {what}: malformed payload: {message}")]
     Malformed { what: &'static str, message: String },
@@ -201,6 +213,7 @@ impl CommandPacket {
         let req_id = get16(b, 6);
         let p = &b[8..];
         let what = "command";
+        check_length(what, len)?;
         if p.len() < len {
             return Err(GvcpError::Length {
                 what,
@@ -230,6 +243,12 @@ impl CommandPacket {
             CMD_READMEM => {
                 if p.len() != 8 {
                     return Err(malformed("READMEM needs 8 bytes"));
+                }
+                let count = get16(p, 6);
+                if count as usize > MAX_READMEM {
+                    return Err(malformed(&format!(
+                        "READMEM count {count} is more than the {MAX_READMEM} bytes an ack holds"
+                    )));
                 }
                 Command::ReadMem {
                     address: get32(p, 0),
@@ -363,6 +382,7 @@ impl Ack {
         let len = get16(b, 4) as usize;
         let ack_id = get16(b, 6);
         let p = &b[8..];
+        check_length("ack", len)?;
         if p.len() < len {
             return Err(GvcpError::Length {
                 what: "ack",
@@ -403,6 +423,18 @@ impl Ack {
             body,
         })
     }
+}
+
+/// A payload length field against [`MAX_PAYLOAD`].
+fn check_length(what: &'static str, declared: usize) -> Result<(), GvcpError> {
+    if declared > MAX_PAYLOAD {
+        return Err(GvcpError::TooLong {
+            what,
+            declared,
+            max: MAX_PAYLOAD,
+        });
+    }
+    Ok(())
 }
 
 pub(crate) fn put16(o: &mut Vec<u8>, v: u16) {
@@ -509,5 +541,38 @@ mod tests {
             CommandPacket::decode(&[0x42, 1, 0, 0x80, 0, 8, 0, 1, 0, 0, 0, 0]),
             Err(GvcpError::Length { .. })
         ));
+    }
+
+    #[test]
+    fn lengths_beyond_the_protocol_maxima_are_refused() {
+        // A length field that the datagram backs, but no GVCP packet can be that long.
+        let mut big = vec![0, 0, 0, 0x85, 0x02, 0x58, 0, 1];
+        big.extend(vec![0u8; 600]);
+        let e = Ack::decode(&big).map(|_| ()).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "GVCP ack: payload length field 600 is more than the 540 bytes a GVCP packet holds"
+        );
+        let mut cmd = vec![0x42, 1, 0, 0x86, 0x02, 0x58, 0, 1];
+        cmd.extend(vec![0u8; 600]);
+        assert!(matches!(
+            CommandPacket::decode(&cmd),
+            Err(GvcpError::TooLong { declared: 600, .. })
+        ));
+        // READMEM asks for at most 536 bytes (what fits a READMEM ack).
+        let e =
+            CommandPacket::decode(&[0x42, 1, 0, 0x84, 0, 8, 0, 1, 0, 0, 0, 0, 0, 0, 0xFF, 0xFF])
+                .unwrap_err();
+        assert!(e.to_string().contains("READMEM count 65535"), "{e}");
+        // The largest legal packets still decode.
+        let a = Ack {
+            status: 0,
+            ack_id: 1,
+            body: AckBody::ReadMem {
+                address: 0,
+                data: vec![7; MAX_READMEM],
+            },
+        };
+        assert_eq!(Ack::decode(&a.encode()).unwrap(), a);
     }
 }

@@ -22,6 +22,96 @@ pub enum GvspError {
     Format(u8),
     #[error("GVSP leader payload type 0x{0:04X} is not an image")]
     PayloadType(u16),
+    #[error("GVSP leader: width {width} x height {height} at {bits} bit is {bytes} bytes, more than the {negotiated}-byte payload negotiated at open")]
+    LeaderTooLarge {
+        width: u32,
+        height: u32,
+        bits: u32,
+        bytes: u128,
+        negotiated: usize,
+    },
+    #[error("GVSP leader: {got}, but {negotiated} was negotiated at open")]
+    LeaderMismatch { got: String, negotiated: String },
+    #[error("stream format: width {width} x height {height} at {bits} bit is {bytes} bytes; a frame must hold 1 to {max} bytes (MAX_PAYLOAD_SIZE)")]
+    FrameSize {
+        width: u32,
+        height: u32,
+        bits: u32,
+        bytes: u128,
+        max: usize,
+    },
+}
+
+/// Largest frame an [`Assembler`] holds: 512 MiB, a 16384 x 16384 Mono16 sensor. A
+/// camera declaring more at open is refused rather than trusted with the memory.
+pub const MAX_PAYLOAD_SIZE: usize = 512 << 20;
+
+/// Bytes of `width` x `height` pixels at `bits` per pixel, in u128 (cannot overflow).
+fn frame_bytes(width: u32, height: u32, bits: u32) -> u128 {
+    width as u128 * height as u128 * bits as u128 / 8
+}
+
+/// `1280x1024 Mono8`, for error messages.
+fn describe(width: u32, height: u32, pixel_format: u32) -> String {
+    format!("{width}x{height} {}", pfnc::name(pixel_format))
+}
+
+/// What was negotiated with the camera at open. Every leader must match it; nothing a
+/// packet says is allocated beyond it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Negotiated {
+    pub width: u32,
+    pub height: u32,
+    pub pixel_format: u32,
+    /// Bytes of image data per frame (width x height x bits per pixel / 8).
+    pub payload_size: usize,
+}
+
+impl Negotiated {
+    /// The stream format read from the camera at open; refused if a frame of it would
+    /// be empty or larger than [`MAX_PAYLOAD_SIZE`].
+    pub fn new(width: u32, height: u32, pixel_format: u32) -> Result<Self, GvspError> {
+        let bits = pfnc::bits_per_pixel(pixel_format);
+        let bytes = frame_bytes(width, height, bits);
+        if bytes == 0 || bytes > MAX_PAYLOAD_SIZE as u128 {
+            return Err(GvspError::FrameSize {
+                width,
+                height,
+                bits,
+                bytes,
+                max: MAX_PAYLOAD_SIZE,
+            });
+        }
+        Ok(Self {
+            width,
+            height,
+            pixel_format,
+            payload_size: bytes as usize,
+        })
+    }
+
+    /// Whether `l` describes a frame of this format; the size is checked first, so a
+    /// spoofed or corrupt leader never drives an allocation.
+    pub fn check(&self, l: &ImageLeader) -> Result<usize, GvspError> {
+        let bits = pfnc::bits_per_pixel(l.pixel_format);
+        let bytes = frame_bytes(l.width, l.height, bits);
+        if bytes > self.payload_size as u128 {
+            return Err(GvspError::LeaderTooLarge {
+                width: l.width,
+                height: l.height,
+                bits,
+                bytes,
+                negotiated: self.payload_size,
+            });
+        }
+        if (l.width, l.height, l.pixel_format) != (self.width, self.height, self.pixel_format) {
+            return Err(GvspError::LeaderMismatch {
+                got: describe(l.width, l.height, l.pixel_format),
+                negotiated: describe(self.width, self.height, self.pixel_format),
+            });
+        }
+        Ok(bytes as usize)
+    }
 }
 
 /// Image leader: what the payload packets of a block will hold.
@@ -37,12 +127,15 @@ pub struct ImageLeader {
 }
 
 impl ImageLeader {
-    /// Bytes of image data the block carries.
+    /// Bytes of image data the block carries (saturating at `usize::MAX`: a leader
+    /// is outside input; [`Negotiated::check`] is what bounds it).
     pub fn payload_size(&self) -> usize {
-        self.width as usize
-            * self.height as usize
-            * pfnc::bits_per_pixel(self.pixel_format) as usize
-            / 8
+        let bytes = frame_bytes(
+            self.width,
+            self.height,
+            pfnc::bits_per_pixel(self.pixel_format),
+        );
+        usize::try_from(bytes).unwrap_or(usize::MAX)
     }
 }
 
@@ -173,9 +266,9 @@ pub fn chunk_size(packet_size: u32) -> usize {
     packet_size.saturating_sub(GVSP_OVERHEAD).max(4) as usize
 }
 
-/// Number of payload packets of a frame.
+/// Number of payload packets of a frame (saturating at `u32::MAX`).
 pub fn payload_packets(payload_size: usize, packet_size: u32) -> u32 {
-    payload_size.div_ceil(chunk_size(packet_size)) as u32
+    u32::try_from(payload_size.div_ceil(chunk_size(packet_size))).unwrap_or(u32::MAX)
 }
 
 /// Encodes packet `packet_id` (0 = leader, 1..=N payload, N+1 trailer) of a frame into
@@ -214,11 +307,15 @@ pub fn encode_frame_packet(
     true
 }
 
-/// Reassembles one block from its packets, in any order.
+/// Reassembles one block from its packets, in any order. Sizes come from what was
+/// negotiated at open, never from a packet: a leader that does not match is refused
+/// before anything is allocated, and payload packets are placed with checked
+/// arithmetic.
 #[derive(Debug, Clone)]
 pub struct Assembler {
     pub block_id: u16,
     pub leader: Option<ImageLeader>,
+    negotiated: Negotiated,
     chunk: usize,
     data: Vec<u8>,
     received: Vec<bool>,
@@ -228,11 +325,13 @@ pub struct Assembler {
 }
 
 impl Assembler {
-    /// `packet_size` is the SCPS the device was told to use.
-    pub fn new(block_id: u16, packet_size: u32) -> Self {
+    /// `packet_size` is the SCPS the device was told to use; `negotiated` the stream
+    /// format read from the camera at open.
+    pub fn new(block_id: u16, packet_size: u32, negotiated: Negotiated) -> Self {
         Self {
             block_id,
             leader: None,
+            negotiated,
             chunk: chunk_size(packet_size),
             data: Vec::new(),
             received: Vec::new(),
@@ -241,43 +340,64 @@ impl Assembler {
         }
     }
 
-    /// Takes one packet of this block (others are ignored; returns whether it was used).
-    pub fn push(&mut self, p: &Packet<'_>) -> bool {
+    /// The stream format this block must have.
+    pub fn negotiated(&self) -> &Negotiated {
+        &self.negotiated
+    }
+
+    /// Takes one packet of this block (others are ignored; returns whether it was
+    /// used). A leader that does not match what was negotiated is an error (the frame
+    /// cannot be assembled); a payload packet of the wrong size or position is counted
+    /// in [`Assembler::malformed`] and dropped.
+    pub fn push(&mut self, p: &Packet<'_>) -> Result<bool, GvspError> {
         if p.block_id != self.block_id {
-            return false;
+            return Ok(false);
         }
         match &p.content {
             Content::Leader(l) => {
                 if self.leader.is_none() {
-                    let size = l.payload_size();
+                    let size = self.negotiated.check(l)?;
                     self.data = vec![0; size];
                     self.received = vec![false; size.div_ceil(self.chunk)];
                     self.leader = Some(*l);
                 }
             }
             Content::Payload(d) => {
-                let Some(l) = self.leader else {
+                if self.leader.is_none() {
                     // Payload before leader: keep nothing; it will be asked again.
-                    return false;
+                    return Ok(false);
+                }
+                let Some((start, want)) = self.place(p.packet_id) else {
+                    self.malformed = self.malformed.saturating_add(1);
+                    return Ok(false);
                 };
-                let k = p.packet_id as usize;
-                let n = self.received.len();
-                let start = k.wrapping_sub(1).wrapping_mul(self.chunk);
-                let want = if k == n {
-                    l.payload_size() - start
-                } else {
-                    self.chunk
-                };
-                if k == 0 || k > n || d.len() != want {
-                    self.malformed += 1;
-                    return false;
+                if d.len() != want {
+                    self.malformed = self.malformed.saturating_add(1);
+                    return Ok(false);
                 }
                 self.data[start..start + want].copy_from_slice(d);
-                self.received[k - 1] = true;
+                self.received[start / self.chunk] = true;
             }
             Content::Trailer { .. } => self.trailer_seen = true,
         }
-        true
+        Ok(true)
+    }
+
+    /// Where payload packet `packet_id` goes: (offset, length), or `None` if the block
+    /// has no such packet.
+    fn place(&self, packet_id: u32) -> Option<(usize, usize)> {
+        let k = usize::try_from(packet_id).ok()?;
+        if k == 0 || k > self.received.len() {
+            return None;
+        }
+        let start = (k - 1).checked_mul(self.chunk)?;
+        let left = self.data.len().checked_sub(start)?;
+        let want = if k == self.received.len() {
+            left
+        } else {
+            self.chunk.min(left)
+        };
+        Some((start, want))
     }
 
     pub fn trailer_seen(&self) -> bool {
@@ -348,17 +468,23 @@ mod tests {
         }
         let mut b = Vec::new();
         assert!(!encode_frame_packet(3, &l, &data, scps, n + 2, &mut b));
-        let mut a = Assembler::new(3, scps);
+        let mut a = Assembler::new(3, scps, Negotiated::new(37, 11, pfnc::MONO16).unwrap());
         // Leader, then payload backwards except packet 4, then trailer.
-        a.push(&Packet::decode(&pkts[0]).unwrap());
+        assert_eq!(a.push(&Packet::decode(&pkts[0]).unwrap()), Ok(true));
         for id in (1..=n).rev().filter(|&i| i != 4) {
-            a.push(&Packet::decode(&pkts[id as usize]).unwrap());
+            assert_eq!(
+                a.push(&Packet::decode(&pkts[id as usize]).unwrap()),
+                Ok(true)
+            );
         }
-        a.push(&Packet::decode(&pkts[n as usize + 1]).unwrap());
+        assert_eq!(
+            a.push(&Packet::decode(&pkts[n as usize + 1]).unwrap()),
+            Ok(true)
+        );
         assert!(a.trailer_seen());
         assert_eq!(a.missing(), vec![4]);
         assert!(!a.is_complete());
-        a.push(&Packet::decode(&pkts[4]).unwrap());
+        assert_eq!(a.push(&Packet::decode(&pkts[4]).unwrap()), Ok(true));
         let (got_l, got) = a.into_data().unwrap();
         assert_eq!(got_l, l);
         assert_eq!(got, data);
@@ -367,25 +493,129 @@ mod tests {
     #[test]
     fn wrong_sizes_are_counted_not_stored() {
         let l = leader(10, 10, pfnc::MONO8);
-        let mut a = Assembler::new(1, 36 + 40);
-        a.push(&Packet {
-            status: 0,
-            block_id: 1,
-            packet_id: 0,
-            content: Content::Leader(l),
-        });
+        let mut a = Assembler::new(1, 36 + 40, Negotiated::new(10, 10, pfnc::MONO8).unwrap());
+        assert_eq!(
+            a.push(&Packet {
+                status: 0,
+                block_id: 1,
+                packet_id: 0,
+                content: Content::Leader(l),
+            }),
+            Ok(true)
+        );
         let short = [0u8; 39];
-        a.push(&Packet {
-            status: 0,
-            block_id: 1,
-            packet_id: 1,
-            content: Content::Payload(&short),
-        });
+        assert_eq!(
+            a.push(&Packet {
+                status: 0,
+                block_id: 1,
+                packet_id: 1,
+                content: Content::Payload(&short),
+            }),
+            Ok(false)
+        );
         assert_eq!(a.malformed, 1);
         assert_eq!(a.missing(), vec![1, 2, 3]);
         assert_eq!(
             Packet::decode(&[0, 0, 0, 1, 0x81, 0, 0, 0]),
             Err(GvspError::ExtendedId)
         );
+    }
+
+    fn packet(block_id: u16, packet_id: u32, content: Content<'_>) -> Packet<'_> {
+        Packet {
+            status: 0,
+            block_id,
+            packet_id,
+            content,
+        }
+    }
+
+    #[test]
+    fn crafted_leaders_are_refused_before_any_allocation() {
+        let sxga = Negotiated::new(1280, 1024, pfnc::MONO8).unwrap();
+        assert_eq!(sxga.payload_size, 1_310_720);
+        let mut a = Assembler::new(1, 1500, sxga);
+        let e = a
+            .push(&packet(
+                1,
+                0,
+                Content::Leader(leader(65535, 65535, pfnc::MONO8)),
+            ))
+            .unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "GVSP leader: width 65535 x height 65535 at 8 bit is 4294836225 bytes, more than the 1310720-byte payload negotiated at open"
+        );
+        // The largest numbers a leader can hold: no overflow, same refusal.
+        let e = a
+            .push(&packet(
+                1,
+                0,
+                Content::Leader(leader(u32::MAX, u32::MAX, 0x01FF_0001)),
+            ))
+            .unwrap_err();
+        assert!(
+            matches!(e, GvspError::LeaderTooLarge { bits: 255, .. }),
+            "{e}"
+        );
+        // Smaller, but not what was negotiated: refused too, naming both.
+        let e = a
+            .push(&packet(
+                1,
+                0,
+                Content::Leader(leader(640, 480, pfnc::MONO16)),
+            ))
+            .unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "GVSP leader: 640x480 Mono16, but 1280x1024 Mono8 was negotiated at open"
+        );
+        assert!(a.leader.is_none() && a.missing().is_empty() && !a.is_complete());
+        // Payload before a leader, and after a refused one, is not stored.
+        assert_eq!(
+            a.push(&packet(1, 1, Content::Payload(&[0; 1464]))),
+            Ok(false)
+        );
+        // The real leader is still taken after the refused ones.
+        assert_eq!(
+            a.push(&packet(
+                1,
+                0,
+                Content::Leader(leader(1280, 1024, pfnc::MONO8))
+            )),
+            Ok(true)
+        );
+        assert_eq!(a.missing().len(), 896);
+    }
+
+    #[test]
+    fn crafted_payload_positions_are_counted_not_stored() {
+        let mut a = Assembler::new(2, 36 + 40, Negotiated::new(10, 10, pfnc::MONO8).unwrap());
+        a.push(&packet(2, 0, Content::Leader(leader(10, 10, pfnc::MONO8))))
+            .unwrap();
+        for id in [0, 4, 0x00FF_FFFF, u32::MAX] {
+            assert_eq!(
+                a.push(&packet(2, id, Content::Payload(&[0; 40]))),
+                Ok(false)
+            );
+        }
+        // The last packet holds the remainder (20 bytes), not a whole chunk.
+        assert_eq!(a.push(&packet(2, 3, Content::Payload(&[0; 40]))), Ok(false));
+        assert_eq!(a.push(&packet(2, 3, Content::Payload(&[0; 20]))), Ok(true));
+        assert_eq!(a.malformed, 5);
+        assert_eq!(a.missing(), vec![1, 2]);
+        // Another block's packets are ignored.
+        assert_eq!(a.push(&packet(3, 1, Content::Payload(&[0; 40]))), Ok(false));
+    }
+
+    #[test]
+    fn negotiated_formats_are_bounded() {
+        assert!(Negotiated::new(0, 480, pfnc::MONO8).is_err());
+        assert!(Negotiated::new(640, 480, 0).is_err());
+        let e = Negotiated::new(u32::MAX, u32::MAX, pfnc::MONO16).unwrap_err();
+        assert!(e.to_string().contains("MAX_PAYLOAD_SIZE"), "{e}");
+        assert!(Negotiated::new(16384, 16384, pfnc::MONO16).is_ok());
+        let huge = leader(u32::MAX, u32::MAX, 0x01FF_0001);
+        assert_eq!(huge.payload_size(), usize::MAX);
     }
 }

@@ -2,6 +2,8 @@
 //! (GVSP, [`gvsp`]) as Aravis 0.8.26 and real cameras speak them, plus the bootstrap
 //! register map ([`bootstrap`]) and pixel format codes ([`pfnc`]). All big-endian.
 
+#[cfg(test)]
+mod fuzz;
 pub mod gvcp;
 pub mod gvsp;
 pub mod zip;
@@ -87,34 +89,79 @@ pub mod pfnc {
     }
 }
 
+/// Largest GenICam XML read from a camera, zipped or not: 16 MiB (GenICam XML files
+/// are at most a few MB). A URL register or an archive declaring more is refused
+/// before anything is read or inflated.
+pub const MAX_XML_SIZE: usize = 16 << 20;
+
 /// Bytes of IPv4 (20) + UDP (8) + GVSP standard header (8) that a stream packet size
 /// (SCPS) includes besides the image data: every payload packet but the last carries
 /// exactly `SCPS - 36` data bytes (Aravis places payload k at (k-1)*(SCPS-36)).
 pub const GVSP_OVERHEAD: u32 = 36;
 
+/// Why a URL register does not name GenICam XML this crate can read. The register is
+/// 512 bytes of whatever the camera holds: nothing in it is trusted.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum UrlError {
+    #[error("GenICam XML URL is not text: byte 0x{byte:02X} at offset {at} is not UTF-8")]
+    NotText { at: usize, byte: u8 },
+    #[error(
+        "GenICam XML URL `{0}` is not a `Local:` URL (only XML in the camera's own memory is read)"
+    )]
+    NotLocal(String),
+    #[error("GenICam XML URL `{url}`: the {field} is missing (expected `Local:<file>;<hex address>;<hex size>`)")]
+    Missing { url: String, field: &'static str },
+    #[error("GenICam XML URL `{url}`: {field} `{value}` is not a 32-bit hexadecimal number")]
+    BadHex {
+        url: String,
+        field: &'static str,
+        value: String,
+    },
+}
+
 /// Parses a GenICam XML URL from the first/second URL register:
 /// `Local:<file>;<hexaddr>;<hexsize>` (case-insensitive, optional `0x`). Returns
-/// (file name, address, size). Other schemes (`File:`, `http:`) are `None`.
-pub fn parse_local_url(raw: &[u8]) -> Option<(String, u32, u32)> {
+/// (file name, address, size). Other schemes (`File:`, `http:`) and anything
+/// malformed (bytes that are not UTF-8 included) are errors naming what was wrong.
+pub fn parse_local_url(raw: &[u8]) -> Result<(String, u32, u32), UrlError> {
     let end = raw.iter().position(|&b| b == 0).unwrap_or(raw.len());
-    let s = std::str::from_utf8(&raw[..end]).ok()?.trim();
-    if s.len() < 6 || !s[..6].eq_ignore_ascii_case("local:") {
-        return None;
+    let s = std::str::from_utf8(&raw[..end])
+        .map_err(|e| UrlError::NotText {
+            at: e.valid_up_to(),
+            byte: raw[e.valid_up_to()],
+        })?
+        .trim();
+    // Compared as bytes: the text may hold multi-byte characters anywhere.
+    let rest = match s.as_bytes().get(..6) {
+        Some(scheme) if scheme.eq_ignore_ascii_case(b"local:") => &s[6..],
+        _ => return Err(UrlError::NotLocal(s.to_string())),
+    };
+    let missing = |field| UrlError::Missing {
+        url: s.to_string(),
+        field,
+    };
+    let mut parts = rest.split(';');
+    let file = parts.next().map(str::trim).unwrap_or_default();
+    if file.is_empty() {
+        return Err(missing("file name"));
     }
-    let mut parts = s[6..].split(';');
-    let file = parts.next()?.trim().to_string();
-    let hex = |t: &str| {
+    let hex = |field, t: &str| {
         let t = t.trim();
-        let t = t
+        let digits = t
             .strip_prefix("0x")
             .or_else(|| t.strip_prefix("0X"))
             .unwrap_or(t);
-        u32::from_str_radix(t, 16).ok()
+        u32::from_str_radix(digits, 16).map_err(|_| UrlError::BadHex {
+            url: s.to_string(),
+            field,
+            value: t.to_string(),
+        })
     };
-    let addr = hex(parts.next()?)?;
+    let addr = hex("address", parts.next().ok_or_else(|| missing("address"))?)?;
     // The size may be followed by `?SchemaVersion=...`.
-    let size = hex(parts.next()?.split('?').next()?)?;
-    Some((file, addr, size))
+    let size_text = parts.next().ok_or_else(|| missing("size"))?;
+    let size = hex("size", size_text.split('?').next().unwrap_or_default())?;
+    Ok((file.to_string(), addr, size))
 }
 
 #[cfg(test)]
@@ -125,13 +172,51 @@ mod tests {
     fn local_urls_parse_like_aravis() {
         assert_eq!(
             parse_local_url(b"Local:arv-fake-camera.xml;10000;3a1f\0\0"),
-            Some(("arv-fake-camera.xml".into(), 0x10000, 0x3a1f))
+            Ok(("arv-fake-camera.xml".into(), 0x10000, 0x3a1f))
         );
         assert_eq!(
             parse_local_url(b"local:cam.zip;0x8000;0X100"),
-            Some(("cam.zip".into(), 0x8000, 0x100))
+            Ok(("cam.zip".into(), 0x8000, 0x100))
         );
-        assert_eq!(parse_local_url(b"http://x/cam.xml"), None);
-        assert_eq!(parse_local_url(b"Local:cam.xml;zz;10"), None);
+        assert_eq!(
+            parse_local_url(b"http://x/cam.xml"),
+            Err(UrlError::NotLocal("http://x/cam.xml".into()))
+        );
+        assert_eq!(
+            parse_local_url(b"Local:cam.xml;zz;10").unwrap_err().to_string(),
+            "GenICam XML URL `Local:cam.xml;zz;10`: address `zz` is not a 32-bit hexadecimal number"
+        );
+        assert!(parse_local_url(b"Local:cam.xml;0;123456789")
+            .unwrap_err()
+            .to_string()
+            .contains("size `123456789`"));
+        assert!(matches!(
+            parse_local_url(b"Local:cam.xml;10"),
+            Err(UrlError::Missing { field: "size", .. })
+        ));
+    }
+
+    #[test]
+    fn non_ascii_urls_are_errors_not_panics() {
+        // Byte 6 inside a two-byte character: slicing the scheme there used to panic.
+        for raw in [
+            "Locaé:cam.xml;0;10".as_bytes(),
+            "Localé:cam.xml;0;10".as_bytes(),
+            "éééé".as_bytes(),
+            b"Local\xFF:cam.xml;0;10",
+            &[0xC3, 0xA9, 0xC3, 0xA9, 0xC3, 0xA9, 0xC3],
+        ] {
+            let r = std::panic::catch_unwind(|| parse_local_url(raw));
+            assert!(r.expect("no panic").is_err(), "{raw:?}");
+        }
+        assert_eq!(
+            parse_local_url(b"Local\xFF:cam.xml;0;10"),
+            Err(UrlError::NotText { at: 5, byte: 0xFF })
+        );
+        // Multi-byte characters after the scheme are text like any other.
+        assert_eq!(
+            parse_local_url("Local:caméra.xml;8000;10".as_bytes()),
+            Ok(("caméra.xml".into(), 0x8000, 0x10))
+        );
     }
 }

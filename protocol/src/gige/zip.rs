@@ -26,50 +26,140 @@ pub fn crc32(data: &[u8]) -> u32 {
     !c
 }
 
-/// The first file of a ZIP archive: (name, contents).
-pub fn first_file(zip: &[u8]) -> Result<(String, Vec<u8>), String> {
+/// Largest file [`first_file`] inflates: [`super::MAX_XML_SIZE`] (GenICam XML files
+/// are at most a few MB). A larger declared size is refused before inflating.
+pub const MAX_UNCOMPRESSED: usize = super::MAX_XML_SIZE;
+
+/// Why an archive from a camera was not read.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ZipError {
+    #[error("no ZIP end-of-central-directory record")]
+    NoEndRecord,
+    #[error("ZIP central directory not found at offset {0}, where its end record says")]
+    NoDirectory(usize),
+    #[error("truncated ZIP central directory entry at offset {0}")]
+    TruncatedEntry(usize),
+    #[error("ZIP entry `{name}`: no local header at offset {offset}")]
+    NoLocalHeader { name: String, offset: usize },
+    #[error("ZIP entry `{name}`: {size} bytes of data at offset {offset} run past the end of the {len}-byte archive")]
+    DataPastEnd {
+        name: String,
+        offset: usize,
+        size: usize,
+        len: usize,
+    },
+    #[error("ZIP entry `{name}`: uncompressed size {size} bytes is more than the {max} bytes a GenICam XML may have (MAX_UNCOMPRESSED)")]
+    TooLarge {
+        name: String,
+        size: usize,
+        max: usize,
+    },
+    #[error("ZIP entry `{name}`: compression method {method} (only stored and deflate)")]
+    Method { name: String, method: u16 },
+    #[error("ZIP entry `{name}`: bad deflate data: {message}")]
+    Deflate { name: String, message: String },
+    #[error(
+        "ZIP entry `{name}`: inflates to more than the {declared} bytes its directory declares"
+    )]
+    InflatesLarger { name: String, declared: usize },
+    #[error("ZIP entry `{name}`: holds {got} bytes but its directory declares {declared} (corrupt download?)")]
+    SizeMismatch {
+        name: String,
+        got: usize,
+        declared: usize,
+    },
+    #[error("ZIP entry `{name}`: CRC-32 0x{got:08X} does not match the 0x{declared:08X} declared (corrupt download?)")]
+    Crc {
+        name: String,
+        got: u32,
+        declared: u32,
+    },
+}
+
+/// The first file of a ZIP archive: (name, contents). Every offset and size in the
+/// archive is checked against its length; the contents are at most
+/// [`MAX_UNCOMPRESSED`] bytes, exactly as many as the directory declares, and never
+/// inflated beyond that.
+pub fn first_file(zip: &[u8]) -> Result<(String, Vec<u8>), ZipError> {
     // End of central directory: the last signature within 64 KiB + 22 of the end.
     let eocd = (0..zip.len().saturating_sub(21))
         .rev()
         .take(65_557)
         .find(|&i| u32le(zip, i) == Some(0x0605_4B50))
-        .ok_or("no ZIP end-of-central-directory record")?;
-    let cd = u32le(zip, eocd + 16).ok_or("truncated ZIP directory")? as usize;
+        .ok_or(ZipError::NoEndRecord)?;
+    let cd = u32le(zip, eocd + 16).ok_or(ZipError::NoEndRecord)? as usize;
     if u32le(zip, cd) != Some(0x0201_4B50) {
-        return Err("ZIP central directory not found where its end record says".into());
+        return Err(ZipError::NoDirectory(cd));
     }
-    let bad = || "truncated ZIP central directory entry".to_string();
+    let bad = || ZipError::TruncatedEntry(cd);
     let method = u16le(zip, cd + 10).ok_or_else(bad)?;
     let crc = u32le(zip, cd + 16).ok_or_else(bad)?;
     let csize = u32le(zip, cd + 20).ok_or_else(bad)? as usize;
-    let usize_ = u32le(zip, cd + 24).ok_or_else(bad)? as usize;
+    let declared = u32le(zip, cd + 24).ok_or_else(bad)? as usize;
     let nlen = u16le(zip, cd + 28).ok_or_else(bad)? as usize;
     let local = u32le(zip, cd + 42).ok_or_else(bad)? as usize;
-    let name =
-        String::from_utf8_lossy(zip.get(cd + 46..cd + 46 + nlen).ok_or_else(bad)?).to_string();
+    let name_at = cd.checked_add(46).ok_or_else(bad)?;
+    let name_end = name_at.checked_add(nlen).ok_or_else(bad)?;
+    let name = String::from_utf8_lossy(zip.get(name_at..name_end).ok_or_else(bad)?).to_string();
     if u32le(zip, local) != Some(0x0403_4B50) {
-        return Err(format!("ZIP entry `{name}`: no local header at {local}"));
+        return Err(ZipError::NoLocalHeader {
+            name,
+            offset: local,
+        });
     }
-    let lnlen = u16le(zip, local + 26).ok_or_else(bad)? as usize;
-    let lxlen = u16le(zip, local + 28).ok_or_else(bad)? as usize;
-    let start = local + 30 + lnlen + lxlen;
-    let data = zip
-        .get(start..start + csize)
-        .ok_or_else(|| format!("ZIP entry `{name}`: data runs past the end"))?;
+    let no_local = || ZipError::NoLocalHeader {
+        name: name.clone(),
+        offset: local,
+    };
+    let lnlen = u16le(zip, local + 26).ok_or_else(no_local)? as usize;
+    let lxlen = u16le(zip, local + 28).ok_or_else(no_local)? as usize;
+    let start = local.saturating_add(30 + lnlen + lxlen);
+    let data = start
+        .checked_add(csize)
+        .and_then(|end| zip.get(start..end))
+        .ok_or_else(|| ZipError::DataPastEnd {
+            name: name.clone(),
+            offset: start,
+            size: csize,
+            len: zip.len(),
+        })?;
+    if declared > MAX_UNCOMPRESSED {
+        return Err(ZipError::TooLarge {
+            name,
+            size: declared,
+            max: MAX_UNCOMPRESSED,
+        });
+    }
     let out = match method {
         0 => data.to_vec(),
-        8 => miniz_oxide::inflate::decompress_to_vec(data)
-            .map_err(|e| format!("ZIP entry `{name}`: bad deflate data: {e:?}"))?,
-        m => {
-            return Err(format!(
-                "ZIP entry `{name}`: compression method {m} (only stored and deflate)"
-            ))
-        }
+        8 => match miniz_oxide::inflate::decompress_to_vec_with_limit(data, declared) {
+            Ok(out) => out,
+            Err(e) if e.status == miniz_oxide::inflate::TINFLStatus::HasMoreOutput => {
+                return Err(ZipError::InflatesLarger { name, declared })
+            }
+            Err(e) => {
+                return Err(ZipError::Deflate {
+                    name,
+                    message: format!("{:?}", e.status),
+                })
+            }
+        },
+        method => return Err(ZipError::Method { name, method }),
     };
-    if out.len() != usize_ || crc32(&out) != crc {
-        return Err(format!(
-            "ZIP entry `{name}`: size or CRC-32 does not match (corrupt download?)"
-        ));
+    if out.len() != declared {
+        return Err(ZipError::SizeMismatch {
+            name,
+            got: out.len(),
+            declared,
+        });
+    }
+    let got = crc32(&out);
+    if got != crc {
+        return Err(ZipError::Crc {
+            name,
+            got,
+            declared: crc,
+        });
     }
     Ok((name, out))
 }
@@ -135,7 +225,46 @@ mod tests {
         }
         let mut z = store_one("cam.xml", xml, false);
         z[40] ^= 1;
-        assert!(first_file(&z).unwrap_err().contains("CRC-32"));
+        assert!(first_file(&z).unwrap_err().to_string().contains("CRC-32"));
         assert!(first_file(b"not a zip").is_err());
+    }
+
+    /// `store_one`'s archive with the declared uncompressed size replaced (local
+    /// header at 22, central directory entry at `cd + 24`).
+    fn declare_size(mut z: Vec<u8>, size: u32) -> Vec<u8> {
+        let eocd = z.len() - 22;
+        let cd = u32::from_le_bytes(z[eocd + 16..eocd + 20].try_into().unwrap()) as usize;
+        z[22..26].copy_from_slice(&size.to_le_bytes());
+        z[cd + 24..cd + 28].copy_from_slice(&size.to_le_bytes());
+        z
+    }
+
+    #[test]
+    fn zip_bombs_are_refused_by_their_declared_and_inflated_sizes() {
+        let zeros = vec![0u8; 1 << 20];
+        let z = store_one("cam.xml", &zeros, true);
+        assert!(z.len() < 4 << 10, "{} bytes", z.len());
+        // Declaring 17 MiB: more than any GenICam XML, refused before inflating.
+        let e = first_file(&declare_size(z.clone(), 17 << 20))
+            .map(|_| ())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("17825792 bytes") && e.contains("16777216"),
+            "{e}"
+        );
+        // Lying: declares 100 bytes, inflates to 1 MiB; stopped at the declared size.
+        let e = first_file(&declare_size(z, 100))
+            .map(|_| ())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("more than the 100 bytes"), "{e}");
+        // Declares more than it inflates to.
+        let z = store_one("cam.xml", b"<xml/>", true);
+        let e = first_file(&declare_size(z, 1000))
+            .map(|_| ())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("6 bytes") && e.contains("1000"), "{e}");
     }
 }

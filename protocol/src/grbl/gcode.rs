@@ -23,6 +23,8 @@ mod arc;
 mod characterization;
 mod check;
 mod error;
+#[cfg(test)]
+mod fuzz;
 mod read;
 mod run;
 mod state;
@@ -455,6 +457,26 @@ mod tests {
             panic!()
         };
         assert!(target[1] < -9.0, "{target:?}");
+    }
+
+    #[test]
+    fn arcs_with_absurd_radii_are_bounded_like_grbls_u16_segment_count() {
+        let t = std::time::Instant::now();
+        let mut i = Interpreter::new();
+        run(&mut i, "G0X0Y5").unwrap();
+        let a = run(&mut i, "G3X0Y0R5555555555555555555555555555555F3000").unwrap();
+        // GRBL counts segments in a u16: at most 65535 chords, the last the target.
+        assert_eq!(a.len(), u16::MAX as usize);
+        assert_eq!(a.last(), Some(&mv([0.0, 0.0, 0.0], Rate::Feed(3000.0))));
+        // A huge IJK radius too, and a full circle of it.
+        let mut j = Interpreter::new();
+        let b = run(&mut j, "G2X0Y0I99999999999999999999J0F100").unwrap();
+        assert!(b.len() <= u16::MAX as usize);
+        assert!(
+            t.elapsed() < std::time::Duration::from_secs(2),
+            "{:?}",
+            t.elapsed()
+        );
     }
 
     #[test]

@@ -4,6 +4,8 @@ use super::state::N_AXIS;
 use std::f64::consts::PI;
 
 const ARC_ANGULAR_TRAVEL_EPSILON: f64 = 5e-7;
+/// Most chords of one arc: GRBL's `mc_arc` counts them in a `uint16_t`.
+pub(super) const MAX_SEGMENTS: u16 = u16::MAX;
 
 /// Chord end points of an arc (GRBL's `mc_arc`): as many segments as keep the chord
 /// within the arc tolerance; the last point is exactly the target.
@@ -31,9 +33,16 @@ pub(super) fn arc_points(
         travel += 2.0 * PI;
     }
     let tol = tolerance.max(1e-6);
-    let segments = ((0.5 * travel * radius).abs() / (tol * (2.0 * radius - tol)).max(1e-12).sqrt())
-        .floor() as usize;
-    let mut pts = Vec::with_capacity(segments + 1);
+    let segments =
+        ((0.5 * travel * radius).abs() / (tol * (2.0 * radius - tol)).max(1e-12).sqrt()).floor();
+    // GRBL keeps the count in a uint16_t: an absurd radius (or NaN) cannot ask for
+    // more chords than that, and nothing is reserved from the count.
+    let segments = if segments.is_nan() {
+        0
+    } else {
+        segments.min(MAX_SEGMENTS as f64) as usize
+    };
+    let mut pts = Vec::new();
     for k in 1..segments.max(1) {
         if segments <= 1 {
             break;
