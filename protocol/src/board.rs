@@ -16,7 +16,7 @@
 //! metrology lab) coordinate of each listed point. Points not listed are taken at their
 //! nominal position, so a board without a certificate is a perfect nominal grid.
 
-use crate::config::{ConfigDoc, ConfigError, Location};
+use crate::config::{ConfigDoc, ConfigError, Location, Xy};
 use crate::text::escape_text;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -47,7 +47,7 @@ struct BoardSection {
     cols: u32,
     rows: u32,
     #[serde(default)]
-    origin_mm: [f64; 2],
+    origin_mm: Xy,
     #[serde(default)]
     certified: Option<String>,
 }
@@ -131,7 +131,7 @@ impl Board {
         if (s.cols as u64) * (s.rows as u64) > 50_000_000 {
             return Err(doc.invalid("board.cols", "more than 50 million points"));
         }
-        if !s.origin_mm.iter().all(|v| v.is_finite()) {
+        if !s.origin_mm.0.iter().all(|v| v.is_finite()) {
             return Err(doc.invalid("board.origin_mm", "must be finite"));
         }
         let mut board = Board::nominal(
@@ -141,7 +141,7 @@ impl Board {
             s.polarity,
             s.cols,
             s.rows,
-            s.origin_mm,
+            s.origin_mm.0,
         );
         if let Some(rel) = &s.certified {
             let cert = doc.read_relative("board.certified", rel)?;
@@ -314,6 +314,16 @@ mod tests {
     }
 
     const GOOD: &str = "[board]\npitch_mm = 0.5\ndot_diameter_mm = 0.25\npolarity = \"dark-on-light\"\ncols = 10\nrows = 8\norigin_mm = [1.0, 2.0]\n";
+
+    #[test]
+    fn an_origin_with_a_third_value_is_refused_not_dropped() {
+        let bad = GOOD.replace("origin_mm = [1.0, 2.0]", "origin_mm = [1.0, 2.0, 3.0]");
+        let e = Board::from_doc(&doc(&bad)).unwrap_err().to_string();
+        assert!(
+            e.contains("b.toml:7") && e.contains("board.origin_mm") && e.contains("two numbers"),
+            "{e}"
+        );
+    }
 
     #[test]
     fn loads_nominal_board() {

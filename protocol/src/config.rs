@@ -62,6 +62,27 @@ impl ConfigError {
     }
 }
 
+/// An (x, y) pair in mm read from a two-element array. Serde's fixed-size arrays stop
+/// reading after two elements and the TOML reader does not complain about the rest, so
+/// `[x, y, z]` read as `[f64; 2]` silently loses its third value: this reads the whole
+/// list and insists on two.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Xy(pub [f64; 2]);
+
+/// [`Xy`] for a plain `[f64; 2]` field: `#[serde(deserialize_with = "protocol::config::two_numbers")]`.
+pub fn two_numbers<'de, D: serde::Deserializer<'de>>(d: D) -> Result<[f64; 2], D::Error> {
+    <Xy as serde::Deserialize>::deserialize(d).map(|Xy(xy)| xy)
+}
+
+impl<'de> serde::Deserialize<'de> for Xy {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let v = Vec::<f64>::deserialize(d)?;
+        <[f64; 2]>::try_from(v.as_slice())
+            .map(Xy)
+            .map_err(|_| serde::de::Error::invalid_length(v.len(), &"two numbers, [x, y] in mm"))
+    }
+}
+
 /// A TOML document with the name it came from, kept so that checks made after parsing
 /// (a negative pitch, an unknown driver) can still point at the line of the key.
 #[derive(Debug, Clone)]

@@ -121,6 +121,7 @@ pub struct MachineSection {
     pub seed: u64,
     /// True board coordinate under the camera at the home switches (machine zero, before
     /// the homing error).
+    #[serde(deserialize_with = "protocol::config::two_numbers")]
     pub board_at_home_mm: [f64; 2],
     #[serde(default)]
     pub squareness_arcsec: f64,
@@ -800,6 +801,17 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("not a finite number"), "{e}");
+        // A third coordinate is refused, not dropped.
+        let e = load_with(
+            "board_at_home_mm = [5.0, 5.0]",
+            "board_at_home_mm = [5.0, 5.0, 1.0]",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("key `machine.board_at_home_mm`") && e.contains("two numbers"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -34,7 +34,7 @@ pub mod modbus;
 pub use camera::{CameraSpec, PairingError};
 use compensation::correction::CorrectionPolicy;
 use compensation::session::Target;
-use protocol::config::{ConfigDoc, ConfigError};
+use protocol::config::{ConfigDoc, ConfigError, Xy};
 use protocol::Board;
 use serde::Deserialize;
 use std::path::Path;
@@ -117,21 +117,6 @@ fn default_baud() -> u32 {
 #[serde(deny_unknown_fields)]
 struct RawBoard {
     file: String,
-}
-
-/// An (x, y) pair in mm from a two-element array. Serde's fixed-size arrays stop reading
-/// after two elements and the TOML reader does not complain about the rest, so `[x, y, z]`
-/// would silently lose its third value: read the whole list and insist on two.
-#[derive(Clone, Copy, Debug, PartialEq)]
-struct Xy([f64; 2]);
-
-impl<'de> Deserialize<'de> for Xy {
-    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        let v = Vec::<f64>::deserialize(d)?;
-        <[f64; 2]>::try_from(v.as_slice())
-            .map(Xy)
-            .map_err(|_| serde::de::Error::invalid_length(v.len(), &"two numbers, [x, y] in mm"))
-    }
 }
 
 #[derive(Deserialize)]
