@@ -1083,7 +1083,10 @@ impl GrblDevice {
                         ok
                     }
                     b'G' => {
-                        let s = format!("[GC:{}]", self.interp.parser_state());
+                        let s = format!(
+                            "[GC:{}]",
+                            self.interp.parser_state_with(self.settings.report_inches())
+                        );
                         self.send(&s);
                         ok
                     }
@@ -1568,6 +1571,26 @@ mod tests {
         assert_eq!(s.state, MachineState::Jog);
         assert!((s.position[0] - x0 - 20.0).abs() < 0.1, "{s:?}");
         assert!((s.feed.unwrap() - 600.0).abs() < 1e-6, "{s:?}");
+    }
+
+    #[test]
+    fn dollar_g_prints_the_feed_in_mm_unless_13_asks_for_inches() {
+        let mut h = Host::new(Clock::Unconstrained);
+        h.send(b"$X\n");
+        assert_eq!(h.send(b"G20F10\n"), vec![Response::Ok]);
+        let gc = |h: &mut Host| {
+            h.send(b"$G\n")
+                .iter()
+                .find_map(|r| match r {
+                    Response::ParserState(text) => Some(text.clone()),
+                    _ => None,
+                })
+                .expect("a [GC:] line")
+        };
+        // 10 in/min is stored as 254 mm/min and reported so, G20 or not.
+        assert!(gc(&mut h).ends_with("T0 F254 S0"), "{}", gc(&mut h));
+        assert_eq!(h.send(b"$13=1\n"), vec![Response::Ok]);
+        assert!(gc(&mut h).ends_with("T0 F10.0 S0"), "{}", gc(&mut h));
     }
 
     #[test]

@@ -206,8 +206,15 @@ impl Interpreter {
 
     /// `[GC:...]` contents (reply to `$G`), as GRBL 1.1 prints them.
     pub fn parser_state(&self) -> String {
+        self.parser_state_with(false)
+    }
+
+    /// `$G` as GRBL prints it with `$13` (report inches) set or not. GRBL stores the
+    /// feed in mm/min whatever G20/G21 says, and prints it in inches only with `$13=1`
+    /// (`printFloat_RateValue`: 1 decimal in inches, none in mm).
+    pub fn parser_state_with(&self, report_inches: bool) -> String {
         let m = &self.modal;
-        let feed = if m.inches {
+        let feed = if report_inches {
             format!("{:.1}", self.feed_rate / MM_PER_INCH)
         } else {
             format!("{:.0}", self.feed_rate)
@@ -425,7 +432,12 @@ mod tests {
             run(&mut i, "X1").unwrap(),
             vec![mv([26.4, 5.0, 0.0], Rate::Feed(600.0))]
         );
-        assert_eq!(i.parser_state(), "G1 G54 G17 G20 G91 G94 M5 M9 T0 F23.6 S0");
+        // GRBL stores mm/min: G20 does not change how `$G` prints the feed; `$13=1` does.
+        assert_eq!(i.parser_state(), "G1 G54 G17 G20 G91 G94 M5 M9 T0 F600 S0");
+        assert_eq!(
+            i.parser_state_with(true),
+            "G1 G54 G17 G20 G91 G94 M5 M9 T0 F23.6 S0"
+        );
         run(&mut i, "G21G90M3S1000").unwrap();
         assert!(i.parser_state().contains("M3") && i.parser_state().ends_with("S1000"));
         let a = run(&mut i, "M2").unwrap();
