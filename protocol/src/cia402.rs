@@ -144,9 +144,39 @@ impl State {
     }
 }
 
+/// What a drive does on a quick stop, by its quick stop option code (0x605A, CiA 402):
+/// 0 disable the drive function (coast); 1 slow down on the slow-down ramp (profile
+/// deceleration 0x6084), 2 on the quick stop ramp (0x6085), 3 at the current limit, 4 at
+/// the voltage limit, each then going on to Switch on disabled; 5-8 the same four but
+/// staying in Quick stop active (from where "enable operation" resumes, transition 16).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct QuickStopOption(pub i16);
+
+impl QuickStopOption {
+    /// The deceleration object the drive slows down on; None: it coasts (option 0).
+    /// The current and voltage limits (3, 4, 7, 8) stop as hard as the drive can:
+    /// modelled here as the quick stop ramp.
+    pub fn ramp(self) -> Option<u16> {
+        match self.0 {
+            0 => None,
+            1 | 5 => Some(obj::PROFILE_DECELERATION),
+            _ => Some(obj::QUICK_STOP_DECELERATION),
+        }
+    }
+
+    /// Whether the drive stays in Quick stop active once stopped (5-8) rather than
+    /// going on to Switch on disabled (0-4, transition 12).
+    pub fn stays_active(self) -> bool {
+        (5..=8).contains(&self.0)
+    }
+}
+
 /// Device side: the state after the controlword changed from `prev` to `cw`
-/// (transitions 2-12, 15, 16 of CiA 402; 1, 13 and 14 are the device's own).
-pub fn device_transition(state: State, prev: u16, cw: u16) -> State {
+/// (transitions 2-12, 15, 16 of CiA 402; 1, 13 and 14 are the device's own). Leaving
+/// Quick stop active by "enable operation" (16) is allowed only for quick stop option
+/// codes 5-8; for 0-4 the drive goes on to Switch on disabled by itself once stopped
+/// (12), which is the caller's to do (it knows when the axis has stopped).
+pub fn device_transition(state: State, prev: u16, cw: u16, option: QuickStopOption) -> State {
     let fault_reset_edge = cw & cw::FAULT_RESET != 0 && prev & cw::FAULT_RESET == 0;
     if cw & cw::FAULT_RESET != 0 {
         // While bit 7 is high no other command is taken (its edge resets a fault).
@@ -174,7 +204,7 @@ pub fn device_transition(state: State, prev: u16, cw: u16) -> State {
         OperationEnabled if shutdown => ReadyToSwitchOn,
         OperationEnabled if disable_voltage => SwitchOnDisabled,
         OperationEnabled if quick_stop => QuickStopActive,
-        QuickStopActive if enable => OperationEnabled,
+        QuickStopActive if enable && option.stays_active() => OperationEnabled,
         QuickStopActive if disable_voltage => SwitchOnDisabled,
         s => s,
     }
@@ -436,33 +466,68 @@ mod tests {
         let mut words = Vec::new();
         while let Some(c) = next_controlword_to_enable(s) {
             words.push(c);
-            s = device_transition(s, prev, c);
+            s = device_transition(s, prev, c, QuickStopOption(6));
             prev = c;
             assert!(words.len() < 10);
         }
         assert_eq!(words, [0x06, 0x07, 0x0F]);
         assert_eq!(s, State::OperationEnabled);
         // Quick stop, then back.
-        assert_eq!(device_transition(s, 0x0F, 0x0B), State::QuickStopActive);
         assert_eq!(
-            device_transition(State::QuickStopActive, 0x0B, 0x00),
+            device_transition(s, 0x0F, 0x0B, QuickStopOption(6)),
+            State::QuickStopActive
+        );
+        assert_eq!(
+            device_transition(State::QuickStopActive, 0x0B, 0x00, QuickStopOption(6)),
             State::SwitchOnDisabled
         );
         // A fault is reset only by a rising edge of bit 7.
-        assert_eq!(device_transition(State::Fault, 0x80, 0x80), State::Fault);
         assert_eq!(
-            device_transition(State::Fault, 0x00, 0x80),
+            device_transition(State::Fault, 0x80, 0x80, QuickStopOption(6)),
+            State::Fault
+        );
+        assert_eq!(
+            device_transition(State::Fault, 0x00, 0x80, QuickStopOption(6)),
             State::SwitchOnDisabled
         );
-        assert_eq!(device_transition(State::Fault, 0x00, 0x0F), State::Fault);
+        assert_eq!(
+            device_transition(State::Fault, 0x00, 0x0F, QuickStopOption(6)),
+            State::Fault
+        );
         // Shutdown straight from operation enabled; enable straight from ready.
         assert_eq!(
-            device_transition(State::OperationEnabled, 0x0F, 0x06),
+            device_transition(State::OperationEnabled, 0x0F, 0x06, QuickStopOption(6)),
             State::ReadyToSwitchOn
         );
         assert_eq!(
-            device_transition(State::ReadyToSwitchOn, 0x06, 0x0F),
+            device_transition(State::ReadyToSwitchOn, 0x06, 0x0F, QuickStopOption(6)),
             State::OperationEnabled
+        );
+    }
+
+    #[test]
+    fn enable_operation_leaves_quick_stop_only_for_option_codes_5_to_8() {
+        for code in -1..=9 {
+            let option = QuickStopOption(code);
+            let s = device_transition(State::QuickStopActive, 0x0B, 0x0F, option);
+            let expected = if (5..=8).contains(&code) {
+                State::OperationEnabled
+            } else {
+                State::QuickStopActive
+            };
+            assert_eq!(s, expected, "option {code}");
+            assert_eq!(option.stays_active(), (5..=8).contains(&code));
+        }
+        assert_eq!(QuickStopOption(0).ramp(), None);
+        assert_eq!(QuickStopOption(1).ramp(), Some(obj::PROFILE_DECELERATION));
+        assert_eq!(QuickStopOption(5).ramp(), Some(obj::PROFILE_DECELERATION));
+        assert_eq!(
+            QuickStopOption(2).ramp(),
+            Some(obj::QUICK_STOP_DECELERATION)
+        );
+        assert_eq!(
+            QuickStopOption(6).ramp(),
+            Some(obj::QUICK_STOP_DECELERATION)
         );
     }
 

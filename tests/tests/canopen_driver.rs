@@ -213,8 +213,10 @@ fn a_node_that_stops_its_heartbeat_stops_the_stage_and_is_reported() {
             quick_stopped.is_some(),
             "Y did not report QUICK STOP ACTIVE"
         );
+        // The drive's quick stop option code is 2 (its EDS default): down the quick stop
+        // ramp, then on to Switch on disabled by itself (CiA 402 transition 12).
         let (state, _) = emu.set().lock().unwrap().node_state(Y_NODE).unwrap();
-        assert_eq!(state, State::QuickStopActive);
+        assert_eq!(state, State::SwitchOnDisabled);
         let y = rig.lock().unwrap().machine().counts()[1];
         // Stopped well short of 140 mm (280 000 counts), wherever the loss was seen.
         assert!(y < 250_000, "Y stopped at {y} counts");

@@ -82,6 +82,19 @@ impl Trapezoid {
         self.t_a + self.t_c + self.t_d
     }
 
+    /// Speed after `t` seconds (units per second).
+    pub fn speed(&self, t: f64) -> f64 {
+        if t <= 0.0 || t >= self.duration() {
+            0.0
+        } else if t < self.t_a {
+            self.a * t
+        } else if t < self.t_a + self.t_c {
+            self.v
+        } else {
+            self.d * (self.duration() - t)
+        }
+    }
+
     /// Distance covered after `t` seconds.
     pub fn at(&self, t: f64) -> f64 {
         if t <= 0.0 {
@@ -471,6 +484,10 @@ impl DriveSet {
         for k in 0..self.nodes.len() {
             if self.aux[k].demand.take().is_some() {
                 self.nodes[k].target_reached = true;
+                if self.nodes[k].state == State::QuickStopActive {
+                    self.quick_stop_done(k);
+                    continue;
+                }
                 if let Some(sp) = self.nodes[k].pp.on_motion_done() {
                     self.start_set_point(k, sp);
                 }
@@ -522,13 +539,35 @@ impl DriveSet {
     fn controlword(&mut self, k: usize, prev: u16, _now: f64) {
         let word = self.nodes[k].cw;
         let old = self.nodes[k].state;
-        let new = cia402::device_transition(old, prev, word);
+        let option = self.quick_stop_option(k);
+        let new = cia402::device_transition(old, prev, word, option);
         if old == State::Fault && new == State::SwitchOnDisabled {
             self.nodes[k].clear_fault(&mut self.out);
         }
         self.nodes[k].state = new;
+        if old == State::OperationEnabled && new == State::QuickStopActive {
+            // Slow down on the ramp the option code names (or coast), then, for
+            // option codes 0-4, go on to Switch on disabled (see `check_completion`).
+            match option.ramp() {
+                Some(ramp) => {
+                    let dec = self.nodes[k].int(ramp, 0).max(1) as f64;
+                    self.ramp_down(k, dec);
+                }
+                None => {
+                    self.stop_axis(k);
+                    self.nodes[k].state = State::SwitchOnDisabled;
+                }
+            }
+            self.quick_stop_done(k);
+            let n = &mut self.nodes[k];
+            n.pp.reset();
+            if matches!(n.homing, Homing::Running { .. }) {
+                n.homing = Homing::Idle;
+            }
+            return;
+        }
         if new != State::OperationEnabled {
-            if old == State::OperationEnabled {
+            if old == State::OperationEnabled || old == State::QuickStopActive {
                 self.stop_axis(k);
             }
             let n = &mut self.nodes[k];
@@ -561,6 +600,56 @@ impl DriveSet {
             }
             _ => {}
         }
+    }
+
+    fn quick_stop_option(&self, k: usize) -> cia402::QuickStopOption {
+        cia402::QuickStopOption(self.nodes[k].int(obj::QUICK_STOP_OPTION, 0) as i16)
+    }
+
+    /// Quick stop active with the axis still: option codes 0-4 go on to Switch on
+    /// disabled (transition 12); 5-8 stay.
+    fn quick_stop_done(&mut self, k: usize) {
+        if self.nodes[k].state == State::QuickStopActive
+            && self.aux[k].demand.is_none()
+            && !self.quick_stop_option(k).stays_active()
+        {
+            self.nodes[k].state = State::SwitchOnDisabled;
+        }
+    }
+
+    /// Slow axis `k` down from its present demand speed at `dec` (counts/s^2) to a stop,
+    /// the rest of the machine re-planned around it.
+    fn ramp_down(&mut self, k: usize, dec: f64) {
+        let Some(d) = &self.aux[k].demand else {
+            return;
+        };
+        let (here, now_s) = {
+            let r = lock(&self.rig);
+            (
+                r.machine().counts()[self.nodes[k].axis],
+                r.machine().now_s(),
+            )
+        };
+        let v = d.demand.speed(now_s - d.t0);
+        let sign = d.sign();
+        let dist = (v * v / (2.0 * dec)).round();
+        if dist < 1.0 {
+            self.stop_axis(k);
+            return;
+        }
+        let to = here + (sign * dist) as i64;
+        // Already at speed: an instant "acceleration", then the deceleration alone.
+        let ramp = Trapezoid::new(dist, v, 1e12, dec);
+        self.aux[k].demand = Some(Demand {
+            from: here,
+            to,
+            t0: now_s,
+            demand: ramp,
+            mech: ramp,
+            fault_at: None,
+        });
+        self.aux[k].last_target = to;
+        self.replan();
     }
 
     /// Stop axis `k` where it is (halt, quick stop, disable, fault) and re-plan the rest.
@@ -808,8 +897,11 @@ mod tests {
 
     impl Host {
         fn new() -> Self {
-            let set =
-                DriveSet::new(rig(), &DriveSetConfig::xy(1, 2, Clock::Unconstrained), 0.0).unwrap();
+            Self::with_clock(Clock::Unconstrained)
+        }
+
+        fn with_clock(clock: Clock) -> Self {
+            let set = DriveSet::new(rig(), &DriveSetConfig::xy(1, 2, clock), 0.0).unwrap();
             let mut h = Host {
                 set,
                 t: 0.0,
@@ -898,6 +990,61 @@ mod tests {
             self.send(CanFrame::std(id, &[0x3F, 0, t[0], t[1], t[2], t[3]]));
             self.send(CanFrame::std(id, &[0x0F, 0, t[0], t[1], t[2], t[3]]));
         }
+    }
+
+    /// Quick stop of node 1 half a second into a long move, with quick stop option code
+    /// `option`: how far it ran on after the quick stop, and its state once still.
+    fn quick_stop_with(option: i16) -> (i64, State, Host) {
+        let mut h = Host::with_clock(Clock::Scaled(1.0));
+        assert!(matches!(
+            h.write(1, 0x605A, 0, &option.to_le_bytes()),
+            ClientStep::Downloaded
+        ));
+        h.enable(1);
+        h.move_to(1, 300_000);
+        h.t += 0.5;
+        h.set.poll(h.t);
+        h.send(CanFrame::std(0x201, &[0x02, 0, 1]));
+        // Where the axis was when the drive took the quick stop.
+        let at_stop = lock(&h.set.rig).machine().counts()[0];
+        if option != 0 {
+            assert_eq!(h.set.node_state(1).unwrap().0, State::QuickStopActive);
+        }
+        for _ in 0..100 {
+            h.t += 0.05;
+            h.set.poll(h.t);
+        }
+        let still = lock(&h.set.rig).machine().counts()[0];
+        (still - at_stop, h.set.node_state(1).unwrap().0, h)
+    }
+
+    #[test]
+    fn quick_stop_follows_the_option_code() {
+        // 2 (the EDS default): the quick stop ramp 0x6085, then Switch on disabled.
+        let (run_on_qs, state, mut h) = quick_stop_with(2);
+        assert!(run_on_qs > 0, "it slows down rather than stopping dead");
+        assert_eq!(state, State::SwitchOnDisabled);
+        // Enable operation does not bring a drive of option 0-4 back from quick stop.
+        h.send(CanFrame::std(0x201, &[0x0F, 0, 1]));
+        assert_ne!(h.set.node_state(1).unwrap().0, State::OperationEnabled);
+        // 1: the slower profile deceleration 0x6084 (1.6e6 against 4e6 counts/s^2):
+        // 2.5 times the distance from the same speed.
+        let (run_on_profile, state, _) = quick_stop_with(1);
+        assert_eq!(state, State::SwitchOnDisabled);
+        let ratio = run_on_profile as f64 / run_on_qs as f64;
+        assert!(
+            (ratio - 2.5).abs() < 0.01,
+            "{run_on_profile} vs {run_on_qs}"
+        );
+        // 6: the quick stop ramp, then it stays in Quick stop active, and enable
+        // operation (transition 16) resumes.
+        let (_, state, mut h) = quick_stop_with(6);
+        assert_eq!(state, State::QuickStopActive);
+        h.send(CanFrame::std(0x201, &[0x0F, 0, 1]));
+        assert_eq!(h.set.node_state(1).unwrap().0, State::OperationEnabled);
+        // 0: the drive function is disabled at once: no run-on, Switch on disabled.
+        let (run_on, state, _) = quick_stop_with(0);
+        assert_eq!((run_on, state), (0, State::SwitchOnDisabled));
     }
 
     #[test]
