@@ -9,6 +9,7 @@ pub mod can;
 pub mod canopen;
 pub mod cia402;
 pub mod config;
+pub mod errormap;
 pub mod gige;
 pub mod grbl;
 pub mod image;

@@ -1,0 +1,320 @@
+use super::*;
+use protocol::errormap::{Grid, Identity, Line, Measured, Node, Stat, SCHEMA};
+
+fn stat(mean: f64) -> Stat {
+    Stat {
+        mean,
+        sd: 0.0,
+        n: 1,
+    }
+}
+
+fn measured(ex: f64, ey: f64, yaw: f64) -> Measured {
+    Measured {
+        ex_um: stat(ex),
+        ey_um: stat(ey),
+        yaw_urad: stat(yaw),
+    }
+}
+
+/// A map whose nodes hold `f(x, y, forward)` = (ex, ey, yaw).
+fn map_of(xs: Vec<f64>, ys: Vec<f64>, f: impl Fn(f64, f64, bool) -> (f64, f64, f64)) -> ErrorMap {
+    let node = |x, y| {
+        let (a, b, c) = f(x, y, true);
+        let (d, e, g) = f(x, y, false);
+        Node {
+            forward: measured(a, b, c),
+            reverse: measured(d, e, g),
+        }
+    };
+    let nodes = ys
+        .iter()
+        .flat_map(|&y| xs.iter().map(move |&x| (x, y)))
+        .map(|(x, y)| node(x, y))
+        .collect();
+    ErrorMap {
+        schema: SCHEMA.into(),
+        version: 1,
+        created: "2026-11-22T00:00:00Z".into(),
+        identity: Identity {
+            machine: "m".into(),
+            controller: "c".into(),
+            board: "b".into(),
+            certificate_sha256: String::new(),
+            camera: "cam".into(),
+        },
+        tool_offset_mm: [0.0, 0.0],
+        board_at_machine_zero_mm: [0.0, 0.0],
+        reference_mm: [0.0, 0.0],
+        grid: Grid { xs, ys, nodes },
+        x_lines: Vec::new(),
+        y_lines: Vec::new(),
+        uncertainty_um: 0.0,
+    }
+}
+
+fn steps(from: f64, to: f64, step: f64) -> Vec<f64> {
+    let n = ((to - from) / step).round() as usize;
+    (0..=n)
+        .map(|k| from + (to - from) * k as f64 / n as f64)
+        .collect()
+}
+
+#[test]
+fn hermite_is_exact_on_lines_and_smooth_at_nodes() {
+    let xs = [0.0, 1.0, 3.0, 4.0];
+    let line = |x: f64| 2.0 * x - 1.0;
+    for x in [0.0, 0.5, 1.0, 2.2, 3.9, 4.0] {
+        assert!((hermite(&xs, |i| line(xs[i]), x) - line(x)).abs() < 1e-12);
+    }
+    // C1 at an inner node: slopes from both sides agree.
+    let f = |i: usize| [0.0, 1.0, 0.0, 2.0][i];
+    let h = 1e-7;
+    let left = (hermite(&xs, f, 1.0) - hermite(&xs, f, 1.0 - h)) / h;
+    let right = (hermite(&xs, f, 1.0 + h) - hermite(&xs, f, 1.0)) / h;
+    assert!((left - right).abs() < 1e-4, "{left} {right}");
+}
+
+#[test]
+fn direction_selects_each_axis_own_measurements() {
+    // Forward: ex = 10, ey = -5; reverse: ex = 18, ey = -11 (8 and 6 um of backlash).
+    let m = MapModel::new(map_of(vec![0.0, 100.0], vec![0.0, 50.0], |_, _, fwd| {
+        if fwd {
+            (10.0, -5.0, 0.0)
+        } else {
+            (18.0, -11.0, 0.0)
+        }
+    }));
+    let p = [40.0, 20.0];
+    assert_eq!(
+        m.camera_error_um(p, Direction::FORWARD).unwrap(),
+        [10.0, -5.0]
+    );
+    let mixed = Direction {
+        x: Approach::Reverse,
+        y: Approach::Forward,
+    };
+    assert_eq!(m.camera_error_um(p, mixed).unwrap(), [18.0, -5.0]);
+    assert_eq!(
+        Direction::of_move([5.0, 5.0], [4.0, 5.0], Direction::FORWARD),
+        mixed
+    );
+}
+
+#[test]
+fn the_inverse_puts_the_tool_on_the_nominal_point_and_abbe_follows_the_yaw() {
+    let m = map_of(
+        steps(0.0, 200.0, 20.0),
+        steps(0.0, 150.0, 25.0),
+        |x, y, _| {
+            (
+                0.1 * x + 3.0 * (x / 30.0).sin(),
+                -0.05 * y + 0.02 * x,
+                0.05 * x, // urad
+            )
+        },
+    );
+    let mut m = m;
+    m.tool_offset_mm = [30.0, 0.0];
+    let model = MapModel::new(m);
+    // The worked example of the docs: yaw +10 urad (at x = 200, against 0 at the
+    // reference) on a (30, 0) mm offset adds 0.30 um in +Y.
+    let cam = model
+        .camera_error_um([200.0, 0.0], Direction::FORWARD)
+        .unwrap();
+    let tool = model
+        .tool_error_um([200.0, 0.0], Direction::FORWARD)
+        .unwrap();
+    assert!((tool[1] - cam[1] - 0.30).abs() < 1e-9, "{cam:?} {tool:?}");
+    for p in [[37.3, 81.2], [199.0, 149.0], [0.5, 0.5]] {
+        let c = model.command_for(p, Direction::FORWARD).unwrap();
+        let e = model.tool_error_um(c, Direction::FORWARD).unwrap();
+        let landed = [c[0] + e[0] / 1000.0, c[1] + e[1] / 1000.0];
+        assert!(
+            (landed[0] - p[0]).abs() < 1e-6 && (landed[1] - p[1]).abs() < 1e-6,
+            "{p:?} -> {c:?} lands at {landed:?}"
+        );
+    }
+}
+
+#[test]
+fn points_outside_the_map_are_refused_never_extrapolated() {
+    let m = MapModel::new(map_of(vec![0.0, 100.0], vec![0.0, 50.0], |_, _, _| {
+        (0.0, 0.0, 0.0)
+    }));
+    let e = m
+        .camera_error_um([100.5, 10.0], Direction::FORWARD)
+        .unwrap_err();
+    assert!(e.to_string().contains("outside the map"), "{e}");
+    assert!(m.command_for([-1.0, 10.0], Direction::FORWARD).is_err());
+}
+
+#[test]
+fn dense_lines_add_the_short_period_error_the_grid_cannot_hold() {
+    // A 5 mm period pitch error along X on top of a smooth trend; the grid (every
+    // 20 mm) sees only the trend's samples, the line (every 1 mm) the period.
+    let truth = |x: f64| 0.05 * x + 2.0 * (2.0 * std::f64::consts::PI * x / 5.0).sin();
+    let mut map = map_of(
+        steps(0.0, 200.0, 20.0),
+        steps(0.0, 150.0, 25.0),
+        |x, _, _| (truth(x), 0.0, 0.0),
+    );
+    let on_grid_only = MapModel::new(map.clone());
+    let positions = steps(0.0, 200.0, 1.0);
+    let nodes = positions
+        .iter()
+        .map(|&x| Node {
+            forward: measured(truth(x), 0.0, 0.0),
+            reverse: measured(truth(x), 0.0, 0.0),
+        })
+        .collect();
+    map.x_lines.push(Line {
+        at_mm: 75.0,
+        positions,
+        nodes,
+    });
+    let with_line = MapModel::new(map);
+    let worst = |m: &MapModel| {
+        (0..2000)
+            .map(|k| {
+                let p = [k as f64 * 0.0999, 33.0 + (k % 7) as f64 * 15.0];
+                (m.camera_error_um(p, Direction::FORWARD).unwrap()[0] - truth(p[0])).abs()
+            })
+            .fold(0.0, f64::max)
+    };
+    assert!(
+        worst(&on_grid_only) > 1.5,
+        "the grid alone misses the period"
+    );
+    let w = worst(&with_line);
+    assert!(w < 0.15, "with the dense line: {w} um");
+}
+
+/// The model against the simulated C5 stage it is built from (no camera: the truth at
+/// each node stands for a perfect measurement): a 21 x 16 grid and one dense line per
+/// axis predict where the camera is at random points approached from random sides.
+#[test]
+fn a_map_of_the_simulated_stage_predicts_it_at_random_points() {
+    use protocol::config::ConfigDoc;
+    use std::path::Path;
+    use world::machine::{MachineConfig, SimMachine};
+    let text = include_str!("../../../config/machines/c5-stage.toml");
+    let mut cfg =
+        MachineConfig::from_doc(&ConfigDoc::from_text("c5-stage.toml", text, Path::new(".")))
+            .unwrap();
+    // Time-independent: thermal drift is what re-referencing and spot checks are for.
+    cfg.thermal = None;
+    let camera = world::camera::CameraModel::from_doc(&ConfigDoc::from_text(
+        "cam.toml",
+        include_str!("../../../config/cameras/mono-1.3mp.toml"),
+        Path::new("."),
+    ))
+    .unwrap();
+    let board = protocol::Board::nominal(
+        "b",
+        0.5,
+        0.25,
+        protocol::Polarity::DarkOnLight,
+        420,
+        320,
+        [0.0, 0.0],
+    );
+    let zero = cfg.machine.board_at_home_mm;
+    let mut rig = world::rig::SimRig::new(SimMachine::new(cfg), board, camera);
+    rig.machine_mut().home();
+    let approach = 0.05;
+    // Move onto `p` from the side `dir` says; the camera's error there, and its yaw.
+    let mut visit = |p: [f64; 2], dir: Direction| {
+        let side = |a: Approach| match a {
+            Approach::Forward => -approach,
+            Approach::Reverse => approach,
+        };
+        let from = [
+            (p[0] + side(dir.x)).clamp(0.0, 200.0),
+            (p[1] + side(dir.y)).clamp(0.0, 150.0),
+        ];
+        for q in [from, p] {
+            rig.machine_mut().start_move(q, 3000.0).unwrap();
+            rig.machine_mut().finish_motion();
+        }
+        let pose = rig.truth();
+        (
+            [
+                (pose.centre_mm[0] - p[0] - zero[0]) * 1000.0,
+                (pose.centre_mm[1] - p[1] - zero[1]) * 1000.0,
+            ],
+            pose.rotation_rad * 1e6,
+        )
+    };
+    let mut node_at = |x: f64, y: f64| {
+        let (f, yf) = visit([x, y], Direction::FORWARD);
+        let (r, yr) = visit([x, y], Direction::REVERSE);
+        Node {
+            forward: measured(f[0], f[1], yf),
+            reverse: measured(r[0], r[1], yr),
+        }
+    };
+    let (xs, ys) = (steps(0.0, 200.0, 10.0), steps(0.0, 150.0, 10.0));
+    let nodes: Vec<Node> = ys
+        .iter()
+        .flat_map(|&y| xs.iter().map(move |&x| (x, y)))
+        .map(|(x, y)| node_at(x, y))
+        .collect();
+    let xline = steps(0.0, 200.0, 1.0);
+    let yline = steps(0.0, 150.0, 1.0);
+    let x_nodes = xline.iter().map(|&x| node_at(x, 75.0)).collect();
+    let y_nodes = yline.iter().map(|&y| node_at(100.0, y)).collect();
+    let mut map = map_of(vec![0.0, 1.0], vec![0.0, 1.0], |_, _, _| (0.0, 0.0, 0.0));
+    map.grid = Grid { xs, ys, nodes };
+    map.x_lines = vec![Line {
+        at_mm: 75.0,
+        positions: xline,
+        nodes: x_nodes,
+    }];
+    map.y_lines = vec![Line {
+        at_mm: 100.0,
+        positions: yline,
+        nodes: y_nodes,
+    }];
+    map.check().unwrap();
+    let model = MapModel::new(map);
+    // 1000 random points, random approach sides (a fixed xorshift sequence).
+    let mut s = 0x9E37_79B9_7F4A_7C15u64;
+    let mut next = || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        (s >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let (mut worst, mut sum2, mut raw_worst) = (0.0f64, 0.0, 0.0f64);
+    let n = 1000;
+    for _ in 0..n {
+        let p = [1.0 + 198.0 * next(), 1.0 + 148.0 * next()];
+        let side = |u: f64| {
+            if u < 0.5 {
+                Approach::Forward
+            } else {
+                Approach::Reverse
+            }
+        };
+        let dir = Direction {
+            x: side(next()),
+            y: side(next()),
+        };
+        let (truth, _) = visit(p, dir);
+        let e = model.camera_error_um(p, dir).unwrap();
+        let miss = (truth[0] - e[0]).hypot(truth[1] - e[1]);
+        worst = worst.max(miss);
+        raw_worst = raw_worst.max(truth[0].hypot(truth[1]));
+        sum2 += miss * miss;
+    }
+    let rms = (sum2 / n as f64).sqrt();
+    assert!(
+        raw_worst > 15.0,
+        "an ordinary stage: {raw_worst} um uncompensated"
+    );
+    assert!(
+        worst <= 1.5 && rms <= 0.5,
+        "map vs truth: max {worst:.3} um, rms {rms:.3} um"
+    );
+}
