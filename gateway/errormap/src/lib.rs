@@ -33,6 +33,8 @@
 //!
 //! Outside the map's extent nothing is extrapolated: every call refuses it.
 
+pub mod scan;
+
 use protocol::errormap::{ErrorMap, Line, Measured, Node};
 
 /// The side the final move onto a point came from, per axis.

@@ -1,0 +1,390 @@
+//! The scan: which points to measure, from which side, how often, and how the
+//! measurements become a map.
+//!
+//! Design: a coarse grid over the travel (default every 10 mm) for the smooth errors and
+//! the cross terms, plus one dense line along each axis through the middle of the
+//! other (default every 1 mm: five points per 5 mm lead, enough for the ballscrew's
+//! periodic error, which depends only on the nut's position along its own screw). Every
+//! point is approached from below and then from above on both axes (backlash differs
+//! per direction), and the whole plan is run `passes` times (default 2), so every node
+//! carries a mean and a dispersion. On the 200 x 150 mm demo stage that is
+//! (21 x 16 + 201 + 151) x 2 sides x 2 passes = 2752 frames, against 120 000 for a dense
+//! 1 mm grid. Errors are stored relative to the reference point measured at the start of
+//! each run, so a scan resumed after a new homing (which moves the zero by a few um)
+//! joins the first part seamlessly.
+
+use crate::{Approach, Direction};
+use protocol::errormap::{ErrorMap, Grid, Identity, Line, Measured, Node, Stat, SCHEMA};
+use std::collections::BTreeMap;
+
+/// How dense and how often.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ScanSpec {
+    pub grid_step_mm: f64,
+    pub line_step_mm: f64,
+    pub passes: u32,
+}
+
+impl Default for ScanSpec {
+    fn default() -> Self {
+        Self {
+            grid_step_mm: 10.0,
+            line_step_mm: 1.0,
+            passes: 2,
+        }
+    }
+}
+
+/// Where a measurement goes in the map.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Slot {
+    Grid { i: usize, j: usize },
+    XLine { k: usize },
+    YLine { k: usize },
+}
+
+/// One measurement to take.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ScanPoint {
+    pub command_mm: [f64; 2],
+    pub dir: Direction,
+    pub pass: u32,
+    pub slot: Slot,
+}
+
+/// The plan of a scan over `lo..hi` (machine mm).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ScanPlan {
+    pub spec: ScanSpec,
+    pub xs: Vec<f64>,
+    pub ys: Vec<f64>,
+    /// The dense line along X sits at this Y; the one along Y at this X.
+    pub x_line_at: f64,
+    pub y_line_at: f64,
+    pub x_line: Vec<f64>,
+    pub y_line: Vec<f64>,
+    pub points: Vec<ScanPoint>,
+}
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ScanError {
+    #[error("the scan area {lo:?}..{hi:?} mm is empty or not finite")]
+    EmptyArea { lo: [f64; 2], hi: [f64; 2] },
+    #[error("{what} must be a positive number of mm at most the area's size (got {value})")]
+    BadStep { what: &'static str, value: f64 },
+    #[error("passes must be 1 to 10 (got {0})")]
+    BadPasses(u32),
+    #[error("measurement #{0} is not in the plan")]
+    NotInPlan(usize),
+}
+
+/// Positions from `lo` to `hi` at most `step` apart, both ends included.
+fn positions(lo: f64, hi: f64, step: f64) -> Vec<f64> {
+    let n = ((hi - lo) / step).ceil().max(1.0) as usize;
+    (0..=n)
+        .map(|k| lo + (hi - lo) * k as f64 / n as f64)
+        .collect()
+}
+
+impl ScanPlan {
+    pub fn new(lo: [f64; 2], hi: [f64; 2], spec: ScanSpec) -> Result<Self, ScanError> {
+        if !(lo.iter().chain(&hi).all(|v| v.is_finite()) && hi[0] > lo[0] && hi[1] > lo[1]) {
+            return Err(ScanError::EmptyArea { lo, hi });
+        }
+        let size = (hi[0] - lo[0]).min(hi[1] - lo[1]);
+        for (what, v) in [
+            ("the grid step", spec.grid_step_mm),
+            ("the line step", spec.line_step_mm),
+        ] {
+            if !(v.is_finite() && v > 0.0 && v <= size) {
+                return Err(ScanError::BadStep { what, value: v });
+            }
+        }
+        if !(1..=10).contains(&spec.passes) {
+            return Err(ScanError::BadPasses(spec.passes));
+        }
+        let xs = positions(lo[0], hi[0], spec.grid_step_mm);
+        let ys = positions(lo[1], hi[1], spec.grid_step_mm);
+        let x_line = positions(lo[0], hi[0], spec.line_step_mm);
+        let y_line = positions(lo[1], hi[1], spec.line_step_mm);
+        let x_line_at = ys[ys.len() / 2];
+        let y_line_at = xs[xs.len() / 2];
+        let mut points = Vec::new();
+        for pass in 0..spec.passes {
+            let mut visit = |p: [f64; 2], slot: Slot| {
+                for dir in [Direction::FORWARD, Direction::REVERSE] {
+                    points.push(ScanPoint {
+                        command_mm: p,
+                        dir,
+                        pass,
+                        slot,
+                    });
+                }
+            };
+            // Serpentine over the grid: short moves between neighbours.
+            for (j, &y) in ys.iter().enumerate() {
+                for n in 0..xs.len() {
+                    let i = if j % 2 == 0 { n } else { xs.len() - 1 - n };
+                    visit([xs[i], y], Slot::Grid { i, j });
+                }
+            }
+            for (k, &x) in x_line.iter().enumerate() {
+                visit([x, x_line_at], Slot::XLine { k });
+            }
+            for (k, &y) in y_line.iter().enumerate() {
+                visit([y_line_at, y], Slot::YLine { k });
+            }
+        }
+        Ok(Self {
+            spec,
+            xs,
+            ys,
+            x_line_at,
+            y_line_at,
+            x_line,
+            y_line,
+            points,
+        })
+    }
+
+    /// A fingerprint of the plan, so a resumed scan continues only the same plan.
+    pub fn fingerprint(&self) -> String {
+        format!(
+            "grid {}x{} {:.4}..{:.4} x {:.4}..{:.4}, lines {} at y {:.4} and {} at x {:.4}, {} passes",
+            self.xs.len(),
+            self.ys.len(),
+            self.xs[0],
+            self.xs[self.xs.len() - 1],
+            self.ys[0],
+            self.ys[self.ys.len() - 1],
+            self.x_line.len(),
+            self.x_line_at,
+            self.y_line.len(),
+            self.y_line_at,
+            self.spec.passes
+        )
+    }
+}
+
+/// One measurement: the camera's error at a plan point (relative to the reference
+/// measured at the start of its run), um, and the yaw relative to it, urad.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sample {
+    pub error_um: [f64; 2],
+    pub yaw_urad: f64,
+}
+
+/// Collects samples by plan index and turns them into a map.
+#[derive(Clone, Debug, Default)]
+pub struct MapBuilder {
+    samples: BTreeMap<usize, Sample>,
+}
+
+impl MapBuilder {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    pub fn record(&mut self, plan: &ScanPlan, index: usize, s: Sample) -> Result<(), ScanError> {
+        if index >= plan.points.len() {
+            return Err(ScanError::NotInPlan(index));
+        }
+        self.samples.insert(index, s);
+        Ok(())
+    }
+
+    pub fn is_done(&self, index: usize) -> bool {
+        self.samples.contains_key(&index)
+    }
+
+    pub fn done(&self) -> usize {
+        self.samples.len()
+    }
+
+    /// The map, once every point of the plan has a sample (None before).
+    #[allow(clippy::too_many_arguments)]
+    pub fn finish(
+        &self,
+        plan: &ScanPlan,
+        identity: Identity,
+        version: u32,
+        created: String,
+        tool_offset_mm: [f64; 2],
+        board_at_machine_zero_mm: [f64; 2],
+        reference_mm: [f64; 2],
+    ) -> Option<ErrorMap> {
+        if self.samples.len() != plan.points.len() {
+            return None;
+        }
+        // Every sample of one slot and direction, over the passes.
+        let mut by: BTreeMap<(Slot, bool), Vec<Sample>> = BTreeMap::new();
+        for (k, p) in plan.points.iter().enumerate() {
+            let forward = p.dir.x == Approach::Forward;
+            by.entry((p.slot, forward))
+                .or_default()
+                .push(self.samples[&k]);
+        }
+        let measured = |v: &[Sample]| {
+            let col = |f: fn(&Sample) -> f64| {
+                Stat::of(&v.iter().map(f).collect::<Vec<_>>()).expect("at least one pass")
+            };
+            Measured {
+                ex_um: col(|s| s.error_um[0]),
+                ey_um: col(|s| s.error_um[1]),
+                yaw_urad: col(|s| s.yaw_urad),
+            }
+        };
+        let node = |slot: Slot| Node {
+            forward: measured(&by[&(slot, true)]),
+            reverse: measured(&by[&(slot, false)]),
+        };
+        let nodes = (0..plan.ys.len())
+            .flat_map(|j| (0..plan.xs.len()).map(move |i| Slot::Grid { i, j }))
+            .map(node)
+            .collect::<Vec<_>>();
+        let x_nodes = (0..plan.x_line.len())
+            .map(|k| node(Slot::XLine { k }))
+            .collect();
+        let y_nodes = (0..plan.y_line.len())
+            .map(|k| node(Slot::YLine { k }))
+            .collect();
+        // Expanded (k = 2) uncertainty of a node's mean: the RMS over nodes of the
+        // standard error of both components.
+        let se2: Vec<f64> = by
+            .values()
+            .map(|v| {
+                let m = measured(v);
+                let n = f64::from(m.ex_um.n);
+                (m.ex_um.sd.powi(2) + m.ey_um.sd.powi(2)) / n
+            })
+            .collect();
+        let uncertainty_um = 2.0 * (se2.iter().sum::<f64>() / se2.len() as f64).sqrt();
+        Some(ErrorMap {
+            schema: SCHEMA.into(),
+            version,
+            created,
+            identity,
+            tool_offset_mm,
+            board_at_machine_zero_mm,
+            reference_mm,
+            grid: Grid {
+                xs: plan.xs.clone(),
+                ys: plan.ys.clone(),
+                nodes,
+            },
+            x_lines: vec![Line {
+                at_mm: plan.x_line_at,
+                positions: plan.x_line.clone(),
+                nodes: x_nodes,
+            }],
+            y_lines: vec![Line {
+                at_mm: plan.y_line_at,
+                positions: plan.y_line.clone(),
+                nodes: y_nodes,
+            }],
+            uncertainty_um,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::MapModel;
+
+    #[test]
+    fn the_default_plan_of_the_demo_stage_stays_under_3000_frames() {
+        let plan = ScanPlan::new([0.1, 0.1], [199.9, 149.9], ScanSpec::default()).unwrap();
+        assert_eq!((plan.xs.len(), plan.ys.len()), (21, 16));
+        assert!(plan.xs.windows(2).all(|w| w[1] - w[0] <= 10.0));
+        assert!(plan.x_line.windows(2).all(|w| w[1] - w[0] <= 1.0));
+        assert_eq!(plan.points.len(), (21 * 16 + 201 + 151) * 2 * 2);
+        assert!(plan.points.len() <= 3000);
+        // Each point from below and from above, in that order.
+        assert_eq!(plan.points[0].dir, Direction::FORWARD);
+        assert_eq!(plan.points[1].dir, Direction::REVERSE);
+        assert_eq!(plan.points[0].command_mm, plan.points[1].command_mm);
+    }
+
+    #[test]
+    fn bad_specs_are_refused() {
+        let s = ScanSpec {
+            grid_step_mm: 0.0,
+            ..Default::default()
+        };
+        assert!(ScanPlan::new([0.0; 2], [10.0; 2], s).is_err());
+        let s = ScanSpec {
+            passes: 0,
+            ..Default::default()
+        };
+        assert!(matches!(
+            ScanPlan::new([0.0; 2], [10.0; 2], s),
+            Err(ScanError::BadPasses(0))
+        ));
+        assert!(ScanPlan::new([5.0, 0.0], [5.0, 10.0], ScanSpec::default()).is_err());
+    }
+
+    #[test]
+    fn samples_become_a_map_with_means_and_dispersions() {
+        let spec = ScanSpec {
+            grid_step_mm: 5.0,
+            line_step_mm: 2.5,
+            passes: 2,
+        };
+        let plan = ScanPlan::new([0.0, 0.0], [10.0, 10.0], spec).unwrap();
+        let mut b = MapBuilder::new();
+        for (k, p) in plan.points.iter().enumerate() {
+            // 0.1 um/mm slope, 6 um backlash in reverse, +-0.2 um between passes.
+            let back = if p.dir.x == Approach::Reverse {
+                6.0
+            } else {
+                0.0
+            };
+            let wobble = if p.pass == 0 { 0.2 } else { -0.2 };
+            let e = [
+                0.1 * p.command_mm[0] + back + wobble,
+                -0.1 * p.command_mm[1],
+            ];
+            b.record(
+                &plan,
+                k,
+                Sample {
+                    error_um: e,
+                    yaw_urad: 0.0,
+                },
+            )
+            .unwrap();
+        }
+        let id = Identity {
+            machine: "m".into(),
+            controller: "c".into(),
+            board: "b".into(),
+            certificate_sha256: String::new(),
+            camera: "cam".into(),
+        };
+        let map = b
+            .finish(&plan, id, 1, "t".into(), [0.0; 2], [5.0; 2], [0.0; 2])
+            .expect("complete");
+        map.check().unwrap();
+        let n = map.grid.nodes[0];
+        assert!((n.forward.ex_um.mean - 0.0).abs() < 1e-12);
+        assert!((n.reverse.ex_um.mean - 6.0).abs() < 1e-12);
+        assert!((n.forward.ex_um.sd - 0.4f64 / 2f64.sqrt()).abs() < 1e-12);
+        assert!((map.uncertainty_um - 2.0 * (0.08f64 / 2.0).sqrt()).abs() < 1e-9);
+        let model = MapModel::new(map);
+        let e = model
+            .camera_error_um([7.3, 4.1], Direction::REVERSE)
+            .unwrap();
+        assert!((e[0] - (0.73 + 6.0)).abs() < 1e-9 && (e[1] + 0.41).abs() < 1e-9);
+        assert!(b
+            .record(
+                &plan,
+                plan.points.len(),
+                Sample {
+                    error_um: [0.0; 2],
+                    yaw_urad: 0.0
+                }
+            )
+            .is_err());
+    }
+}
