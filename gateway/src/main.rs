@@ -4,6 +4,7 @@ use anyhow::Context;
 use clap::{Parser, Subcommand};
 use compensation::report::Report;
 use devices::open_devices_async;
+use errormap::scan::ScanSpec;
 use indicatif::{ProgressBar, ProgressStyle};
 use job::Job;
 use protocol::Board;
@@ -13,6 +14,8 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
 use vision::localize::{localize, LocalizeParams, LocalizeSettings, Method, PixelAxes};
+
+mod scan;
 
 #[derive(Parser)]
 #[command(
@@ -59,6 +62,31 @@ enum Cmd {
         json: bool,
         #[arg(long)]
         method: Option<String>,
+    },
+    /// Scan the machine into an error map: a grid over the travel and dense lines along
+    /// each axis, every point approached from both sides, `--passes` times. Written as a
+    /// new version OUT/NAME.vN.json (never over an older one); a stopped scan resumes
+    /// from its journal OUT/NAME.scan.jsonl.
+    Map {
+        #[arg(long)]
+        config: PathBuf,
+        /// Folder of the map versions.
+        #[arg(long)]
+        out: PathBuf,
+        /// Map name (default: the job file's name).
+        #[arg(long)]
+        name: Option<String>,
+        #[arg(long, default_value_t = ScanSpec::default().grid_step_mm)]
+        grid_step_mm: f64,
+        #[arg(long, default_value_t = ScanSpec::default().line_step_mm)]
+        line_step_mm: f64,
+        #[arg(long, default_value_t = ScanSpec::default().passes)]
+        passes: u32,
+        /// Tool point minus camera centre, in machine axes, "X,Y" mm.
+        #[arg(long, default_value = "0,0")]
+        tool_offset_mm: String,
+        #[arg(long)]
+        json: bool,
     },
     /// Localize one image of the board: the board coordinate under the image centre.
     Localize {
@@ -114,7 +142,10 @@ fn parse_xy(s: &str) -> anyhow::Result<[f64; 2]> {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let json_mode = match &cli.cmd {
-        Cmd::Demo { json, .. } | Cmd::Compensate { json, .. } | Cmd::Localize { json, .. } => *json,
+        Cmd::Demo { json, .. }
+        | Cmd::Compensate { json, .. }
+        | Cmd::Map { json, .. }
+        | Cmd::Localize { json, .. } => *json,
     };
     match run(cli) {
         Ok(code) => code,
@@ -172,6 +203,33 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 job.localize.method = parse_method(&m)?;
             }
             compensate(job, json)
+        }
+        Cmd::Map {
+            config,
+            out,
+            name,
+            grid_step_mm,
+            line_step_mm,
+            passes,
+            tool_offset_mm,
+            json,
+        } => {
+            let job = Job::load(&config)?;
+            let spec = ScanSpec {
+                grid_step_mm,
+                line_step_mm,
+                passes,
+            };
+            let name = name.unwrap_or_else(|| {
+                config
+                    .file_stem()
+                    .map(|s| s.to_string_lossy().into_owned())
+                    .unwrap_or_else(|| "map".into())
+            });
+            let tool = parse_xy(&tool_offset_mm).map_err(|_| {
+                anyhow::anyhow!("--tool-offset-mm `{tool_offset_mm}`: expected X,Y in mm")
+            })?;
+            scan::map(&job, spec, &out, &name, tool, json)
         }
         Cmd::Localize {
             image,

@@ -290,6 +290,25 @@ impl Board {
     }
 
     /// Write the certificate CSV of every point that differs from nominal.
+    /// SHA-256 (hex) of the board's geometry and certificate: what an error map records
+    /// so that it is refused with any other board or certificate.
+    pub fn fingerprint_sha256(&self) -> String {
+        use sha2::{Digest, Sha256};
+        let mut h = Sha256::new();
+        h.update(format!(
+            "{} pitch {} dot {} {:?} {}x{} origin {:?}\n",
+            self.name,
+            self.pitch_mm,
+            self.dot_diameter_mm,
+            self.polarity,
+            self.cols,
+            self.rows,
+            self.origin_mm
+        ));
+        h.update(self.certificate_csv());
+        h.finalize().iter().map(|b| format!("{b:02x}")).collect()
+    }
+
     pub fn certificate_csv(&self) -> String {
         let mut out = String::from("i,j,x_mm,y_mm\n");
         for j in 0..self.rows {

@@ -174,6 +174,74 @@ pub struct Sample {
     pub yaw_urad: f64,
 }
 
+/// The journal of a scan under way, one line per sample after a header line naming
+/// the plan: `{"plan": "<fingerprint>"}` then `{"i": 17, "ex": 1.2, "ey": -0.4, "yaw": 3.1}`.
+/// A stopped scan resumes from it (only for the same plan); a damaged last line (the
+/// process died while writing it) is ignored, any other damage refused.
+pub mod journal {
+    use super::{Sample, ScanPlan};
+
+    pub fn header(plan: &ScanPlan) -> String {
+        format!("{{\"plan\": {:?}}}\n", plan.fingerprint())
+    }
+
+    pub fn line(index: usize, s: &Sample) -> String {
+        format!(
+            "{{\"i\": {index}, \"ex\": {:?}, \"ey\": {:?}, \"yaw\": {:?}}}\n",
+            s.error_um[0], s.error_um[1], s.yaw_urad
+        )
+    }
+
+    /// The samples of a journal written for `plan`.
+    pub fn read(plan: &ScanPlan, text: &str) -> Result<Vec<(usize, Sample)>, String> {
+        let mut lines = text.lines();
+        let head = lines.next().ok_or("the journal is empty")?;
+        let want = header(plan);
+        if head.trim_end() != want.trim_end() {
+            return Err(format!(
+                "the journal is of another scan plan ({head}); this one is {}",
+                want.trim_end()
+            ));
+        }
+        let all: Vec<&str> = lines.collect();
+        let mut out = Vec::new();
+        for (k, l) in all.iter().enumerate() {
+            let parsed = parse(l).filter(|(i, _)| *i < plan.points.len());
+            match parsed {
+                Some(v) => out.push(v),
+                // Only the last line may be cut short.
+                None if k + 1 == all.len() => break,
+                None => return Err(format!("journal line {}: `{l}` is not a sample", k + 2)),
+            }
+        }
+        Ok(out)
+    }
+
+    fn parse(l: &str) -> Option<(usize, Sample)> {
+        let l = l.trim().strip_prefix('{')?.strip_suffix('}')?;
+        let mut i = None;
+        let (mut ex, mut ey, mut yaw) = (None, None, None);
+        for part in l.split(',') {
+            let (k, v) = part.split_once(':')?;
+            let v = v.trim();
+            match k.trim().trim_matches('"') {
+                "i" => i = v.parse::<usize>().ok(),
+                "ex" => ex = v.parse::<f64>().ok().filter(|x| x.is_finite()),
+                "ey" => ey = v.parse::<f64>().ok().filter(|x| x.is_finite()),
+                "yaw" => yaw = v.parse::<f64>().ok().filter(|x| x.is_finite()),
+                _ => return None,
+            }
+        }
+        Some((
+            i?,
+            Sample {
+                error_um: [ex?, ey?],
+                yaw_urad: yaw?,
+            },
+        ))
+    }
+}
+
 /// Collects samples by plan index and turns them into a map.
 #[derive(Clone, Debug, Default)]
 pub struct MapBuilder {
@@ -304,6 +372,37 @@ mod tests {
         assert_eq!(plan.points[0].dir, Direction::FORWARD);
         assert_eq!(plan.points[1].dir, Direction::REVERSE);
         assert_eq!(plan.points[0].command_mm, plan.points[1].command_mm);
+    }
+
+    #[test]
+    fn the_journal_round_trips_and_belongs_to_its_plan() {
+        let plan = ScanPlan::new(
+            [0.0, 0.0],
+            [10.0, 10.0],
+            ScanSpec {
+                grid_step_mm: 5.0,
+                line_step_mm: 5.0,
+                passes: 1,
+            },
+        )
+        .unwrap();
+        let s = Sample {
+            error_um: [1.25, -0.5],
+            yaw_urad: 3.0,
+        };
+        let text = journal::header(&plan)
+            + &journal::line(3, &s)
+            + &journal::line(4, &s)
+            + "{\"i\": 5, \"ex";
+        assert_eq!(journal::read(&plan, &text).unwrap(), vec![(3, s), (4, s)]);
+        let other = ScanPlan::new([0.0, 0.0], [10.0, 10.0], ScanSpec::default()).unwrap();
+        assert!(journal::read(&other, &text)
+            .unwrap_err()
+            .contains("another scan plan"));
+        let damaged = journal::header(&plan) + "garbage\n" + &journal::line(4, &s);
+        assert!(journal::read(&plan, &damaged)
+            .unwrap_err()
+            .contains("line 2"));
     }
 
     #[test]

@@ -6,6 +6,8 @@
 //! device error stops the job before any further motion: the stage is told to stop and
 //! the targets finished so far are kept.
 
+pub mod scan;
+
 use compensation::correction::SoftLimits;
 use compensation::correction::{CorrectionError, Positioning};
 use compensation::report::{Report, TruthAt};

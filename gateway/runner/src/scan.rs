@@ -1,0 +1,195 @@
+//! Scanning a machine into an error map (`gateway map`): home, check the camera's
+//! orientation and measure the reference point (the compensation session does both,
+//! with no correction), then visit every point of the [`ScanPlan`] approached from each
+//! side, localize the board, and record the camera's error relative to the reference.
+//!
+//! Nothing is corrected during a scan: the stage only goes where the plan says, every
+//! point and approach point is checked against the soft limits before homing, and any
+//! failure stops the stage. Samples go to `on_sample` (the journal) as they come, so a
+//! stopped scan resumes where it ended.
+
+use crate::{JobError, Orchestrator};
+use compensation::correction::SoftLimits;
+use devices::Devices;
+use drivers::AxisValues;
+use errormap::scan::{MapBuilder, Sample, ScanPlan};
+use errormap::Approach;
+use job::Job;
+use vision::localize::{localize, LocalizeParams};
+
+/// What the reference frame of this run saw.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Reference {
+    /// The reference point, machine mm.
+    pub command_mm: [f64; 2],
+    /// The camera's error there, um, and its image rotation, degrees.
+    pub error_um: [f64; 2],
+    pub rotation_deg: f64,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ScanError {
+    #[error("scan point #{index} ({:.3}, {:.3}) mm: {message}; nothing was moved", at[0], at[1])]
+    OutOfLimits {
+        index: usize,
+        at: [f64; 2],
+        message: String,
+    },
+    #[error("scan point #{index} ({:.3}, {:.3}) mm: {source}; the stage was stopped", at[0], at[1])]
+    Point {
+        index: usize,
+        at: [f64; 2],
+        #[source]
+        source: JobError,
+    },
+    #[error("the reference frame: {0}")]
+    Reference(JobError),
+    #[error("the scan journal: {0}; the stage was stopped")]
+    Journal(String),
+    #[error("cancelled by the operator; the stage was told to stop")]
+    Cancelled,
+}
+
+/// Where the final move onto `p` starts from, for an approach from `a` on each axis.
+fn approach_point(p: [f64; 2], dir: errormap::Direction, by_mm: f64) -> [f64; 2] {
+    let side = |a: Approach| match a {
+        Approach::Forward => -by_mm,
+        Approach::Reverse => by_mm,
+    };
+    [p[0] + side(dir.x), p[1] + side(dir.y)]
+}
+
+/// The scan area: the stage's travel less the approach, within the board as the camera
+/// sees it (2 mm in from its edge), machine mm.
+pub fn scan_area(job: &Job, limits: &SoftLimits) -> ([f64; 2], [f64; 2]) {
+    let a = job.policy.approach_mm.max(0.0) + 0.001;
+    let (blo, bhi) = job.board.extent();
+    let z = job.board_at_machine_zero_mm;
+    let lo = [
+        (limits.min_mm[0] + a).max(blo[0] - z[0] + 2.0),
+        (limits.min_mm[1] + a).max(blo[1] - z[1] + 2.0),
+    ];
+    let hi = [
+        (limits.max_mm[0] - a).min(bhi[0] - z[0] - 2.0),
+        (limits.max_mm[1] - a).min(bhi[1] - z[1] - 2.0),
+    ];
+    (lo, hi)
+}
+
+/// Run (or resume) a scan: every plan point not yet in `builder`. Returns the reference
+/// this run measured.
+pub async fn run_scan(
+    job: &Job,
+    devices: &mut Devices,
+    plan: &ScanPlan,
+    builder: &mut MapBuilder,
+    on_sample: &mut dyn FnMut(usize, &Sample) -> Result<(), String>,
+    progress: &mut dyn FnMut(usize, usize),
+    cancel: impl std::future::Future<Output = ()>,
+) -> Result<Reference, ScanError> {
+    let stage = devices.stage.as_mut();
+    let camera = devices.camera.as_mut();
+    // Every point and its approach inside the limits before anything moves.
+    let limits = Orchestrator {
+        stage: &mut *stage,
+        camera: &mut *camera,
+        job,
+    }
+    .limits()
+    .map_err(ScanError::Reference)?;
+    let a = job.policy.approach_mm;
+    for (index, p) in plan.points.iter().enumerate() {
+        for (what, at) in [
+            ("the point", p.command_mm),
+            ("the approach point", approach_point(p.command_mm, p.dir, a)),
+        ] {
+            limits.check(what, at).map_err(|e| ScanError::OutOfLimits {
+                index,
+                at: p.command_mm,
+                message: e.to_string(),
+            })?;
+        }
+    }
+    // Homing, the orientation check and the reference frame: a compensation job of one
+    // target and no correction.
+    let reference_mm = [plan.y_line_at, plan.x_line_at];
+    let z = job.board_at_machine_zero_mm;
+    let mut one = job.clone();
+    one.targets = vec![[reference_mm[0] + z[0], reference_mm[1] + z[1]]];
+    one.policy.max_iterations = 0;
+    let outcome = Orchestrator {
+        stage: &mut *stage,
+        camera: &mut *camera,
+        job: &one,
+    }
+    .run(&mut |_| {})
+    .await
+    .map_err(|f| ScanError::Reference(f.error))?;
+    let first = outcome.completed[0].first().clone();
+    let reference = Reference {
+        command_mm: reference_mm,
+        error_um: first.deviation.um(),
+        rotation_deg: first.observation.rotation_deg,
+    };
+    let total = plan.points.len();
+    let scan = async {
+        for (index, p) in plan.points.iter().enumerate() {
+            if builder.is_done(index) {
+                continue;
+            }
+            tokio::task::yield_now().await;
+            let fail = |source| ScanError::Point {
+                index,
+                at: p.command_mm,
+                source,
+            };
+            let feed = job.feed_mm_min;
+            for at in [approach_point(p.command_mm, p.dir, a), p.command_mm] {
+                stage
+                    .move_to(AxisValues::xy(at[0], at[1]), feed)
+                    .await
+                    .map_err(|e| fail(e.into()))?;
+                stage.wait_idle().await.map_err(|e| fail(e.into()))?;
+            }
+            let frame = camera.grab().await.map_err(|e| fail(e.into()))?;
+            let hint = [p.command_mm[0] + z[0], p.command_mm[1] + z[1]];
+            let mut params = LocalizeParams::with_settings(hint, &job.localize);
+            params.pixel_axes = job.pixel_axes;
+            params.um_per_px = job.um_per_px;
+            let o = drivers::blocking(|| localize(&frame.image, &job.board, &params)).map_err(
+                |source| {
+                    fail(JobError::Localize {
+                        index,
+                        target_mm: hint,
+                        measurement: 0,
+                        source,
+                    })
+                },
+            )?;
+            let sample = Sample {
+                error_um: [
+                    (o.x_mm - hint[0]) * 1000.0 - reference.error_um[0],
+                    (o.y_mm - hint[1]) * 1000.0 - reference.error_um[1],
+                ],
+                yaw_urad: (o.rotation_deg - reference.rotation_deg).to_radians() * 1e6,
+            };
+            builder
+                .record(plan, index, sample)
+                .map_err(|e| ScanError::Journal(e.to_string()))?;
+            on_sample(index, &sample).map_err(ScanError::Journal)?;
+            progress(builder.done(), total);
+        }
+        Ok(())
+    };
+    let result = tokio::select! {
+        r = scan => r,
+        () = cancel => Err(ScanError::Cancelled),
+    };
+    match result {
+        Ok(()) => Ok(reference),
+        Err(e) => {
+            let _ = devices.stage.stop().await;
+            Err(e)
+        }
+    }
+}
