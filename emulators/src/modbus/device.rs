@@ -551,7 +551,9 @@ impl DriveSet {
             Ok(_) => u.active = true,
             Err(MachineRefusal::NotHomed) => u.alarm = Some(p.not_homed_code),
             Err(MachineRefusal::OutOfTravel { .. }) => u.alarm = Some(p.overtravel_code),
-            Err(MachineRefusal::BadFeed(_)) => u.alarm = Some(p.overtravel_code),
+            Err(MachineRefusal::BadFeed(_) | MachineRefusal::BadAccel(_)) => {
+                u.alarm = Some(p.overtravel_code)
+            }
         }
     }
 }
