@@ -1,8 +1,9 @@
 //! The simulated imperfect X-Y stage: the truth every emulated device shares.
 //!
 //! The controller side is what a real controller knows: integer encoder/step counts per
-//! axis, moved along straight lines with a trapezoidal speed profile on a simulated
-//! clock. The physical side is where the carriage (and the camera on it) really is,
+//! axis, moved with trapezoidal speed profiles on a simulated clock: each axis on its
+//! own profile (per-axis drives), or both on one straight line (a coordinated
+//! controller, [`SimMachine::start_move`]). The physical side is where the carriage (and the camera on it) really is,
 //! which differs from the counts as an ordinary ballscrew stage does:
 //!
 //! * ballscrew cumulative lead error within the configured JIS class tolerance (SPEC A
