@@ -6,19 +6,19 @@
 //! capped by 0x607F). The machine's mechanics cannot exceed its own feed and
 //! acceleration: where a demand asks for more, the axis lags, and when the lag passes
 //! the following-error window (0x6065) the drive faults with EMCY 0x8611, as a real
-//! servo drive does. The simulated machine moves both axes along one straight line
-//! ([`SimMachine::start_move`]), so the set re-plans that line whenever a node starts
-//! or stops: from where the machine is to every node's target, timed so that the
-//! slowest axis arrives when its own profile would. A target outside the software
-//! position limits (0x607D), or outside the machine's travel (the limit switch),
-//! faults with EMCY 0x8612.
+//! servo drive does. Each node drives its own machine axis on the axis's own profile
+//! ([`SimMachine::start_axis_move`]), timed so that the axis arrives when the node's
+//! mechanics profile would; a node starting, halting, quick-stopping, faulting or
+//! homing touches its own axis only, and the other axis's move runs on. A target
+//! outside the software position limits (0x607D), or outside the machine's travel
+//! (the limit switch), faults with EMCY 0x8612.
 //!
 //! Time: heartbeats, event timers and inhibit times run on the wall time passed in.
 //! Motion runs on [`Clock::Scaled`] (simulated seconds per wall second) or
 //! [`Clock::Unconstrained`], where a motion completes right after the frames that
 //! reported its start, so tests never wait on wall time for motion.
 //!
-//! [`SimMachine::start_move`]: world::machine::SimMachine::start_move
+//! [`SimMachine::start_axis_move`]: world::machine::SimMachine::start_axis_move
 
 use super::node::{Effect, Homing, Live, Node, HOMING_METHODS};
 use protocol::can::CanFrame;
@@ -390,11 +390,10 @@ impl DriveSet {
 
     /// Run homing and motion for `dt` simulated seconds.
     fn advance(&mut self, dt: f64) {
-        // Homing: the machine already ran it; the drive is busy for as long as it took.
-        let mut homing = false;
+        // Homing: the machine already homed the axis; the drive is busy for as long as
+        // the run back to the switch takes. The other axes' moves run meanwhile.
         for k in 0..self.nodes.len() {
             if let Homing::Running { left_s } = self.nodes[k].homing {
-                homing = true;
                 if left_s <= dt {
                     self.homing_done(k);
                 } else {
@@ -404,19 +403,21 @@ impl DriveSet {
                 }
             }
         }
-        if homing || self.aux.iter().all(|a| a.demand.is_none()) {
+        if self.aux.iter().all(|a| a.demand.is_none()) {
             return;
         }
         let mut left = dt;
         for _ in 0..16 {
             let now_s = lock(&self.rig).machine().now_s();
-            let fault = self.next_fault();
-            match fault {
-                Some((k, at)) if at <= now_s + left => {
-                    let step = (at - now_s).max(0.0);
+            match self.next_event() {
+                Some((at, fault)) if at <= now_s + left => {
+                    let step = ((at - now_s).max(0.0) + fault.map_or(1e-9, |_| 0.0)).min(left);
                     lock(&self.rig).machine_mut().advance(step);
                     left -= step;
-                    self.following_error(k);
+                    if let Some(k) = fault {
+                        self.following_error(k);
+                    }
+                    self.check_completion();
                 }
                 _ => {
                     lock(&self.rig).machine_mut().advance(left);
@@ -443,46 +444,46 @@ impl DriveSet {
                 }
                 return;
             }
-            let fault = self.next_fault();
-            let mut r = lock(&self.rig);
-            match fault {
-                Some((k, at)) => {
-                    // Does the move end before the lag passes the window?
-                    let now_s = r.machine().now_s();
-                    let mut probe = r.machine().clone();
-                    probe.finish_motion();
-                    if at < probe.now_s() {
-                        r.machine_mut().advance((at - now_s).max(0.0));
-                        drop(r);
-                        self.following_error(k);
-                    } else {
-                        r.machine_mut().finish_motion();
-                        drop(r);
-                    }
-                }
-                None => {
-                    r.machine_mut().finish_motion();
-                    drop(r);
+            // The next arrival or following-error fault, in machine time order.
+            if let Some((at, fault)) = self.next_event() {
+                let mut r = lock(&self.rig);
+                let now_s = r.machine().now_s();
+                let step = (at - now_s).max(0.0) + fault.map_or(1e-9, |_| 0.0);
+                r.machine_mut().advance(step);
+                drop(r);
+                if let Some(k) = fault {
+                    self.following_error(k);
                 }
             }
             self.check_completion();
         }
     }
 
-    fn next_fault(&self) -> Option<(usize, f64)> {
+    /// The next thing to happen to a moving node, machine time: its axis arriving
+    /// (`None`), or the lag of a node passing its following-error window before its
+    /// axis arrives (`Some(node)`).
+    fn next_event(&self) -> Option<(f64, Option<usize>)> {
+        let r = lock(&self.rig);
+        let now_s = r.machine().now_s();
         self.aux
             .iter()
             .enumerate()
-            .filter_map(|(k, a)| a.demand.as_ref().and_then(|d| d.fault_at).map(|t| (k, t)))
-            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .filter_map(|(k, a)| {
+                let d = a.demand.as_ref()?;
+                let end = now_s + r.machine().axis_time_left_s(self.nodes[k].axis);
+                Some(match d.fault_at {
+                    Some(at) if at < end => (at, Some(k)),
+                    _ => (end, None),
+                })
+            })
+            .min_by(|a, b| a.0.total_cmp(&b.0))
     }
 
+    /// Nodes whose axis has arrived finish their set-point (and take the next one).
     fn check_completion(&mut self) {
-        if lock(&self.rig).machine().is_moving() {
-            return;
-        }
         for k in 0..self.nodes.len() {
-            if self.aux[k].demand.take().is_some() {
+            let moving = lock(&self.rig).machine().is_axis_moving(self.nodes[k].axis);
+            if !moving && self.aux[k].demand.take().is_some() {
                 self.nodes[k].target_reached = true;
                 if self.nodes[k].state == State::QuickStopActive {
                     self.quick_stop_done(k);
@@ -617,8 +618,8 @@ impl DriveSet {
         }
     }
 
-    /// Slow axis `k` down from its present demand speed at `dec` (counts/s^2) to a stop,
-    /// the rest of the machine re-planned around it.
+    /// Slow axis `k` down from its present demand speed at `dec` (counts/s^2) to a stop;
+    /// the other axes carry on.
     fn ramp_down(&mut self, k: usize, dec: f64) {
         let Some(d) = &self.aux[k].demand else {
             return;
@@ -649,16 +650,18 @@ impl DriveSet {
             fault_at: None,
         });
         self.aux[k].last_target = to;
-        self.replan();
+        self.drive_axis(k);
     }
 
-    /// Stop axis `k` where it is (halt, quick stop, disable, fault) and re-plan the rest.
+    /// Stop axis `k` where it is (halt, quick stop, disable, fault); the other axes
+    /// carry on.
     fn stop_axis(&mut self, k: usize) {
         if self.aux[k].demand.take().is_some() {
             self.nodes[k].target_reached = true;
-            let counts = lock(&self.rig).machine().counts();
-            self.aux[k].last_target = counts[self.nodes[k].axis];
-            self.replan();
+            let axis = self.nodes[k].axis;
+            let mut r = lock(&self.rig);
+            r.machine_mut().stop_axis(axis);
+            self.aux[k].last_target = r.machine().counts()[axis];
         }
     }
 
@@ -681,9 +684,9 @@ impl DriveSet {
         }
         let (from, machine_v, machine_a) = {
             let mut r = lock(&self.rig);
-            if !r.machine().is_homed() {
+            if !r.machine().is_axis_homed(n.axis) {
                 // Not homed: the power-on position is the reference (counts are 0).
-                r.machine_mut().home();
+                r.machine_mut().home_axis(n.axis);
             }
             let c = r.machine().config();
             let a = if n.axis == 0 { &c.axes.x } else { &c.axes.y };
@@ -733,56 +736,41 @@ impl DriveSet {
             mech,
             fault_at,
         });
-        self.replan();
+        self.drive_axis(k);
     }
 
-    /// Move the machine from where it is towards every node's target in one straight
-    /// line, timed by the slowest axis's remaining profile.
-    fn replan(&mut self) {
+    /// Move node `k`'s axis from where it is to the node's target on the axis's own
+    /// profile, timed to arrive when the node's mechanics profile does.
+    fn drive_axis(&mut self, k: usize) {
+        let Some(d) = &self.aux[k].demand else {
+            return;
+        };
+        let axis = self.nodes[k].axis;
         let mut r = lock(&self.rig);
-        r.machine_mut().stop();
-        let cfg = r.machine().config().clone();
-        let cpm = [cfg.axes.x.counts_per_mm, cfg.axes.y.counts_per_mm];
-        let counts = r.machine().counts();
-        let now_s = r.machine().now_s();
-        let mut target = counts;
-        let mut t_left: f64 = 0.0;
-        let mut any = false;
-        for (n, a) in self.nodes.iter().zip(&self.aux) {
-            if let Some(d) = &a.demand {
-                target[n.axis] = d.to;
-                t_left = t_left.max(d.mech.duration() - (now_s - d.t0));
-                any = true;
-            }
-        }
-        if !any || target == counts {
+        let a = r.machine().axis_config(axis).clone();
+        let here = r.machine().counts()[axis];
+        if d.to == here {
+            r.machine_mut().stop_axis(axis);
             return;
         }
-        let here = [counts[0] as f64 / cpm[0], counts[1] as f64 / cpm[1]];
-        let to = [target[0] as f64 / cpm[0], target[1] as f64 / cpm[1]];
-        let length = ((to[0] - here[0]).powi(2) + (to[1] - here[1]).powi(2)).sqrt();
-        let accel = cfg.axes.x.accel_mm_s2.min(cfg.axes.y.accel_mm_s2);
-        let vmax = cfg.axes.x.max_feed_mm_min.min(cfg.axes.y.max_feed_mm_min) / 60.0;
-        // The machine's trapezoid takes L/f + f/a: pick f so that equals t_left.
-        let disc = (accel * t_left).powi(2) - 4.0 * accel * length;
+        let t_left = d.mech.duration() - (r.machine().now_s() - d.t0);
+        let length = (d.to - here).abs() as f64 / a.counts_per_mm;
+        let vmax = a.max_feed_mm_min / 60.0;
+        // The axis's trapezoid takes L/f + f/a: pick f so that equals t_left.
+        let disc = (a.accel_mm_s2 * t_left).powi(2) - 4.0 * a.accel_mm_s2 * length;
         let feed = if t_left > 0.0 && disc >= 0.0 {
-            ((accel * t_left - disc.sqrt()) / 2.0).clamp(1e-6, vmax)
+            ((a.accel_mm_s2 * t_left - disc.sqrt()) / 2.0).clamp(1e-6, vmax)
         } else {
             vmax
         };
-        match r.machine_mut().start_move(to, feed * 60.0) {
-            Ok(_) => {}
-            Err(MachineRefusal::OutOfTravel { .. }) => {
-                drop(r);
-                // The carriage would hit the limit switch.
-                for k in 0..self.nodes.len() {
-                    if self.aux[k].demand.is_some() {
-                        self.nodes[k].internal_limit = true;
-                        self.fault(k, codes::REFERENCE_LIMIT);
-                    }
-                }
-            }
-            Err(_) => {}
+        let to = d.to as f64 / a.counts_per_mm;
+        if let Err(MachineRefusal::OutOfTravel { .. }) =
+            r.machine_mut().start_axis_move(axis, to, feed * 60.0)
+        {
+            drop(r);
+            // The carriage would hit the limit switch.
+            self.nodes[k].internal_limit = true;
+            self.fault(k, codes::REFERENCE_LIMIT);
         }
     }
 
@@ -805,48 +793,17 @@ impl DriveSet {
 
     // ------------------------------------------------------------------ homing
 
+    /// Home node `k`'s axis alone (the machine takes the switch as the axis's zero, a
+    /// new homing error drawn for it); the drive is busy for as long as the run back
+    /// to the switch takes, and the other axes' moves run on.
     fn start_homing(&mut self, k: usize) {
         let method = self.nodes[k].int(obj::HOMING_METHOD, 0) as i8;
-        let axis = self.nodes[k].axis;
-        let other_busy = self
-            .aux
-            .iter()
-            .enumerate()
-            .any(|(j, a)| j != k && a.demand.is_some());
-        if !HOMING_METHODS.contains(&method) || other_busy {
+        if !HOMING_METHODS.contains(&method) {
             self.nodes[k].homing = Homing::Error;
             return;
         }
         self.stop_axis(k);
-        let took = {
-            let mut r = lock(&self.rig);
-            r.machine_mut().stop();
-            let other = r.machine().counts()[1 - axis];
-            let t0 = r.machine().now_s();
-            if !r.machine().is_homed() || other == 0 {
-                // The simulated machine homes both axes together; the other axis is at
-                // its zero already, so only this one visibly moves.
-                r.machine_mut().home();
-                r.machine().now_s() - t0
-            } else {
-                // Re-homing one axis while the other is away from zero: run this axis
-                // back to its switch (zero) without disturbing the other.
-                let mut to = r.machine().position_mm();
-                to[axis] = 0.0;
-                let feed = r.machine().config().axes.x.max_feed_mm_min;
-                match r.machine_mut().start_move(to, feed) {
-                    Ok(_) => {
-                        r.machine_mut().finish_motion();
-                        r.machine().now_s() - t0
-                    }
-                    Err(_) => {
-                        drop(r);
-                        self.nodes[k].homing = Homing::Error;
-                        return;
-                    }
-                }
-            }
-        };
+        let took = lock(&self.rig).machine_mut().home_axis(self.nodes[k].axis);
         self.nodes[k].homing = Homing::Running {
             left_s: if self.clock == Clock::Unconstrained {
                 0.0
@@ -1194,7 +1151,10 @@ mod tests {
             0x1400,
             "homing attained and target reached: {sw:#06x}"
         );
-        assert!(lock(&h.set.rig).machine().is_homed());
+        // Node 1 homed its own axis (X) alone.
+        let m = lock(&h.set.rig);
+        assert!(m.machine().is_axis_homed(0) && !m.machine().is_axis_homed(1));
+        drop(m);
         // The TPDO showed homing in progress before it was attained.
         let sws: Vec<u16> = h
             .seen
@@ -1216,5 +1176,79 @@ mod tests {
         let tri = Trapezoid::new(1.0, 10.0, 2.0, 2.0);
         assert!((tri.duration() - 2.0 * 0.5f64.sqrt()).abs() < 1e-9);
         assert!((tri.at(tri.duration() / 2.0) - 0.5).abs() < 1e-9);
+    }
+
+    /// Nodes 1 and 2 enabled on a scaled clock, both sent on long moves; then `act` on
+    /// node 1 half a second in. Node 2 must follow its own profile throughout (within
+    /// a few counts) and arrive at its target; returns the host and node 1's position.
+    fn node_2_runs_on_while(act: impl FnOnce(&mut Host)) -> (Host, i64) {
+        let mut h = Host::with_clock(Clock::Scaled(1.0));
+        h.enable(1);
+        h.enable(2);
+        h.move_to(1, 300_000);
+        h.move_to(2, 250_000);
+        let d = h.set.aux[1].demand.clone().expect("node 2 moving");
+        let own = |h: &Host| {
+            let now = lock(&h.set.rig).machine().now_s();
+            d.from as f64 + d.mech.at(now - d.t0)
+        };
+        let check = |h: &Host, what: &str| {
+            let y = lock(&h.set.rig).machine().counts()[1] as f64;
+            assert!(
+                (y - own(h)).abs() <= 3.0,
+                "{what}: node 2 at {y}, its own profile at {}",
+                own(h)
+            );
+        };
+        for _ in 0..10 {
+            h.t += 0.05;
+            h.set.poll(h.t);
+            check(&h, "before");
+        }
+        act(&mut h);
+        check(&h, "at the stop of node 1");
+        for _ in 0..100 {
+            h.t += 0.05;
+            h.set.poll(h.t);
+            check(&h, "after");
+        }
+        h.settle();
+        assert_eq!(lock(&h.set.rig).machine().counts()[1], 250_000);
+        let (sw, pos) = h.tpdo2(2).unwrap();
+        assert_eq!((sw & 0x0400, pos), (0x0400, 250_000), "node 2 reached");
+        let x = lock(&h.set.rig).machine().counts()[0];
+        (h, x)
+    }
+
+    #[test]
+    fn a_halt_of_one_node_leaves_the_others_move_running_to_its_target() {
+        let (h, x) = node_2_runs_on_while(|h| {
+            h.send(CanFrame::std(0x201, &[0x0F, 0x01, 1]));
+        });
+        assert!(x > 0 && x < 100_000, "node 1 halted at {x}");
+        assert_eq!(h.set.node_state(1).unwrap().0, State::OperationEnabled);
+    }
+
+    #[test]
+    fn a_quick_stop_of_one_node_leaves_the_others_move_running_to_its_target() {
+        let (h, x) = node_2_runs_on_while(|h| {
+            h.send(CanFrame::std(0x201, &[0x02, 0, 1]));
+        });
+        assert!(x > 0 && x < 100_000, "node 1 stopped at {x}");
+        assert_eq!(h.set.node_state(1).unwrap().0, State::SwitchOnDisabled);
+    }
+
+    #[test]
+    fn homing_one_node_leaves_the_others_move_running_to_its_target() {
+        let (h, x) = node_2_runs_on_while(|h| {
+            assert_eq!(h.write(1, 0x6060, 0, &[6]), ClientStep::Downloaded);
+            h.send(CanFrame::std(0x201, &[0x0F, 0, 6]));
+            h.send(CanFrame::std(0x201, &[0x1F, 0, 6]));
+        });
+        assert_eq!(x, 0, "node 1 back at its switch");
+        let sw = h.set.node_state(1).unwrap().1;
+        assert_eq!(sw & 0x3400, 0x1400, "node 1 homing attained: {sw:#06x}");
+        let m = lock(&h.set.rig);
+        assert!(m.machine().is_axis_homed(0) && m.machine().is_axis_homed(1));
     }
 }

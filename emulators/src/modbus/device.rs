@@ -11,8 +11,11 @@
 //! * functions other than 3, 4, 6 and 16 get exception 01 (illegal function); bad
 //!   quantities, a trigger or command value the profile does not know, or a move with
 //!   no speed get exception 03 (illegal data value), and nothing is written;
-//! * writing the move block's trigger value starts an absolute move of the unit's axis
-//!   (the other axis keeps going to its own target), counted in [`ModbusStats`];
+//! * each unit is an independent drive of its own axis: writing the move block's
+//!   trigger value starts an absolute move of the unit's axis alone, on the axis's own
+//!   profile (speed, and the gentler of acceleration and deceleration, from the block,
+//!   bounded by the machine axis's limits), counted in [`ModbusStats`]; home, stop and
+//!   alarms act on the unit's own axis, and the other axis carries on;
 //! * commands act on their rising edge (profiles with `release`) or on every write of
 //!   their value (trigger-register style);
 //! * a move before homing or beyond the travel puts the unit in alarm with the
@@ -215,9 +218,9 @@ impl DriveSet {
                 u.homing_left_s = (u.homing_left_s - dt).max(0.0);
             }
         }
-        let moving = lock(&self.rig).machine().is_moving();
-        if !moving {
-            for u in &mut self.units {
+        let r = lock(&self.rig);
+        for u in &mut self.units {
+            if !r.machine().is_axis_moving(u.axis.index()) {
                 u.active = false;
             }
         }
@@ -351,7 +354,7 @@ impl DriveSet {
         let (homed, counts) = {
             let r = lock(&self.rig);
             (
-                r.machine().is_homed(),
+                r.machine().is_axis_homed(u.axis.index()),
                 self.profile
                     .counts(r.machine().position_mm()[u.axis.index()]),
             )
@@ -475,7 +478,7 @@ impl DriveSet {
         for a in actions {
             match a {
                 Action::Home => self.home(k),
-                Action::Stop => self.stop(),
+                Action::Stop => self.stop(k),
                 Action::AlarmReset => {
                     self.units[k].alarm = None;
                     self.stats.alarm_resets += 1;
@@ -488,15 +491,12 @@ impl DriveSet {
         Ok(())
     }
 
+    /// Home this unit's axis alone; the drive is busy for as long as the run back to
+    /// the switch takes. Units on other axes are not touched.
     fn home(&mut self, k: usize) {
-        let took = {
-            let mut r = lock(&self.rig);
-            r.machine_mut().stop();
-            let t0 = r.machine().now_s();
-            r.machine_mut().home();
-            r.machine().now_s() - t0
-        };
-        for u in &mut self.units {
+        let axis = self.units[k].axis;
+        let took = lock(&self.rig).machine_mut().home_axis(axis.index());
+        for u in self.units.iter_mut().filter(|u| u.axis == axis) {
             u.active = false;
             u.target = None;
         }
@@ -504,9 +504,11 @@ impl DriveSet {
         self.stats.homings += 1;
     }
 
-    fn stop(&mut self) {
-        lock(&self.rig).machine_mut().stop();
-        for u in &mut self.units {
+    /// Stop this unit's axis where it is; the other axis's move carries on.
+    fn stop(&mut self, k: usize) {
+        let axis = self.units[k].axis;
+        lock(&self.rig).machine_mut().stop_axis(axis.index());
+        for u in self.units.iter_mut().filter(|u| u.axis == axis) {
             u.active = false;
         }
         self.stats.stops += 1;
@@ -531,27 +533,35 @@ impl DriveSet {
             Some(s) => p.mechanics.from_register(s.unit, word(&s.reg) as f64),
             None => p.max_speed_mm_min / 60.0,
         };
-        let axis = u.axis.index();
-        let mut to = lock(&self.rig).machine().position_mm();
-        // The other axis keeps heading for its own target.
-        for o in &self.units {
-            if o.active && o.axis != u.axis {
-                if let Some(t) = o.target {
-                    to[o.axis.index()] = p.mm(t);
-                }
-            }
+        // The drive's own ramp (the gentler of acceleration and deceleration, as the
+        // machine's axis profile is symmetric), the profile's where the block has none.
+        let ramp = |r: &Option<protocol::modbus::profile::Scaled>, default: f64| {
+            r.as_ref()
+                .map(|s| p.mechanics.from_register(s.unit, word(&s.reg) as f64))
+                .filter(|a| a.is_finite() && *a > 0.0)
+                .unwrap_or(default)
+        };
+        let accel = ramp(&p.motion.accel, p.accel_mm_s2).min(ramp(&p.motion.decel, p.decel_mm_s2));
+        let axis = u.axis;
+        // This axis alone, on its own profile: the other axis carries on.
+        let result = lock(&self.rig).machine_mut().start_axis_move_accel(
+            axis.index(),
+            p.mm(target),
+            speed_mm_s * 60.0,
+            accel,
+        );
+        for o in self.units.iter_mut().filter(|o| o.axis == axis) {
+            o.active = false;
         }
-        to[axis] = p.mm(target);
-        let result = lock(&self.rig)
-            .machine_mut()
-            .start_move(to, speed_mm_s * 60.0);
         let u = &mut self.units[k];
         u.target = Some(target);
         match result {
             Ok(_) => u.active = true,
             Err(MachineRefusal::NotHomed) => u.alarm = Some(p.not_homed_code),
             Err(MachineRefusal::OutOfTravel { .. }) => u.alarm = Some(p.overtravel_code),
-            Err(MachineRefusal::BadFeed(_)) => u.alarm = Some(p.overtravel_code),
+            Err(MachineRefusal::BadFeed(_) | MachineRefusal::BadAccel(_)) => {
+                u.alarm = Some(p.overtravel_code)
+            }
         }
     }
 }
@@ -665,5 +675,139 @@ mod tests {
             Some(vec![4, 2, 0, 0x15]),
             "ready + in position + home done"
         );
+    }
+
+    fn drives_on(clock: Clock) -> DriveSet {
+        let mut d = drives();
+        d.clock = clock;
+        d
+    }
+
+    fn command(d: &mut DriveSet, unit: u8, bit: u16, now: f64) {
+        for value in [bit, 0] {
+            let w = Req::WriteSingle {
+                address: 0x0010,
+                value,
+            }
+            .encode();
+            assert_eq!(d.handle(unit, &w, now), Some(w.clone()));
+        }
+    }
+
+    /// The move block (target counts, speed counts/s, accel = decel counts/s²) and the
+    /// trigger in one write.
+    fn move_to(d: &mut DriveSet, unit: u8, counts: i32, speed: u32, now: f64) {
+        let hi_lo = |v: u32| [(v >> 16) as u16, v as u16];
+        let mut values = Vec::new();
+        values.extend(hi_lo(counts as u32));
+        values.extend(hi_lo(speed));
+        values.extend(hi_lo(1_600_000));
+        values.extend(hi_lo(1_600_000));
+        values.push(1);
+        let w = Req::WriteMultiple { address: 0, values }.encode();
+        assert_eq!(d.handle(unit, &w, now).unwrap()[0], 0x10, "move of {unit}");
+    }
+
+    /// Status word, position (counts) and alarm code of a unit.
+    fn status(d: &mut DriveSet, unit: u8, now: f64) -> (u16, i32, u16) {
+        let r = Req::ReadInput {
+            address: 0x0020,
+            count: 4,
+        }
+        .encode();
+        let b = d.handle(unit, &r, now).unwrap();
+        assert_eq!(&b[..2], &[4, 8]);
+        let w = |i: usize| u16::from_be_bytes([b[2 + 2 * i], b[3 + 2 * i]]);
+        (
+            w(0),
+            ((u32::from(w(1)) << 16) | u32::from(w(2))) as i32,
+            w(3),
+        )
+    }
+
+    const HOME: u16 = 0x0001;
+    const STOP: u16 = 0x0002;
+    const ALARM_RESET: u16 = 0x0004;
+    const HOME_DONE: u16 = 0x0010;
+    const BUSY: u16 = 0x0002;
+    const ALARM: u16 = 0x0008;
+
+    #[test]
+    fn homing_one_unit_leaves_the_other_not_homed() {
+        let mut d = drives();
+        command(&mut d, 1, HOME, 0.0);
+        assert_ne!(status(&mut d, 1, 0.0).0 & HOME_DONE, 0);
+        assert_ne!(status(&mut d, 1, 0.0).0 & HOME_DONE, 0);
+        assert_eq!(
+            status(&mut d, 2, 0.0).0 & HOME_DONE,
+            0,
+            "unit 2 never homed"
+        );
+        // Its move is refused as a drive that is not homed refuses it.
+        move_to(&mut d, 2, 10_000, 20_000, 0.0);
+        let (sw, pos, code) = status(&mut d, 2, 0.0);
+        assert_ne!(sw & ALARM, 0);
+        assert_eq!((pos, code), (0, 0x0102));
+        command(&mut d, 2, HOME, 0.0);
+        assert_ne!(status(&mut d, 2, 0.0).0 & HOME_DONE, 0);
+    }
+
+    #[test]
+    fn a_stop_to_one_unit_leaves_the_others_move_running_to_its_target() {
+        let mut d = drives_on(Clock::Scaled(1.0));
+        command(&mut d, 1, HOME, 0.0);
+        command(&mut d, 2, HOME, 0.0);
+        let t = 10.0; // both homings over
+        move_to(&mut d, 1, 200_000, 20_000, t);
+        move_to(&mut d, 2, 200_000, 20_000, t);
+        command(&mut d, 1, STOP, t + 2.0);
+        let (sw1, x, _) = status(&mut d, 1, t + 2.0);
+        assert_eq!(sw1 & BUSY, 0, "unit 1 stopped");
+        assert!(x > 20_000 && x < 200_000, "{x}");
+        let (sw2, y, _) = status(&mut d, 2, t + 2.0);
+        assert_ne!(sw2 & BUSY, 0, "unit 2 still moving: {sw2:#06x} at {y}");
+        let (sw2, y, _) = status(&mut d, 2, t + 30.0);
+        assert_eq!((sw2 & BUSY, y), (0, 200_000), "unit 2 arrived");
+        assert_eq!(status(&mut d, 1, t + 30.0).1, x, "unit 1 stayed");
+    }
+
+    #[test]
+    fn each_unit_moves_at_its_own_speed() {
+        let mut d = drives_on(Clock::Scaled(1.0));
+        command(&mut d, 1, HOME, 0.0);
+        command(&mut d, 2, HOME, 0.0);
+        let t = 10.0;
+        // Unit 2 at 10 mm/s, then unit 1 at 1 mm/s: unit 2 keeps its own speed.
+        move_to(&mut d, 2, 200_000, 20_000, t);
+        move_to(&mut d, 1, 200_000, 2_000, t);
+        let (_, y, _) = status(&mut d, 2, t + 2.0);
+        let (_, x, _) = status(&mut d, 1, t + 2.0);
+        assert!((39_000..=40_000).contains(&y), "unit 2 at 10 mm/s: {y}");
+        assert!((3_900..=4_000).contains(&x), "unit 1 at 1 mm/s: {x}");
+    }
+
+    #[test]
+    fn an_alarm_on_one_unit_leaves_the_other_moving() {
+        let mut d = drives_on(Clock::Scaled(1.0));
+        command(&mut d, 2, HOME, 0.0);
+        let t = 10.0;
+        move_to(&mut d, 2, 100_000, 20_000, t);
+        // Unit 1 was never homed: its move puts it in alarm.
+        move_to(&mut d, 1, 10_000, 20_000, t + 1.0);
+        let (sw1, _, code) = status(&mut d, 1, t + 1.0);
+        assert_ne!(sw1 & ALARM, 0);
+        assert_eq!(code, 0x0102);
+        // A move beyond the travel: overtravel, and still unit 2 goes on.
+        command(&mut d, 1, ALARM_RESET, t + 1.0);
+        command(&mut d, 1, HOME, t + 1.0);
+        move_to(&mut d, 1, 500_000, 20_000, t + 2.5);
+        assert_eq!(status(&mut d, 1, t + 2.5).2, 0x0101);
+        assert_ne!(
+            status(&mut d, 2, t + 2.5).0 & BUSY,
+            0,
+            "unit 2 still moving"
+        );
+        let (sw2, y, _) = status(&mut d, 2, t + 20.0);
+        assert_eq!((sw2 & (BUSY | ALARM), y), (0, 100_000));
     }
 }

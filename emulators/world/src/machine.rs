@@ -1,8 +1,9 @@
 //! The simulated imperfect X-Y stage: the truth every emulated device shares.
 //!
 //! The controller side is what a real controller knows: integer encoder/step counts per
-//! axis, moved along straight lines with a trapezoidal speed profile on a simulated
-//! clock. The physical side is where the carriage (and the camera on it) really is,
+//! axis, moved with trapezoidal speed profiles on a simulated clock: each axis on its
+//! own profile (per-axis drives), or both on one straight line (a coordinated
+//! controller, [`SimMachine::start_move`]). The physical side is where the carriage (and the camera on it) really is,
 //! which differs from the counts as an ordinary ballscrew stage does:
 //!
 //! * ballscrew cumulative lead error within the configured JIS class tolerance (SPEC A
@@ -339,22 +340,18 @@ struct AxisState {
     settle_um: f64,
 }
 
-/// A straight-line move in progress on the simulated clock.
-#[derive(Clone, Debug)]
-struct Motion {
-    from: [f64; 2],
-    to: [f64; 2],
+/// A trapezoidal speed profile along a path of `length` mm (a triangle when the path
+/// is too short to reach the feed), from rest to rest.
+#[derive(Clone, Debug, PartialEq)]
+struct PathProfile {
     length: f64,
     v: f64,
     a: f64,
-    elapsed: f64,
     duration: f64,
 }
 
-impl Motion {
-    fn new(from: [f64; 2], to: [f64; 2], feed_mm_s: f64, accel: f64) -> Self {
-        let length = ((to[0] - from[0]).powi(2) + (to[1] - from[1]).powi(2)).sqrt();
-        // Trapezoid (or triangle when the move is too short to reach the feed).
+impl PathProfile {
+    fn new(length: f64, feed_mm_s: f64, accel: f64) -> Self {
         let t_acc = feed_mm_s / accel;
         let d_acc = 0.5 * accel * t_acc * t_acc;
         let (v, duration) = if 2.0 * d_acc >= length {
@@ -364,12 +361,9 @@ impl Motion {
             (feed_mm_s, 2.0 * t_acc + (length - 2.0 * d_acc) / feed_mm_s)
         };
         Self {
-            from,
-            to,
             length,
             v,
             a: accel,
-            elapsed: 0.0,
             duration,
         }
     }
@@ -404,16 +398,42 @@ impl Motion {
             self.a * (self.duration - t)
         }
     }
+}
 
-    fn point_at(&self, t: f64) -> [f64; 2] {
-        if self.length == 0.0 {
+/// One axis's move in progress on the simulated clock: the axis goes from `from` to
+/// `to` in proportion to the distance covered along its path. For a move of this axis
+/// alone the path is the axis's own travel (`length = |to - from|`); for a coordinated
+/// move ([`SimMachine::start_move`]) every axis shares the straight line's profile
+/// (`length` = the line's length), so they keep to the line and arrive together.
+#[derive(Clone, Debug)]
+struct AxisMotion {
+    from: f64,
+    to: f64,
+    path: PathProfile,
+    elapsed: f64,
+    /// The move this profile belongs to: axes of one coordinated move share it.
+    group: u64,
+}
+
+impl AxisMotion {
+    fn point_at(&self, t: f64) -> f64 {
+        if self.path.length == 0.0 {
             return self.to;
         }
-        let f = self.distance_at(t) / self.length;
-        [
-            self.from[0] + f * (self.to[0] - self.from[0]),
-            self.from[1] + f * (self.to[1] - self.from[1]),
-        ]
+        let f = self.path.distance_at(t) / self.path.length;
+        self.from + f * (self.to - self.from)
+    }
+
+    /// This axis's speed after `t` seconds, mm/s.
+    fn speed_at(&self, t: f64) -> f64 {
+        if self.path.length == 0.0 {
+            return 0.0;
+        }
+        self.path.speed_at(t) * (self.to - self.from).abs() / self.path.length
+    }
+
+    fn left(&self) -> f64 {
+        self.path.duration - self.elapsed
     }
 }
 
@@ -430,20 +450,30 @@ pub enum MachineRefusal {
     NotHomed,
     #[error("feed {0} mm/min is not positive")]
     BadFeed(f64),
+    #[error("acceleration {0} mm/s² is not positive")]
+    BadAccel(f64),
 }
 
 /// The simulated machine. Deterministic for a given config (seed).
+///
+/// Motion is per axis: each axis has its own optional profile and its own homed flag,
+/// so drives of one axis each ([`SimMachine::start_axis_move`],
+/// [`SimMachine::stop_axis`], [`SimMachine::home_axis`]) move, stop and home
+/// independently. A coordinated controller's straight line
+/// ([`SimMachine::start_move`]) is every axis on the line's one profile.
 #[derive(Clone, Debug)]
 pub struct SimMachine {
     cfg: MachineConfig,
     rng: Rng,
     errors: [AxisErrors; 2],
     axes: [AxisState; 2],
-    motion: Option<Motion>,
-    homed: bool,
+    motion: [Option<AxisMotion>; 2],
+    homed: [bool; 2],
     /// Simulated seconds since power-on.
     now_s: f64,
     homings: u32,
+    /// Moves started so far (each coordinated move counts once): the group of the next.
+    moves: u64,
 }
 
 impl SimMachine {
@@ -465,10 +495,11 @@ impl SimMachine {
             rng,
             errors,
             axes: [axis.clone(), axis],
-            motion: None,
-            homed: false,
+            motion: [None, None],
+            homed: [false, false],
             now_s: 0.0,
             homings: 0,
+            moves: 0,
         }
     }
 
@@ -476,11 +507,16 @@ impl SimMachine {
         &self.cfg
     }
 
+    /// The configuration of axis `k` (0 = X, 1 = Y). Panics on another index.
+    pub fn axis_config(&self, k: usize) -> &AxisConfig {
+        self.axis_cfg(k)
+    }
+
     fn axis_cfg(&self, k: usize) -> &AxisConfig {
-        if k == 0 {
-            &self.cfg.axes.x
-        } else {
-            &self.cfg.axes.y
+        match k {
+            0 => &self.cfg.axes.x,
+            1 => &self.cfg.axes.y,
+            _ => panic!("the machine has axes 0 (X) and 1 (Y), not {k}"),
         }
     }
 
@@ -488,14 +524,25 @@ impl SimMachine {
         self.now_s
     }
 
+    /// Both axes homed.
     pub fn is_homed(&self) -> bool {
-        self.homed
+        self.homed.iter().all(|h| *h)
     }
 
+    pub fn is_axis_homed(&self, k: usize) -> bool {
+        self.homed[k]
+    }
+
+    /// Any axis moving.
     pub fn is_moving(&self) -> bool {
-        self.motion.is_some()
+        self.motion.iter().any(Option::is_some)
     }
 
+    pub fn is_axis_moving(&self, k: usize) -> bool {
+        self.motion[k].is_some()
+    }
+
+    /// Homings so far (of both axes or of one).
     pub fn homings(&self) -> u32 {
         self.homings
     }
@@ -514,57 +561,86 @@ impl SimMachine {
     }
 
     /// Home both axes: approach the switches from the negative side, take the trip point
-    /// (a new random homing error each time) as machine zero. Takes simulated time.
+    /// (a new random homing error each time) as machine zero. Takes simulated time (the
+    /// clock runs on by the longer axis's run back to its switch).
     pub fn home(&mut self) {
         let from = self.position_mm();
         let dist = from[0].abs().max(from[1].abs());
         self.now_s += 1.0 + dist / (self.cfg.axes.x.max_feed_mm_min / 60.0);
         for k in 0..2 {
-            let sigma = self.axis_cfg(k).homing_repeatability_um;
-            let h = self.rng.normal() * sigma / 1000.0;
-            let st = &mut self.axes[k];
-            st.counts = 0;
-            st.home_offset_mm = h;
-            // The switch is reached moving negative, then the axis backs off positive
-            // to zero: the nut ends pushing the carriage from the negative side.
-            let b = self.axis_cfg(k).backlash_um / 1000.0;
-            let n = self.nut_mm(k, 0);
-            self.axes[k].carriage_mm = n - b / 2.0;
-            self.axes[k].settle_um = 0.0;
+            self.set_home(k);
         }
-        self.motion = None;
-        self.homed = true;
+        self.motion = [None, None];
         self.homings += 1;
     }
 
-    /// Start a straight-line move to a controller position (mm, machine coordinates).
-    /// The position is quantised to counts as a real controller does.
+    /// Home axis `k` alone, as a drive of that axis does: its move (if any) ends, a new
+    /// homing error is drawn for this axis only, its counts become 0 and it is homed;
+    /// the other axis is untouched (it keeps moving, homed or not). The clock does not
+    /// run here: the return value is how long the run back to the switch takes
+    /// (1 s + the distance at the axis's maximum feed), for the drive to stay busy
+    /// that long on its own clock.
+    pub fn home_axis(&mut self, k: usize) -> f64 {
+        let a = self.axis_cfg(k);
+        let took = 1.0 + self.position_mm()[k].abs() / (a.max_feed_mm_min / 60.0);
+        self.motion[k] = None;
+        self.set_home(k);
+        self.homings += 1;
+        took
+    }
+
+    /// Axis `k` at its switch: draw its homing error, counts 0, the nut pushing the
+    /// carriage from the negative side, homed.
+    fn set_home(&mut self, k: usize) {
+        let sigma = self.axis_cfg(k).homing_repeatability_um;
+        let h = self.rng.normal() * sigma / 1000.0;
+        let st = &mut self.axes[k];
+        st.counts = 0;
+        st.home_offset_mm = h;
+        // The switch is reached moving negative, then the axis backs off positive
+        // to zero: the nut ends pushing the carriage from the negative side.
+        let b = self.axis_cfg(k).backlash_um / 1000.0;
+        let n = self.nut_mm(k, 0);
+        self.axes[k].carriage_mm = n - b / 2.0;
+        self.axes[k].settle_um = 0.0;
+        self.homed[k] = true;
+    }
+
+    /// Check a target of axis `k` against the travel; the target quantised to counts.
+    fn checked_target(&self, k: usize, target_mm: f64) -> Result<f64, MachineRefusal> {
+        let a = self.axis_cfg(k);
+        if !(target_mm >= 0.0 && target_mm <= a.travel_mm) {
+            return Err(MachineRefusal::OutOfTravel {
+                axis: ['X', 'Y'][k],
+                target_mm,
+                travel_mm: a.travel_mm,
+            });
+        }
+        Ok((target_mm * a.counts_per_mm).round() / a.counts_per_mm)
+    }
+
+    /// Start a coordinated straight-line move to a controller position (mm, machine
+    /// coordinates), as a coordinated controller (GRBL) does: both axes on one
+    /// trapezoid along the line (feed and acceleration the lower of the two axes'),
+    /// so they keep to the line and arrive together. A move in progress is first run
+    /// to its end. The position is quantised to counts as a real controller does.
+    /// Returns the move's duration, s.
     pub fn start_move(
         &mut self,
         target_mm: [f64; 2],
         feed_mm_min: f64,
     ) -> Result<f64, MachineRefusal> {
-        if !self.homed {
+        if !self.is_homed() {
             return Err(MachineRefusal::NotHomed);
         }
         if !(feed_mm_min.is_finite() && feed_mm_min > 0.0) {
             return Err(MachineRefusal::BadFeed(feed_mm_min));
         }
-        for (k, name) in [(0, 'X'), (1, 'Y')] {
-            let travel = self.axis_cfg(k).travel_mm;
-            if !(target_mm[k] >= 0.0 && target_mm[k] <= travel) {
-                return Err(MachineRefusal::OutOfTravel {
-                    axis: name,
-                    target_mm: target_mm[k],
-                    travel_mm: travel,
-                });
-            }
-        }
-        self.finish_motion();
         let to = [
-            (target_mm[0] * self.cfg.axes.x.counts_per_mm).round() / self.cfg.axes.x.counts_per_mm,
-            (target_mm[1] * self.cfg.axes.y.counts_per_mm).round() / self.cfg.axes.y.counts_per_mm,
+            self.checked_target(0, target_mm[0])?,
+            self.checked_target(1, target_mm[1])?,
         ];
+        self.finish_motion();
         let feed = (feed_mm_min.min(
             self.cfg
                 .axes
@@ -573,67 +649,168 @@ impl SimMachine {
                 .min(self.cfg.axes.y.max_feed_mm_min),
         )) / 60.0;
         let accel = self.cfg.axes.x.accel_mm_s2.min(self.cfg.axes.y.accel_mm_s2);
-        let m = Motion::new(self.position_mm(), to, feed, accel);
-        let d = m.duration;
-        self.motion = Some(m);
+        let from = self.position_mm();
+        let length = ((to[0] - from[0]).powi(2) + (to[1] - from[1]).powi(2)).sqrt();
+        let path = PathProfile::new(length, feed, accel);
+        let d = path.duration;
+        self.moves += 1;
+        for k in 0..2 {
+            self.motion[k] = Some(AxisMotion {
+                from: from[k],
+                to: to[k],
+                path: path.clone(),
+                elapsed: 0.0,
+                group: self.moves,
+            });
+        }
         Ok(d)
     }
 
-    /// Advance the simulated clock; motion progresses, the carriage follows the nut.
+    /// Start a move of axis `k` alone to `target_mm` (quantised to counts) at up to
+    /// `feed_mm_min` (bounded by the axis's maximum feed), accelerating at the axis's
+    /// own acceleration, from rest where the axis is now (a move of this axis in
+    /// progress is replaced; the other axis carries on). Returns the duration, s.
+    pub fn start_axis_move(
+        &mut self,
+        k: usize,
+        target_mm: f64,
+        feed_mm_min: f64,
+    ) -> Result<f64, MachineRefusal> {
+        let accel = self.axis_cfg(k).accel_mm_s2;
+        self.start_axis_move_accel(k, target_mm, feed_mm_min, accel)
+    }
+
+    /// [`SimMachine::start_axis_move`] accelerating and decelerating at `accel_mm_s2`
+    /// (bounded by the axis's own acceleration): a drive's own ramp.
+    pub fn start_axis_move_accel(
+        &mut self,
+        k: usize,
+        target_mm: f64,
+        feed_mm_min: f64,
+        accel_mm_s2: f64,
+    ) -> Result<f64, MachineRefusal> {
+        if !self.homed[k] {
+            return Err(MachineRefusal::NotHomed);
+        }
+        if !(feed_mm_min.is_finite() && feed_mm_min > 0.0) {
+            return Err(MachineRefusal::BadFeed(feed_mm_min));
+        }
+        if !(accel_mm_s2.is_finite() && accel_mm_s2 > 0.0) {
+            return Err(MachineRefusal::BadAccel(accel_mm_s2));
+        }
+        let to = self.checked_target(k, target_mm)?;
+        let a = self.axis_cfg(k);
+        let feed = feed_mm_min.min(a.max_feed_mm_min) / 60.0;
+        let accel = accel_mm_s2.min(a.accel_mm_s2);
+        let from = self.position_mm()[k];
+        let path = PathProfile::new((to - from).abs(), feed, accel);
+        let d = path.duration;
+        self.moves += 1;
+        self.motion[k] = Some(AxisMotion {
+            from,
+            to,
+            path,
+            elapsed: 0.0,
+            group: self.moves,
+        });
+        Ok(d)
+    }
+
+    /// Advance the simulated clock; every axis's motion progresses, the carriages
+    /// follow the nuts. An axis arriving gets its settling noise.
     pub fn advance(&mut self, dt_s: f64) {
         let dt = dt_s.max(0.0);
         self.now_s += dt;
-        let Some(mut m) = self.motion.take() else {
-            return;
-        };
-        m.elapsed += dt;
-        let p = m.point_at(m.elapsed);
-        self.set_counts_from_mm(p);
-        if m.elapsed >= m.duration {
-            for k in 0..2 {
+        for k in 0..2 {
+            let Some(mut m) = self.motion[k].take() else {
+                continue;
+            };
+            m.elapsed += dt;
+            let p = m.point_at(m.elapsed);
+            self.set_axis_counts_from_mm(k, p);
+            if m.elapsed >= m.path.duration {
                 let s = self.axis_cfg(k).settle_noise_um;
                 self.axes[k].settle_um = self.rng.normal() * s;
+            } else {
+                self.motion[k] = Some(m);
             }
-        } else {
-            self.motion = Some(m);
         }
     }
 
-    /// Run the current move to its end (advancing the clock by the rest of its time).
+    /// Run every move in progress to its end (advancing the clock by the longest rest).
     pub fn finish_motion(&mut self) {
-        if let Some(m) = &self.motion {
-            let rest = m.duration - m.elapsed;
+        let rest = self
+            .motion
+            .iter()
+            .flatten()
+            .map(AxisMotion::left)
+            .reduce(f64::max);
+        if let Some(rest) = rest {
             self.advance(rest.max(0.0) + 1e-9);
         }
     }
 
+    /// Seconds left of axis `k`'s move (0 when still).
+    pub fn axis_time_left_s(&self, k: usize) -> f64 {
+        self.motion[k].as_ref().map_or(0.0, |m| m.left().max(0.0))
+    }
+
     /// The speed along the path now, mm/min (0 when still): what a controller's step
     /// generator is putting out at this moment (lower than the programmed feed while
-    /// accelerating or decelerating).
+    /// accelerating or decelerating). For axes on separate moves, the speed of the
+    /// carriage over the table (the axes' speeds combined).
     pub fn speed_mm_min(&self) -> f64 {
-        self.motion
+        let moving: Vec<&AxisMotion> = self.motion.iter().flatten().collect();
+        match moving.as_slice() {
+            [] => 0.0,
+            [m, rest @ ..] if rest.iter().all(|o| o.group == m.group) => {
+                m.path.speed_at(m.elapsed) * 60.0
+            }
+            _ => {
+                moving
+                    .iter()
+                    .map(|m| m.speed_at(m.elapsed).powi(2))
+                    .sum::<f64>()
+                    .sqrt()
+                    * 60.0
+            }
+        }
+    }
+
+    /// Axis `k`'s speed now, mm/min (0 when still).
+    pub fn axis_speed_mm_min(&self, k: usize) -> f64 {
+        self.motion[k]
             .as_ref()
             .map_or(0.0, |m| m.speed_at(m.elapsed) * 60.0)
     }
 
     /// Stop now (feed hold): the axes stop where they are (no deceleration modelled).
     pub fn stop(&mut self) {
-        self.motion = None;
+        self.motion = [None, None];
+    }
+
+    /// Stop axis `k` where it is (no deceleration modelled); the other axis carries on.
+    pub fn stop_axis(&mut self, k: usize) {
+        self.motion[k] = None;
     }
 
     fn set_counts_from_mm(&mut self, p: [f64; 2]) {
         for k in 0..2 {
-            let cpm = self.axis_cfg(k).counts_per_mm;
-            self.axes[k].counts = (p[k] * cpm).round() as i64;
-            let n = self.nut_mm(k, self.axes[k].counts);
-            let b = self.axis_cfg(k).backlash_um / 1000.0;
-            let c = &mut self.axes[k].carriage_mm;
-            // Lost motion: the nut drives the carriage only once the gap is taken up.
-            if n > *c + b / 2.0 {
-                *c = n - b / 2.0;
-            } else if n < *c - b / 2.0 {
-                *c = n + b / 2.0;
-            }
+            self.set_axis_counts_from_mm(k, p[k]);
+        }
+    }
+
+    fn set_axis_counts_from_mm(&mut self, k: usize, p: f64) {
+        let cpm = self.axis_cfg(k).counts_per_mm;
+        self.axes[k].counts = (p * cpm).round() as i64;
+        let n = self.nut_mm(k, self.axes[k].counts);
+        let b = self.axis_cfg(k).backlash_um / 1000.0;
+        let c = &mut self.axes[k].carriage_mm;
+        // Lost motion: the nut drives the carriage only once the gap is taken up.
+        if n > *c + b / 2.0 {
+            *c = n - b / 2.0;
+        } else if n < *c - b / 2.0 {
+            *c = n + b / 2.0;
         }
     }
 
@@ -916,5 +1093,190 @@ mod tests {
             (lost - b).abs() < 0.01,
             "lost motion {lost} um, backlash {b} um"
         );
+    }
+
+    /// The coordinated move's figures before the machine became per-axis: counts,
+    /// speed and camera pose at fixed times through four moves and a homing, hashed
+    /// (recorded from the single straight-line `Motion` this replaced).
+    #[test]
+    fn coordinated_moves_and_homing_are_bit_for_bit_unchanged() {
+        let mut m = SimMachine::new(config());
+        m.home();
+        let mut trace = Vec::new();
+        for (to, feed) in [
+            ([50.0, 20.0], 3000.0),
+            ([10.5, 140.25], 6000.0),
+            ([10.5, 30.0], 800.0),
+            ([199.0, 3.0], 20000.0),
+        ] {
+            let d = m.start_move(to, feed).unwrap();
+            for _ in 0..7 {
+                m.advance(d / 6.5);
+                let p = m.camera_pose();
+                trace.push((
+                    m.counts(),
+                    m.speed_mm_min().to_bits(),
+                    p.centre_mm,
+                    p.rotation_rad,
+                ));
+            }
+        }
+        m.home();
+        let p = m.camera_pose();
+        trace.push((m.counts(), m.now_s().to_bits(), p.centre_mm, p.rotation_rad));
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        for t in &trace {
+            let words = [
+                t.0[0] as u64,
+                t.0[1] as u64,
+                t.1,
+                t.2[0].to_bits(),
+                t.2[1].to_bits(),
+                t.3.to_bits(),
+            ];
+            for v in words {
+                h = (h ^ v).wrapping_mul(0x100_0000_01b3);
+            }
+        }
+        assert_eq!(h, 0x412a_9816_8927_f7c0, "last: {:?}", trace.last());
+    }
+
+    /// The old straight-line formula: distance along the line on one trapezoid.
+    fn old_line_point(from: [f64; 2], to: [f64; 2], feed: f64, accel: f64, t: f64) -> [f64; 2] {
+        let length = ((to[0] - from[0]).powi(2) + (to[1] - from[1]).powi(2)).sqrt();
+        let t_acc = feed / accel;
+        let d_acc = 0.5 * accel * t_acc * t_acc;
+        let (v, duration) = if 2.0 * d_acc >= length {
+            let tv = (length / accel).sqrt();
+            (accel * tv, 2.0 * tv)
+        } else {
+            (feed, 2.0 * t_acc + (length - 2.0 * d_acc) / feed)
+        };
+        if length == 0.0 {
+            return to;
+        }
+        let t_acc = v / accel;
+        let s = if t >= duration {
+            length
+        } else if t < t_acc {
+            0.5 * accel * t * t
+        } else if t < duration - t_acc {
+            0.5 * accel * t_acc * t_acc + v * (t - t_acc)
+        } else {
+            let r = duration - t;
+            length - 0.5 * accel * r * r
+        };
+        let f = s / length;
+        [
+            from[0] + f * (to[0] - from[0]),
+            from[1] + f * (to[1] - from[1]),
+        ]
+    }
+
+    #[test]
+    fn coordinated_move_follows_the_old_straight_line_formula() {
+        let mut m = SimMachine::new(config());
+        m.home();
+        let c = m.config().clone();
+        let cpm = [c.axes.x.counts_per_mm, c.axes.y.counts_per_mm];
+        let accel = c.axes.x.accel_mm_s2.min(c.axes.y.accel_mm_s2);
+        let vmax = c.axes.x.max_feed_mm_min.min(c.axes.y.max_feed_mm_min);
+        for (to, feed) in [
+            ([120.0, 80.0], 4000.0),
+            ([120.0, 10.0], 9000.0),
+            ([0.3, 10.2], 1500.0),
+            ([0.3, 10.2], 1500.0),
+        ] {
+            let from = m.position_mm();
+            let d = m.start_move(to, feed).unwrap();
+            let mut t = 0.0;
+            for _ in 0..40 {
+                m.advance(d / 37.0);
+                t += d / 37.0;
+                let p = old_line_point(from, to, feed.min(vmax) / 60.0, accel, t);
+                let want = [
+                    (p[0] * cpm[0]).round() as i64,
+                    (p[1] * cpm[1]).round() as i64,
+                ];
+                assert_eq!(m.counts(), want, "{from:?} -> {to:?} at {t} s");
+            }
+            assert!(!m.is_moving());
+        }
+    }
+
+    #[test]
+    fn axes_move_on_their_own_profiles_and_end_at_their_own_times() {
+        let mut m = SimMachine::new(config());
+        assert_eq!(
+            m.start_axis_move(0, 10.0, 1000.0),
+            Err(MachineRefusal::NotHomed)
+        );
+        m.home_axis(0);
+        assert!(m.is_axis_homed(0) && !m.is_axis_homed(1) && !m.is_homed());
+        assert_eq!(
+            m.start_axis_move(1, 10.0, 1000.0),
+            Err(MachineRefusal::NotHomed)
+        );
+        assert_eq!(
+            m.start_move([1.0, 1.0], 1000.0),
+            Err(MachineRefusal::NotHomed)
+        );
+        m.home_axis(1);
+        assert!(m.is_homed());
+        assert!(matches!(
+            m.start_axis_move(1, 150.5, 1000.0),
+            Err(MachineRefusal::OutOfTravel { axis: 'Y', .. })
+        ));
+        let dx = m.start_axis_move(0, 100.0, 6000.0).unwrap();
+        let dy = m.start_axis_move(1, 100.0, 1200.0).unwrap();
+        assert!(dy > 2.0 * dx, "{dx} {dy}");
+        // Y's own feed, X's own (higher) one.
+        m.advance(dx / 2.0);
+        assert!((m.axis_speed_mm_min(0) - 6000.0).abs() < 1e-6);
+        assert!((m.axis_speed_mm_min(1) - 1200.0).abs() < 1e-6);
+        m.advance(dx / 2.0 + 1e-9);
+        assert!(!m.is_axis_moving(0) && m.is_axis_moving(1) && m.is_moving());
+        assert_eq!(m.counts()[0], 200_000);
+        assert!(m.counts()[1] > 0 && m.counts()[1] < 200_000);
+        m.finish_motion();
+        assert!(!m.is_moving());
+        assert_eq!(m.counts(), [200_000, 200_000]);
+        assert!(
+            (m.now_s() - dy).abs() < 1e-6,
+            "the slower axis sets the end"
+        );
+    }
+
+    #[test]
+    fn stopping_or_homing_one_axis_leaves_the_other_moving() {
+        let mut m = SimMachine::new(config());
+        m.home();
+        m.start_axis_move(0, 50.0, 3000.0).unwrap();
+        m.start_axis_move(1, 40.0, 3000.0).unwrap();
+        m.advance(0.2);
+        m.stop_axis(0);
+        let x = m.counts()[0];
+        assert!(!m.is_axis_moving(0) && m.is_axis_moving(1));
+        m.finish_motion();
+        assert_eq!(m.counts(), [x, 80_000]);
+        // Homing X draws X's homing error only and does not touch Y's move.
+        m.start_axis_move(1, 10.0, 3000.0).unwrap();
+        let y_offset = m.axes[1].home_offset_mm;
+        let took = m.home_axis(0);
+        assert!(took > 1.0);
+        assert_eq!(m.counts()[0], 0);
+        assert!(m.is_axis_moving(1));
+        assert_eq!(m.axes[1].home_offset_mm, y_offset);
+        m.finish_motion();
+        assert_eq!(m.counts()[1], 20_000);
+        // A per-axis move with a drive's own (gentler) ramp takes longer.
+        let fast = m.start_axis_move(0, 20.0, 3000.0).unwrap();
+        m.finish_motion();
+        let slow = m.start_axis_move_accel(0, 40.0, 3000.0, 100.0).unwrap();
+        assert!(slow > fast + 0.3, "{slow} {fast}");
+        assert!(matches!(
+            m.start_axis_move_accel(0, 40.0, 3000.0, 0.0),
+            Err(MachineRefusal::BadAccel(_))
+        ));
     }
 }
