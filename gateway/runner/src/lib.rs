@@ -150,9 +150,11 @@ impl Orchestrator<'_> {
             Some(check),
         )
         .map_err(|e| nothing_done(e.into()))?;
+        // Biased: a cancel is seen at the next yield between two actions, every time.
         let result = tokio::select! {
-            r = self.drive(&mut session, on_event) => r,
+            biased;
             () = cancel => Err(JobError::Cancelled),
+            r = self.drive(&mut session, on_event) => r,
         };
         let orientation = session.orientation().copied();
         match result {

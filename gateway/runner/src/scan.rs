@@ -181,9 +181,11 @@ pub async fn run_scan(
         }
         Ok(())
     };
+    // Biased: a cancel is seen at the next yield between two points, every time.
     let result = tokio::select! {
-        r = scan => r,
+        biased;
         () = cancel => Err(ScanError::Cancelled),
+        r = scan => r,
     };
     match result {
         Ok(()) => Ok(reference),
