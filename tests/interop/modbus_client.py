@@ -68,8 +68,11 @@ def main():
         raise RuntimeError("motion did not end")
 
     out = {"units": {}}
-    command("home", units[0])
-    out["home_polls"] = wait(units[0], until_homed=True)
+    # Each unit is a drive of its own: each homes its own axis.
+    for u in units:
+        command("home", u)
+        polls = wait(u, until_homed=True)
+        out.setdefault("home_polls", polls)
     targets = {u: 25.0 + 30.0 * i for i, u in enumerate(units)}
     for u in units:
         words = p.move_words(targets[u], 50.0)
