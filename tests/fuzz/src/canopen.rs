@@ -10,7 +10,9 @@ use std::collections::BTreeMap;
 /// is a response frame (up to 8 bytes; longer ones are cut as a CAN frame would be),
 /// 10 ms apart, with the timeout polled between them. A finished or failed transfer
 /// starts the next one. An upload never returns more bytes than the responses
-/// carried; every frame the client asks to send is an 8-byte SDO request to the node.
+/// carried (7 a frame; a short frame is padded with zeros), a segmented one only
+/// after the client asked for a segment; every frame the client asks to send is an
+/// 8-byte SDO request to the node.
 pub fn sdo_client(data: &[u8]) {
     let [op, len, rest @ ..] = data else {
         return;
@@ -29,19 +31,26 @@ pub fn sdo_client(data: &[u8]) {
     };
     check(&start(&mut client, 0, 0.0));
     let mut fed = 0usize;
+    let mut asked_segment = false;
     let mut transfers = 1;
     for (k, r) in crate::records(rest).enumerate() {
         let now = 0.01 * (k + 1) as f64;
         let frame = &r[..r.len().min(8)];
-        fed += frame.len();
+        fed += 7;
         let step = match client.poll(now) {
             Some(step) => step,
             None => client.on_response(frame, now),
         };
         match step {
-            ClientStep::Send(f) => check(&f),
+            ClientStep::Send(f) => {
+                check(&f);
+                // Upload segment request (ccs 3).
+                asked_segment |= f.data()[0] >> 5 == 3;
+            }
             ClientStep::Uploaded(bytes) => {
                 assert!(bytes.len() <= fed, "{} bytes from {fed}", bytes.len());
+                let segment = frame.first().is_none_or(|b| b >> 5 == 0);
+                assert!(!segment || asked_segment, "a segment nobody asked for");
             }
             ClientStep::Failed { error, send } => {
                 let _ = (error.code(), error.to_string());
@@ -53,6 +62,7 @@ pub fn sdo_client(data: &[u8]) {
         }
         if !client.busy() {
             fed = 0;
+            asked_segment = false;
             check(&start(&mut client, transfers, now));
             transfers += 1;
         }
