@@ -56,7 +56,8 @@ pub struct GrblStage {
     settings: Settings,
     build: BuildInfo,
     opts: GrblOptions,
-    /// Serial port to reopen on reconnect.
+    /// Serial port to reopen on reconnect (only read where serial ports are built in).
+    #[cfg_attr(not(feature = "serial"), allow(dead_code))]
     port: Option<(String, u32)>,
     last_wco: Option<Vec<f64>>,
     last_alarm: Option<u8>,

@@ -166,6 +166,8 @@ enum Transfer {
         data: Vec<u8>,
         size: Option<usize>,
         toggle: bool,
+        /// The server's initiate response came (segments are due only after it).
+        initiated: bool,
     },
     Download {
         data: Vec<u8>,
@@ -220,6 +222,7 @@ impl SdoClient {
             data: Vec::new(),
             size: None,
             toggle: false,
+            initiated: false,
         });
         self.deadline = now + self.timeout_s;
         self.request(header(0x40, index, sub))
@@ -311,8 +314,11 @@ impl SdoClient {
                 data: buf,
                 size,
                 toggle,
+                initiated,
             } => match scs {
-                2 => {
+                // One initiate response, then segments only after it: a segment
+                // before the initiate (a stale or stray frame) is not this transfer's.
+                2 if !*initiated => {
                     if mux(&d) != (self.index, self.sub) {
                         return self.fail(AbortCode::BAD_COMMAND);
                     }
@@ -331,13 +337,14 @@ impl SdoClient {
                     if sized {
                         *size = Some(u32::from_le_bytes([d[4], d[5], d[6], d[7]]) as usize);
                     }
+                    *initiated = true;
                     let t = *toggle;
                     ClientStep::Send(CanFrame::std(
                         self.node.sdo_rx(),
                         &header(0x60 | (u8::from(t) << 4), 0, 0),
                     ))
                 }
-                0 => {
+                0 if *initiated => {
                     let t = d[0] & 0x10 != 0;
                     if t != *toggle {
                         return self.fail(AbortCode::TOGGLE);
@@ -657,6 +664,28 @@ mod tests {
             *e = data.to_vec();
             Ok(())
         }
+    }
+
+    #[test]
+    fn upload_segment_before_the_initiate_response_is_refused() {
+        let node = NodeId::new(5).unwrap();
+        let mut c = SdoClient::new(node, 1.0);
+        c.upload(0x6064, 0, 0.0);
+        // A last segment of 6 bytes, toggle 0, where the initiate response is due.
+        match c.on_response(&[0x03, 1, 2, 3, 4, 5, 6, 0], 0.1) {
+            ClientStep::Failed { error, .. } => assert_eq!(error.code(), AbortCode::BAD_COMMAND),
+            other => panic!("{other:?}"),
+        }
+        // A second initiate response in the middle of a segmented upload, likewise.
+        c.upload(0x6064, 0, 0.2);
+        assert!(matches!(
+            c.on_response(&[0x41, 0x64, 0x60, 0, 10, 0, 0, 0], 0.3),
+            ClientStep::Send(_)
+        ));
+        assert!(matches!(
+            c.on_response(&[0x41, 0x64, 0x60, 0, 10, 0, 0, 0], 0.4),
+            ClientStep::Failed { .. }
+        ));
     }
 
     fn od() -> Od {

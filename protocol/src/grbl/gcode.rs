@@ -59,6 +59,9 @@ pub enum FilterError {
 /// GRBL's line buffer (the device answers `error:11` for such a line).
 pub fn filter_bytes(raw: &[u8]) -> (String, bool) {
     let mut out = String::new();
+    // Bytes kept, as GRBL counts them (a byte above 0x7F is one character here but
+    // two bytes of `out`).
+    let mut kept = 0;
     let mut paren = false;
     let mut semicolon = false;
     let mut overflow = false;
@@ -73,8 +76,11 @@ pub fn filter_bytes(raw: &[u8]) -> (String, bool) {
             0..=b' ' | b'/' => {}
             b'(' => paren = true,
             b';' => semicolon = true,
-            _ if out.len() >= LINE_BUFFER_SIZE - 1 => overflow = true,
-            _ => out.push(c.to_ascii_uppercase() as char),
+            _ if kept >= LINE_BUFFER_SIZE - 1 => overflow = true,
+            _ => {
+                out.push(c.to_ascii_uppercase() as char);
+                kept += 1;
+            }
         }
     }
     (out, overflow)
@@ -358,6 +364,9 @@ mod tests {
         assert!(filter_bytes(long.as_bytes()).1);
         assert!(!filter_bytes("X".repeat(79).as_bytes()).1);
         assert!(filter_bytes("X".repeat(80).as_bytes()).1);
+        // Counted in bytes received, as GRBL counts them, whatever the bytes.
+        assert!(!filter_bytes(&[0xFF; 79]).1);
+        assert!(filter_bytes(&[0xFF; 80]).1);
         assert_eq!(filter_line("G1X1!"), Err(FilterError::Realtime('!')));
         assert_eq!(filter_line("G1X1 (ok?)").unwrap(), "G1X1");
     }

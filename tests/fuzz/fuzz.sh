@@ -1,0 +1,42 @@
+#!/usr/bin/env bash
+# Runs every fuzz target (or those named after the seconds) for SECONDS each, in
+# sequence, with nightly and cargo-fuzz: `tests/fuzz/fuzz.sh 75 [target...]`.
+# New inputs go to a scratch corpus (FUZZ_SCRATCH, default a temporary folder); the
+# committed corpus/<target>/ is only read. Prints one line per target: total execs,
+# execs/s, cov and ft of libFuzzer's last line, and whether it crashed (the input is
+# then in tests/fuzz/artifacts/<target>/). Exit status 1 if any target crashed.
+set -uo pipefail
+cd "$(dirname "$0")/../.."
+seconds=${1:-5}
+shift || true
+scratch=${FUZZ_SCRATCH:-$(mktemp -d)}
+target_dir=${FUZZ_TARGET_DIR:-target/fuzz}
+fuzz=(cargo +nightly fuzz)
+common=(--fuzz-dir tests/fuzz --features libfuzzer --sanitizer none --target-dir "$target_dir")
+if [ $# -gt 0 ]; then
+  targets=("$@")
+else
+  mapfile -t targets < <("${fuzz[@]}" list --fuzz-dir tests/fuzz)
+fi
+"${fuzz[@]}" build "${common[@]}" >/dev/null || exit 1
+failed=0
+printf '%-16s %12s %9s %7s %8s  %s\n' target execs execs/s cov ft result
+for t in "${targets[@]}"; do
+  mkdir -p "$scratch/$t"
+  log="$scratch/$t.log"
+  "${fuzz[@]}" run "$t" "${common[@]}" "$scratch/$t" "tests/fuzz/corpus/$t" -- \
+    -max_total_time="$seconds" -print_final_stats=1 -timeout=10 -rss_limit_mb=2048 >"$log" 2>&1
+  rc=$?
+  execs=$(sed -n 's/^stat::number_of_executed_units: *//p' "$log" | tail -1)
+  rate=$(sed -n 's/^stat::average_exec_per_sec: *//p' "$log" | tail -1)
+  last=$(grep -E '^#[0-9]+' "$log" | tail -1)
+  cov=$(sed -n 's/.* cov: \([0-9]*\).*/\1/p' <<<"$last")
+  ft=$(sed -n 's/.* ft: \([0-9]*\).*/\1/p' <<<"$last")
+  result=ok
+  if [ $rc -ne 0 ]; then
+    result="CRASH (exit $rc; log $log)"
+    failed=1
+  fi
+  printf '%-16s %12s %9s %7s %8s  %s\n' "$t" "${execs:-?}" "${rate:-?}" "${cov:-?}" "${ft:-?}" "$result"
+done
+exit $failed
