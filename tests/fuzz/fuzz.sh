@@ -18,7 +18,11 @@ if [ $# -gt 0 ]; then
 else
   mapfile -t targets < <("${fuzz[@]}" list --fuzz-dir tests/fuzz)
 fi
-"${fuzz[@]}" build "${common[@]}" >/dev/null || exit 1
+mkdir -p "$scratch"
+if ! "${fuzz[@]}" build "${common[@]}" >"$scratch/build.log" 2>&1; then
+  cat "$scratch/build.log"
+  exit 1
+fi
 failed=0
 printf '%-16s %12s %9s %7s %8s  %s\n' target execs execs/s cov ft result
 for t in "${targets[@]}"; do
