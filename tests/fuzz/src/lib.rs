@@ -14,6 +14,7 @@ use std::path::Path;
 
 mod canopen;
 mod config;
+mod errormap;
 mod gige;
 mod grbl;
 mod media;
@@ -23,6 +24,7 @@ mod slcan;
 
 pub use canopen::{canopen_eds, sdo_client, sdo_server};
 pub use config::{board_toml, camera_toml, job_toml, machine_toml, modbus_profile};
+pub use errormap::{error_map_json, scan_journal};
 pub use gige::{genicam_xml, gige_url, gige_zip, gvcp, gvsp};
 pub use grbl::{grbl_gcode, grbl_response};
 pub use media::{localize, png_load};
@@ -56,6 +58,8 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("board_toml", board_toml),
     ("machine_toml", machine_toml),
     ("camera_toml", camera_toml),
+    ("error_map_json", error_map_json),
+    ("scan_journal", scan_journal),
 ];
 
 /// The fuzz crate's folder (corpora, regressions).
