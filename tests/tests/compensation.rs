@@ -92,10 +92,11 @@ fn four_point_method_is_exact_when_aligned_and_biased_when_rotated() {
     );
 }
 
-/// A stage wrapper that records every command sent to the stage.
+/// A stage wrapper that records every move and counts the stops sent to the stage.
 struct Recording {
     inner: Box<dyn Stage>,
     moves: Arc<Mutex<Vec<[f64; 2]>>>,
+    stops: Arc<Mutex<usize>>,
 }
 
 #[async_trait]
@@ -120,6 +121,7 @@ impl Stage for Recording {
         self.inner.wait_idle().await
     }
     async fn stop(&mut self) -> Result<(), DriverError> {
+        *self.stops.lock().unwrap() += 1;
         self.inner.stop().await
     }
     async fn status(&mut self) -> Result<StageStatus, DriverError> {
@@ -163,6 +165,7 @@ fn run_recorded_on(
     let mut stage = Recording {
         inner: devices.stage,
         moves: moves.clone(),
+        stops: Arc::default(),
     };
     let mut camera: Box<dyn Camera> = match blank_after {
         Some(good) => Box::new(GoesBlank {
@@ -388,41 +391,10 @@ fn a_cancelled_job_stops_the_stage_and_keeps_its_results() {
     job.targets.truncate(4);
     let devices = open_devices(&job).unwrap();
     let stops = Arc::new(Mutex::new(0usize));
-    struct CountsStops {
-        inner: Box<dyn Stage>,
-        stops: Arc<Mutex<usize>>,
-    }
-    #[async_trait]
-    impl Stage for CountsStops {
-        fn info(&self) -> &StageInfo {
-            self.inner.info()
-        }
-        fn capabilities(&self) -> drivers::Capabilities {
-            self.inner.capabilities()
-        }
-        async fn home(&mut self) -> Result<(), DriverError> {
-            self.inner.home().await
-        }
-        async fn move_to(&mut self, t: AxisValues, f: f64) -> Result<(), DriverError> {
-            self.inner.move_to(t, f).await
-        }
-        async fn position(&mut self) -> Result<AxisValues, DriverError> {
-            self.inner.position().await
-        }
-        async fn wait_idle(&mut self) -> Result<(), DriverError> {
-            self.inner.wait_idle().await
-        }
-        async fn stop(&mut self) -> Result<(), DriverError> {
-            *self.stops.lock().unwrap() += 1;
-            self.inner.stop().await
-        }
-        async fn status(&mut self) -> Result<StageStatus, DriverError> {
-            self.inner.status().await
-        }
-    }
     let mut devices = devices::Devices {
-        stage: Box::new(CountsStops {
+        stage: Box::new(Recording {
             inner: devices.stage,
+            moves: Arc::default(),
             stops: stops.clone(),
         }),
         camera: devices.camera,
