@@ -18,7 +18,7 @@ use job::demo::over_gige;
 use job::{CameraSpec, Job};
 use std::path::Path;
 use std::time::Instant;
-use vision::localize::{localize, LocalizeParams};
+use vision::localize::localize;
 
 fn pct(v: &mut [f64], p: f64) -> f64 {
     v.sort_by(|a, b| a.partial_cmp(b).unwrap());
@@ -72,9 +72,7 @@ fn main() {
                 .unwrap();
             dev.stage.wait_idle().await.unwrap();
             let rig = dev.rig.clone().unwrap();
-            let mut p = LocalizeParams::with_settings(target, &job.localize);
-            p.pixel_axes = job.pixel_axes;
-            p.um_per_px = job.um_per_px;
+            let p = job.localize_params(target);
             let (mut render, mut grab, mut obs) = (Vec::new(), Vec::new(), Vec::new());
             // One warm-up frame.
             dev.camera.grab().await.unwrap();

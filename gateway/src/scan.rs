@@ -61,12 +61,7 @@ pub fn map(
         .build()?;
     let mut devices = rt.block_on(open_devices_async(job))?;
     let stage_name = without_link(&devices.stage.info().name);
-    let limits = runner::Orchestrator {
-        stage: devices.stage.as_mut(),
-        camera: devices.camera.as_mut(),
-        job,
-    }
-    .limits()?;
+    let limits = runner::soft_limits(devices.stage.info())?;
     let (lo, hi) = scan_area(job, &limits);
     let plan = ScanPlan::new(lo, hi, spec).context("the scan plan")?;
     let identity = Identity {

@@ -33,13 +33,7 @@ fn main() {
         .build()
         .unwrap();
     let mut devices = open_devices(&job).unwrap();
-    let limits = runner::Orchestrator {
-        stage: devices.stage.as_mut(),
-        camera: devices.camera.as_mut(),
-        job: &job,
-    }
-    .limits()
-    .unwrap();
+    let limits = runner::soft_limits(devices.stage.info()).unwrap();
     let (lo, hi) = scan_area(&job, &limits);
     let plan = ScanPlan::new(lo, hi, ScanSpec::default()).unwrap();
     let mut builder = MapBuilder::new();

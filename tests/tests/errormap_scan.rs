@@ -60,13 +60,7 @@ fn scan(
     for _ in 0..extra_homings {
         runtime().block_on(devices.stage.home()).unwrap();
     }
-    let limits = runner::Orchestrator {
-        stage: devices.stage.as_mut(),
-        camera: devices.camera.as_mut(),
-        job,
-    }
-    .limits()
-    .unwrap();
+    let limits = runner::soft_limits(devices.stage.info()).unwrap();
     let (lo, hi) = scan_area(job, &limits);
     let plan = ScanPlan::new(lo, hi, SPEC).unwrap();
     let (tx, rx) = tokio::sync::watch::channel(false);

@@ -38,7 +38,7 @@ use protocol::config::{ConfigDoc, ConfigError, Xy};
 use protocol::Board;
 use serde::Deserialize;
 use std::path::Path;
-use vision::localize::{LocalizeSettings, PixelAxes};
+use vision::localize::{LocalizeParams, LocalizeSettings, PixelAxes};
 use world::machine::MachineConfig;
 
 /// The files of the embedded default job (the demo), compiled in.
@@ -353,6 +353,15 @@ impl Job {
             policy: raw.compensation,
             targets,
         })
+    }
+
+    /// How to localize a frame expected to show board coordinate `hint_mm`: the job's
+    /// localization settings, camera orientation and nominal scale.
+    pub fn localize_params(&self, hint_mm: [f64; 2]) -> LocalizeParams {
+        let mut p = LocalizeParams::with_settings(hint_mm, &self.localize);
+        p.pixel_axes = self.pixel_axes;
+        p.um_per_px = self.um_per_px;
+        p
     }
 
     /// The targets as the compensation session takes them: board coordinate and

@@ -16,10 +16,10 @@ use compensation::session::{
     SessionError, TargetOutcome,
 };
 use devices::Devices;
-use drivers::{Axis, AxisValues, Camera, DriverError, Stage};
+use drivers::{Axis, AxisValues, Camera, DriverError, Stage, StageInfo};
 use job::Job;
 use std::time::Instant;
-use vision::localize::{localize, LocalizeError, LocalizeParams};
+use vision::localize::{localize, LocalizeError};
 
 /// Progress notifications; the runner's own report uses `Measured` to read the simulated
 /// truth at the moment of each measurement.
@@ -106,6 +106,16 @@ pub struct JobSuccess {
     pub orientation: Option<OrientationResult>,
 }
 
+/// Soft limits of X and Y from what a stage reports.
+pub fn soft_limits(info: &StageInfo) -> Result<SoftLimits, JobError> {
+    let x = info.axis(Axis::X).ok_or(JobError::MissingAxis(Axis::X))?;
+    let y = info.axis(Axis::Y).ok_or(JobError::MissingAxis(Axis::Y))?;
+    Ok(SoftLimits {
+        min_mm: [x.min_mm, y.min_mm],
+        max_mm: [x.max_mm, y.max_mm],
+    })
+}
+
 pub struct Orchestrator<'a> {
     pub stage: &'a mut dyn Stage,
     pub camera: &'a mut dyn Camera,
@@ -115,13 +125,7 @@ pub struct Orchestrator<'a> {
 impl Orchestrator<'_> {
     /// Soft limits of X and Y from the stage.
     pub fn limits(&self) -> Result<SoftLimits, JobError> {
-        let info = self.stage.info();
-        let x = info.axis(Axis::X).ok_or(JobError::MissingAxis(Axis::X))?;
-        let y = info.axis(Axis::Y).ok_or(JobError::MissingAxis(Axis::Y))?;
-        Ok(SoftLimits {
-            min_mm: [x.min_mm, y.min_mm],
-            max_mm: [x.max_mm, y.max_mm],
-        })
+        soft_limits(self.stage.info())
     }
 
     /// Home, check the camera's orientation, then compensate every target in order.
@@ -203,7 +207,7 @@ impl Orchestrator<'_> {
                     hint_tolerance_mm,
                 } => {
                     let frame = self.camera.grab().await?;
-                    let mut params = self.localize_params(hint_mm);
+                    let mut params = self.job.localize_params(hint_mm);
                     params.hint_tolerance_mm = hint_tolerance_mm;
                     let board = &self.job.board;
                     let observation = drivers::blocking(|| localize(&frame.image, board, &params))
@@ -217,7 +221,7 @@ impl Orchestrator<'_> {
                     measurement,
                 } => {
                     let frame = self.camera.grab().await?;
-                    let params = self.localize_params(hint_mm);
+                    let params = self.job.localize_params(hint_mm);
                     let board = &self.job.board;
                     let observation = drivers::blocking(|| localize(&frame.image, board, &params))
                         .map_err(|source| JobError::Localize {
@@ -269,13 +273,6 @@ impl Orchestrator<'_> {
             .await?;
         self.stage.wait_idle().await?;
         Ok(())
-    }
-
-    fn localize_params(&self, hint_mm: [f64; 2]) -> LocalizeParams {
-        let mut p = LocalizeParams::with_settings(hint_mm, &self.job.localize);
-        p.pixel_axes = self.job.pixel_axes;
-        p.um_per_px = self.job.um_per_px;
-        p
     }
 }
 

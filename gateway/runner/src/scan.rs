@@ -15,7 +15,7 @@ use drivers::AxisValues;
 use errormap::scan::{MapBuilder, Sample, ScanPlan};
 use errormap::Approach;
 use job::Job;
-use vision::localize::{localize, LocalizeParams};
+use vision::localize::localize;
 
 /// What the reference frame of this run saw.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -90,13 +90,7 @@ pub async fn run_scan(
     let stage = devices.stage.as_mut();
     let camera = devices.camera.as_mut();
     // Every point and its approach inside the limits before anything moves.
-    let limits = Orchestrator {
-        stage: &mut *stage,
-        camera: &mut *camera,
-        job,
-    }
-    .limits()
-    .map_err(ScanError::Reference)?;
+    let limits = crate::soft_limits(stage.info()).map_err(ScanError::Reference)?;
     let a = job.policy.approach_mm;
     for (index, p) in plan.points.iter().enumerate() {
         for (what, at) in [
@@ -153,9 +147,7 @@ pub async fn run_scan(
             }
             let frame = camera.grab().await.map_err(|e| fail(e.into()))?;
             let hint = [p.command_mm[0] + z[0], p.command_mm[1] + z[1]];
-            let mut params = LocalizeParams::with_settings(hint, &job.localize);
-            params.pixel_axes = job.pixel_axes;
-            params.um_per_px = job.um_per_px;
+            let params = job.localize_params(hint);
             let o = drivers::blocking(|| localize(&frame.image, &job.board, &params)).map_err(
                 |source| {
                     fail(JobError::Localize {
