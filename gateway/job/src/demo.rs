@@ -34,7 +34,7 @@ pub fn over_grbl(job: &mut Job) -> Result<(), DemoError> {
     match &job.stage {
         StageSpec::Sim { machine } => {
             job.stage = StageSpec::Grbl {
-                link: GrblLink::Emulate(machine.clone()),
+                link: GrblLink::Emulate(Box::new(machine.clone())),
                 baud: 115_200,
             };
             Ok(())

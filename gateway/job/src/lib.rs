@@ -166,13 +166,11 @@ pub enum StageSpec {
 
 /// Where a GRBL controller is.
 #[derive(Clone, Debug)]
-// Built once per job; boxing the machine would only add noise at every use.
-#[allow(clippy::large_enum_variant)]
 pub enum GrblLink {
     /// A serial port (`/dev/ttyUSB0`, `/dev/ttyACM0`).
     Port(String),
     /// The GRBL emulator on a pseudo-terminal, driving this simulated machine.
-    Emulate(MachineConfig),
+    Emulate(Box<MachineConfig>),
 }
 
 impl StageSpec {
@@ -237,21 +235,20 @@ impl Job {
                 baud,
                 emulate,
             } => {
-                if port.is_some() == emulate.is_some() {
-                    return Err(doc.invalid(
-                        "stage.port",
-                        "the grbl stage needs either `port` (a serial port) or `emulate` (a machine file for the GRBL emulator)",
-                    ));
-                }
                 if baud == 0 {
                     return Err(doc.invalid("stage.baud", "must be a positive baud rate"));
                 }
                 let link = match (port, emulate) {
-                    (Some(port), _) => GrblLink::Port(port),
-                    (None, Some(rel)) => GrblLink::Emulate(MachineConfig::from_doc(
+                    (Some(port), None) => GrblLink::Port(port),
+                    (None, Some(rel)) => GrblLink::Emulate(Box::new(MachineConfig::from_doc(
                         &doc.read_relative("stage.emulate", &rel)?,
-                    )?),
-                    (None, None) => unreachable!("checked above"),
+                    )?)),
+                    _ => {
+                        return Err(doc.invalid(
+                            "stage.port",
+                            "the grbl stage needs either `port` (a serial port) or `emulate` (a machine file for the GRBL emulator)",
+                        ))
+                    }
                 };
                 StageSpec::Grbl { link, baud }
             }
