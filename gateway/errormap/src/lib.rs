@@ -141,17 +141,26 @@ fn hermite(xs: &[f64], f: impl Fn(usize) -> f64, x: f64) -> f64 {
 /// An error map ready to evaluate.
 #[derive(Clone, Debug)]
 pub struct MapModel {
+    /// The map, its lines sorted by their position across the axis.
     map: ErrorMap,
     /// Added to every camera error (re-reference after homing), um.
     offset_um: [f64; 2],
+    /// Yaw at the reference point (forward), urad: the zero of the Abbe term.
+    reference_yaw_urad: f64,
 }
 
 impl MapModel {
-    pub fn new(map: ErrorMap) -> Self {
-        Self {
+    pub fn new(mut map: ErrorMap) -> Self {
+        map.x_lines.sort_by(|a, b| a.at_mm.total_cmp(&b.at_mm));
+        map.y_lines.sort_by(|a, b| a.at_mm.total_cmp(&b.at_mm));
+        let mut model = Self {
             map,
             offset_um: [0.0; 2],
-        }
+            reference_yaw_urad: 0.0,
+        };
+        model.reference_yaw_urad =
+            model.value(Quantity::Yaw, Approach::Forward, model.map.reference_mm);
+        model
     }
 
     pub fn map(&self) -> &ErrorMap {
@@ -225,22 +234,16 @@ impl MapModel {
         if lines.len() == 1 {
             return detail(&lines[0]);
         }
-        // Lines sorted by position across; linear between the two around t.
-        let mut idx: Vec<usize> = (0..lines.len()).collect();
-        idx.sort_by(|&i, &j| lines[i].at_mm.total_cmp(&lines[j].at_mm));
-        let first = &lines[idx[0]];
-        let last = &lines[idx[idx.len() - 1]];
+        // Lines are sorted by position across (`new`); linear between the two around t.
+        let (first, last) = (&lines[0], &lines[lines.len() - 1]);
         if t <= first.at_mm {
             return detail(first);
         }
         if t >= last.at_mm {
             return detail(last);
         }
-        let k = idx
-            .windows(2)
-            .position(|w| t <= lines[w[1]].at_mm)
-            .unwrap_or(0);
-        let (l0, l1) = (&lines[idx[k]], &lines[idx[k + 1]]);
+        let k = lines.windows(2).position(|w| t <= w[1].at_mm).unwrap_or(0);
+        let (l0, l1) = (&lines[k], &lines[k + 1]);
         let w = (t - l0.at_mm) / (l1.at_mm - l0.at_mm);
         (1.0 - w) * detail(l0) + w * detail(l1)
     }
@@ -270,17 +273,13 @@ impl MapModel {
     /// The tool point's error, um: the camera's plus the yaw acting on the tool offset.
     pub fn tool_error_um(&self, p: [f64; 2], dir: Direction) -> Result<[f64; 2], ModelError> {
         let e = self.camera_error_um(p, dir)?;
-        let theta_urad = self.yaw_urad(p, dir)? - self.yaw_at_reference();
+        let theta_urad = self.yaw_urad(p, dir)? - self.reference_yaw_urad;
         let [ox, oy] = self.map.tool_offset_mm;
         // urad x mm = nm: / 1000 for um.
         Ok([
             e[0] - theta_urad * oy / 1000.0,
             e[1] + theta_urad * ox / 1000.0,
         ])
-    }
-
-    fn yaw_at_reference(&self) -> f64 {
-        self.value(Quantity::Yaw, Approach::Forward, self.map.reference_mm)
     }
 
     /// The command that puts the tool on nominal `p` (mm) when approached from `dir`.
