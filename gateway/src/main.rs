@@ -15,6 +15,7 @@ use std::process::ExitCode;
 use std::time::Instant;
 use vision::localize::{localize, LocalizeParams, LocalizeSettings, Method, PixelAxes};
 
+mod rewrite;
 mod scan;
 
 #[derive(Parser)]
@@ -88,6 +89,37 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
+    /// Rewrite a G-code program so that every move lands where it was programmed: moves
+    /// split against the tolerance, arcs as chords, each point replaced by the command
+    /// the error map gives for it. The controller's dialect is GRBL 1.1: what it would
+    /// refuse is refused here first, naming the line.
+    Rewrite {
+        /// The program to rewrite (never overwritten).
+        input: PathBuf,
+        /// The error map (a version file written by `gateway map`).
+        #[arg(long)]
+        map: Option<PathBuf>,
+        #[arg(long)]
+        out: PathBuf,
+        /// Largest distance of the executed path from the compensated path, um.
+        #[arg(long, default_value_t = 0.5)]
+        tolerance_um: f64,
+        /// Largest correction accepted at any point, um.
+        #[arg(long, default_value_t = 200.0)]
+        max_correction_um: f64,
+        /// The controller's `$#` reply saved to a file: its G54..G59 offsets.
+        #[arg(long)]
+        offsets: Option<PathBuf>,
+        /// Machine position when the program starts, "X,Y[,Z]" mm (else the first
+        /// moves must name every compensated axis).
+        #[arg(long)]
+        start: Option<String>,
+        /// Soft limits, "XMIN:XMAX,YMIN:YMAX[,ZMIN:ZMAX]" machine mm.
+        #[arg(long)]
+        limits: Option<String>,
+        #[arg(long)]
+        json: bool,
+    },
     /// Localize one image of the board: the board coordinate under the image centre.
     Localize {
         /// PNG file, 8- or 16-bit greyscale.
@@ -145,6 +177,7 @@ fn main() -> ExitCode {
         Cmd::Demo { json, .. }
         | Cmd::Compensate { json, .. }
         | Cmd::Map { json, .. }
+        | Cmd::Rewrite { json, .. }
         | Cmd::Localize { json, .. } => *json,
     };
     match run(cli) {
@@ -231,6 +264,27 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             })?;
             scan::map(&job, spec, &out, &name, tool, json)
         }
+        Cmd::Rewrite {
+            input,
+            map,
+            out,
+            tolerance_um,
+            max_correction_um,
+            offsets,
+            start,
+            limits,
+            json,
+        } => rewrite::rewrite(rewrite::RewriteArgs {
+            input,
+            out,
+            map,
+            tolerance_um,
+            max_correction_um,
+            offsets,
+            start,
+            limits,
+            json,
+        }),
         Cmd::Localize {
             image,
             board,

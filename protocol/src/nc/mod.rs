@@ -29,7 +29,7 @@ pub use block::{Block, Comment, Item, LineEnding, Word};
 pub use error::{EditError, ErrorKind, NcError, Position, ProgramError};
 pub use lexer::{lex, Lexer, Token, TokenKind};
 pub use number::format_number;
-pub use program::Program;
+pub use program::{split_lines, Program};
 
 #[cfg(test)]
 mod tests;

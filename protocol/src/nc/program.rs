@@ -36,7 +36,7 @@ impl Program {
 
 /// Lines and how each ended (`\n`, `\r\n` or a lone `\r`). A final line ending does
 /// not start another (empty) line, so `"G0\n"` is one line.
-fn split_lines(text: &str) -> impl Iterator<Item = (&str, LineEnding)> {
+pub fn split_lines(text: &str) -> impl Iterator<Item = (&str, LineEnding)> {
     let mut rest = text;
     std::iter::from_fn(move || {
         if rest.is_empty() {

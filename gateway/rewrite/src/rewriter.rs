@@ -1,0 +1,626 @@
+//! The block-by-block rewriter, usable on a whole file ([`rewrite_program`]) or line by
+//! line as a sender streams them ([`Rewriter::line`], the live pass-through).
+
+use crate::split::{distance, split};
+use crate::{Approach, Compensation, Pose, AXIS_LETTERS, N_AXIS};
+use protocol::grbl::codes::error_text;
+use protocol::grbl::gcode::{filter_line, Action, FilterError, Interpreter, Motion, Rate};
+use protocol::nc::{self, Block, Item, NcError, Word};
+use std::fmt;
+
+/// Soft limits of the machine, machine coordinates, mm.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Limits {
+    pub min: Pose,
+    pub max: Pose,
+}
+
+/// How to rewrite.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Options {
+    /// Largest distance of the executed (straight) path from the compensated path, mm.
+    pub tolerance_mm: f64,
+    /// Largest correction (command minus nominal) accepted at any point, mm.
+    pub max_correction_mm: f64,
+    /// Every command must lie inside these (none: only the model's own extent).
+    pub limits: Option<Limits>,
+    /// The machine position when the program starts, if known.
+    pub start: Option<Pose>,
+    /// The controller's stored G54..G59 offsets (`$#`), machine mm.
+    pub work_offsets: [Pose; 6],
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Self {
+            tolerance_mm: 0.0005,
+            max_correction_mm: 0.2,
+            limits: None,
+            start: None,
+            work_offsets: [[0.0; N_AXIS]; 6],
+        }
+    }
+}
+
+/// Something worth telling the user that did not stop the rewrite.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Note {
+    pub line: usize,
+    pub text: String,
+}
+
+/// What a rewrite did.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Report {
+    pub input_lines: usize,
+    pub output_lines: usize,
+    /// Moves whose commands were corrected.
+    pub moves_compensated: usize,
+    /// Lines added by splitting moves and turning arcs into chords.
+    pub segments_added: usize,
+    /// Largest |command - nominal| over the compensated axes, um.
+    pub largest_correction_um: f64,
+    /// Line of that largest correction.
+    pub largest_correction_line: usize,
+    pub notes: Vec<Note>,
+}
+
+/// Why a program cannot be rewritten: always names the line (1-based).
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("line {line}: {kind}")]
+pub struct RewriteError {
+    pub line: usize,
+    pub kind: RewriteErrorKind,
+}
+
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum RewriteErrorKind {
+    #[error("{0}")]
+    Syntax(NcError),
+    #[error("the controller cannot receive this line: {0}")]
+    Filter(FilterError),
+    #[error("the controller would refuse this block with error:{code} ({})", error_text(*code))]
+    Refused { code: u8 },
+    #[error("the {axis} position is not known here (no absolute move has named it since the start, a homing, a jog or a probe): the move cannot be corrected; start with an absolute move of every compensated axis, or give the start position")]
+    UnknownPosition { axis: char },
+    #[error(
+        "inverse time feed (G93) is not supported: splitting a move would change its duration"
+    )]
+    InverseTime,
+    #[error("{0}")]
+    Model(String),
+    #[error(
+        "the correction at ({}) is {got_um:.1} um, beyond the bound of {bound_um:.1} um: refused",
+        fmt_pose(nominal)
+    )]
+    CorrectionTooLarge {
+        nominal: Pose,
+        got_um: f64,
+        bound_um: f64,
+    },
+    #[error("the command {axis}{value:.4} mm is outside the soft limits {min:.3}..{max:.3} mm")]
+    OutsideLimits {
+        axis: char,
+        value: f64,
+        min: f64,
+        max: f64,
+    },
+    #[error("options: {0}")]
+    Options(String),
+}
+
+fn fmt_pose(p: &Pose) -> String {
+    p.iter()
+        .zip(AXIS_LETTERS)
+        .map(|(v, l)| format!("{l}{v:.3}"))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// The rewriter's state between lines: the controller's interpreter (modal state,
+/// nominal position, offsets), what it knows of the position, the last command written.
+pub struct Rewriter<'a> {
+    compensation: &'a dyn Compensation,
+    options: Options,
+    interpreter: Interpreter,
+    known: [bool; N_AXIS],
+    /// The last command written per axis, machine mm (as rounded in the output).
+    command: Pose,
+    approach: [Approach; N_AXIS],
+    compensated: [bool; N_AXIS],
+    /// The model's feature length, asked once.
+    feature_mm: f64,
+    report: Report,
+}
+
+impl fmt::Debug for Rewriter<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Rewriter")
+            .field("compensation", &self.compensation.describe())
+            .field("known", &self.known)
+            .field("command", &self.command)
+            .finish()
+    }
+}
+
+impl<'a> Rewriter<'a> {
+    pub fn new(compensation: &'a dyn Compensation, options: Options) -> Result<Self, RewriteError> {
+        let bad = |what: &str| RewriteError {
+            line: 0,
+            kind: RewriteErrorKind::Options(what.into()),
+        };
+        if !(options.tolerance_mm.is_finite() && options.tolerance_mm >= 1e-5) {
+            return Err(bad("the tolerance must be at least 0.01 um"));
+        }
+        if !(options.max_correction_mm.is_finite() && options.max_correction_mm > 0.0) {
+            return Err(bad("the correction bound must be positive"));
+        }
+        let mut interpreter = Interpreter::new();
+        for (k, offset) in options.work_offsets.iter().enumerate() {
+            interpreter.stored[k] = *offset;
+        }
+        interpreter.coord_system = options.work_offsets[0];
+        // Arcs become chords within half the tolerance; each chord is split within the
+        // other half.
+        interpreter.arc_tolerance = options.tolerance_mm / 2.0;
+        let mut compensated = [false; N_AXIS];
+        for &a in compensation.axes() {
+            if a < N_AXIS {
+                compensated[a] = true;
+            }
+        }
+        let mut rewriter = Self {
+            compensation,
+            options,
+            interpreter,
+            known: [false; N_AXIS],
+            command: [0.0; N_AXIS],
+            approach: [Approach::Forward; N_AXIS],
+            compensated,
+            feature_mm: compensation.feature_length_mm(),
+            report: Report::default(),
+        };
+        if let Some(start) = rewriter.options.start {
+            rewriter.set_machine_position(start);
+        }
+        Ok(rewriter)
+    }
+
+    /// The machine is at `p` (nominal machine coordinates), e.g. from a status report
+    /// after homing. The last command is taken to be `p` itself.
+    pub fn set_machine_position(&mut self, p: Pose) {
+        self.interpreter.position = p;
+        self.command = p;
+        self.known = [true; N_AXIS];
+    }
+
+    /// The position is no longer known (a reset, a lost controller).
+    pub fn forget_position(&mut self) {
+        self.known = [false; N_AXIS];
+    }
+
+    /// The controller was reset: modal state back to defaults (offsets kept).
+    pub fn controller_reset(&mut self) {
+        self.interpreter.reset();
+        self.forget_position();
+    }
+
+    pub fn report(&self) -> &Report {
+        &self.report
+    }
+
+    pub fn into_report(self) -> Report {
+        self.report
+    }
+
+    fn fail(&self, line: usize, kind: RewriteErrorKind) -> RewriteError {
+        RewriteError { line, kind }
+    }
+
+    fn note(&mut self, line: usize, text: impl Into<String>) {
+        self.report.notes.push(Note {
+            line,
+            text: text.into(),
+        });
+    }
+
+    /// Rewrites one line (without its line ending) into the lines to send instead. On an
+    /// error nothing changes: the line may be corrected and offered again.
+    pub fn line(&mut self, text: &str, line_no: usize) -> Result<Vec<String>, RewriteError> {
+        self.report.input_lines += 1;
+        let out = self.line_inner(text, line_no);
+        match &out {
+            Ok(lines) => self.report.output_lines += lines.len(),
+            Err(_) => self.report.input_lines -= 1,
+        }
+        out
+    }
+
+    fn line_inner(&mut self, text: &str, line_no: usize) -> Result<Vec<String>, RewriteError> {
+        let trimmed = text.trim_start();
+        if trimmed.starts_with('$') {
+            return Ok(self.system_line(trimmed, line_no));
+        }
+        let block = Block::parse(text, line_no)
+            .map_err(|e| self.fail(line_no, RewriteErrorKind::Syntax(e)))?;
+        if block.has_no_words() {
+            return Ok(vec![text.to_string()]);
+        }
+        let filtered =
+            filter_line(text).map_err(|e| self.fail(line_no, RewriteErrorKind::Filter(e)))?;
+        let before = self.interpreter.clone();
+        let actions = self
+            .interpreter
+            .execute(&filtered, false)
+            .map_err(|code| self.fail(line_no, RewriteErrorKind::Refused { code }))?;
+        match self.block(&block, &before, &actions, line_no) {
+            Ok(lines) => Ok(lines),
+            Err(e) => {
+                // Nothing happened: the controller's state is as before the line.
+                self.interpreter = before;
+                Err(e)
+            }
+        }
+    }
+
+    /// `$` lines go through as written; homing and jogs make the position unknown.
+    fn system_line(&mut self, line: &str, line_no: usize) -> Vec<String> {
+        let upper = line.to_ascii_uppercase();
+        if upper.starts_with("$H") || upper.starts_with("$J=") {
+            if self.known.iter().any(|&k| k) {
+                self.note(
+                    line_no,
+                    "homing or jog: the position is unknown until the next absolute move",
+                );
+            }
+            self.forget_position();
+        }
+        vec![line.to_string()]
+    }
+
+    fn block(
+        &mut self,
+        block: &Block,
+        before: &Interpreter,
+        actions: &[Action],
+        line_no: usize,
+    ) -> Result<Vec<String>, RewriteError> {
+        let g = |code: f64| {
+            block
+                .words()
+                .any(|w| w.letter() == 'G' && w.value() == code)
+        };
+        let modal = self.interpreter.modal;
+        let moves: Vec<(Pose, Rate)> = actions
+            .iter()
+            .filter_map(|a| match a {
+                Action::Move { target, rate, .. } => Some((*target, *rate)),
+                _ => None,
+            })
+            .collect();
+        let probes = actions.iter().any(|a| matches!(a, Action::Probe { .. }));
+        if g(28.0) || g(30.0) || probes {
+            // The end is a stored position or wherever the probe touched: pass through
+            // unchanged, position unknown afterwards.
+            self.note(
+                line_no,
+                "G28/G30 or probing moves are not compensated; the position is unknown until the next absolute move",
+            );
+            self.forget_position();
+            return Ok(vec![block.to_string()]);
+        }
+        let named: Vec<usize> = (0..N_AXIS)
+            .filter(|&i| block.word(AXIS_LETTERS[i]).is_some())
+            .collect();
+        let machine_coords = g(53.0);
+        let absolute = !modal.incremental || machine_coords;
+        let touches_compensated = named.iter().any(|&i| self.compensated[i])
+            || moves.iter().any(|(t, _)| {
+                (0..N_AXIS).any(|i| self.compensated[i] && t[i] != before.position[i])
+            });
+        if moves.is_empty() || !touches_compensated {
+            // Nothing the model changes: the block goes as written.
+            for (target, _) in &moves {
+                self.check_limits(target, line_no)?;
+            }
+            for (target, _) in &moves {
+                self.command_passthrough(target);
+            }
+            if absolute && !moves.is_empty() {
+                for &i in &named {
+                    self.known[i] = true;
+                }
+            }
+            return Ok(vec![block.to_string()]);
+        }
+        if modal.inverse_time {
+            return Err(self.fail(line_no, RewriteErrorKind::InverseTime));
+        }
+        // Every compensated axis must be known at the end of the block.
+        let mut known_after = self.known;
+        if absolute {
+            for &i in &named {
+                known_after[i] = true;
+            }
+        }
+        if let Some(axis) = (0..N_AXIS).find(|&i| self.compensated[i] && !known_after[i]) {
+            return Err(self.fail(
+                line_no,
+                RewriteErrorKind::UnknownPosition {
+                    axis: AXIS_LETTERS[axis],
+                },
+            ));
+        }
+        let start_known = (0..N_AXIS).all(|i| !self.compensated[i] || self.known[i]);
+        if !absolute && !start_known {
+            let axis = (0..N_AXIS).find(|&i| self.compensated[i] && !self.known[i]);
+            return Err(self.fail(
+                line_no,
+                RewriteErrorKind::UnknownPosition {
+                    axis: AXIS_LETTERS[axis.unwrap_or(0)],
+                },
+            ));
+        }
+        let is_arc = matches!(modal.motion, Motion::ArcCw | Motion::ArcCcw);
+        let tolerance = if is_arc {
+            self.options.tolerance_mm / 2.0
+        } else {
+            self.options.tolerance_mm
+        };
+        // The pieces: (nominal end, command, rapid).
+        let mut pieces: Vec<(Pose, Pose, bool)> = Vec::new();
+        let mut from = before.position;
+        let mut from_command = self.command;
+        let mut approach = self.approach;
+        let mut first_unknown = !start_known;
+        for (target, rate) in &moves {
+            for i in 0..N_AXIS {
+                if target[i] > from[i] {
+                    approach[i] = Approach::Forward;
+                } else if target[i] < from[i] {
+                    approach[i] = Approach::Reverse;
+                }
+            }
+            let rapid = matches!(rate, Rate::Rapid);
+            let comp = self.compensation;
+            let compensated = self.compensated;
+            let mut command = |p: &Pose, guess: &Pose| -> Result<Pose, String> {
+                let c = comp.command_near(p, &approach, guess)?;
+                let mut out = *p;
+                for i in 0..N_AXIS {
+                    if compensated[i] {
+                        out[i] = c[i];
+                    }
+                }
+                Ok(out)
+            };
+            let segment = if rapid || first_unknown {
+                vec![(*target, command(target, target))]
+                    .into_iter()
+                    .map(|(p, c)| c.map(|c| (p, c)))
+                    .collect::<Result<Vec<_>, _>>()
+            } else {
+                split(
+                    &from,
+                    &from_command,
+                    target,
+                    tolerance,
+                    self.feature_mm,
+                    &mut command,
+                )
+            }
+            .map_err(|e| self.fail(line_no, RewriteErrorKind::Model(e)))?;
+            if first_unknown && !rapid {
+                self.note(
+                    line_no,
+                    "the start of this move is not known: only its end is corrected",
+                );
+            }
+            first_unknown = false;
+            for (p, c) in segment {
+                self.check_correction(&p, &c, line_no)?;
+                self.check_limits(&c, line_no)?;
+                pieces.push((p, c, rapid));
+                from_command = c;
+            }
+            from = *target;
+        }
+        let lines = self.write_pieces(
+            block,
+            before.position,
+            &pieces,
+            is_arc,
+            machine_coords,
+            line_no,
+        )?;
+        self.known = known_after;
+        self.approach = approach;
+        self.report.moves_compensated += 1;
+        self.report.segments_added += lines.len() - 1;
+        Ok(lines)
+    }
+
+    fn command_passthrough(&mut self, target: &Pose) {
+        for i in 0..N_AXIS {
+            if !self.compensated[i] {
+                self.command[i] = target[i];
+            }
+        }
+    }
+
+    fn check_correction(&mut self, p: &Pose, c: &Pose, line_no: usize) -> Result<(), RewriteError> {
+        let got = distance(p, c);
+        if got > self.options.max_correction_mm {
+            return Err(self.fail(
+                line_no,
+                RewriteErrorKind::CorrectionTooLarge {
+                    nominal: *p,
+                    got_um: got * 1000.0,
+                    bound_um: self.options.max_correction_mm * 1000.0,
+                },
+            ));
+        }
+        if got * 1000.0 > self.report.largest_correction_um {
+            self.report.largest_correction_um = got * 1000.0;
+            self.report.largest_correction_line = line_no;
+        }
+        Ok(())
+    }
+
+    fn check_limits(&self, c: &Pose, line_no: usize) -> Result<(), RewriteError> {
+        let Some(limits) = &self.options.limits else {
+            return Ok(());
+        };
+        for i in 0..N_AXIS {
+            if c[i] < limits.min[i] - 1e-9 || c[i] > limits.max[i] + 1e-9 {
+                return Err(self.fail(
+                    line_no,
+                    RewriteErrorKind::OutsideLimits {
+                        axis: AXIS_LETTERS[i],
+                        value: c[i],
+                        min: limits.min[i],
+                        max: limits.max[i],
+                    },
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The block with its axis words set to the first piece, then one `G1` (or `G0`)
+    /// line per further piece. Numbers are rounded as written, and in incremental mode
+    /// each increment is taken from the previous rounded command so rounding does not
+    /// accumulate.
+    fn write_pieces(
+        &mut self,
+        block: &Block,
+        start: Pose,
+        pieces: &[(Pose, Pose, bool)],
+        is_arc: bool,
+        machine_coords: bool,
+        line_no: usize,
+    ) -> Result<Vec<String>, RewriteError> {
+        let modal = self.interpreter.modal;
+        let unit = if modal.inches { 25.4 } else { 1.0 };
+        let decimals = if modal.inches { 5 } else { 4 };
+        let wco = self.interpreter.wco();
+        let incremental = modal.incremental && !machine_coords;
+        let mut lines = Vec::with_capacity(pieces.len());
+        let mut previous_nominal = start;
+        for (k, (nominal, command, rapid)) in pieces.iter().enumerate() {
+            let mut words: Vec<(usize, f64)> = Vec::new();
+            for i in 0..N_AXIS {
+                let moved = previous_nominal[i] != nominal[i] || command[i] != self.command[i];
+                let named = k == 0 && block.word(AXIS_LETTERS[i]).is_some();
+                if !(moved || named || (self.compensated[i] && k == 0)) {
+                    continue;
+                }
+                let value = if incremental {
+                    (command[i] - self.command[i]) / unit
+                } else if machine_coords {
+                    command[i] / unit
+                } else {
+                    (command[i] - wco[i]) / unit
+                };
+                let rounded = round_to(value, decimals);
+                self.command[i] = if incremental {
+                    self.command[i] + rounded * unit
+                } else if machine_coords {
+                    rounded * unit
+                } else {
+                    rounded * unit + wco[i]
+                };
+                words.push((i, rounded));
+            }
+            let line = if k == 0 {
+                let mut first = block.clone();
+                self.edit_first(&mut first, &words, is_arc, decimals)
+                    .map_err(|e| self.fail(line_no, RewriteErrorKind::Model(e.to_string())))?;
+                first.ending = nc::LineEnding::None;
+                first.to_string()
+            } else {
+                let mut text = String::new();
+                if machine_coords {
+                    text.push_str("G53");
+                }
+                text.push_str(if *rapid { "G0" } else { "G1" });
+                for (i, v) in &words {
+                    text.push(AXIS_LETTERS[*i]);
+                    text.push_str(&nc::format_number(*v, decimals).unwrap_or_default());
+                }
+                text
+            };
+            filter_line(&line).map_err(|e| self.fail(line_no, RewriteErrorKind::Filter(e)))?;
+            lines.push(line);
+            previous_nominal = *nominal;
+        }
+        Ok(lines)
+    }
+
+    /// The original block with its axis words replaced; an arc becomes a `G1` chord
+    /// (centre words removed).
+    fn edit_first(
+        &self,
+        block: &mut Block,
+        words: &[(usize, f64)],
+        is_arc: bool,
+        decimals: usize,
+    ) -> Result<(), nc::EditError> {
+        if is_arc {
+            for letter in ['I', 'J', 'K', 'R'] {
+                while block.remove_word(letter).is_some() {}
+            }
+            let mut replaced = false;
+            for item in &mut block.items {
+                if let Item::Word(w) = item {
+                    if w.letter() == 'G' && (w.value() == 2.0 || w.value() == 3.0) {
+                        w.set_value(1.0, 0)?;
+                        replaced = true;
+                    }
+                }
+            }
+            if !replaced {
+                // A modal arc continuation: say G1 explicitly.
+                let g1 = Word::new('G', 1.0, 0)?;
+                let spaced = block.items.iter().any(|i| matches!(i, Item::Space(_)));
+                if spaced {
+                    block.items.insert(0, Item::Space(" ".into()));
+                }
+                block.items.insert(0, Item::Word(g1));
+            }
+        }
+        for (i, v) in words {
+            block.set_word(AXIS_LETTERS[*i], *v, decimals)?;
+        }
+        Ok(())
+    }
+}
+
+fn round_to(v: f64, decimals: usize) -> f64 {
+    let scale = 10f64.powi(decimals as i32);
+    (v * scale).round() / scale
+}
+
+/// Rewrites a whole program; the output keeps the input's line endings.
+pub fn rewrite_program(
+    text: &str,
+    compensation: &dyn Compensation,
+    options: Options,
+) -> Result<(String, Report), RewriteError> {
+    let mut rewriter = Rewriter::new(compensation, options)?;
+    let mut out = String::with_capacity(text.len() + text.len() / 4);
+    for (index, (line, ending)) in nc::split_lines(text).enumerate() {
+        let ending = match ending {
+            nc::LineEnding::None => "\n",
+            e => e.as_str(),
+        };
+        for piece in rewriter.line(line, index + 1)? {
+            out.push_str(&piece);
+            out.push_str(ending);
+        }
+    }
+    if !text.ends_with(['\n', '\r']) && out.ends_with('\n') {
+        out.pop();
+    }
+    Ok((out, rewriter.into_report()))
+}

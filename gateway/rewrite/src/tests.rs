@@ -1,0 +1,311 @@
+use super::*;
+use crate::rewriter::RewriteErrorKind;
+use crate::split::lerp;
+
+/// A machine whose tool lands at `c + e(c)` for command `c`: a 5 mm-period screw error
+/// of 3 um amplitude in X and a squareness of 40 urad (Y error grows with X). The model
+/// inverts it exactly (fixed point), and is refused outside 0..200 mm.
+struct Screw;
+
+fn screw_error(c: &Pose) -> [f64; 2] {
+    let k = std::f64::consts::TAU / 5.0;
+    [0.003 * (k * c[0]).sin(), 40e-6 * c[0]]
+}
+
+fn tool_of(c: &Pose) -> Pose {
+    let e = screw_error(c);
+    [c[0] + e[0], c[1] + e[1], c[2]]
+}
+
+impl Compensation for Screw {
+    fn describe(&self) -> String {
+        "screw".into()
+    }
+    fn axes(&self) -> &[usize] {
+        &[0, 1]
+    }
+    fn feature_length_mm(&self) -> f64 {
+        1.25
+    }
+    fn command_for(&self, p: &Pose, _: &[Approach; N_AXIS]) -> Result<Pose, String> {
+        if !(0.0..=200.0).contains(&p[0]) || !(0.0..=200.0).contains(&p[1]) {
+            return Err(format!("({:.3}, {:.3}) is outside the map", p[0], p[1]));
+        }
+        let mut c = *p;
+        for _ in 0..20 {
+            let e = screw_error(&c);
+            c = [p[0] - e[0], p[1] - e[1], p[2]];
+        }
+        Ok(c)
+    }
+}
+
+fn rewrite(text: &str) -> Result<(String, Report), RewriteError> {
+    rewrite_program(text, &Screw, Options::default())
+}
+
+/// The commands a GRBL controller would execute for a program (machine coordinates),
+/// from the same interpreter, starting at `start`.
+fn executed_commands(text: &str, start: Pose) -> Vec<Pose> {
+    let mut interp = protocol::grbl::gcode::Interpreter::new();
+    interp.position = start;
+    let mut out = vec![start];
+    for line in text.lines() {
+        let filtered = protocol::grbl::gcode::filter_line(line).unwrap();
+        if filtered.is_empty() {
+            continue;
+        }
+        for a in interp.execute(&filtered, false).unwrap() {
+            if let protocol::grbl::gcode::Action::Move { target, .. } = a {
+                out.push(target);
+            }
+        }
+    }
+    out
+}
+
+/// Distance from point `q` to the polyline `path` (X-Y).
+fn distance_to_path(q: &Pose, path: &[Pose]) -> f64 {
+    path.windows(2)
+        .map(|w| {
+            let (a, b) = (w[0], w[1]);
+            let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+            let len2 = dx * dx + dy * dy;
+            let t = if len2 == 0.0 {
+                0.0
+            } else {
+                (((q[0] - a[0]) * dx + (q[1] - a[1]) * dy) / len2).clamp(0.0, 1.0)
+            };
+            (q[0] - a[0] - t * dx).hypot(q[1] - a[1] - t * dy)
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+/// Largest distance of the true tool path (commands executed as straight lines, the
+/// tool at `tool_of`) from the nominal path (the program executed on a perfect machine,
+/// arcs as very fine chords).
+fn worst_path_deviation(program: &str, rewritten: &str, start: Pose) -> f64 {
+    let mut fine = protocol::grbl::gcode::Interpreter::new();
+    fine.arc_tolerance = 1e-6;
+    fine.position = start;
+    let mut nominal = vec![start];
+    for line in program.lines() {
+        let f = protocol::grbl::gcode::filter_line(line).unwrap();
+        if f.is_empty() {
+            continue;
+        }
+        for a in fine.execute(&f, false).unwrap() {
+            if let protocol::grbl::gcode::Action::Move { target, .. } = a {
+                nominal.push(target);
+            }
+        }
+    }
+    let commands = executed_commands(rewritten, start);
+    let mut worst: f64 = 0.0;
+    for w in commands.windows(2).skip(1) {
+        for k in 0..=50 {
+            let c = lerp(&w[0], &w[1], k as f64 / 50.0);
+            worst = worst.max(distance_to_path(&tool_of(&c), &nominal));
+        }
+    }
+    worst
+}
+
+#[test]
+fn identity_leaves_the_program_byte_identical() {
+    let program = "%\r\n(part 7)\r\nN10 G21 G90 g0 x 10.00 Y20 ; start\r\nG2 X20 Y30 I10 J0 F300\r\n$H\r\nM30\r\n%";
+    let (out, report) = rewrite_program(program, &Identity, Options::default()).unwrap();
+    assert_eq!(out, program);
+    assert_eq!(report.input_lines, 7);
+    assert_eq!(report.output_lines, 7);
+    assert_eq!(report.segments_added, 0);
+}
+
+#[test]
+fn a_point_move_gets_the_inverse_command_and_keeps_its_words() {
+    let (out, report) = rewrite("N5 G0 X51.25 Y20 (probe) M8\n").unwrap();
+    let c = Screw
+        .command_for(&[51.25, 20.0, 0.0], &[Approach::Forward; N_AXIS])
+        .unwrap();
+    let expected = format!(
+        "N5 G0 X{} Y{} (probe) M8\n",
+        protocol::nc::format_number(c[0], 4).unwrap(),
+        protocol::nc::format_number(c[1], 4).unwrap()
+    );
+    assert_eq!(out, expected);
+    assert_eq!(report.moves_compensated, 1);
+    assert!(report.largest_correction_um > 2.0, "{report:?}");
+}
+
+#[test]
+fn long_feed_moves_are_split_so_the_true_path_stays_within_the_tolerance() {
+    let program = "G90 G21\nG0 X10 Y10\nG1 X60 Y10 F600\nG1 X10 Y45\nG1 X70 Y80 (diagonal)\n";
+    let (out, report) = rewrite(program).unwrap();
+    assert!(report.segments_added > 20, "{report:?}\n{out}");
+    let worst = worst_path_deviation(program, &out, [10.0, 10.0, 0.0]);
+    // T = 0.5 um, plus the 0.05 um rounding of 4 decimals.
+    assert!(
+        worst <= 0.00056,
+        "true path {:.3} um from the program",
+        worst * 1e3
+    );
+    // Without the rewrite the same path is off by the machine's error (several um).
+    let raw = worst_path_deviation(program, program, [10.0, 10.0, 0.0]);
+    assert!(raw > 0.002, "uncorrected {:.3} um", raw * 1e3);
+}
+
+#[test]
+fn arcs_become_chords_within_the_tolerance_and_later_modal_arcs_say_g1() {
+    let program = "G90\nG0 X40 Y40\nG2 X60 Y40 I10 J0 F500\nX40 Y40 I-10 J0\nG1 X45\n";
+    let (out, _) = rewrite(program).unwrap();
+    assert!(!out.contains("G2") && !out.contains('I'), "{out}");
+    // The modal continuation of the arc got an explicit G1.
+    let continued = out
+        .lines()
+        .find(|l| l.starts_with("G1 X") && !l.contains("X45"))
+        .unwrap();
+    assert!(continued.starts_with("G1"), "{continued}");
+    let worst = worst_path_deviation(program, &out, [40.0, 40.0, 0.0]);
+    assert!(
+        worst <= 0.00056,
+        "true path {:.3} um from the arcs",
+        worst * 1e3
+    );
+}
+
+#[test]
+fn incremental_moves_do_not_accumulate_rounding() {
+    // 400 increments of 0.1234567 mm: the sum of the written increments must end where
+    // the absolute command for the end point is.
+    let mut program = String::from("G90 G0 X10 Y10\nG91 G1 F800\n");
+    for _ in 0..400 {
+        program.push_str("X0.1234567\n");
+    }
+    let (out, _) = rewrite(&program).unwrap();
+    let commands = executed_commands(&out, [0.0; 3]);
+    let end = commands.last().unwrap();
+    let nominal_end = [10.0 + 400.0 * 0.1234567, 10.0, 0.0];
+    let want = Screw
+        .command_for(&nominal_end, &[Approach::Forward; N_AXIS])
+        .unwrap();
+    assert!(
+        (end[0] - want[0]).abs() < 0.00006,
+        "{} vs {}",
+        end[0],
+        want[0]
+    );
+    assert!(
+        (end[1] - want[1]).abs() < 0.00006,
+        "{} vs {}",
+        end[1],
+        want[1]
+    );
+}
+
+#[test]
+fn inch_programs_are_written_in_inches() {
+    let (out, _) = rewrite("G20 G90 G0 X2 Y1\n").unwrap();
+    let c = Screw
+        .command_for(&[50.8, 25.4, 0.0], &[Approach::Forward; N_AXIS])
+        .unwrap();
+    let x = protocol::nc::format_number(c[0] / 25.4, 5).unwrap();
+    assert!(out.contains(&format!("X{x}")), "{out} (want X{x})");
+}
+
+#[test]
+fn work_offsets_are_applied_and_removed() {
+    let options = Options {
+        work_offsets: [
+            [100.0, 50.0, 0.0],
+            [0.0; 3],
+            [0.0; 3],
+            [0.0; 3],
+            [0.0; 3],
+            [0.0; 3],
+        ],
+        ..Options::default()
+    };
+    let (out, _) = rewrite_program("G54 G0 X10 Y10\n", &Screw, options).unwrap();
+    let c = Screw
+        .command_for(&[110.0, 60.0, 0.0], &[Approach::Forward; N_AXIS])
+        .unwrap();
+    let x = protocol::nc::format_number(c[0] - 100.0, 4).unwrap();
+    assert!(out.contains(&format!("X{x}")), "{out} (want X{x})");
+}
+
+#[test]
+fn z_only_moves_and_non_motion_lines_pass_unchanged() {
+    let program = "G0 X10 Y10\nG0 Z5\nM3 S1000\nG4 P0.5\n";
+    let (out, _) = rewrite(program).unwrap();
+    let lines: Vec<&str> = out.lines().collect();
+    assert_eq!(&lines[1..], &["G0 Z5", "M3 S1000", "G4 P0.5"]);
+}
+
+#[test]
+fn refuses_a_move_from_an_unknown_position_naming_the_line() {
+    let err = rewrite("G21\nG1 X10 F100\n").unwrap_err();
+    assert_eq!(err.line, 2);
+    assert!(
+        matches!(err.kind, RewriteErrorKind::UnknownPosition { axis: 'Y' }),
+        "{err}"
+    );
+    let err = rewrite("G0 X10 Y10\n$H\nG91 G1 X1 F100\n").unwrap_err();
+    assert_eq!(err.line, 3, "{err}");
+}
+
+#[test]
+fn refuses_what_the_controller_would_refuse_naming_the_line() {
+    let err = rewrite("G0 X10 Y10\nG81 X1 Y1 Z-1 R1\n").unwrap_err();
+    assert_eq!(err.line, 2);
+    assert!(
+        matches!(err.kind, RewriteErrorKind::Refused { code: 20 }),
+        "{err}"
+    );
+    assert!(err.to_string().contains("unsupported command"), "{err}");
+    let err = rewrite("G0 X10 Y10\nG1 X20 (no feed)\n").unwrap_err();
+    assert!(
+        matches!(err.kind, RewriteErrorKind::Refused { code: 22 }),
+        "{err}"
+    );
+    let err = rewrite("G0 X10 Y10\nG93 G1 X20 F2\n").unwrap_err();
+    assert!(matches!(err.kind, RewriteErrorKind::InverseTime), "{err}");
+}
+
+#[test]
+fn refuses_points_outside_the_model_beyond_the_bound_or_the_limits() {
+    let err = rewrite("G0 X10 Y10\nG1 X250 F100\n").unwrap_err();
+    assert_eq!(err.line, 2);
+    assert!(err.to_string().contains("outside the map"), "{err}");
+    let tight = Options {
+        max_correction_mm: 0.001,
+        ..Options::default()
+    };
+    let err = rewrite_program("G0 X150 Y10\n", &Screw, tight).unwrap_err();
+    assert!(
+        matches!(err.kind, RewriteErrorKind::CorrectionTooLarge { .. }),
+        "{err}"
+    );
+    let limited = Options {
+        limits: Some(Limits {
+            min: [0.0; 3],
+            max: [100.0, 100.0, 50.0],
+        }),
+        ..Options::default()
+    };
+    let err = rewrite_program("G0 X10 Y10\nG0 Z60\n", &Screw, limited).unwrap_err();
+    assert!(
+        matches!(err.kind, RewriteErrorKind::OutsideLimits { axis: 'Z', .. }),
+        "{err}"
+    );
+}
+
+#[test]
+fn a_refused_line_changes_nothing_so_a_stream_can_go_on() {
+    let mut r = Rewriter::new(&Screw, Options::default()).unwrap();
+    r.line("G0 X10 Y10", 1).unwrap();
+    assert!(r.line("G1 X999 F100", 2).is_err());
+    // The interpreter did not move to X999: the next move starts from X10.
+    let out = r.line("G1 X11 F100", 3).unwrap();
+    assert!(out.len() <= 2, "{out:?}");
+    assert_eq!(r.report().input_lines, 2);
+}
