@@ -11,3 +11,4 @@ pub mod gige;
 pub mod grbl;
 pub mod modbus;
 pub mod pty;
+pub mod trace;

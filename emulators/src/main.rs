@@ -53,6 +53,10 @@ enum Cmd {
         /// soon as anything depends on it).
         #[arg(long, default_value = "1")]
         time_scale: String,
+        /// Write the executed path here (CSV `t_s,cmd_x_mm,cmd_y_mm,true_x_mm,true_y_mm`,
+        /// a row every 0.05 mm of motion and at every move's end): truth for tests.
+        #[arg(long)]
+        trace: Option<PathBuf>,
     },
     /// Serve Modbus positioning drives (a profile's register map, several unit ids)
     /// driving the simulated machine, over TCP and/or RTU on a new pseudo-terminal;
@@ -75,6 +79,7 @@ fn serve_grbl(
     camera: PathBuf,
     link: Option<PathBuf>,
     time_scale: String,
+    trace: Option<PathBuf>,
 ) -> anyhow::Result<()> {
     use emulators::grbl::{GrblConfig, GrblDevice, GrblPty};
     use std::io::Write;
@@ -88,6 +93,13 @@ fn serve_grbl(
         .enable_all()
         .build()?;
     rt.block_on(async move {
+        let trace = match &trace {
+            Some(path) => Some(
+                emulators::trace::TraceFile::start(rig.clone(), path)
+                    .with_context(|| format!("--trace {}", path.display()))?,
+            ),
+            None => None,
+        };
         let dev = GrblDevice::new(
             rig,
             GrblConfig {
@@ -102,7 +114,14 @@ fn serve_grbl(
             println!("link: {}", l.display());
         }
         std::io::stdout().flush()?;
-        pty.closed().await;
+        tokio::select! {
+            _ = pty.closed() => {}
+            _ = tokio::signal::ctrl_c() => {}
+        }
+        if let Some(t) = trace {
+            let rows = t.finish().await?;
+            eprintln!("trace: {rows} rows");
+        }
         Ok(())
     })
 }
@@ -118,7 +137,8 @@ fn main() -> anyhow::Result<()> {
             camera,
             link,
             time_scale,
-        } => serve_grbl(machine, board, camera, link, time_scale)?,
+            trace,
+        } => serve_grbl(machine, board, camera, link, time_scale, trace)?,
         Cmd::MakeCertificate {
             board,
             seed,

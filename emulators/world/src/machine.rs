@@ -129,6 +129,11 @@ pub struct MachineSection {
     /// Height of the camera's optical axis point above the screws (pitch lever).
     #[serde(default)]
     pub camera_height_mm: f64,
+    /// Where the tool point sits relative to the camera's centre, machine axes, mm: a
+    /// rigid arm on the carriage, so the carriage's yaw moves the tool by
+    /// `yaw x (-oy, ox)` more than the camera (Abbe). The trace records the tool.
+    #[serde(default, deserialize_with = "protocol::config::two_numbers")]
+    pub tool_offset_mm: [f64; 2],
 }
 
 #[derive(Clone, Debug, Deserialize)]
@@ -182,6 +187,9 @@ impl MachineConfig {
             3600.0,
             "arcsec",
         )?;
+        for v in m.tool_offset_mm {
+            doc.in_range("machine.tool_offset_mm", v, -1000.0, 1000.0, "mm")?;
+        }
         doc.in_range(
             "machine.camera_height_mm",
             m.camera_height_mm,
@@ -474,7 +482,22 @@ pub struct SimMachine {
     homings: u32,
     /// Moves started so far (each coordinated move counts once): the group of the next.
     moves: u64,
+    /// The executed path, when recording (`start_trace`): truth for tests only.
+    trace: Option<Vec<TraceRow>>,
 }
+
+/// One point of the executed path: the controller's position and where the tool really
+/// is, both in machine coordinates (the true tool point minus the nominal offset between
+/// board and machine, so a perfect machine has `true_mm == cmd_mm`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TraceRow {
+    pub t_s: f64,
+    pub cmd_mm: [f64; 2],
+    pub true_mm: [f64; 2],
+}
+
+/// Longest path between two trace rows, mm.
+pub const TRACE_STEP_MM: f64 = 0.05;
 
 impl SimMachine {
     pub fn new(cfg: MachineConfig) -> Self {
@@ -500,7 +523,42 @@ impl SimMachine {
             now_s: 0.0,
             homings: 0,
             moves: 0,
+            trace: None,
         }
+    }
+
+    /// Record the executed path from now on: a row at least every [`TRACE_STEP_MM`] of
+    /// motion and at the end of every move (truth for tests; the gateway never sees it).
+    pub fn start_trace(&mut self) {
+        let row = self.trace_row();
+        self.trace = Some(vec![row]);
+    }
+
+    /// The rows recorded since the last call (empty when not recording).
+    pub fn take_trace(&mut self) -> Vec<TraceRow> {
+        self.trace.as_mut().map(std::mem::take).unwrap_or_default()
+    }
+
+    fn trace_row(&self) -> TraceRow {
+        let o = self.cfg.machine.board_at_home_mm;
+        let tool = self.tool_point_mm();
+        TraceRow {
+            t_s: self.now_s,
+            cmd_mm: self.position_mm(),
+            true_mm: [tool[0] - o[0], tool[1] - o[1]],
+        }
+    }
+
+    /// Where the tool point really is on the board: the camera's true centre plus the
+    /// tool arm turned by the carriage's yaw.
+    pub(crate) fn tool_point_mm(&self) -> [f64; 2] {
+        let pose = self.camera_pose();
+        let [ox, oy] = self.cfg.machine.tool_offset_mm;
+        let (s, c) = pose.rotation_rad.sin_cos();
+        [
+            pose.centre_mm[0] + c * ox - s * oy - ox,
+            pose.centre_mm[1] + s * ox + c * oy - oy,
+        ]
     }
 
     pub fn config(&self) -> &MachineConfig {
@@ -717,9 +775,48 @@ impl SimMachine {
     }
 
     /// Advance the simulated clock; every axis's motion progresses, the carriages
-    /// follow the nuts. An axis arriving gets its settling noise.
+    /// follow the nuts. An axis arriving gets its settling noise. While a trace is
+    /// recorded the motion advances in steps of at most [`TRACE_STEP_MM`] of path (the
+    /// same end state: the carriages follow the nuts monotonically within a move).
     pub fn advance(&mut self, dt_s: f64) {
         let dt = dt_s.max(0.0);
+        if self.trace.is_none() || !self.is_moving() {
+            self.advance_by(dt);
+            return;
+        }
+        let fastest = self
+            .cfg
+            .axes
+            .x
+            .max_feed_mm_min
+            .max(self.cfg.axes.y.max_feed_mm_min)
+            / 60.0;
+        let step = TRACE_STEP_MM / (fastest * std::f64::consts::SQRT_2);
+        let mut left = dt;
+        while left > 0.0 && self.is_moving() {
+            let h = left.min(step);
+            let moving = self.motion.iter().filter(|m| m.is_some()).count();
+            self.advance_by(h);
+            left -= h;
+            let ended = self.motion.iter().filter(|m| m.is_some()).count() < moving;
+            let row = self.trace_row();
+            let moved = self
+                .trace
+                .as_ref()
+                .and_then(|t| t.last())
+                .is_none_or(|last| row.cmd_mm != last.cmd_mm);
+            if moved || ended {
+                if let Some(t) = self.trace.as_mut() {
+                    t.push(row);
+                }
+            }
+        }
+        if left > 0.0 {
+            self.advance_by(left);
+        }
+    }
+
+    fn advance_by(&mut self, dt: f64) {
         self.now_s += dt;
         for k in 0..2 {
             let Some(mut m) = self.motion[k].take() else {
@@ -1278,5 +1375,56 @@ mod tests {
             m.start_axis_move_accel(0, 40.0, 3000.0, 0.0),
             Err(MachineRefusal::BadAccel(_))
         ));
+    }
+
+    #[test]
+    fn the_trace_follows_the_path_in_small_steps_and_does_not_change_it() {
+        let mut cfg = config();
+        cfg.thermal = None;
+        cfg.machine.tool_offset_mm = [30.0, -10.0];
+        let mut plain = SimMachine::new(cfg.clone());
+        let mut traced = SimMachine::new(cfg);
+        for m in [&mut plain, &mut traced] {
+            m.home();
+        }
+        traced.start_trace();
+        for m in [&mut plain, &mut traced] {
+            m.start_move([40.0, 25.0], 3000.0).unwrap();
+            m.advance(0.3);
+            m.finish_motion();
+            m.start_move([12.0, 60.0], 1200.0).unwrap();
+            m.finish_motion();
+        }
+        assert_eq!(plain.position_mm(), traced.position_mm());
+        assert_eq!(plain.tool_point_mm(), traced.tool_point_mm());
+        let rows = traced.take_trace();
+        assert!(rows.len() > 1000, "{} rows", rows.len());
+        for w in rows.windows(2) {
+            let step = (w[1].cmd_mm[0] - w[0].cmd_mm[0]).hypot(w[1].cmd_mm[1] - w[0].cmd_mm[1]);
+            assert!(
+                step <= TRACE_STEP_MM + 1e-9,
+                "step {step} mm at t = {}",
+                w[0].t_s
+            );
+            assert!(w[1].t_s >= w[0].t_s);
+        }
+        // Each move's end is a row, exactly on its target.
+        for end in [[40.0, 25.0], [12.0, 60.0]] {
+            assert!(rows.iter().any(|r| r.cmd_mm == end), "no row at {end:?}");
+        }
+        // The tool differs from the camera by the yaw acting on the arm (Abbe).
+        let cam = traced.camera_pose();
+        let tool = traced.tool_point_mm();
+        let expected = [-cam.rotation_rad * -10.0, cam.rotation_rad * 30.0];
+        for k in 0..2 {
+            let d = tool[k] - cam.centre_mm[k];
+            // First order in the yaw (the rotation is exact: second-order terms remain).
+            assert!(
+                (d - expected[k]).abs() < 1e-8,
+                "axis {k}: {d} vs {}",
+                expected[k]
+            );
+        }
+        assert!(traced.take_trace().is_empty(), "rows are taken once");
     }
 }
