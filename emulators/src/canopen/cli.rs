@@ -39,6 +39,10 @@ pub struct CanopenArgs {
     /// (Linux, cargo feature `socketcan`); prints `socketcan: IFACE`.
     #[arg(long)]
     pub socketcan: Option<String>,
+    /// Write the executed path here (see `emulators grbl --trace`; SLCAN only): truth
+    /// for tests.
+    #[arg(long)]
+    pub trace: Option<PathBuf>,
 }
 
 fn parse_node(s: &str) -> anyhow::Result<(u8, usize)> {
@@ -80,6 +84,7 @@ pub fn serve(args: CanopenArgs) -> anyhow::Result<()> {
     let c = world::camera::CameraModel::load(&args.camera)?;
     let rig = world::rig::SimRig::new(world::machine::SimMachine::new(m), b, c);
     let rig = Arc::new(Mutex::new(rig));
+    let trace_rig = rig.clone();
     let set = DriveSet::new(rig, &DriveSetConfig { clock, nodes, eds }, 0.0)?;
     let ids = set.node_ids();
     let rt = tokio::runtime::Builder::new_current_thread()
@@ -87,9 +92,20 @@ pub fn serve(args: CanopenArgs) -> anyhow::Result<()> {
         .build()?;
     let set = Arc::new(Mutex::new(set));
     if let Some(iface) = &args.socketcan {
+        anyhow::ensure!(
+            args.trace.is_none(),
+            "--trace is for the SLCAN emulator only"
+        );
         return serve_socketcan(&rt, set, iface, &ids);
     }
     rt.block_on(async move {
+        let trace = match &args.trace {
+            Some(path) => Some(
+                crate::trace::TraceFile::start(trace_rig, path)
+                    .with_context(|| format!("--trace {}", path.display()))?,
+            ),
+            None => None,
+        };
         let mut pty =
             SlcanPty::spawn(set, args.link.as_deref()).context("creating the pseudo-terminal")?;
         println!("slcan: {}", pty.path());
@@ -101,7 +117,13 @@ pub fn serve(args: CanopenArgs) -> anyhow::Result<()> {
             ids.iter().map(u8::to_string).collect::<Vec<_>>().join(",")
         );
         std::io::stdout().flush()?;
-        pty.closed().await;
+        tokio::select! {
+            _ = pty.closed() => {}
+            _ = tokio::signal::ctrl_c() => {}
+        }
+        if let Some(t) = trace {
+            eprintln!("trace: {} rows", t.finish().await?);
+        }
         Ok(())
     })
 }

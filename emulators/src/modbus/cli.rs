@@ -58,6 +58,9 @@ pub struct ModbusArgs {
     pub slow_every: Option<u64>,
     #[arg(long, default_value_t = 1000)]
     pub slow_ms: u64,
+    /// Write the executed path here (see `emulators grbl --trace`): truth for tests.
+    #[arg(long)]
+    pub trace: Option<PathBuf>,
     /// Apply the faults only to requests with this function code (e.g. 16).
     #[arg(long)]
     pub fault_function: Option<u8>,
@@ -131,12 +134,20 @@ pub fn serve(a: ModbusArgs) -> anyhow::Result<()> {
     let c = world::camera::CameraModel::load(&a.camera)?;
     let rig = world::rig::SimRig::new(world::machine::SimMachine::new(m), b, c);
     let rig = Arc::new(Mutex::new(rig));
+    let trace_rig = rig.clone();
     let device = ModbusDevice::new(DriveSet::new(rig, profile.clone(), &units, clock));
     device.set_faults(faults(&a));
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
     rt.block_on(async move {
+        let trace = match &a.trace {
+            Some(path) => Some(
+                crate::trace::TraceFile::start(trace_rig, path)
+                    .with_context(|| format!("--trace {}", path.display()))?,
+            ),
+            None => None,
+        };
         let _tcp = match tcp_addr {
             Some(addr) => {
                 let s = ModbusTcp::bind(device.clone(), addr)
@@ -166,9 +177,18 @@ pub fn serve(a: ModbusArgs) -> anyhow::Result<()> {
             ids.join(", ")
         );
         std::io::stdout().flush()?;
-        match &mut rtu {
-            Some(r) => r.closed().await,
-            None => std::future::pending::<()>().await,
+        let closed = async {
+            match &mut rtu {
+                Some(r) => r.closed().await,
+                None => std::future::pending::<()>().await,
+            }
+        };
+        tokio::select! {
+            _ = closed => {}
+            _ = tokio::signal::ctrl_c() => {}
+        }
+        if let Some(t) = trace {
+            eprintln!("trace: {} rows", t.finish().await?);
         }
         Ok(())
     })
