@@ -54,4 +54,18 @@ impl Compensation for MapModel {
         out[1] = c[1];
         Ok(out)
     }
+
+    fn tool_for(&self, command: &Pose, approach: &[Approach; N_AXIS]) -> Result<Pose, String> {
+        let dir = Direction {
+            x: approach[0],
+            y: approach[1],
+        };
+        let e = self
+            .tool_error_um([command[0], command[1]], dir)
+            .map_err(|e| e.to_string())?;
+        let mut out = *command;
+        out[0] += e[0] / 1000.0;
+        out[1] += e[1] / 1000.0;
+        Ok(out)
+    }
 }

@@ -35,7 +35,9 @@ mod rewriter;
 pub mod split;
 
 pub use protocol::grbl::gcode::N_AXIS;
-pub use rewriter::{rewrite_program, Limits, Note, Options, Report, RewriteError, Rewriter};
+pub use rewriter::{
+    rewrite_program, Limits, Note, Options, Report, RewriteError, RewriteErrorKind, Rewriter,
+};
 
 /// A position of every axis the controller drives (X, Y, Z), machine coordinates, mm.
 pub type Pose = [f64; N_AXIS];
@@ -76,6 +78,12 @@ pub trait Compensation {
         _guess: &Pose,
     ) -> Result<Pose, String> {
         self.command_for(nominal, approach)
+    }
+    /// Where the tool really is for a command: the forward model (the pass-through turns
+    /// the controller's reported position back into the programmed one with it).
+    /// Refuses outside the model.
+    fn tool_for(&self, command: &Pose, _approach: &[Approach; N_AXIS]) -> Result<Pose, String> {
+        Ok(*command)
     }
 }
 

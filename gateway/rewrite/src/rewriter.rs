@@ -4,7 +4,7 @@
 use crate::split::{distance, split};
 use crate::{Approach, Compensation, Pose, AXIS_LETTERS, N_AXIS};
 use protocol::grbl::codes::error_text;
-use protocol::grbl::gcode::{filter_line, Action, FilterError, Interpreter, Motion, Rate};
+use protocol::grbl::gcode::{filter_line, Action, FilterError, Interpreter, Motion, Plane, Rate};
 use protocol::nc::{self, Block, Item, NcError, Word};
 use std::fmt;
 
@@ -192,6 +192,84 @@ impl<'a> Rewriter<'a> {
         self.interpreter.position = p;
         self.command = p;
         self.known = [true; N_AXIS];
+    }
+
+    /// The machine's command is `command` and the tool's nominal position `nominal`
+    /// (the pass-through learns both from an idle status report).
+    pub fn set_position(&mut self, nominal: Pose, command: Pose) {
+        self.interpreter.position = nominal;
+        self.command = command;
+        self.known = [true; N_AXIS];
+    }
+
+    /// The controller's stored G54..G59 offsets (from its `$#` reply), machine mm.
+    pub fn set_work_offsets(&mut self, offsets: [Pose; 6]) {
+        for (k, o) in offsets.iter().enumerate() {
+            self.interpreter.stored[k] = *o;
+        }
+        self.interpreter.coord_system = offsets[self.interpreter.modal.coord_select];
+    }
+
+    /// The stored G54..G59 offsets in use.
+    pub fn work_offsets(&self) -> [Pose; 6] {
+        let mut o = [[0.0; N_AXIS]; 6];
+        o.copy_from_slice(&self.interpreter.stored[..6]);
+        o
+    }
+
+    /// Whether every axis's position is known.
+    pub fn position_known(&self) -> bool {
+        self.known.iter().all(|&k| k)
+    }
+
+    /// The side each axis last moved from.
+    pub fn approach(&self) -> [Approach; N_AXIS] {
+        self.approach
+    }
+
+    /// Take the controller's modal state from its `$G` reply (the words inside
+    /// `[GC:...]`, e.g. `G1 G54 G17 G21 G90 G94 M5 M9 T0 F500 S0`): motion, coordinate
+    /// system, plane, units, distance and feed modes, and the feed.
+    pub fn sync_modal(&mut self, gc_words: &str) -> Result<(), RewriteError> {
+        let bad = |w: &str| RewriteError {
+            line: 0,
+            kind: RewriteErrorKind::Options(format!("`{w}` in the $G reply `{gc_words}`")),
+        };
+        let mut modal = self.interpreter.modal;
+        let mut feed = self.interpreter.feed_rate;
+        for w in gc_words.split_whitespace() {
+            let (letter, number) = w.split_at(1);
+            let value: f64 = number.parse().map_err(|_| bad(w))?;
+            match (letter, number) {
+                ("G", "0") => modal.motion = Motion::Rapid,
+                ("G", "1") => modal.motion = Motion::Linear,
+                ("G", "2") => modal.motion = Motion::ArcCw,
+                ("G", "3") => modal.motion = Motion::ArcCcw,
+                ("G", "80") => modal.motion = Motion::None,
+                ("G", n) if n.starts_with("38.") => {
+                    modal.motion = Motion::Probe(n[3..].parse().map_err(|_| bad(w))?)
+                }
+                ("G", "17") => modal.plane = Plane::XY,
+                ("G", "18") => modal.plane = Plane::ZX,
+                ("G", "19") => modal.plane = Plane::YZ,
+                ("G", "20") => modal.inches = true,
+                ("G", "21") => modal.inches = false,
+                ("G", "90") => modal.incremental = false,
+                ("G", "91") => modal.incremental = true,
+                ("G", "93") => modal.inverse_time = true,
+                ("G", "94") => modal.inverse_time = false,
+                ("G", _) if (54.0..=59.0).contains(&value) && value.fract() == 0.0 => {
+                    modal.coord_select = value as usize - 54;
+                }
+                ("G", _) => {}
+                ("F", _) => feed = value,
+                _ => {}
+            }
+        }
+        self.interpreter.modal = modal;
+        self.interpreter.feed_rate = feed;
+        self.interpreter.coord_system = self.interpreter.stored[modal.coord_select];
+        Ok(())
     }
 
     /// The position is no longer known (a reset, a lost controller).

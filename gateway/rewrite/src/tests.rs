@@ -309,3 +309,34 @@ fn a_refused_line_changes_nothing_so_a_stream_can_go_on() {
     assert!(out.len() <= 2, "{out:?}");
     assert_eq!(r.report().input_lines, 2);
 }
+
+#[test]
+fn the_modal_state_is_taken_from_the_controllers_gc_reply() {
+    let mut r = Rewriter::new(&Screw, Options::default()).unwrap();
+    r.set_position([10.0, 10.0, 0.0], [10.0, 10.0, 0.0]);
+    r.sync_modal("G1 G54 G17 G20 G91 G94 M5 M9 T0 F500 S0")
+        .unwrap();
+    // Incremental inches now: X0.1 is 2.54 mm further.
+    let out = r.line("X0.1", 1).unwrap();
+    let last = out.last().unwrap();
+    assert!(last.contains('X'), "{out:?}");
+    let sum: f64 = out
+        .iter()
+        .map(|l| {
+            let i = l.find('X').unwrap() + 1;
+            let end = l[i..]
+                .find(|c: char| c.is_ascii_alphabetic())
+                .map_or(l.len(), |e| i + e);
+            l[i..end].parse::<f64>().unwrap()
+        })
+        .sum();
+    let end = Screw
+        .command_for(&[12.54, 10.0, 0.0], &[Approach::Forward; N_AXIS])
+        .unwrap();
+    // Within the rounding of 5 decimals in inches (0.127 um).
+    assert!(
+        (sum * 25.4 - (end[0] - 10.0)).abs() < 1.3e-4,
+        "{sum} in vs {}",
+        end[0] - 10.0
+    );
+}

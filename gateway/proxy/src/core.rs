@@ -1,0 +1,520 @@
+//! The pass-through's state machine, sans-IO: bytes from the sender and from the
+//! controller in, bytes to each out. The I/O loop ([`crate::serve`]) only moves bytes.
+//!
+//! Towards the sender it is a GRBL 1.1 controller: every line gets exactly one `ok` or
+//! `error:N`, in order; real-time bytes act at once; status reports show the programmed
+//! (nominal) position. Towards the controller it is a character-counting sender: pieces
+//! go out while they fit in the controller's RX buffer, so its planner stays fed.
+//!
+//! A sender line becomes one or more pieces (the rewriter splits moves); its `ok` goes
+//! back when the controller has acknowledged its last piece; if any piece was refused,
+//! the sender gets that piece's `error:N` instead. A line the rewriter refuses is never
+//! sent: the sender gets `[MSG:...]` naming the reason and `error:N` (see
+//! [`refusal_code`]) in its turn.
+
+use protocol::grbl::realtime::{classify, RxByte};
+use protocol::grbl::response::Response;
+use protocol::grbl::status::{MachineState, StatusReport};
+use rewrite::{Compensation, Pose, RewriteError, RewriteErrorKind, Rewriter, N_AXIS};
+use std::collections::VecDeque;
+
+/// GRBL's serial RX buffer (stock 1.1).
+pub const RX_BUFFER: usize = 128;
+
+/// The `error:N` a sender gets for a line the gateway refused (GRBL has no code of its
+/// own for these): 33 "motion command target is invalid" for a target the compensation
+/// cannot serve (outside the map or the soft limits, a correction beyond the bound, an
+/// unknown position), 20 "unsupported command" for G93, the controller's own code for
+/// what it would refuse itself, 1/2 for unreadable words, 11 for an overlong line.
+pub fn refusal_code(e: &RewriteError) -> u8 {
+    match &e.kind {
+        RewriteErrorKind::Refused { code } => *code,
+        RewriteErrorKind::Syntax(s) => match s.kind {
+            protocol::nc::ErrorKind::ExpectedNumber { .. } => 2,
+            _ => 1,
+        },
+        RewriteErrorKind::Filter(protocol::grbl::gcode::FilterError::Overflow { .. }) => 11,
+        RewriteErrorKind::Filter(_) => 1,
+        RewriteErrorKind::InverseTime => 20,
+        _ => 33,
+    }
+}
+
+/// One sender line waiting for its answer.
+#[derive(Debug)]
+struct Slot {
+    /// 1-based number of the line as the sender sent it (since the session started).
+    line: u64,
+    /// Pieces sent or queued and not yet answered by the controller.
+    outstanding: usize,
+    /// The first `error:N` among its pieces (or the gateway's refusal).
+    error: Option<u8>,
+    /// Seconds (caller's clock) when the line arrived, for the latency figure.
+    received_s: f64,
+    /// When its first piece went to the controller.
+    first_sent_s: Option<f64>,
+}
+
+/// A piece of a sender line on its way to the controller.
+#[derive(Debug)]
+struct Piece {
+    text: String,
+    line: u64,
+}
+
+/// Where a session's lines ended up (reported when the sender leaves or the controller
+/// is lost).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct LineAccount {
+    /// Lines answered `ok` (every piece planned by the controller).
+    pub acknowledged: Vec<u64>,
+    /// Lines answered with an error (refused by the gateway or the controller).
+    pub refused: Vec<u64>,
+    /// Lines with pieces in the controller's buffer, not all answered.
+    pub in_controller: Vec<u64>,
+    /// Lines received but not sent to the controller at all.
+    pub not_sent: Vec<u64>,
+}
+
+/// Counters of a session.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ProxyStats {
+    pub lines: u64,
+    pub pieces_sent: u64,
+    /// Status reports saying the controller was idle while pieces were waiting to go or
+    /// waiting in its buffer: the planner starved because of the gateway.
+    pub starvation_events: u64,
+    /// Seconds from a line's arrival to its first piece going out, per line sent.
+    pub latencies_s: Vec<f64>,
+}
+
+/// The pass-through state.
+pub struct Proxy<'a> {
+    rewriter: Rewriter<'a>,
+    compensation: &'a dyn Compensation,
+    rx_buffer: usize,
+    sender_partial: Vec<u8>,
+    controller_partial: Vec<u8>,
+    slots: VecDeque<Slot>,
+    queue: VecDeque<Piece>,
+    /// Lengths (with the newline) and lines of the pieces in the controller's buffer.
+    in_flight: VecDeque<(usize, u64)>,
+    in_flight_bytes: usize,
+    next_line: u64,
+    to_sender: Vec<u8>,
+    to_controller: Vec<u8>,
+    account: LineAccount,
+    stats: ProxyStats,
+    last_wco: Option<Vec<f64>>,
+    starving: bool,
+    /// The controller is gone: nothing more is sent, every line is refused.
+    lost: bool,
+    /// Sender lines held until the position is known again (after a homing, a jog or a
+    /// reset the gateway asks the controller with `?` before it rewrites a move).
+    deferred: VecDeque<(String, f64)>,
+    /// A `?` of the gateway's own is on its way.
+    position_asked: bool,
+}
+
+/// Marks a line of the gateway's own (`$#`, `$G`) in the controller's buffer: its
+/// answer and what comes before it are the gateway's, not the sender's.
+const OWN: u64 = 0;
+
+impl<'a> Proxy<'a> {
+    pub fn new(rewriter: Rewriter<'a>, compensation: &'a dyn Compensation) -> Self {
+        Self {
+            rewriter,
+            compensation,
+            rx_buffer: RX_BUFFER,
+            sender_partial: Vec::new(),
+            controller_partial: Vec::new(),
+            slots: VecDeque::new(),
+            queue: VecDeque::new(),
+            in_flight: VecDeque::new(),
+            in_flight_bytes: 0,
+            next_line: 1,
+            to_sender: Vec::new(),
+            to_controller: Vec::new(),
+            account: LineAccount::default(),
+            stats: ProxyStats::default(),
+            last_wco: None,
+            starving: false,
+            lost: false,
+            deferred: VecDeque::new(),
+            position_asked: false,
+        }
+    }
+
+    /// What to send the controller first: its offsets (`$#`), its modal state (`$G`)
+    /// and where it is (`?`). Their answers are the gateway's, not passed on.
+    pub fn start(&mut self) {
+        for own in ["$#", "$G"] {
+            self.to_controller.extend_from_slice(own.as_bytes());
+            self.to_controller.push(b'\n');
+            self.in_flight.push_back((own.len() + 1, OWN));
+            self.in_flight_bytes += own.len() + 1;
+        }
+        self.ask_position();
+    }
+
+    fn ask_position(&mut self) {
+        if !self.position_asked && !self.lost {
+            self.to_controller.push(b'?');
+            self.position_asked = true;
+        }
+    }
+
+    /// Whether the front of the controller's buffer is one of the gateway's own lines.
+    fn own_line_pending(&self) -> bool {
+        self.in_flight.front().is_some_and(|&(_, line)| line == OWN)
+    }
+
+    /// Bytes to write to the sender now.
+    pub fn take_to_sender(&mut self) -> Vec<u8> {
+        std::mem::take(&mut self.to_sender)
+    }
+
+    /// Bytes to write to the controller now.
+    pub fn take_to_controller(&mut self) -> Vec<u8> {
+        std::mem::take(&mut self.to_controller)
+    }
+
+    pub fn stats(&self) -> &ProxyStats {
+        &self.stats
+    }
+
+    pub fn rewriter(&self) -> &Rewriter<'a> {
+        &self.rewriter
+    }
+
+    /// Whether lines are waiting to go or waiting for the controller.
+    pub fn busy(&self) -> bool {
+        !self.slots.is_empty()
+    }
+
+    /// Where every line received so far stands.
+    pub fn account(&self) -> LineAccount {
+        let mut a = self.account.clone();
+        let queued: Vec<u64> = self.queue.iter().map(|p| p.line).collect();
+        for s in &self.slots {
+            if s.first_sent_s.is_some() {
+                a.in_controller.push(s.line);
+            } else if s.outstanding > 0 || queued.contains(&s.line) {
+                a.not_sent.push(s.line);
+            }
+        }
+        // Held lines get their numbers when they are read; these are the next ones.
+        a.not_sent
+            .extend((0..self.deferred.len() as u64).map(|k| self.next_line + k));
+        a
+    }
+
+    /// Bytes from the sender, at `now_s` (the caller's clock, for latency figures).
+    pub fn from_sender(&mut self, bytes: &[u8], now_s: f64) {
+        for &b in bytes {
+            match classify(b) {
+                RxByte::Realtime(rt) => {
+                    if self.lost {
+                        continue;
+                    }
+                    self.to_controller.push(rt.byte());
+                    if rt.byte() == 0x18 {
+                        // Soft reset: the controller drops its buffer and modal state;
+                        // so does the gateway (the sender knows from the banner).
+                        self.drop_pending();
+                        self.rewriter.controller_reset();
+                        self.position_asked = false;
+                    }
+                }
+                RxByte::Buffered(b'\n' | b'\r') => {
+                    let raw = std::mem::take(&mut self.sender_partial);
+                    let text = String::from_utf8_lossy(&raw).into_owned();
+                    self.deferred.push_back((text, now_s));
+                    self.release_deferred();
+                }
+                RxByte::Buffered(b) => self.sender_partial.push(b),
+                // GRBL drops extended bytes it does not know; so does the gateway.
+                RxByte::Discarded => {}
+            }
+        }
+        self.pump(now_s);
+    }
+
+    /// Rewrite held lines while the position is known (or the controller lost: they
+    /// are refused); else ask the controller once nothing is outstanding.
+    fn release_deferred(&mut self) {
+        while let Some((text, at)) = self.deferred.front() {
+            let needs_position = !self.rewriter.position_known() && !self.lost;
+            if needs_position && !text.trim_start().starts_with('$') && !text.trim().is_empty() {
+                if self.slots.is_empty() && !self.own_line_pending() {
+                    self.ask_position();
+                }
+                return;
+            }
+            let (text, at) = (text.clone(), *at);
+            self.deferred.pop_front();
+            self.sender_line(&text, at);
+        }
+    }
+
+    fn sender_line(&mut self, text: &str, now_s: f64) {
+        let line = self.next_line;
+        self.next_line += 1;
+        self.stats.lines += 1;
+        let mut slot = Slot {
+            line,
+            outstanding: 0,
+            error: None,
+            received_s: now_s,
+            first_sent_s: None,
+        };
+        if self.lost {
+            slot.error = Some(9);
+        } else if text.trim().is_empty() {
+            // GRBL answers an empty line with `ok` (senders use it to sync).
+        } else {
+            match self.rewriter.line(text, line as usize) {
+                Ok(pieces) => {
+                    for p in pieces {
+                        if protocol::grbl::gcode::filter_bytes(p.as_bytes())
+                            .0
+                            .is_empty()
+                            && !p.trim_start().starts_with('$')
+                        {
+                            // A comment-only line: nothing to send.
+                            continue;
+                        }
+                        slot.outstanding += 1;
+                        self.queue.push_back(Piece { text: p, line });
+                    }
+                }
+                Err(e) => {
+                    let msg = format!("[MSG:gateway: {e}]\r\n");
+                    self.to_sender.extend_from_slice(msg.as_bytes());
+                    slot.error = Some(refusal_code(&e));
+                }
+            }
+        }
+        self.slots.push_back(slot);
+        self.answer_ready();
+    }
+
+    /// Send queued pieces while they fit in the controller's RX buffer.
+    fn pump(&mut self, now_s: f64) {
+        if self.lost {
+            return;
+        }
+        while let Some(p) = self.queue.front() {
+            let len = p.text.len() + 1;
+            if self.in_flight_bytes + len > self.rx_buffer && !self.in_flight.is_empty() {
+                break;
+            }
+            let p = self.queue.pop_front().expect("front exists");
+            self.to_controller.extend_from_slice(p.text.as_bytes());
+            self.to_controller.push(b'\n');
+            self.in_flight.push_back((len, p.line));
+            self.in_flight_bytes += len;
+            self.stats.pieces_sent += 1;
+            if let Some(s) = self.slots.iter_mut().find(|s| s.line == p.line) {
+                if s.first_sent_s.is_none() {
+                    s.first_sent_s = Some(now_s);
+                    self.stats.latencies_s.push(now_s - s.received_s);
+                }
+            }
+        }
+    }
+
+    /// Bytes from the controller.
+    pub fn from_controller(&mut self, bytes: &[u8], now_s: f64) {
+        for &b in bytes {
+            if b != b'\n' {
+                self.controller_partial.push(b);
+                continue;
+            }
+            let raw = std::mem::take(&mut self.controller_partial);
+            let text = String::from_utf8_lossy(&raw);
+            let text = text.trim_end_matches('\r');
+            if !text.is_empty() {
+                self.controller_line(text);
+            }
+        }
+        self.pump(now_s);
+    }
+
+    fn controller_line(&mut self, raw: &str) {
+        match Response::parse(raw) {
+            Response::Ok | Response::Error(_) => {
+                let Some((len, line)) = self.in_flight.pop_front() else {
+                    // An answer to nothing we sent: pass it on as it came.
+                    self.pass_on(raw);
+                    return;
+                };
+                self.in_flight_bytes -= len;
+                if line == OWN {
+                    self.release_deferred();
+                    return;
+                }
+                if let Some(s) = self.slots.iter_mut().find(|s| s.line == line) {
+                    s.outstanding -= 1;
+                    if let Response::Error(code) = Response::parse(raw) {
+                        s.error.get_or_insert(code);
+                    }
+                }
+                self.answer_ready();
+                self.release_deferred();
+            }
+            Response::Parameter { name, value } if self.own_line_pending() => {
+                self.own_offset(&name, &value);
+            }
+            Response::ParserState(words) if self.own_line_pending() => {
+                // A $G reply the controller would not refuse; a failure leaves defaults.
+                let _ = self.rewriter.sync_modal(&words);
+            }
+            Response::Status(report) => self.status(report),
+            Response::Banner { .. } => {
+                // The controller restarted: its buffer is gone, nothing is resent.
+                self.drop_pending();
+                self.rewriter.controller_reset();
+                self.position_asked = false;
+                self.pass_on(raw);
+            }
+            _ => self.pass_on(raw),
+        }
+    }
+
+    /// Answer, in order, every line whose pieces are all answered.
+    fn answer_ready(&mut self) {
+        while let Some(s) = self.slots.front() {
+            let queued = self.queue.iter().any(|p| p.line == s.line);
+            if s.outstanding > 0 || queued {
+                break;
+            }
+            let s = self.slots.pop_front().expect("front exists");
+            match s.error {
+                None => {
+                    self.to_sender.extend_from_slice(b"ok\r\n");
+                    self.account.acknowledged.push(s.line);
+                }
+                Some(code) => {
+                    self.to_sender
+                        .extend_from_slice(format!("error:{code}\r\n").as_bytes());
+                    self.account.refused.push(s.line);
+                }
+            }
+        }
+    }
+
+    /// A status report with the controller's (compensated) position turned back into
+    /// the programmed one; the gateway also learns the position when all is idle.
+    fn status(&mut self, mut report: StatusReport) {
+        if let Some(w) = &report.wco {
+            self.last_wco = Some(w.clone());
+        }
+        let idle = report.state == MachineState::Idle;
+        let waiting = !self.queue.is_empty() || !self.in_flight.is_empty();
+        if idle && waiting && !self.starving {
+            self.stats.starvation_events += 1;
+        }
+        self.starving = idle && waiting;
+        let machine = report.machine_position(self.last_wco.as_deref());
+        if let Some(m) = machine.filter(|m| m.len() >= N_AXIS) {
+            let mut command: Pose = [0.0; N_AXIS];
+            command.copy_from_slice(&m[..N_AXIS]);
+            let approach = self.rewriter.approach();
+            // Outside the map (e.g. at the home switches) the position is shown as the
+            // controller has it.
+            let nominal = self
+                .compensation
+                .tool_for(&command, &approach)
+                .unwrap_or(command);
+            if idle && self.slots.is_empty() {
+                self.rewriter.set_position(nominal, command);
+                self.position_asked = false;
+            }
+            for i in 0..N_AXIS {
+                let shift = nominal[i] - command[i];
+                report.position[i] += shift;
+            }
+        }
+        // GRBL's decimals for mm reports ($13=0, the default; the gateway's map is in mm).
+        let line = report.to_line(3);
+        self.to_sender.extend_from_slice(line.as_bytes());
+        self.to_sender.extend_from_slice(b"\r\n");
+        self.release_deferred();
+    }
+
+    /// One `[G54:x,y,z]` line of the gateway's own `$#`.
+    fn own_offset(&mut self, name: &str, value: &str) {
+        let Some(k) = ["G54", "G55", "G56", "G57", "G58", "G59"]
+            .iter()
+            .position(|g| *g == name)
+        else {
+            return;
+        };
+        let v: Vec<f64> = value
+            .split(',')
+            .filter_map(|x| x.trim().parse().ok())
+            .collect();
+        if v.len() >= N_AXIS {
+            let mut offsets = self.rewriter.work_offsets();
+            offsets[k].copy_from_slice(&v[..N_AXIS]);
+            self.rewriter.set_work_offsets(offsets);
+        }
+    }
+
+    fn pass_on(&mut self, raw: &str) {
+        self.to_sender.extend_from_slice(raw.as_bytes());
+        self.to_sender.extend_from_slice(b"\r\n");
+    }
+
+    /// Forget everything not yet answered (after a reset): no answers are owed, nothing
+    /// is resent.
+    fn drop_pending(&mut self) {
+        for s in self.slots.drain(..) {
+            if s.first_sent_s.is_some() {
+                self.account.in_controller.push(s.line);
+            } else {
+                self.account.not_sent.push(s.line);
+            }
+        }
+        self.queue.clear();
+        self.in_flight.clear();
+        self.in_flight_bytes = 0;
+        for (_, _) in self.deferred.drain(..) {
+            let line = self.next_line;
+            self.next_line += 1;
+            self.account.not_sent.push(line);
+        }
+    }
+
+    /// The controller is gone: the sender is told with an alarm, lines owed an answer
+    /// get `error:9` (locked), nothing is resent. Returns where every line stood.
+    pub fn controller_lost(&mut self, why: &str) -> LineAccount {
+        let account = self.account();
+        self.lost = true;
+        self.queue.clear();
+        self.in_flight.clear();
+        self.in_flight_bytes = 0;
+        self.to_sender.extend_from_slice(
+            format!("[MSG:gateway: controller lost: {why}]\r\nALARM:3\r\n").as_bytes(),
+        );
+        for s in &mut self.slots {
+            s.outstanding = 0;
+            s.error.get_or_insert(9);
+        }
+        self.answer_ready();
+        self.rewriter.forget_position();
+        account
+    }
+
+    /// The sender is gone mid-stream: hold the motion (feed hold) and report where every
+    /// line stood. Queued pieces are dropped, not sent.
+    pub fn sender_lost(&mut self) -> LineAccount {
+        let account = self.account();
+        if self.busy() && !self.lost {
+            self.to_controller.push(b'!');
+        }
+        self.queue.clear();
+        account
+    }
+}

@@ -1,0 +1,207 @@
+use super::*;
+use rewrite::{Approach, Compensation, Options, Pose, Rewriter, N_AXIS};
+
+/// The tool lands 10 um short in X and 0.1 % long in Y: the command for nominal p is
+/// (p.x + 0.010, p.y / 1.001); known inside 0..300 mm.
+struct Skewed;
+
+impl Compensation for Skewed {
+    fn describe(&self) -> String {
+        "skewed".into()
+    }
+    fn axes(&self) -> &[usize] {
+        &[0, 1]
+    }
+    fn command_for(&self, p: &Pose, _: &[Approach; N_AXIS]) -> Result<Pose, String> {
+        if !(0.0..=300.0).contains(&p[0]) || !(0.0..=300.0).contains(&p[1]) {
+            return Err(format!("X{:.3} Y{:.3} is outside the map", p[0], p[1]));
+        }
+        Ok([p[0] + 0.010, p[1] / 1.001, p[2]])
+    }
+    fn tool_for(&self, c: &Pose, _: &[Approach; N_AXIS]) -> Result<Pose, String> {
+        Ok([c[0] - 0.010, c[1] * 1.001, c[2]])
+    }
+}
+
+fn started(comp: &Skewed) -> Proxy<'_> {
+    let rewriter = Rewriter::new(comp, Options::default()).unwrap();
+    let mut p = Proxy::new(rewriter, comp);
+    p.start();
+    assert_eq!(p.take_to_controller(), b"$#\n$G\n?");
+    p.from_controller(
+        b"[G54:0.000,0.000,0.000]\r\n[G55:5.000,0.000,0.000]\r\n[G28:0.000,0.000,0.000]\r\nok\r\n\
+          [GC:G0 G54 G17 G21 G90 G94 M5 M9 T0 F0 S0]\r\nok\r\n\
+          <Idle|MPos:10.010,9.990,0.000|FS:0,0>\r\n",
+        0.0,
+    );
+    p
+}
+
+fn text(b: Vec<u8>) -> String {
+    String::from_utf8(b).unwrap()
+}
+
+#[test]
+fn own_queries_are_not_passed_on_and_the_status_shows_the_programmed_position() {
+    let comp = Skewed;
+    let mut p = started(&comp);
+    let to_sender = text(p.take_to_sender());
+    // Only the status report reaches the sender, in programmed coordinates.
+    assert_eq!(to_sender, "<Idle|MPos:10.000,10.000,0.000|FS:0,0>\r\n");
+    assert!(p.rewriter().position_known());
+}
+
+#[test]
+fn a_split_line_is_answered_once_after_its_last_piece() {
+    let comp = Skewed;
+    let mut p = started(&comp);
+    p.take_to_sender();
+    p.from_sender(b"G1 X20 Y10 F600\nG0 X0 Y0\n", 1.0);
+    let sent = text(p.take_to_controller());
+    let pieces: Vec<&str> = sent.lines().collect();
+    assert!(pieces.len() >= 2, "{sent}");
+    assert_eq!(pieces[0], "G1 X20.0100 Y9.9900 F600");
+    // Nothing answered yet.
+    assert!(p.take_to_sender().is_empty());
+    // The controller acknowledges all but the last piece: still no answer.
+    for _ in 0..pieces.len() - 1 {
+        p.from_controller(b"ok\r\n", 1.1);
+    }
+    assert_eq!(text(p.take_to_sender()), "ok\r\n", "the first line is done");
+    p.from_controller(b"ok\r\n", 1.2);
+    assert_eq!(text(p.take_to_sender()), "ok\r\n");
+    assert_eq!(p.account().acknowledged, vec![1, 2]);
+}
+
+#[test]
+fn the_controller_buffer_is_never_overfilled() {
+    let comp = Skewed;
+    let mut p = started(&comp);
+    let mut program = String::new();
+    for k in 0..40 {
+        program.push_str(&format!("G1 X{}.123456 Y{}.654321 F900\n", 10 + k, 20 + k));
+    }
+    p.from_sender(program.as_bytes(), 1.0);
+    let sent = text(p.take_to_controller());
+    let bytes: usize = sent.lines().map(|l| l.len() + 1).sum();
+    assert!(bytes <= RX_BUFFER, "{bytes} bytes in flight");
+    // Each ok lets more through, still within the buffer.
+    let mut in_flight: Vec<usize> = sent.lines().map(|l| l.len() + 1).collect();
+    for _ in 0..30 {
+        p.from_controller(b"ok\r\n", 2.0);
+        in_flight.remove(0);
+        let more = text(p.take_to_controller());
+        in_flight.extend(more.lines().map(|l| l.len() + 1));
+        assert!(in_flight.iter().sum::<usize>() <= RX_BUFFER);
+    }
+}
+
+#[test]
+fn a_refused_line_is_not_sent_and_is_answered_in_its_turn() {
+    let comp = Skewed;
+    let mut p = started(&comp);
+    p.take_to_sender();
+    p.from_sender(b"G0 X20 Y20\nG0 X400 Y20\nG0 X30 Y30\n", 1.0);
+    let sent = text(p.take_to_controller());
+    assert!(!sent.contains("X400"), "{sent}");
+    assert_eq!(sent.lines().count(), 2, "{sent}");
+    // Line 2's refusal waits for line 1's ok.
+    let early = text(p.take_to_sender());
+    assert!(early.starts_with("[MSG:gateway: line 2:"), "{early}");
+    assert!(!early.contains("error"), "{early}");
+    p.from_controller(b"ok\r\nok\r\n", 1.1);
+    assert_eq!(text(p.take_to_sender()), "ok\r\nerror:33\r\nok\r\n");
+    let a = p.account();
+    assert_eq!((a.acknowledged, a.refused), (vec![1, 3], vec![2]));
+}
+
+#[test]
+fn a_controller_error_is_relayed_against_the_senders_line() {
+    let comp = Skewed;
+    let mut p = started(&comp);
+    p.take_to_sender();
+    p.from_sender(b"G0 X20 Y20\nM3 S100\n", 1.0);
+    p.take_to_controller();
+    p.from_controller(b"ok\r\nerror:5\r\n", 1.1);
+    assert_eq!(text(p.take_to_sender()), "ok\r\nerror:5\r\n");
+}
+
+#[test]
+fn realtime_bytes_pass_at_once_and_a_reset_drops_what_was_pending() {
+    let comp = Skewed;
+    let mut p = started(&comp);
+    p.take_to_sender();
+    p.from_sender(b"G1 X20 Y20 F100\n!~?", 1.0);
+    // Real-time bytes go at once, ahead of pieces still to be written.
+    let sent = text(p.take_to_controller());
+    assert!(sent.starts_with("!~?G1 X20.0100"), "{sent:?}");
+    p.from_sender(&[0x18], 1.1);
+    assert_eq!(p.take_to_controller(), vec![0x18]);
+    p.from_controller(b"\r\nGrbl 1.1h ['$' for help]\r\n", 1.2);
+    assert_eq!(text(p.take_to_sender()), "Grbl 1.1h ['$' for help]\r\n");
+    assert!(!p.busy());
+    // After the reset the position is asked again before the next move is rewritten.
+    p.from_sender(b"G0 X1 Y1\n", 1.3);
+    assert_eq!(p.take_to_controller(), b"?");
+    p.from_controller(b"<Idle|MPos:20.010,19.980,0.000|FS:0,0>\r\n", 1.4);
+    assert!(text(p.take_to_controller()).starts_with("G0 X1.0100"));
+}
+
+#[test]
+fn a_lost_sender_holds_the_motion_and_says_which_lines_ran() {
+    let comp = Skewed;
+    let mut p = started(&comp);
+    let mut program = String::new();
+    for k in 0..20 {
+        program.push_str(&format!("G1 X{} Y10 F900\n", 10 + k));
+    }
+    p.from_sender(program.as_bytes(), 1.0);
+    p.take_to_controller();
+    p.from_controller(b"ok\r\nok\r\nok\r\n", 1.1);
+    p.take_to_controller();
+    let a = p.sender_lost();
+    assert_eq!(p.take_to_controller(), b"!");
+    assert_eq!(a.acknowledged, vec![1, 2, 3]);
+    assert!(!a.in_controller.is_empty());
+    let all: usize = a.acknowledged.len() + a.in_controller.len() + a.not_sent.len();
+    assert_eq!(all, 20, "{a:?}");
+}
+
+#[test]
+fn a_lost_controller_alarms_the_sender_and_nothing_is_resent() {
+    let comp = Skewed;
+    let mut p = started(&comp);
+    p.take_to_sender();
+    p.from_sender(b"G0 X20 Y20\nG0 X21 Y20\n", 1.0);
+    p.take_to_controller();
+    p.from_controller(b"ok\r\n", 1.1);
+    let a = p.controller_lost("the port closed");
+    assert_eq!(a.acknowledged, vec![1]);
+    assert_eq!(a.in_controller, vec![2]);
+    let told = text(p.take_to_sender());
+    assert!(
+        told.contains("controller lost") && told.contains("ALARM:3"),
+        "{told}"
+    );
+    assert!(told.ends_with("error:9\r\n"), "{told}");
+    p.from_sender(b"G0 X1 Y1\n", 1.2);
+    assert!(p.take_to_controller().is_empty());
+    assert_eq!(text(p.take_to_sender()), "error:9\r\n");
+}
+
+#[test]
+fn idle_while_lines_wait_counts_as_starvation() {
+    let comp = Skewed;
+    let mut p = started(&comp);
+    p.from_sender(b"G1 X20 Y20 F100\n", 1.0);
+    p.take_to_controller();
+    p.from_controller(b"<Run|MPos:10.010,9.990,0.000|FS:100,0>\r\n", 1.1);
+    assert_eq!(p.stats().starvation_events, 0);
+    p.from_controller(b"<Idle|MPos:10.010,9.990,0.000|FS:0,0>\r\n", 1.2);
+    p.from_controller(b"<Idle|MPos:10.010,9.990,0.000|FS:0,0>\r\n", 1.3);
+    assert_eq!(
+        p.stats().starvation_events,
+        1,
+        "one event, not one per report"
+    );
+}
