@@ -15,6 +15,7 @@ use std::process::ExitCode;
 use std::time::Instant;
 use vision::localize::{localize, LocalizeParams, LocalizeSettings, Method, PixelAxes};
 
+mod proxy;
 mod rewrite;
 mod scan;
 
@@ -120,6 +121,33 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
+    /// The live pass-through: a pseudo-terminal that answers as a GRBL 1.1 controller to
+    /// the G-code sender you already use (UGS, CNCjs, bCNC), rewriting every line with
+    /// the error map and streaming it to the job's GRBL controller. Status reports show
+    /// the programmed position. Ctrl-C stops.
+    Proxy {
+        /// The job file (its stage must be a GRBL controller, real or emulated).
+        #[arg(long)]
+        config: PathBuf,
+        #[arg(long)]
+        map: PathBuf,
+        /// Also create a symlink to the sender's port at this path.
+        #[arg(long)]
+        link: Option<PathBuf>,
+        #[arg(long, default_value_t = 0.5)]
+        tolerance_um: f64,
+        #[arg(long, default_value_t = 200.0)]
+        max_correction_um: f64,
+        /// An emulated controller's clock: simulated seconds per wall second, or
+        /// `unconstrained`.
+        #[arg(long, default_value = "1")]
+        time_scale: String,
+        /// Serve one sender session and exit.
+        #[arg(long)]
+        once: bool,
+        #[arg(long)]
+        json: bool,
+    },
     /// Localize one image of the board: the board coordinate under the image centre.
     Localize {
         /// PNG file, 8- or 16-bit greyscale.
@@ -178,6 +206,7 @@ fn main() -> ExitCode {
         | Cmd::Compensate { json, .. }
         | Cmd::Map { json, .. }
         | Cmd::Rewrite { json, .. }
+        | Cmd::Proxy { json, .. }
         | Cmd::Localize { json, .. } => *json,
     };
     match run(cli) {
@@ -283,6 +312,25 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             offsets,
             start,
             limits,
+            json,
+        }),
+        Cmd::Proxy {
+            config,
+            map,
+            link,
+            tolerance_um,
+            max_correction_um,
+            time_scale,
+            once,
+            json,
+        } => proxy::proxy(proxy::ProxyArgs {
+            config,
+            map,
+            link,
+            tolerance_um,
+            max_correction_um,
+            time_scale,
+            once,
             json,
         }),
         Cmd::Localize {

@@ -2,6 +2,7 @@
 //! the stand-alone `emulators` binary and independent peers as separate processes).
 
 pub mod netns;
+pub mod truth_map;
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command};

@@ -8,7 +8,32 @@ use drivers::StageLink;
 use emulators::grbl::{GrblConfig, GrblDevice, GrblPty};
 use job::{GrblLink, Job};
 use std::time::Duration;
-use world::Clock;
+use world::machine::MachineConfig;
+use world::{Clock, SharedRig};
+
+/// The GRBL emulator of an `emulate` link on a new pseudo-terminal, driving a new
+/// simulated machine (returned as the rig) on `clock`: for what talks to the controller
+/// itself rather than through the stage driver (the live pass-through). Must run inside
+/// a tokio runtime.
+pub fn spawn_grbl_emulator(
+    job: &Job,
+    machine: &MachineConfig,
+    clock: Clock,
+) -> Result<(GrblPty, SharedRig), OpenError> {
+    let rig = new_rig(job, machine);
+    let dev = GrblDevice::new(
+        rig.clone(),
+        GrblConfig {
+            clock,
+            ..Default::default()
+        },
+    );
+    let emulator = GrblPty::spawn(dev, None).map_err(|e| OpenError::Emulator {
+        what: "GRBL emulator",
+        message: format!("cannot create a pseudo-terminal: {e}"),
+    })?;
+    Ok((emulator, rig))
+}
 
 /// Open a job's `grbl` stage: the controller on its serial port, or the emulator on a
 /// pseudo-terminal driving a new simulated machine (returned as the rig). Must run
@@ -25,19 +50,8 @@ pub(crate) async fn open(job: &Job, link: &GrblLink, baud: u32) -> Result<Opened
             Ok((drivers::open_stage(&link).await?, None))
         }
         GrblLink::Emulate(machine) => {
-            let rig = new_rig(job, machine);
             // The motion clock is unconstrained: moves end as soon as the driver polls.
-            let dev = GrblDevice::new(
-                rig.clone(),
-                GrblConfig {
-                    clock: Clock::Unconstrained,
-                    ..Default::default()
-                },
-            );
-            let emulator = GrblPty::spawn(dev, None).map_err(|e| OpenError::Emulator {
-                what: "GRBL emulator",
-                message: format!("cannot create a pseudo-terminal: {e}"),
-            })?;
+            let (emulator, rig) = spawn_grbl_emulator(job, machine, Clock::Unconstrained)?;
             let link = StageLink::Grbl {
                 port: emulator.path().to_string(),
                 baud,

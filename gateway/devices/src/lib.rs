@@ -16,6 +16,7 @@ mod modbus;
 pub use camera::{open_camera, EmulatedGige, ReplayCamera};
 pub use emulated::{new_rig, EmulatedStage, OpenedStage};
 pub use error::OpenError;
+pub use grbl::spawn_grbl_emulator;
 
 use drivers::sim::{SimCamera, SimStage};
 use drivers::{Camera, Stage};

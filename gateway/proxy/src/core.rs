@@ -84,8 +84,11 @@ pub struct ProxyStats {
     /// Status reports saying the controller was idle while pieces were waiting to go or
     /// waiting in its buffer: the planner starved because of the gateway.
     pub starvation_events: u64,
-    /// Seconds from a line's arrival to its first piece going out, per line sent.
+    /// Seconds from a line's arrival to its first piece going out, per line sent (the
+    /// wait behind earlier lines' pieces included).
     pub latencies_s: Vec<f64>,
+    /// Seconds the gateway spent rewriting each line: what it adds to a line's way.
+    pub processing_s: Vec<f64>,
 }
 
 /// The pass-through state.
@@ -273,7 +276,10 @@ impl<'a> Proxy<'a> {
         } else if text.trim().is_empty() {
             // GRBL answers an empty line with `ok` (senders use it to sync).
         } else {
-            match self.rewriter.line(text, line as usize) {
+            let t0 = std::time::Instant::now();
+            let rewritten = self.rewriter.line(text, line as usize);
+            self.stats.processing_s.push(t0.elapsed().as_secs_f64());
+            match rewritten {
                 Ok(pieces) => {
                     for p in pieces {
                         if protocol::grbl::gcode::filter_bytes(p.as_bytes())
@@ -407,6 +413,8 @@ impl<'a> Proxy<'a> {
     /// A status report with the controller's (compensated) position turned back into
     /// the programmed one; the gateway also learns the position when all is idle.
     fn status(&mut self, mut report: StatusReport) {
+        // Whatever it says, the question was answered; asked again if still needed.
+        self.position_asked = false;
         if let Some(w) = &report.wco {
             self.last_wco = Some(w.clone());
         }
@@ -427,9 +435,14 @@ impl<'a> Proxy<'a> {
                 .compensation
                 .tool_for(&command, &approach)
                 .unwrap_or(command);
-            if idle && self.slots.is_empty() {
+            // At rest with nothing owed, the reported position is where the next move
+            // starts (in Alarm too: GRBL then refuses moves itself, with error:9).
+            let at_rest = matches!(
+                report.state,
+                MachineState::Idle | MachineState::Alarm | MachineState::Check
+            );
+            if at_rest && self.slots.is_empty() {
                 self.rewriter.set_position(nominal, command);
-                self.position_asked = false;
             }
             for i in 0..N_AXIS {
                 let shift = nominal[i] - command[i];

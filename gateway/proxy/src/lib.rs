@@ -13,7 +13,7 @@ pub mod core;
 pub mod serve;
 
 pub use crate::core::{refusal_code, LineAccount, Proxy, ProxyStats, RX_BUFFER};
-pub use serve::{serve, Ending, SenderPort};
+pub use serve::{open_controller, serve, Ending, SenderPort};
 
 #[cfg(test)]
 mod tests;

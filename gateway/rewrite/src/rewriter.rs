@@ -452,6 +452,7 @@ impl<'a> Rewriter<'a> {
         let mut approach = self.approach;
         let mut first_unknown = !start_known;
         for (target, rate) in &moves {
+            let previous = approach;
             for i in 0..N_AXIS {
                 if target[i] > from[i] {
                     approach[i] = Approach::Forward;
@@ -460,6 +461,27 @@ impl<'a> Rewriter<'a> {
                 }
             }
             let rapid = matches!(rate, Rate::Rapid);
+            // An axis the program does not move still gets corrections that creep (the
+            // squareness correction of X changes along a Y move). What the machine sees
+            // is the command's direction: creeping back opens the backlash, so such an
+            // axis takes the side its command moves to.
+            if !first_unknown {
+                let comp = self.compensation;
+                let end = comp
+                    .command_near(target, &approach, &from_command)
+                    .map_err(|e| self.fail(line_no, RewriteErrorKind::Model(e)))?;
+                for i in 0..N_AXIS {
+                    if self.compensated[i] && target[i] == from[i] {
+                        let creep = end[i] - from_command[i];
+                        if creep > 1e-7 {
+                            approach[i] = Approach::Forward;
+                        } else if creep < -1e-7 {
+                            approach[i] = Approach::Reverse;
+                        }
+                    }
+                }
+            }
+            let reverses = (0..N_AXIS).any(|i| self.compensated[i] && approach[i] != previous[i]);
             let comp = self.compensation;
             let compensated = self.compensated;
             let mut command = |p: &Pose, guess: &Pose| -> Result<Pose, String> {
@@ -472,6 +494,20 @@ impl<'a> Rewriter<'a> {
                 }
                 Ok(out)
             };
+            // An axis that reverses first takes up its backlash on the spot: a piece to
+            // the start point's command for the new direction, so the slack is not taken
+            // up while the other axis already moves (the tool would leave the path by
+            // the backlash).
+            if reverses && !rapid && !first_unknown {
+                let c = command(&from, &from_command)
+                    .map_err(|e| self.fail(line_no, RewriteErrorKind::Model(e)))?;
+                if c != from_command {
+                    self.check_correction(&from, &c, line_no)?;
+                    self.check_limits(&c, line_no)?;
+                    pieces.push((from, c, false));
+                    from_command = c;
+                }
+            }
             let segment = if rapid || first_unknown {
                 vec![(*target, command(target, target))]
                     .into_iter()

@@ -1,0 +1,187 @@
+//! `gateway proxy`: the live pass-through between the operator's sender and the GRBL
+//! controller, every line rewritten with the error map.
+
+use anyhow::Context;
+use errormap::MapModel;
+use job::{GrblLink, Job, StageSpec};
+use protocol::errormap::ErrorMap;
+use proxy::{open_controller, serve, Ending, LineAccount, Proxy, SenderPort};
+use rewrite::{Compensation, Options, Rewriter};
+use serde_json::json;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+pub struct ProxyArgs {
+    pub config: PathBuf,
+    pub map: PathBuf,
+    pub link: Option<PathBuf>,
+    pub tolerance_um: f64,
+    pub max_correction_um: f64,
+    /// For an emulated controller: simulated seconds per wall second, or `unconstrained`.
+    pub time_scale: String,
+    /// Serve one sender session, then exit (tests, scripted runs).
+    pub once: bool,
+    pub json: bool,
+}
+
+/// How long to wait for a controller's banner after opening its port (an Arduino resets
+/// when the port opens and needs about two seconds).
+const BANNER_WAIT: Duration = Duration::from_millis(2500);
+
+fn ranges(lines: &[u64]) -> String {
+    let mut out: Vec<String> = Vec::new();
+    let mut k = 0;
+    while k < lines.len() {
+        let start = lines[k];
+        let mut end = start;
+        while k + 1 < lines.len() && lines[k + 1] == end + 1 {
+            k += 1;
+            end = lines[k];
+        }
+        out.push(if start == end {
+            start.to_string()
+        } else {
+            format!("{start}-{end}")
+        });
+        k += 1;
+    }
+    if out.is_empty() {
+        "none".into()
+    } else {
+        out.join(", ")
+    }
+}
+
+fn account_json(a: &LineAccount) -> serde_json::Value {
+    json!({
+        "acknowledged": ranges(&a.acknowledged), "refused": ranges(&a.refused),
+        "in_controller": ranges(&a.in_controller), "not_sent": ranges(&a.not_sent),
+    })
+}
+
+pub fn proxy(args: ProxyArgs) -> anyhow::Result<ExitCode> {
+    let job = Job::load(&args.config)?;
+    let map = ErrorMap::load(&args.map)?;
+    // The map must belong to this set-up: the board and its certificate are the length
+    // reference it was measured against.
+    if map.identity.board != job.board.name
+        || map.identity.certificate_sha256 != job.board.fingerprint_sha256()
+    {
+        anyhow::bail!(
+            "{}: the map was measured with board `{}` (certificate {}), this job uses `{}` ({})",
+            args.map.display(),
+            map.identity.board,
+            map.identity.certificate_sha256,
+            job.board.name,
+            job.board.fingerprint_sha256()
+        );
+    }
+    let model = MapModel::new(map);
+    let StageSpec::Grbl { link, baud } = &job.stage else {
+        anyhow::bail!(
+            "{}: the pass-through needs a GRBL controller (stage kind `grbl`); other controllers take the map as a table (gateway export)",
+            args.config.display()
+        );
+    };
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    rt.block_on(async {
+        let (port, _emulator) = match link {
+            GrblLink::Port(p) => (p.clone(), None),
+            GrblLink::Emulate(machine) => {
+                let clock = args
+                    .time_scale
+                    .parse::<world::Clock>()
+                    .context("--time-scale")?;
+                let (emulator, rig) = devices::spawn_grbl_emulator(&job, machine, clock)?;
+                (emulator.path().to_string(), Some((emulator, rig)))
+            }
+        };
+        let (mut controller, _banner) = open_controller(&port, *baud, BANNER_WAIT).await?;
+        let options = Options {
+            tolerance_mm: args.tolerance_um / 1000.0,
+            max_correction_mm: args.max_correction_um / 1000.0,
+            ..Options::default()
+        };
+        let mut sender = SenderPort::create(args.link.as_deref())
+            .context("creating the sender's pseudo-terminal")?;
+        if args.json {
+            println!("{}", json!({ "sender_port": sender.path(), "controller": port, "map": model.describe() }));
+        } else {
+            println!("sender port: {}", sender.path());
+            if let Some(l) = sender.link() {
+                println!("link: {}", l.display());
+            }
+            println!("controller: {port}; compensation: {}", model.describe());
+        }
+        use std::io::Write;
+        std::io::stdout().flush()?;
+        let mut code = ExitCode::SUCCESS;
+        loop {
+            let rewriter = Rewriter::new(&model, options.clone())?;
+            let mut proxy = Proxy::new(rewriter, &model);
+            proxy.start();
+            let stop = async {
+                if tokio::signal::ctrl_c().await.is_err() {
+                    std::future::pending::<()>().await;
+                }
+            };
+            let ending = serve(&mut proxy, &mut sender, &mut controller, stop).await;
+            let stats = proxy.stats();
+            let pct = |v: &[f64], q: f64| {
+                let mut v = v.to_vec();
+                v.sort_by(f64::total_cmp);
+                if v.is_empty() {
+                    0.0
+                } else {
+                    v[((v.len() - 1) as f64 * q).round() as usize] * 1000.0
+                }
+            };
+            let (lat, work) = (&stats.latencies_s, &stats.processing_s);
+            let (what, lines, done) = match &ending {
+                Ending::SenderLeft(a) => ("sender left", a, false),
+                Ending::ControllerLost { why, lines } => {
+                    code = ExitCode::FAILURE;
+                    eprintln!("controller lost: {why}");
+                    ("controller lost", lines, true)
+                }
+                Ending::Stopped(a) => ("stopped", a, true),
+            };
+            let report = rewriter_report(&proxy);
+            if args.json {
+                println!(
+                    "{}",
+                    json!({
+                        "ending": what, "lines": account_json(lines),
+                        "lines_received": stats.lines, "pieces_sent": stats.pieces_sent,
+                        "starvation_events": stats.starvation_events,
+                        "rewrite_ms": { "median": pct(work, 0.5), "p99": pct(work, 0.99) },
+                        "first_piece_out_ms": { "median": pct(lat, 0.5), "p99": pct(lat, 0.99) },
+                        "largest_correction_um": report.0, "segments_added": report.1,
+                    })
+                );
+            } else {
+                println!("session ended ({what}): {} lines received, {} pieces sent, {} starvation events",
+                    stats.lines, stats.pieces_sent, stats.starvation_events);
+                println!("  rewrite per line: median {:.3} ms, p99 {:.3} ms; arrival to first piece out: median {:.3} ms, p99 {:.3} ms",
+                    pct(work, 0.5), pct(work, 0.99), pct(lat, 0.5), pct(lat, 0.99));
+                println!("  acknowledged: {}", ranges(&lines.acknowledged));
+                println!("  refused: {}", ranges(&lines.refused));
+                println!("  in the controller when it ended: {}", ranges(&lines.in_controller));
+                println!("  never sent: {}", ranges(&lines.not_sent));
+            }
+            std::io::stdout().flush()?;
+            if done || args.once {
+                break;
+            }
+        }
+        Ok(code)
+    })
+}
+
+fn rewriter_report(proxy: &Proxy<'_>) -> (f64, usize) {
+    let r = proxy.rewriter().report();
+    (r.largest_correction_um, r.segments_added)
+}

@@ -1,0 +1,94 @@
+//! An error map made from the simulator's truth, as a perfect scan would measure it:
+//! for tests of what uses a map (the rewriter, the pass-through, exports) without the
+//! minutes a camera scan takes in a debug build. The same plan as the default scan: a
+//! 10 mm grid over the travel, 1 mm lines along each axis through the middle, every node
+//! approached from both sides.
+
+use protocol::errormap::{ErrorMap, Grid, Identity, Line, Measured, Node, Stat, SCHEMA};
+use world::machine::{MachineConfig, SimMachine};
+use world::rig::SimRig;
+
+fn stat(mean: f64) -> Stat {
+    Stat {
+        mean,
+        sd: 0.0,
+        n: 1,
+    }
+}
+
+fn steps(from: f64, to: f64, step: f64) -> Vec<f64> {
+    let n = ((to - from) / step).round() as usize;
+    (0..=n)
+        .map(|k| from + (to - from) * k as f64 / n as f64)
+        .collect()
+}
+
+/// The map of `machine` (its first homing, as a fresh machine with the same seed has
+/// it), identity as given.
+pub fn map_from_truth(machine: &MachineConfig, identity: Identity) -> ErrorMap {
+    let d = crate::config_dir();
+    let camera = world::camera::CameraModel::load(&d.join("cameras/mono-1.3mp.toml"))
+        .expect("config/cameras/mono-1.3mp.toml loads");
+    let board = protocol::Board::load(&d.join("boards/dot-grid-0.5mm.toml"))
+        .expect("config/boards/dot-grid-0.5mm.toml loads");
+    let zero = machine.machine.board_at_home_mm;
+    let mut rig = SimRig::new(SimMachine::new(machine.clone()), board, camera);
+    rig.machine_mut().home();
+    let (tx, ty) = (machine.axes.x.travel_mm, machine.axes.y.travel_mm);
+    let approach = 0.05;
+    let mut visit = |p: [f64; 2], forward: bool| {
+        let side = if forward { -approach } else { approach };
+        let from = [(p[0] + side).clamp(0.0, tx), (p[1] + side).clamp(0.0, ty)];
+        for q in [from, p] {
+            rig.machine_mut()
+                .start_move(q, 3000.0)
+                .expect("inside the travel");
+            rig.machine_mut().finish_motion();
+        }
+        let pose = rig.truth();
+        Measured {
+            ex_um: stat((pose.centre_mm[0] - p[0] - zero[0]) * 1000.0),
+            ey_um: stat((pose.centre_mm[1] - p[1] - zero[1]) * 1000.0),
+            yaw_urad: stat(pose.rotation_rad * 1e6),
+        }
+    };
+    let mut node = |x: f64, y: f64| Node {
+        forward: visit([x, y], true),
+        reverse: visit([x, y], false),
+    };
+    let (xs, ys) = (steps(0.0, tx, 10.0), steps(0.0, ty, 10.0));
+    let nodes = ys
+        .iter()
+        .flat_map(|&y| xs.iter().map(move |&x| (x, y)))
+        .collect::<Vec<_>>()
+        .into_iter()
+        .map(|(x, y)| node(x, y))
+        .collect();
+    let (xline, yline) = (steps(0.0, tx, 1.0), steps(0.0, ty, 1.0));
+    let (at_y, at_x) = (ty / 2.0, tx / 2.0);
+    let x_nodes = xline.iter().map(|&x| node(x, at_y)).collect();
+    let y_nodes = yline.iter().map(|&y| node(at_x, y)).collect();
+    let map = ErrorMap {
+        schema: SCHEMA.into(),
+        version: 1,
+        created: "2026-11-23T00:00:00Z".into(),
+        identity,
+        tool_offset_mm: [0.0, 0.0],
+        board_at_machine_zero_mm: machine.machine.board_at_home_mm,
+        reference_mm: [0.0, 0.0],
+        grid: Grid { xs, ys, nodes },
+        x_lines: vec![Line {
+            at_mm: at_y,
+            positions: xline,
+            nodes: x_nodes,
+        }],
+        y_lines: vec![Line {
+            at_mm: at_x,
+            positions: yline,
+            nodes: y_nodes,
+        }],
+        uncertainty_um: 0.0,
+    };
+    map.check().expect("a map from the truth is well formed");
+    map
+}

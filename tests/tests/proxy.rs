@@ -1,0 +1,228 @@
+//! The live pass-through end to end: an independent pyserial sender (written against
+//! GRBL's public docs: `?`, `$I`, `$$`, `$G`, homing, character-counting streaming)
+//! talks to `gateway proxy`'s pseudo-terminal as it would to GRBL; the gateway rewrites
+//! every line with the error map and streams the pieces to the GRBL emulator driving the
+//! simulated stage. The emulator's trace of the true tool point along the executed path
+//! is compared with the programmed path. Skips, saying why, without python3/pyserial.
+
+use devices::spawn_grbl_emulator;
+use errormap::MapModel;
+use job::{Job, StageSpec};
+use protocol::errormap::Identity;
+use protocol::grbl::gcode::{filter_line, Action, Interpreter};
+use proxy::{open_controller, serve, Ending, Proxy, SenderPort};
+use rewrite::{Options, Rewriter};
+use std::process::Command;
+use std::time::Duration;
+use system_tests::truth_map::map_from_truth;
+use system_tests::{python_missing, runtime, workspace};
+use world::{lock, Clock};
+
+/// Lines, arcs and long diagonals, inside the map (0..200 x 0..150 mm), feed moves
+/// only after the first rapid.
+const PROGRAM: &str = "(pass-through test)
+G21 G90 G17
+G0 X20 Y20
+G1 X150 Y20 F3000
+G1 X150 Y110
+G2 X110 Y110 I-20 J0
+G1 X20 Y30 (long diagonal)
+G3 X60 Y60 I20 J15
+G1 X180 Y130
+G1 X30 Y120
+";
+
+/// The programmed feed path, machine mm (arcs as chords within 1 nm), from (20, 20).
+fn nominal_path() -> Vec<[f64; 2]> {
+    let mut interp = Interpreter::new();
+    interp.arc_tolerance = 1e-6;
+    let mut path = Vec::new();
+    for line in PROGRAM.lines() {
+        let f = filter_line(line).unwrap();
+        if f.is_empty() {
+            continue;
+        }
+        for a in interp.execute(&f, false).unwrap() {
+            if let Action::Move { target, .. } = a {
+                path.push([target[0], target[1]]);
+            }
+        }
+    }
+    // Feed moves start where the rapid to (20, 20) ended.
+    path.split_off(path.iter().position(|p| *p == [20.0, 20.0]).unwrap())
+}
+
+fn distance_to_segment(q: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
+    let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+    let len2 = dx * dx + dy * dy;
+    let t = if len2 == 0.0 {
+        0.0
+    } else {
+        (((q[0] - a[0]) * dx + (q[1] - a[1]) * dy) / len2).clamp(0.0, 1.0)
+    };
+    (q[0] - a[0] - t * dx).hypot(q[1] - a[1] - t * dy)
+}
+
+/// Largest distance of the points from the path, both in travel order: each point is
+/// matched within a window of segments around the last match (the tool moves along the
+/// path), which keeps the check linear in the number of rows.
+fn worst_distance(points: impl Iterator<Item = [f64; 2]>, path: &[[f64; 2]]) -> f64 {
+    let mut at: usize = 0;
+    let mut worst: f64 = 0.0;
+    for q in points {
+        // A window both ways: near a corner the next element (an arc leaving the corner
+        // along the same line) can be as close as the current one.
+        let (begin, end) = (at.saturating_sub(400), (at + 400).min(path.len() - 1));
+        let (k, d) = (begin..end)
+            .map(|k| (k, distance_to_segment(q, path[k], path[k + 1])))
+            .fold(
+                (at, f64::INFINITY),
+                |best, x| if x.1 < best.1 { x } else { best },
+            );
+        at = k;
+        if d > worst && std::env::var_os("PROXY_DEBUG").is_some() {
+            eprintln!(
+                "worst so far {:.3} um at {q:?}, segment {k} {:?} -> {:?}",
+                d * 1e3,
+                path[k],
+                path[k + 1]
+            );
+        }
+        worst = worst.max(d);
+    }
+    worst
+}
+
+#[test]
+fn an_independent_sender_streams_through_the_proxy_and_the_tool_follows_the_program() {
+    if let Some(why) = python_missing("serial", "pyserial") {
+        eprintln!("SKIPPED: {why}");
+        return;
+    }
+    let mut job = Job::demo();
+    let StageSpec::Sim { machine } = &mut job.stage else {
+        unreachable!("the demo job simulates its stage")
+    };
+    // The map's spatial model only: drift is what re-referencing is for.
+    machine.thermal = None;
+    let machine = machine.clone();
+    let id = Identity {
+        machine: "sim".into(),
+        controller: "sim".into(),
+        board: job.board.name.clone(),
+        certificate_sha256: job.board.fingerprint_sha256(),
+        camera: "sim".into(),
+    };
+    let model = MapModel::new(map_from_truth(&machine, id));
+    let dir = std::env::temp_dir().join(format!("proxy-test-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let program = dir.join("prog.nc");
+    std::fs::write(&program, PROGRAM).unwrap();
+    let link = dir.join("ttyGATEWAY");
+
+    let rt = runtime();
+    let (ending, sender_out, stats, rows) = rt.block_on(async {
+        let (emulator, rig) = spawn_grbl_emulator(&job, &machine, Clock::Unconstrained).unwrap();
+        lock(&rig).machine_mut().start_trace();
+        let (mut controller, banner) =
+            open_controller(emulator.path(), 115_200, Duration::from_secs(10))
+                .await
+                .unwrap();
+        assert!(banner.contains("Grbl 1.1"), "{banner}");
+        let mut sender = SenderPort::create(Some(&link)).unwrap();
+        let script = workspace().join("tests/interop/grbl_sender.py");
+        let (link2, program2) = (link.clone(), program.clone());
+        let python = tokio::task::spawn_blocking(move || {
+            Command::new("python3")
+                .arg(script)
+                .arg(link2)
+                .arg(program2)
+                .output()
+                .expect("run the sender")
+        });
+        let rewriter = Rewriter::new(&model, Options::default()).unwrap();
+        let mut proxy = Proxy::new(rewriter, &model);
+        proxy.start();
+        let ending = serve(
+            &mut proxy,
+            &mut sender,
+            &mut controller,
+            std::future::pending(),
+        )
+        .await;
+        let out = python.await.unwrap();
+        let rows = lock(&rig).machine_mut().take_trace();
+        (ending, out, proxy.stats().clone(), rows)
+    });
+    let stdout = String::from_utf8_lossy(&sender_out.stdout);
+    assert!(
+        sender_out.status.success(),
+        "sender failed: {stdout}\n{}",
+        String::from_utf8_lossy(&sender_out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+    let n = PROGRAM.lines().count() as u64;
+    assert_eq!(v["acknowledged"], n, "{v}");
+    assert_eq!(v["errors"].as_array().unwrap().len(), 0, "{v}");
+    // The sender sees the programmed end point (within the controller's 0.5 um steps),
+    // not the corrected command, which is several um away.
+    let status = v["final_status"].as_str().unwrap();
+    let mpos: Vec<f64> = status
+        .split("MPos:")
+        .nth(1)
+        .and_then(|s| s.split('|').next())
+        .unwrap()
+        .split(',')
+        .map(|x| x.trim_end_matches('>').parse().unwrap())
+        .collect();
+    assert!(
+        (mpos[0] - 30.0).abs() <= 0.0011 && (mpos[1] - 120.0).abs() <= 0.0011,
+        "{status}"
+    );
+    let Ending::SenderLeft(account) = ending else {
+        panic!("{ending:?}")
+    };
+    assert!(
+        account.not_sent.is_empty()
+            && account.in_controller.is_empty()
+            && account.refused.is_empty(),
+        "{account:?}"
+    );
+    assert!(
+        stats.pieces_sent > 200,
+        "moves were split: {}",
+        stats.pieces_sent
+    );
+
+    // The true tool path, from its arrival at (20, 20) on, against the programmed path.
+    let path = nominal_path();
+    let start = rows
+        .iter()
+        .position(|r| (r.true_mm[0] - 20.0).hypot(r.true_mm[1] - 20.0) < 0.002)
+        .expect("the tool reached the start of the feed moves");
+    let feed_rows = &rows[start..];
+    assert!(feed_rows.len() > 5000, "{} rows", feed_rows.len());
+    let worst = worst_distance(feed_rows.iter().map(|r| r.true_mm), &path);
+    // Without the gateway the same rows are the commands: how far the stage is off.
+    let raw_worst = feed_rows
+        .iter()
+        .map(|r| (r.true_mm[0] - r.cmd_mm[0]).hypot(r.true_mm[1] - r.cmd_mm[1]))
+        .fold(0.0f64, f64::max);
+    eprintln!(
+        "pass-through: {} trace rows, true path within {:.3} um of the program (stage error up to {:.2} um), {} pieces for {} lines",
+        feed_rows.len(),
+        worst * 1000.0,
+        raw_worst * 1000.0,
+        stats.pieces_sent,
+        stats.lines
+    );
+    assert!(
+        raw_worst > 0.015,
+        "the stage is off by {raw_worst} mm uncompensated"
+    );
+    assert!(
+        worst < 0.002,
+        "true path {:.3} um from the program",
+        worst * 1000.0
+    );
+}
