@@ -160,6 +160,15 @@ impl<'a> Proxy<'a> {
         self.ask_position();
     }
 
+    /// A status request of the gateway's own, while lines are on their way: the reports
+    /// show whether the controller's planner ran dry (counted as starvation events) and
+    /// reach the sender too (senders take unsolicited reports).
+    pub fn poll_status(&mut self) {
+        if self.busy() && !self.lost {
+            self.to_controller.push(b'?');
+        }
+    }
+
     fn ask_position(&mut self) {
         if !self.position_asked && !self.lost {
             self.to_controller.push(b'?');

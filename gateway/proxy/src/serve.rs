@@ -103,6 +103,10 @@ pub enum Ending {
 /// How long to wait before looking again for a sender while none has the port open.
 const NO_SENDER_RETRY: Duration = Duration::from_millis(20);
 
+/// How often the gateway asks the controller for its status while lines are on their
+/// way (GRBL's docs suggest at most 5 Hz for senders; the gateway's own is on top).
+const STATUS_POLL: Duration = Duration::from_millis(200);
+
 /// Serve one sender session: until the sender leaves (after it sent something), the
 /// controller is lost, or `stop` fires.
 pub async fn serve(
@@ -116,6 +120,8 @@ pub async fn serve(
     let mut from_sender = [0u8; 4096];
     let mut from_controller = [0u8; 4096];
     let mut heard_sender = false;
+    let mut poll = tokio::time::interval(STATUS_POLL);
+    poll.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     tokio::pin!(stop);
     let ending = loop {
         // Whatever the last step produced goes out first.
@@ -134,6 +140,7 @@ pub async fn serve(
         tokio::select! {
             biased;
             _ = &mut stop => break Ending::Stopped(proxy.account()),
+            _ = poll.tick() => proxy.poll_status(),
             r = controller.read(&mut from_controller) => match r {
                 Ok(0) => break lost(proxy, sender, "the port closed".into()).await,
                 Ok(n) => proxy.from_controller(&from_controller[..n], now()),
