@@ -20,6 +20,7 @@ mod grbl;
 mod media;
 mod modbus;
 mod nc;
+mod rewrite;
 mod slcan;
 
 pub use canopen::{canopen_eds, sdo_client, sdo_server};
@@ -30,6 +31,7 @@ pub use grbl::{grbl_gcode, grbl_response};
 pub use media::{localize, png_load};
 pub use modbus::modbus_frame;
 pub use nc::nc_program;
+pub use rewrite::{nc_rewrite, proxy_stream};
 pub use slcan::slcan;
 
 /// A fuzz target: any bytes in, a panic on a broken invariant.
@@ -60,6 +62,8 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("camera_toml", camera_toml),
     ("error_map_json", error_map_json),
     ("scan_journal", scan_journal),
+    ("nc_rewrite", nc_rewrite),
+    ("proxy_stream", proxy_stream),
 ];
 
 /// The fuzz crate's folder (corpora, regressions).
