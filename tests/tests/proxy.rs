@@ -226,3 +226,189 @@ fn an_independent_sender_streams_through_the_proxy_and_the_tool_follows_the_prog
         worst * 1000.0
     );
 }
+
+/// A sender of our own on the pseudo-terminal: writes lines, reads what comes back.
+struct RawSender {
+    port: tokio_serial::SerialStream,
+    got: String,
+}
+
+impl RawSender {
+    fn open(path: &std::path::Path) -> RawSender {
+        use tokio_serial::SerialPortBuilderExt;
+        let port = tokio_serial::new(path.to_string_lossy(), 115_200)
+            .open_native_async()
+            .expect("open the gateway's port");
+        RawSender {
+            port,
+            got: String::new(),
+        }
+    }
+
+    async fn send(&mut self, text: &str) {
+        use tokio::io::AsyncWriteExt;
+        self.port.write_all(text.as_bytes()).await.unwrap();
+    }
+
+    /// Read until `n` answers (`ok`/`error:`) or an `ALARM:` have come.
+    async fn until_answers(&mut self, n: usize) {
+        use tokio::io::AsyncReadExt;
+        let answers = |s: &str| {
+            s.lines()
+                .filter(|l| *l == "ok" || l.starts_with("error:"))
+                .count()
+        };
+        let mut buf = [0u8; 1024];
+        while answers(&self.got) < n && !self.got.contains("ALARM:") {
+            let k = self.port.read(&mut buf).await.unwrap();
+            assert!(k > 0, "the gateway closed the port");
+            self.got
+                .push_str(&String::from_utf8_lossy(&buf[..k]).replace('\r', ""));
+        }
+    }
+}
+
+/// Long, slow moves on a real-time controller: the program is still running when the
+/// fault comes.
+fn slow_program() -> String {
+    let mut p = String::from("G21 G90\nG0 X10 Y10\n");
+    for k in 0..12 {
+        let (x, y) = if k % 2 == 0 {
+            (190.0, 10.0 + k as f64)
+        } else {
+            (10.0, 10.0 + k as f64)
+        };
+        p.push_str(&format!("G1 X{x} Y{y} F600\n"));
+    }
+    p
+}
+
+fn demo_machine() -> (Job, world::machine::MachineConfig, MapModel) {
+    let mut job = Job::demo();
+    let StageSpec::Sim { machine } = &mut job.stage else {
+        unreachable!("the demo job simulates its stage")
+    };
+    machine.thermal = None;
+    let machine = machine.clone();
+    let id = Identity {
+        machine: "sim".into(),
+        controller: "sim".into(),
+        board: job.board.name.clone(),
+        certificate_sha256: job.board.fingerprint_sha256(),
+        camera: "sim".into(),
+    };
+    let model = MapModel::new(map_from_truth(&machine, id));
+    (job, machine, model)
+}
+
+#[test]
+fn a_sender_leaving_mid_stream_gets_a_feed_hold_and_an_account_of_its_lines() {
+    let (job, machine, model) = demo_machine();
+    let link = std::env::temp_dir().join(format!("proxy-leave-{}", std::process::id()));
+    let rt = runtime();
+    rt.block_on(async {
+        // Real time: each 180 mm move at 600 mm/min takes 18 s.
+        let (emulator, _rig) = spawn_grbl_emulator(&job, &machine, Clock::Scaled(1.0)).unwrap();
+        let (mut controller, _) =
+            open_controller(emulator.path(), 115_200, Duration::from_secs(10))
+                .await
+                .unwrap();
+        let mut sender_port = SenderPort::create(Some(&link)).unwrap();
+        let rewriter = Rewriter::new(&model, Options::default()).unwrap();
+        let mut proxy = Proxy::new(rewriter, &model);
+        proxy.start();
+        let mut sender = RawSender::open(&link);
+        let session = serve(
+            &mut proxy,
+            &mut sender_port,
+            &mut controller,
+            std::future::pending(),
+        );
+        let client = async {
+            sender.send("$X\n").await;
+            sender.until_answers(1).await;
+            let program = slow_program();
+            sender.send(&program).await;
+            // `$X`, the modes and the rapid answered; the first 180 mm move (pieces of
+            // about a millimetre, answered only when its last piece is planned) still
+            // running: leave.
+            sender.until_answers(3).await;
+            drop(sender);
+        };
+        let (ending, ()) = tokio::join!(session, client);
+        let Ending::SenderLeft(account) = ending else {
+            panic!("{ending:?}")
+        };
+        let total = 1 + slow_program().lines().count();
+        let seen = account.acknowledged.len()
+            + account.in_controller.len()
+            + account.not_sent.len()
+            + account.refused.len();
+        assert_eq!(seen, total, "every line accounted for: {account:?}");
+        assert!(account.acknowledged.starts_with(&[1, 2, 3]), "{account:?}");
+        assert!(
+            !account.in_controller.is_empty() || !account.not_sent.is_empty(),
+            "{account:?}"
+        );
+        // The controller was told to hold: its status says so.
+        use tokio::io::{AsyncReadExt, AsyncWriteExt};
+        controller.write_all(b"?").await.unwrap();
+        let mut got = String::new();
+        let mut buf = [0u8; 512];
+        while !got.contains('>') {
+            let k = controller.read(&mut buf).await.unwrap();
+            got.push_str(&String::from_utf8_lossy(&buf[..k]));
+        }
+        assert!(got.contains("<Hold"), "{got}");
+    });
+}
+
+#[test]
+fn a_lost_controller_alarms_the_sender_and_nothing_is_resent() {
+    let (job, machine, model) = demo_machine();
+    let link = std::env::temp_dir().join(format!("proxy-lost-{}", std::process::id()));
+    let rt = runtime();
+    rt.block_on(async {
+        let (emulator, _rig) = spawn_grbl_emulator(&job, &machine, Clock::Scaled(1.0)).unwrap();
+        let (mut controller, _) =
+            open_controller(emulator.path(), 115_200, Duration::from_secs(10))
+                .await
+                .unwrap();
+        let mut sender_port = SenderPort::create(Some(&link)).unwrap();
+        let rewriter = Rewriter::new(&model, Options::default()).unwrap();
+        let mut proxy = Proxy::new(rewriter, &model);
+        proxy.start();
+        let mut sender = RawSender::open(&link);
+        let session = serve(
+            &mut proxy,
+            &mut sender_port,
+            &mut controller,
+            std::future::pending(),
+        );
+        let client = async {
+            sender.send("$X\n").await;
+            sender.until_answers(1).await;
+            sender.send(&slow_program()).await;
+            sender.until_answers(3).await;
+            // The controller's port goes away (a USB cable pulled).
+            emulator.hang_up().await;
+            sender.until_answers(usize::MAX).await;
+            sender
+        };
+        let (ending, sender) = tokio::join!(session, client);
+        let Ending::ControllerLost { lines, .. } = ending else {
+            panic!("{ending:?}")
+        };
+        assert!(
+            sender.got.contains("[MSG:gateway: controller lost"),
+            "{}",
+            sender.got
+        );
+        assert!(sender.got.contains("ALARM:3"), "{}", sender.got);
+        assert!(lines.acknowledged.starts_with(&[1, 2, 3]), "{lines:?}");
+        assert!(
+            !lines.in_controller.is_empty() || !lines.not_sent.is_empty(),
+            "{lines:?}"
+        );
+    });
+}
