@@ -17,6 +17,7 @@ use vision::localize::{localize, LocalizeParams, LocalizeSettings, Method, Pixel
 
 mod proxy;
 mod rewrite;
+mod rotary;
 mod scan;
 
 #[derive(Parser)]
@@ -121,6 +122,11 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
+    /// The A/C tilting rotary table (source B): identify its eight location errors.
+    Rotary {
+        #[command(subcommand)]
+        cmd: rotary::RotaryCmd,
+    },
     /// The live pass-through: a pseudo-terminal that answers as a GRBL 1.1 controller to
     /// the G-code sender you already use (UGS, CNCjs, bCNC), rewriting every line with
     /// the error map and streaming it to the job's GRBL controller. Status reports show
@@ -208,6 +214,7 @@ fn main() -> ExitCode {
         | Cmd::Rewrite { json, .. }
         | Cmd::Proxy { json, .. }
         | Cmd::Localize { json, .. } => *json,
+        Cmd::Rotary { cmd } => cmd.json(),
     };
     match run(cli) {
         Ok(code) => code,
@@ -333,6 +340,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             once,
             json,
         }),
+        Cmd::Rotary { cmd } => rotary::run(cmd),
         Cmd::Localize {
             image,
             board,

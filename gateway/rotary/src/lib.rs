@@ -58,8 +58,10 @@ pub struct Ball {
 }
 
 /// The artifact of the paper: a 150 mm plate on the C table with two balls, 26 mm and
-/// 41 mm, as far from the C axis as the plate allows (their placement on the plate is
-/// this project's choice; the paper shows it only in a figure).
+/// 41 mm, as far from the C axis as the plate allows: the 26 mm ball's centre 60 mm
+/// out, the 41 mm ball's 52 mm out on the other side, both reaching 73 mm of the 75 mm
+/// plate radius, on stems putting their centres 30 and 45 mm above the table face
+/// (their placement is this project's choice; the paper shows it only in a figure).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Artifact {
@@ -72,11 +74,11 @@ impl Default for Artifact {
             balls: [
                 Ball {
                     radius_mm: 13.0,
-                    centre_mm: [-55.0, 0.0, 30.0],
+                    centre_mm: [-60.0, 0.0, 30.0],
                 },
                 Ball {
                     radius_mm: 20.5,
-                    centre_mm: [55.0, 0.0, 45.0],
+                    centre_mm: [52.0, 0.0, 45.0],
                 },
             ],
         }

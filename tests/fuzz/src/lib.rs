@@ -21,6 +21,7 @@ mod media;
 mod modbus;
 mod nc;
 mod rewrite;
+mod rotary;
 mod slcan;
 
 pub use canopen::{canopen_eds, sdo_client, sdo_server};
@@ -32,6 +33,7 @@ pub use media::{localize, png_load};
 pub use modbus::modbus_frame;
 pub use nc::nc_program;
 pub use rewrite::{nc_rewrite, proxy_stream};
+pub use rotary::rotary_centres;
 pub use slcan::slcan;
 
 /// A fuzz target: any bytes in, a panic on a broken invariant.
@@ -64,6 +66,7 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("scan_journal", scan_journal),
     ("nc_rewrite", nc_rewrite),
     ("proxy_stream", proxy_stream),
+    ("rotary_centres", rotary_centres),
 ];
 
 /// The fuzz crate's folder (corpora, regressions).
