@@ -16,6 +16,7 @@ pub mod plate;
 pub mod render;
 pub mod rig;
 pub mod rng;
+pub mod rotary;
 
 pub use clock::Clock;
 pub use rig::{lock, shared_rig, SharedRig, SimRig};
