@@ -30,6 +30,7 @@ pub mod camera;
 pub mod canopen;
 pub mod demo;
 pub mod modbus;
+pub mod rotary;
 
 pub use camera::{CameraSpec, PairingError};
 use compensation::correction::CorrectionPolicy;

@@ -35,6 +35,7 @@ pub mod centres;
 pub mod chart;
 pub mod identify;
 pub mod machine;
+pub mod measure;
 
 pub use centres::{parse_centres, write_centres, Axis, CentreRow, CentresError};
 pub use identify::{
