@@ -1,9 +1,16 @@
 //! `gateway rotary`: the A/C tilting table of source B: identification of its eight
-//! location errors from measured ball centres.
+//! location errors from measured ball centres, and the probing cycle on the simulated
+//! 5-axis machine.
 
 use anyhow::Context;
 use clap::Subcommand;
-use rotary::{identify, parse_centres, Identification, MachineConstants};
+use indicatif::{ProgressBar, ProgressStyle};
+use job::rotary::RotaryJob;
+use rotary::measure::measure;
+use rotary::{
+    identify, parse_centres, write_centres, Axes, Identification, LocationErrors, MachineConstants,
+    RotaryMachine,
+};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -29,12 +36,28 @@ pub enum RotaryCmd {
         #[arg(long)]
         json: bool,
     },
+    /// Run the paper's measurement cycle with the touch probe on the simulated 5-axis
+    /// machine (C in 12 steps of 30°, A in 6 steps of 15°, 6 points per ball, each
+    /// touched fast, backed off and touched slowly), identify the errors, and check them
+    /// and a compensated 5-axis program against the simulation's truth. Writes
+    /// OUT/centres.csv, OUT/points.csv, OUT/errors.json and the sweep chart; a stopped
+    /// cycle still writes what it measured.
+    Measure {
+        /// The rotary job (JSON: seed, errors, probe, plan, machine, speeds; all
+        /// optional, defaults are the paper's table).
+        #[arg(long)]
+        config: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 impl RotaryCmd {
     pub fn json(&self) -> bool {
         match self {
-            RotaryCmd::Identify { json, .. } => *json,
+            RotaryCmd::Identify { json, .. } | RotaryCmd::Measure { json, .. } => *json,
         }
     }
 }
@@ -67,7 +90,235 @@ pub fn run(cmd: RotaryCmd) -> anyhow::Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
+        RotaryCmd::Measure { config, out, json } => measure_cmd(&config, &out, json),
     }
+}
+
+fn measure_cmd(config: &Path, out: &Path, json: bool) -> anyhow::Result<ExitCode> {
+    let text =
+        std::fs::read_to_string(config).with_context(|| format!("reading {}", config.display()))?;
+    let job =
+        RotaryJob::from_json(&text).map_err(|e| anyhow::anyhow!("{}: {e}", config.display()))?;
+    let constants = job.machine.unwrap_or_default();
+    let plan = job.plan.unwrap_or_default();
+    let mut machine = job.simulated();
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let bar = if json {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(0)
+    };
+    bar.set_style(
+        ProgressStyle::with_template("{bar:40} {pos}/{len} balls {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let result = measure(&mut machine, &constants, &plan, |done, total| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    });
+    bar.finish_and_clear();
+    let (m, stopped) = match result {
+        Ok(m) => (m, None),
+        Err(stop) => (stop.so_far, Some(stop.error)),
+    };
+    let centres_path = out.join("centres.csv");
+    std::fs::write(&centres_path, write_centres(&m.centres()))
+        .with_context(|| format!("writing {}", centres_path.display()))?;
+    let points_path = out.join("points.csv");
+    let mut points = String::from("axis,step,angle_deg,ball,touch,x_mm,y_mm,z_mm\n");
+    for b in &m.balls {
+        for (k, p) in b.points.iter().enumerate() {
+            points.push_str(&format!(
+                "{},{},{},{},{},{:.6},{:.6},{:.6}\n",
+                b.axis,
+                b.step,
+                b.angle_deg,
+                b.ball,
+                k + 1,
+                p[0],
+                p[1],
+                p[2]
+            ));
+        }
+    }
+    std::fs::write(&points_path, points)
+        .with_context(|| format!("writing {}", points_path.display()))?;
+    if let Some(error) = stopped {
+        anyhow::bail!(
+            "{error} ({} balls measured, saved in {} and {})",
+            m.balls.len(),
+            centres_path.display(),
+            points_path.display()
+        );
+    }
+    let rows = m.centres();
+    let id = identify(&rows, &constants)?;
+    let plot_files = write_plot(out, &rows, &id)?;
+    let mut report = identification_json(&id, &constants, Some(plot_files));
+    let errors_path = out.join("errors.json");
+    std::fs::write(&errors_path, serde_json::to_string_pretty(&report)?)
+        .with_context(|| format!("writing {}", errors_path.display()))?;
+    // The simulation knows the truth: compare.
+    let t = machine.sim.errors;
+    let injected = LocationErrors {
+        delta_xc_mm: t.delta_xc_mm,
+        delta_yc_mm: t.delta_yc_mm,
+        alpha_xc_deg: t.alpha_xc_deg,
+        alpha_yc_deg: t.alpha_yc_deg,
+        delta_ya_mm: t.delta_ya_mm,
+        delta_za_mm: t.delta_za_mm,
+        alpha_ya_deg: t.alpha_ya_deg,
+        alpha_za_deg: t.alpha_za_deg,
+    };
+    let check = compensation_check(&machine.sim, &constants, &id.errors)?;
+    let touches = m.probe_touches;
+    let time_s = machine.time_s;
+    if json {
+        let obj = report.as_object_mut().expect("an object");
+        let mut truth = serde_json::Map::new();
+        for ((name, w), (_, g)) in injected.named().iter().zip(id.errors.named()) {
+            truth.insert(
+                (*name).into(),
+                json!({ "injected": w, "identified": g, "difference": g - w }),
+            );
+        }
+        obj.insert("truth".into(), serde_json::Value::Object(truth));
+        obj.insert(
+            "cycle".into(),
+            json!({
+                "balls": m.balls.len(),
+                "probe_points": touches / 2,
+                "probe_touches": touches,
+                "simulated_time_s": time_s,
+            }),
+        );
+        obj.insert(
+            "compensation_check".into(),
+            json!({
+                "poses": check.poses,
+                "tip_max_before_mm": check.tip_max_before_mm,
+                "tip_max_after_mm": check.tip_max_after_mm,
+                "tip_mean_before_mm": check.tip_mean_before_mm,
+                "tip_mean_after_mm": check.tip_mean_after_mm,
+                "tip_improvement_pct": check.tip_improvement_pct,
+                "direction_max_before_rad": check.dir_max_before_rad,
+                "direction_max_after_rad": check.dir_max_after_rad,
+                "direction_improvement_pct": check.dir_improvement_pct,
+            }),
+        );
+        println!("{report}");
+    } else {
+        println!(
+            "{:<14} {:>12} {:>12} {:>12} {:>10}",
+            "error", "injected", "identified", "difference", "u (k=1)"
+        );
+        for (((name, w), (_, g)), (_, u)) in injected
+            .named()
+            .iter()
+            .zip(id.errors.named())
+            .zip(id.uncertainty.named())
+        {
+            println!("{name:<14} {w:>12.6} {g:>12.6} {:>12.6} {u:>10.6}", g - w);
+        }
+        println!(
+            "cycle: {} balls, {} probe points ({} touches), simulated machine time {:.1} min",
+            m.balls.len(),
+            touches / 2,
+            touches,
+            time_s / 60.0
+        );
+        println!(
+            "compensated 5-axis program ({} poses, A 2..90°, C all round), against the truth:",
+            check.poses
+        );
+        println!(
+            "  tool tip   max {:.4} mm -> {:.5} mm ({:.1} % better), mean {:.4} -> {:.5}",
+            check.tip_max_before_mm,
+            check.tip_max_after_mm,
+            check.tip_improvement_pct,
+            check.tip_mean_before_mm,
+            check.tip_mean_after_mm
+        );
+        println!(
+            "  direction  max {:.6} rad -> {:.7} rad ({:.1} % better)",
+            check.dir_max_before_rad, check.dir_max_after_rad, check.dir_improvement_pct
+        );
+        println!(
+            "wrote {}, {}, {}",
+            centres_path.display(),
+            points_path.display(),
+            errors_path.display()
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The compensation of a 5-axis test program checked against the simulation's truth.
+struct CompensationCheck {
+    poses: usize,
+    tip_max_before_mm: f64,
+    tip_max_after_mm: f64,
+    tip_mean_before_mm: f64,
+    tip_mean_after_mm: f64,
+    tip_improvement_pct: f64,
+    dir_max_before_rad: f64,
+    dir_max_after_rad: f64,
+    dir_improvement_pct: f64,
+}
+
+/// A 5-axis test program (A from 2° to 90°, C all round, tips spread over the part)
+/// run as programmed and as compensated with `errors`, each pose's true tool tip and
+/// direction compared with the programmed ones.
+fn compensation_check(
+    truth: &world::rotary::RotaryMachineSim,
+    constants: &MachineConstants,
+    errors: &LocationErrors,
+) -> anyhow::Result<CompensationCheck> {
+    let model = RotaryMachine::with_errors(*constants, *errors);
+    let ideal_m = RotaryMachine::nominal(*constants);
+    let mut before = Vec::new();
+    let mut after = Vec::new();
+    for (i, a) in [2.0, 10.0, 25.0, 40.0, 55.0, 70.0, 85.0, 90.0]
+        .iter()
+        .enumerate()
+    {
+        for (j, c) in [0.0, 45.0, 135.0, 200.0, 290.0].iter().enumerate() {
+            let nominal = Axes::new(
+                -40.0 + 11.0 * i as f64,
+                30.0 - 13.0 * j as f64,
+                -180.0 - 3.0 * i as f64,
+                *a,
+                *c,
+            );
+            let ideal = ideal_m.forward(&nominal);
+            let cmd = model
+                .command_for(&nominal)
+                .with_context(|| format!("compensating {nominal:?}"))?;
+            for (list, cmd) in [(&mut before, nominal), (&mut after, cmd)] {
+                let (p, d) = truth.tool_in_workpiece([cmd.x, cmd.y, cmd.z, cmd.a, cmd.c]);
+                let dir = d.dot(&ideal.direction).clamp(-1.0, 1.0).acos();
+                list.push(((p - ideal.position).norm(), dir));
+            }
+        }
+    }
+    let max = |v: &[(f64, f64)], k: usize| {
+        v.iter()
+            .map(|p| if k == 0 { p.0 } else { p.1 })
+            .fold(0.0f64, f64::max)
+    };
+    let mean = |v: &[(f64, f64)]| v.iter().map(|p| p.0).sum::<f64>() / v.len() as f64;
+    let pct = |b: f64, a: f64| 100.0 * (1.0 - a / b);
+    Ok(CompensationCheck {
+        poses: before.len(),
+        tip_max_before_mm: max(&before, 0),
+        tip_max_after_mm: max(&after, 0),
+        tip_mean_before_mm: mean(&before),
+        tip_mean_after_mm: mean(&after),
+        tip_improvement_pct: pct(max(&before, 0), max(&after, 0)),
+        dir_max_before_rad: max(&before, 1),
+        dir_max_after_rad: max(&after, 1),
+        dir_improvement_pct: pct(max(&before, 1), max(&after, 1)),
+    })
 }
 
 /// The machine constants from a JSON file, or the defaults.
