@@ -117,6 +117,44 @@ impl LocationErrors {
         }
     }
 
+    /// Reads the errors from JSON text: an object with the eight fields at its top level
+    /// (what `gateway rotary identify --json` writes; other fields are ignored), each a
+    /// number, checked with [`LocationErrors::check`].
+    pub fn from_json(text: &str) -> Result<Self, String> {
+        #[derive(Deserialize)]
+        struct Fields {
+            #[serde(rename = "delta_XC_mm")]
+            delta_xc_mm: f64,
+            #[serde(rename = "delta_YC_mm")]
+            delta_yc_mm: f64,
+            #[serde(rename = "alpha_XC_deg")]
+            alpha_xc_deg: f64,
+            #[serde(rename = "alpha_YC_deg")]
+            alpha_yc_deg: f64,
+            #[serde(rename = "delta_YA_mm")]
+            delta_ya_mm: f64,
+            #[serde(rename = "delta_ZA_mm")]
+            delta_za_mm: f64,
+            #[serde(rename = "alpha_YA_deg")]
+            alpha_ya_deg: f64,
+            #[serde(rename = "alpha_ZA_deg")]
+            alpha_za_deg: f64,
+        }
+        let f: Fields = serde_json::from_str(text).map_err(|e| e.to_string())?;
+        let e = LocationErrors {
+            delta_xc_mm: f.delta_xc_mm,
+            delta_yc_mm: f.delta_yc_mm,
+            alpha_xc_deg: f.alpha_xc_deg,
+            alpha_yc_deg: f.alpha_yc_deg,
+            delta_ya_mm: f.delta_ya_mm,
+            delta_za_mm: f.delta_za_mm,
+            alpha_ya_deg: f.alpha_ya_deg,
+            alpha_za_deg: f.alpha_za_deg,
+        };
+        e.check()?;
+        Ok(e)
+    }
+
     /// The eight values with their JSON names, in the paper's order.
     pub fn named(&self) -> [(&'static str, f64); 8] {
         [

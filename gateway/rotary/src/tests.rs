@@ -513,3 +513,21 @@ fn sweep_chart_renders() {
     assert!(svg.starts_with("<svg"));
     assert!(svg.contains("C sweep") && svg.contains("A sweep"));
 }
+
+#[test]
+fn errors_json_reads_what_identify_writes_and_refuses_the_rest() {
+    let e = LocationErrors::paper();
+    let text = serde_json::to_string(&e).unwrap();
+    assert!(text.contains("\"delta_ZA_mm\":-0.3924"), "{text}");
+    assert_eq!(LocationErrors::from_json(&text).unwrap(), e);
+    // Extra fields (uncertainty, fits) are ignored.
+    let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
+    v["uncertainty"] = serde_json::json!({"delta_XC_mm": 0.0001});
+    assert_eq!(LocationErrors::from_json(&v.to_string()).unwrap(), e);
+    v.as_object_mut().unwrap().remove("alpha_ZA_deg");
+    let err = LocationErrors::from_json(&v.to_string()).unwrap_err();
+    assert!(err.contains("alpha_ZA_deg"), "{err}");
+    v["alpha_ZA_deg"] = serde_json::json!(3.0);
+    let err = LocationErrors::from_json(&v.to_string()).unwrap_err();
+    assert!(err.contains("alpha_ZA_deg = 3"), "{err}");
+}

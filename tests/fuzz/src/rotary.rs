@@ -24,3 +24,23 @@ pub fn rotary_centres(data: &[u8]) {
         }
     }
 }
+
+/// Any text as the rotary JSON files: the errors file (`LocationErrors::from_json`, what
+/// `gateway rotary identify --json` writes) and the measurement job
+/// (`job::rotary::RotaryJob::from_json`). Accepted errors are within their checks and
+/// give finite commands; an accepted job builds its simulated machine.
+pub fn rotary_json(data: &[u8]) {
+    let text = String::from_utf8_lossy(data);
+    if let Ok(e) = rotary::LocationErrors::from_json(&text) {
+        assert!(e.check().is_ok());
+        let m = rotary::RotaryMachine::with_errors(rotary::MachineConstants::default(), e);
+        if let Ok(cmd) = m.command_for(&rotary::Axes::new(0.0, 0.0, -190.0, 30.0, 45.0)) {
+            assert!([cmd.x, cmd.y, cmd.z, cmd.a, cmd.c]
+                .iter()
+                .all(|v| v.is_finite()));
+        }
+    }
+    if let Ok(job) = job::rotary::RotaryJob::from_json(&text) {
+        let _ = job.simulated();
+    }
+}
