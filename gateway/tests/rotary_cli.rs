@@ -1,0 +1,128 @@
+//! `gateway rotary` as a user runs it: the probing cycle on the simulated machine, then
+//! the identification from the centres file it wrote, and a bad file refused.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn gateway(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_gateway"))
+        .args(args)
+        .output()
+        .expect("gateway runs")
+}
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .unwrap()
+        .to_path_buf()
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("gateway-rotary-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+const NAMES: [&str; 8] = [
+    "delta_XC_mm",
+    "delta_YC_mm",
+    "alpha_XC_deg",
+    "alpha_YC_deg",
+    "delta_YA_mm",
+    "delta_ZA_mm",
+    "alpha_YA_deg",
+    "alpha_ZA_deg",
+];
+
+#[test]
+fn measure_then_identify_from_its_centres() {
+    let out = scratch("measure");
+    let config = repo().join("config/rotary/sim-table.json");
+    let run = gateway(&[
+        "rotary",
+        "measure",
+        "--config",
+        config.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    for name in NAMES {
+        let d = v["truth"][name]["difference"].as_f64().unwrap();
+        let tol = if name.ends_with("_deg") {
+            0.0005
+        } else {
+            0.001
+        };
+        assert!(d.abs() <= tol, "{name}: {d}");
+        assert!(v["uncertainty"][name].as_f64().unwrap() > 0.0);
+    }
+    assert_eq!(v["cycle"]["probe_points"], 228);
+    assert!(
+        v["compensation_check"]["tip_improvement_pct"]
+            .as_f64()
+            .unwrap()
+            >= 95.0
+    );
+    assert!(
+        v["compensation_check"]["direction_improvement_pct"]
+            .as_f64()
+            .unwrap()
+            >= 95.0
+    );
+    for f in [
+        "centres.csv",
+        "points.csv",
+        "errors.json",
+        "rotary-sweeps.svg",
+        "rotary-sweeps.png",
+    ] {
+        assert!(out.join(f).is_file(), "{f} written");
+    }
+    // The same identification from the centres file alone.
+    let centres = out.join("centres.csv");
+    let id = gateway(&[
+        "rotary",
+        "identify",
+        "--centres",
+        centres.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(
+        id.status.success(),
+        "{}",
+        String::from_utf8_lossy(&id.stderr)
+    );
+    let w: serde_json::Value = serde_json::from_slice(&id.stdout).unwrap();
+    for name in NAMES {
+        let a = v[name].as_f64().unwrap();
+        let b = w[name].as_f64().unwrap();
+        // The file keeps 6 decimals (1 nm).
+        assert!((a - b).abs() < 1e-5, "{name}: {a} vs {b}");
+    }
+    // The errors file it wrote is what the rewriter reads.
+    let text = std::fs::read_to_string(out.join("errors.json")).unwrap();
+    rotary::LocationErrors::from_json(&text).unwrap();
+}
+
+#[test]
+fn a_bad_centres_file_is_refused_naming_line_and_column() {
+    let dir = scratch("bad");
+    let path = dir.join("centres.csv");
+    std::fs::write(
+        &path,
+        "axis,step,angle_deg,ball,x_mm,y_mm,z_mm\nC,0,0,1,-60,0,-260\nC,1,30,1,oops,0,-260\n",
+    )
+    .unwrap();
+    let run = gateway(&["rotary", "identify", "--centres", path.to_str().unwrap()]);
+    assert!(!run.status.success());
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(err.contains("line 3, column 5 (x_mm): `oops`"), "{err}");
+}
