@@ -11,12 +11,15 @@
 //! * [`gcode`]: GRBL's line filter, a G-code interpreter giving GRBL's error codes, and
 //!   a compact block writer.
 //! * [`codes`]: what each error and alarm number means.
+//! * [`probe`]: the `[PRB:...]` report (3 to 6 axes, grblHAL's A B C) and the probe
+//!   alarms.
 //!
 //! Nothing here does I/O or reads a clock: the driver and the emulator bring both.
 
 pub mod codes;
 pub mod command;
 pub mod gcode;
+pub mod probe;
 pub mod realtime;
 pub mod response;
 pub mod settings;

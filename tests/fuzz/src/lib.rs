@@ -33,7 +33,7 @@ pub use media::{localize, png_load};
 pub use modbus::modbus_frame;
 pub use nc::nc_program;
 pub use rewrite::{nc_rewrite, proxy_stream};
-pub use rotary::{rotary_centres, rotary_json};
+pub use rotary::{grbl_probe, rotary_centres, rotary_json};
 pub use slcan::slcan;
 
 /// A fuzz target: any bytes in, a panic on a broken invariant.
@@ -68,6 +68,7 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("proxy_stream", proxy_stream),
     ("rotary_centres", rotary_centres),
     ("rotary_json", rotary_json),
+    ("grbl_probe", grbl_probe),
 ];
 
 /// The fuzz crate's folder (corpora, regressions).

@@ -44,3 +44,22 @@ pub fn rotary_json(data: &[u8]) {
         let _ = job.simulated();
     }
 }
+
+/// Any text as a `[PRB:...]` line: a report or a refusal; a report is written back and
+/// read again to the same axes count and flag, positions within GRBL's 3 decimals.
+pub fn grbl_probe(data: &[u8]) {
+    use protocol::grbl::probe::ProbeReport;
+    let text = String::from_utf8_lossy(data);
+    let Ok(r) = ProbeReport::parse_line(&text) else {
+        return;
+    };
+    assert!((3..=6).contains(&r.position.len()));
+    if r.position.iter().all(|v| v.abs() < 1e12) {
+        let again = ProbeReport::parse_line(&r.to_line()).expect("written reports read back");
+        assert_eq!(again.touched, r.touched);
+        assert_eq!(again.position.len(), r.position.len());
+        for (a, b) in r.position.iter().zip(&again.position) {
+            assert!((a - b).abs() <= 5e-4 + 1e-12 * a.abs(), "{a} -> {b}");
+        }
+    }
+}
