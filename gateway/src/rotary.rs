@@ -36,6 +36,28 @@ pub enum RotaryCmd {
         #[arg(long)]
         json: bool,
     },
+    /// Rewrite a 5-axis program (X Y Z A C, absolute, mm) for the identified errors:
+    /// every programmed point replaced by the command that puts the tool tip and
+    /// direction back on it, feed moves split where the commands bend. Refuses (naming
+    /// the line) arcs, inches, incremental moves, unknown axes and commands past the
+    /// limits.
+    Rewrite {
+        /// The program (never overwritten).
+        input: PathBuf,
+        /// The errors (the JSON `gateway rotary identify` or `measure` writes).
+        #[arg(long)]
+        errors: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+        /// The machine constants (JSON), default the built-in ones.
+        #[arg(long)]
+        machine: Option<PathBuf>,
+        /// Largest distance (X Y Z) of a piece's middle from the compensated path, um.
+        #[arg(long, default_value_t = 0.5)]
+        tolerance_um: f64,
+        #[arg(long)]
+        json: bool,
+    },
     /// Run the paper's measurement cycle with the touch probe on the simulated 5-axis
     /// machine (C in 12 steps of 30°, A in 6 steps of 15°, 6 points per ball, each
     /// touched fast, backed off and touched slowly), identify the errors, and check them
@@ -57,7 +79,9 @@ pub enum RotaryCmd {
 impl RotaryCmd {
     pub fn json(&self) -> bool {
         match self {
-            RotaryCmd::Identify { json, .. } | RotaryCmd::Measure { json, .. } => *json,
+            RotaryCmd::Identify { json, .. }
+            | RotaryCmd::Measure { json, .. }
+            | RotaryCmd::Rewrite { json, .. } => *json,
         }
     }
 }
@@ -91,6 +115,78 @@ pub fn run(cmd: RotaryCmd) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         RotaryCmd::Measure { config, out, json } => measure_cmd(&config, &out, json),
+        RotaryCmd::Rewrite {
+            input,
+            errors,
+            out,
+            machine,
+            tolerance_um,
+            json,
+        } => {
+            if !(tolerance_um > 0.0 && tolerance_um.is_finite()) {
+                anyhow::bail!("--tolerance-um {tolerance_um}: must be a positive number");
+            }
+            if out == input {
+                anyhow::bail!("--out is the input file: the program is never overwritten");
+            }
+            let constants = load_constants(machine.as_deref())?;
+            let e_text = std::fs::read_to_string(&errors)
+                .with_context(|| format!("reading {}", errors.display()))?;
+            let e = LocationErrors::from_json(&e_text)
+                .map_err(|err| anyhow::anyhow!("{}: {err}", errors.display()))?;
+            let model = RotaryMachine::with_errors(constants, e);
+            let text = std::fs::read_to_string(&input)
+                .with_context(|| format!("reading {}", input.display()))?;
+            let opts = rotary::rewrite::RewriteOptions {
+                tolerance_mm: tolerance_um / 1000.0,
+                ..Default::default()
+            };
+            let (rewritten, report) = rotary::rewrite::rewrite_program(&text, &model, &opts)
+                .with_context(|| format!("{}", input.display()))?;
+            std::fs::write(&out, rewritten)
+                .with_context(|| format!("writing {}", out.display()))?;
+            let max_xyz = report
+                .points
+                .iter()
+                .map(|p| {
+                    let (n, c) = (p.nominal, p.command);
+                    ((c.x - n.x).powi(2) + (c.y - n.y).powi(2) + (c.z - n.z).powi(2)).sqrt()
+                })
+                .fold(0.0f64, f64::max);
+            let max_ac = report
+                .points
+                .iter()
+                .map(|p| {
+                    (p.command.a - p.nominal.a)
+                        .abs()
+                        .max((p.command.c - p.nominal.c).abs())
+                })
+                .fold(0.0f64, f64::max);
+            if json {
+                println!(
+                    "{}",
+                    json!({
+                        "lines": report.lines,
+                        "moves": report.moves,
+                        "pieces_added": report.pieces_added,
+                        "max_correction_xyz_mm": max_xyz,
+                        "max_correction_ac_deg": max_ac,
+                        "out": out.display().to_string(),
+                    })
+                );
+            } else {
+                println!(
+                    "{} lines, {} moves rewritten, {} pieces added; largest correction {:.4} mm, {:.5} deg; wrote {}",
+                    report.lines,
+                    report.moves,
+                    report.pieces_added,
+                    max_xyz,
+                    max_ac,
+                    out.display()
+                );
+            }
+            Ok(ExitCode::SUCCESS)
+        }
     }
 }
 

@@ -186,3 +186,67 @@ fn the_model_with_the_true_errors_matches_the_simulated_truth() {
         }
     }
 }
+
+#[test]
+fn rewritten_five_axis_program_runs_on_the_programmed_path_in_the_truth() {
+    let job = RotaryJob {
+        seed: 3,
+        ..RotaryJob::default()
+    };
+    let mut machine = job.simulated();
+    let constants = MachineConstants::default();
+    let m = measure(&mut machine, &constants, &MeasurePlan::default(), |_, _| {}).unwrap();
+    let id = identify(&m.centres(), &constants).unwrap();
+    let model = RotaryMachine::with_errors(constants, id.errors);
+    let truth = &machine.sim;
+    // Feed moves across the whole A range, C turning, the tool over the part.
+    let program = "G21 G90 G94\nG0 X-30 Y20 Z-170 A5 C0\nG1 X-10 Y0 Z-185 A30 C60 F400\n\
+                   G1 X15 Y-25 Z-200 A60 C150\nG1 X30 Y10 Z-190 A90 C250\n\
+                   G1 X0 Y30 Z-175 A45 C330\nG0 Z-100\n";
+    let (_, report) =
+        rotary::rewrite::rewrite_program(program, &model, &Default::default()).unwrap();
+    assert!(report.pieces_added > 0);
+    let (mut before, mut after) = ((0.0f64, 0.0f64), (0.0f64, 0.0f64));
+    let mut check = |nominal: &Axes, cmd: &Axes| {
+        let (p0, d0) = truth_errors(truth, nominal, nominal);
+        let (p1, d1) = truth_errors(truth, nominal, cmd);
+        before = (before.0.max(p0), before.1.max(d0));
+        after = (after.0.max(p1), after.1.max(d1));
+    };
+    let mid = |a: &Axes, b: &Axes| {
+        Axes::new(
+            (a.x + b.x) / 2.0,
+            (a.y + b.y) / 2.0,
+            (a.z + b.z) / 2.0,
+            (a.a + b.a) / 2.0,
+            (a.c + b.c) / 2.0,
+        )
+    };
+    for (k, p) in report.points.iter().enumerate() {
+        check(&p.nominal, &p.command);
+        // The controller's straight line between two written commands, at its middle,
+        // against the middle of the programmed move.
+        if k > 0 && p.feed_move {
+            let q = &report.points[k - 1];
+            check(&mid(&q.nominal, &p.nominal), &mid(&q.command, &p.command));
+        }
+    }
+    eprintln!(
+        "rewritten program: {} points written ({} pieces added); tip {:.4} -> {:.5} mm, direction {:.6} -> {:.7} rad",
+        report.points.len(),
+        report.pieces_added,
+        before.0,
+        after.0,
+        before.1,
+        after.1
+    );
+    assert!(after.0 < 0.002, "tip error after {} mm", after.0);
+    assert!(
+        1.0 - after.0 / before.0 >= 0.95 && 1.0 - after.1 / before.1 >= 0.95,
+        "tip {} -> {} mm, direction {} -> {} rad",
+        before.0,
+        after.0,
+        before.1,
+        after.1
+    );
+}

@@ -36,6 +36,7 @@ pub mod chart;
 pub mod identify;
 pub mod machine;
 pub mod measure;
+pub mod rewrite;
 
 pub use centres::{parse_centres, write_centres, Axis, CentreRow, CentresError};
 pub use identify::{

@@ -531,3 +531,90 @@ fn errors_json_reads_what_identify_writes_and_refuses_the_rest() {
     let err = LocationErrors::from_json(&v.to_string()).unwrap_err();
     assert!(err.contains("alpha_ZA_deg = 3"), "{err}");
 }
+
+const PROGRAM: &str = "%\n(5-axis test)\nG21 G90 G94\nG0 X0 Y0 Z-150 A0 C0\nG1 X10 Y-20 Z-190 A30 C45 F500 (first cut)\nA90 C180\nG0 Z-100\n%\n";
+
+#[test]
+fn rewrite_replaces_each_point_and_splits_feed_moves() {
+    let k = MachineConstants::default();
+    let real = RotaryMachine::with_errors(k, LocationErrors::paper());
+    let opts = rewrite::RewriteOptions::default();
+    let (out, report) = rewrite::rewrite_program(PROGRAM, &real, &opts).unwrap();
+    assert_eq!(report.moves, 4);
+    // Unchanged lines stay as written.
+    assert!(out.starts_with("%\n(5-axis test)\nG21 G90 G94\n"), "{out}");
+    assert!(out.contains("F500 (first cut)"), "{out}");
+    // The long A move is cut into pieces; every written command is the model's command
+    // for its nominal point, to the written decimals.
+    assert!(report.pieces_added > 2, "{}", report.pieces_added);
+    let reparsed = protocol::nc::Program::parse(&out).unwrap();
+    let written: Vec<_> = reparsed
+        .blocks
+        .iter()
+        .filter(|b| b.word('X').is_some())
+        .collect();
+    assert_eq!(written.len(), report.points.len());
+    for (b, p) in written.iter().zip(&report.points) {
+        let want = real.command_for(&p.nominal).unwrap();
+        let got = [
+            b.word('X'),
+            b.word('Y'),
+            b.word('Z'),
+            b.word('A'),
+            b.word('C'),
+        ]
+        .map(|w| w.unwrap().value());
+        let want = [want.x, want.y, want.z, want.a, want.c];
+        for i in 0..5 {
+            let tol = if i < 3 { 0.5e-4 } else { 0.5e-5 };
+            assert!(
+                (got[i] - want[i]).abs() <= tol + 1e-12,
+                "{got:?} vs {want:?}"
+            );
+        }
+    }
+    // Between two written points of a feed move, the straight line of commands keeps
+    // the tool on the programmed path: the middle of every piece, run on the real
+    // machine, is within 1 um of the nominal middle.
+    let ideal = RotaryMachine::nominal(k);
+    for w in report.points.windows(2) {
+        if !w[1].feed_move {
+            continue;
+        }
+        let mid = |a: &Axes, b: &Axes| {
+            Axes::new(
+                (a.x + b.x) / 2.0,
+                (a.y + b.y) / 2.0,
+                (a.z + b.z) / 2.0,
+                (a.a + b.a) / 2.0,
+                (a.c + b.c) / 2.0,
+            )
+        };
+        let got = real.forward(&mid(&w[0].command, &w[1].command));
+        let want = ideal.forward(&mid(&w[0].nominal, &w[1].nominal));
+        assert!((got.position - want.position).norm() < 0.001);
+    }
+}
+
+#[test]
+fn rewrite_refuses_what_it_cannot_follow_naming_the_line() {
+    let real = RotaryMachine::with_errors(MachineConstants::default(), LocationErrors::paper());
+    let opts = rewrite::RewriteOptions::default();
+    let cases = [
+        ("G0 X0 Y0 Z-150 A0 C0\nG91 G1 X1\n", "line 2: incremental"),
+        ("G0 X0 Y0 Z-150 A0 C0\nG2 X1 Y1 I1\n", "line 2: arcs"),
+        ("G0 X0 Y0 Z-150 A0 C0\nG1 B10\n", "line 2: axis B"),
+        ("G0 X0 Y0 Z-150\n", "line 1: axes AC not known"),
+        (
+            "G0 X0 Y0 Z-150 A0 C0\nG1 A120\n",
+            "line 2: axis A: 120.0000 is outside",
+        ),
+        ("G20\n", "line 1: inches"),
+    ];
+    for (text, want) in cases {
+        let err = rewrite::rewrite_program(text, &real, &opts)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains(want), "{text:?}: {err}");
+    }
+}

@@ -1,0 +1,255 @@
+//! Rewriting a 5-axis program (X Y Z A C, absolute, millimetres) so that every point
+//! lands where it was programmed on the table with location errors: each programmed
+//! point replaced by [`RotaryMachine::command_for`], feed moves split where the straight
+//! line between two commands would leave the compensated path.
+//!
+//! The controller interpolates the five axes linearly between two commands, and the
+//! programmed path is that same interpolation of the nominal axes; the commands are a
+//! smooth but not linear function of the nominal axes, so a G1 is cut in halves until,
+//! at the middle of every piece, the mean of the piece's two commands is within the
+//! tolerances of the command for the nominal middle (`tolerance_mm` on X Y Z,
+//! `tolerance_deg` on A C). Rapids (G0) get their end corrected only. The block keeps
+//! its other words and comments; the axis words are all five written (4 decimals in
+//! mm, 5 in degrees); the extra pieces follow it as `G1` lines.
+//!
+//! Refused, naming the line: inches (G20), incremental moves (G91), arcs (G2/G3),
+//! G53/G28/G30/G92/G38.x (positions this rewrite cannot follow), an axis letter the
+//! table does not have (B U V W), a move before all five axes have been named, and a
+//! command past the axis limits.
+
+use crate::machine::{Axes, RotaryError, RotaryMachine};
+use protocol::nc::{Block, Program};
+
+/// Rewrite settings.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RewriteOptions {
+    pub tolerance_mm: f64,
+    pub tolerance_deg: f64,
+    /// At most 2^max_depth pieces per move.
+    pub max_depth: u32,
+}
+
+impl Default for RewriteOptions {
+    fn default() -> Self {
+        Self {
+            tolerance_mm: 0.0005,
+            tolerance_deg: 0.00002,
+            max_depth: 10,
+        }
+    }
+}
+
+/// One written point: the programmed (nominal) axes and the command written for them.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WrittenPoint {
+    pub line: usize,
+    pub nominal: Axes,
+    pub command: Axes,
+    pub feed_move: bool,
+}
+
+/// What a rewrite did.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RewriteReport {
+    pub lines: usize,
+    pub moves: usize,
+    pub pieces_added: usize,
+    /// Every point written, in order (for checks against a truth).
+    pub points: Vec<WrittenPoint>,
+}
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RewriteError {
+    #[error("{0}")]
+    Parse(String),
+    #[error("line {line}: {why}")]
+    Refused { line: usize, why: String },
+}
+
+fn refuse(line: usize, why: impl Into<String>) -> RewriteError {
+    RewriteError::Refused {
+        line,
+        why: why.into(),
+    }
+}
+
+fn lerp(a: &Axes, b: &Axes, t: f64) -> Axes {
+    Axes::new(
+        a.x + (b.x - a.x) * t,
+        a.y + (b.y - a.y) * t,
+        a.z + (b.z - a.z) * t,
+        a.a + (b.a - a.a) * t,
+        a.c + (b.c - a.c) * t,
+    )
+}
+
+/// The pieces of a feed move from `n0` (command `c0`) to `n1` (command `c1`): the
+/// nominal and command of each piece's end, in order, the last one `n1`.
+#[allow(clippy::too_many_arguments)]
+fn split(
+    model: &RotaryMachine,
+    opts: &RewriteOptions,
+    line: usize,
+    n0: &Axes,
+    c0: &Axes,
+    n1: &Axes,
+    c1: &Axes,
+    depth: u32,
+    out: &mut Vec<(Axes, Axes)>,
+) -> Result<(), RewriteError> {
+    let nm = lerp(n0, n1, 0.5);
+    let cm = model
+        .command_for(&nm)
+        .map_err(|e| refuse(line, format!("inside the move: {e}")))?;
+    let straight = lerp(c0, c1, 0.5);
+    let off_mm =
+        ((cm.x - straight.x).powi(2) + (cm.y - straight.y).powi(2) + (cm.z - straight.z).powi(2))
+            .sqrt();
+    let off_deg = (cm.a - straight.a).abs().max((cm.c - straight.c).abs());
+    if (off_mm <= opts.tolerance_mm && off_deg <= opts.tolerance_deg) || depth >= opts.max_depth {
+        out.push((*n1, *c1));
+        return Ok(());
+    }
+    split(model, opts, line, n0, c0, &nm, &cm, depth + 1, out)?;
+    split(model, opts, line, &nm, &cm, n1, c1, depth + 1, out)
+}
+
+fn set_axes(block: &mut Block, c: &Axes) -> Result<(), RewriteError> {
+    for (letter, v, d) in [
+        ('X', c.x, 4),
+        ('Y', c.y, 4),
+        ('Z', c.z, 4),
+        ('A', c.a, 5),
+        ('C', c.c, 5),
+    ] {
+        block
+            .set_word(letter, v, d)
+            .map_err(|e| RewriteError::Parse(e.to_string()))?;
+    }
+    Ok(())
+}
+
+/// Rewrites `text` for `model` (its errors and limits); the program's start position
+/// is unknown until a move names all five axes.
+pub fn rewrite_program(
+    text: &str,
+    model: &RotaryMachine,
+    opts: &RewriteOptions,
+) -> Result<(String, RewriteReport), RewriteError> {
+    let program = Program::parse(text).map_err(|e| RewriteError::Parse(e.to_string()))?;
+    let mut report = RewriteReport {
+        lines: program.blocks.len(),
+        ..RewriteReport::default()
+    };
+    let mut out = Program { blocks: Vec::new() };
+    let mut known: [Option<f64>; 5] = [None; 5];
+    let mut motion = 0u8; // G0 until told otherwise
+    let mut last: Option<(Axes, Axes)> = None;
+    for (k, block) in program.blocks.into_iter().enumerate() {
+        let line = k + 1;
+        let mut has_axis = false;
+        for w in block.words() {
+            let letter = w.letter().to_ascii_uppercase();
+            let v = w.value();
+            match letter {
+                'G' => {
+                    let g = (v * 10.0).round() / 10.0;
+                    if g == 0.0 || g == 1.0 {
+                        motion = g as u8;
+                    } else if g == 2.0 || g == 3.0 {
+                        return Err(refuse(line, "arcs (G2/G3) are not rewritten for 5 axes"));
+                    } else if g == 20.0 {
+                        return Err(refuse(line, "inches (G20): the table's model is in mm"));
+                    } else if g == 91.0 {
+                        return Err(refuse(line, "incremental moves (G91) are not rewritten"));
+                    } else if [53.0, 28.0, 30.0, 92.0].contains(&g) || (38.0..39.0).contains(&g) {
+                        return Err(refuse(
+                            line,
+                            format!("G{g}: a position this rewrite cannot follow"),
+                        ));
+                    }
+                }
+                'X' | 'Y' | 'Z' | 'A' | 'C' => {
+                    has_axis = true;
+                    if !v.is_finite() {
+                        return Err(refuse(line, format!("{letter}: not a number")));
+                    }
+                    let i = "XYZAC".find(letter).unwrap_or(0);
+                    known[i] = Some(v);
+                }
+                'B' | 'U' | 'V' | 'W' => {
+                    return Err(refuse(
+                        line,
+                        format!("axis {letter}: this table has X Y Z A C"),
+                    ))
+                }
+                _ => {}
+            }
+        }
+        if !has_axis {
+            out.blocks.push(block);
+            continue;
+        }
+        let Some(nominal) = (|| {
+            Some(Axes::new(
+                known[0]?, known[1]?, known[2]?, known[3]?, known[4]?,
+            ))
+        })() else {
+            let missing: String = "XYZAC"
+                .chars()
+                .zip(known)
+                .filter(|(_, v)| v.is_none())
+                .map(|(c, _)| c)
+                .collect();
+            return Err(refuse(
+                line,
+                format!("axes {missing} not known yet (name all five in the first move)"),
+            ));
+        };
+        let command = model
+            .command_for(&nominal)
+            .map_err(|e: RotaryError| refuse(line, e.to_string()))?;
+        report.moves += 1;
+        let mut pieces = Vec::new();
+        match (&last, motion) {
+            (Some((n0, c0)), 1) => split(
+                model,
+                opts,
+                line,
+                n0,
+                c0,
+                &nominal,
+                &command,
+                0,
+                &mut pieces,
+            )?,
+            _ => pieces.push((nominal, command)),
+        }
+        let mut block = block;
+        set_axes(&mut block, &pieces[0].1)?;
+        out.blocks.push(block);
+        report.points.push(WrittenPoint {
+            line,
+            nominal: pieces[0].0,
+            command: pieces[0].1,
+            feed_move: motion == 1,
+        });
+        for (n, c) in &pieces[1..] {
+            let mut extra = Block::new();
+            extra
+                .set_word('G', 1.0, 0)
+                .map_err(|e| RewriteError::Parse(e.to_string()))?;
+            set_axes(&mut extra, c)?;
+            out.blocks.push(extra);
+            report.points.push(WrittenPoint {
+                line,
+                nominal: *n,
+                command: *c,
+                feed_move: true,
+            });
+        }
+        report.pieces_added += pieces.len() - 1;
+        last = Some((nominal, command));
+    }
+    Ok((out.to_string(), report))
+}
