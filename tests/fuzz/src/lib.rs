@@ -33,7 +33,7 @@ pub use media::{localize, png_load};
 pub use modbus::modbus_frame;
 pub use nc::nc_program;
 pub use rewrite::{nc_rewrite, proxy_stream};
-pub use rotary::{grbl_probe, rotary_centres, rotary_json};
+pub use rotary::{grbl_probe, rotary_centres, rotary_json, rotary_rewrite};
 pub use slcan::slcan;
 
 /// A fuzz target: any bytes in, a panic on a broken invariant.
@@ -69,6 +69,7 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("rotary_centres", rotary_centres),
     ("rotary_json", rotary_json),
     ("grbl_probe", grbl_probe),
+    ("rotary_rewrite", rotary_rewrite),
 ];
 
 /// The fuzz crate's folder (corpora, regressions).

@@ -63,3 +63,34 @@ pub fn grbl_probe(data: &[u8]) {
         }
     }
 }
+
+/// Any text as a 5-axis program through `rotary::rewrite::rewrite_program` (the paper's
+/// table, default tolerances): a refusal names a line of the program; a rewrite reads
+/// back as a program, writes at least one point per move, and has no more blocks than
+/// lines plus pieces added.
+pub fn rotary_rewrite(data: &[u8]) {
+    use rotary::rewrite::{rewrite_program, RewriteError, RewriteOptions};
+    let text = String::from_utf8_lossy(data);
+    let model = rotary::RotaryMachine::with_errors(
+        rotary::MachineConstants::default(),
+        rotary::LocationErrors::paper(),
+    );
+    let opts = RewriteOptions {
+        max_depth: 4,
+        ..RewriteOptions::default()
+    };
+    match rewrite_program(&text, &model, &opts) {
+        Ok((out, report)) => {
+            let again = protocol::nc::Program::parse(&out).expect("a rewrite reads back");
+            assert!(report.points.len() >= report.moves);
+            assert_eq!(again.blocks.len(), report.lines + report.pieces_added);
+        }
+        Err(RewriteError::Refused { line, .. }) => {
+            assert!(
+                line >= 1 && line <= text.lines().count().max(1) + 1,
+                "line {line}"
+            );
+        }
+        Err(RewriteError::Parse(_)) => {}
+    }
+}
