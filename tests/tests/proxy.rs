@@ -93,35 +93,28 @@ fn worst_distance(points: impl Iterator<Item = [f64; 2]>, path: &[[f64; 2]]) -> 
     worst
 }
 
-#[test]
-fn an_independent_sender_streams_through_the_proxy_and_the_tool_follows_the_program() {
-    if let Some(why) = python_missing("serial", "pyserial") {
-        eprintln!("SKIPPED: {why}");
-        return;
-    }
-    let mut job = Job::demo();
-    let StageSpec::Sim { machine } = &mut job.stage else {
-        unreachable!("the demo job simulates its stage")
-    };
-    // The map's spatial model only: drift is what re-referencing is for.
-    machine.thermal = None;
-    let machine = machine.clone();
-    let id = Identity {
-        machine: "sim".into(),
-        controller: "sim".into(),
-        board: job.board.name.clone(),
-        certificate_sha256: job.board.fingerprint_sha256(),
-        camera: "sim".into(),
-    };
-    let model = MapModel::new(map_from_truth(&machine, id));
-    let dir = std::env::temp_dir().join(format!("proxy-test-{}", std::process::id()));
+/// What a streaming session through the proxy gave.
+struct Streamed {
+    ending: Ending,
+    sender: std::process::Output,
+    stats: proxy::ProxyStats,
+    rows: Vec<world::machine::TraceRow>,
+}
+
+/// The GRBL emulator on the demo stage (thermal drift off), the proxy with a map made
+/// from the truth, and `sender(port_link, program_file)` as the sender; the emulator's
+/// trace of the whole session.
+fn stream_through_proxy(
+    sender: impl FnOnce(&std::path::Path, &std::path::Path) -> Command + Send + 'static,
+) -> Streamed {
+    let (job, machine, model) = demo_machine();
+    let dir = std::env::temp_dir().join(format!("proxy-test-{}-{}", std::process::id(), unique()));
     std::fs::create_dir_all(&dir).unwrap();
     let program = dir.join("prog.nc");
     std::fs::write(&program, PROGRAM).unwrap();
     let link = dir.join("ttyGATEWAY");
-
     let rt = runtime();
-    let (ending, sender_out, stats, rows) = rt.block_on(async {
+    rt.block_on(async {
         let (emulator, rig) = spawn_grbl_emulator(&job, &machine, Clock::Unconstrained).unwrap();
         lock(&rig).machine_mut().start_trace();
         let (mut controller, banner) =
@@ -129,38 +122,112 @@ fn an_independent_sender_streams_through_the_proxy_and_the_tool_follows_the_prog
                 .await
                 .unwrap();
         assert!(banner.contains("Grbl 1.1"), "{banner}");
-        let mut sender = SenderPort::create(Some(&link)).unwrap();
-        let script = workspace().join("tests/interop/grbl_sender.py");
-        let (link2, program2) = (link.clone(), program.clone());
-        let python = tokio::task::spawn_blocking(move || {
-            Command::new("python3")
-                .arg(script)
-                .arg(link2)
-                .arg(program2)
-                .output()
-                .expect("run the sender")
-        });
+        let mut sender_port = SenderPort::create(Some(&link)).unwrap();
+        let mut command = sender(&link, &program);
+        let client = tokio::task::spawn_blocking(move || command.output().expect("run the sender"));
         let rewriter = Rewriter::new(&model, Options::default()).unwrap();
         let mut proxy = Proxy::new(rewriter, &model);
         proxy.start();
         let ending = serve(
             &mut proxy,
-            &mut sender,
+            &mut sender_port,
             &mut controller,
             std::future::pending(),
         )
         .await;
-        let out = python.await.unwrap();
+        let sender = client.await.unwrap();
         let rows = lock(&rig).machine_mut().take_trace();
-        (ending, out, proxy.stats().clone(), rows)
-    });
-    let stdout = String::from_utf8_lossy(&sender_out.stdout);
+        Streamed {
+            ending,
+            sender,
+            stats: proxy.stats().clone(),
+            rows,
+        }
+    })
+}
+
+fn unique() -> u32 {
+    use std::sync::atomic::{AtomicU32, Ordering};
+    static N: AtomicU32 = AtomicU32::new(0);
+    N.fetch_add(1, Ordering::Relaxed)
+}
+
+/// The sender's JSON, after checking it succeeded.
+fn sender_json(out: &std::process::Output) -> serde_json::Value {
+    let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
-        sender_out.status.success(),
+        out.status.success(),
         "sender failed: {stdout}\n{}",
-        String::from_utf8_lossy(&sender_out.stderr)
+        String::from_utf8_lossy(&out.stderr)
     );
-    let v: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+    serde_json::from_str(stdout.trim()).unwrap_or_else(|e| panic!("{e}: {stdout}"))
+}
+
+/// Every line answered, the true tool path within 2 um of the program; prints the
+/// figures.
+fn check_session(s: &Streamed, who: &str) {
+    let Ending::SenderLeft(account) = &s.ending else {
+        panic!("{:?}", s.ending)
+    };
+    assert!(
+        account.not_sent.is_empty()
+            && account.in_controller.is_empty()
+            && account.refused.is_empty(),
+        "{account:?}"
+    );
+    assert!(
+        s.stats.pieces_sent > 200,
+        "moves were split: {}",
+        s.stats.pieces_sent
+    );
+    // The true tool path, from its arrival at (20, 20) on, against the programmed path.
+    let path = nominal_path();
+    let start = s
+        .rows
+        .iter()
+        .position(|r| (r.true_mm[0] - 20.0).hypot(r.true_mm[1] - 20.0) < 0.002)
+        .expect("the tool reached the start of the feed moves");
+    let feed_rows = &s.rows[start..];
+    assert!(feed_rows.len() > 5000, "{} rows", feed_rows.len());
+    let worst = worst_distance(feed_rows.iter().map(|r| r.true_mm), &path);
+    // Without the gateway the same rows are the commands: how far the stage is off.
+    let raw_worst = feed_rows
+        .iter()
+        .map(|r| (r.true_mm[0] - r.cmd_mm[0]).hypot(r.true_mm[1] - r.cmd_mm[1]))
+        .fold(0.0f64, f64::max);
+    eprintln!(
+        "pass-through with {who}: {} trace rows, true path within {:.3} um of the program (stage error up to {:.2} um), {} pieces for {} lines",
+        feed_rows.len(),
+        worst * 1000.0,
+        raw_worst * 1000.0,
+        s.stats.pieces_sent,
+        s.stats.lines
+    );
+    assert!(
+        raw_worst > 0.015,
+        "the stage is off by {raw_worst} mm uncompensated"
+    );
+    assert!(
+        worst < 0.002,
+        "true path {:.3} um from the program",
+        worst * 1000.0
+    );
+}
+
+#[test]
+fn an_independent_sender_streams_through_the_proxy_and_the_tool_follows_the_program() {
+    if let Some(why) = python_missing("serial", "pyserial") {
+        eprintln!("SKIPPED: {why}");
+        return;
+    }
+    let s = stream_through_proxy(|link, program| {
+        let mut c = Command::new("python3");
+        c.arg(workspace().join("tests/interop/grbl_sender.py"))
+            .arg(link)
+            .arg(program);
+        c
+    });
+    let v = sender_json(&s.sender);
     let n = PROGRAM.lines().count() as u64;
     assert_eq!(v["acknowledged"], n, "{v}");
     assert_eq!(v["errors"].as_array().unwrap().len(), 0, "{v}");
@@ -179,52 +246,63 @@ fn an_independent_sender_streams_through_the_proxy_and_the_tool_follows_the_prog
         (mpos[0] - 30.0).abs() <= 0.0011 && (mpos[1] - 120.0).abs() <= 0.0011,
         "{status}"
     );
-    let Ending::SenderLeft(account) = ending else {
-        panic!("{ending:?}")
-    };
-    assert!(
-        account.not_sent.is_empty()
-            && account.in_controller.is_empty()
-            && account.refused.is_empty(),
-        "{account:?}"
-    );
-    assert!(
-        stats.pieces_sent > 200,
-        "moves were split: {}",
-        stats.pieces_sent
-    );
+    check_session(&s, "pyserial");
+}
 
-    // The true tool path, from its arrival at (20, 20) on, against the programmed path.
-    let path = nominal_path();
-    let start = rows
-        .iter()
-        .position(|r| (r.true_mm[0] - 20.0).hypot(r.true_mm[1] - 20.0) < 0.002)
-        .expect("the tool reached the start of the feed moves");
-    let feed_rows = &rows[start..];
-    assert!(feed_rows.len() > 5000, "{} rows", feed_rows.len());
-    let worst = worst_distance(feed_rows.iter().map(|r| r.true_mm), &path);
-    // Without the gateway the same rows are the commands: how far the stage is off.
-    let raw_worst = feed_rows
-        .iter()
-        .map(|r| (r.true_mm[0] - r.cmd_mm[0]).hypot(r.true_mm[1] - r.cmd_mm[1]))
-        .fold(0.0f64, f64::max);
-    eprintln!(
-        "pass-through: {} trace rows, true path within {:.3} um of the program (stage error up to {:.2} um), {} pieces for {} lines",
-        feed_rows.len(),
-        worst * 1000.0,
-        raw_worst * 1000.0,
-        stats.pieces_sent,
-        stats.lines
-    );
+/// Where CNCjs is installed (`.ci/run` puts it in tests/interop/cncjs; CNCJS_DIR
+/// overrides), or why the test skips.
+fn cncjs_dir() -> Result<std::path::PathBuf, String> {
+    let dir = std::env::var_os("CNCJS_DIR")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| workspace().join("tests/interop/cncjs"));
+    if Command::new("node").arg("--version").output().is_err() {
+        return Err("node is not available".into());
+    }
+    if !dir.join("node_modules/cncjs/package.json").exists() {
+        return Err(format!(
+            "CNCjs is not installed in {} (npm install --prefix {} cncjs@1.11.5 --omit=dev)",
+            dir.display(),
+            dir.display()
+        ));
+    }
+    Ok(dir)
+}
+
+#[test]
+fn cncjs_streams_through_the_proxy_and_the_tool_follows_the_program() {
+    let dir = match cncjs_dir() {
+        Ok(d) => d,
+        Err(why) => {
+            eprintln!("SKIPPED: {why}");
+            return;
+        }
+    };
+    let s = stream_through_proxy(move |link, program| {
+        let mut c = Command::new("node");
+        c.arg(workspace().join("tests/interop/cncjs_sender.js"))
+            .arg(&dir)
+            .arg(link)
+            .arg(program);
+        c
+    });
+    let v = sender_json(&s.sender);
+    // CNCjs adds one line of its own (`%wait`, a dwell) to every program.
+    assert_eq!(v["received"], v["total"], "{v}");
     assert!(
-        raw_worst > 0.015,
-        "the stage is off by {raw_worst} mm uncompensated"
+        v["total"].as_u64().unwrap() >= PROGRAM.lines().count() as u64 - 1,
+        "{v}"
     );
+    assert_eq!(v["errors"].as_array().unwrap().len(), 0, "{v}");
+    assert_eq!(v["alarms"].as_array().unwrap().len(), 0, "{v}");
+    // CNCjs shows the programmed end point.
+    let mpos = &v["final_status"]["mpos"];
+    let x: f64 = mpos["x"].as_str().unwrap().parse().unwrap();
+    let y: f64 = mpos["y"].as_str().unwrap().parse().unwrap();
     assert!(
-        worst < 0.002,
-        "true path {:.3} um from the program",
-        worst * 1000.0
+        (x - 30.0).abs() <= 0.0011 && (y - 120.0).abs() <= 0.0011,
+        "{v}"
     );
+    check_session(&s, "CNCjs");
 }
 
 /// A sender of our own on the pseudo-terminal: writes lines, reads what comes back.
