@@ -1,0 +1,212 @@
+//! The fault matrix: the compensation job over a real link (the driver on a
+//! pseudo-terminal, the device's emulator behind a man in the middle), with one fault
+//! injected mid-job. Every case ends in one of two ways, asserted here: recovery (the job
+//! finishes with every target converged, as good as without the fault) or a safe stop
+//! (the job stops with an error naming what happened, the stage told to stop, and every
+//! target finished before the fault kept in the report). Never a panic or a hang: each
+//! case runs under a bound far above its expected time, and a timeout fails the test.
+//!
+//! What each link tolerates is in the README's reliability section.
+
+use devices::{open_camera, spawn_grbl_emulator, Devices};
+use drivers::grbl::GrblOptions;
+use drivers::StageLink;
+use job::{Job, StageSpec};
+use runner::run_job;
+use std::time::Duration;
+use system_tests::faulty_serial::{FaultySerial, Framing, SerialFault};
+use system_tests::runtime;
+use world::Clock;
+
+/// The demo job cut to its first `n` targets (each a few GRBL lines).
+fn short_job(n: usize) -> Job {
+    let mut job = Job::demo();
+    job.targets.truncate(n);
+    job
+}
+
+/// What a case came to.
+#[derive(Debug)]
+enum Outcome {
+    Recovered,
+    SafeStop { error: String, finished: usize },
+}
+
+/// The demo job over GRBL with `fault` on the link; the driver's command timeout is
+/// `timeout`.
+fn grbl_case(
+    fault: SerialFault,
+    timeout: Duration,
+) -> (Outcome, bool, compensation::report::Report, String) {
+    let job = short_job(6);
+    let StageSpec::Sim { machine } = &job.stage else {
+        unreachable!("the demo job simulates its stage")
+    };
+    let machine = machine.clone();
+    runtime().block_on(async {
+        let (emulator, rig) = spawn_grbl_emulator(&job, &machine, Clock::Unconstrained).unwrap();
+        let link = FaultySerial::spawn(emulator.path(), Framing::Lines(b'\n'), fault).unwrap();
+        let stage = drivers::open_stage(&StageLink::Grbl {
+            port: link.path().to_string(),
+            baud: 115_200,
+            options: GrblOptions {
+                command_timeout: timeout,
+                poll_interval: Duration::from_millis(2),
+                ..GrblOptions::default()
+            },
+        })
+        .await
+        .expect("the driver connects through the link");
+        let camera = open_camera(&job.camera, Some(&rig)).await.unwrap();
+        let mut devices = Devices {
+            stage,
+            camera,
+            rig: Some(rig),
+        };
+        let report = tokio::time::timeout(
+            Duration::from_secs(60),
+            run_job(&job, &mut devices, &mut |_, _| {}),
+        )
+        .await
+        .expect("the job ends by itself: recovered or stopped, never hung");
+        let outcome = match &report.error {
+            None => Outcome::Recovered,
+            Some(e) => Outcome::SafeStop {
+                error: e.clone(),
+                finished: report.targets,
+            },
+        };
+        drop(emulator);
+        let sent = String::from_utf8_lossy(&link.host_bytes()).into_owned();
+        (outcome, link.fired(), report, sent)
+    })
+}
+
+fn assert_recovered(outcome: &Outcome, report: &compensation::report::Report) {
+    assert!(
+        matches!(outcome, Outcome::Recovered),
+        "{outcome:?}\n{}",
+        report.to_text()
+    );
+    assert_eq!(
+        report.converged,
+        report.targets_planned,
+        "{}",
+        report.to_text()
+    );
+    let after = report.after_um.expect("simulated: the truth is reported");
+    assert!(
+        after.max <= 1.0,
+        "as good as without the fault: {}",
+        report.to_text()
+    );
+}
+
+fn assert_safe_stop(outcome: &Outcome, report: &compensation::report::Report, says: &[&str]) {
+    let Outcome::SafeStop { error, finished } = outcome else {
+        panic!(
+            "expected a safe stop, the job recovered:\n{}",
+            report.to_text()
+        )
+    };
+    assert!(
+        says.iter().any(|s| error.to_lowercase().contains(s)),
+        "the error should say one of {says:?}: {error}"
+    );
+    // Work done before the fault is kept.
+    assert!(
+        *finished >= 1,
+        "targets finished before the fault are kept: {}",
+        report.to_text()
+    );
+    assert!(report.per_target.len() >= *finished);
+}
+
+/// After the homing, the orientation check and the first targets: mid-job.
+const MID_JOB: usize = 30;
+
+#[test]
+fn grbl_without_a_fault_is_the_baseline() {
+    let (outcome, _, report, _) = grbl_case(
+        SerialFault::DropReply { after: usize::MAX },
+        Duration::from_secs(2),
+    );
+    assert_recovered(&outcome, &report);
+}
+
+#[test]
+fn grbl_brief_stall_is_survived() {
+    let (outcome, fired, report, _) = grbl_case(
+        SerialFault::Stall {
+            after: MID_JOB,
+            duration: Duration::from_millis(400),
+        },
+        Duration::from_secs(2),
+    );
+    assert!(fired);
+    assert_recovered(&outcome, &report);
+}
+
+#[test]
+fn grbl_stall_beyond_the_timeout_is_a_safe_stop() {
+    let (outcome, fired, report, _) = grbl_case(
+        SerialFault::Stall {
+            after: MID_JOB,
+            duration: Duration::from_millis(2500),
+        },
+        Duration::from_millis(800),
+    );
+    assert!(fired);
+    assert_safe_stop(&outcome, &report, &["no answer"]);
+}
+
+#[test]
+fn grbl_killed_mid_job_is_a_safe_stop() {
+    let (outcome, fired, report, _) =
+        grbl_case(SerialFault::Kill { after: MID_JOB }, Duration::from_secs(2));
+    assert!(fired);
+    assert_safe_stop(&outcome, &report, &["the port closed"]);
+}
+
+#[test]
+fn grbl_lost_reply_is_a_safe_stop_not_a_resend() {
+    let (outcome, fired, report, sent) = grbl_case(
+        SerialFault::DropReply { after: MID_JOB },
+        Duration::from_millis(800),
+    );
+    assert!(fired);
+    assert_safe_stop(&outcome, &report, &["no answer"]);
+    // The line is not sent again: without its `ok` nobody knows whether GRBL took it.
+    let error = report.error.clone().unwrap();
+    let unanswered = error.split('`').nth(1).expect("the error names the line");
+    // Status requests (`?`, real-time) fall between lines.
+    let times = sent
+        .lines()
+        .filter(|l| l.replace('?', "") == unanswered)
+        .count();
+    assert_eq!(times, 1, "`{unanswered}` sent {times} times");
+}
+
+#[test]
+fn grbl_corrupted_reply_is_a_safe_stop() {
+    let (outcome, fired, report, _) = grbl_case(
+        SerialFault::CorruptReply { after: MID_JOB },
+        Duration::from_millis(800),
+    );
+    assert!(fired);
+    // The garbled `ok` (`pk`) is named in the error, so it reads apart from a lost one.
+    assert_safe_stop(&outcome, &report, &["sent `pk`"]);
+}
+
+#[test]
+fn grbl_late_reply_within_the_timeout_is_survived() {
+    let (outcome, fired, report, _) = grbl_case(
+        SerialFault::LateReply {
+            after: MID_JOB,
+            delay: Duration::from_millis(300),
+        },
+        Duration::from_secs(2),
+    );
+    assert!(fired);
+    assert_recovered(&outcome, &report);
+}
