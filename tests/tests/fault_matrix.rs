@@ -10,7 +10,9 @@
 
 use devices::{open_camera, spawn_grbl_emulator, Devices};
 use drivers::grbl::GrblOptions;
+use drivers::modbus::{Endpoint, ModbusOptions, Parity};
 use drivers::StageLink;
+use emulators::modbus::{DriveSet, MachineAxis, ModbusDevice, ModbusRtu};
 use job::{Job, StageSpec};
 use runner::run_job;
 use std::time::Duration;
@@ -23,6 +25,78 @@ fn short_job(n: usize) -> Job {
     let mut job = Job::demo();
     job.targets.truncate(n);
     job
+}
+
+/// The demo job over Modbus RTU drives (the generic profile, units 1 = X and 2 = Y)
+/// with `fault` on the line; each request waits `timeout` for its reply and is tried
+/// again `retries` times.
+fn modbus_rtu_case(
+    fault: SerialFault,
+    timeout: Duration,
+    retries: u32,
+) -> (Outcome, bool, compensation::report::Report) {
+    let mut job = short_job(6);
+    job::demo::over_modbus(&mut job, true).unwrap();
+    let StageSpec::Modbus(spec) = &job.stage else {
+        unreachable!("over_modbus made a Modbus stage")
+    };
+    let job::modbus::ModbusLink::Emulate { machine, .. } = &spec.link else {
+        unreachable!("the demo's Modbus stage is emulated")
+    };
+    let (spec, machine) = (spec.clone(), machine.clone());
+    runtime().block_on(async {
+        let rig = devices::new_rig(&job, &machine);
+        let units = [(1, MachineAxis::X), (2, MachineAxis::Y)];
+        let set = DriveSet::new(
+            rig.clone(),
+            spec.profile.clone(),
+            &units,
+            Clock::Unconstrained,
+        );
+        let line = ModbusRtu::spawn(ModbusDevice::new(set), None).unwrap();
+        let link = FaultySerial::spawn(line.path(), Framing::Chunks, fault).unwrap();
+        let stage = drivers::open_stage(&StageLink::Modbus {
+            endpoint: Endpoint::Rtu {
+                path: link.path().to_string(),
+                baud: 115_200,
+                parity: Parity::None,
+            },
+            options: ModbusOptions {
+                timeout,
+                retries,
+                poll_interval: Duration::from_millis(1),
+                ..ModbusOptions::default()
+            },
+            profile: spec.profile.clone(),
+            axes: spec.axes.clone(),
+        })
+        .await
+        .expect("the driver connects through the link");
+        let camera = open_camera(&job.camera, Some(&rig)).await.unwrap();
+        let mut devices = Devices {
+            stage,
+            camera,
+            rig: Some(rig),
+        };
+        let report = tokio::time::timeout(
+            Duration::from_secs(60),
+            run_job(&job, &mut devices, &mut |_, _| {}),
+        )
+        .await
+        .expect("the job ends by itself: recovered or stopped, never hung");
+        drop(line);
+        (outcome_of(&report), link.fired(), report)
+    })
+}
+
+fn outcome_of(report: &compensation::report::Report) -> Outcome {
+    match &report.error {
+        None => Outcome::Recovered,
+        Some(e) => Outcome::SafeStop {
+            error: e.clone(),
+            finished: report.targets,
+        },
+    }
 }
 
 /// What a case came to.
@@ -69,13 +143,7 @@ fn grbl_case(
         )
         .await
         .expect("the job ends by itself: recovered or stopped, never hung");
-        let outcome = match &report.error {
-            None => Outcome::Recovered,
-            Some(e) => Outcome::SafeStop {
-                error: e.clone(),
-                finished: report.targets,
-            },
-        };
+        let outcome = outcome_of(&report);
         drop(emulator);
         let sent = String::from_utf8_lossy(&link.host_bytes()).into_owned();
         (outcome, link.fired(), report, sent)
@@ -209,4 +277,75 @@ fn grbl_late_reply_within_the_timeout_is_survived() {
     );
     assert!(fired);
     assert_recovered(&outcome, &report);
+}
+
+/// Modbus requests per target: the drives are polled while they move, so "mid-job" is
+/// a larger count than on GRBL.
+const MODBUS_MID_JOB: usize = 150;
+
+#[test]
+fn modbus_rtu_lost_reply_is_retried_and_the_job_recovers() {
+    let (outcome, fired, report) = modbus_rtu_case(
+        SerialFault::DropReply {
+            after: MODBUS_MID_JOB,
+        },
+        Duration::from_millis(300),
+        2,
+    );
+    assert!(fired);
+    assert_recovered(&outcome, &report);
+}
+
+#[test]
+fn modbus_rtu_corrupted_reply_is_retried_and_the_job_recovers() {
+    let (outcome, fired, report) = modbus_rtu_case(
+        SerialFault::CorruptReply {
+            after: MODBUS_MID_JOB,
+        },
+        Duration::from_millis(300),
+        2,
+    );
+    assert!(fired);
+    assert_recovered(&outcome, &report);
+}
+
+#[test]
+fn modbus_rtu_brief_stall_is_survived() {
+    let (outcome, fired, report) = modbus_rtu_case(
+        SerialFault::Stall {
+            after: MODBUS_MID_JOB,
+            duration: Duration::from_millis(400),
+        },
+        Duration::from_millis(300),
+        2,
+    );
+    assert!(fired);
+    assert_recovered(&outcome, &report);
+}
+
+#[test]
+fn modbus_rtu_stall_beyond_the_retries_is_a_safe_stop() {
+    let (outcome, fired, report) = modbus_rtu_case(
+        SerialFault::Stall {
+            after: MODBUS_MID_JOB,
+            duration: Duration::from_millis(3000),
+        },
+        Duration::from_millis(200),
+        2,
+    );
+    assert!(fired);
+    assert_safe_stop(&outcome, &report, &["no answer", "timed out", "timeout"]);
+}
+
+#[test]
+fn modbus_rtu_killed_mid_job_is_a_safe_stop() {
+    let (outcome, fired, report) = modbus_rtu_case(
+        SerialFault::Kill {
+            after: MODBUS_MID_JOB,
+        },
+        Duration::from_millis(300),
+        2,
+    );
+    assert!(fired);
+    assert_safe_stop(&outcome, &report, &["closed", "link failed", "no answer"]);
 }
