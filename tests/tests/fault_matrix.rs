@@ -9,12 +9,19 @@
 //! What each link tolerates is in the README's reliability section.
 
 use devices::{open_camera, spawn_grbl_emulator, Devices};
+use drivers::can::BusSpec;
+use drivers::canopen::CanopenOptions;
 use drivers::grbl::GrblOptions;
 use drivers::modbus::{Endpoint, ModbusOptions, Parity};
 use drivers::StageLink;
+use emulators::canopen::{
+    DriveSet as CanDriveSet, DriveSetConfig as CanDriveSetConfig, SlcanPty, DRIVE_EDS,
+    DRIVE_EDS_NAME,
+};
 use emulators::modbus::{DriveSet, MachineAxis, ModbusDevice, ModbusRtu};
 use job::{Job, StageSpec};
 use runner::run_job;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use system_tests::faulty_serial::{FaultySerial, Framing, SerialFault};
 use system_tests::runtime;
@@ -85,6 +92,65 @@ fn modbus_rtu_case(
         .await
         .expect("the job ends by itself: recovered or stopped, never hung");
         drop(line);
+        (outcome_of(&report), link.fired(), report)
+    })
+}
+
+/// The demo job over CiA 402 drives behind an SLCAN adapter with `fault` on its serial
+/// line (SLCAN lines end with `\r`); the driver's heartbeat timeout is `heartbeat`.
+fn canopen_case(
+    fault: SerialFault,
+    heartbeat: Duration,
+) -> (Outcome, bool, compensation::report::Report) {
+    let mut job = short_job(6);
+    job::demo::over_canopen(&mut job).unwrap();
+    let StageSpec::Canopen(spec) = &job.stage else {
+        unreachable!("over_canopen made a CANopen stage")
+    };
+    let job::canopen::CanopenLink::Emulate { machine, .. } = &spec.link else {
+        unreachable!("the demo's CANopen stage is emulated")
+    };
+    let (spec, machine) = (spec.clone(), machine.clone());
+    runtime().block_on(async {
+        let rig = devices::new_rig(&job, &machine);
+        let cfg = CanDriveSetConfig {
+            clock: Clock::Unconstrained,
+            nodes: spec
+                .axes
+                .iter()
+                .map(|a| (a.node, if a.axis == drivers::Axis::X { 0 } else { 1 }))
+                .collect(),
+            eds: (DRIVE_EDS_NAME.to_string(), DRIVE_EDS.to_string()),
+        };
+        let set = CanDriveSet::new(rig.clone(), &cfg, 0.0).unwrap();
+        let adapter = SlcanPty::spawn(Arc::new(Mutex::new(set)), None).unwrap();
+        let link = FaultySerial::spawn(adapter.path(), Framing::Lines(b'\r'), fault).unwrap();
+        let stage = drivers::open_stage(&StageLink::Canopen {
+            bus: BusSpec::Slcan {
+                port: link.path().to_string(),
+                bitrate: 1_000_000,
+            },
+            options: CanopenOptions {
+                heartbeat_timeout: heartbeat,
+                ..spec.options.clone()
+            },
+            axes: spec.axes.clone(),
+        })
+        .await
+        .expect("the driver connects through the link");
+        let camera = open_camera(&job.camera, Some(&rig)).await.unwrap();
+        let mut devices = Devices {
+            stage,
+            camera,
+            rig: Some(rig),
+        };
+        let report = tokio::time::timeout(
+            Duration::from_secs(60),
+            run_job(&job, &mut devices, &mut |_, _| {}),
+        )
+        .await
+        .expect("the job ends by itself: recovered or stopped, never hung");
+        drop(adapter);
         (outcome_of(&report), link.fired(), report)
     })
 }
@@ -348,4 +414,84 @@ fn modbus_rtu_killed_mid_job_is_a_safe_stop() {
     );
     assert!(fired);
     assert_safe_stop(&outcome, &report, &["closed", "link failed", "no answer"]);
+}
+
+/// Lines from the driver: the 6-target job sends about 360 (the bring-up's SDOs, NMT and
+/// homing about 210, then some 25 per target): 300 is mid-job.
+const CAN_MID_JOB: usize = 300;
+
+#[test]
+fn canopen_brief_stall_within_the_heartbeat_budget_is_survived() {
+    let (outcome, fired, report) = canopen_case(
+        SerialFault::Stall {
+            after: CAN_MID_JOB,
+            duration: Duration::from_millis(150),
+        },
+        Duration::from_millis(600),
+    );
+    assert!(fired);
+    assert_recovered(&outcome, &report);
+}
+
+#[test]
+fn canopen_stall_beyond_the_heartbeat_timeout_is_a_safe_stop() {
+    let (outcome, fired, report) = canopen_case(
+        SerialFault::Stall {
+            after: CAN_MID_JOB,
+            duration: Duration::from_millis(2000),
+        },
+        Duration::from_millis(350),
+    );
+    assert!(fired);
+    assert_safe_stop(&outcome, &report, &["heartbeat", "no answer", "timed out"]);
+}
+
+#[test]
+fn canopen_adapter_killed_mid_job_is_a_safe_stop() {
+    let (outcome, fired, report) = canopen_case(
+        SerialFault::Kill { after: CAN_MID_JOB },
+        Duration::from_millis(350),
+    );
+    assert!(fired);
+    assert_safe_stop(
+        &outcome,
+        &report,
+        &["closed", "link failed", "heartbeat", "no answer"],
+    );
+}
+
+#[test]
+fn canopen_lost_frame_is_survived_or_stops_safely() {
+    let (outcome, fired, report) = canopen_case(
+        SerialFault::DropReply { after: CAN_MID_JOB },
+        Duration::from_millis(600),
+    );
+    assert!(fired);
+    // One frame lost: a PDO or heartbeat is refreshed by the next one; a lost SDO reply
+    // times out. Either way the job ends cleanly.
+    eprintln!("canopen, frame lost: {outcome:?}");
+    match &outcome {
+        Outcome::Recovered => assert_recovered(&outcome, &report),
+        Outcome::SafeStop { .. } => {
+            assert_safe_stop(&outcome, &report, &["no answer", "timed out", "sdo"])
+        }
+    }
+}
+
+#[test]
+fn canopen_corrupted_frame_is_survived_or_stops_safely() {
+    let (outcome, fired, report) = canopen_case(
+        SerialFault::CorruptReply { after: CAN_MID_JOB },
+        Duration::from_millis(600),
+    );
+    assert!(fired);
+    eprintln!("canopen, frame corrupted: {outcome:?}");
+    match &outcome {
+        Outcome::Recovered => assert_recovered(&outcome, &report),
+        Outcome::SafeStop { .. } => assert_safe_stop(
+            &outcome,
+            &report,
+            &["no answer", "timed out", "sdo", "slcan", "garbled"],
+        ),
+    }
 }
