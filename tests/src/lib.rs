@@ -2,6 +2,7 @@
 //! the stand-alone `emulators` binary and independent peers as separate processes).
 
 pub mod faulty_serial;
+pub mod faulty_tcp;
 pub mod netns;
 pub mod truth_map;
 

@@ -18,12 +18,13 @@ use emulators::canopen::{
     DriveSet as CanDriveSet, DriveSetConfig as CanDriveSetConfig, SlcanPty, DRIVE_EDS,
     DRIVE_EDS_NAME,
 };
-use emulators::modbus::{DriveSet, MachineAxis, ModbusDevice, ModbusRtu};
+use emulators::modbus::{DriveSet, MachineAxis, ModbusDevice, ModbusRtu, ModbusTcp};
 use job::{Job, StageSpec};
 use runner::run_job;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use system_tests::faulty_serial::{FaultySerial, Framing, SerialFault};
+use system_tests::faulty_tcp::FaultyTcp;
 use system_tests::runtime;
 use world::Clock;
 
@@ -32,6 +33,64 @@ fn short_job(n: usize) -> Job {
     let mut job = Job::demo();
     job.targets.truncate(n);
     job
+}
+
+/// The demo job over Modbus TCP drives with `fault` on the connection.
+fn modbus_tcp_case(
+    fault: SerialFault,
+    timeout: Duration,
+    retries: u32,
+) -> (Outcome, bool, compensation::report::Report) {
+    let mut job = short_job(6);
+    job::demo::over_modbus(&mut job, false).unwrap();
+    let StageSpec::Modbus(spec) = &job.stage else {
+        unreachable!("over_modbus made a Modbus stage")
+    };
+    let job::modbus::ModbusLink::Emulate { machine, .. } = &spec.link else {
+        unreachable!("the demo's Modbus stage is emulated")
+    };
+    let (spec, machine) = (spec.clone(), machine.clone());
+    runtime().block_on(async {
+        let rig = devices::new_rig(&job, &machine);
+        let units = [(1, MachineAxis::X), (2, MachineAxis::Y)];
+        let set = DriveSet::new(
+            rig.clone(),
+            spec.profile.clone(),
+            &units,
+            Clock::Unconstrained,
+        );
+        let server = ModbusTcp::bind(ModbusDevice::new(set), ([127, 0, 0, 1], 0).into())
+            .await
+            .unwrap();
+        let link = FaultyTcp::spawn(server.local_addr(), fault).await.unwrap();
+        let stage = drivers::open_stage(&StageLink::Modbus {
+            endpoint: Endpoint::Tcp(link.addr()),
+            options: ModbusOptions {
+                timeout,
+                retries,
+                poll_interval: Duration::from_millis(1),
+                ..ModbusOptions::default()
+            },
+            profile: spec.profile.clone(),
+            axes: spec.axes.clone(),
+        })
+        .await
+        .expect("the driver connects through the link");
+        let camera = open_camera(&job.camera, Some(&rig)).await.unwrap();
+        let mut devices = Devices {
+            stage,
+            camera,
+            rig: Some(rig),
+        };
+        let report = tokio::time::timeout(
+            Duration::from_secs(60),
+            run_job(&job, &mut devices, &mut |_, _| {}),
+        )
+        .await
+        .expect("the job ends by itself: recovered or stopped, never hung");
+        drop(server);
+        (outcome_of(&report), link.fired(), report)
+    })
 }
 
 /// The demo job over Modbus RTU drives (the generic profile, units 1 = X and 2 = Y)
@@ -494,4 +553,61 @@ fn canopen_corrupted_frame_is_survived_or_stops_safely() {
             &["no answer", "timed out", "sdo", "slcan", "garbled"],
         ),
     }
+}
+
+#[test]
+fn modbus_tcp_lost_reply_is_retried_and_the_job_recovers() {
+    let (outcome, fired, report) = modbus_tcp_case(
+        SerialFault::DropReply {
+            after: MODBUS_MID_JOB,
+        },
+        Duration::from_millis(300),
+        2,
+    );
+    assert!(fired);
+    assert_recovered(&outcome, &report);
+}
+
+#[test]
+fn modbus_tcp_reply_with_a_wrong_transaction_id_is_not_taken() {
+    let (outcome, fired, report) = modbus_tcp_case(
+        SerialFault::CorruptReply {
+            after: MODBUS_MID_JOB,
+        },
+        Duration::from_millis(300),
+        2,
+    );
+    assert!(fired);
+    assert_recovered(&outcome, &report);
+}
+
+#[test]
+fn modbus_tcp_late_reply_within_the_timeout_is_survived() {
+    let (outcome, fired, report) = modbus_tcp_case(
+        SerialFault::LateReply {
+            after: MODBUS_MID_JOB,
+            delay: Duration::from_millis(150),
+        },
+        Duration::from_millis(500),
+        2,
+    );
+    assert!(fired);
+    assert_recovered(&outcome, &report);
+}
+
+#[test]
+fn modbus_tcp_device_gone_mid_job_is_a_safe_stop() {
+    let (outcome, fired, report) = modbus_tcp_case(
+        SerialFault::Kill {
+            after: MODBUS_MID_JOB,
+        },
+        Duration::from_millis(300),
+        2,
+    );
+    assert!(fired);
+    assert_safe_stop(
+        &outcome,
+        &report,
+        &["closed", "link failed", "no answer", "refused", "reset"],
+    );
 }
