@@ -302,6 +302,7 @@ fn assert_safe_stop(outcome: &Outcome, report: &compensation::report::Report, sa
             report.to_text()
         )
     };
+    eprintln!("safe stop after {finished} targets: {error}");
     assert!(
         says.iter().any(|s| error.to_lowercase().contains(s)),
         "the error should say one of {says:?}: {error}"
