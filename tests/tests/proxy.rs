@@ -95,6 +95,10 @@ fn worst_distance(points: impl Iterator<Item = [f64; 2]>, path: &[[f64; 2]]) -> 
 
 /// What a streaming session through the proxy gave.
 struct Streamed {
+    /// Where the tool sits at the map's reference point relative to where the yaw-free
+    /// arm would put it: a shop touches the tool off there (a work offset), so this
+    /// constant is not a path error.
+    tool_zero_mm: [f64; 2],
     ending: Ending,
     sender: std::process::Output,
     stats: proxy::ProxyStats,
@@ -105,9 +109,18 @@ struct Streamed {
 /// from the truth, and `sender(port_link, program_file)` as the sender; the emulator's
 /// trace of the whole session.
 fn stream_through_proxy(
+    tool_offset_mm: [f64; 2],
+    map_told: bool,
     sender: impl FnOnce(&std::path::Path, &std::path::Path) -> Command + Send + 'static,
 ) -> Streamed {
-    let (job, machine, model) = demo_machine();
+    let (job, machine, model) = demo_machine_with_tool(tool_offset_mm, map_told);
+    let reference = model.map().reference_mm;
+    let yaw_ref = model
+        .yaw_urad(reference, errormap::Direction::FORWARD)
+        .unwrap()
+        * 1e-6;
+    let [ox, oy] = tool_offset_mm;
+    let tool_zero_mm = [-yaw_ref * oy, yaw_ref * ox];
     let dir = std::env::temp_dir().join(format!("proxy-test-{}-{}", std::process::id(), unique()));
     std::fs::create_dir_all(&dir).unwrap();
     let program = dir.join("prog.nc");
@@ -138,6 +151,7 @@ fn stream_through_proxy(
         let sender = client.await.unwrap();
         let rows = lock(&rig).machine_mut().take_trace();
         Streamed {
+            tool_zero_mm,
             ending,
             sender,
             stats: proxy.stats().clone(),
@@ -163,9 +177,9 @@ fn sender_json(out: &std::process::Output) -> serde_json::Value {
     serde_json::from_str(stdout.trim()).unwrap_or_else(|e| panic!("{e}: {stdout}"))
 }
 
-/// Every line answered, the true tool path within 2 um of the program; prints the
-/// figures.
-fn check_session(s: &Streamed, who: &str) {
+/// Every line answered, the true tool path within `bound_mm` of the program; prints the
+/// figures and returns the largest distance, mm.
+fn check_session(s: &Streamed, who: &str, bound_mm: f64) -> f64 {
     let Ending::SenderLeft(account) = &s.ending else {
         panic!("{:?}", s.ending)
     };
@@ -185,11 +199,20 @@ fn check_session(s: &Streamed, who: &str) {
     let start = s
         .rows
         .iter()
-        .position(|r| (r.true_mm[0] - 20.0).hypot(r.true_mm[1] - 20.0) < 0.002)
+        .position(|r| {
+            let z = s.tool_zero_mm;
+            (r.true_mm[0] - z[0] - 20.0).hypot(r.true_mm[1] - z[1] - 20.0) < 0.002
+        })
         .expect("the tool reached the start of the feed moves");
     let feed_rows = &s.rows[start..];
     assert!(feed_rows.len() > 5000, "{} rows", feed_rows.len());
-    let worst = worst_distance(feed_rows.iter().map(|r| r.true_mm), &path);
+    let z = s.tool_zero_mm;
+    let worst = worst_distance(
+        feed_rows
+            .iter()
+            .map(|r| [r.true_mm[0] - z[0], r.true_mm[1] - z[1]]),
+        &path,
+    );
     // Without the gateway the same rows are the commands: how far the stage is off.
     let raw_worst = feed_rows
         .iter()
@@ -208,10 +231,11 @@ fn check_session(s: &Streamed, who: &str) {
         "the stage is off by {raw_worst} mm uncompensated"
     );
     assert!(
-        worst < 0.002,
+        worst < bound_mm,
         "true path {:.3} um from the program",
         worst * 1000.0
     );
+    worst
 }
 
 #[test]
@@ -220,7 +244,7 @@ fn an_independent_sender_streams_through_the_proxy_and_the_tool_follows_the_prog
         eprintln!("SKIPPED: {why}");
         return;
     }
-    let s = stream_through_proxy(|link, program| {
+    let s = stream_through_proxy([0.0, 0.0], true, |link, program| {
         let mut c = Command::new("python3");
         c.arg(workspace().join("tests/interop/grbl_sender.py"))
             .arg(link)
@@ -246,7 +270,51 @@ fn an_independent_sender_streams_through_the_proxy_and_the_tool_follows_the_prog
         (mpos[0] - 30.0).abs() <= 0.0011 && (mpos[1] - 120.0).abs() <= 0.0011,
         "{status}"
     );
-    check_session(&s, "pyserial");
+    check_session(&s, "pyserial", 0.002);
+}
+
+#[test]
+fn a_tool_away_from_the_camera_follows_the_program_when_the_map_knows_the_arm() {
+    if let Some(why) = python_missing("serial", "pyserial") {
+        eprintln!("SKIPPED: {why}");
+        return;
+    }
+    // 40 mm right of and 25 mm below the camera: the carriage's yaw (up to 8 arcsec on
+    // X) moves the tool by up to 1.8 um more than the camera sees (Abbe).
+    let run = |map_told: bool| {
+        stream_through_proxy([40.0, -25.0], map_told, |link, program| {
+            let mut c = Command::new("python3");
+            c.arg(workspace().join("tests/interop/grbl_sender.py"))
+                .arg(link)
+                .arg(program);
+            c
+        })
+    };
+    let told = run(true);
+    assert_eq!(
+        sender_json(&told.sender)["errors"]
+            .as_array()
+            .unwrap()
+            .len(),
+        0
+    );
+    let with_arm = check_session(
+        &told,
+        "the tool 40,-25 mm from the camera, the map told",
+        0.0025,
+    );
+    let untold = run(false);
+    let without_arm = check_session(
+        &untold,
+        "the tool 40,-25 mm from the camera, the map not told",
+        0.01,
+    );
+    assert!(
+        without_arm > with_arm + 0.0005,
+        "the Abbe term should matter: {:.3} um told, {:.3} um not told",
+        with_arm * 1e3,
+        without_arm * 1e3
+    );
 }
 
 /// Where CNCjs is installed (`.ci/run` puts it in tests/interop/cncjs; CNCJS_DIR
@@ -277,7 +345,7 @@ fn cncjs_streams_through_the_proxy_and_the_tool_follows_the_program() {
             return;
         }
     };
-    let s = stream_through_proxy(move |link, program| {
+    let s = stream_through_proxy([0.0, 0.0], true, move |link, program| {
         let mut c = Command::new("node");
         c.arg(workspace().join("tests/interop/cncjs_sender.js"))
             .arg(&dir)
@@ -302,7 +370,7 @@ fn cncjs_streams_through_the_proxy_and_the_tool_follows_the_program() {
         (x - 30.0).abs() <= 0.0011 && (y - 120.0).abs() <= 0.0011,
         "{v}"
     );
-    check_session(&s, "CNCjs");
+    check_session(&s, "CNCjs", 0.002);
 }
 
 /// A sender of our own on the pseudo-terminal: writes lines, reads what comes back.
@@ -362,11 +430,21 @@ fn slow_program() -> String {
 }
 
 fn demo_machine() -> (Job, world::machine::MachineConfig, MapModel) {
+    demo_machine_with_tool([0.0, 0.0], true)
+}
+
+/// The demo stage with the tool on an arm `tool_offset_mm` from the camera (the map is
+/// told the offset, as `gateway map --tool-offset-mm` is).
+fn demo_machine_with_tool(
+    tool_offset_mm: [f64; 2],
+    map_told: bool,
+) -> (Job, world::machine::MachineConfig, MapModel) {
     let mut job = Job::demo();
     let StageSpec::Sim { machine } = &mut job.stage else {
         unreachable!("the demo job simulates its stage")
     };
     machine.thermal = None;
+    machine.machine.tool_offset_mm = tool_offset_mm;
     let machine = machine.clone();
     let id = Identity {
         machine: "sim".into(),
@@ -375,8 +453,11 @@ fn demo_machine() -> (Job, world::machine::MachineConfig, MapModel) {
         certificate_sha256: job.board.fingerprint_sha256(),
         camera: "sim".into(),
     };
-    let model = MapModel::new(map_from_truth(&machine, id));
-    (job, machine, model)
+    let mut map = map_from_truth(&machine, id);
+    if !map_told {
+        map.tool_offset_mm = [0.0, 0.0];
+    }
+    (job, machine, MapModel::new(map))
 }
 
 #[test]
