@@ -15,6 +15,7 @@ use std::process::ExitCode;
 use std::time::Instant;
 use vision::localize::{localize, LocalizeParams, LocalizeSettings, Method, PixelAxes};
 
+mod export;
 mod proxy;
 mod rewrite;
 mod scan;
@@ -170,6 +171,30 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
+    /// Write the map as a controller's own compensation table: `linuxcnc` (a COMP_FILE
+    /// per joint, nominal/forward/reverse, at most 256 entries), `beckhoff` (a TwinCAT
+    /// CNC plane compensation list per axis over X and Y) or `csv` (the model on the
+    /// map's grid). Each says what the format cannot hold and refuses a table further
+    /// from the map than the tolerance.
+    Export {
+        #[arg(long)]
+        map: PathBuf,
+        #[arg(long)]
+        format: String,
+        /// Output file (`_x`/`_y` are added for the per-axis formats).
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long, default_value_t = 1.0)]
+        tolerance_um: f64,
+        /// LinuxCNC entries per joint (2..256).
+        #[arg(long, default_value_t = export::DEFAULT_ENTRIES)]
+        entries: usize,
+        /// Beckhoff grid interval, mm.
+        #[arg(long, default_value_t = 1.0)]
+        interval_mm: f64,
+        #[arg(long)]
+        json: bool,
+    },
     /// Localize one image of the board: the board coordinate under the image centre.
     Localize {
         /// PNG file, 8- or 16-bit greyscale.
@@ -230,6 +255,7 @@ fn main() -> ExitCode {
         | Cmd::Rewrite { json, .. }
         | Cmd::Proxy { json, .. }
         | Cmd::Verify { json, .. }
+        | Cmd::Export { json, .. }
         | Cmd::Localize { json, .. } => *json,
     };
     match run(cli) {
@@ -371,6 +397,23 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             seed,
             spot_check,
             drift_threshold_um,
+            json,
+        }),
+        Cmd::Export {
+            map,
+            format,
+            out,
+            tolerance_um,
+            entries,
+            interval_mm,
+            json,
+        } => export::export(export::ExportArgs {
+            map,
+            format,
+            out,
+            tolerance_um,
+            entries,
+            interval_mm,
             json,
         }),
         Cmd::Localize {

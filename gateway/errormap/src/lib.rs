@@ -34,6 +34,7 @@
 //! Outside the map's extent nothing is extrapolated: every call refuses it.
 
 mod compensation;
+pub mod export;
 pub mod scan;
 
 use protocol::errormap::{ErrorMap, Measured, Node};
