@@ -15,6 +15,7 @@ use std::process::ExitCode;
 use std::time::Instant;
 use vision::localize::{localize, LocalizeParams, LocalizeSettings, Method, PixelAxes};
 
+mod iso230;
 mod proxy;
 mod rewrite;
 mod scan;
@@ -148,6 +149,8 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
+    /// ISO 230-2 positioning test of one axis (A, B, R, E, M), or `evaluate FILE`.
+    Iso230(iso230::Iso230Args),
     /// Localize one image of the board: the board coordinate under the image centre.
     Localize {
         /// PNG file, 8- or 16-bit greyscale.
@@ -208,6 +211,7 @@ fn main() -> ExitCode {
         | Cmd::Rewrite { json, .. }
         | Cmd::Proxy { json, .. }
         | Cmd::Localize { json, .. } => *json,
+        Cmd::Iso230(a) => a.json(),
     };
     match run(cli) {
         Ok(code) => code,
@@ -333,6 +337,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             once,
             json,
         }),
+        Cmd::Iso230(a) => iso230::dispatch(a),
         Cmd::Localize {
             image,
             board,
