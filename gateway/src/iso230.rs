@@ -236,7 +236,20 @@ pub fn run(args: RunArgs) -> anyhow::Result<ExitCode> {
             if model.is_some() { ", the map" } else { "" }
         );
     }
-    let across = args.at_mm.unwrap_or((lo[1 - axis] + hi[1 - axis]) / 2.0);
+    // Held where the map has its dense line along the axis (the short-period errors are
+    // known best there), else in the middle.
+    let map_line = model.as_ref().and_then(|m| {
+        let lines = if axis == 0 {
+            &m.map().x_lines
+        } else {
+            &m.map().y_lines
+        };
+        lines.first().map(|l| l.at_mm)
+    });
+    let across = args
+        .at_mm
+        .or(map_line)
+        .unwrap_or((lo[1 - axis] + hi[1 - axis]) / 2.0);
     let cycle = Cycle::new(
         targets(from, to, args.positions)?,
         args.runs,
@@ -398,7 +411,8 @@ pub struct Iso230Args {
     from_mm: Option<f64>,
     #[arg(long)]
     to_mm: Option<f64>,
-    /// Where the other axis is held, machine mm (default: the middle).
+    /// Where the other axis is held, machine mm (default: on the map's dense line along
+    /// the axis, else the middle).
     #[arg(long)]
     at_mm: Option<f64>,
     /// The board certificate's expanded uncertainty (k = 2) of a dot position, um.
