@@ -164,7 +164,14 @@ pub fn evaluate_file(
         if let Some(b) = &before {
             print_figures(b, "before");
         }
-        print_figures(&evaluation, "measured");
+        print_figures(
+            &evaluation,
+            if before.is_some() {
+                "after"
+            } else {
+                "measured"
+            },
+        );
     }
     Ok(ExitCode::SUCCESS)
 }
