@@ -9,10 +9,13 @@
 //! the tested axis, um, in the board's (certified) frame; a constant offset (the homing
 //! error, the board's placement) shifts every deviation alike and changes no figure.
 //!
-//! With a map, each target is commanded where the map says the tool lands on it
-//! (`MapModel::command_for`, approached from the run's side on the tested axis and from
-//! below on the held one), after re-referencing the map to this homing; overrun points
-//! are commanded as they are. Nothing else is corrected. A frame that does not localize
+//! With a map, each target is commanded where the map says the camera lands on it
+//! (`MapModel::camera_command_for`, approached from the run's side on the tested axis and
+//! from below on the held one), after re-referencing the map to this homing; overrun
+//! points are commanded as they are. The camera measures its own point, so the test
+//! commands the camera onto the targets: with the map's tool offset zero (as `gateway
+//! map` scans by default) that is `command_for`'s command, the tool's; with an offset,
+//! the tool differs from the camera by the yaw times the offset (the map's Abbe term). Nothing else is corrected. A frame that does not localize
 //! stops the cycle (the stage is told to stop); every measurement taken before it has
 //! already gone to `on_measurement`.
 
@@ -153,7 +156,7 @@ pub async fn run_iso230(
     if let Some(model) = map {
         for &t in &spec.cycle.targets_mm {
             model
-                .command_for(point(axis, t, spec.across_mm), MapDirection::FORWARD)
+                .camera_command_for(point(axis, t, spec.across_mm), MapDirection::FORWARD)
                 .map_err(Iso230Error::Map)?;
         }
     }
@@ -249,7 +252,7 @@ pub async fn run_iso230(
                     let nominal = point(axis, at_mm, spec.across_mm);
                     let c = match &model {
                         Some(m) => m
-                            .command_for(nominal, map_direction(axis, direction))
+                            .camera_command_for(nominal, map_direction(axis, direction))
                             .map_err(Iso230Error::Map)?,
                         None => nominal,
                     };

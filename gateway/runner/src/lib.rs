@@ -8,6 +8,7 @@
 
 pub mod iso230;
 pub mod scan;
+pub mod verify;
 
 use compensation::correction::SoftLimits;
 use compensation::correction::{CorrectionError, Positioning};
