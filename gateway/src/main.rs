@@ -16,6 +16,7 @@ use std::time::Instant;
 use vision::localize::{localize, LocalizeParams, LocalizeSettings, Method, PixelAxes};
 
 mod export;
+mod iso230;
 mod proxy;
 mod rewrite;
 mod rotary;
@@ -156,6 +157,8 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
+    /// ISO 230-2 positioning test of one axis (A, B, R, E, M), or `evaluate FILE`.
+    Iso230(iso230::Iso230Args),
     /// Check the error map with the camera: home, re-reference the map at its reference
     /// point (each homing moves the zero by a few um), then move to random points with
     /// the map's command and measure where the camera really is. `--spot-check`: a few
@@ -264,6 +267,7 @@ fn main() -> ExitCode {
         | Cmd::Export { json, .. }
         | Cmd::Localize { json, .. } => *json,
         Cmd::Rotary { cmd } => cmd.json(),
+        Cmd::Iso230(a) => a.json(),
     };
     match run(cli) {
         Ok(code) => code,
@@ -390,6 +394,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             json,
         }),
         Cmd::Rotary { cmd } => rotary::run(cmd),
+        Cmd::Iso230(a) => iso230::dispatch(a),
         Cmd::Verify {
             config,
             map,

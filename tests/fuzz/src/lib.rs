@@ -17,6 +17,7 @@ mod config;
 mod errormap;
 mod gige;
 mod grbl;
+mod iso230;
 mod media;
 mod modbus;
 mod nc;
@@ -29,6 +30,7 @@ pub use config::{board_toml, camera_toml, job_toml, machine_toml, modbus_profile
 pub use errormap::{error_map_json, scan_journal};
 pub use gige::{genicam_xml, gige_url, gige_zip, gvcp, gvsp};
 pub use grbl::{grbl_gcode, grbl_response};
+pub use iso230::iso230_csv;
 pub use media::{localize, png_load};
 pub use modbus::modbus_frame;
 pub use nc::nc_program;
@@ -70,6 +72,7 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("rotary_json", rotary_json),
     ("grbl_probe", grbl_probe),
     ("rotary_rewrite", rotary_rewrite),
+    ("iso230_csv", iso230_csv),
 ];
 
 /// The fuzz crate's folder (corpora, regressions).
