@@ -16,6 +16,7 @@ pub mod plate;
 pub mod render;
 pub mod rig;
 pub mod rng;
+pub mod volumetric;
 
 pub use clock::Clock;
 pub use rig::{lock, shared_rig, SharedRig, SimRig};
