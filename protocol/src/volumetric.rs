@@ -572,6 +572,59 @@ pub fn parse_instrument(text: &str, expected: &[&str]) -> Result<InstrumentFile,
     })
 }
 
+/// Reads `squareness.csv`: header `name,value_urad,uncertainty_urad`, then one row per
+/// squareness error (E_C0Y, E_B0Z, E_A0Z, any order, each once). Returns (value,
+/// uncertainty) in rad, in [`SQUARENESS`] order.
+pub fn parse_squareness(text: &str) -> Result<[(f64, f64); 3], VolFileError> {
+    let mut header = false;
+    let mut out: [Option<(f64, f64)>; 3] = [None; 3];
+    let mut last_line = 0;
+    for (i, raw) in text.lines().enumerate() {
+        let ln = i + 1;
+        last_line = ln;
+        let line = raw.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let f = fields(line);
+        if !header {
+            let want = ["name", "value_urad", "uncertainty_urad"];
+            expect_len(ln, &f, 3, "column header")?;
+            for k in 0..3 {
+                if f[k].1 != want[k] {
+                    return Err(err(
+                        ln,
+                        f[k].0,
+                        format!("expected column `{}`, found `{}`", want[k], f[k].1),
+                    ));
+                }
+            }
+            header = true;
+            continue;
+        }
+        expect_len(ln, &f, 3, "squareness row")?;
+        let k = SQUARENESS
+            .iter()
+            .position(|n| n.eq_ignore_ascii_case(f[0].1))
+            .ok_or_else(|| err(ln, f[0].0, format!("unknown squareness `{}`", f[0].1)))?;
+        if out[k].is_some() {
+            return Err(err(ln, f[0].0, format!("{} given twice", SQUARENESS[k])));
+        }
+        let v = number(ln, f[1], "value_urad")?;
+        let u = number(ln, f[2], "uncertainty_urad")?;
+        if !(u > 0.0) {
+            return Err(err(ln, f[2].0, "uncertainty must be positive"));
+        }
+        out[k] = Some((v * 1e-6, u * 1e-6));
+    }
+    let mut r = [(0.0, 0.0); 3];
+    for k in 0..3 {
+        r[k] =
+            out[k].ok_or_else(|| err(last_line.max(1), 1, format!("missing {}", SQUARENESS[k])))?;
+    }
+    Ok(r)
+}
+
 /// Fuzz entry: neither parser may panic on any text.
 pub fn fuzz_parse(text: &str) {
     if let Ok(m) = parse_model(text) {
@@ -579,6 +632,7 @@ pub fn fuzz_parse(text: &str) {
         assert_eq!(again, m);
     }
     let _ = parse_instrument(text, &["position_mm", "E_XX_um"]);
+    let _ = parse_squareness(text);
 }
 
 #[cfg(test)]
@@ -645,5 +699,16 @@ mod tests {
         assert_eq!((e.line, e.column), (5, 3));
         let e = parse_instrument(&ok.replace("2,10,1.4", "2,12,1.4"), &cols).unwrap_err();
         assert!(e.message.contains("differs"), "{e}");
+    }
+
+    #[test]
+    fn squareness_file_reads_and_refuses() {
+        let ok = "name,value_urad,uncertainty_urad\nE_B0Z,-3,2\nE_C0Y,12.5,2\nE_A0Z,1,2\n";
+        let r = parse_squareness(ok).unwrap();
+        assert!((r[0].0 - 12.5e-6).abs() < 1e-18 && (r[1].0 + 3e-6).abs() < 1e-18);
+        let e = parse_squareness(&ok.replace("E_A0Z,1,2\n", "")).unwrap_err();
+        assert!(e.message.contains("missing E_A0Z"), "{e}");
+        let e = parse_squareness(&ok.replace("-3,2", "-3,inf")).unwrap_err();
+        assert_eq!((e.line, e.column), (2, 10), "{e}");
     }
 }
