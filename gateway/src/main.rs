@@ -18,6 +18,7 @@ use vision::localize::{localize, LocalizeParams, LocalizeSettings, Method, Pixel
 mod proxy;
 mod rewrite;
 mod scan;
+mod volumetric;
 
 #[derive(Parser)]
 #[command(
@@ -148,6 +149,12 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
+    /// The 21-error volumetric model of a 3-axis machine: identify, eval, contributions,
+    /// simulate-campaign, export-isg.
+    Volumetric {
+        #[command(subcommand)]
+        cmd: volumetric::VolumetricCmd,
+    },
     /// Localize one image of the board: the board coordinate under the image centre.
     Localize {
         /// PNG file, 8- or 16-bit greyscale.
@@ -208,6 +215,7 @@ fn main() -> ExitCode {
         | Cmd::Rewrite { json, .. }
         | Cmd::Proxy { json, .. }
         | Cmd::Localize { json, .. } => *json,
+        Cmd::Volumetric { cmd } => cmd.json(),
     };
     match run(cli) {
         Ok(code) => code,
@@ -224,6 +232,7 @@ fn main() -> ExitCode {
 
 fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     match cli.cmd {
+        Cmd::Volumetric { cmd } => volumetric::run(cmd),
         Cmd::Demo {
             json,
             method,

@@ -625,6 +625,48 @@ pub fn parse_squareness(text: &str) -> Result<[(f64, f64); 3], VolFileError> {
     Ok(r)
 }
 
+/// Reads a points file: header `x_mm,y_mm,z_mm`, then one point per row.
+pub fn parse_points(text: &str) -> Result<Vec<[f64; 3]>, VolFileError> {
+    let mut header = false;
+    let mut out = Vec::new();
+    for (i, raw) in text.lines().enumerate() {
+        let ln = i + 1;
+        let line = raw.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let f = fields(line);
+        expect_len(
+            ln,
+            &f,
+            3,
+            if header { "point row" } else { "column header" },
+        )?;
+        if !header {
+            for (k, want) in ["x_mm", "y_mm", "z_mm"].iter().enumerate() {
+                if f[k].1 != *want {
+                    return Err(err(
+                        ln,
+                        f[k].0,
+                        format!("expected column `{want}`, found `{}`", f[k].1),
+                    ));
+                }
+            }
+            header = true;
+            continue;
+        }
+        out.push([
+            number(ln, f[0], "x_mm")?,
+            number(ln, f[1], "y_mm")?,
+            number(ln, f[2], "z_mm")?,
+        ]);
+    }
+    if !header {
+        return Err(err(1, 1, "no `x_mm,y_mm,z_mm` header row"));
+    }
+    Ok(out)
+}
+
 /// Fuzz entry: neither parser may panic on any text.
 pub fn fuzz_parse(text: &str) {
     if let Ok(m) = parse_model(text) {
@@ -633,6 +675,7 @@ pub fn fuzz_parse(text: &str) {
     }
     let _ = parse_instrument(text, &["position_mm", "E_XX_um"]);
     let _ = parse_squareness(text);
+    let _ = parse_points(text);
 }
 
 #[cfg(test)]
@@ -699,6 +742,15 @@ mod tests {
         assert_eq!((e.line, e.column), (5, 3));
         let e = parse_instrument(&ok.replace("2,10,1.4", "2,12,1.4"), &cols).unwrap_err();
         assert!(e.message.contains("differs"), "{e}");
+    }
+
+    #[test]
+    fn points_file() {
+        let p = parse_points("x_mm,y_mm,z_mm\n1,2,3\n\n4.5, 5 ,6\n").unwrap();
+        assert_eq!(p, vec![[1.0, 2.0, 3.0], [4.5, 5.0, 6.0]]);
+        let e = parse_points("x_mm,y_mm,z_mm\n1,2,x\n").unwrap_err();
+        assert_eq!((e.line, e.column), (2, 5));
+        assert!(parse_points("x,y,z\n").is_err());
     }
 
     #[test]
