@@ -22,6 +22,7 @@ mod modbus;
 mod nc;
 mod rewrite;
 mod slcan;
+mod volumetric;
 
 pub use canopen::{canopen_eds, sdo_client, sdo_server};
 pub use config::{board_toml, camera_toml, job_toml, machine_toml, modbus_profile};
@@ -33,6 +34,7 @@ pub use modbus::modbus_frame;
 pub use nc::nc_program;
 pub use rewrite::{nc_rewrite, proxy_stream};
 pub use slcan::slcan;
+pub use volumetric::volumetric_model;
 
 /// A fuzz target: any bytes in, a panic on a broken invariant.
 pub type Target = fn(&[u8]);
@@ -64,6 +66,7 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("scan_journal", scan_journal),
     ("nc_rewrite", nc_rewrite),
     ("proxy_stream", proxy_stream),
+    ("volumetric_model", volumetric_model),
 ];
 
 /// The fuzz crate's folder (corpora, regressions).
