@@ -249,16 +249,33 @@ impl Model {
         Ok(out)
     }
 
-    /// The volumetric error at command `q` (mm), from the first-order closed form.
+    /// The volumetric error at command `q` (mm), from the first-order closed form: the
+    /// sum of [`Model::terms`], computed directly (no per-term vectors).
     pub fn error_first_order(&self, q: [f64; 3]) -> Result<[f64; 3], VolError> {
-        let terms = self.terms(q)?;
-        let mut s = [0.0; 3];
-        for v in &terms {
-            for k in 0..3 {
-                s[k] += v[k];
-            }
+        let e = self.all_errors(q)?;
+        let s = self.file.structure;
+        let t = self.file.tool_offset_mm;
+        let mut sum = Vector3::zeros();
+        let mut add = |a: usize, sign: f64, arm: Vector3<f64>| {
+            let v = &e[a];
+            let d = Vector3::new(v[0], v[1], v[2]);
+            let r = Vector3::new(v[3], v[4], v[5]);
+            sum += (d + r.cross(&arm)) * sign;
+        };
+        let tool = s.tool_chain();
+        let mut p = Vector3::new(t[0], t[1], t[2]);
+        // Walk the tool chain from the tool inwards so each arm grows by one axis.
+        for &a in tool.iter().rev() {
+            add(a, 1.0, p);
+            p[a] += q[a];
         }
-        Ok(s)
+        let mut arm = p;
+        for &a in s.work_chain() {
+            arm[a] += q[a];
+            add(a, -1.0, arm);
+        }
+        let [c0y, b0z, a0z] = self.file.squareness_rad;
+        Ok([sum.x - c0y * q[1] + b0z * q[2], sum.y - a0z * q[2], sum.z])
     }
 
     /// The volumetric error (mm), exact or first order.

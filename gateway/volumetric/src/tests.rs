@@ -160,3 +160,17 @@ fn interpolation_is_linear_between_rows() {
     let v = m.axis_errors(0, 125.0).unwrap();
     assert!((v[0] - 0.0025).abs() < 1e-15 && (v[5] - 5e-6).abs() < 1e-18);
 }
+
+#[test]
+fn the_terms_add_up_to_the_first_order_error() {
+    for s in Structure::ALL {
+        let m = realistic(s);
+        let q = [321.0, 123.0, 234.0];
+        let terms = m.terms(q).unwrap();
+        let fo = m.error_first_order(q).unwrap();
+        for c in 0..3 {
+            let sum: f64 = terms.iter().map(|v| v[c]).sum();
+            assert!((sum - fo[c]).abs() < 1e-15, "{s}");
+        }
+    }
+}
