@@ -101,6 +101,9 @@ enum Cmd {
         /// The error map (a version file written by `gateway map`).
         #[arg(long)]
         map: Option<PathBuf>,
+        /// A volumetric model file (`gateway volumetric identify`): X, Y and Z corrected.
+        #[arg(long)]
+        volumetric: Option<PathBuf>,
         #[arg(long)]
         out: PathBuf,
         /// Largest distance of the executed path from the compensated path, um.
@@ -305,6 +308,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Cmd::Rewrite {
             input,
             map,
+            volumetric,
             out,
             tolerance_um,
             max_correction_um,
@@ -316,6 +320,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             input,
             out,
             map,
+            volumetric,
             tolerance_um,
             max_correction_um,
             offsets,

@@ -49,6 +49,7 @@
 //! (products of two errors dropped; the test `first_order_matches_exact` checks it against
 //! the full HTM product within 0.1 µm.)
 
+mod compensation;
 pub mod contributions;
 pub mod identify;
 
