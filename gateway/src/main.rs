@@ -15,9 +15,11 @@ use std::process::ExitCode;
 use std::time::Instant;
 use vision::localize::{localize, LocalizeParams, LocalizeSettings, Method, PixelAxes};
 
+mod export;
 mod proxy;
 mod rewrite;
 mod scan;
+mod verify;
 mod volumetric;
 
 #[derive(Parser)]
@@ -158,6 +160,51 @@ enum Cmd {
         #[command(subcommand)]
         cmd: volumetric::VolumetricCmd,
     },
+    /// Check the error map with the camera: home, re-reference the map at its reference
+    /// point (each homing moves the zero by a few um), then move to random points with
+    /// the map's command and measure where the camera really is. `--spot-check`: a few
+    /// points; exit code 2 when any point is off by more than `--drift-threshold-um` (re-scan).
+    Verify {
+        #[arg(long)]
+        config: PathBuf,
+        #[arg(long)]
+        map: PathBuf,
+        /// Points to check (default 20, or 5 with --spot-check).
+        #[arg(long)]
+        points: Option<usize>,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        #[arg(long)]
+        spot_check: bool,
+        #[arg(long, default_value_t = 2.0)]
+        drift_threshold_um: f64,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Write the map as a controller's own compensation table: `linuxcnc` (a COMP_FILE
+    /// per joint, nominal/forward/reverse, at most 256 entries), `beckhoff` (a TwinCAT
+    /// CNC plane compensation list per axis over X and Y) or `csv` (the model on the
+    /// map's grid). Each says what the format cannot hold and refuses a table further
+    /// from the map than the tolerance.
+    Export {
+        #[arg(long)]
+        map: PathBuf,
+        #[arg(long)]
+        format: String,
+        /// Output file (`_x`/`_y` are added for the per-axis formats).
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long, default_value_t = 1.0)]
+        tolerance_um: f64,
+        /// LinuxCNC entries per joint (2..256).
+        #[arg(long, default_value_t = export::DEFAULT_ENTRIES)]
+        entries: usize,
+        /// Beckhoff grid interval, mm.
+        #[arg(long, default_value_t = 1.0)]
+        interval_mm: f64,
+        #[arg(long)]
+        json: bool,
+    },
     /// Localize one image of the board: the board coordinate under the image centre.
     Localize {
         /// PNG file, 8- or 16-bit greyscale.
@@ -217,6 +264,8 @@ fn main() -> ExitCode {
         | Cmd::Map { json, .. }
         | Cmd::Rewrite { json, .. }
         | Cmd::Proxy { json, .. }
+        | Cmd::Verify { json, .. }
+        | Cmd::Export { json, .. }
         | Cmd::Localize { json, .. } => *json,
         Cmd::Volumetric { cmd } => cmd.json(),
     };
@@ -345,6 +394,40 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             max_correction_um,
             time_scale,
             once,
+            json,
+        }),
+        Cmd::Verify {
+            config,
+            map,
+            points,
+            seed,
+            spot_check,
+            drift_threshold_um,
+            json,
+        } => verify::verify(verify::VerifyArgs {
+            config,
+            map,
+            points,
+            seed,
+            spot_check,
+            drift_threshold_um,
+            json,
+        }),
+        Cmd::Export {
+            map,
+            format,
+            out,
+            tolerance_um,
+            entries,
+            interval_mm,
+            json,
+        } => export::export(export::ExportArgs {
+            map,
+            format,
+            out,
+            tolerance_um,
+            entries,
+            interval_mm,
             json,
         }),
         Cmd::Localize {

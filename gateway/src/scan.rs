@@ -15,7 +15,7 @@ use std::time::{Instant, SystemTime, UNIX_EPOCH};
 
 /// The stage as it names itself, without where it is connected (a port, a bus), which
 /// may change between the scan and its use.
-fn without_link(name: &str) -> String {
+pub(crate) fn without_link(name: &str) -> String {
     let cut = [" at /", " on ", " at "]
         .iter()
         .filter_map(|m| name.find(m))

@@ -36,6 +36,9 @@ pub enum SerialFault {
     CorruptReply { after: usize },
     /// The device's next message comes `delay` late.
     LateReply { after: usize, delay: Duration },
+    /// These bytes reach the device as if from the host (an operator's command from a
+    /// second sender, a pendant: a way to make the device itself raise an alarm).
+    Inject { after: usize, bytes: &'static [u8] },
 }
 
 impl SerialFault {
@@ -45,7 +48,8 @@ impl SerialFault {
             | SerialFault::Stall { after, .. }
             | SerialFault::DropReply { after }
             | SerialFault::CorruptReply { after }
-            | SerialFault::LateReply { after, .. } => after,
+            | SerialFault::LateReply { after, .. }
+            | SerialFault::Inject { after, .. } => after,
         }
     }
 }
@@ -152,6 +156,12 @@ async fn run(
                         SerialFault::Stall { duration, .. } => {
                             fired.store(true, Ordering::SeqCst);
                             tokio::time::sleep(duration).await;
+                        }
+                        SerialFault::Inject { bytes, .. } => {
+                            fired.store(true, Ordering::SeqCst);
+                            if dev.write_all(bytes).await.is_err() {
+                                return;
+                            }
                         }
                         _ => armed = true,
                     }

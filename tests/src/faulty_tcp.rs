@@ -79,7 +79,8 @@ async fn relay(
         | SerialFault::Stall { after, .. }
         | SerialFault::DropReply { after }
         | SerialFault::CorruptReply { after }
-        | SerialFault::LateReply { after, .. } => after,
+        | SerialFault::LateReply { after, .. }
+        | SerialFault::Inject { after, .. } => after,
     };
     loop {
         tokio::select! {
@@ -98,6 +99,12 @@ async fn relay(
                         SerialFault::Stall { duration, .. } => {
                             fired.store(true, Ordering::SeqCst);
                             tokio::time::sleep(duration).await;
+                        }
+                        SerialFault::Inject { bytes, .. } => {
+                            fired.store(true, Ordering::SeqCst);
+                            if dev.write_all(bytes).await.is_err() {
+                                return true;
+                            }
                         }
                         _ => armed = true,
                     }

@@ -393,6 +393,21 @@ fn grbl_corrupted_reply_is_a_safe_stop() {
 }
 
 #[test]
+fn grbl_alarm_mid_job_is_a_safe_stop_naming_it() {
+    // A line from elsewhere (a pendant) runs into the soft limit: GRBL raises ALARM:2 and
+    // stops; the job must stop too, saying so, and move no more.
+    let (outcome, fired, report, _) = grbl_case(
+        SerialFault::Inject {
+            after: MID_JOB,
+            bytes: b"G53G0X300\n",
+        },
+        Duration::from_secs(2),
+    );
+    assert!(fired);
+    assert_safe_stop(&outcome, &report, &["alarm 2: soft limit"]);
+}
+
+#[test]
 fn grbl_late_reply_within_the_timeout_is_survived() {
     let (outcome, fired, report, _) = grbl_case(
         SerialFault::LateReply {

@@ -318,3 +318,118 @@ fn a_map_of_the_simulated_stage_predicts_it_at_random_points() {
         "map vs truth: max {worst:.3} um, rms {rms:.3} um"
     );
 }
+
+mod export_tables {
+    use super::*;
+    use crate::export::*;
+
+    /// X error 0.1 um per mm going up, 8 um less going down; Y error `sq` um per mm of X
+    /// (X's straightness seen in Y) and none of its own.
+    fn linear(sq: f64) -> MapModel {
+        MapModel::new(map_of(
+            steps(0.0, 100.0, 10.0),
+            steps(0.0, 50.0, 10.0),
+            move |x, _, fwd| (0.1 * x - if fwd { 0.0 } else { 8.0 }, sq * x, 0.0),
+        ))
+    }
+
+    #[test]
+    fn linuxcnc_lines_are_nominal_forward_reverse_actual_positions() {
+        let t = linuxcnc_joint(&linear(0.0), 0, 11, 0.5).unwrap();
+        let lines: Vec<&str> = t.text.lines().collect();
+        assert_eq!(lines.len(), 11);
+        // At 50 mm: 5 um further going up, 3 um short going down.
+        assert_eq!(lines[5], "50.000000 50.005000 49.997000");
+        assert!(
+            t.interpolation_error_um < 1e-6,
+            "{}",
+            t.interpolation_error_um
+        );
+        assert!(t.cross_terms_um < 1e-6);
+    }
+
+    #[test]
+    fn linuxcnc_says_what_it_cannot_hold() {
+        // Y's error grows with X (0.05 um/mm): the Y joint's table, a function of Y only,
+        // loses up to 5 um over 100 mm of X.
+        let t = linuxcnc_joint(&linear(0.05), 1, 6, 0.5).unwrap();
+        assert!(
+            (t.cross_terms_um - 5.0).abs() < 1e-6,
+            "{}",
+            t.cross_terms_um
+        );
+    }
+
+    #[test]
+    fn linuxcnc_refuses_more_than_256_entries_and_a_table_too_coarse() {
+        assert!(matches!(
+            linuxcnc_joint(&linear(0.0), 0, 257, 0.5),
+            Err(ExportError::Options(_))
+        ));
+        // A 5 mm-period screw error of 3 um over 500 mm: 256 entries are 1.96 mm apart,
+        // far too coarse for a 5 mm period at 0.5 um.
+        let k = std::f64::consts::TAU / 5.0;
+        let screw = MapModel::new(map_of(
+            steps(0.0, 500.0, 0.5),
+            vec![0.0, 10.0],
+            move |x, _, _| (3.0 * (k * x).sin(), 0.0, 0.0),
+        ));
+        let e = linuxcnc_joint(&screw, 0, 256, 0.5).unwrap_err();
+        assert!(matches!(e, ExportError::BeyondTolerance { .. }), "{e}");
+        assert!(e.to_string().contains("at most 256"), "{e}");
+    }
+
+    #[test]
+    fn beckhoff_corrections_are_minus_the_mean_error_in_tenths_of_a_micrometre() {
+        let m = MapModel::new(map_of(
+            steps(0.0, 100.0, 10.0),
+            steps(0.0, 50.0, 10.0),
+            |_, _, fwd| (if fwd { 10.0 } else { 6.0 }, -2.5, 0.0),
+        ));
+        let t = beckhoff_plane(&m, 0, 10.0, 0.5).unwrap();
+        assert!(
+            t.text
+                .contains("kw.crosscomp2.table[  0][   0].correction -80"),
+            "{}",
+            t.text
+        );
+        assert!(t
+            .text
+            .contains("kw.crosscomp2.interval                     100000"));
+        assert!(t
+            .text
+            .contains("kw.crosscomp2.last_index_master1           10"));
+        assert!(t
+            .text
+            .contains("kw.crosscomp2.last_index_master2           5"));
+        assert_eq!(t.points, 66);
+        assert!(
+            (t.backlash_lost_um - 2.0).abs() < 1e-9,
+            "{}",
+            t.backlash_lost_um
+        );
+        let y = beckhoff_plane(&m, 1, 10.0, 0.5).unwrap();
+        assert!(y
+            .text
+            .contains("kopf.log_achs_name                         Y"));
+        assert!(y.text.contains("correction 25"), "{}", y.text);
+    }
+
+    #[test]
+    fn the_plain_csv_holds_every_node_as_the_model_gives_it() {
+        let m = linear(0.05);
+        let csv = plain_csv(&m).unwrap();
+        let rows: Vec<Vec<f64>> = csv
+            .lines()
+            .skip(1)
+            .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+            .collect();
+        assert_eq!(rows.len(), 11 * 6);
+        for r in &rows {
+            let f = m.camera_error_um([r[0], r[1]], Direction::FORWARD).unwrap();
+            let b = m.camera_error_um([r[0], r[1]], Direction::REVERSE).unwrap();
+            assert!((r[2] - f[0]).abs() < 1e-4 && (r[3] - f[1]).abs() < 1e-4);
+            assert!((r[5] - b[0]).abs() < 1e-4 && (r[6] - b[1]).abs() < 1e-4);
+        }
+    }
+}
