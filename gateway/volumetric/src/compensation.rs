@@ -26,6 +26,16 @@ impl Compensation for Model {
         Model::command_for(self, *nominal).map_err(|e| e.to_string())
     }
 
+    fn command_near(
+        &self,
+        nominal: &Pose,
+        _: &[Approach; N_AXIS],
+        guess: &Pose,
+    ) -> Result<Pose, String> {
+        self.command_from(*nominal, *guess)
+            .map_err(|e| e.to_string())
+    }
+
     fn tool_for(&self, command: &Pose, _: &[Approach; N_AXIS]) -> Result<Pose, String> {
         let e = self.error_exact(*command).map_err(|e| e.to_string())?;
         Ok(std::array::from_fn(|k| command[k] + e[k]))

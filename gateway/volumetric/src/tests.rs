@@ -130,7 +130,7 @@ fn command_for_puts_the_tool_on_the_nominal_point() {
         let c = m.command_for(target).unwrap();
         let e = m.error_exact(c).unwrap();
         for k in 0..3 {
-            assert!((c[k] + e[k] - target[k]).abs() < 1e-9, "{s}");
+            assert!((c[k] + e[k] - target[k]).abs() < 2e-9, "{s}");
         }
         assert!((c[0] - target[0]).abs() > 1e-3, "the command is corrected");
     }
