@@ -26,6 +26,12 @@ pub enum VolumetricCmd {
         structure: String,
         #[arg(long)]
         out: PathBuf,
+        /// The tool point in the last tool carriage's frame, `x,y,z` mm (tool length).
+        #[arg(long, default_value = "0,0,0")]
+        tool_offset_mm: String,
+        /// The workpiece reference point in the last workpiece carriage's frame, mm.
+        #[arg(long, default_value = "0,0,0")]
+        work_offset_mm: String,
         #[arg(long)]
         json: bool,
     },
@@ -94,6 +100,18 @@ fn structure(s: &str) -> anyhow::Result<Structure> {
         .ok_or_else(|| anyhow::anyhow!("--structure `{s}`: expected FXYZ, XFYZ, XYFZ or XYZF"))
 }
 
+fn parse_xyz(flag: &str, text: &str) -> anyhow::Result<[f64; 3]> {
+    let v: Vec<f64> = text
+        .split(',')
+        .map(|p| p.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| anyhow::anyhow!("{flag} `{text}`: expected x,y,z in mm"))?;
+    match v[..] {
+        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([x, y, z]),
+        _ => bail!("{flag} `{text}`: expected three finite numbers x,y,z in mm"),
+    }
+}
+
 fn read(path: &Path) -> anyhow::Result<String> {
     std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))
 }
@@ -130,9 +148,13 @@ pub fn run(cmd: VolumetricCmd) -> anyhow::Result<ExitCode> {
             campaign,
             structure: s,
             out,
+            tool_offset_mm,
+            work_offset_mm,
             json,
         } => {
             let s = structure(&s)?;
+            let tool = parse_xyz("--tool-offset-mm", &tool_offset_mm)?;
+            let work = parse_xyz("--work-offset-mm", &work_offset_mm)?;
             let mut laser = Vec::new();
             let mut level = Vec::new();
             for a in 0..3 {
@@ -159,7 +181,10 @@ pub fn run(cmd: VolumetricCmd) -> anyhow::Result<ExitCode> {
                     .map_err(|_| anyhow::anyhow!("three axes"))?,
                 squareness,
             };
-            let id = identify(s, &c).map_err(|e| anyhow::anyhow!("{}: {e}", campaign.display()))?;
+            let mut id =
+                identify(s, &c).map_err(|e| anyhow::anyhow!("{}: {e}", campaign.display()))?;
+            id.model.file.tool_offset_mm = tool;
+            id.model.file.work_offset_mm = work;
             write(&out, write_model(&id.model.file))?;
             let fit = id.model.file.fit;
             if json {
@@ -275,9 +300,14 @@ pub fn run(cmd: VolumetricCmd) -> anyhow::Result<ExitCode> {
                 csv += &format!("{},{},{:.4},{:.4}\n", i + 1, x.name, x.max_um, x.rms_um);
             }
             write(&out.join("contributions.csv"), csv)?;
+            let chart = ContributionChart(&c);
             write(
                 &out.join("contributions.svg"),
-                plot::render_svg(&ContributionChart(&c), 900, 700)?,
+                plot::render_svg(&chart, 900, 700)?,
+            )?;
+            write(
+                &out.join("contributions.png"),
+                plot::render_png(&chart, 900, 700)?,
             )?;
             for plane in [Plane::Xy, Plane::Xz, Plane::Yz] {
                 let map = plane_map(&m, plane, grid)?;
@@ -294,9 +324,14 @@ pub fn run(cmd: VolumetricCmd) -> anyhow::Result<ExitCode> {
                     }
                 }
                 write(&out.join(format!("map_{}.csv", plane.name())), csv)?;
+                let name = format!("map_{}", plane.name());
                 write(
-                    &out.join(format!("map_{}.svg", plane.name())),
+                    &out.join(format!("{name}.svg")),
                     plot::render_svg(&map, 800, 650)?,
+                )?;
+                write(
+                    &out.join(format!("{name}.png")),
+                    plot::render_png(&map, 800, 650)?,
                 )?;
             }
             if json {

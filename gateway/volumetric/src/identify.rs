@@ -186,9 +186,8 @@ pub fn identify(structure: Structure, c: &Campaign) -> Result<Identification, Id
             errors,
         };
     }
-    for (k, (v, u)) in [(c0y, uc), (b0z, ub), (a0z, ua)].into_iter().enumerate() {
+    for (k, u) in [uc, ub, ua].into_iter().enumerate() {
         // One ball-bar result per constant: no run-to-run residual, the stated uncertainty.
-        let _ = v;
         quality[18 + k] = Some(ErrorQuality {
             name: NAMES[18 + k],
             residual: 0.0,
