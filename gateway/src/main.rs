@@ -22,6 +22,7 @@ mod rewrite;
 mod rotary;
 mod scan;
 mod verify;
+mod volumetric;
 
 #[derive(Parser)]
 #[command(
@@ -104,6 +105,9 @@ enum Cmd {
         /// The error map (a version file written by `gateway map`).
         #[arg(long)]
         map: Option<PathBuf>,
+        /// A volumetric model file (`gateway volumetric identify`): X, Y and Z corrected.
+        #[arg(long)]
+        volumetric: Option<PathBuf>,
         #[arg(long)]
         out: PathBuf,
         /// Largest distance of the executed path from the compensated path, um.
@@ -159,6 +163,12 @@ enum Cmd {
     },
     /// ISO 230-2 positioning test of one axis (A, B, R, E, M), or `evaluate FILE`.
     Iso230(iso230::Iso230Args),
+    /// The 21-error volumetric model of a 3-axis machine: identify, eval, contributions,
+    /// simulate-campaign, export-isg.
+    Volumetric {
+        #[command(subcommand)]
+        cmd: volumetric::VolumetricCmd,
+    },
     /// Check the error map with the camera: home, re-reference the map at its reference
     /// point (each homing moves the zero by a few um), then move to random points with
     /// the map's command and measure where the camera really is. `--spot-check`: a few
@@ -268,6 +278,7 @@ fn main() -> ExitCode {
         | Cmd::Localize { json, .. } => *json,
         Cmd::Rotary { cmd } => cmd.json(),
         Cmd::Iso230(a) => a.json(),
+        Cmd::Volumetric { cmd } => cmd.json(),
     };
     match run(cli) {
         Ok(code) => code,
@@ -284,6 +295,7 @@ fn main() -> ExitCode {
 
 fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     match cli.cmd {
+        Cmd::Volumetric { cmd } => volumetric::run(cmd),
         Cmd::Demo {
             json,
             method,
@@ -356,6 +368,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Cmd::Rewrite {
             input,
             map,
+            volumetric,
             out,
             tolerance_um,
             max_correction_um,
@@ -367,6 +380,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             input,
             out,
             map,
+            volumetric,
             tolerance_um,
             max_correction_um,
             offsets,

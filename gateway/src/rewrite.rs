@@ -15,6 +15,8 @@ pub struct RewriteArgs {
     pub input: PathBuf,
     pub out: PathBuf,
     pub map: Option<PathBuf>,
+    /// A volumetric model file (`gateway volumetric identify`).
+    pub volumetric: Option<PathBuf>,
     pub tolerance_um: f64,
     pub max_correction_um: f64,
     pub offsets: Option<PathBuf>,
@@ -108,9 +110,22 @@ pub fn rewrite(args: RewriteArgs) -> anyhow::Result<ExitCode> {
     if args.input == args.out {
         anyhow::bail!("--out is the input file: the rewrite never overwrites the program it reads");
     }
-    let model: Box<dyn Compensation> = match &args.map {
-        Some(path) => Box::new(MapModel::new(ErrorMap::load(path)?)),
-        None => anyhow::bail!("give the compensation to apply: --map MAP"),
+    let model: Box<dyn Compensation> = match (&args.map, &args.volumetric) {
+        (Some(_), Some(_)) => anyhow::bail!("give one compensation: --map or --volumetric"),
+        (Some(path), None) => Box::new(MapModel::new(ErrorMap::load(path)?)),
+        (None, Some(path)) => {
+            let m = crate::volumetric::load_model(path)?;
+            if !m.file.fit {
+                anyhow::bail!(
+                    "{}: the model is marked unfit for compensation (its residuals exceed the instruments' uncertainty)",
+                    path.display()
+                );
+            }
+            Box::new(m)
+        }
+        (None, None) => {
+            anyhow::bail!("give the compensation to apply: --map MAP or --volumetric MODEL")
+        }
     };
     let options = Options {
         tolerance_mm: args.tolerance_um / 1000.0,

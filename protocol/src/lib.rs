@@ -17,6 +17,7 @@ pub mod modbus;
 pub mod nc;
 pub mod slcan;
 pub mod text;
+pub mod volumetric;
 
 pub use board::{Board, Polarity};
 pub use config::ConfigError;

@@ -17,6 +17,7 @@ pub mod render;
 pub mod rig;
 pub mod rng;
 pub mod rotary;
+pub mod volumetric;
 
 pub use clock::Clock;
 pub use rig::{lock, shared_rig, SharedRig, SimRig};

@@ -24,6 +24,7 @@ mod nc;
 mod rewrite;
 mod rotary;
 mod slcan;
+mod volumetric;
 
 pub use canopen::{canopen_eds, sdo_client, sdo_server};
 pub use config::{board_toml, camera_toml, job_toml, machine_toml, modbus_profile};
@@ -37,6 +38,7 @@ pub use nc::nc_program;
 pub use rewrite::{nc_rewrite, proxy_stream};
 pub use rotary::{grbl_probe, rotary_centres, rotary_json, rotary_rewrite};
 pub use slcan::slcan;
+pub use volumetric::volumetric_model;
 
 /// A fuzz target: any bytes in, a panic on a broken invariant.
 pub type Target = fn(&[u8]);
@@ -73,6 +75,7 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("grbl_probe", grbl_probe),
     ("rotary_rewrite", rotary_rewrite),
     ("iso230_csv", iso230_csv),
+    ("volumetric_model", volumetric_model),
 ];
 
 /// The fuzz crate's folder (corpora, regressions).

@@ -1,0 +1,307 @@
+//! An emulated 3-axis machining centre with 21 geometric errors (truth for tests only),
+//! and a simulated measurement campaign that writes the instrument files a shop would.
+//!
+//! The machine follows the conventions of the `volumetric` crate (command `+q` moves the
+//! tool `+q` relative to the workpiece; workpiece carriages move by `-q`; each carriage's
+//! error motions are its own, in its frame at its origin; squareness tilts Y about Z by
+//! E_C0Y and Z by E_B0Z about Y then E_A0Z about X), but computes the tool point with its
+//! own chain code: the tool and workpiece frames in R separately, a general 4 x 4 inverse.
+//!
+//! Default: structure XYFZ, travel 500 x 400 x 400 mm (the paper's TC500). Each error
+//! motion is a seeded smooth function, zero at position 0: positioning a linear scale
+//! error plus waves (tens of µm over the travel), straightness a few to ten µm, angles
+//! tens of µrad; squareness tens of µrad.
+//!
+//! # Campaign files (see `protocol::volumetric` for the grammar)
+//!
+//! Each axis is measured alone (the other axes at 0), along the line through the
+//! reference point (optics at zero tool and workpiece offset), every 25 mm, in 3 runs.
+//! Values are the tool's error relative to the workpiece as the instrument reads it:
+//! - `laser_X.csv`: `run,position_mm,E_XX_um,E_YX_um,E_ZX_um,E_BX_urad,E_CX_urad`
+//!   (Y: `E_XY,E_YY,E_ZY,E_AY,E_CY`; Z: `E_XZ,E_YZ,E_ZZ,E_AZ,E_BZ`); straightness is
+//!   relative to the machine's reference axes (not detrended). Header keys:
+//!   `instrument: laser interferometer`, `axis`, `uncertainty_um`, `uncertainty_urad`.
+//! - `level_X.csv`: `run,position_mm,E_AX_urad` (Y: E_BY, Z: E_CZ); header `instrument:
+//!   electronic level` (for Z, whose roll a level cannot see, angular optics),
+//!   `uncertainty_urad`.
+//! - `squareness.csv`: `name,value_urad,uncertainty_urad` rows E_C0Y, E_B0Z, E_A0Z, as
+//!   the ball-bar software reports them (the true constants plus instrument noise).
+//!
+//! Noise is Gaussian: 0.3 µm and 0.3 µrad standard deviation, stated uncertainty 1 µm
+//! and 1 µrad; squareness noise 1 µrad, stated 2 µrad.
+
+use crate::rng::Rng;
+use kinematics::{exact_error, translation, Htm};
+use nalgebra::Vector4;
+use protocol::volumetric::Structure;
+
+const TAU: f64 = std::f64::consts::TAU;
+
+/// A smooth error function on [0, L]: `lin·u + Σ a_k (sin(2π f_k u + φ_k) − sin φ_k)`.
+#[derive(Debug, Clone)]
+struct ErrorFn {
+    length: f64,
+    lin: f64,
+    waves: [(f64, f64, f64); 3],
+}
+
+impl ErrorFn {
+    fn random(rng: &mut Rng, length: f64, lin: f64, amp: f64) -> ErrorFn {
+        let lin = rng.range(-lin, lin);
+        let waves = std::array::from_fn(|k| {
+            (
+                rng.range(-amp, amp) / (k + 1) as f64,
+                rng.range(0.3, 1.5) * (k + 1) as f64,
+                rng.range(0.0, TAU),
+            )
+        });
+        ErrorFn { length, lin, waves }
+    }
+
+    fn at(&self, q: f64) -> f64 {
+        let u = q / self.length;
+        self.lin * u
+            + self
+                .waves
+                .iter()
+                .map(|&(a, f, p)| a * ((TAU * f * u + p).sin() - p.sin()))
+                .sum::<f64>()
+    }
+}
+
+/// The emulated machine.
+#[derive(Debug, Clone)]
+pub struct VolumetricMachine {
+    pub structure: Structure,
+    pub travel_mm: [f64; 3],
+    pub tool_offset_mm: [f64; 3],
+    pub work_offset_mm: [f64; 3],
+    /// E_C0Y, E_B0Z, E_A0Z (rad).
+    pub squareness_rad: [f64; 3],
+    errors: [[ErrorFn; 6]; 3],
+}
+
+impl VolumetricMachine {
+    /// A TC500-like machine (500 x 400 x 400 mm) with seeded errors.
+    pub fn new(structure: Structure, seed: u64) -> VolumetricMachine {
+        let travel_mm = [500.0, 400.0, 400.0];
+        let mut rng = Rng::new(seed ^ 0x766f_6c75_6d65);
+        let errors = std::array::from_fn(|a| {
+            let l = travel_mm[a];
+            std::array::from_fn(|c| {
+                if c == a {
+                    ErrorFn::random(&mut rng, l, 0.030, 0.006)
+                } else if c < 3 {
+                    ErrorFn::random(&mut rng, l, 0.004, 0.006)
+                } else {
+                    ErrorFn::random(&mut rng, l, 20e-6, 20e-6)
+                }
+            })
+        });
+        let squareness_rad = std::array::from_fn(|_| rng.range(-40e-6, 40e-6));
+        VolumetricMachine {
+            structure,
+            travel_mm,
+            tool_offset_mm: [0.0, 0.0, 0.0],
+            work_offset_mm: [0.0, 0.0, 0.0],
+            squareness_rad,
+            errors,
+        }
+    }
+
+    /// The true error motion `component` (0..3 translations mm, 3..6 rotations rad) of
+    /// `axis` at position `q`.
+    pub fn error_motion(&self, axis: usize, component: usize, q: f64) -> f64 {
+        self.errors[axis][component].at(q)
+    }
+
+    fn carriage(&self, axis: usize, q: f64, moves_work: bool) -> Htm {
+        let [c0y, b0z, a0z] = self.squareness_rad;
+        let dir = match axis {
+            0 => [1.0, 0.0, 0.0],
+            1 => [-c0y.sin(), c0y.cos(), 0.0],
+            _ => [b0z.sin(), -a0z.sin() * b0z.cos(), a0z.cos() * b0z.cos()],
+        };
+        let s = if moves_work { -q } else { q };
+        let e: [f64; 6] = std::array::from_fn(|c| self.error_motion(axis, c, q));
+        translation(s * dir[0], s * dir[1], s * dir[2])
+            * exact_error(e[0], e[1], e[2], e[3], e[4], e[5])
+    }
+
+    /// The tool frame in the workpiece frame, exactly, for command `q` (mm).
+    pub fn relative(&self, q: [f64; 3]) -> Htm {
+        let t = self.tool_offset_mm;
+        let w = self.work_offset_mm;
+        let tool = self
+            .structure
+            .tool_chain()
+            .iter()
+            .rev()
+            .fold(translation(t[0], t[1], t[2]), |acc, &a| {
+                self.carriage(a, q[a], false) * acc
+            });
+        let work = self
+            .structure
+            .work_chain()
+            .iter()
+            .rev()
+            .fold(translation(w[0], w[1], w[2]), |acc, &a| {
+                self.carriage(a, q[a], true) * acc
+            });
+        work.try_inverse().expect("rigid transforms invert") * tool
+    }
+
+    /// Where the tool point really is relative to the workpiece reference point (mm).
+    pub fn tool_in_work(&self, q: [f64; 3]) -> [f64; 3] {
+        let p = self.relative(q) * Vector4::new(0.0, 0.0, 0.0, 1.0);
+        [p.x, p.y, p.z]
+    }
+
+    /// The true volumetric error at command `q` (mm): real minus nominal tool point.
+    pub fn true_error(&self, q: [f64; 3]) -> [f64; 3] {
+        let p = self.tool_in_work(q);
+        std::array::from_fn(|k| p[k] - (q[k] + self.tool_offset_mm[k] - self.work_offset_mm[k]))
+    }
+
+    /// The simulated campaign: (file name, contents) of every instrument file.
+    pub fn campaign(&self, seed: u64) -> Vec<(String, String)> {
+        let mut rng = Rng::new(seed ^ 0x6361_6d70);
+        let mut probe = self.clone();
+        probe.tool_offset_mm = [0.0; 3];
+        probe.work_offset_mm = [0.0; 3];
+        let names = ['X', 'Y', 'Z'];
+        let comp = ['X', 'Y', 'Z', 'A', 'B', 'C'];
+        let mut files = Vec::new();
+        for a in 0..3 {
+            let angular: Vec<usize> = (3..6).filter(|&c| c != 3 + a).collect();
+            let roll = 3 + a;
+            let axis = names[a];
+            let mut laser = format!(
+                "# instrument: laser interferometer\n# axis: {axis}\n# uncertainty_um: 1.0\n# uncertainty_urad: 1.0\nrun,position_mm"
+            );
+            for c in 0..3 {
+                laser += &format!(",E_{}{axis}_um", comp[c]);
+            }
+            for &c in &angular {
+                laser += &format!(",E_{}{axis}_urad", comp[c]);
+            }
+            laser.push('\n');
+            let mut level = format!(
+                "# instrument: {}\n# axis: {axis}\n# uncertainty_urad: 1.0\nrun,position_mm,E_{}{axis}_urad\n",
+                if a == 2 { "angular interferometer optics" } else { "electronic level" },
+                comp[roll]
+            );
+            let n = (self.travel_mm[a] / 25.0).round() as usize;
+            for run in 1..=3 {
+                for i in 0..=n {
+                    let pos = self.travel_mm[a] * i as f64 / n as f64;
+                    let mut q = [0.0; 3];
+                    q[a] = pos;
+                    let rel = probe.relative(q);
+                    let d = probe.true_error(q);
+                    // Rotation part of a rigid transform as Rz·Ry·Rx (tool vs workpiece).
+                    let ang = [
+                        rel[(2, 1)].atan2(rel[(2, 2)]),
+                        -rel[(2, 0)].asin(),
+                        rel[(1, 0)].atan2(rel[(0, 0)]),
+                    ];
+                    laser += &format!("{run},{pos}");
+                    for v in d {
+                        laser += &format!(",{:.4}", v * 1e3 + 0.3 * rng.normal());
+                    }
+                    for &c in &angular {
+                        laser += &format!(",{:.4}", ang[c - 3] * 1e6 + 0.3 * rng.normal());
+                    }
+                    laser.push('\n');
+                    level += &format!(
+                        "{run},{pos},{:.4}\n",
+                        ang[roll - 3] * 1e6 + 0.3 * rng.normal()
+                    );
+                }
+            }
+            files.push((format!("laser_{axis}.csv"), laser));
+            files.push((format!("level_{axis}.csv"), level));
+        }
+        let mut sq = String::from("# instrument: ball bar\nname,value_urad,uncertainty_urad\n");
+        for (k, name) in ["E_C0Y", "E_B0Z", "E_A0Z"].iter().enumerate() {
+            sq += &format!(
+                "{name},{:.3},2.0\n",
+                self.squareness_rad[k] * 1e6 + rng.normal()
+            );
+        }
+        files.push(("squareness.csv".to_string(), sq));
+        files
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn errors_are_realistic_and_zero_at_the_origin() {
+        let m = VolumetricMachine::new(Structure::Xyfz, 7);
+        let mut big: f64 = 0.0;
+        for a in 0..3 {
+            for c in 0..6 {
+                assert_eq!(m.error_motion(a, c, 0.0), 0.0);
+                let max = (0..=100)
+                    .map(|i| {
+                        m.error_motion(a, c, m.travel_mm[a] * i as f64 / 100.0)
+                            .abs()
+                    })
+                    .fold(0.0, f64::max);
+                let limit = if c < 3 { 0.06 } else { 80e-6 };
+                assert!(max < limit, "axis {a} component {c}: {max}");
+                big = big.max(if c == a { max } else { 0.0 });
+            }
+        }
+        assert!(big > 0.005, "positioning errors reach several µm: {big}");
+        let e = m.true_error([500.0, 400.0, 400.0]);
+        assert!(e.iter().any(|v| v.abs() > 0.005), "{e:?}");
+    }
+
+    #[test]
+    fn a_pure_positioning_error_of_a_table_axis_moves_the_tool_back() {
+        // XYFZ: X carries the workpiece. A carriage positioning error +d moves the
+        // workpiece +d, so the tool lands at -d relative to it.
+        let mut m = VolumetricMachine::new(Structure::Xyfz, 1);
+        m.squareness_rad = [0.0; 3];
+        for a in 0..3 {
+            for c in 0..6 {
+                m.errors[a][c].lin = 0.0;
+                m.errors[a][c].waves = [(0.0, 1.0, 0.0); 3];
+            }
+        }
+        m.errors[0][0].lin = 0.010;
+        let e = m.true_error([250.0, 0.0, 0.0]);
+        assert!((e[0] + 0.005).abs() < 1e-12 && e[1].abs() < 1e-12, "{e:?}");
+    }
+
+    #[test]
+    fn campaign_files_have_the_documented_columns() {
+        let files = VolumetricMachine::new(Structure::Xyfz, 3).campaign(4);
+        let names: Vec<&str> = files.iter().map(|f| f.0.as_str()).collect();
+        assert_eq!(
+            names,
+            [
+                "laser_X.csv",
+                "level_X.csv",
+                "laser_Y.csv",
+                "level_Y.csv",
+                "laser_Z.csv",
+                "level_Z.csv",
+                "squareness.csv"
+            ]
+        );
+        assert!(files[4]
+            .1
+            .contains("run,position_mm,E_XZ_um,E_YZ_um,E_ZZ_um,E_AZ_urad,E_BZ_urad\n"));
+        assert!(files[1].1.contains("run,position_mm,E_AX_urad\n"));
+        // 3 runs of 21 positions on X.
+        assert_eq!(
+            files[0].1.lines().filter(|l| l.starts_with("3,")).count(),
+            21
+        );
+    }
+}

@@ -1,0 +1,426 @@
+//! `gateway volumetric ...`: the 21-error volumetric model from files (identify, eval,
+//! contributions, ISG export) and the emulated machine's campaign (simulate-campaign).
+
+use anyhow::{bail, Context};
+use clap::Subcommand;
+use protocol::volumetric::{
+    parse_instrument, parse_model, parse_points, parse_squareness, write_model, InstrumentFile,
+    Structure, AXES, COMPONENTS, SQUARENESS,
+};
+use serde_json::json;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use volumetric::contributions::{contributions, plane_map, ContributionChart, Plane};
+use volumetric::identify::{identify, laser_columns, level_columns, Campaign};
+use volumetric::Model;
+
+#[derive(Subcommand)]
+pub enum VolumetricCmd {
+    /// Identify the model from a campaign directory (laser_X.csv, level_X.csv, ...,
+    /// squareness.csv) and write the model file.
+    Identify {
+        #[arg(long)]
+        campaign: PathBuf,
+        /// FXYZ, XFYZ, XYFZ or XYZF.
+        #[arg(long)]
+        structure: String,
+        #[arg(long)]
+        out: PathBuf,
+        /// The tool point in the last tool carriage's frame, `x,y,z` mm (tool length).
+        #[arg(long, default_value = "0,0,0")]
+        tool_offset_mm: String,
+        /// The workpiece reference point in the last workpiece carriage's frame, mm.
+        #[arg(long, default_value = "0,0,0")]
+        work_offset_mm: String,
+        #[arg(long)]
+        json: bool,
+    },
+    /// The volumetric error at each point of POINTS.csv (`x_mm,y_mm,z_mm`).
+    Eval {
+        #[arg(long)]
+        model: PathBuf,
+        #[arg(long)]
+        points: PathBuf,
+        /// Use the first-order closed form instead of the full HTM product.
+        #[arg(long)]
+        first_order: bool,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Each error's contribution over the volume (ranked, CSV + SVG) and the error map
+    /// of the three middle planes (CSV + SVG), into DIR.
+    Contributions {
+        #[arg(long)]
+        model: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+        /// Grid points per axis.
+        #[arg(long, default_value_t = 11)]
+        grid: usize,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Write the emulated machine's measurement campaign into DIR.
+    SimulateCampaign {
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long, default_value = "XYFZ")]
+        structure: String,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Export the model's per-axis tables in the ISG volumetric CSV form (X.csv, Y.csv,
+    /// Z.csv with `X,EXX,EYX,EZX,EAX,EBX,ECX`..., mm and rad; squareness.csv), into DIR.
+    ExportIsg {
+        #[arg(long)]
+        model: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+impl VolumetricCmd {
+    pub fn json(&self) -> bool {
+        match self {
+            VolumetricCmd::Identify { json, .. }
+            | VolumetricCmd::Eval { json, .. }
+            | VolumetricCmd::Contributions { json, .. }
+            | VolumetricCmd::SimulateCampaign { json, .. }
+            | VolumetricCmd::ExportIsg { json, .. } => *json,
+        }
+    }
+}
+
+fn structure(s: &str) -> anyhow::Result<Structure> {
+    Structure::parse(s)
+        .ok_or_else(|| anyhow::anyhow!("--structure `{s}`: expected FXYZ, XFYZ, XYFZ or XYZF"))
+}
+
+fn parse_xyz(flag: &str, text: &str) -> anyhow::Result<[f64; 3]> {
+    let v: Vec<f64> = text
+        .split(',')
+        .map(|p| p.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| anyhow::anyhow!("{flag} `{text}`: expected x,y,z in mm"))?;
+    match v[..] {
+        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([x, y, z]),
+        _ => bail!("{flag} `{text}`: expected three finite numbers x,y,z in mm"),
+    }
+}
+
+fn read(path: &Path) -> anyhow::Result<String> {
+    std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))
+}
+
+/// Reads and checks a model file.
+pub fn load_model(path: &Path) -> anyhow::Result<Model> {
+    let file = parse_model(&read(path)?).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    Model::new(file).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+}
+
+fn instrument(dir: &Path, name: &str, cols: Vec<String>) -> anyhow::Result<InstrumentFile> {
+    let path = dir.join(name);
+    let cols: Vec<&str> = cols.iter().map(String::as_str).collect();
+    parse_instrument(&read(&path)?, &cols).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+}
+
+/// Translations (E_X?, E_Y?, E_Z?) in µm, angles in µrad.
+fn display_unit(name: &str, micron: &'static str) -> (f64, &'static str) {
+    let is_length = name.len() == 4 && matches!(&name[2..3], "X" | "Y" | "Z");
+    if is_length {
+        (1e3, micron)
+    } else {
+        (1e6, "urad")
+    }
+}
+
+fn write(path: &Path, text: impl AsRef<[u8]>) -> anyhow::Result<()> {
+    std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
+}
+
+pub fn run(cmd: VolumetricCmd) -> anyhow::Result<ExitCode> {
+    match cmd {
+        VolumetricCmd::Identify {
+            campaign,
+            structure: s,
+            out,
+            tool_offset_mm,
+            work_offset_mm,
+            json,
+        } => {
+            let s = structure(&s)?;
+            let tool = parse_xyz("--tool-offset-mm", &tool_offset_mm)?;
+            let work = parse_xyz("--work-offset-mm", &work_offset_mm)?;
+            let mut laser = Vec::new();
+            let mut level = Vec::new();
+            for a in 0..3 {
+                laser.push(instrument(
+                    &campaign,
+                    &format!("laser_{}.csv", AXES[a]),
+                    laser_columns(a),
+                )?);
+                level.push(instrument(
+                    &campaign,
+                    &format!("level_{}.csv", AXES[a]),
+                    level_columns(a),
+                )?);
+            }
+            let sq_path = campaign.join("squareness.csv");
+            let squareness = parse_squareness(&read(&sq_path)?)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", sq_path.display()))?;
+            let c = Campaign {
+                laser: laser
+                    .try_into()
+                    .map_err(|_| anyhow::anyhow!("three axes"))?,
+                level: level
+                    .try_into()
+                    .map_err(|_| anyhow::anyhow!("three axes"))?,
+                squareness,
+            };
+            let mut id =
+                identify(s, &c).map_err(|e| anyhow::anyhow!("{}: {e}", campaign.display()))?;
+            id.model.file.tool_offset_mm = tool;
+            id.model.file.work_offset_mm = work;
+            write(&out, write_model(&id.model.file))?;
+            let fit = id.model.file.fit;
+            if json {
+                let q: Vec<_> = id
+                    .quality
+                    .iter()
+                    .map(|q| {
+                        let (scale, unit) = display_unit(q.name, "um");
+                        json!({"name": q.name, "unit": unit, "residual": q.residual * scale,
+                               "uncertainty": q.uncertainty * scale, "stated": q.stated * scale, "fit": q.fit()})
+                    })
+                    .collect();
+                println!(
+                    "{}",
+                    json!({"model": out, "structure": s.name(), "fit_for_compensation": fit, "errors": q})
+                );
+            } else {
+                println!(
+                    "{:<6} {:>10} {:>12} {:>8}  unit",
+                    "error", "residual", "uncertainty", "stated"
+                );
+                for q in &id.quality {
+                    let (scale, unit) = display_unit(q.name, "µm");
+                    println!(
+                        "{:<6} {:>10.3} {:>12.3} {:>8.3}  {unit}{}",
+                        q.name,
+                        q.residual * scale,
+                        q.uncertainty * scale,
+                        q.stated * scale,
+                        if q.fit() {
+                            ""
+                        } else {
+                            "  EXCEEDS the stated uncertainty"
+                        }
+                    );
+                }
+                println!(
+                    "model written to {} ({})",
+                    out.display(),
+                    if fit {
+                        "fit for compensation"
+                    } else {
+                        "UNFIT for compensation: residuals exceed the instruments' stated uncertainty"
+                    }
+                );
+            }
+            Ok(if fit {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::from(2)
+            })
+        }
+        VolumetricCmd::Eval {
+            model,
+            points,
+            first_order,
+            json,
+        } => {
+            let m = load_model(&model)?;
+            let pts = parse_points(&read(&points)?)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", points.display()))?;
+            let mut rows = Vec::with_capacity(pts.len());
+            for (i, q) in pts.iter().enumerate() {
+                let e = m.error(*q, first_order).map_err(|e| {
+                    anyhow::anyhow!(
+                        "{}: point {} (line {}): {e}",
+                        points.display(),
+                        i + 1,
+                        i + 2
+                    )
+                })?;
+                rows.push((q, e));
+            }
+            if json {
+                let out: Vec<_> = rows
+                    .iter()
+                    .map(|(q, e)| {
+                        json!({"x_mm": q[0], "y_mm": q[1], "z_mm": q[2],
+                        "ex_um": e[0] * 1e3, "ey_um": e[1] * 1e3, "ez_um": e[2] * 1e3})
+                    })
+                    .collect();
+                println!("{}", json!({"first_order": first_order, "points": out}));
+            } else {
+                println!("x_mm,y_mm,z_mm,ex_um,ey_um,ez_um");
+                for (q, e) in rows {
+                    println!(
+                        "{},{},{},{:.4},{:.4},{:.4}",
+                        q[0],
+                        q[1],
+                        q[2],
+                        e[0] * 1e3,
+                        e[1] * 1e3,
+                        e[2] * 1e3
+                    );
+                }
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        VolumetricCmd::Contributions {
+            model,
+            out,
+            grid,
+            json,
+        } => {
+            if grid < 2 {
+                bail!("--grid {grid}: at least 2 points per axis");
+            }
+            let m = load_model(&model)?;
+            std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+            let (c, tmax, trms) = contributions(&m, grid)?;
+            let mut csv = String::from("rank,error,max_um,rms_um\n");
+            for (i, x) in c.iter().enumerate() {
+                csv += &format!("{},{},{:.4},{:.4}\n", i + 1, x.name, x.max_um, x.rms_um);
+            }
+            write(&out.join("contributions.csv"), csv)?;
+            let chart = ContributionChart(&c);
+            write(
+                &out.join("contributions.svg"),
+                plot::render_svg(&chart, 900, 700)?,
+            )?;
+            write(
+                &out.join("contributions.png"),
+                plot::render_png(&chart, 900, 700)?,
+            )?;
+            for plane in [Plane::Xy, Plane::Xz, Plane::Yz] {
+                let map = plane_map(&m, plane, grid)?;
+                let (a, b, _) = plane.axes();
+                let mut csv = format!(
+                    "{}_mm,{}_mm,ex_um,ey_um,ez_um\n",
+                    AXES[a].to_ascii_lowercase(),
+                    AXES[b].to_ascii_lowercase()
+                );
+                for (i, u) in map.u.iter().enumerate() {
+                    for (j, v) in map.v.iter().enumerate() {
+                        let e = map.errors[i][j];
+                        csv += &format!("{u},{v},{:.4},{:.4},{:.4}\n", e[0], e[1], e[2]);
+                    }
+                }
+                write(&out.join(format!("map_{}.csv", plane.name())), csv)?;
+                let name = format!("map_{}", plane.name());
+                write(
+                    &out.join(format!("{name}.svg")),
+                    plot::render_svg(&map, 800, 650)?,
+                )?;
+                write(
+                    &out.join(format!("{name}.png")),
+                    plot::render_png(&map, 800, 650)?,
+                )?;
+            }
+            if json {
+                let list: Vec<_> = c
+                    .iter()
+                    .map(|x| json!({"error": x.name, "max_um": x.max_um, "rms_um": x.rms_um}))
+                    .collect();
+                println!(
+                    "{}",
+                    json!({"out": out, "total_max_um": tmax, "total_rms_um": trms, "contributions": list})
+                );
+            } else {
+                println!(
+                    "total (first order): max {tmax:.2} µm, RMS {trms:.2} µm over a {grid}³ grid"
+                );
+                for (i, x) in c.iter().enumerate() {
+                    println!(
+                        "{:>2}. {:<6} max {:>8.3} µm  RMS {:>8.3} µm",
+                        i + 1,
+                        x.name,
+                        x.max_um,
+                        x.rms_um
+                    );
+                }
+                println!("written to {}", out.display());
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        VolumetricCmd::SimulateCampaign {
+            out,
+            structure: s,
+            seed,
+            json,
+        } => {
+            let s = structure(&s)?;
+            std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+            let machine = world::volumetric::VolumetricMachine::new(s, seed);
+            let files = machine.campaign(seed);
+            for (name, text) in &files {
+                write(&out.join(name), text)?;
+            }
+            let names: Vec<&str> = files.iter().map(|f| f.0.as_str()).collect();
+            if json {
+                println!(
+                    "{}",
+                    json!({"out": out, "structure": s.name(), "seed": seed, "files": names})
+                );
+            } else {
+                println!(
+                    "{} campaign (seed {seed}) written to {}: {}",
+                    s,
+                    out.display(),
+                    names.join(", ")
+                );
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        VolumetricCmd::ExportIsg { model, out, json } => {
+            let m = load_model(&model)?;
+            std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+            for a in 0..3 {
+                let mut csv = String::from(AXES[a]);
+                for c in COMPONENTS {
+                    csv += &format!(",E{c}{}", AXES[a]);
+                }
+                csv.push('\n');
+                let t = &m.file.tables[a];
+                for (p, e) in t.positions_mm.iter().zip(&t.errors) {
+                    csv += &format!(
+                        "{p},{},{},{},{},{},{}\n",
+                        e[0], e[1], e[2], e[3], e[4], e[5]
+                    );
+                }
+                write(&out.join(format!("{}.csv", AXES[a])), csv)?;
+            }
+            let mut sq = String::from("name,value_rad\n");
+            for (k, n) in SQUARENESS.iter().enumerate() {
+                sq += &format!("{n},{}\n", m.file.squareness_rad[k]);
+            }
+            write(&out.join("squareness.csv"), sq)?;
+            if json {
+                println!(
+                    "{}",
+                    json!({"out": out, "files": ["X.csv", "Y.csv", "Z.csv", "squareness.csv"]})
+                );
+            } else {
+                println!("ISG tables written to {}", out.display());
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+    }
+}
