@@ -375,14 +375,12 @@ fn unit_mm(drawing: &Drawing) -> Result<f64, LayoutError> {
 
 /// The part an INSERT places: its block's closed contours, placed by the INSERT.
 fn insert_part(
-    drawing: &Drawing,
     blocks: &HashMap<&str, &Block>,
     e: &Entity,
     ins: &Insert,
     options: &ReadOptions,
     unit: f64,
 ) -> Result<(Vec<Point>, Vec<Vec<Point>>), LayoutError> {
-    let _ = drawing;
     let err = |m: String| entity_error(e, m);
     if ins.column_count > 1 || ins.row_count > 1 {
         return Err(err(format!(
@@ -474,7 +472,7 @@ pub(crate) fn read(bytes: &[u8], options: &ReadOptions) -> Result<Layout, Layout
             continue;
         }
         if let EntityType::Insert(ins) = &e.specific {
-            let (outer, holes) = insert_part(&drawing, &blocks, e, ins, options, unit)?;
+            let (outer, holes) = insert_part(&blocks, e, ins, options, unit)?;
             let n = inserts_seen.entry(ins.name.clone()).or_insert(0);
             *n += 1;
             let id = if *n == 1 {

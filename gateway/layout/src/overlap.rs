@@ -1,0 +1,284 @@
+//! Overlaps between groups after S8, found with an R*-tree and exact polygon distances,
+//! and resolved by moving parts to neighbouring groups.
+
+use geo::{Distance, Euclidean, Polygon, Relate, Translate};
+use layout_io::Part;
+use rstar::primitives::{GeomWithData, Rectangle};
+use rstar::{RTree, AABB};
+use serde::Serialize;
+
+use crate::{Partition, PartitionError};
+
+/// Two parts of different groups closer than the gap (distance 0: they intersect).
+/// A pair counts when its distance is below the gap by more than [`SLACK_MM`], so parts
+/// that S8 puts exactly one gap apart are not reported for rounding.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Overlap {
+    /// Part indices, `a < b`.
+    pub a: usize,
+    pub b: usize,
+    pub group_a: usize,
+    pub group_b: usize,
+    pub distance_mm: f64,
+}
+
+/// 1 nm: how far below the gap a distance must be to count.
+pub const SLACK_MM: f64 = 1e-6;
+
+/// One automatic or forced move of a part between groups (group ids, 1-based).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Move {
+    pub part: usize,
+    pub from_group: usize,
+    pub to_group: usize,
+    /// The part it was too close to (None for an operator's `--assign`).
+    pub because_of: Option<usize>,
+}
+
+/// What [`resolve`] did.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Resolution {
+    /// Overlaps after S8 (and the operator's assignments), before any automatic move.
+    pub found: Vec<Overlap>,
+    pub moves: Vec<Move>,
+}
+
+type Entry = GeomWithData<Rectangle<[f64; 2]>, usize>;
+
+/// The parts' shifted polygons, their boxes, and an R*-tree of the boxes.
+struct Placed {
+    polygons: Vec<Polygon<f64>>,
+    shifted: Vec<Polygon<f64>>,
+    boxes: Vec<[f64; 4]>,
+    tree: RTree<Entry>,
+}
+
+fn rect(b: [f64; 4]) -> Rectangle<[f64; 2]> {
+    Rectangle::from_corners([b[0], b[1]], [b[2], b[3]])
+}
+
+impl Placed {
+    fn new(parts: &[Part], partition: &Partition) -> Placed {
+        let polygons: Vec<Polygon<f64>> = parts.iter().map(Part::polygon).collect();
+        let offsets = partition.offsets();
+        let shifted: Vec<Polygon<f64>> = polygons
+            .iter()
+            .zip(&offsets)
+            .map(|(p, d)| p.translate(d[0], d[1]))
+            .collect();
+        let boxes: Vec<[f64; 4]> = parts
+            .iter()
+            .zip(&offsets)
+            .map(|(p, d)| {
+                let b = p.bounds();
+                [b[0] + d[0], b[1] + d[1], b[2] + d[0], b[3] + d[1]]
+            })
+            .collect();
+        let tree = RTree::bulk_load(
+            boxes
+                .iter()
+                .enumerate()
+                .map(|(i, b)| Entry::new(rect(*b), i))
+                .collect(),
+        );
+        Placed {
+            polygons,
+            shifted,
+            boxes,
+            tree,
+        }
+    }
+
+    /// Parts whose box comes within `gap` of box `b` (a superset of those within `gap`
+    /// of the polygon: two shapes are never closer than their boxes).
+    fn near(&self, b: [f64; 4], gap: f64) -> impl Iterator<Item = usize> + '_ {
+        let env = AABB::from_corners([b[0] - gap, b[1] - gap], [b[2] + gap, b[3] + gap]);
+        self.tree
+            .locate_in_envelope_intersecting(&env)
+            .map(|e| e.data)
+    }
+
+    fn distance(&self, a: usize, b: usize) -> f64 {
+        Euclidean.distance(&self.shifted[a], &self.shifted[b])
+    }
+
+    fn place(&mut self, p: usize, d: [f64; 2], bounds: [f64; 4]) {
+        let old = self.boxes[p];
+        self.tree.remove(&Entry::new(rect(old), p));
+        self.shifted[p] = self.polygons[p].translate(d[0], d[1]);
+        self.boxes[p] = [
+            bounds[0] + d[0],
+            bounds[1] + d[1],
+            bounds[2] + d[0],
+            bounds[3] + d[1],
+        ];
+        self.tree.insert(Entry::new(rect(self.boxes[p]), p));
+    }
+}
+
+fn overlap(
+    partition: &Partition,
+    placed: &Placed,
+    a: usize,
+    b: usize,
+    gap: f64,
+) -> Option<Overlap> {
+    let (ga, gb) = (partition.group_of[a], partition.group_of[b]);
+    if ga == gb {
+        return None;
+    }
+    let d = placed.distance(a, b);
+    (d < gap - SLACK_MM).then(|| Overlap {
+        a: a.min(b),
+        b: a.max(b),
+        group_a: partition.groups[partition.group_of[a.min(b)]].id,
+        group_b: partition.groups[partition.group_of[a.max(b)]].id,
+        distance_mm: d,
+    })
+}
+
+fn detect_placed(partition: &Partition, placed: &Placed) -> Vec<Overlap> {
+    let gap = partition.params_gap_mm;
+    let mut out = Vec::new();
+    for a in 0..placed.boxes.len() {
+        let mut near: Vec<usize> = placed
+            .near(placed.boxes[a], gap)
+            .filter(|&b| b > a)
+            .collect();
+        near.sort_unstable();
+        out.extend(
+            near.into_iter()
+                .filter_map(|b| overlap(partition, placed, a, b, gap)),
+        );
+    }
+    out
+}
+
+/// Every pair of parts of different groups, after their groups' shifts, whose contours
+/// intersect or are closer than the gap (exact polygon distance, `geo`), candidates
+/// from an R*-tree of the shifted boxes (`rstar`). Sorted by (a, b).
+pub fn detect(parts: &[Part], partition: &Partition) -> Vec<Overlap> {
+    detect_placed(partition, &Placed::new(parts, partition))
+}
+
+/// The same as [`detect`] by checking every pair: the reference for tests and benchmarks.
+pub fn detect_exhaustive(parts: &[Part], partition: &Partition) -> Vec<Overlap> {
+    let placed = Placed::new(parts, partition);
+    let gap = partition.params_gap_mm;
+    let mut out = Vec::new();
+    for a in 0..parts.len() {
+        for b in a + 1..parts.len() {
+            out.extend(overlap(partition, &placed, a, b, gap));
+        }
+    }
+    out
+}
+
+/// Groups next to group index `g`: tool and window each within one of `g`'s, not `g`.
+fn neighbours(partition: &Partition, g: usize) -> Vec<usize> {
+    let (t, w) = (partition.groups[g].tool, partition.groups[g].window);
+    (0..partition.groups.len())
+        .filter(|&h| {
+            let o = &partition.groups[h];
+            h != g && o.tool.abs_diff(t) <= 1 && o.window.abs_diff(w) <= 1
+        })
+        .collect()
+}
+
+/// Finds the overlaps and resolves them (the patent leaves this to the operator; here it
+/// is automatic):
+///
+/// For each overlap found, in order of (a, b), if the pair is still too close: the
+/// candidate moves are part b into a's group, part a into b's group, then b into each
+/// other neighbouring group of its own (tool and window each within one), then a
+/// likewise. A candidate is taken when (1) the part is not pinned by `--assign`, (2) the
+/// target group still fits its window (L < L') with the part, (3) the part, shifted
+/// with its new group, overlaps the inside of no part of that group and comes within
+/// the gap of no part of any other group. A move therefore removes every overlap of the
+/// moved part and adds none, so one pass over the list leaves none. When no candidate
+/// fits, the overlap is unresolvable and the error names both parts and groups.
+pub fn resolve(
+    parts: &[Part],
+    partition: &mut Partition,
+    pinned: &[usize],
+) -> Result<Resolution, PartitionError> {
+    let gap = partition.params_gap_mm;
+    let bounds: Vec<[f64; 4]> = parts.iter().map(Part::bounds).collect();
+    let mut placed = Placed::new(parts, partition);
+    let found = detect_placed(partition, &placed);
+    let mut moves = Vec::new();
+    for o in &found {
+        if overlap(partition, &placed, o.a, o.b, gap).is_none() {
+            continue;
+        }
+        let (ga, gb) = (partition.group_of[o.a], partition.group_of[o.b]);
+        let mut candidates = vec![(o.b, ga), (o.a, gb)];
+        candidates.extend(
+            neighbours(partition, gb)
+                .into_iter()
+                .filter(|&h| h != ga)
+                .map(|h| (o.b, h)),
+        );
+        candidates.extend(
+            neighbours(partition, ga)
+                .into_iter()
+                .filter(|&h| h != gb)
+                .map(|h| (o.a, h)),
+        );
+        let chosen = candidates
+            .into_iter()
+            .find(|&(p, g)| !pinned.contains(&p) && fits(partition, &bounds, &placed, p, g));
+        let Some((p, g)) = chosen else {
+            return Err(PartitionError::Unresolvable(format!(
+                "parts `{}` (group {}) and `{}` (group {}) are {:.3} mm apart, below the {:.3} mm gap",
+                parts[o.a].id,
+                partition.groups[ga].id,
+                parts[o.b].id,
+                partition.groups[gb].id,
+                placed.distance(o.a, o.b),
+                gap
+            )));
+        };
+        let from = partition.group_of[p];
+        partition.reassign(p, g);
+        placed.place(
+            p,
+            [partition.groups[g].dx_mm, partition.groups[g].dy_mm],
+            bounds[p],
+        );
+        moves.push(Move {
+            part: p,
+            from_group: partition.groups[from].id,
+            to_group: partition.groups[g].id,
+            because_of: Some(if p == o.a { o.b } else { o.a }),
+        });
+    }
+    Ok(Resolution { found, moves })
+}
+
+/// Whether part `p` may join group index `g` (conditions 2 and 3 of [`resolve`]).
+fn fits(partition: &Partition, bounds: &[[f64; 4]], placed: &Placed, p: usize, g: usize) -> bool {
+    let ext = partition.extent_with(bounds, g, Some(p));
+    if ext[1] - ext[0] >= partition.window_mm {
+        return false;
+    }
+    let grp = &partition.groups[g];
+    let moved = placed.polygons[p].translate(grp.dx_mm, grp.dy_mm);
+    let b = bounds[p];
+    let bx = [
+        b[0] + grp.dx_mm,
+        b[1] + grp.dy_mm,
+        b[2] + grp.dx_mm,
+        b[3] + grp.dy_mm,
+    ];
+    let gap = partition.params_gap_mm;
+    placed.near(bx, gap).filter(|&q| q != p).all(|q| {
+        if partition.group_of[q] == g {
+            // Same group: touching is fine, overlapping insides are not.
+            let m = moved.relate(&placed.shifted[q]);
+            !m.is_intersects() || m.is_touches()
+        } else {
+            Euclidean.distance(&moved, &placed.shifted[q]) >= gap - SLACK_MM
+        }
+    })
+}
