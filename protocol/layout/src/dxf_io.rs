@@ -35,7 +35,7 @@ use dxf::enums::Units;
 use dxf::{Block, Drawing, LwPolylineVertex};
 
 use crate::flatten::{arc_points, bulge_points, nurbs_points};
-use crate::{Layout, LayoutError, Part, Point, ReadOptions, Source};
+use crate::model::{LayoutError, Part, Point, ReadOptions};
 
 /// Which entities of the drawing make up each part (indices into the model-space
 /// entity list), for moving them on writing.
@@ -453,7 +453,10 @@ fn insert_part(
     ))
 }
 
-pub(crate) fn read(bytes: &[u8], options: &ReadOptions) -> Result<Layout, LayoutError> {
+pub(crate) fn read(
+    bytes: &[u8],
+    options: &ReadOptions,
+) -> Result<(Vec<Part>, DxfSource), LayoutError> {
     let drawing =
         Drawing::load(&mut std::io::Cursor::new(bytes)).map_err(|e| LayoutError::Syntax {
             format: "DXF",
@@ -525,16 +528,15 @@ pub(crate) fn read(bytes: &[u8], options: &ReadOptions) -> Result<Layout, Layout
         sources.push(ents);
     }
     let n = parts.len();
-    Ok(Layout {
+    Ok((
         parts,
-        width_mm: None,
-        source: Source::Dxf(Box::new(DxfSource {
+        DxfSource {
             drawing,
             unit_mm: unit,
             parts: sources,
             offsets: vec![[0.0, 0.0]; n],
-        })),
-    })
+        },
+    ))
 }
 
 fn shift(p: &mut dxf::Point, s: f64, d: Point) {

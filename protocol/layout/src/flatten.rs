@@ -1,6 +1,6 @@
 //! Arcs and splines turned into chords no farther than a tolerance from the curve.
 
-use crate::Point;
+use crate::model::Point;
 
 /// No curve is cut into more chords than this (a guard against absurd radii or
 /// tolerances in outside input).

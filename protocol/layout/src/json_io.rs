@@ -14,7 +14,7 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
-use crate::{Layout, LayoutError, Part, Point, Source};
+use crate::model::{LayoutError, Part, Point};
 
 #[derive(Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -37,7 +37,8 @@ struct JsonPart {
     contours: Vec<Vec<Point>>,
 }
 
-pub(crate) fn read(bytes: &[u8]) -> Result<Layout, LayoutError> {
+/// The parts and the material width.
+pub(crate) fn read(bytes: &[u8]) -> Result<(Vec<Part>, Option<f64>), LayoutError> {
     let syntax = |message: String| LayoutError::Syntax {
         format: "JSON",
         message,
@@ -72,19 +73,14 @@ pub(crate) fn read(bytes: &[u8]) -> Result<Layout, LayoutError> {
             attributes: p.attributes,
         });
     }
-    Ok(Layout {
-        parts,
-        width_mm: doc.width_mm,
-        source: Source::Parts,
-    })
+    Ok((parts, doc.width_mm))
 }
 
-pub(crate) fn write(layout: &Layout) -> Result<Vec<u8>, LayoutError> {
+pub(crate) fn write(parts: &[Part], width_mm: Option<f64>) -> Result<Vec<u8>, LayoutError> {
     let doc = JsonLayout {
         units: Some("mm".into()),
-        width_mm: layout.width_mm,
-        parts: layout
-            .parts
+        width_mm,
+        parts: parts
             .iter()
             .map(|p| JsonPart {
                 id: p.id.clone(),

@@ -21,7 +21,7 @@ use std::str::FromStr;
 
 use svgtypes::{SimplePathSegment, SimplifyingPathParser, Transform};
 
-use crate::{Layout, LayoutError, Part, Point, ReadOptions, Source};
+use crate::model::{LayoutError, Part, Point, ReadOptions};
 
 const SKIPPED_CONTAINERS: [&str; 6] = ["defs", "clipPath", "mask", "symbol", "marker", "pattern"];
 /// Attributes that carry geometry: not kept, the writer writes the geometry itself.
@@ -216,7 +216,7 @@ fn user_unit(root: &roxmltree::Node) -> f64 {
     }
 }
 
-pub(crate) fn read(bytes: &[u8], options: &ReadOptions) -> Result<Layout, LayoutError> {
+pub(crate) fn read(bytes: &[u8], options: &ReadOptions) -> Result<Vec<Part>, LayoutError> {
     let text = std::str::from_utf8(bytes).map_err(|e| LayoutError::Syntax {
         format: "SVG",
         message: format!("not UTF-8: {e}"),
@@ -348,11 +348,7 @@ pub(crate) fn read(bytes: &[u8], options: &ReadOptions) -> Result<Layout, Layout
             attributes,
         });
     }
-    Ok(Layout {
-        parts,
-        width_mm: None,
-        source: Source::Parts,
-    })
+    Ok(parts)
 }
 
 fn xml_name(k: &str) -> bool {
@@ -371,14 +367,14 @@ fn escape(s: &str) -> String {
 
 /// The layout as SVG: one `<path>` per part (user unit 1 mm, `fill-rule="evenodd"` so
 /// holes show), keeping id, class and attributes.
-pub(crate) fn write(layout: &Layout) -> String {
+pub(crate) fn write(parts: &[Part]) -> String {
     let mut b = [
         f64::INFINITY,
         f64::INFINITY,
         f64::NEG_INFINITY,
         f64::NEG_INFINITY,
     ];
-    for p in &layout.parts {
+    for p in parts {
         let pb = p.bounds();
         b = [
             b[0].min(pb[0]),
@@ -395,7 +391,7 @@ pub(crate) fn write(layout: &Layout) -> String {
         "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}mm\" height=\"{h}mm\" viewBox=\"{} {} {w} {h}\">\n",
         b[0], b[1]
     );
-    for p in &layout.parts {
+    for p in parts {
         let mut d = String::new();
         for ring in std::iter::once(&p.outer).chain(&p.holes) {
             for (i, q) in ring.iter().enumerate() {
