@@ -15,6 +15,7 @@ use std::process::ExitCode;
 use std::time::Instant;
 use vision::localize::{localize, LocalizeParams, LocalizeSettings, Method, PixelAxes};
 
+mod layout;
 mod proxy;
 mod rewrite;
 mod scan;
@@ -125,6 +126,11 @@ enum Cmd {
     /// the G-code sender you already use (UGS, CNCjs, bCNC), rewriting every line with
     /// the error map and streaming it to the job's GRBL controller. Status reports show
     /// the programmed position. Ctrl-C stops.
+    /// Cutting layouts for a multi-tool conveyor cutter (Source C).
+    Layout {
+        #[command(subcommand)]
+        cmd: layout::LayoutCmd,
+    },
     Proxy {
         /// The job file (its stage must be a GRBL controller, real or emulated).
         #[arg(long)]
@@ -208,6 +214,7 @@ fn main() -> ExitCode {
         | Cmd::Rewrite { json, .. }
         | Cmd::Proxy { json, .. }
         | Cmd::Localize { json, .. } => *json,
+        Cmd::Layout { cmd } => cmd.json(),
     };
     match run(cli) {
         Ok(code) => code,
@@ -314,6 +321,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             limits,
             json,
         }),
+        Cmd::Layout { cmd } => layout::run(cmd),
         Cmd::Proxy {
             config,
             map,

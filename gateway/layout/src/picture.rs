@@ -55,11 +55,18 @@ impl Picture<'_> {
                 let grp = &self.partition.groups[g];
                 let ext = self.partition.extent_with(&boxes, g, None);
                 let y = self.partition.y0_mm + grp.tool as f64 * lane + grp.dy_mm;
+                // The lane, grown to hold parts moved in from a neighbouring lane.
+                let (lo, hi) = grp.parts.iter().fold((y, y + lane), |(lo, hi), &p| {
+                    (
+                        lo.min(boxes[p][1] + grp.dy_mm),
+                        hi.max(boxes[p][3] + grp.dy_mm),
+                    )
+                });
                 [
                     ext[0] + grp.dx_mm,
-                    y,
+                    lo,
                     ext[0] + grp.dx_mm + self.partition.window_mm,
-                    y + lane,
+                    hi,
                 ]
             })
             .collect()
