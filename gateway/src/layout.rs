@@ -33,6 +33,10 @@ pub enum LayoutCmd {
         /// the layout's extent across).
         #[arg(long)]
         width_mm: Option<f64>,
+        /// Parts of different groups closer than this after the shifts are overlaps, mm
+        /// (default: the gap). Between 0.001 mm and the gap.
+        #[arg(long)]
+        clearance_mm: Option<f64>,
         /// Force a part into a group (group ids as printed, 1-based); repeatable.
         #[arg(long = "assign", value_name = "PART=GROUP")]
         assign: Vec<String>,
@@ -86,6 +90,7 @@ pub fn run(cmd: LayoutCmd) -> anyhow::Result<ExitCode> {
         window_mm,
         gap_mm,
         width_mm,
+        clearance_mm,
         assign,
         out,
         picture,
@@ -110,6 +115,7 @@ pub fn run(cmd: LayoutCmd) -> anyhow::Result<ExitCode> {
         window_mm,
         gap_mm,
         width_mm: width_mm.or(doc.width_mm),
+        clearance_mm,
     };
 
     let t0 = Instant::now();
@@ -170,7 +176,8 @@ fn report(
         "parts": doc.parts.len(),
         "tools": partition.tools,
         "window_mm": partition.window_mm,
-        "gap_mm": partition.params_gap_mm,
+        "gap_mm": partition.gap_mm,
+        "clearance_mm": partition.clearance_mm,
         "width_mm": partition.width_mm,
         "y0_mm": partition.y0_mm,
         "groups": partition.groups.iter().filter(|g| !g.parts.is_empty()).map(|g| json!({
@@ -205,7 +212,7 @@ fn print_text(
         doc.parts.len(),
         partition.tools,
         partition.window_mm,
-        partition.params_gap_mm,
+        partition.gap_mm,
         partition.width_mm,
         elapsed_ms
     );

@@ -93,7 +93,7 @@ pub fn figures(parts: &[Part], partition: &Partition) -> Figures {
         .zip(&offsets)
         .map(|(b, d)| b[3] + d[1])
         .fold(f64::NEG_INFINITY, f64::max);
-    let gap = partition.params_gap_mm;
+    let gap = partition.gap_mm;
     let nx = max_crossing(boxes.iter().map(|b| (b[1], b[3])).collect());
     let ny = max_crossing(boxes.iter().map(|b| (b[0], b[2])).collect());
     let l0 = x1 - x0;

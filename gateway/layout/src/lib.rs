@@ -54,6 +54,11 @@ pub struct Params {
     /// Material width W, mm, with the material's edge at Y = 0. None: the layout's own
     /// extent across (from its smallest to its largest Y).
     pub width_mm: Option<f64>,
+    /// Parts of different groups closer than this after S8 are overlaps, mm. None: the
+    /// gap (the source's rule). A smaller clearance (down to a micrometre) accepts parts
+    /// of neighbouring groups that end up nearer than the gap along slanted edges, and
+    /// still catches every intersection.
+    pub clearance_mm: Option<f64>,
 }
 
 /// A group of parts cut by one tool in one window.
@@ -119,7 +124,9 @@ pub struct Partition {
     /// Y of lane 0's lower edge, and the material width W.
     pub y0_mm: f64,
     pub width_mm: f64,
-    pub params_gap_mm: f64,
+    pub gap_mm: f64,
+    /// Distance below which parts of different groups overlap (see [`Params`]).
+    pub clearance_mm: f64,
     pub window_mm: f64,
     pub tools: usize,
 }
@@ -176,6 +183,11 @@ fn check_params(p: &Params) -> Result<(), PartitionError> {
     }
     if !(p.gap_mm > 0.0) || !p.gap_mm.is_finite() {
         return bad("--gap-mm must be a positive length");
+    }
+    if let Some(c) = p.clearance_mm {
+        if !(c >= 1e-3) || !(c <= p.gap_mm) {
+            return bad("--clearance-mm must be between 0.001 mm and the gap");
+        }
     }
     if let Some(w) = p.width_mm {
         if !(w > 0.0) || !w.is_finite() {
@@ -282,7 +294,8 @@ pub fn partition(parts: &[Part], params: &Params) -> Result<Partition, Partition
         group_of,
         y0_mm: y0,
         width_mm: width,
-        params_gap_mm: params.gap_mm,
+        gap_mm: params.gap_mm,
+        clearance_mm: params.clearance_mm.unwrap_or(params.gap_mm),
         window_mm: params.window_mm,
         tools: k,
     })

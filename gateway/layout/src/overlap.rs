@@ -9,9 +9,10 @@ use serde::Serialize;
 
 use crate::{Partition, PartitionError};
 
-/// Two parts of different groups closer than the gap (distance 0: they intersect).
-/// A pair counts when its distance is below the gap by more than [`SLACK_MM`], so parts
-/// that S8 puts exactly one gap apart are not reported for rounding.
+/// Two parts of different groups closer than the clearance (the gap unless set;
+/// distance 0: they touch or intersect). A pair counts when its distance is below the
+/// clearance by more than [`SLACK_MM`], so parts that S8 puts exactly one gap apart are
+/// not reported for rounding.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Overlap {
     /// Part indices, `a < b`.
@@ -22,7 +23,7 @@ pub struct Overlap {
     pub distance_mm: f64,
 }
 
-/// 1 nm: how far below the gap a distance must be to count.
+/// 1 nm: how far below the clearance a distance must be to count.
 pub const SLACK_MM: f64 = 1e-6;
 
 /// One automatic or forced move of a part between groups (group ids, 1-based).
@@ -116,6 +117,13 @@ impl Placed {
     }
 }
 
+/// Distance between two boxes (0 when they meet): a lower bound of their shapes'.
+fn box_distance(a: [f64; 4], b: [f64; 4]) -> f64 {
+    let dx = (a[0] - b[2]).max(b[0] - a[2]).max(0.0);
+    let dy = (a[1] - b[3]).max(b[1] - a[3]).max(0.0);
+    dx.hypot(dy)
+}
+
 fn overlap(
     partition: &Partition,
     placed: &Placed,
@@ -125,6 +133,9 @@ fn overlap(
 ) -> Option<Overlap> {
     let (ga, gb) = (partition.group_of[a], partition.group_of[b]);
     if ga == gb {
+        return None;
+    }
+    if box_distance(placed.boxes[a], placed.boxes[b]) >= gap - SLACK_MM {
         return None;
     }
     let d = placed.distance(a, b);
@@ -138,7 +149,7 @@ fn overlap(
 }
 
 fn detect_placed(partition: &Partition, placed: &Placed) -> Vec<Overlap> {
-    let gap = partition.params_gap_mm;
+    let gap = partition.clearance_mm;
     let mut out = Vec::new();
     for a in 0..placed.boxes.len() {
         let mut near: Vec<usize> = placed
@@ -155,7 +166,7 @@ fn detect_placed(partition: &Partition, placed: &Placed) -> Vec<Overlap> {
 }
 
 /// Every pair of parts of different groups, after their groups' shifts, whose contours
-/// intersect or are closer than the gap (exact polygon distance, `geo`), candidates
+/// intersect or are closer than the clearance (exact polygon distance, `geo`), candidates
 /// from an R*-tree of the shifted boxes (`rstar`). Sorted by (a, b).
 pub fn detect(parts: &[Part], partition: &Partition) -> Vec<Overlap> {
     detect_placed(partition, &Placed::new(parts, partition))
@@ -164,7 +175,7 @@ pub fn detect(parts: &[Part], partition: &Partition) -> Vec<Overlap> {
 /// The same as [`detect`] by checking every pair: the reference for tests and benchmarks.
 pub fn detect_exhaustive(parts: &[Part], partition: &Partition) -> Vec<Overlap> {
     let placed = Placed::new(parts, partition);
-    let gap = partition.params_gap_mm;
+    let gap = partition.clearance_mm;
     let mut out = Vec::new();
     for a in 0..parts.len() {
         for b in a + 1..parts.len() {
@@ -186,81 +197,119 @@ fn neighbours(partition: &Partition, g: usize) -> Vec<usize> {
 }
 
 /// Finds the overlaps and resolves them (the patent leaves this to the operator; here it
-/// is automatic):
+/// is automatic).
 ///
-/// For each overlap found, in order of (a, b), if the pair is still too close: the
-/// candidate moves are part b into a's group, part a into b's group, then b into each
-/// other neighbouring group of its own (tool and window each within one), then a
-/// likewise. A candidate is taken when (1) the part is not pinned by `--assign`, (2) the
-/// target group still fits its window (L < L') with the part, (3) the part, shifted
-/// with its new group, overlaps the inside of no part of that group and comes within
-/// the gap of no part of any other group. A move therefore removes every overlap of the
-/// moved part and adds none, so one pass over the list leaves none. When no candidate
-/// fits, the overlap is unresolvable and the error names both parts and groups.
+/// A candidate move takes one part of an overlapping pair into a neighbouring group:
+/// part b into a's group, part a into b's group, then b into each other group next to
+/// its own (tool and window each within one), then a likewise. A candidate is allowed
+/// when (1) the part is not pinned by `--assign`, (2) the target group still fits its
+/// window (L < L') with the part, and (3) the part, shifted with its new group,
+/// overlaps the inside of no part of that group. Its score is the number of overlaps
+/// the part has after the move minus before (a part taken into its partner's group is
+/// back beside it as nested, but may now be too close to its former group mates).
+///
+/// Repeatedly, for the first overlap (in order of (a, b)) that has a candidate of
+/// negative score, the best such candidate (lowest score, first in the order above on
+/// ties) is applied. Every move lowers the number of overlaps, so this ends: with none
+/// left, or with overlaps that no move reduces, which are reported (all of them, with
+/// both parts and groups) and nothing is written.
 pub fn resolve(
     parts: &[Part],
     partition: &mut Partition,
     pinned: &[usize],
 ) -> Result<Resolution, PartitionError> {
-    let gap = partition.params_gap_mm;
+    let gap = partition.clearance_mm;
     let bounds: Vec<[f64; 4]> = parts.iter().map(Part::bounds).collect();
     let mut placed = Placed::new(parts, partition);
     let found = detect_placed(partition, &placed);
+    let mut current: std::collections::BTreeSet<(usize, usize)> =
+        found.iter().map(|o| (o.a, o.b)).collect();
     let mut moves = Vec::new();
-    for o in &found {
-        if overlap(partition, &placed, o.a, o.b, gap).is_none() {
-            continue;
+    'search: while !current.is_empty() {
+        for &(a, b) in &current {
+            let (ga, gb) = (partition.group_of[a], partition.group_of[b]);
+            let mut candidates = vec![(b, ga), (a, gb)];
+            candidates.extend(
+                neighbours(partition, gb)
+                    .into_iter()
+                    .filter(|&h| h != ga)
+                    .map(|h| (b, h)),
+            );
+            candidates.extend(
+                neighbours(partition, ga)
+                    .into_iter()
+                    .filter(|&h| h != gb)
+                    .map(|h| (a, h)),
+            );
+            let mut best: Option<(i64, usize, usize, Vec<usize>)> = None;
+            for (p, g) in candidates {
+                if pinned.contains(&p) {
+                    continue;
+                }
+                let Some(after) = overlaps_if_moved(partition, &bounds, &placed, p, g) else {
+                    continue;
+                };
+                let before = current.iter().filter(|&&(x, y)| x == p || y == p).count() as i64;
+                let score = after.len() as i64 - before;
+                if score < 0 && best.as_ref().is_none_or(|b| score < b.0) {
+                    best = Some((score, p, g, after));
+                }
+            }
+            if let Some((_, p, g, after)) = best {
+                let from = partition.group_of[p];
+                let other = if p == a { b } else { a };
+                partition.reassign(p, g);
+                placed.place(
+                    p,
+                    [partition.groups[g].dx_mm, partition.groups[g].dy_mm],
+                    bounds[p],
+                );
+                current.retain(|&(x, y)| x != p && y != p);
+                current.extend(after.into_iter().map(|q| (p.min(q), p.max(q))));
+                moves.push(Move {
+                    part: p,
+                    from_group: partition.groups[from].id,
+                    to_group: partition.groups[g].id,
+                    because_of: Some(other),
+                });
+                continue 'search;
+            }
         }
-        let (ga, gb) = (partition.group_of[o.a], partition.group_of[o.b]);
-        let mut candidates = vec![(o.b, ga), (o.a, gb)];
-        candidates.extend(
-            neighbours(partition, gb)
-                .into_iter()
-                .filter(|&h| h != ga)
-                .map(|h| (o.b, h)),
-        );
-        candidates.extend(
-            neighbours(partition, ga)
-                .into_iter()
-                .filter(|&h| h != gb)
-                .map(|h| (o.a, h)),
-        );
-        let chosen = candidates
-            .into_iter()
-            .find(|&(p, g)| !pinned.contains(&p) && fits(partition, &bounds, &placed, p, g));
-        let Some((p, g)) = chosen else {
-            return Err(PartitionError::Unresolvable(format!(
-                "parts `{}` (group {}) and `{}` (group {}) are {:.3} mm apart, below the {:.3} mm gap",
-                parts[o.a].id,
-                partition.groups[ga].id,
-                parts[o.b].id,
-                partition.groups[gb].id,
-                placed.distance(o.a, o.b),
-                gap
-            )));
-        };
-        let from = partition.group_of[p];
-        partition.reassign(p, g);
-        placed.place(
-            p,
-            [partition.groups[g].dx_mm, partition.groups[g].dy_mm],
-            bounds[p],
-        );
-        moves.push(Move {
-            part: p,
-            from_group: partition.groups[from].id,
-            to_group: partition.groups[g].id,
-            because_of: Some(if p == o.a { o.b } else { o.a }),
-        });
+        let list: Vec<String> = current
+            .iter()
+            .map(|&(a, b)| {
+                format!(
+                    "`{}` (group {}) and `{}` (group {}) {:.3} mm apart",
+                    parts[a].id,
+                    partition.groups[partition.group_of[a]].id,
+                    parts[b].id,
+                    partition.groups[partition.group_of[b]].id,
+                    placed.distance(a, b)
+                )
+            })
+            .collect();
+        return Err(PartitionError::Unresolvable(format!(
+            "{} pair(s) below the {gap:.3} mm clearance: {}",
+            list.len(),
+            list.join("; ")
+        )));
     }
     Ok(Resolution { found, moves })
 }
 
-/// Whether part `p` may join group index `g` (conditions 2 and 3 of [`resolve`]).
-fn fits(partition: &Partition, bounds: &[[f64; 4]], placed: &Placed, p: usize, g: usize) -> bool {
+/// The parts of other groups part `p` would be too close to in group index `g`, or None
+/// when it may not go there (the window would be too long, or it would overlap the inside
+/// of a part of that group).
+fn overlaps_if_moved(
+    partition: &Partition,
+    bounds: &[[f64; 4]],
+    placed: &Placed,
+    p: usize,
+    g: usize,
+) -> Option<Vec<usize>> {
     let ext = partition.extent_with(bounds, g, Some(p));
     if ext[1] - ext[0] >= partition.window_mm {
-        return false;
+        return None;
     }
     let grp = &partition.groups[g];
     let moved = placed.polygons[p].translate(grp.dx_mm, grp.dy_mm);
@@ -271,14 +320,25 @@ fn fits(partition: &Partition, bounds: &[[f64; 4]], placed: &Placed, p: usize, g
         b[2] + grp.dx_mm,
         b[3] + grp.dy_mm,
     ];
-    let gap = partition.params_gap_mm;
-    placed.near(bx, gap).filter(|&q| q != p).all(|q| {
+    let gap = partition.clearance_mm;
+    let mut close = Vec::new();
+    for q in placed.near(bx, gap).filter(|&q| q != p) {
+        let apart = box_distance(bx, placed.boxes[q]);
         if partition.group_of[q] == g {
-            // Same group: touching is fine, overlapping insides are not.
+            // Same group: touching is fine, overlapping insides are not (the full
+            // relation only for shapes that meet).
+            if apart > 0.0 || Euclidean.distance(&moved, &placed.shifted[q]) > 0.0 {
+                continue;
+            }
             let m = moved.relate(&placed.shifted[q]);
-            !m.is_intersects() || m.is_touches()
-        } else {
-            Euclidean.distance(&moved, &placed.shifted[q]) >= gap - SLACK_MM
+            if m.is_intersects() && !m.is_touches() {
+                return None;
+            }
+        } else if apart < gap - SLACK_MM
+            && Euclidean.distance(&moved, &placed.shifted[q]) < gap - SLACK_MM
+        {
+            close.push(q);
         }
-    })
+    }
+    Some(close)
 }

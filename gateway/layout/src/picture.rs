@@ -107,7 +107,7 @@ impl plot::Chart for Picture<'_> {
                         .count(),
                     self.partition.tools,
                     self.partition.window_mm,
-                    self.partition.params_gap_mm,
+                    self.partition.gap_mm,
                     self.moves.len()
                 ),
                 (plot::FONT, 14),

@@ -18,6 +18,7 @@ fn params(tools: usize, window: f64, gap: f64, width: Option<f64>) -> Params {
         window_mm: window,
         gap_mm: gap,
         width_mm: width,
+        clearance_mm: None,
     }
 }
 
@@ -403,4 +404,25 @@ fn picture_renders_groups_and_windows() {
     );
     let png = plot::render_png(&pic, w, h).unwrap();
     assert_eq!(&png[1..4], b"PNG");
+}
+
+#[test]
+fn a_smaller_clearance_accepts_what_the_gap_refuses() {
+    // B ends 2 mm from A2 after S8: an overlap at the 5 mm gap, none at a 2 mm clearance
+    // (exactly 2 mm apart is not below it), one again at 2.5 mm.
+    let parts = crossing_layout(false);
+    let mut pr = params(2, 150.0, 5.0, Some(100.0));
+    pr.clearance_mm = Some(2.0);
+    let p = partition(&parts, &pr).unwrap();
+    assert!(detect(&parts, &p).is_empty());
+    pr.clearance_mm = Some(2.5);
+    let p = partition(&parts, &pr).unwrap();
+    assert_eq!(detect(&parts, &p).len(), 1);
+    for bad in [0.0, 6.0, f64::NAN] {
+        pr.clearance_mm = Some(bad);
+        assert!(matches!(
+            partition(&parts, &pr),
+            Err(PartitionError::Params(_))
+        ));
+    }
 }
