@@ -98,6 +98,12 @@ struct Piece {
 fn pieces_of(e: &Entity, index: usize, tol: f64) -> Result<Option<Piece>, LayoutError> {
     let err = |m: String| entity_error(e, m);
     let piece = |points: Vec<Point>, closed: bool| {
+        if closed && points.len() < 3 {
+            return Err(entity_error(
+                e,
+                format!("closed contour of {} point(s)", points.len()),
+            ));
+        }
         Ok(Some(Piece {
             points,
             closed,
@@ -457,11 +463,24 @@ pub(crate) fn read(
     bytes: &[u8],
     options: &ReadOptions,
 ) -> Result<(Vec<Part>, DxfSource), LayoutError> {
-    let drawing =
-        Drawing::load(&mut std::io::Cursor::new(bytes)).map_err(|e| LayoutError::Syntax {
-            format: "DXF",
-            message: e.to_string(),
-        })?;
+    // The dxf crate panics (in chrono) on some out-of-range header dates, e.g. a
+    // $TDCREATE of 2461368032384259161: such a file is refused like any unreadable one.
+    let loaded = std::panic::catch_unwind(|| Drawing::load(&mut std::io::Cursor::new(bytes)));
+    let drawing = match loaded {
+        Ok(Ok(d)) => d,
+        Ok(Err(e)) => {
+            return Err(LayoutError::Syntax {
+                format: "DXF",
+                message: e.to_string(),
+            })
+        }
+        Err(_) => {
+            return Err(LayoutError::Syntax {
+                format: "DXF",
+                message: "the DXF reader failed on this file (a header value out of range?)".into(),
+            })
+        }
+    };
     let unit = unit_mm(&drawing)?;
     let blocks: HashMap<&str, &Block> = drawing.blocks().map(|b| (b.name.as_str(), b)).collect();
     let entities: Vec<&Entity> = drawing.entities().collect();

@@ -155,6 +155,9 @@ pub fn check_part(part: &Part) -> Result<(), LayoutError> {
             return Err(bad("a coordinate is not a finite number".into()));
         }
     }
+    if part.outer.len() < 3 || part.holes.iter().any(|h| h.len() < 3) {
+        return Err(bad("a contour has fewer than 3 points".into()));
+    }
     let polygon = part.polygon();
     if let Some(problem) = polygon.validation_errors().into_iter().next() {
         return Err(bad(problem.to_string()));

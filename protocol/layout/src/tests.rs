@@ -111,7 +111,10 @@ fn json_bad_parts_are_named() {
     let e = Layout::read(two, Format::Json, &opts())
         .unwrap_err()
         .to_string();
-    assert!(e.contains("part `p`") && e.contains("at least 3"), "{e}");
+    assert!(
+        e.contains("part `p`") && e.contains("fewer than 3 points"),
+        "{e}"
+    );
     let hole_out = br#"{"parts":[{"id":"h","contours":[[[0,0],[10,0],[10,10],[0,10]],[[20,20],[30,20],[30,30]]]}]}"#;
     assert!(Layout::read(hole_out, Format::Json, &opts())
         .unwrap_err()

@@ -17,6 +17,7 @@ mod config;
 mod errormap;
 mod gige;
 mod grbl;
+mod layout;
 mod media;
 mod modbus;
 mod nc;
@@ -27,6 +28,7 @@ pub use config::{board_toml, camera_toml, job_toml, machine_toml, modbus_profile
 pub use errormap::{error_map_json, scan_journal};
 pub use gige::{genicam_xml, gige_url, gige_zip, gvcp, gvsp};
 pub use grbl::{grbl_gcode, grbl_response};
+pub use layout::{layout_dxf, layout_json, layout_svg};
 pub use media::{localize, png_load};
 pub use modbus::modbus_frame;
 pub use nc::nc_program;
@@ -60,6 +62,9 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("camera_toml", camera_toml),
     ("error_map_json", error_map_json),
     ("scan_journal", scan_journal),
+    ("layout_dxf", layout_dxf),
+    ("layout_svg", layout_svg),
+    ("layout_json", layout_json),
 ];
 
 /// The fuzz crate's folder (corpora, regressions).
