@@ -225,6 +225,9 @@ pub fn resolve(
     let mut current: std::collections::BTreeSet<(usize, usize)> =
         found.iter().map(|o| (o.a, o.b)).collect();
     let mut moves = Vec::new();
+    // Where each candidate (part, group) would leave the part; valid until the next move.
+    let mut cache: std::collections::HashMap<(usize, usize), Option<Vec<usize>>> =
+        std::collections::HashMap::new();
     'search: while !current.is_empty() {
         for &(a, b) in &current {
             let (ga, gb) = (partition.group_of[a], partition.group_of[b]);
@@ -246,7 +249,11 @@ pub fn resolve(
                 if pinned.contains(&p) {
                     continue;
                 }
-                let Some(after) = overlaps_if_moved(partition, &bounds, &placed, p, g) else {
+                let Some(after) = cache
+                    .entry((p, g))
+                    .or_insert_with(|| overlaps_if_moved(partition, &bounds, &placed, p, g))
+                    .clone()
+                else {
                     continue;
                 };
                 let before = current.iter().filter(|&&(x, y)| x == p || y == p).count() as i64;
@@ -258,6 +265,7 @@ pub fn resolve(
             if let Some((_, p, g, after)) = best {
                 let from = partition.group_of[p];
                 let other = if p == a { b } else { a };
+                cache.clear();
                 partition.reassign(p, g);
                 placed.place(
                     p,
