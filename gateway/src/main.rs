@@ -19,6 +19,7 @@ mod layout;
 mod proxy;
 mod rewrite;
 mod scan;
+mod verify;
 
 #[derive(Parser)]
 #[command(
@@ -154,6 +155,27 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
+    /// Check the error map with the camera: home, re-reference the map at its reference
+    /// point (each homing moves the zero by a few um), then move to random points with
+    /// the map's command and measure where the camera really is. `--spot-check`: a few
+    /// points; exit code 2 when any point is off by more than `--drift-threshold-um` (re-scan).
+    Verify {
+        #[arg(long)]
+        config: PathBuf,
+        #[arg(long)]
+        map: PathBuf,
+        /// Points to check (default 20, or 5 with --spot-check).
+        #[arg(long)]
+        points: Option<usize>,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        #[arg(long)]
+        spot_check: bool,
+        #[arg(long, default_value_t = 2.0)]
+        drift_threshold_um: f64,
+        #[arg(long)]
+        json: bool,
+    },
     /// Localize one image of the board: the board coordinate under the image centre.
     Localize {
         /// PNG file, 8- or 16-bit greyscale.
@@ -213,6 +235,7 @@ fn main() -> ExitCode {
         | Cmd::Map { json, .. }
         | Cmd::Rewrite { json, .. }
         | Cmd::Proxy { json, .. }
+        | Cmd::Verify { json, .. }
         | Cmd::Localize { json, .. } => *json,
         Cmd::Layout { cmd } => cmd.json(),
     };
@@ -339,6 +362,23 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             max_correction_um,
             time_scale,
             once,
+            json,
+        }),
+        Cmd::Verify {
+            config,
+            map,
+            points,
+            seed,
+            spot_check,
+            drift_threshold_um,
+            json,
+        } => verify::verify(verify::VerifyArgs {
+            config,
+            map,
+            points,
+            seed,
+            spot_check,
+            drift_threshold_um,
             json,
         }),
         Cmd::Localize {

@@ -15,13 +15,19 @@ use std::time::{Instant, SystemTime, UNIX_EPOCH};
 
 /// The stage as it names itself, without where it is connected (a port, a bus), which
 /// may change between the scan and its use.
-fn without_link(name: &str) -> String {
+pub(crate) fn without_link(name: &str) -> String {
     let cut = [" at /", " on ", " at "]
         .iter()
         .filter_map(|m| name.find(m))
         .min()
         .unwrap_or(name.len());
-    name[..cut].to_string()
+    // The GRBL driver names itself `GRBL 1.1h (GRBL at /dev/ttyUSB0)`: a bracket
+    // opened before the link goes with it.
+    let cut = match name[..cut].rfind(" (") {
+        Some(open) if !name[open..cut].contains(')') && cut < name.len() => open,
+        _ => cut,
+    };
+    name[..cut].trim_end().to_string()
 }
 
 /// RFC 3339 UTC time of `t` (civil date from days since 1970, Howard Hinnant's method).
@@ -198,6 +204,11 @@ mod tests {
             "CANopen CiA 402"
         );
         assert_eq!(without_link("sim stage"), "sim stage");
+        assert_eq!(without_link("GRBL 1.1h (GRBL at /dev/pts/3)"), "GRBL 1.1h");
+        assert_eq!(
+            without_link("sim stage (ordinary C5 ballscrew X-Y stage, 200 x 150 mm)"),
+            "sim stage (ordinary C5 ballscrew X-Y stage, 200 x 150 mm)"
+        );
         let t = UNIX_EPOCH + std::time::Duration::from_secs(1_795_381_200);
         assert_eq!(rfc3339(t), "2026-11-22T21:00:00Z");
         assert_eq!(rfc3339(UNIX_EPOCH), "1970-01-01T00:00:00Z");

@@ -315,8 +315,17 @@ impl Board {
             for i in 0..self.cols {
                 let t = self.certified[self.index(i, j)];
                 let n = self.nominal_xy(i as i64, j as i64);
-                if t != n {
-                    out.push_str(&format!("{i},{j},{:.6},{:.6}\n", t[0], t[1]));
+                // Compared as written (6 decimals, a nanometre): a point within half a
+                // nanometre of nominal is written as nominal, so it is left out, and the
+                // file reads back to the same certificate.
+                let (tx, ty) = (format!("{:.6}", t[0]), format!("{:.6}", t[1]));
+                if (tx.as_str(), ty.as_str())
+                    != (
+                        format!("{:.6}", n[0]).as_str(),
+                        format!("{:.6}", n[1]).as_str(),
+                    )
+                {
+                    out.push_str(&format!("{i},{j},{tx},{ty}\n"));
                 }
             }
         }

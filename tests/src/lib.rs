@@ -1,6 +1,8 @@
 //! Helpers shared by the system tests in `tests/tests/` (interoperation tests that run
 //! the stand-alone `emulators` binary and independent peers as separate processes).
 
+pub mod faulty_serial;
+pub mod faulty_tcp;
 pub mod netns;
 pub mod truth_map;
 

@@ -73,9 +73,11 @@ pub fn map_from_truth(machine: &MachineConfig, identity: Identity) -> ErrorMap {
         version: 1,
         created: "2026-11-23T00:00:00Z".into(),
         identity,
-        tool_offset_mm: [0.0, 0.0],
+        // The operator gives the tool's offset from the camera, as to `gateway map`.
+        tool_offset_mm: machine.machine.tool_offset_mm,
         board_at_machine_zero_mm: machine.machine.board_at_home_mm,
-        reference_mm: [0.0, 0.0],
+        // The middle, where a scan takes its reference frame.
+        reference_mm: [at_x, at_y],
         grid: Grid { xs, ys, nodes },
         x_lines: vec![Line {
             at_mm: at_y,

@@ -100,9 +100,11 @@ impl Link {
         }
     }
 
-    /// Start counting the responses received (for [`Link::heard_summary`]).
+    /// Start counting the responses received, and forget the foreign lines kept (for
+    /// [`Link::heard_summary`]).
     pub(crate) fn listen(&mut self) {
         self.heard.clear();
+        self.foreign.clear();
     }
 
     /// What the device sent while `expected` never came, as a verb phrase for an error

@@ -335,14 +335,17 @@ impl GrblStage {
             return Err(self.alarm_error(self.last_alarm.unwrap_or(0)));
         }
         let what = cmd.text();
+        self.link.listen();
         self.link.write(&cmd.encode()).await?;
         let deadline = with_deadline(timeout);
         let mut info = Vec::new();
         loop {
             let Some(r) = self.link.next(deadline).await? else {
+                // What came instead (a garbled `ok`, noise) is named: a reply lost and
+                // a reply corrupted read differently to whoever fixes the link.
                 return Err(DriverError::Timeout {
                     device: self.device(),
-                    what: format!("`{what}`"),
+                    what: format!("`{what}` (it {})", self.link.heard_summary("`ok`")),
                     after_ms: timeout.as_millis() as u64,
                 });
             };

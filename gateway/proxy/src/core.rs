@@ -199,6 +199,16 @@ impl<'a> Proxy<'a> {
         &self.rewriter
     }
 
+    /// Bytes of the gateway's lines in the controller's RX buffer now.
+    pub fn in_flight_bytes(&self) -> usize {
+        self.in_flight_bytes
+    }
+
+    /// Lines of the gateway's in the controller's RX buffer now.
+    pub fn in_flight_pieces(&self) -> usize {
+        self.in_flight.len()
+    }
+
     /// Whether lines are waiting to go or waiting for the controller.
     pub fn busy(&self) -> bool {
         !self.slots.is_empty()

@@ -238,7 +238,11 @@ impl<'a> Rewriter<'a> {
         let mut modal = self.interpreter.modal;
         let mut feed = self.interpreter.feed_rate;
         for w in gc_words.split_whitespace() {
-            let (letter, number) = w.split_at(1);
+            // Split after the first character, not the first byte: a corrupted reply
+            // may hold any bytes.
+            let mut chars = w.chars();
+            let letter = chars.next().map(String::from).unwrap_or_default();
+            let (letter, number) = (letter.as_str(), chars.as_str());
             let value: f64 = number.parse().map_err(|_| bad(w))?;
             match (letter, number) {
                 ("G", "0") => modal.motion = Motion::Rapid,

@@ -7,6 +7,7 @@
 //! the targets finished so far are kept.
 
 pub mod scan;
+pub mod verify;
 
 use compensation::correction::SoftLimits;
 use compensation::correction::{CorrectionError, Positioning};

@@ -469,7 +469,9 @@ fn encode_default(t: DataType, v: &str, node: NodeId) -> Option<Vec<u8>> {
         DataType::VisibleString => Some(v.as_bytes().to_vec()),
         DataType::OctetString | DataType::Domain => {
             let h: String = v.chars().filter(|c| !c.is_whitespace()).collect();
-            if !h.len().is_multiple_of(2) {
+            // Hex digits only: slicing two bytes at a time is then always on a character
+            // boundary (an EDS file may hold any bytes).
+            if !h.len().is_multiple_of(2) || !h.bytes().all(|b| b.is_ascii_hexdigit()) {
                 return None;
             }
             (0..h.len())

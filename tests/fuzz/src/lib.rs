@@ -21,6 +21,7 @@ mod layout;
 mod media;
 mod modbus;
 mod nc;
+mod rewrite;
 mod slcan;
 
 pub use canopen::{canopen_eds, sdo_client, sdo_server};
@@ -32,6 +33,7 @@ pub use layout::{layout_dxf, layout_json, layout_svg};
 pub use media::{localize, png_load};
 pub use modbus::modbus_frame;
 pub use nc::nc_program;
+pub use rewrite::{nc_rewrite, proxy_stream};
 pub use slcan::slcan;
 
 /// A fuzz target: any bytes in, a panic on a broken invariant.
@@ -65,6 +67,8 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("layout_dxf", layout_dxf),
     ("layout_svg", layout_svg),
     ("layout_json", layout_json),
+    ("nc_rewrite", nc_rewrite),
+    ("proxy_stream", proxy_stream),
 ];
 
 /// The fuzz crate's folder (corpora, regressions).

@@ -1,0 +1,182 @@
+//! `gateway verify`: the map's compensation checked by the camera, so a user sees that
+//! it really acts (controllers' own tables are known to load and silently not act).
+//!
+//! Home, then re-reference: one frame at the map's reference point measures where the
+//! camera is after this homing (each homing moves the machine's zero by a few um) and
+//! the map is shifted by it ([`MapModel::rereferenced`]). Then each check point is
+//! approached from its side and moved to with the map's command for the camera, and the
+//! camera says how far from the nominal point it really is: the residual, beside the
+//! error the map predicts there without compensation. A spot check is the same with a
+//! few points; its mean residual is the drift since the scan.
+
+use crate::{JobError, Orchestrator};
+use devices::Devices;
+use drivers::AxisValues;
+use errormap::{Approach, Direction, MapModel};
+use job::Job;
+use vision::localize::localize;
+
+/// One checked point.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CheckedPoint {
+    /// Where the camera should be, machine mm.
+    pub nominal_mm: [f64; 2],
+    pub dir: Direction,
+    /// The command the map gave for it.
+    pub command_mm: [f64; 2],
+    /// Where the camera really was minus the nominal point, um.
+    pub residual_um: [f64; 2],
+    /// The error the map predicts there without compensation, um.
+    pub uncompensated_um: [f64; 2],
+}
+
+/// What a verification measured.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Verification {
+    /// The camera's error at the map's reference point after this homing, um: the
+    /// shift the map was re-referenced by.
+    pub reference_um: [f64; 2],
+    pub points: Vec<CheckedPoint>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum VerifyError {
+    #[error("the reference frame: {0}")]
+    Reference(JobError),
+    #[error("the map: {0}")]
+    Map(#[from] errormap::ModelError),
+    #[error("check point #{index} ({:.3}, {:.3}) mm: {source}; the stage was stopped", at[0], at[1])]
+    Point {
+        index: usize,
+        at: [f64; 2],
+        #[source]
+        source: JobError,
+    },
+    #[error("check point #{index} ({:.3}, {:.3}) mm: {message}; nothing was moved", at[0], at[1])]
+    OutOfLimits {
+        index: usize,
+        at: [f64; 2],
+        message: String,
+    },
+}
+
+/// Where the final move onto `p` starts from for an approach from `dir`.
+fn approach_point(p: [f64; 2], dir: Direction, by_mm: f64) -> [f64; 2] {
+    let side = |a: Approach| match a {
+        Approach::Forward => -by_mm,
+        Approach::Reverse => by_mm,
+    };
+    [p[0] + side(dir.x), p[1] + side(dir.y)]
+}
+
+/// Check `points` (nominal machine mm and approach sides). On an error, the points
+/// checked so far come back with it.
+pub async fn run_verify(
+    job: &Job,
+    devices: &mut Devices,
+    model: &MapModel,
+    points: &[([f64; 2], Direction)],
+) -> Result<Verification, (VerifyError, Vec<CheckedPoint>)> {
+    let stage = devices.stage.as_mut();
+    let camera = devices.camera.as_mut();
+    let limits =
+        crate::soft_limits(stage.info()).map_err(|e| (VerifyError::Reference(e), vec![]))?;
+    let a = job.policy.approach_mm;
+    let z = job.board_at_machine_zero_mm;
+    // Homing, the orientation check and the reference frame: a compensation job of one
+    // target (the map's reference point) and no correction.
+    let reference_mm = model.map().reference_mm;
+    let mut one = job.clone();
+    one.targets = vec![[reference_mm[0] + z[0], reference_mm[1] + z[1]]];
+    one.policy.max_iterations = 0;
+    let outcome = Orchestrator {
+        stage: &mut *stage,
+        camera: &mut *camera,
+        job: &one,
+    }
+    .run(&mut |_| {})
+    .await
+    .map_err(|f| (VerifyError::Reference(f.error), vec![]))?;
+    let reference_um = outcome.completed[0].first().deviation.um();
+    let model = model
+        .clone()
+        .rereferenced(reference_um)
+        .map_err(|e| (VerifyError::Map(e), vec![]))?;
+    // Every command and approach point inside the limits before anything else moves.
+    let mut commands = Vec::with_capacity(points.len());
+    for (index, &(p, dir)) in points.iter().enumerate() {
+        let c = model
+            .camera_command_for(p, dir)
+            .map_err(|e| (VerifyError::Map(e), vec![]))?;
+        for (what, at) in [
+            ("the command", c),
+            ("the approach point", approach_point(c, dir, a)),
+        ] {
+            limits.check(what, at).map_err(|e| {
+                (
+                    VerifyError::OutOfLimits {
+                        index,
+                        at: p,
+                        message: e.to_string(),
+                    },
+                    vec![],
+                )
+            })?;
+        }
+        commands.push(c);
+    }
+    let mut checked = Vec::with_capacity(points.len());
+    for (index, (&(p, dir), &c)) in points.iter().zip(&commands).enumerate() {
+        let fail = |source: JobError| VerifyError::Point {
+            index,
+            at: p,
+            source,
+        };
+        let step = async {
+            for at in [approach_point(c, dir, a), c] {
+                stage
+                    .move_to(AxisValues::xy(at[0], at[1]), job.feed_mm_min)
+                    .await?;
+                stage.wait_idle().await?;
+            }
+            let frame = camera.grab().await?;
+            Ok::<_, drivers::DriverError>(frame)
+        };
+        let frame = match step.await {
+            Ok(f) => f,
+            Err(e) => {
+                let _ = stage.stop().await;
+                return Err((fail(e.into()), checked));
+            }
+        };
+        let hint = [p[0] + z[0], p[1] + z[1]];
+        let params = job.localize_params(hint);
+        let o = match drivers::blocking(|| localize(&frame.image, &job.board, &params)) {
+            Ok(o) => o,
+            Err(source) => {
+                let _ = stage.stop().await;
+                let e = fail(JobError::Localize {
+                    index,
+                    target_mm: hint,
+                    measurement: 0,
+                    source,
+                });
+                return Err((e, checked));
+            }
+        };
+        let uncompensated_um = model
+            .camera_error_um(p, dir)
+            .map_err(|e| (VerifyError::Map(e), checked.clone()))?;
+        checked.push(CheckedPoint {
+            nominal_mm: p,
+            dir,
+            command_mm: c,
+            residual_um: [(o.x_mm - hint[0]) * 1000.0, (o.y_mm - hint[1]) * 1000.0],
+            uncompensated_um,
+        });
+    }
+    Ok(Verification {
+        reference_um,
+        points: checked,
+    })
+}
