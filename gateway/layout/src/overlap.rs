@@ -1,7 +1,7 @@
 //! Overlaps between groups after S8, found with an R*-tree and exact polygon distances,
 //! and resolved by moving parts to neighbouring groups.
 
-use geo::{Distance, Euclidean, Polygon, Relate, Translate};
+use geo::{Distance, Euclidean, Polygon, Translate};
 use layout_io::Part;
 use rstar::primitives::{GeomWithData, Rectangle};
 use rstar::{RTree, AABB};
@@ -202,9 +202,10 @@ fn neighbours(partition: &Partition, g: usize) -> Vec<usize> {
 /// A candidate move takes one part of an overlapping pair into a neighbouring group:
 /// part b into a's group, part a into b's group, then b into each other group next to
 /// its own (tool and window each within one), then a likewise. A candidate is allowed
-/// when (1) the part is not pinned by `--assign`, (2) the target group still fits its
-/// window (L < L') with the part, and (3) the part, shifted with its new group,
-/// overlaps the inside of no part of that group. Its score is the number of overlaps
+/// when (1) the part is not pinned by `--assign` and (2) the target group still fits its
+/// window (L < L') with the part. The parts of one group share one shift, so a part
+/// joining a group sits beside its new group mates exactly as in the given layout: no
+/// new contact inside the group is possible. Its score is the number of overlaps
 /// the part has after the move minus before (a part taken into its partner's group is
 /// back beside it as nested, but may now be too close to its former group mates).
 ///
@@ -225,7 +226,8 @@ pub fn resolve(
     let mut current: std::collections::BTreeSet<(usize, usize)> =
         found.iter().map(|o| (o.a, o.b)).collect();
     let mut moves = Vec::new();
-    // Where each candidate (part, group) would leave the part; valid until the next move.
+    // Where each candidate (part, group) would leave the part, kept while no move can
+    // change it.
     let mut cache: std::collections::HashMap<(usize, usize), Option<Vec<usize>>> =
         std::collections::HashMap::new();
     'search: while !current.is_empty() {
@@ -265,13 +267,31 @@ pub fn resolve(
             if let Some((_, p, g, after)) = best {
                 let from = partition.group_of[p];
                 let other = if p == a { b } else { a };
-                cache.clear();
+                let old_box = placed.boxes[p];
                 partition.reassign(p, g);
                 placed.place(
                     p,
                     [partition.groups[g].dx_mm, partition.groups[g].dy_mm],
                     bounds[p],
                 );
+                // A candidate's outcome depends on its target group's extent and on the
+                // parts near where it would go: keep those the move cannot touch.
+                let new_box = placed.boxes[p];
+                cache.retain(|&(q, h), _| {
+                    let grp = &partition.groups[h];
+                    let b = bounds[q];
+                    let at = [
+                        b[0] + grp.dx_mm,
+                        b[1] + grp.dy_mm,
+                        b[2] + grp.dx_mm,
+                        b[3] + grp.dy_mm,
+                    ];
+                    q != p
+                        && h != from
+                        && h != g
+                        && box_distance(at, old_box) >= gap
+                        && box_distance(at, new_box) >= gap
+                });
                 current.retain(|&(x, y)| x != p && y != p);
                 current.extend(after.into_iter().map(|q| (p.min(q), p.max(q))));
                 moves.push(Move {
@@ -306,8 +326,7 @@ pub fn resolve(
 }
 
 /// The parts of other groups part `p` would be too close to in group index `g`, or None
-/// when it may not go there (the window would be too long, or it would overlap the inside
-/// of a part of that group).
+/// when it may not go there (the group would be too long for its window).
 fn overlaps_if_moved(
     partition: &Partition,
     bounds: &[[f64; 4]],
@@ -331,18 +350,9 @@ fn overlaps_if_moved(
     let gap = partition.clearance_mm;
     let mut close = Vec::new();
     for q in placed.near(bx, gap).filter(|&q| q != p) {
-        let apart = box_distance(bx, placed.boxes[q]);
-        if partition.group_of[q] == g {
-            // Same group: touching is fine, overlapping insides are not (the full
-            // relation only for shapes that meet).
-            if apart > 0.0 || Euclidean.distance(&moved, &placed.shifted[q]) > 0.0 {
-                continue;
-            }
-            let m = moved.relate(&placed.shifted[q]);
-            if m.is_intersects() && !m.is_touches() {
-                return None;
-            }
-        } else if apart < gap - SLACK_MM
+        // Group mates keep their nested positions (the same shift): no check needed.
+        if partition.group_of[q] != g
+            && box_distance(bx, placed.boxes[q]) < gap - SLACK_MM
             && Euclidean.distance(&moved, &placed.shifted[q]) < gap - SLACK_MM
         {
             close.push(q);
