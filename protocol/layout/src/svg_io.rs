@@ -12,7 +12,8 @@
 //! holes. Curves are flattened within the chord tolerance (elliptical arcs are first
 //! turned into cubic Béziers by `svgtypes`, within about 1e-4 of their radius). Elements
 //! inside `<defs>`, `<clipPath>`, `<mask>`, `<symbol>`, `<marker>` or `<pattern>` are not
-//! parts; `<line>` and `<polyline>` are refused (open). The part's id is the element's
+//! parts; `<line>` and `<polyline>` are refused (open), `<ellipse>` and `<use>` too (not
+//! read, rather than left out unseen). The part's id is the element's
 //! `id` (else `path3` for the 4th element read), its layer the `class`, and its other
 //! attributes are kept and written back.
 
@@ -240,7 +241,7 @@ pub(crate) fn read(bytes: &[u8], options: &ReadOptions) -> Result<Vec<Part>, Lay
         let name = node.tag_name().name();
         if !matches!(
             name,
-            "path" | "polygon" | "rect" | "circle" | "line" | "polyline"
+            "path" | "polygon" | "rect" | "circle" | "line" | "polyline" | "ellipse" | "use"
         ) {
             continue;
         }
@@ -309,6 +310,12 @@ pub(crate) fn read(bytes: &[u8], options: &ReadOptions) -> Result<Vec<Part>, Lay
                         .map_err(err)?;
                 pts.pop();
                 vec![pts]
+            }
+            "ellipse" => return Err(err("ellipses are not read: draw them as a path".into())),
+            "use" => {
+                return Err(err(
+                    "a <use> reference is not read: expand it into its shape".into(),
+                ))
             }
             _ => return Err(err("an open line cannot be a part's contour".into())),
         };

@@ -203,6 +203,11 @@ fn svg_open_paths_are_refused_with_their_place() {
         .to_string()
         .contains("open"));
     assert!(Layout::read(b"<svg", Format::Svg, &opts()).is_err());
+    let svg = b"<svg xmlns=\"http://www.w3.org/2000/svg\"><defs><path id=\"i\" d=\"M0 0 L1 0 L1 1 Z\"/></defs><use href=\"#i\"/></svg>";
+    let e = Layout::read(svg, Format::Svg, &opts())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("<use>") && e.contains("not read"), "{e}");
 }
 
 fn lw(points: &[Point], closed: bool) -> Entity {
