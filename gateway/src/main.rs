@@ -17,6 +17,7 @@ use vision::localize::{localize, LocalizeParams, LocalizeSettings, Method, Pixel
 
 mod export;
 mod iso230;
+mod layout;
 mod proxy;
 mod rewrite;
 mod rotary;
@@ -138,6 +139,11 @@ enum Cmd {
     /// the G-code sender you already use (UGS, CNCjs, bCNC), rewriting every line with
     /// the error map and streaming it to the job's GRBL controller. Status reports show
     /// the programmed position. Ctrl-C stops.
+    /// Cutting layouts for a multi-tool conveyor cutter (Source C).
+    Layout {
+        #[command(subcommand)]
+        cmd: layout::LayoutCmd,
+    },
     Proxy {
         /// The job file (its stage must be a GRBL controller, real or emulated).
         #[arg(long)]
@@ -279,6 +285,7 @@ fn main() -> ExitCode {
         Cmd::Rotary { cmd } => cmd.json(),
         Cmd::Iso230(a) => a.json(),
         Cmd::Volumetric { cmd } => cmd.json(),
+        Cmd::Layout { cmd } => cmd.json(),
     };
     match run(cli) {
         Ok(code) => code,
@@ -388,6 +395,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             limits,
             json,
         }),
+        Cmd::Layout { cmd } => layout::run(cmd),
         Cmd::Proxy {
             config,
             map,

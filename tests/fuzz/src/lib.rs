@@ -18,6 +18,7 @@ mod errormap;
 mod gige;
 mod grbl;
 mod iso230;
+mod layout;
 mod media;
 mod modbus;
 mod nc;
@@ -32,6 +33,7 @@ pub use errormap::{error_map_json, scan_journal};
 pub use gige::{genicam_xml, gige_url, gige_zip, gvcp, gvsp};
 pub use grbl::{grbl_gcode, grbl_response};
 pub use iso230::iso230_csv;
+pub use layout::{layout_dxf, layout_json, layout_svg};
 pub use media::{localize, png_load};
 pub use modbus::modbus_frame;
 pub use nc::nc_program;
@@ -68,6 +70,9 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("camera_toml", camera_toml),
     ("error_map_json", error_map_json),
     ("scan_journal", scan_journal),
+    ("layout_dxf", layout_dxf),
+    ("layout_svg", layout_svg),
+    ("layout_json", layout_json),
     ("nc_rewrite", nc_rewrite),
     ("proxy_stream", proxy_stream),
     ("rotary_centres", rotary_centres),

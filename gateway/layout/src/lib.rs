@@ -1,0 +1,349 @@
+//! Source C: a cutting layout partitioned into groups for a conveyor cutter with `k` tools
+//! and a cutting window of length L', gaps only between groups, and the overlaps that
+//! irregular shapes leave between groups found and resolved.
+//!
+//! Frame: X along the material's feed, Y across it, millimetres, as the layout file has
+//! them. The steps follow the source document (`SPEC.md` C):
+//!
+//! - **S1** every part's bounding box B-i; parts taken in increasing Xmin (ties in file
+//!   order).
+//! - **S2** the material width W is cut into k equal lanes, lane 0 at the smallest Y; a
+//!   part goes to the tool whose lane holds its box centre Yc:
+//!   `tool = floor((Yc - y0) / (W / k))` (Yc on the far edge counts in the last lane).
+//! - **S3-S7** if that tool has a current group, L is the length along X of the rectangle
+//!   bounding the group's parts and this one; if L < L' the part joins the group (S5),
+//!   otherwise (or when the tool has no group yet) a new group with a new window opens
+//!   for that tool (S6) and takes the part (S7). Groups are numbered 1, 2, ... in the
+//!   order they open (G-1, G-2, ...); a group's window index is how many groups its tool
+//!   opened before it (the source's Fig. 4: G-1 and G-3 of tool O-1 in windows F-1 and
+//!   F-2, G-2 and G-4 of tool O-2 in the same two windows).
+//! - **S8** every part of a group moves by the group's common shift
+//!   `DX = window x gap`, `DY = tool x gap`: the first group none, a same-window group of
+//!   the next lane DY only, the next window of the same lane DX only, the diagonal both.
+//!
+//! Worked example (gap 5 mm, 2 tools, W = 100 mm, L' = 300 mm): a part with box
+//! x 0..100, y 10..40 (Yc = 25, lane 0) opens G-1 (tool 0, window 0, shift (0, 0)); a
+//! part x 50..150, y 60..90 (Yc = 75, lane 1) opens G-2 (tool 1, window 0, shift
+//! (0, 5)); a part x 120..380, y 0..45 in lane 0 would make G-1 380 mm long (>= 300), so
+//! it opens G-3 (tool 0, window 1, shift (5, 0)).
+//!
+//! Then [`resolve`] finds every pair of parts of different groups whose shifted contours
+//! intersect or come closer than the gap, and moves parts to neighbouring groups until
+//! none is left (see its documentation).
+
+mod figures;
+mod overlap;
+mod picture;
+
+use layout_io::Part;
+use serde::Serialize;
+
+pub use figures::{figures, Figures, Material};
+pub use overlap::{detect, detect_exhaustive, resolve, Move, Overlap, Resolution};
+pub use picture::Picture;
+
+/// What the cutter is and how far apart groups go.
+#[derive(Debug, Clone, Copy)]
+pub struct Params {
+    /// Number of tools k (lanes across the width).
+    pub tools: usize,
+    /// Cutting window length L' along X, mm.
+    pub window_mm: f64,
+    /// Gap between groups, mm.
+    pub gap_mm: f64,
+    /// Material width W, mm, with the material's edge at Y = 0. None: the layout's own
+    /// extent across (from its smallest to its largest Y).
+    pub width_mm: Option<f64>,
+    /// Parts of different groups closer than this after S8 are overlaps, mm. None: the
+    /// gap (the source's rule). A smaller clearance (down to a micrometre) accepts parts
+    /// of neighbouring groups that end up nearer than the gap along slanted edges, and
+    /// still catches every intersection.
+    pub clearance_mm: Option<f64>,
+}
+
+/// A group of parts cut by one tool in one window.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Group {
+    /// 1, 2, ... in the order groups opened (G-1, G-2, ...).
+    pub id: usize,
+    /// Tool and lane index, 0 at the smallest Y.
+    pub tool: usize,
+    /// Window index of the group within its tool, 0 first.
+    pub window: usize,
+    pub dx_mm: f64,
+    pub dy_mm: f64,
+    /// Indices of the group's parts in the layout.
+    pub parts: Vec<usize>,
+}
+
+/// Why a layout cannot be partitioned.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum PartitionError {
+    #[error("{0}")]
+    Params(String),
+    #[error("part `{part}` is {width:.3} mm wide across, wider than a lane ({lane:.3} mm = W {w:.3} / {k} tools)")]
+    WiderThanLane {
+        part: String,
+        width: f64,
+        lane: f64,
+        w: f64,
+        k: usize,
+    },
+    #[error("part `{part}` is {length:.3} mm long, not shorter than the window ({window:.3} mm)")]
+    LongerThanWindow {
+        part: String,
+        length: f64,
+        window: f64,
+    },
+    #[error(
+        "part `{part}` lies at Y {ymin:.3}..{ymax:.3} mm, outside the material (0..{w:.3} mm)"
+    )]
+    OutsideWidth {
+        part: String,
+        ymin: f64,
+        ymax: f64,
+        w: f64,
+    },
+    #[error("--assign {part}={group}: {message}")]
+    Assign {
+        part: String,
+        group: String,
+        message: String,
+    },
+    #[error("overlap that no neighbouring group resolves: {0}")]
+    Unresolvable(String),
+}
+
+/// The partition: groups, each part's group, and the lanes.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Partition {
+    pub groups: Vec<Group>,
+    /// Index into `groups` of each part's group.
+    #[serde(skip)]
+    pub group_of: Vec<usize>,
+    /// Y of lane 0's lower edge, and the material width W.
+    pub y0_mm: f64,
+    pub width_mm: f64,
+    pub gap_mm: f64,
+    /// Distance below which parts of different groups overlap (see [`Params`]).
+    pub clearance_mm: f64,
+    pub window_mm: f64,
+    pub tools: usize,
+}
+
+impl Partition {
+    /// The shift of every part: its group's (DX, DY).
+    pub fn offsets(&self) -> Vec<[f64; 2]> {
+        self.group_of
+            .iter()
+            .map(|&g| [self.groups[g].dx_mm, self.groups[g].dy_mm])
+            .collect()
+    }
+
+    /// Lane width W / k.
+    pub fn lane_mm(&self) -> f64 {
+        self.width_mm / self.tools as f64
+    }
+
+    /// Moves part `p` to group index `g` (keeps `groups[..].parts` sorted).
+    pub(crate) fn reassign(&mut self, p: usize, g: usize) {
+        let from = self.group_of[p];
+        self.groups[from].parts.retain(|&q| q != p);
+        let parts = &mut self.groups[g].parts;
+        let at = parts.partition_point(|&q| q < p);
+        parts.insert(at, p);
+        self.group_of[p] = g;
+    }
+
+    /// X extent `[xmin, xmax]` of group `g`'s unshifted parts plus part `extra`.
+    pub(crate) fn extent_with(
+        &self,
+        boxes: &[[f64; 4]],
+        g: usize,
+        extra: Option<usize>,
+    ) -> [f64; 2] {
+        self.groups[g]
+            .parts
+            .iter()
+            .copied()
+            .chain(extra)
+            .fold([f64::INFINITY, f64::NEG_INFINITY], |e, p| {
+                [e[0].min(boxes[p][0]), e[1].max(boxes[p][2])]
+            })
+    }
+}
+
+fn check_params(p: &Params) -> Result<(), PartitionError> {
+    let bad = |m: &str| Err(PartitionError::Params(m.into()));
+    if p.tools == 0 {
+        return bad("--tools must be at least 1");
+    }
+    if !(p.window_mm > 0.0) || !p.window_mm.is_finite() {
+        return bad("--window-mm must be a positive length");
+    }
+    if !(p.gap_mm > 0.0) || !p.gap_mm.is_finite() {
+        return bad("--gap-mm must be a positive length");
+    }
+    if let Some(c) = p.clearance_mm {
+        if !(c >= 1e-3) || !(c <= p.gap_mm) {
+            return bad("--clearance-mm must be between 0.001 mm and the gap");
+        }
+    }
+    if let Some(w) = p.width_mm {
+        if !(w > 0.0) || !w.is_finite() {
+            return bad("--width-mm must be a positive length");
+        }
+    }
+    Ok(())
+}
+
+/// Steps S1-S8 (see the crate's documentation).
+pub fn partition(parts: &[Part], params: &Params) -> Result<Partition, PartitionError> {
+    check_params(params)?;
+    if parts.is_empty() {
+        return Err(PartitionError::Params("the layout has no parts".into()));
+    }
+    // S1: bounding boxes, parts in increasing Xmin.
+    let boxes: Vec<[f64; 4]> = parts.iter().map(Part::bounds).collect();
+    let (y0, width) = match params.width_mm {
+        Some(w) => {
+            for (p, b) in parts.iter().zip(&boxes) {
+                if b[1] < 0.0 || b[3] > w {
+                    return Err(PartitionError::OutsideWidth {
+                        part: p.id.clone(),
+                        ymin: b[1],
+                        ymax: b[3],
+                        w,
+                    });
+                }
+            }
+            (0.0, w)
+        }
+        None => {
+            let lo = boxes.iter().map(|b| b[1]).fold(f64::INFINITY, f64::min);
+            let hi = boxes.iter().map(|b| b[3]).fold(f64::NEG_INFINITY, f64::max);
+            (lo, (hi - lo).max(f64::MIN_POSITIVE))
+        }
+    };
+    let k = params.tools;
+    let lane = width / k as f64;
+    for (p, b) in parts.iter().zip(&boxes) {
+        if b[3] - b[1] > lane {
+            return Err(PartitionError::WiderThanLane {
+                part: p.id.clone(),
+                width: b[3] - b[1],
+                lane,
+                w: width,
+                k,
+            });
+        }
+        if b[2] - b[0] >= params.window_mm {
+            return Err(PartitionError::LongerThanWindow {
+                part: p.id.clone(),
+                length: b[2] - b[0],
+                window: params.window_mm,
+            });
+        }
+    }
+    let mut order: Vec<usize> = (0..parts.len()).collect();
+    order.sort_by(|&a, &b| boxes[a][0].total_cmp(&boxes[b][0]).then(a.cmp(&b)));
+
+    let mut groups: Vec<Group> = Vec::new();
+    let mut group_of = vec![0usize; parts.len()];
+    // Per tool: its current group (index into `groups`), the group's [xmin, xmax], and
+    // how many groups it opened.
+    let mut current: Vec<Option<(usize, [f64; 2])>> = vec![None; k];
+    let mut opened = vec![0usize; k];
+    for &i in &order {
+        let b = boxes[i];
+        // S2: the lane holding the box centre Yc.
+        let yc = (b[1] + b[3]) / 2.0;
+        let tool = (((yc - y0) / lane).floor().max(0.0) as usize).min(k - 1);
+        // S3-S5: join the tool's current group while the bounding length stays below L'.
+        if let Some((g, ext)) = &mut current[tool] {
+            let l = ext[1].max(b[2]) - ext[0].min(b[0]);
+            if l < params.window_mm {
+                ext[0] = ext[0].min(b[0]);
+                ext[1] = ext[1].max(b[2]);
+                groups[*g].parts.push(i);
+                group_of[i] = *g;
+                continue;
+            }
+        }
+        // S6-S7: a new group and window for this tool.
+        let window = opened[tool];
+        opened[tool] += 1;
+        let g = groups.len();
+        groups.push(Group {
+            id: g + 1,
+            tool,
+            window,
+            // S8: the group's common shift.
+            dx_mm: window as f64 * params.gap_mm,
+            dy_mm: tool as f64 * params.gap_mm,
+            parts: vec![i],
+        });
+        group_of[i] = g;
+        current[tool] = Some((g, [b[0], b[2]]));
+    }
+    for g in &mut groups {
+        g.parts.sort_unstable();
+    }
+    Ok(Partition {
+        groups,
+        group_of,
+        y0_mm: y0,
+        width_mm: width,
+        gap_mm: params.gap_mm,
+        clearance_mm: params.clearance_mm.unwrap_or(params.gap_mm),
+        window_mm: params.window_mm,
+        tools: k,
+    })
+}
+
+/// Applies the operator's forced assignments `(part id, group id)`: each part joins the
+/// group (and its shift). Refused when the part or group does not exist, or when the
+/// group would no longer fit its window (L >= L').
+pub fn assign(
+    parts: &[Part],
+    partition: &mut Partition,
+    forced: &[(String, usize)],
+) -> Result<Vec<usize>, PartitionError> {
+    let boxes: Vec<[f64; 4]> = parts.iter().map(Part::bounds).collect();
+    let mut pinned = Vec::new();
+    for (part, group) in forced {
+        let err = |m: String| PartitionError::Assign {
+            part: part.clone(),
+            group: group.to_string(),
+            message: m,
+        };
+        let p = parts
+            .iter()
+            .position(|q| &q.id == part)
+            .ok_or_else(|| err("no part has this id".into()))?;
+        let g = partition
+            .groups
+            .iter()
+            .position(|q| q.id == *group)
+            .ok_or_else(|| {
+                err(format!(
+                    "no such group (groups are 1..={})",
+                    partition.groups.len()
+                ))
+            })?;
+        let ext = partition.extent_with(&boxes, g, Some(p));
+        if ext[1] - ext[0] >= partition.window_mm {
+            return Err(err(format!(
+                "the group would be {:.3} mm long, not shorter than the window ({:.3} mm)",
+                ext[1] - ext[0],
+                partition.window_mm
+            )));
+        }
+        partition.reassign(p, g);
+        pinned.push(p);
+    }
+    Ok(pinned)
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,362 @@
+//! Overlaps between groups after S8, found with an R*-tree and exact polygon distances,
+//! and resolved by moving parts to neighbouring groups.
+
+use geo::{Distance, Euclidean, Polygon, Translate};
+use layout_io::Part;
+use rstar::primitives::{GeomWithData, Rectangle};
+use rstar::{RTree, AABB};
+use serde::Serialize;
+
+use crate::{Partition, PartitionError};
+
+/// Two parts of different groups closer than the clearance (the gap unless set;
+/// distance 0: they touch or intersect). A pair counts when its distance is below the
+/// clearance by more than [`SLACK_MM`], so parts that S8 puts exactly one gap apart are
+/// not reported for rounding.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Overlap {
+    /// Part indices, `a < b`.
+    pub a: usize,
+    pub b: usize,
+    pub group_a: usize,
+    pub group_b: usize,
+    pub distance_mm: f64,
+}
+
+/// 1 nm: how far below the clearance a distance must be to count.
+pub const SLACK_MM: f64 = 1e-6;
+
+/// One automatic or forced move of a part between groups (group ids, 1-based).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Move {
+    pub part: usize,
+    pub from_group: usize,
+    pub to_group: usize,
+    /// The part it was too close to (None for an operator's `--assign`).
+    pub because_of: Option<usize>,
+}
+
+/// What [`resolve`] did.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Resolution {
+    /// Overlaps after S8 (and the operator's assignments), before any automatic move.
+    pub found: Vec<Overlap>,
+    pub moves: Vec<Move>,
+}
+
+type Entry = GeomWithData<Rectangle<[f64; 2]>, usize>;
+
+/// The parts' shifted polygons, their boxes, and an R*-tree of the boxes.
+struct Placed {
+    polygons: Vec<Polygon<f64>>,
+    shifted: Vec<Polygon<f64>>,
+    boxes: Vec<[f64; 4]>,
+    tree: RTree<Entry>,
+}
+
+fn rect(b: [f64; 4]) -> Rectangle<[f64; 2]> {
+    Rectangle::from_corners([b[0], b[1]], [b[2], b[3]])
+}
+
+impl Placed {
+    fn new(parts: &[Part], partition: &Partition) -> Placed {
+        let polygons: Vec<Polygon<f64>> = parts.iter().map(Part::polygon).collect();
+        let offsets = partition.offsets();
+        let shifted: Vec<Polygon<f64>> = polygons
+            .iter()
+            .zip(&offsets)
+            .map(|(p, d)| p.translate(d[0], d[1]))
+            .collect();
+        let boxes: Vec<[f64; 4]> = parts
+            .iter()
+            .zip(&offsets)
+            .map(|(p, d)| {
+                let b = p.bounds();
+                [b[0] + d[0], b[1] + d[1], b[2] + d[0], b[3] + d[1]]
+            })
+            .collect();
+        let tree = RTree::bulk_load(
+            boxes
+                .iter()
+                .enumerate()
+                .map(|(i, b)| Entry::new(rect(*b), i))
+                .collect(),
+        );
+        Placed {
+            polygons,
+            shifted,
+            boxes,
+            tree,
+        }
+    }
+
+    /// Parts whose box comes within `gap` of box `b` (a superset of those within `gap`
+    /// of the polygon: two shapes are never closer than their boxes).
+    fn near(&self, b: [f64; 4], gap: f64) -> impl Iterator<Item = usize> + '_ {
+        let env = AABB::from_corners([b[0] - gap, b[1] - gap], [b[2] + gap, b[3] + gap]);
+        self.tree
+            .locate_in_envelope_intersecting(&env)
+            .map(|e| e.data)
+    }
+
+    fn distance(&self, a: usize, b: usize) -> f64 {
+        Euclidean.distance(&self.shifted[a], &self.shifted[b])
+    }
+
+    fn place(&mut self, p: usize, d: [f64; 2], bounds: [f64; 4]) {
+        let old = self.boxes[p];
+        self.tree.remove(&Entry::new(rect(old), p));
+        self.shifted[p] = self.polygons[p].translate(d[0], d[1]);
+        self.boxes[p] = [
+            bounds[0] + d[0],
+            bounds[1] + d[1],
+            bounds[2] + d[0],
+            bounds[3] + d[1],
+        ];
+        self.tree.insert(Entry::new(rect(self.boxes[p]), p));
+    }
+}
+
+/// Distance between two boxes (0 when they meet): a lower bound of their shapes'.
+fn box_distance(a: [f64; 4], b: [f64; 4]) -> f64 {
+    let dx = (a[0] - b[2]).max(b[0] - a[2]).max(0.0);
+    let dy = (a[1] - b[3]).max(b[1] - a[3]).max(0.0);
+    dx.hypot(dy)
+}
+
+fn overlap(
+    partition: &Partition,
+    placed: &Placed,
+    a: usize,
+    b: usize,
+    gap: f64,
+) -> Option<Overlap> {
+    let (ga, gb) = (partition.group_of[a], partition.group_of[b]);
+    if ga == gb {
+        return None;
+    }
+    if box_distance(placed.boxes[a], placed.boxes[b]) >= gap - SLACK_MM {
+        return None;
+    }
+    let d = placed.distance(a, b);
+    (d < gap - SLACK_MM).then(|| Overlap {
+        a: a.min(b),
+        b: a.max(b),
+        group_a: partition.groups[partition.group_of[a.min(b)]].id,
+        group_b: partition.groups[partition.group_of[a.max(b)]].id,
+        distance_mm: d,
+    })
+}
+
+fn detect_placed(partition: &Partition, placed: &Placed) -> Vec<Overlap> {
+    let gap = partition.clearance_mm;
+    let mut out = Vec::new();
+    for a in 0..placed.boxes.len() {
+        let mut near: Vec<usize> = placed
+            .near(placed.boxes[a], gap)
+            .filter(|&b| b > a)
+            .collect();
+        near.sort_unstable();
+        out.extend(
+            near.into_iter()
+                .filter_map(|b| overlap(partition, placed, a, b, gap)),
+        );
+    }
+    out
+}
+
+/// Every pair of parts of different groups, after their groups' shifts, whose contours
+/// intersect or are closer than the clearance (exact polygon distance, `geo`), candidates
+/// from an R*-tree of the shifted boxes (`rstar`). Sorted by (a, b).
+pub fn detect(parts: &[Part], partition: &Partition) -> Vec<Overlap> {
+    detect_placed(partition, &Placed::new(parts, partition))
+}
+
+/// The same as [`detect`] by checking every pair: the reference for tests and benchmarks.
+pub fn detect_exhaustive(parts: &[Part], partition: &Partition) -> Vec<Overlap> {
+    let placed = Placed::new(parts, partition);
+    let gap = partition.clearance_mm;
+    let mut out = Vec::new();
+    for a in 0..parts.len() {
+        for b in a + 1..parts.len() {
+            out.extend(overlap(partition, &placed, a, b, gap));
+        }
+    }
+    out
+}
+
+/// Groups next to group index `g`: tool and window each within one of `g`'s, not `g`.
+fn neighbours(partition: &Partition, g: usize) -> Vec<usize> {
+    let (t, w) = (partition.groups[g].tool, partition.groups[g].window);
+    (0..partition.groups.len())
+        .filter(|&h| {
+            let o = &partition.groups[h];
+            h != g && o.tool.abs_diff(t) <= 1 && o.window.abs_diff(w) <= 1
+        })
+        .collect()
+}
+
+/// Finds the overlaps and resolves them (the patent leaves this to the operator; here it
+/// is automatic).
+///
+/// A candidate move takes one part of an overlapping pair into a neighbouring group:
+/// part b into a's group, part a into b's group, then b into each other group next to
+/// its own (tool and window each within one), then a likewise. A candidate is allowed
+/// when (1) the part is not pinned by `--assign` and (2) the target group still fits its
+/// window (L < L') with the part. The parts of one group share one shift, so a part
+/// joining a group sits beside its new group mates exactly as in the given layout: no
+/// new contact inside the group is possible. Its score is the number of overlaps
+/// the part has after the move minus before (a part taken into its partner's group is
+/// back beside it as nested, but may now be too close to its former group mates).
+///
+/// Repeatedly, for the first overlap (in order of (a, b)) that has a candidate of
+/// negative score, the best such candidate (lowest score, first in the order above on
+/// ties) is applied. Every move lowers the number of overlaps, so this ends: with none
+/// left, or with overlaps that no move reduces, which are reported (all of them, with
+/// both parts and groups) and nothing is written.
+pub fn resolve(
+    parts: &[Part],
+    partition: &mut Partition,
+    pinned: &[usize],
+) -> Result<Resolution, PartitionError> {
+    let gap = partition.clearance_mm;
+    let bounds: Vec<[f64; 4]> = parts.iter().map(Part::bounds).collect();
+    let mut placed = Placed::new(parts, partition);
+    let found = detect_placed(partition, &placed);
+    let mut current: std::collections::BTreeSet<(usize, usize)> =
+        found.iter().map(|o| (o.a, o.b)).collect();
+    let mut moves = Vec::new();
+    // Where each candidate (part, group) would leave the part, kept while no move can
+    // change it.
+    let mut cache: std::collections::HashMap<(usize, usize), Option<Vec<usize>>> =
+        std::collections::HashMap::new();
+    'search: while !current.is_empty() {
+        for &(a, b) in &current {
+            let (ga, gb) = (partition.group_of[a], partition.group_of[b]);
+            let mut candidates = vec![(b, ga), (a, gb)];
+            candidates.extend(
+                neighbours(partition, gb)
+                    .into_iter()
+                    .filter(|&h| h != ga)
+                    .map(|h| (b, h)),
+            );
+            candidates.extend(
+                neighbours(partition, ga)
+                    .into_iter()
+                    .filter(|&h| h != gb)
+                    .map(|h| (a, h)),
+            );
+            let mut best: Option<(i64, usize, usize, Vec<usize>)> = None;
+            for (p, g) in candidates {
+                if pinned.contains(&p) {
+                    continue;
+                }
+                let Some(after) = cache
+                    .entry((p, g))
+                    .or_insert_with(|| overlaps_if_moved(partition, &bounds, &placed, p, g))
+                    .clone()
+                else {
+                    continue;
+                };
+                let before = current.iter().filter(|&&(x, y)| x == p || y == p).count() as i64;
+                let score = after.len() as i64 - before;
+                if score < 0 && best.as_ref().is_none_or(|b| score < b.0) {
+                    best = Some((score, p, g, after));
+                }
+            }
+            if let Some((_, p, g, after)) = best {
+                let from = partition.group_of[p];
+                let other = if p == a { b } else { a };
+                let old_box = placed.boxes[p];
+                partition.reassign(p, g);
+                placed.place(
+                    p,
+                    [partition.groups[g].dx_mm, partition.groups[g].dy_mm],
+                    bounds[p],
+                );
+                // A candidate's outcome depends on its target group's extent and on the
+                // parts near where it would go: keep those the move cannot touch.
+                let new_box = placed.boxes[p];
+                cache.retain(|&(q, h), _| {
+                    let grp = &partition.groups[h];
+                    let b = bounds[q];
+                    let at = [
+                        b[0] + grp.dx_mm,
+                        b[1] + grp.dy_mm,
+                        b[2] + grp.dx_mm,
+                        b[3] + grp.dy_mm,
+                    ];
+                    q != p
+                        && h != from
+                        && h != g
+                        && box_distance(at, old_box) >= gap
+                        && box_distance(at, new_box) >= gap
+                });
+                current.retain(|&(x, y)| x != p && y != p);
+                current.extend(after.into_iter().map(|q| (p.min(q), p.max(q))));
+                moves.push(Move {
+                    part: p,
+                    from_group: partition.groups[from].id,
+                    to_group: partition.groups[g].id,
+                    because_of: Some(other),
+                });
+                continue 'search;
+            }
+        }
+        let list: Vec<String> = current
+            .iter()
+            .map(|&(a, b)| {
+                format!(
+                    "`{}` (group {}) and `{}` (group {}) {:.3} mm apart",
+                    parts[a].id,
+                    partition.groups[partition.group_of[a]].id,
+                    parts[b].id,
+                    partition.groups[partition.group_of[b]].id,
+                    placed.distance(a, b)
+                )
+            })
+            .collect();
+        return Err(PartitionError::Unresolvable(format!(
+            "{} pair(s) below the {gap:.3} mm clearance: {}",
+            list.len(),
+            list.join("; ")
+        )));
+    }
+    Ok(Resolution { found, moves })
+}
+
+/// The parts of other groups part `p` would be too close to in group index `g`, or None
+/// when it may not go there (the group would be too long for its window).
+fn overlaps_if_moved(
+    partition: &Partition,
+    bounds: &[[f64; 4]],
+    placed: &Placed,
+    p: usize,
+    g: usize,
+) -> Option<Vec<usize>> {
+    let ext = partition.extent_with(bounds, g, Some(p));
+    if ext[1] - ext[0] >= partition.window_mm {
+        return None;
+    }
+    let grp = &partition.groups[g];
+    let moved = placed.polygons[p].translate(grp.dx_mm, grp.dy_mm);
+    let b = bounds[p];
+    let bx = [
+        b[0] + grp.dx_mm,
+        b[1] + grp.dy_mm,
+        b[2] + grp.dx_mm,
+        b[3] + grp.dy_mm,
+    ];
+    let gap = partition.clearance_mm;
+    let mut close = Vec::new();
+    for q in placed.near(bx, gap).filter(|&q| q != p) {
+        // Group mates keep their nested positions (the same shift): no check needed.
+        if partition.group_of[q] != g
+            && box_distance(bx, placed.boxes[q]) < gap - SLACK_MM
+            && Euclidean.distance(&moved, &placed.shifted[q]) < gap - SLACK_MM
+        {
+            close.push(q);
+        }
+    }
+    Some(close)
+}

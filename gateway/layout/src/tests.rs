@@ -1,0 +1,428 @@
+use layout_io::Part;
+
+use super::*;
+
+fn rect(id: &str, x0: f64, y0: f64, x1: f64, y1: f64) -> Part {
+    Part {
+        id: id.into(),
+        outer: vec![[x0, y0], [x1, y0], [x1, y1], [x0, y1]],
+        holes: vec![],
+        layer: String::new(),
+        attributes: Default::default(),
+    }
+}
+
+fn params(tools: usize, window: f64, gap: f64, width: Option<f64>) -> Params {
+    Params {
+        tools,
+        window_mm: window,
+        gap_mm: gap,
+        width_mm: width,
+        clearance_mm: None,
+    }
+}
+
+fn summary(p: &Partition) -> Vec<(usize, usize, usize, f64, f64, Vec<usize>)> {
+    p.groups
+        .iter()
+        .map(|g| (g.id, g.tool, g.window, g.dx_mm, g.dy_mm, g.parts.clone()))
+        .collect()
+}
+
+#[test]
+fn worked_example_of_the_documentation() {
+    let parts = [
+        rect("a", 0.0, 10.0, 100.0, 40.0),
+        rect("b", 50.0, 60.0, 150.0, 90.0),
+        rect("c", 120.0, 0.0, 380.0, 45.0),
+    ];
+    let p = partition(&parts, &params(2, 300.0, 5.0, Some(100.0))).unwrap();
+    assert_eq!(
+        summary(&p),
+        [
+            (1, 0, 0, 0.0, 0.0, vec![0]),
+            (2, 1, 0, 0.0, 5.0, vec![1]),
+            (3, 0, 1, 5.0, 0.0, vec![2])
+        ]
+    );
+    assert_eq!(p.offsets(), [[0.0, 0.0], [0.0, 5.0], [5.0, 0.0]]);
+}
+
+#[test]
+fn four_groups_of_the_source_figure_get_none_dy_dx_and_both() {
+    // Two tools, two windows each: G-1 none, G-2 DY only, G-3 DX only, G-4 both.
+    let parts = [
+        rect("p1", 0.0, 0.0, 80.0, 40.0),
+        rect("p2", 10.0, 60.0, 90.0, 100.0),
+        rect("p3", 85.0, 0.0, 160.0, 40.0),
+        rect("p4", 95.0, 60.0, 170.0, 100.0),
+    ];
+    let p = partition(&parts, &params(2, 100.0, 3.0, Some(100.0))).unwrap();
+    assert_eq!(
+        summary(&p),
+        [
+            (1, 0, 0, 0.0, 0.0, vec![0]),
+            (2, 1, 0, 0.0, 3.0, vec![1]),
+            (3, 0, 1, 3.0, 0.0, vec![2]),
+            (4, 1, 1, 3.0, 3.0, vec![3]),
+        ]
+    );
+}
+
+#[test]
+fn a_group_as_long_as_the_window_is_refused_strictly() {
+    // S5: L < L' joins; L = L' opens a new group.
+    let parts = [
+        rect("a", 0.0, 0.0, 40.0, 10.0),
+        rect("b", 50.0, 0.0, 99.999, 10.0),
+        rect("c", 60.0, 0.0, 100.0, 10.0),
+    ];
+    let p = partition(&parts, &params(1, 100.0, 2.0, None)).unwrap();
+    assert_eq!(p.groups.len(), 2);
+    assert_eq!(p.groups[0].parts, [0, 1]);
+    assert_eq!(p.groups[1].parts, [2]);
+}
+
+#[test]
+fn lanes_take_the_box_centre_with_lower_edges_inclusive() {
+    // W = 100, 3 lanes of 33.3: Yc 30 is lane 0, Yc 90 lane 2.
+    let parts = [
+        rect("a", 0.0, 20.0, 10.0, 40.0),
+        rect("b", 0.0, 80.0, 10.0, 100.0),
+        rect("c", 0.0, 0.0, 10.0, 10.0),
+    ];
+    let p = partition(&parts, &params(3, 50.0, 1.0, Some(100.0))).unwrap();
+    assert_eq!(
+        p.group_of
+            .iter()
+            .map(|&g| p.groups[g].tool)
+            .collect::<Vec<_>>(),
+        [0, 2, 0]
+    );
+    // W = 90, 3 lanes of 30: Yc 30 is lane 1 (its lower edge), Yc 85 the last lane.
+    let parts = [
+        rect("a", 0.0, 20.0, 10.0, 40.0),
+        rect("b", 0.0, 80.0, 10.0, 90.0),
+        rect("c", 0.0, 0.0, 10.0, 10.0),
+    ];
+    let p = partition(&parts, &params(3, 50.0, 1.0, None)).unwrap();
+    // Without a width, lanes span the layout: y0 = 0, W = 90.
+    assert_eq!((p.y0_mm, p.width_mm), (0.0, 90.0));
+    let tool_of = |i: usize| p.groups[p.group_of[i]].tool;
+    assert_eq!([tool_of(0), tool_of(1), tool_of(2)], [1, 2, 0]);
+}
+
+#[test]
+fn bad_parameters_and_parts_are_named() {
+    let parts = [rect("a", 0.0, 0.0, 50.0, 20.0)];
+    for bad in [
+        params(0, 100.0, 1.0, None),
+        params(1, 0.0, 1.0, None),
+        params(1, 100.0, 0.0, None),
+        params(1, 100.0, -1.0, None),
+        params(1, f64::NAN, 1.0, None),
+        params(1, 100.0, 1.0, Some(0.0)),
+    ] {
+        assert!(
+            matches!(partition(&parts, &bad), Err(PartitionError::Params(_))),
+            "{bad:?}"
+        );
+    }
+    let e = partition(&parts, &params(2, 100.0, 1.0, Some(30.0))).unwrap_err();
+    assert_eq!(
+        e,
+        PartitionError::WiderThanLane {
+            part: "a".into(),
+            width: 20.0,
+            lane: 15.0,
+            w: 30.0,
+            k: 2
+        }
+    );
+    let e = partition(&parts, &params(1, 50.0, 1.0, None)).unwrap_err();
+    assert_eq!(
+        e,
+        PartitionError::LongerThanWindow {
+            part: "a".into(),
+            length: 50.0,
+            window: 50.0
+        }
+    );
+    let e = partition(&parts, &params(1, 100.0, 1.0, Some(10.0))).unwrap_err();
+    assert!(
+        e.to_string().contains("part `a`") && e.to_string().contains("outside"),
+        "{e}"
+    );
+}
+
+/// A1, A2 (tool 0, window 0), B (tool 0, window 1, 2 mm above A2), C (tool 1, window 0),
+/// D (tool 1, window 1); gap 5, L' 150, W 100.
+fn crossing_layout(with_d: bool) -> Vec<Part> {
+    let mut parts = vec![
+        rect("A1", 0.0, 0.0, 35.0, 20.0),
+        rect("A2", 40.0, 0.0, 140.0, 20.0),
+        rect("B", 110.0, 22.0, 200.0, 45.0),
+        rect("C", 0.0, 60.0, 100.0, 80.0),
+    ];
+    if with_d {
+        parts.push(rect("D", 150.0, 60.0, 200.0, 80.0));
+    }
+    parts
+}
+
+#[test]
+fn an_overlap_after_s8_is_found_and_resolved_by_a_neighbouring_group() {
+    let parts = crossing_layout(true);
+    let mut p = partition(&parts, &params(2, 150.0, 5.0, Some(100.0))).unwrap();
+    assert_eq!(
+        summary(&p),
+        [
+            (1, 0, 0, 0.0, 0.0, vec![0, 1]),
+            (2, 1, 0, 0.0, 5.0, vec![3]),
+            (3, 0, 1, 5.0, 0.0, vec![2]),
+            (4, 1, 1, 5.0, 5.0, vec![4]),
+        ]
+    );
+    // B moves right by 5 over A2: 2 mm apart in Y, less than the 5 mm gap.
+    let found = detect(&parts, &p);
+    assert_eq!(
+        found,
+        [Overlap {
+            a: 1,
+            b: 2,
+            group_a: 1,
+            group_b: 3,
+            distance_mm: 2.0
+        }]
+    );
+    assert_eq!(detect_exhaustive(&parts, &p), found);
+    let r = resolve(&parts, &mut p, &[]).unwrap();
+    assert_eq!(r.found, found);
+    // B into G-1 or A2 into G-3 would be 200 / 160 mm long (>= 150); G-2 too; G-4 fits.
+    assert_eq!(
+        r.moves,
+        [Move {
+            part: 2,
+            from_group: 3,
+            to_group: 4,
+            because_of: Some(1)
+        }]
+    );
+    assert_eq!(p.offsets()[2], [5.0, 5.0]);
+    assert!(detect(&parts, &p).is_empty());
+    assert!(p.groups[2].parts.is_empty());
+}
+
+#[test]
+fn an_overlap_no_group_can_take_is_reported_with_both_parts() {
+    let parts = crossing_layout(false);
+    let mut p = partition(&parts, &params(2, 150.0, 5.0, Some(100.0))).unwrap();
+    let e = resolve(&parts, &mut p, &[]).unwrap_err().to_string();
+    assert!(
+        e.contains("`A2` (group 1)") && e.contains("`B` (group 3)") && e.contains("2.000 mm"),
+        "{e}"
+    );
+}
+
+#[test]
+fn forced_assignments_move_and_pin_parts() {
+    let parts = crossing_layout(true);
+    let mut p = partition(&parts, &params(2, 150.0, 5.0, Some(100.0))).unwrap();
+    let pinned = assign(&parts, &mut p, &[("B".into(), 4)]).unwrap();
+    assert_eq!(pinned, [2]);
+    assert_eq!(p.groups[3].parts, [2, 4]);
+    assert!(detect(&parts, &p).is_empty());
+    let r = resolve(&parts, &mut p, &pinned).unwrap();
+    assert!(r.found.is_empty() && r.moves.is_empty());
+    // A2 pinned in its group and B pinned in its own: nothing can move.
+    let mut p = partition(&parts, &params(2, 150.0, 5.0, Some(100.0))).unwrap();
+    let pinned = assign(&parts, &mut p, &[("A2".into(), 1), ("B".into(), 3)]).unwrap();
+    assert!(resolve(&parts, &mut p, &pinned).is_err());
+    let mut p = partition(&parts, &params(2, 150.0, 5.0, Some(100.0))).unwrap();
+    let e = assign(&parts, &mut p, &[("A2".into(), 3)])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("160.000 mm long"), "{e}");
+    assert!(assign(&parts, &mut p, &[("Z".into(), 1)])
+        .unwrap_err()
+        .to_string()
+        .contains("no part"));
+    assert!(assign(&parts, &mut p, &[("A1".into(), 9)])
+        .unwrap_err()
+        .to_string()
+        .contains("no such group"));
+}
+
+#[test]
+fn parts_exactly_one_gap_apart_are_not_overlaps() {
+    // Touching along X; the second window's shift puts them exactly 5 mm apart.
+    let parts = [
+        rect("a", 0.0, 0.0, 100.0, 20.0),
+        rect("b", 100.0, 0.0, 200.0, 20.0),
+    ];
+    let p = partition(&parts, &params(1, 150.0, 5.0, None)).unwrap();
+    assert_eq!(p.groups.len(), 2);
+    assert!(detect(&parts, &p).is_empty());
+}
+
+/// A small deterministic generator (no test depends on a seed library).
+struct Lcg(u64);
+impl Lcg {
+    fn next(&mut self) -> f64 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+/// Star-shaped parts on a jittered grid, touching or interlocking their neighbours.
+pub(crate) fn random_layout(n: usize, seed: u64) -> Vec<Part> {
+    let mut rng = Lcg(seed);
+    let cols = (n as f64).sqrt().ceil() as usize;
+    (0..n)
+        .map(|i| {
+            let (cx, cy) = (
+                (i / cols) as f64 * 20.0 + 10.0,
+                (i % cols) as f64 * 20.0 + 10.0,
+            );
+            let k = 5 + (rng.next() * 6.0) as usize;
+            let outer = (0..k)
+                .map(|j| {
+                    let a = std::f64::consts::TAU * j as f64 / k as f64;
+                    let r = 6.0 + rng.next() * 5.0;
+                    [cx + r * a.cos(), cy + r * a.sin()]
+                })
+                .collect();
+            Part {
+                id: format!("p{i}"),
+                outer,
+                holes: vec![],
+                layer: String::new(),
+                attributes: Default::default(),
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn indexed_detection_equals_the_exhaustive_check() {
+    for seed in 1..=6u64 {
+        let parts = random_layout(150, seed);
+        for (tools, window, gap) in [(2, 60.0, 2.0), (3, 45.0, 4.0), (4, 100.0, 1.0)] {
+            let p = partition(&parts, &params(tools, window, gap, None)).unwrap();
+            let fast = detect(&parts, &p);
+            assert_eq!(
+                fast,
+                detect_exhaustive(&parts, &p),
+                "seed {seed}, {tools} tools"
+            );
+            if seed == 1 && tools == 2 {
+                assert!(
+                    !fast.is_empty(),
+                    "the random layouts must produce overlaps to compare"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn resolution_leaves_no_overlap_or_names_one() {
+    let mut resolved = 0;
+    for seed in 1..=6u64 {
+        let parts = random_layout(120, seed);
+        let mut p = partition(&parts, &params(3, 70.0, 2.0, None)).unwrap();
+        match resolve(&parts, &mut p, &[]) {
+            Ok(r) => {
+                resolved += 1;
+                assert!(detect_exhaustive(&parts, &p).is_empty(), "seed {seed}");
+                for m in &r.moves {
+                    assert_eq!(p.groups[p.group_of[m.part]].id, m.to_group);
+                }
+                // Groups still fit their windows.
+                let boxes: Vec<[f64; 4]> = parts.iter().map(Part::bounds).collect();
+                for g in 0..p.groups.len() {
+                    if !p.groups[g].parts.is_empty() {
+                        let e = p.extent_with(&boxes, g, None);
+                        assert!(e[1] - e[0] < 70.0);
+                    }
+                }
+            }
+            Err(e) => assert!(
+                e.to_string()
+                    .contains("overlap that no neighbouring group resolves"),
+                "{e}"
+            ),
+        }
+    }
+    assert!(resolved > 0);
+}
+
+#[test]
+fn figures_of_three_squares_in_a_row() {
+    // Three 10 x 10 squares side by side along X: a gap around every part adds 2 gaps.
+    let parts = [
+        rect("a", 0.0, 0.0, 10.0, 10.0),
+        rect("b", 10.0, 0.0, 20.0, 10.0),
+        rect("c", 20.0, 0.0, 30.0, 10.0),
+    ];
+    let p = partition(&parts, &params(1, 25.0, 5.0, None)).unwrap();
+    // Groups: {a, b} (L = 20 < 25), {c}: one window step, +5 mm.
+    assert_eq!(p.groups.len(), 2);
+    let f = figures(&parts, &p);
+    assert_eq!(f.crossings_along_x, 3);
+    assert_eq!(f.crossings_along_y, 1);
+    assert_eq!(f.no_gap.length_mm, 30.0);
+    assert_eq!(f.partitioned.length_mm, 35.0);
+    assert_eq!(f.gap_every_part.length_mm, 40.0);
+    assert_eq!(f.added_length_fraction, Some(0.5));
+    assert_eq!(f.parts_area_mm2, 300.0);
+    assert_eq!(f.no_gap.utilisation, 1.0);
+    assert_eq!(f.partitioned.utilisation, 300.0 / 350.0);
+    assert_eq!(f.groups_per_tool, [2]);
+}
+
+#[test]
+fn picture_renders_groups_and_windows() {
+    let parts = crossing_layout(true);
+    let mut p = partition(&parts, &params(2, 150.0, 5.0, Some(100.0))).unwrap();
+    let r = resolve(&parts, &mut p, &[]).unwrap();
+    let pic = Picture {
+        parts: &parts,
+        partition: &p,
+        moves: &r.moves,
+    };
+    // G-4's window: from B's x 110 + 5, 150 long; lane 1 shifted up by 5.
+    assert_eq!(pic.extent(), [0.0, 0.0, 265.0, 105.0]);
+    let (w, h) = pic.size(800);
+    let svg = plot::render_svg(&pic, w, h).unwrap();
+    assert!(
+        svg.contains("G4") && svg.contains("G1") && !svg.contains(">G3<"),
+        "empty groups have no window"
+    );
+    let png = plot::render_png(&pic, w, h).unwrap();
+    assert_eq!(&png[1..4], b"PNG");
+}
+
+#[test]
+fn a_smaller_clearance_accepts_what_the_gap_refuses() {
+    // B ends 2 mm from A2 after S8: an overlap at the 5 mm gap, none at a 2 mm clearance
+    // (exactly 2 mm apart is not below it), one again at 2.5 mm.
+    let parts = crossing_layout(false);
+    let mut pr = params(2, 150.0, 5.0, Some(100.0));
+    pr.clearance_mm = Some(2.0);
+    let p = partition(&parts, &pr).unwrap();
+    assert!(detect(&parts, &p).is_empty());
+    pr.clearance_mm = Some(2.5);
+    let p = partition(&parts, &pr).unwrap();
+    assert_eq!(detect(&parts, &p).len(), 1);
+    for bad in [0.0, 6.0, f64::NAN] {
+        pr.clearance_mm = Some(bad);
+        assert!(matches!(
+            partition(&parts, &pr),
+            Err(PartitionError::Params(_))
+        ));
+    }
+}

@@ -1,0 +1,271 @@
+//! `gateway layout partition`: a cutting layout split into tool/window groups (Source C),
+//! overlaps between groups resolved, the shifted layout written.
+
+use anyhow::Context;
+use clap::Subcommand;
+use layout::{Figures, Params, Partition, Resolution};
+use layout_io::{Format, Layout, ReadOptions};
+use serde_json::json;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Instant;
+
+#[derive(Subcommand)]
+pub enum LayoutCmd {
+    /// Group the parts per tool lane and cutting window (steps S1-S7), shift the groups
+    /// apart by the gap (S8), find the overlaps between groups and resolve them by moving
+    /// parts to neighbouring groups, and write the shifted layout (format from OUT's
+    /// extension: .dxf, .svg or .json). Nothing is written when an overlap cannot be
+    /// resolved.
+    Partition {
+        /// The layout (.dxf, .svg or .json).
+        layout: PathBuf,
+        /// Number of tools k (equal lanes across the width).
+        #[arg(long)]
+        tools: usize,
+        /// Cutting window length L' along the feed (X), mm.
+        #[arg(long)]
+        window_mm: f64,
+        /// Gap between groups, mm.
+        #[arg(long)]
+        gap_mm: f64,
+        /// Material width W, mm, edge at Y = 0 (default: the JSON file's width_mm, else
+        /// the layout's extent across).
+        #[arg(long)]
+        width_mm: Option<f64>,
+        /// Parts of different groups closer than this after the shifts are overlaps, mm
+        /// (default: the gap). Between 0.001 mm and the gap.
+        #[arg(long)]
+        clearance_mm: Option<f64>,
+        /// Force a part into a group (group ids as printed, 1-based); repeatable.
+        #[arg(long = "assign", value_name = "PART=GROUP")]
+        assign: Vec<String>,
+        /// Where to write the shifted layout.
+        #[arg(long)]
+        out: PathBuf,
+        /// Also draw the result (.svg or .png), coloured by group.
+        #[arg(long)]
+        picture: Option<PathBuf>,
+        /// Chord tolerance for arcs and splines read from the layout, mm.
+        #[arg(long, default_value_t = 0.01)]
+        chord_tolerance_mm: f64,
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+impl LayoutCmd {
+    pub fn json(&self) -> bool {
+        match self {
+            LayoutCmd::Partition { json, .. } => *json,
+        }
+    }
+}
+
+fn format_of(path: &std::path::Path) -> anyhow::Result<Format> {
+    Format::from_path(&path.to_string_lossy()).with_context(|| {
+        format!(
+            "{}: the extension must be .dxf, .svg or .json",
+            path.display()
+        )
+    })
+}
+
+fn parse_assign(text: &str) -> anyhow::Result<(String, usize)> {
+    let (part, group) = text
+        .rsplit_once('=')
+        .with_context(|| format!("--assign `{text}`: write PART=GROUP"))?;
+    let group: usize = group
+        .trim()
+        .trim_start_matches(['G', 'g'])
+        .parse()
+        .with_context(|| format!("--assign `{text}`: the group is a number (1, 2, ...)"))?;
+    Ok((part.to_string(), group))
+}
+
+pub fn run(cmd: LayoutCmd) -> anyhow::Result<ExitCode> {
+    let LayoutCmd::Partition {
+        layout: input,
+        tools,
+        window_mm,
+        gap_mm,
+        width_mm,
+        clearance_mm,
+        assign,
+        out,
+        picture,
+        chord_tolerance_mm,
+        json,
+    } = cmd;
+    let in_format = format_of(&input)?;
+    let out_format = format_of(&out)?;
+    let forced = assign
+        .iter()
+        .map(|a| parse_assign(a))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let bytes = std::fs::read(&input).with_context(|| format!("reading {}", input.display()))?;
+    let options = ReadOptions {
+        chord_tolerance_mm,
+        ..ReadOptions::default()
+    };
+    let doc = Layout::read(&bytes, in_format, &options)
+        .with_context(|| format!("{}", input.display()))?;
+    let params = Params {
+        tools,
+        window_mm,
+        gap_mm,
+        width_mm: width_mm.or(doc.width_mm),
+        clearance_mm,
+    };
+
+    let t0 = Instant::now();
+    let mut partition = layout::partition(&doc.parts, &params)?;
+    let pinned = layout::assign(&doc.parts, &mut partition, &forced)?;
+    let resolution = layout::resolve(&doc.parts, &mut partition, &pinned)?;
+    let elapsed_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let figures = layout::figures(&doc.parts, &partition);
+
+    let shifted = doc.translated(&partition.offsets())?;
+    let written = shifted.write(out_format)?;
+    std::fs::write(&out, written).with_context(|| format!("writing {}", out.display()))?;
+    if let Some(path) = &picture {
+        let pic = layout::Picture {
+            parts: &doc.parts,
+            partition: &partition,
+            moves: &resolution.moves,
+        };
+        let (w, h) = pic.size(1600);
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .unwrap_or("")
+            .to_ascii_lowercase();
+        let bytes = match ext.as_str() {
+            "svg" => plot::render_svg(&pic, w, h)?.into_bytes(),
+            "png" => plot::render_png(&pic, w, h)?,
+            _ => anyhow::bail!(
+                "--picture {}: the extension must be .svg or .png",
+                path.display()
+            ),
+        };
+        std::fs::write(path, bytes).with_context(|| format!("writing {}", path.display()))?;
+    }
+
+    if json {
+        println!(
+            "{}",
+            report(&doc, &partition, &resolution, &figures, elapsed_ms, &out)
+        );
+    } else {
+        print_text(&doc, &partition, &resolution, &figures, elapsed_ms, &out);
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn report(
+    doc: &Layout,
+    partition: &Partition,
+    resolution: &Resolution,
+    figures: &Figures,
+    elapsed_ms: f64,
+    out: &std::path::Path,
+) -> serde_json::Value {
+    let id = |i: usize| doc.parts[i].id.clone();
+    json!({
+        "out": out.display().to_string(),
+        "parts": doc.parts.len(),
+        "tools": partition.tools,
+        "window_mm": partition.window_mm,
+        "gap_mm": partition.gap_mm,
+        "clearance_mm": partition.clearance_mm,
+        "width_mm": partition.width_mm,
+        "y0_mm": partition.y0_mm,
+        "groups": partition.groups.iter().filter(|g| !g.parts.is_empty()).map(|g| json!({
+            "id": g.id, "tool": g.tool, "window": g.window, "dx_mm": g.dx_mm, "dy_mm": g.dy_mm,
+            "parts": g.parts.iter().map(|&p| id(p)).collect::<Vec<_>>(),
+        })).collect::<Vec<_>>(),
+        "moves": resolution.moves.iter().map(|m| json!({
+            "part": id(m.part), "from_group": m.from_group, "to_group": m.to_group,
+            "because_of": m.because_of.map(id),
+        })).collect::<Vec<_>>(),
+        "overlaps_found": resolution.found.iter().map(|o| json!({
+            "a": id(o.a), "b": id(o.b), "group_a": o.group_a, "group_b": o.group_b,
+            "distance_mm": o.distance_mm,
+        })).collect::<Vec<_>>(),
+        "overlaps_resolved": resolution.found.len(),
+        "overlaps_left": 0,
+        "figures": figures,
+        "partition_ms": elapsed_ms,
+    })
+}
+
+fn print_text(
+    doc: &Layout,
+    partition: &Partition,
+    resolution: &Resolution,
+    figures: &Figures,
+    elapsed_ms: f64,
+    out: &std::path::Path,
+) {
+    println!(
+        "{} parts, {} tools, window {} mm, gap {} mm, width {} mm: {:.3} ms",
+        doc.parts.len(),
+        partition.tools,
+        partition.window_mm,
+        partition.gap_mm,
+        partition.width_mm,
+        elapsed_ms
+    );
+    println!("group  tool  window  dx_mm  dy_mm  parts");
+    for g in partition.groups.iter().filter(|g| !g.parts.is_empty()) {
+        println!(
+            "{:>5}  {:>4}  {:>6}  {:>5}  {:>5}  {}",
+            g.id,
+            g.tool,
+            g.window,
+            g.dx_mm,
+            g.dy_mm,
+            g.parts.len()
+        );
+    }
+    println!(
+        "overlaps between groups after S8: {}",
+        resolution.found.len()
+    );
+    for m in &resolution.moves {
+        println!(
+            "  moved `{}` from group {} to group {} (too close to `{}`)",
+            doc.parts[m.part].id,
+            m.from_group,
+            m.to_group,
+            m.because_of
+                .map(|b| doc.parts[b].id.as_str())
+                .unwrap_or("-")
+        );
+    }
+    let row = |name: &str, m: &layout::Material| {
+        println!(
+            "{name:<18} length {:>10.3} mm  width {:>9.3} mm  area {:>12.1} mm2  utilisation {:>6.2} %",
+            m.length_mm,
+            m.width_mm,
+            m.area_mm2,
+            m.utilisation * 100.0
+        )
+    };
+    row("no gap", &figures.no_gap);
+    row("partitioned", &figures.partitioned);
+    row("gap every part", &figures.gap_every_part);
+    match figures.added_length_fraction {
+        Some(f) => println!(
+            "length added: {:.3} mm by the groups, {:.3} mm with a gap around every part ({:.1} %)",
+            figures.added_length_partitioned_mm,
+            figures.added_length_every_part_mm,
+            f * 100.0
+        ),
+        None => println!(
+            "length added: {:.3} mm by the groups",
+            figures.added_length_partitioned_mm
+        ),
+    }
+    println!("written {}", out.display());
+}
