@@ -107,9 +107,9 @@ pub fn verify(args: VerifyArgs) -> anyhow::Result<ExitCode> {
     let mut any_drifted = false;
     for round in 0..args.repeat {
         if round > 0 {
-            rt.block_on(tokio::time::sleep(std::time::Duration::from_secs_f64(
-                args.every_s,
-            )));
+            // The timer must be made inside the runtime (tokio panics otherwise).
+            let pause = std::time::Duration::from_secs_f64(args.every_s);
+            rt.block_on(async { tokio::time::sleep(pause).await });
         }
         if args.repeat > 1 && !args.json {
             println!("check {} of {}:", round + 1, args.repeat);
