@@ -193,6 +193,13 @@ enum Cmd {
         spot_check: bool,
         #[arg(long, default_value_t = 2.0)]
         drift_threshold_um: f64,
+        /// Checks in a row, each on fresh points (a periodic spot check; exit code 2
+        /// when any is past the threshold).
+        #[arg(long, default_value_t = 1)]
+        repeat: usize,
+        /// Seconds between two checks of --repeat.
+        #[arg(long, default_value_t = 600.0)]
+        every_s: f64,
         #[arg(long)]
         json: bool,
     },
@@ -424,6 +431,8 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             seed,
             spot_check,
             drift_threshold_um,
+            repeat,
+            every_s,
             json,
         } => verify::verify(verify::VerifyArgs {
             config,
@@ -432,6 +441,8 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             seed,
             spot_check,
             drift_threshold_um,
+            repeat,
+            every_s,
             json,
         }),
         Cmd::Export {

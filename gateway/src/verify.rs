@@ -18,6 +18,10 @@ pub struct VerifyArgs {
     pub seed: u64,
     pub spot_check: bool,
     pub drift_threshold_um: f64,
+    /// Spot checks in a row (each on fresh random points, each homing and
+    /// re-referencing first), `every_s` seconds apart: a periodic watch for drift.
+    pub repeat: usize,
+    pub every_s: f64,
     pub json: bool,
 }
 
@@ -93,9 +97,45 @@ pub fn verify(args: VerifyArgs) -> anyhow::Result<ExitCode> {
     };
     map.check_identity(&here)
         .map_err(|e| anyhow::anyhow!("{}: {e}: refused", args.map.display()))?;
+    anyhow::ensure!(args.repeat >= 1, "--repeat must be at least 1");
+    anyhow::ensure!(
+        args.every_s.is_finite() && args.every_s >= 0.0,
+        "--every-s must be a number of seconds >= 0, got {}",
+        args.every_s
+    );
     let model = MapModel::new(map);
-    let points = check_points(&model, n, args.seed);
-    let result = rt.block_on(run_verify(&job, &mut devices, &model, &points));
+    let mut any_drifted = false;
+    for round in 0..args.repeat {
+        if round > 0 {
+            // The timer must be made inside the runtime (tokio panics otherwise).
+            let pause = std::time::Duration::from_secs_f64(args.every_s);
+            rt.block_on(async { tokio::time::sleep(pause).await });
+        }
+        if args.repeat > 1 && !args.json {
+            println!("check {} of {}:", round + 1, args.repeat);
+        }
+        // A fresh set of points each round, still reproducible from --seed.
+        let points = check_points(&model, n, args.seed.wrapping_add(round as u64));
+        any_drifted |= one_round(&args, &rt, &job, &mut devices, &model, &points, round)?;
+    }
+    Ok(if any_drifted {
+        ExitCode::from(2)
+    } else {
+        ExitCode::SUCCESS
+    })
+}
+
+/// One check: homes, re-references, visits `points`, prints; true when drifted.
+fn one_round(
+    args: &VerifyArgs,
+    rt: &tokio::runtime::Runtime,
+    job: &Job,
+    devices: &mut devices::Devices,
+    model: &MapModel,
+    points: &[([f64; 2], Direction)],
+    round: usize,
+) -> anyhow::Result<bool> {
+    let result = rt.block_on(run_verify(job, devices, model, points));
     let (checked, error) = match result {
         Ok(v) => {
             if !args.json {
@@ -124,6 +164,7 @@ pub fn verify(args: VerifyArgs) -> anyhow::Result<ExitCode> {
         println!(
             "{}",
             json!({
+                "round": round + 1,
                 "points": checked.iter().map(point_json).collect::<Vec<_>>(),
                 "residual_um": { "max": res_max, "rms": res_rms },
                 "uncompensated_um": { "max": unc_max, "rms": unc_rms },
@@ -163,9 +204,5 @@ pub fn verify(args: VerifyArgs) -> anyhow::Result<ExitCode> {
         return Err(anyhow::anyhow!(e))
             .context(format!("{} points checked before it", checked.len()));
     }
-    Ok(if drifted {
-        ExitCode::from(2)
-    } else {
-        ExitCode::SUCCESS
-    })
+    Ok(drifted)
 }
