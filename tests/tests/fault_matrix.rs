@@ -76,18 +76,7 @@ fn modbus_tcp_case(
         })
         .await
         .expect("the driver connects through the link");
-        let camera = open_camera(&job.camera, Some(&rig)).await.unwrap();
-        let mut devices = Devices {
-            stage,
-            camera,
-            rig: Some(rig),
-        };
-        let report = tokio::time::timeout(
-            Duration::from_secs(60),
-            run_job(&job, &mut devices, &mut |_, _| {}),
-        )
-        .await
-        .expect("the job ends by itself: recovered or stopped, never hung");
+        let report = run_bounded(&job, stage, rig).await;
         drop(server);
         (outcome_of(&report), link.fired(), report)
     })
@@ -138,18 +127,7 @@ fn modbus_rtu_case(
         })
         .await
         .expect("the driver connects through the link");
-        let camera = open_camera(&job.camera, Some(&rig)).await.unwrap();
-        let mut devices = Devices {
-            stage,
-            camera,
-            rig: Some(rig),
-        };
-        let report = tokio::time::timeout(
-            Duration::from_secs(60),
-            run_job(&job, &mut devices, &mut |_, _| {}),
-        )
-        .await
-        .expect("the job ends by itself: recovered or stopped, never hung");
+        let report = run_bounded(&job, stage, rig).await;
         drop(line);
         (outcome_of(&report), link.fired(), report)
     })
@@ -197,21 +175,31 @@ fn canopen_case(
         })
         .await
         .expect("the driver connects through the link");
-        let camera = open_camera(&job.camera, Some(&rig)).await.unwrap();
-        let mut devices = Devices {
-            stage,
-            camera,
-            rig: Some(rig),
-        };
-        let report = tokio::time::timeout(
-            Duration::from_secs(60),
-            run_job(&job, &mut devices, &mut |_, _| {}),
-        )
-        .await
-        .expect("the job ends by itself: recovered or stopped, never hung");
+        let report = run_bounded(&job, stage, rig).await;
         drop(adapter);
         (outcome_of(&report), link.fired(), report)
     })
+}
+
+/// The job over `stage` and the simulated camera of `rig`, bounded far above its
+/// expected time: a hang fails the test.
+async fn run_bounded(
+    job: &Job,
+    stage: Box<dyn drivers::Stage>,
+    rig: world::SharedRig,
+) -> compensation::report::Report {
+    let camera = open_camera(&job.camera, Some(&rig)).await.unwrap();
+    let mut devices = Devices {
+        stage,
+        camera,
+        rig: Some(rig),
+    };
+    tokio::time::timeout(
+        Duration::from_secs(60),
+        run_job(job, &mut devices, &mut |_, _| {}),
+    )
+    .await
+    .expect("the job ends by itself: recovered or stopped, never hung")
 }
 
 fn outcome_of(report: &compensation::report::Report) -> Outcome {
@@ -256,18 +244,7 @@ fn grbl_case(
         })
         .await
         .expect("the driver connects through the link");
-        let camera = open_camera(&job.camera, Some(&rig)).await.unwrap();
-        let mut devices = Devices {
-            stage,
-            camera,
-            rig: Some(rig),
-        };
-        let report = tokio::time::timeout(
-            Duration::from_secs(60),
-            run_job(&job, &mut devices, &mut |_, _| {}),
-        )
-        .await
-        .expect("the job ends by itself: recovered or stopped, never hung");
+        let report = run_bounded(&job, stage, rig).await;
         let outcome = outcome_of(&report);
         drop(emulator);
         let sent = String::from_utf8_lossy(&link.host_bytes()).into_owned();

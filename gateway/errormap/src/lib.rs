@@ -384,31 +384,28 @@ impl MapModel {
     /// The command that puts the camera (not the tool) on nominal `p`: what a camera
     /// check of the compensation needs (`gateway verify`).
     pub fn camera_command_for(&self, p: [f64; 2], dir: Direction) -> Result<[f64; 2], ModelError> {
-        self.inside(p)?;
-        let (lo, hi) = self.extent();
-        let mut c = p;
-        for _ in 0..8 {
-            let at = [c[0].clamp(lo[0], hi[0]), c[1].clamp(lo[1], hi[1])];
-            let e = self.camera_error_um(at, dir)?;
-            let next = [p[0] - e[0] / 1000.0, p[1] - e[1] / 1000.0];
-            let moved = (next[0] - c[0]).hypot(next[1] - c[1]);
-            c = next;
-            if moved < 1e-5 {
-                return Ok(c);
-            }
-        }
-        Err(ModelError::NoInverse { p })
+        self.invert(p, p, |at| self.camera_error_um(at, dir))
     }
 
     /// The same, iterating from `guess` (a command close to the answer saves a step).
-    /// Fixed point c <- p - e_tool(c): each step shrinks the distance to the answer by
-    /// the error's slope (about 0.003 um per um on a C5 screw), so once a step moves the
-    /// command by less than 10 nm the answer is within a fraction of a nanometre.
     pub fn command_from(
         &self,
         p: [f64; 2],
         dir: Direction,
         guess: [f64; 2],
+    ) -> Result<[f64; 2], ModelError> {
+        self.invert(p, guess, |at| self.tool_error_um(at, dir))
+    }
+
+    /// Fixed point c <- p - e(c) from `guess`: each step shrinks the distance to the
+    /// answer by the error's slope (about 0.003 um per um on a C5 screw), so once a step
+    /// moves the command by less than 10 nm the answer is within a fraction of a
+    /// nanometre.
+    fn invert(
+        &self,
+        p: [f64; 2],
+        guess: [f64; 2],
+        error_um: impl Fn([f64; 2]) -> Result<[f64; 2], ModelError>,
     ) -> Result<[f64; 2], ModelError> {
         self.inside(p)?;
         let (lo, hi) = self.extent();
@@ -416,7 +413,7 @@ impl MapModel {
         for _ in 0..8 {
             // Clamp into the map: a point on the edge needs a command just outside it.
             let at = [c[0].clamp(lo[0], hi[0]), c[1].clamp(lo[1], hi[1])];
-            let e = self.tool_error_um(at, dir)?;
+            let e = error_um(at)?;
             let next = [p[0] - e[0] / 1000.0, p[1] - e[1] / 1000.0];
             let moved = (next[0] - c[0]).hypot(next[1] - c[1]);
             c = next;

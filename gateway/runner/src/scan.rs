@@ -51,7 +51,7 @@ pub enum ScanError {
 }
 
 /// Where the final move onto `p` starts from, for an approach from `a` on each axis.
-fn approach_point(p: [f64; 2], dir: errormap::Direction, by_mm: f64) -> [f64; 2] {
+pub(crate) fn approach_point(p: [f64; 2], dir: errormap::Direction, by_mm: f64) -> [f64; 2] {
     let side = |a: Approach| match a {
         Approach::Forward => -by_mm,
         Approach::Reverse => by_mm,

@@ -9,10 +9,11 @@
 //! error the map predicts there without compensation. A spot check is the same with a
 //! few points; its mean residual is the drift since the scan.
 
+use crate::scan::approach_point;
 use crate::{JobError, Orchestrator};
 use devices::Devices;
 use drivers::AxisValues;
-use errormap::{Approach, Direction, MapModel};
+use errormap::{Direction, MapModel};
 use job::Job;
 use vision::localize::localize;
 
@@ -58,15 +59,6 @@ pub enum VerifyError {
         at: [f64; 2],
         message: String,
     },
-}
-
-/// Where the final move onto `p` starts from for an approach from `dir`.
-fn approach_point(p: [f64; 2], dir: Direction, by_mm: f64) -> [f64; 2] {
-    let side = |a: Approach| match a {
-        Approach::Forward => -by_mm,
-        Approach::Reverse => by_mm,
-    };
-    [p[0] + side(dir.x), p[1] + side(dir.y)]
 }
 
 /// Check `points` (nominal machine mm and approach sides). On an error, the points
