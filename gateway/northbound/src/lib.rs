@@ -1,0 +1,1 @@
+//! MQTT Sparkplug B northbound (being built; see issue 15).

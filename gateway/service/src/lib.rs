@@ -1,0 +1,1 @@
+//! The service (being built; see issue 15).

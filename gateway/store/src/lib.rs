@@ -1,0 +1,1 @@
+//! SQLite persistence of the service (being built; see issue 15).
