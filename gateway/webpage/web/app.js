@@ -2,7 +2,7 @@
 // It codes against the HTTP API v1 and the /api/v1/events WebSocket (see the service
 // contract in the README). Every element a test looks at has a stable id or data-*
 // attribute: #machines li[data-machine][data-state], #running-job[data-job-id],
-// #history-rows tr[data-job-id][data-state], #job-charts img[data-chart],
+// #history-rows tr[data-job-id][data-state][data-live-progress] (progress events seen), #job-charts img[data-chart],
 // #profile-rows tr[data-profile][data-version][data-active], #heatmap-image img.
 'use strict';
 
@@ -17,6 +17,7 @@ const view = {
   socket: null,
   reconnectDelayMs: 500,
   objectUrls: [],
+  liveProgress: new Map(), // job id -> progress events received (shown as data-live-progress)
 };
 
 const $ = (id) => document.getElementById(id);
@@ -180,7 +181,8 @@ function renderHistory() {
       actions.append(' ', el('button', { type: 'button', class: 'cancel-job', text: 'Cancel',
         onclick: () => post('/api/v1/jobs/' + job.id + '/cancel').then(upsertAndRender).catch(reportError) }));
     }
-    return el('tr', { 'data-job-id': job.id, 'data-state': job.state },
+    return el('tr', { 'data-job-id': job.id, 'data-state': job.state,
+      'data-live-progress': view.liveProgress.get(job.id) || 0 },
       el('td', { text: String(job.id) }),
       el('td', { text: job.machine }),
       el('td', { text: job.kind }),
@@ -351,6 +353,9 @@ function handleEvent(message) {
       const job = view.jobs.get(message.job_id);
       if (job) job.progress = { done: message.done, total: message.total };
       renderProgress(message.job_id, message.done, message.total);
+      view.liveProgress.set(message.job_id, (view.liveProgress.get(message.job_id) || 0) + 1);
+      const row = document.querySelector('#history-rows tr[data-job-id="' + message.job_id + '"]');
+      if (row) row.setAttribute('data-live-progress', view.liveProgress.get(message.job_id));
       break;
     }
     case 'measurement':
