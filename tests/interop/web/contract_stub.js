@@ -2,8 +2,9 @@
 // A stand-in for `gateway serve` that answers the API v1 of the service contract with
 // made-up data (one machine "demo"; a job runs 5 steps and makes a new version of the
 // error map "xy"). It lets the page and drive_page.js be developed and checked without
-// the service: node contract_stub.js PORT TOKEN, then open http://127.0.0.1:PORT/#token=TOKEN.
-// The Rust test (tests/tests/service_web.rs) runs the real service, not this.
+// the service: node contract_stub.js PORT TOKEN (PORT 0: any free port, printed as "listening PORT"), then open http://127.0.0.1:PORT/#token=TOKEN.
+// tests/tests/web_page_stub.rs drives the page against it; tests/tests/service_web.rs
+// runs the real service.
 'use strict';
 const http = require('http');
 const fs = require('fs');
@@ -122,4 +123,4 @@ server.on('upgrade', (req, socket) => {
   send(socket, { type: 'hello', machines: [machine] });
 });
 
-server.listen(port, '127.0.0.1', () => process.stdout.write(`listening ${port}\n`));
+server.listen(port, '127.0.0.1', () => process.stdout.write(`listening ${server.address().port}\n`));
