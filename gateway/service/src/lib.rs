@@ -1,1 +1,217 @@
-//! The service (being built; see issue 15).
+//! The service (issue 15): machines and their job queues, the authenticated
+//! HTTP/WebSocket API and the web page, over the SQLite store, in one process.
+//!
+//! [`start`] opens the store in `data_dir` (jobs that were running when the last process
+//! died become `interrupted`; queued jobs stay queued), creates the bearer token at first
+//! start, spawns one worker per machine and serves the API. [`Running::shutdown`] stops
+//! the running jobs safely (runner cancel: the stage told to stop, results saved as
+//! cancelled) and waits for the workers.
+
+pub mod api;
+pub mod config;
+pub mod state;
+pub mod worker;
+
+pub use config::{BoxConfig, ConfigError, JobSource, MachineConfig, ServiceConfig};
+
+use anyhow::Context;
+use state::{lock, Machine, MachineState, Shared, Status};
+use std::net::SocketAddr;
+use std::path::Path;
+use std::sync::{Arc, Mutex};
+use store::Store;
+use tokio::sync::{broadcast, watch};
+use tracing::info;
+
+/// Events buffered per WebSocket client before it is dropped as too slow.
+const EVENT_BUFFER: usize = 1024;
+
+/// A started service.
+pub struct Running {
+    addr: SocketAddr,
+    token: String,
+    shared: Arc<Shared>,
+    stop: watch::Sender<bool>,
+    server: tokio::task::JoinHandle<std::io::Result<()>>,
+    /// One per machine worker thread, completed when it has ended.
+    workers: Vec<tokio::sync::oneshot::Receiver<()>>,
+}
+
+impl Running {
+    pub fn local_addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    pub fn token(&self) -> &str {
+        &self.token
+    }
+
+    /// The store the service uses (tests and tools read or seed it directly).
+    pub fn store(&self) -> Arc<Mutex<Store>> {
+        self.shared.store.clone()
+    }
+
+    /// As SIGTERM: running jobs stopped safely and saved, workers ended, the HTTP
+    /// server and every WebSocket closed.
+    pub async fn shutdown(self) {
+        let _ = self.stop.send(true);
+        for w in self.workers {
+            let _ = w.await;
+        }
+        let _ = self.server.await;
+        info!("service stopped");
+    }
+}
+
+/// Reads the token file, or creates it with a fresh random 256-bit token (hex, mode 0600).
+pub fn load_or_create_token(path: &Path) -> anyhow::Result<String> {
+    if let Ok(text) = std::fs::read_to_string(path) {
+        let token = text.trim().to_string();
+        anyhow::ensure!(
+            token.len() >= 32 && token.bytes().all(|b| b.is_ascii_graphic()),
+            "{}: the token must be at least 32 printable characters",
+            path.display()
+        );
+        return Ok(token);
+    }
+    let mut bytes = [0u8; 32];
+    getrandom::fill(&mut bytes).map_err(|e| anyhow::anyhow!("random token: {e}"))?;
+    let token: String = bytes.iter().map(|b| format!("{b:02x}")).collect();
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).with_context(|| dir.display().to_string())?;
+    }
+    write_private(path, &token)
+        .with_context(|| format!("{}: writing the token", path.display()))?;
+    info!(file = %path.display(), "created a new API token (not logged; read it from the file)");
+    Ok(token)
+}
+
+#[cfg(unix)]
+fn write_private(path: &Path, text: &str) -> std::io::Result<()> {
+    use std::io::Write;
+    use std::os::unix::fs::OpenOptionsExt;
+    let mut f = std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .mode(0o600)
+        .open(path)?;
+    f.write_all(text.as_bytes())?;
+    f.write_all(b"\n")
+}
+
+#[cfg(not(unix))]
+fn write_private(path: &Path, text: &str) -> std::io::Result<()> {
+    std::fs::write(path, format!("{text}\n"))
+}
+
+/// Starts the service: store, token, workers, HTTP server.
+pub async fn start(config: BoxConfig) -> anyhow::Result<Running> {
+    let data_dir = &config.service.data_dir;
+    std::fs::create_dir_all(data_dir)
+        .with_context(|| format!("data_dir {}", data_dir.display()))?;
+    let db = data_dir.join("gateway.sqlite");
+    let mut store = Store::open(&db).with_context(|| db.display().to_string())?;
+    let interrupted = store.recover()?;
+    for job in &interrupted {
+        info!(job_id = job.id, machine = %job.machine, "job was running when the service stopped: interrupted");
+    }
+    let token = load_or_create_token(&config.service.token_file)?;
+    if config.mqtt.is_some() {
+        tracing::warn!("[mqtt] is set but this build has no northbound yet; ignored");
+    }
+
+    let mut machines = Vec::new();
+    for m in &config.machines {
+        let job = m
+            .job
+            .load()
+            .map_err(|e| anyhow::anyhow!("machine {:?}: job file: {e}", m.id))?;
+        let (stage, camera) = worker::describe(&job);
+        machines.push(Arc::new(Machine {
+            id: m.id.clone(),
+            description: m.description.clone(),
+            stage,
+            camera,
+            map_profile: m.map_profile.clone(),
+            status: Mutex::new(Status {
+                state: MachineState::Opening,
+                detail: None,
+                job: None,
+            }),
+            wake: tokio::sync::Notify::new(),
+            cancel: Mutex::new(None),
+        }));
+    }
+    let (stop, shutdown) = watch::channel(false);
+    let (events, _) = broadcast::channel(EVENT_BUFFER);
+    let shared = Arc::new(Shared {
+        store: Arc::new(Mutex::new(store)),
+        machines,
+        events,
+        token: token.clone(),
+        shutdown: shutdown.clone(),
+        bad_tokens: Mutex::new(Default::default()),
+        bad_token_delay_cap_ms: config.service.bad_token_delay_cap_ms,
+    });
+    for job in &interrupted {
+        shared.emit_job(
+            &lock(&shared.store)
+                .job(job.id)?
+                .unwrap_or_else(|| job.clone()),
+        );
+    }
+
+    let listener = tokio::net::TcpListener::bind(config.service.listen)
+        .await
+        .with_context(|| format!("listen on {}", config.service.listen))?;
+    let addr = listener.local_addr()?;
+    let app = api::router(
+        shared.clone(),
+        config.service.max_body_bytes,
+        &config.service.cors_origins,
+    );
+    let mut server_stop = shutdown.clone();
+    let server = tokio::spawn(async move {
+        axum::serve(
+            listener,
+            app.into_make_service_with_connect_info::<SocketAddr>(),
+        )
+        .with_graceful_shutdown(async move {
+            let _ = server_stop.wait_for(|s| *s).await;
+        })
+        .await
+    });
+    // Each machine has its own thread and single-threaded runtime: the runner's
+    // futures are not `Send`, device emulators and bus tasks live on the runtime that
+    // opened them, and a busy machine never slows the API down.
+    let mut workers = Vec::new();
+    for (c, m) in config.machines.iter().zip(shared.machines.iter()) {
+        let (done, finished) = tokio::sync::oneshot::channel();
+        let (shared, m, c) = (shared.clone(), m.clone(), c.clone());
+        std::thread::Builder::new()
+            .name(format!("machine-{}", m.id))
+            .spawn(move || {
+                match tokio::runtime::Builder::new_current_thread()
+                    .enable_all()
+                    .build()
+                {
+                    Ok(rt) => rt.block_on(worker::run(shared, m, c)),
+                    Err(e) => {
+                        tracing::error!(machine = %m.id, error = %e, "no runtime for the machine")
+                    }
+                }
+                let _ = done.send(());
+            })
+            .context("machine worker thread")?;
+        workers.push(finished);
+    }
+    info!(%addr, machines = config.machines.len(), "service listening");
+    Ok(Running {
+        addr,
+        token,
+        shared,
+        stop,
+        server,
+        workers,
+    })
+}

@@ -1,0 +1,750 @@
+//! The HTTP/WebSocket API (v1): routes, bearer-token auth, JSON errors, OpenAPI.
+
+use crate::state::{lock, MachineState, Shared};
+use crate::worker;
+use axum::extract::rejection::{JsonRejection, PathRejection, QueryRejection};
+use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
+use axum::extract::{ConnectInfo, DefaultBodyLimit, Path, Query, Request, State};
+use axum::http::{header, HeaderMap, HeaderValue, Method, StatusCode};
+use axum::middleware::{self, Next};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use axum::{Json, Router};
+use futures_util::{SinkExt, StreamExt};
+use serde::Deserialize;
+use serde_json::{json, Value};
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::Duration;
+use store::{JobFilter, JobId, JobState, StoreError};
+use subtle::ConstantTimeEq;
+use tokio::sync::broadcast::error::RecvError;
+use tracing::warn;
+use utoipa::OpenApi;
+
+type AppState = Arc<Shared>;
+
+/// An error answer: `{"error": code, "message": ...}`.
+#[derive(Debug)]
+pub struct ApiError {
+    pub status: StatusCode,
+    pub code: &'static str,
+    pub message: String,
+}
+
+impl ApiError {
+    fn new(status: StatusCode, code: &'static str, message: impl Into<String>) -> ApiError {
+        ApiError {
+            status,
+            code,
+            message: message.into(),
+        }
+    }
+    fn not_found(code: &'static str, message: impl Into<String>) -> ApiError {
+        ApiError::new(StatusCode::NOT_FOUND, code, message)
+    }
+}
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        (
+            self.status,
+            Json(json!({"error": self.code, "message": self.message})),
+        )
+            .into_response()
+    }
+}
+
+impl From<StoreError> for ApiError {
+    fn from(e: StoreError) -> ApiError {
+        let message = e.to_string();
+        match e {
+            StoreError::UnknownJob(_) => ApiError::not_found("unknown_job", message),
+            StoreError::UnknownProfile { .. } | StoreError::UnknownProfileName { .. } => {
+                ApiError::not_found("unknown_profile", message)
+            }
+            StoreError::WrongState { .. } => {
+                ApiError::new(StatusCode::CONFLICT, "wrong_state", message)
+            }
+            StoreError::NothingToRollBack { .. } => {
+                ApiError::new(StatusCode::CONFLICT, "nothing_to_roll_back", message)
+            }
+            StoreError::ProfileKindMismatch { .. } => {
+                ApiError::new(StatusCode::CONFLICT, "profile_kind_mismatch", message)
+            }
+            StoreError::InvalidInput { .. } => {
+                ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, "invalid_input", message)
+            }
+            _ => {
+                warn!(error = %message, "store error");
+                ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, "internal", message)
+            }
+        }
+    }
+}
+
+impl From<JsonRejection> for ApiError {
+    fn from(r: JsonRejection) -> ApiError {
+        let status = r.status();
+        let code = match status {
+            StatusCode::PAYLOAD_TOO_LARGE => "body_too_large",
+            StatusCode::UNPROCESSABLE_ENTITY => "invalid_body",
+            StatusCode::UNSUPPORTED_MEDIA_TYPE => "unsupported_media_type",
+            _ => "bad_json",
+        };
+        ApiError::new(status, code, r.body_text())
+    }
+}
+
+impl From<PathRejection> for ApiError {
+    fn from(r: PathRejection) -> ApiError {
+        ApiError::new(StatusCode::BAD_REQUEST, "bad_path", r.body_text())
+    }
+}
+
+impl From<QueryRejection> for ApiError {
+    fn from(r: QueryRejection) -> ApiError {
+        ApiError::new(StatusCode::BAD_REQUEST, "bad_query", r.body_text())
+    }
+}
+
+type ApiResult<T> = Result<T, ApiError>;
+
+/// Query keys that look like a credential; refused so tokens never land in access logs.
+const TOKEN_KEYS: &[&str] = &["token", "access_token", "bearer", "api_key", "auth"];
+
+async fn refuse_query_token(State(shared): State<AppState>, req: Request, next: Next) -> Response {
+    if let Some(query) = req.uri().query() {
+        for pair in query.split('&') {
+            let key = pair.split('=').next().unwrap_or("").to_ascii_lowercase();
+            let holds_token = pair.contains(shared.token.as_str());
+            if TOKEN_KEYS.contains(&key.as_str()) || holds_token {
+                return ApiError::new(
+                    StatusCode::BAD_REQUEST,
+                    "token_in_query",
+                    "a token in the query string is refused (it would end up in logs); send it in the Authorization header",
+                )
+                .into_response();
+            }
+        }
+    }
+    next.run(req).await
+}
+
+/// The token a request presents: the bearer header, or the WebSocket subprotocol
+/// `bearer.<token>` (browsers cannot set headers on a WebSocket).
+fn presented_token(headers: &HeaderMap) -> Option<String> {
+    if let Some(v) = headers.get(header::AUTHORIZATION) {
+        let v = v.to_str().ok()?;
+        return v.strip_prefix("Bearer ").map(|t| t.trim().to_string());
+    }
+    let protocols = headers.get(header::SEC_WEBSOCKET_PROTOCOL)?.to_str().ok()?;
+    protocols
+        .split(',')
+        .map(str::trim)
+        .find_map(|p| p.strip_prefix("bearer."))
+        .map(str::to_string)
+}
+
+async fn require_token(State(shared): State<AppState>, req: Request, next: Next) -> Response {
+    let peer = req
+        .extensions()
+        .get::<ConnectInfo<SocketAddr>>()
+        .map(|c| c.0.ip());
+    let Some(token) = presented_token(req.headers()) else {
+        return ApiError::new(
+            StatusCode::UNAUTHORIZED,
+            "missing_token",
+            "this route needs the header `Authorization: Bearer <token>`",
+        )
+        .into_response();
+    };
+    let good: bool = token.as_bytes().ct_eq(shared.token.as_bytes()).into();
+    if good {
+        if let Some(peer) = peer {
+            shared
+                .bad_tokens
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .remove(&peer);
+        }
+        return next.run(req).await;
+    }
+    // Guessing is slowed down: each wrong token from a peer waits twice as long as the
+    // previous one, up to the configured cap.
+    let failures = peer.map_or(1, |peer| {
+        let mut map = shared.bad_tokens.lock().unwrap_or_else(|p| p.into_inner());
+        let n = map.entry(peer).or_insert(0);
+        *n = n.saturating_add(1);
+        *n
+    });
+    warn!(peer = ?peer, failures, path = %req.uri().path(), "wrong bearer token");
+    let delay = (10u64 << failures.min(16)).min(shared.bad_token_delay_cap_ms);
+    tokio::time::sleep(Duration::from_millis(delay)).await;
+    ApiError::new(
+        StatusCode::UNAUTHORIZED,
+        "bad_token",
+        "the bearer token is wrong",
+    )
+    .into_response()
+}
+
+/// The router of the whole service.
+pub fn router(shared: AppState, max_body_bytes: usize, cors_origins: &[String]) -> Router {
+    let api = Router::new()
+        .route("/api/v1/openapi.json", get(openapi))
+        .route("/api/v1/machines", get(machines))
+        .route("/api/v1/machines/{machine}", get(machine))
+        .route("/api/v1/machines/{machine}/jobs", post(enqueue))
+        .route("/api/v1/jobs", get(jobs))
+        .route("/api/v1/jobs/{id}", get(job))
+        .route("/api/v1/jobs/{id}/cancel", post(cancel))
+        .route("/api/v1/jobs/{id}/measurements", get(measurements))
+        .route("/api/v1/jobs/{id}/charts", get(charts))
+        .route("/api/v1/jobs/{id}/charts/{file}", get(chart))
+        .route("/api/v1/machines/{machine}/profiles", get(profiles))
+        .route(
+            "/api/v1/machines/{machine}/profiles/{name}/{version}",
+            get(profile),
+        )
+        .route(
+            "/api/v1/machines/{machine}/profiles/{name}/{version}/heatmap.svg",
+            get(heatmap),
+        )
+        .route(
+            "/api/v1/machines/{machine}/profiles/{name}/{version}/activate",
+            post(activate),
+        )
+        .route(
+            "/api/v1/machines/{machine}/profiles/{name}/rollback",
+            post(rollback),
+        )
+        .route("/api/v1/events", get(events))
+        .route_layer(middleware::from_fn_with_state(
+            shared.clone(),
+            require_token,
+        ));
+    let mut app = Router::new()
+        .route("/healthz", get(|| async { Json(json!({"status": "ok"})) }))
+        .route(
+            "/",
+            get(|| async { static_file("text/html; charset=utf-8", webpage::INDEX_HTML) }),
+        )
+        .route(
+            "/app.js",
+            get(|| async { static_file("text/javascript; charset=utf-8", webpage::APP_JS) }),
+        )
+        .route(
+            "/style.css",
+            get(|| async { static_file("text/css; charset=utf-8", webpage::STYLE_CSS) }),
+        )
+        .merge(api)
+        .fallback(|| async { ApiError::not_found("not_found", "no such route") })
+        .layer(middleware::from_fn_with_state(
+            shared.clone(),
+            refuse_query_token,
+        ))
+        .layer(DefaultBodyLimit::max(max_body_bytes))
+        .with_state(shared);
+    let origins: Vec<HeaderValue> = cors_origins
+        .iter()
+        .filter_map(|o| HeaderValue::from_str(o).ok())
+        .collect();
+    if !origins.is_empty() {
+        app = app.layer(
+            tower_http::cors::CorsLayer::new()
+                .allow_origin(origins)
+                .allow_methods([Method::GET, Method::POST])
+                .allow_headers([header::AUTHORIZATION, header::CONTENT_TYPE]),
+        );
+    }
+    app
+}
+
+fn static_file(content_type: &'static str, body: &'static str) -> Response {
+    ([(header::CONTENT_TYPE, content_type)], body).into_response()
+}
+
+#[derive(OpenApi)]
+#[openapi(
+    info(title = "gateway service", description = "Machines, job queues, profiles and events of a gateway box."),
+    paths(openapi, machines, machine, enqueue, jobs, job, cancel, measurements, charts, chart,
+          profiles, profile, heatmap, activate, rollback, events),
+    modifiers(&BearerAuth)
+)]
+pub struct ApiDoc;
+
+struct BearerAuth;
+impl utoipa::Modify for BearerAuth {
+    fn modify(&self, openapi: &mut utoipa::openapi::OpenApi) {
+        use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityScheme};
+        let components = openapi.components.get_or_insert_with(Default::default);
+        components.add_security_scheme(
+            "bearer",
+            SecurityScheme::Http(HttpBuilder::new().scheme(HttpAuthScheme::Bearer).build()),
+        );
+        openapi.security = Some(vec![utoipa::openapi::security::SecurityRequirement::new(
+            "bearer",
+            Vec::<String>::new(),
+        )]);
+    }
+}
+
+/// The OpenAPI 3 document of this API.
+#[utoipa::path(get, path = "/api/v1/openapi.json", responses((status = 200, description = "OpenAPI document")))]
+async fn openapi() -> Json<utoipa::openapi::OpenApi> {
+    Json(ApiDoc::openapi())
+}
+
+fn find_machine<'a>(shared: &'a Shared, id: &str) -> ApiResult<&'a Arc<crate::state::Machine>> {
+    shared
+        .machine(id)
+        .ok_or_else(|| ApiError::not_found("unknown_machine", format!("no machine {id:?}")))
+}
+
+/// Every machine with its state, running job and queue length.
+#[utoipa::path(get, path = "/api/v1/machines", responses((status = 200, description = "[Machine]")))]
+async fn machines(State(shared): State<AppState>) -> Json<Value> {
+    let list: Vec<Value> = shared
+        .machines
+        .iter()
+        .map(|m| shared.machine_json(m))
+        .collect();
+    Json(Value::Array(list))
+}
+
+/// One machine.
+#[utoipa::path(get, path = "/api/v1/machines/{machine}", params(("machine" = String, Path)),
+    responses((status = 200, description = "Machine"), (status = 404, description = "unknown machine")))]
+async fn machine(
+    State(shared): State<AppState>,
+    path: Result<Path<String>, PathRejection>,
+) -> ApiResult<Json<Value>> {
+    let Path(id) = path?;
+    let m = find_machine(&shared, &id)?;
+    Ok(Json(shared.machine_json(m)))
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct JobRequest {
+    kind: String,
+    #[serde(default = "empty_object")]
+    params: Value,
+    #[serde(default)]
+    if_idle: bool,
+}
+
+fn empty_object() -> Value {
+    json!({})
+}
+
+/// Queue a job (202 with the queued JobRecord); with `"if_idle": true`, 409 when the
+/// machine is busy or has a queue.
+#[utoipa::path(post, path = "/api/v1/machines/{machine}/jobs", params(("machine" = String, Path)),
+    request_body(content = Object, description = "{\"kind\": \"compensate\", \"params\": {\"targets\": 1}, \"if_idle\": false}"),
+    responses((status = 202, description = "JobRecord (queued)"), (status = 404, description = "unknown machine"),
+        (status = 409, description = "machine_busy"), (status = 413, description = "body too large"),
+        (status = 422, description = "invalid job")))]
+async fn enqueue(
+    State(shared): State<AppState>,
+    path: Result<Path<String>, PathRejection>,
+    body: Result<Json<JobRequest>, JsonRejection>,
+) -> ApiResult<(StatusCode, Json<Value>)> {
+    let Path(id) = path?;
+    let m = find_machine(&shared, &id)?.clone();
+    let Json(request) = body?;
+    worker::check_params(&request.kind, &request.params)
+        .map_err(|msg| ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, "invalid_job", msg))?;
+    let record = {
+        let mut store = lock(&shared.store);
+        if request.if_idle {
+            let state = m.status.lock().unwrap_or_else(|p| p.into_inner()).state;
+            let queued = store.queued(&m.id)?.len();
+            if state == MachineState::Busy || queued > 0 {
+                return Err(ApiError::new(
+                    StatusCode::CONFLICT,
+                    "machine_busy",
+                    format!(
+                        "machine {:?} is {} with {queued} job(s) queued",
+                        m.id,
+                        state.as_str()
+                    ),
+                ));
+            }
+        }
+        store.enqueue(&m.id, &request.kind, &request.params)?
+    };
+    shared.emit_job(&record);
+    shared.emit_machine(&m);
+    m.wake.notify_one();
+    Ok((
+        StatusCode::ACCEPTED,
+        Json(serde_json::to_value(record).unwrap_or(Value::Null)),
+    ))
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct JobsQuery {
+    machine: Option<String>,
+    state: Option<String>,
+    limit: Option<usize>,
+    before: Option<JobId>,
+}
+
+/// Jobs, newest first, filtered by machine and state, paged with `before` (an id).
+#[utoipa::path(get, path = "/api/v1/jobs",
+    params(("machine" = Option<String>, Query), ("state" = Option<String>, Query),
+           ("limit" = Option<usize>, Query), ("before" = Option<i64>, Query)),
+    responses((status = 200, description = "[JobRecord]"), (status = 400, description = "bad query")))]
+async fn jobs(
+    State(shared): State<AppState>,
+    query: Result<Query<JobsQuery>, QueryRejection>,
+) -> ApiResult<Json<Value>> {
+    let Query(q) = query?;
+    let state = match q.state.as_deref() {
+        None | Some("") => None,
+        Some(s) => Some(JobState::parse(s).ok_or_else(|| {
+            ApiError::new(
+                StatusCode::BAD_REQUEST,
+                "bad_query",
+                format!("state={s:?} is not a job state"),
+            )
+        })?),
+    };
+    let filter = JobFilter {
+        machine: q.machine.filter(|m| !m.is_empty()),
+        state,
+        limit: Some(q.limit.unwrap_or(100).clamp(1, 1000)),
+        before_id: q.before,
+    };
+    let list = lock(&shared.store).jobs(&filter)?;
+    Ok(Json(serde_json::to_value(list).unwrap_or(Value::Null)))
+}
+
+fn job_record(shared: &Shared, id: JobId) -> ApiResult<store::JobRecord> {
+    lock(&shared.store)
+        .job(id)?
+        .ok_or_else(|| ApiError::not_found("unknown_job", format!("no job {id}")))
+}
+
+/// One job.
+#[utoipa::path(get, path = "/api/v1/jobs/{id}", params(("id" = i64, Path)),
+    responses((status = 200, description = "JobRecord"), (status = 404, description = "unknown job")))]
+async fn job(
+    State(shared): State<AppState>,
+    path: Result<Path<JobId>, PathRejection>,
+) -> ApiResult<Json<Value>> {
+    let Path(id) = path?;
+    Ok(Json(
+        serde_json::to_value(job_record(&shared, id)?).unwrap_or(Value::Null),
+    ))
+}
+
+/// Cancel a job: a queued one at once; a running one is stopped by its runner (the
+/// stage told to stop, every measurement kept), answered once it has finished.
+#[utoipa::path(post, path = "/api/v1/jobs/{id}/cancel", params(("id" = i64, Path)),
+    responses((status = 200, description = "JobRecord"), (status = 404, description = "unknown job"),
+        (status = 409, description = "the job has finished")))]
+async fn cancel(
+    State(shared): State<AppState>,
+    path: Result<Path<JobId>, PathRejection>,
+) -> ApiResult<Json<Value>> {
+    let Path(id) = path?;
+    let record = job_record(&shared, id)?;
+    let machine = shared.machine(&record.machine).cloned();
+    if record.state == JobState::Queued {
+        let cancelled = lock(&shared.store).cancel_queued(id);
+        if let Ok(r) = cancelled {
+            shared.emit_job(&r);
+            if let Some(m) = &machine {
+                shared.emit_machine(m);
+            }
+            return Ok(Json(serde_json::to_value(r).unwrap_or(Value::Null)));
+        }
+        // It started meanwhile: cancel it as a running job.
+    }
+    let record = job_record(&shared, id)?;
+    if record.state.is_final() {
+        return Err(ApiError::new(
+            StatusCode::CONFLICT,
+            "job_finished",
+            format!(
+                "job {id} is {}; only queued or running jobs can be cancelled",
+                record.state
+            ),
+        ));
+    }
+    let mut events = shared.events.subscribe();
+    let notify = machine.as_ref().and_then(|m| {
+        m.cancel
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .as_ref()
+            .filter(|(running, _)| *running == id)
+            .map(|(_, n)| n.clone())
+    });
+    if let Some(n) = notify {
+        n.notify_one();
+        // Answer with the final record: wait for the worker to save it (bounded).
+        let _ = tokio::time::timeout(Duration::from_secs(30), async {
+            loop {
+                match events.recv().await {
+                    Ok(text) => {
+                        if let Ok(v) = serde_json::from_str::<Value>(&text) {
+                            let job = &v["job"];
+                            if v["type"] == "job"
+                                && job["id"] == id
+                                && JobState::parse(job["state"].as_str().unwrap_or(""))
+                                    .is_some_and(JobState::is_final)
+                            {
+                                return;
+                            }
+                        }
+                    }
+                    Err(RecvError::Lagged(_)) => {
+                        if job_record(&shared, id)
+                            .map(|r| r.state.is_final())
+                            .unwrap_or(true)
+                        {
+                            return;
+                        }
+                    }
+                    Err(RecvError::Closed) => return,
+                }
+            }
+        })
+        .await;
+    }
+    Ok(Json(
+        serde_json::to_value(job_record(&shared, id)?).unwrap_or(Value::Null),
+    ))
+}
+
+/// The job's measurements, in the order taken.
+#[utoipa::path(get, path = "/api/v1/jobs/{id}/measurements", params(("id" = i64, Path)),
+    responses((status = 200, description = "[object]"), (status = 404, description = "unknown job")))]
+async fn measurements(
+    State(shared): State<AppState>,
+    path: Result<Path<JobId>, PathRejection>,
+) -> ApiResult<Json<Value>> {
+    let Path(id) = path?;
+    job_record(&shared, id)?;
+    let list = lock(&shared.store).measurements(id)?;
+    Ok(Json(Value::Array(list)))
+}
+
+/// Charts saved in a job's result under `charts` (name -> SVG text).
+fn job_charts(record: &store::JobRecord) -> Vec<(String, String, String)> {
+    let Some(charts) = record
+        .result
+        .as_ref()
+        .and_then(|r| r.get("charts"))
+        .and_then(Value::as_object)
+    else {
+        return Vec::new();
+    };
+    charts
+        .iter()
+        .filter_map(|(name, c)| {
+            Some((
+                name.clone(),
+                c.get("title")?.as_str()?.to_string(),
+                c.get("svg")?.as_str()?.to_string(),
+            ))
+        })
+        .collect()
+}
+
+/// The job's charts: `[{"name", "title", "url"}]`.
+#[utoipa::path(get, path = "/api/v1/jobs/{id}/charts", params(("id" = i64, Path)),
+    responses((status = 200, description = "[{name, title, url}]"), (status = 404, description = "unknown job")))]
+async fn charts(
+    State(shared): State<AppState>,
+    path: Result<Path<JobId>, PathRejection>,
+) -> ApiResult<Json<Value>> {
+    let Path(id) = path?;
+    let record = job_record(&shared, id)?;
+    let list: Vec<Value> = job_charts(&record)
+        .into_iter()
+        .map(|(name, title, _)| json!({"name": name, "title": title, "url": format!("/api/v1/jobs/{id}/charts/{name}.svg")}))
+        .collect();
+    Ok(Json(Value::Array(list)))
+}
+
+/// One chart of a job as SVG.
+#[utoipa::path(get, path = "/api/v1/jobs/{id}/charts/{file}", params(("id" = i64, Path), ("file" = String, Path, description = "<name>.svg")),
+    responses((status = 200, description = "image/svg+xml", content_type = "image/svg+xml"), (status = 404, description = "unknown job or chart")))]
+async fn chart(
+    State(shared): State<AppState>,
+    path: Result<Path<(JobId, String)>, PathRejection>,
+) -> ApiResult<Response> {
+    let Path((id, file)) = path?;
+    let record = job_record(&shared, id)?;
+    let name = file.strip_suffix(".svg").unwrap_or("");
+    let svg = job_charts(&record)
+        .into_iter()
+        .find(|(n, _, _)| n == name)
+        .map(|(_, _, svg)| svg)
+        .ok_or_else(|| {
+            ApiError::not_found("unknown_chart", format!("job {id} has no chart {file:?}"))
+        })?;
+    Ok(([(header::CONTENT_TYPE, "image/svg+xml")], svg).into_response())
+}
+
+/// The machine's profile versions.
+#[utoipa::path(get, path = "/api/v1/machines/{machine}/profiles", params(("machine" = String, Path)),
+    responses((status = 200, description = "[ProfileVersion]"), (status = 404, description = "unknown machine")))]
+async fn profiles(
+    State(shared): State<AppState>,
+    path: Result<Path<String>, PathRejection>,
+) -> ApiResult<Json<Value>> {
+    let Path(id) = path?;
+    find_machine(&shared, &id)?;
+    let list = lock(&shared.store).profiles(&id)?;
+    Ok(Json(serde_json::to_value(list).unwrap_or(Value::Null)))
+}
+
+fn profile_of(
+    shared: &Shared,
+    machine: &str,
+    name: &str,
+    version: u32,
+) -> ApiResult<(store::ProfileVersion, Value)> {
+    find_machine(shared, machine)?;
+    lock(&shared.store)
+        .profile(machine, name, version)?
+        .ok_or_else(|| {
+            ApiError::not_found(
+                "unknown_profile",
+                format!("machine {machine:?} has no profile {name:?} version {version}"),
+            )
+        })
+}
+
+/// One profile version with its body.
+#[utoipa::path(get, path = "/api/v1/machines/{machine}/profiles/{name}/{version}",
+    params(("machine" = String, Path), ("name" = String, Path), ("version" = u32, Path)),
+    responses((status = 200, description = "{profile, body}"), (status = 404, description = "unknown machine or profile")))]
+async fn profile(
+    State(shared): State<AppState>,
+    path: Result<Path<(String, String, u32)>, PathRejection>,
+) -> ApiResult<Json<Value>> {
+    let Path((machine, name, version)) = path?;
+    let (profile, body) = profile_of(&shared, &machine, &name, version)?;
+    Ok(Json(json!({"profile": profile, "body": body})))
+}
+
+/// The heat map of an error-map profile (SVG), when its body carries one.
+#[utoipa::path(get, path = "/api/v1/machines/{machine}/profiles/{name}/{version}/heatmap.svg",
+    params(("machine" = String, Path), ("name" = String, Path), ("version" = u32, Path)),
+    responses((status = 200, description = "image/svg+xml", content_type = "image/svg+xml"), (status = 404, description = "unknown profile or no heat map")))]
+async fn heatmap(
+    State(shared): State<AppState>,
+    path: Result<Path<(String, String, u32)>, PathRejection>,
+) -> ApiResult<Response> {
+    let Path((machine, name, version)) = path?;
+    let (_, body) = profile_of(&shared, &machine, &name, version)?;
+    let svg = body
+        .get("heatmap_svg")
+        .and_then(Value::as_str)
+        .ok_or_else(|| {
+            ApiError::not_found(
+                "no_heatmap",
+                format!("profile {name:?} version {version} has no heat map"),
+            )
+        })?;
+    Ok(([(header::CONTENT_TYPE, "image/svg+xml")], svg.to_string()).into_response())
+}
+
+/// Make a profile version the active one of its name.
+#[utoipa::path(post, path = "/api/v1/machines/{machine}/profiles/{name}/{version}/activate",
+    params(("machine" = String, Path), ("name" = String, Path), ("version" = u32, Path)),
+    responses((status = 200, description = "ProfileVersion"), (status = 404, description = "unknown machine or profile")))]
+async fn activate(
+    State(shared): State<AppState>,
+    path: Result<Path<(String, String, u32)>, PathRejection>,
+) -> ApiResult<Json<Value>> {
+    let Path((machine, name, version)) = path?;
+    profile_of(&shared, &machine, &name, version)?;
+    let p = lock(&shared.store).activate(&machine, &name, version)?;
+    Ok(Json(serde_json::to_value(p).unwrap_or(Value::Null)))
+}
+
+/// Back to the version active before the current one.
+#[utoipa::path(post, path = "/api/v1/machines/{machine}/profiles/{name}/rollback",
+    params(("machine" = String, Path), ("name" = String, Path)),
+    responses((status = 200, description = "ProfileVersion"), (status = 404, description = "unknown machine or profile"),
+        (status = 409, description = "nothing to roll back to")))]
+async fn rollback(
+    State(shared): State<AppState>,
+    path: Result<Path<(String, String)>, PathRejection>,
+) -> ApiResult<Json<Value>> {
+    let Path((machine, name)) = path?;
+    find_machine(&shared, &machine)?;
+    let p = lock(&shared.store).rollback(&machine, &name)?;
+    Ok(Json(serde_json::to_value(p).unwrap_or(Value::Null)))
+}
+
+/// The event stream (WebSocket): `hello`, then `machine`, `job`, `progress`,
+/// `measurement` messages. Auth: the bearer header or the subprotocols
+/// `["gateway.v1", "bearer.<token>"]` (answered `gateway.v1`).
+#[utoipa::path(get, path = "/api/v1/events", responses((status = 101, description = "WebSocket upgrade")))]
+async fn events(
+    State(shared): State<AppState>,
+    ws: Result<WebSocketUpgrade, axum::extract::ws::rejection::WebSocketUpgradeRejection>,
+) -> Response {
+    match ws {
+        Ok(ws) => ws
+            .protocols(["gateway.v1"])
+            .on_upgrade(move |socket| client(socket, shared)),
+        Err(r) => {
+            ApiError::new(StatusCode::BAD_REQUEST, "not_websocket", r.body_text()).into_response()
+        }
+    }
+}
+
+async fn client(socket: WebSocket, shared: AppState) {
+    let mut events = shared.events.subscribe();
+    let mut shutdown = shared.shutdown.clone();
+    let (mut tx, mut rx) = socket.split();
+    let machines: Vec<Value> = shared
+        .machines
+        .iter()
+        .map(|m| shared.machine_json(m))
+        .collect();
+    let hello = json!({"type": "hello", "machines": machines}).to_string();
+    if tx.send(Message::Text(hello.into())).await.is_err() {
+        return;
+    }
+    // A client that cannot keep up (the broadcast buffer overtook it, or a send
+    // stalls) is dropped; the service never waits on it.
+    let send_timeout = Duration::from_secs(5);
+    loop {
+        tokio::select! {
+            event = events.recv() => match event {
+                Ok(text) => {
+                    let sent = tokio::time::timeout(send_timeout, tx.send(Message::Text(text.to_string().into()))).await;
+                    if !matches!(sent, Ok(Ok(()))) {
+                        break;
+                    }
+                }
+                Err(RecvError::Lagged(n)) => {
+                    warn!(missed = n, "event client too slow; dropped");
+                    let _ = tx.send(Message::Close(None)).await;
+                    break;
+                }
+                Err(RecvError::Closed) => break,
+            },
+            incoming = rx.next() => match incoming {
+                None | Some(Err(_)) | Some(Ok(Message::Close(_))) => break,
+                Some(Ok(_)) => {}
+            },
+            _ = async { let _ = shutdown.wait_for(|s| *s).await; } => {
+                let _ = tx.send(Message::Close(None)).await;
+                break;
+            }
+        }
+    }
+}

@@ -1,0 +1,282 @@
+//! BOX.toml: the service's own settings, the machines it drives, and the optional MQTT
+//! northbound. Relative paths are relative to the BOX.toml file's folder.
+
+use serde::Deserialize;
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+
+/// A BOX.toml that could not be used; the message names the file and the key.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("{path}: {source}")]
+    Read {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{path}: key `{key}`: {message}")]
+    Parse {
+        path: String,
+        key: String,
+        message: String,
+    },
+    #[error("{path}: {key}: {message}")]
+    Invalid {
+        path: String,
+        key: String,
+        message: String,
+    },
+}
+
+/// `job = "builtin:demo"` names the embedded demo job instead of a file.
+pub const BUILTIN_DEMO_JOB: &str = "builtin:demo";
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawBox {
+    service: RawService,
+    #[serde(default, rename = "machine")]
+    machines: Vec<RawMachine>,
+    #[serde(default)]
+    mqtt: Option<toml::Table>,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawService {
+    #[serde(default = "default_listen")]
+    listen: SocketAddr,
+    data_dir: PathBuf,
+    #[serde(default)]
+    token_file: Option<PathBuf>,
+    #[serde(default)]
+    cors_origins: Vec<String>,
+    #[serde(default = "default_max_body")]
+    max_body_bytes: usize,
+    #[serde(default = "default_bad_token_delay_cap_ms")]
+    bad_token_delay_cap_ms: u64,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawMachine {
+    id: String,
+    #[serde(default)]
+    description: String,
+    job: String,
+    #[serde(default)]
+    map_profile: Option<String>,
+}
+
+fn default_listen() -> SocketAddr {
+    SocketAddr::from(([127, 0, 0, 1], 8780))
+}
+fn default_max_body() -> usize {
+    64 * 1024
+}
+fn default_bad_token_delay_cap_ms() -> u64 {
+    2000
+}
+
+/// Where a machine's job file comes from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum JobSource {
+    /// The embedded demo job (every device simulated in-process).
+    BuiltinDemo,
+    File(PathBuf),
+}
+
+impl JobSource {
+    pub fn load(&self) -> Result<job::Job, String> {
+        match self {
+            JobSource::BuiltinDemo => Ok(job::Job::demo()),
+            JobSource::File(path) => job::Job::load(path).map_err(|e| e.to_string()),
+        }
+    }
+}
+
+/// One machine of the box.
+#[derive(Debug, Clone)]
+pub struct MachineConfig {
+    /// Short name used in URLs: letters, digits, `-` and `_`.
+    pub id: String,
+    pub description: String,
+    pub job: JobSource,
+    /// Name of the error-map profile verify jobs use (default "error_map").
+    pub map_profile: String,
+}
+
+/// The service's settings (`[service]`).
+#[derive(Debug, Clone)]
+pub struct ServiceConfig {
+    /// Loopback by default: the API is reachable from elsewhere only when asked.
+    pub listen: SocketAddr,
+    pub data_dir: PathBuf,
+    /// Holds the bearer token (hex of 256 random bits), created at first start, mode 0600.
+    pub token_file: PathBuf,
+    /// Origins allowed by CORS; empty = CORS off.
+    pub cors_origins: Vec<String>,
+    /// Larger request bodies get 413.
+    pub max_body_bytes: usize,
+    /// Cap of the growing delay before answering a wrong token (ms).
+    pub bad_token_delay_cap_ms: u64,
+}
+
+/// BOX.toml, resolved.
+#[derive(Debug, Clone)]
+pub struct BoxConfig {
+    pub service: ServiceConfig,
+    pub machines: Vec<MachineConfig>,
+    /// `[mqtt]` as written (the northbound's `MqttConfig`); absent = no northbound.
+    pub mqtt: Option<toml::Table>,
+}
+
+impl BoxConfig {
+    pub fn load(path: &Path) -> Result<BoxConfig, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.display().to_string(),
+            source,
+        })?;
+        let base = path.parent().unwrap_or(Path::new("."));
+        BoxConfig::parse(&text, &path.display().to_string(), base)
+    }
+
+    /// Parse BOX.toml text; `name` is used in errors, `base` resolves relative paths.
+    pub fn parse(text: &str, name: &str, base: &Path) -> Result<BoxConfig, ConfigError> {
+        let de = toml::Deserializer::new(text);
+        let raw: RawBox = serde_path_to_error::deserialize(de).map_err(|e| ConfigError::Parse {
+            path: name.to_string(),
+            key: e.path().to_string(),
+            message: e.inner().message().to_string(),
+        })?;
+        let invalid = |key: String, message: String| ConfigError::Invalid {
+            path: name.to_string(),
+            key,
+            message,
+        };
+        let resolve = |p: &Path| {
+            if p.is_absolute() {
+                p.to_path_buf()
+            } else {
+                base.join(p)
+            }
+        };
+        if raw.service.max_body_bytes == 0 {
+            return Err(invalid(
+                "service.max_body_bytes".into(),
+                "must be at least 1".into(),
+            ));
+        }
+        let data_dir = resolve(&raw.service.data_dir);
+        let token_file = match &raw.service.token_file {
+            Some(p) => resolve(p),
+            None => data_dir.join("token"),
+        };
+        let mut machines: Vec<MachineConfig> = Vec::new();
+        for (i, m) in raw.machines.iter().enumerate() {
+            let key = |field: &str| format!("machine[{i}].{field}");
+            if !valid_id(&m.id) {
+                return Err(invalid(
+                    key("id"),
+                    format!(
+                        "{:?} is not a machine id (1 to 64 letters, digits, '-' or '_')",
+                        m.id
+                    ),
+                ));
+            }
+            if machines.iter().any(|other| other.id == m.id) {
+                return Err(invalid(key("id"), format!("{:?} is used twice", m.id)));
+            }
+            let job = if m.job == BUILTIN_DEMO_JOB {
+                JobSource::BuiltinDemo
+            } else {
+                JobSource::File(resolve(Path::new(&m.job)))
+            };
+            machines.push(MachineConfig {
+                id: m.id.clone(),
+                description: m.description.clone(),
+                job,
+                map_profile: m.map_profile.clone().unwrap_or_else(|| "error_map".into()),
+            });
+        }
+        Ok(BoxConfig {
+            service: ServiceConfig {
+                listen: raw.service.listen,
+                data_dir,
+                token_file,
+                cors_origins: raw.service.cors_origins,
+                max_body_bytes: raw.service.max_body_bytes,
+                bad_token_delay_cap_ms: raw.service.bad_token_delay_cap_ms,
+            },
+            machines,
+            mqtt: raw.mqtt,
+        })
+    }
+
+    /// One machine "demo" on the embedded demo job, listening on 127.0.0.1:0, no MQTT.
+    pub fn demo(data_dir: &Path) -> BoxConfig {
+        BoxConfig {
+            service: ServiceConfig {
+                listen: SocketAddr::from(([127, 0, 0, 1], 0)),
+                data_dir: data_dir.to_path_buf(),
+                token_file: data_dir.join("token"),
+                cors_origins: Vec::new(),
+                max_body_bytes: default_max_body(),
+                bad_token_delay_cap_ms: default_bad_token_delay_cap_ms(),
+            },
+            machines: vec![MachineConfig {
+                id: "demo".into(),
+                description: "Simulated stage and camera (the embedded demo job)".into(),
+                job: JobSource::BuiltinDemo,
+                map_profile: "error_map".into(),
+            }],
+            mqtt: None,
+        }
+    }
+}
+
+/// Machine ids appear in URLs and MQTT topics: keep them plain.
+pub fn valid_id(id: &str) -> bool {
+    !id.is_empty()
+        && id.len() <= 64
+        && id
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reads_the_demo_box() {
+        let text = include_str!("../../../config/box/demo.toml");
+        let c = BoxConfig::parse(text, "demo.toml", Path::new("/etc/gw")).unwrap();
+        assert_eq!(c.service.listen, "127.0.0.1:8780".parse().unwrap());
+        assert_eq!(c.service.data_dir, Path::new("/var/lib/gateway"));
+        assert_eq!(c.service.token_file, Path::new("/var/lib/gateway/token"));
+        assert!(c.service.cors_origins.is_empty());
+        assert_eq!(c.machines.len(), 1);
+        assert_eq!(
+            c.machines[0].job,
+            JobSource::File(PathBuf::from("/etc/gw/../gateway/demo.toml"))
+        );
+        assert!(c.mqtt.is_none());
+    }
+
+    #[test]
+    fn errors_name_the_key() {
+        let text = "[service]\ndata_dir = \"d\"\nlisten = \"nowhere\"\n";
+        let e = BoxConfig::parse(text, "b.toml", Path::new(".")).unwrap_err();
+        assert!(e.to_string().contains("service.listen"), "{e}");
+        let text = "[service]\ndata_dir = \"d\"\n[[machine]]\nid = \"a b\"\njob = \"j\"\n";
+        let e = BoxConfig::parse(text, "b.toml", Path::new(".")).unwrap_err();
+        assert!(e.to_string().contains("machine[0].id"), "{e}");
+        let text = "[service]\ndata_dir = \"d\"\nport = 3\n";
+        let e = BoxConfig::parse(text, "b.toml", Path::new(".")).unwrap_err();
+        assert!(e.to_string().contains("port"), "{e}");
+        let text = "[service]\ndata_dir = \"d\"\n[[machine]]\nid = \"a\"\njob = \"j\"\n[[machine]]\nid = \"a\"\njob = \"k\"\n";
+        let e = BoxConfig::parse(text, "b.toml", Path::new(".")).unwrap_err();
+        assert!(e.to_string().contains("machine[1].id"), "{e}");
+    }
+}

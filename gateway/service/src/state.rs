@@ -1,0 +1,123 @@
+//! State shared by the API and the machine workers.
+
+use serde_json::{json, Value};
+use std::collections::HashMap;
+use std::net::IpAddr;
+use std::sync::{Arc, Mutex};
+use store::{JobId, JobRecord, Store};
+use tokio::sync::{broadcast, watch, Notify};
+
+/// What a machine is doing, as the API shows it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MachineState {
+    Opening,
+    Idle,
+    Busy,
+    LinkLost,
+    Stopped,
+}
+
+impl MachineState {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            MachineState::Opening => "opening",
+            MachineState::Idle => "idle",
+            MachineState::Busy => "busy",
+            MachineState::LinkLost => "link_lost",
+            MachineState::Stopped => "stopped",
+        }
+    }
+}
+
+#[derive(Debug, Clone)]
+pub struct Status {
+    pub state: MachineState,
+    pub detail: Option<String>,
+    pub job: Option<JobId>,
+}
+
+/// One machine: its description, live status and the handles its worker listens to.
+pub struct Machine {
+    pub id: String,
+    pub description: String,
+    pub stage: String,
+    pub camera: String,
+    pub map_profile: String,
+    pub status: Mutex<Status>,
+    /// Woken when a job is queued for this machine.
+    pub wake: Notify,
+    /// Notified to cancel the job now running (a fresh one per job, so a stale
+    /// cancel never stops the next job).
+    pub cancel: Mutex<Option<(JobId, Arc<Notify>)>>,
+}
+
+pub struct Shared {
+    pub store: Arc<Mutex<Store>>,
+    pub machines: Vec<Arc<Machine>>,
+    /// Events as serialized JSON; a client that falls behind is dropped.
+    pub events: broadcast::Sender<Arc<str>>,
+    pub token: String,
+    pub shutdown: watch::Receiver<bool>,
+    /// Wrong-token count and per peer, for the growing delay.
+    pub bad_tokens: Mutex<HashMap<IpAddr, u32>>,
+    pub bad_token_delay_cap_ms: u64,
+}
+
+/// The store's lock; a panic while holding it does not make the data unusable
+/// (each store call is its own transaction).
+pub fn lock(store: &Mutex<Store>) -> std::sync::MutexGuard<'_, Store> {
+    store.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+impl Shared {
+    pub fn machine(&self, id: &str) -> Option<&Arc<Machine>> {
+        self.machines.iter().find(|m| m.id == id)
+    }
+
+    /// The API's `Machine` object.
+    pub fn machine_json(&self, m: &Machine) -> Value {
+        let status = m.status.lock().unwrap_or_else(|p| p.into_inner()).clone();
+        let store = lock(&self.store);
+        let job = status
+            .job
+            .and_then(|id| store.job(id).ok().flatten())
+            .map(|j| serde_json::to_value(j).unwrap_or(Value::Null))
+            .unwrap_or(Value::Null);
+        let queued = store.queued(&m.id).map(|q| q.len()).unwrap_or(0);
+        json!({
+            "id": m.id, "description": m.description, "stage": m.stage, "camera": m.camera,
+            "state": status.state.as_str(), "state_detail": status.detail,
+            "job": job, "queued": queued,
+        })
+    }
+
+    pub fn emit(&self, event: Value) {
+        // No receiver is not an error: nobody is watching.
+        let _ = self.events.send(Arc::from(event.to_string()));
+    }
+
+    pub fn emit_job(&self, job: &JobRecord) {
+        self.emit(json!({"type": "job", "job": job}));
+    }
+
+    pub fn emit_machine(&self, m: &Machine) {
+        let machine = self.machine_json(m);
+        self.emit(json!({"type": "machine", "machine": machine}));
+    }
+
+    pub fn set_status(
+        &self,
+        m: &Machine,
+        state: MachineState,
+        detail: Option<String>,
+        job: Option<JobId>,
+    ) {
+        {
+            let mut s = m.status.lock().unwrap_or_else(|p| p.into_inner());
+            s.state = state;
+            s.detail = detail;
+            s.job = job;
+        }
+        self.emit_machine(m);
+    }
+}
