@@ -143,8 +143,39 @@ pub enum LayoutError {
     },
 }
 
-/// A part's contours: finite, at least 3 distinct points, no self-intersection, holes
-/// inside the outer contour and apart from each other (`geo`'s OGC validity rules).
+/// The first vertex where a closed ring reverses its direction (the edges before and after
+/// it run back along one line). Such a spike has no width to cut; whether a validity
+/// check sees it as a self-intersection depends on the last bits of the coordinates, so
+/// the same part moved by a millimetre could be accepted once and refused the next time.
+fn turns_back(ring: &[[f64; 2]]) -> Option<[f64; 2]> {
+    // Distinct consecutive points, the closing point dropped.
+    let mut pts: Vec<[f64; 2]> = Vec::with_capacity(ring.len());
+    for &p in ring {
+        if pts.last() != Some(&p) {
+            pts.push(p);
+        }
+    }
+    while pts.len() > 1 && pts.first() == pts.last() {
+        pts.pop();
+    }
+    let n = pts.len();
+    if n < 3 {
+        return None;
+    }
+    (0..n).find_map(|i| {
+        let (a, b, c) = (pts[(i + n - 1) % n], pts[i], pts[(i + 1) % n]);
+        let u = [b[0] - a[0], b[1] - a[1]];
+        let v = [c[0] - b[0], c[1] - b[1]];
+        let cross = u[0] * v[1] - u[1] * v[0];
+        let dot = u[0] * v[0] + u[1] * v[1];
+        let lengths = u[0].hypot(u[1]) * v[0].hypot(v[1]);
+        // Reversal within about a nanoradian: only rounding separates it from a spike.
+        (dot < 0.0 && cross.abs() <= 1e-9 * lengths).then_some(b)
+    })
+}
+
+/// A part's contours: finite, at least 3 distinct points, no self-intersection and no
+/// zero-width spike, holes inside the outer contour and apart from each other (`geo`'s OGC validity rules).
 pub fn check_part(part: &Part) -> Result<(), LayoutError> {
     let bad = |message: String| LayoutError::Part {
         part: part.id.clone(),
@@ -157,6 +188,14 @@ pub fn check_part(part: &Part) -> Result<(), LayoutError> {
     }
     if part.outer.len() < 3 || part.holes.iter().any(|h| h.len() < 3) {
         return Err(bad("a contour has fewer than 3 points".into()));
+    }
+    for ring in std::iter::once(&part.outer).chain(&part.holes) {
+        if let Some(at) = turns_back(ring) {
+            return Err(bad(format!(
+                "the contour turns back on itself at ({:.6}, {:.6}) mm (a zero-width spike)",
+                at[0], at[1]
+            )));
+        }
     }
     let polygon = part.polygon();
     if let Some(problem) = polygon.validation_errors().into_iter().next() {

@@ -98,6 +98,38 @@ fn json_round_trip_keeps_holes_layers_and_attributes() {
 }
 
 #[test]
+fn a_contour_that_turns_back_on_itself_is_refused_wherever_it_lies() {
+    // (1,0) -> (100,0) -> (50,0) runs back along the same line: a spike of no width. Rotated
+    // by 5 degrees its points are collinear only to rounding, which decided before whether
+    // the part was accepted (and the same part moved by 1 mm then refused).
+    let (s, c) = 5f64.to_radians().sin_cos();
+    let rot = |x: f64, y: f64| [x * c - y * s + 10.0, x * s + y * c];
+    let pts = [
+        rot(1.0, 0.0),
+        rot(100.0, 0.0),
+        rot(50.0, 0.0),
+        rot(50.0, -50.0),
+    ];
+    for shift in [0.0, 1.0, 123.456] {
+        let contour: Vec<String> = pts
+            .iter()
+            .map(|p| format!("[{},{}]", p[0] + shift, p[1] + shift))
+            .collect();
+        let doc = format!(
+            r#"{{"parts":[{{"id":"spike","contours":[[{}]]}}]}}"#,
+            contour.join(",")
+        );
+        let e = Layout::read(doc.as_bytes(), Format::Json, &opts())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("part `spike`") && e.contains("turns back"),
+            "{e}"
+        );
+    }
+}
+
+#[test]
 fn json_bad_parts_are_named() {
     let bow_tie = br#"{"parts":[{"id":"tie","contours":[[[0,0],[10,10],[10,0],[0,10]]]}]}"#;
     let e = Layout::read(bow_tie, Format::Json, &opts())
