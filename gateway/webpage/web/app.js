@@ -226,7 +226,18 @@ async function showJob(id) {
   loadProfiles().catch(reportError);
 }
 
-function renderMeasurements(measurements) {
+// Nested measurement objects become dotted columns: {"deviation": {"dx_mm": 1}} -> deviation.dx_mm.
+function flatten(value, prefix, into) {
+  if (value && typeof value === 'object' && !Array.isArray(value)) {
+    for (const [key, inner] of Object.entries(value)) flatten(inner, prefix ? prefix + '.' + key : key, into);
+  } else {
+    into[prefix || 'value'] = value;
+  }
+  return into;
+}
+
+function renderMeasurements(raw) {
+  const measurements = raw.map((m) => flatten(m, '', {}));
   const table = $('job-measurements');
   const columns = [...new Set(measurements.flatMap((m) => Object.keys(m || {})))];
   table.tHead.replaceChildren(el('tr', {}, ...columns.map((c) => el('th', { scope: 'col', text: c }))));
