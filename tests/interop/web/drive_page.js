@@ -64,6 +64,13 @@ async function main() {
   const pageErrors = [];
   page.on('pageerror', (error) => pageErrors.push(String(error)));
   try {
+    // Without a token the page asks for one; a wrong one is refused with a message.
+    await page.goto(`${base}/`);
+    await page.locator('#login:not([hidden])').waitFor({ timeout: UI_TIMEOUT_MS });
+    await page.fill('#token-input', 'not-the-token');
+    await page.click('#login-button');
+    await page.locator('#login-error:text("refused")').waitFor({ timeout: UI_TIMEOUT_MS });
+    step('wrong token refused');
     await page.goto(`${base}/#token=${encodeURIComponent(token)}`);
     await page.locator('#connection[data-state="open"]').waitFor({ timeout: UI_TIMEOUT_MS });
     // The token left the address bar and sits in sessionStorage.
