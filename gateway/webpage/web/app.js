@@ -226,7 +226,18 @@ async function showJob(id) {
   loadProfiles().catch(reportError);
 }
 
-function renderMeasurements(measurements) {
+// Nested measurement objects become dotted columns: {"deviation": {"dx_mm": 1}} -> deviation.dx_mm.
+function flatten(value, prefix, into) {
+  if (value && typeof value === 'object' && !Array.isArray(value)) {
+    for (const [key, inner] of Object.entries(value)) flatten(inner, prefix ? prefix + '.' + key : key, into);
+  } else {
+    into[prefix || 'value'] = value;
+  }
+  return into;
+}
+
+function renderMeasurements(raw) {
+  const measurements = raw.map((m) => flatten(m, '', {}));
   const table = $('job-measurements');
   const columns = [...new Set(measurements.flatMap((m) => Object.keys(m || {})))];
   table.tHead.replaceChildren(el('tr', {}, ...columns.map((c) => el('th', { scope: 'col', text: c }))));
@@ -302,6 +313,12 @@ async function showHeatmap(machine, profile) {
 
 function connectEvents() {
   if (!view.token) return;
+  if (view.socket) {
+    // A new token replaces the old connection (its close handler then does nothing).
+    const old = view.socket;
+    view.socket = null;
+    old.close();
+  }
   const scheme = location.protocol === 'https:' ? 'wss:' : 'ws:';
   // Browsers cannot set headers on a WebSocket: the token goes in the subprotocol list.
   const socket = new WebSocket(scheme + '//' + location.host + '/api/v1/events',
@@ -412,6 +429,11 @@ document.addEventListener('DOMContentLoaded', () => {
     if (id) post('/api/v1/jobs/' + id + '/cancel').then(upsertAndRender).catch(reportError);
   });
   $('profile-machine').addEventListener('change', () => loadProfiles().catch(reportError));
+  // A link with #token= opened on a page already loaded changes only the fragment.
+  window.addEventListener('hashchange', () => {
+    const fresh = takeToken();
+    if (fresh && fresh !== view.token) enter(fresh).catch(reportError);
+  });
   const token = takeToken();
   if (token) enter(token).catch(reportError);
   else showLogin('');

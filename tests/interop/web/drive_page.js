@@ -5,14 +5,17 @@
 // at its chart and the error map's heat map, activate a profile version and roll back.
 // Every wait is a Playwright wait on the DOM (no sleeps).
 //
-// Usage: node drive_page.js BASE_URL TOKEN MACHINE KIND PARAMS_JSON SCREENSHOT USER_DATA_DIR
+// Usage: node drive_page.js BASE_URL TOKEN MACHINE KIND PARAMS_JSON SCREENSHOT USER_DATA_DIR [CHARTS]
+//   CHARTS: "required" (default: the finished job must show a chart that loads) or
+//   "optional" (a job kind that draws none; the chart list is still checked if present).
 // Prints one JSON object with what it saw; exit status 1 (with {"ok": false, "why"})
 // on any failure.
 'use strict';
 const path = require('path');
 const { chromium } = require(path.join(__dirname, 'node_modules', 'playwright-core'));
 
-const [base, token, machine, kind, paramsJson, screenshot, userDataDir] = process.argv.slice(2);
+const [base, token, machine, kind, paramsJson, screenshot, userDataDir, chartsArg] = process.argv.slice(2);
+const chartsRequired = (chartsArg || 'required') === 'required';
 const JOB_TIMEOUT_MS = 180000;
 const UI_TIMEOUT_MS = 20000;
 const out = { ok: false, steps: [] };
@@ -61,6 +64,13 @@ async function main() {
   const pageErrors = [];
   page.on('pageerror', (error) => pageErrors.push(String(error)));
   try {
+    // Without a token the page asks for one; a wrong one is refused with a message.
+    await page.goto(`${base}/`);
+    await page.locator('#login:not([hidden])').waitFor({ timeout: UI_TIMEOUT_MS });
+    await page.fill('#token-input', 'not-the-token');
+    await page.click('#login-button');
+    await page.locator('#login-error:text("refused")').waitFor({ timeout: UI_TIMEOUT_MS });
+    step('wrong token refused');
     await page.goto(`${base}/#token=${encodeURIComponent(token)}`);
     await page.locator('#connection[data-state="open"]').waitFor({ timeout: UI_TIMEOUT_MS });
     // The token left the address bar and sits in sessionStorage.
@@ -82,13 +92,19 @@ async function main() {
     // The job's detail: a chart (an SVG that loaded) and its measurements.
     await page.click(`button.show-job[data-job-id="${jobId}"]`);
     await page.locator(`#job-detail[data-job-id="${jobId}"]`).waitFor({ timeout: UI_TIMEOUT_MS });
+    // Charts and measurements arrive together; wait for the measurement count first.
+    await page.locator('#job-measurement-count[data-count]').waitFor({ timeout: UI_TIMEOUT_MS });
     const chart = page.locator('#job-charts img[data-chart]').first();
-    await chart.waitFor({ timeout: UI_TIMEOUT_MS });
-    await page.waitForFunction(() => {
-      const img = document.querySelector('#job-charts img[data-chart]');
-      return img && img.complete && img.naturalWidth > 0;
-    }, null, { timeout: UI_TIMEOUT_MS });
-    out.chart = await chart.getAttribute('data-chart');
+    if (chartsRequired || await chart.count() > 0) {
+      await chart.waitFor({ timeout: UI_TIMEOUT_MS });
+      await page.waitForFunction(() => {
+        const img = document.querySelector('#job-charts img[data-chart]');
+        return img && img.complete && img.naturalWidth > 0;
+      }, null, { timeout: UI_TIMEOUT_MS });
+      out.chart = await chart.getAttribute('data-chart');
+    } else {
+      out.chart = null;
+    }
     out.job_detail_state = await page.locator('#job-detail').getAttribute('data-state');
     out.measurements = Number(await page.locator('#job-measurement-count').getAttribute('data-count'));
 
