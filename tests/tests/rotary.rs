@@ -1,178 +1,432 @@
-//! The 5-axis rotary machine behind the GRBL emulator on a real pseudo-terminal, driven
-//! by the GRBL driver: six axes found from `$$` and the status reports, rotary
-//! capabilities, probing moves onto the simulated balls through the link.
+//! Source B end to end on the simulated machine: the probing cycle on the emulated
+//! 5-axis machine (the paper's table and errors, a touch probe with noise and
+//! pre-travel), the identification, and the compensation of a 5-axis program checked
+//! against the simulation's truth (world::rotary, its own chain code).
+
+use job::rotary::RotaryJob;
+use rotary::measure::{measure, MeasurePlan};
+use rotary::{identify, Axes, LocationErrors, MachineConstants, RotaryMachine};
+use world::rotary::TableErrors;
+
+fn injected() -> LocationErrors {
+    let t = TableErrors::default();
+    LocationErrors {
+        delta_xc_mm: t.delta_xc_mm,
+        delta_yc_mm: t.delta_yc_mm,
+        alpha_xc_deg: t.alpha_xc_deg,
+        alpha_yc_deg: t.alpha_yc_deg,
+        delta_ya_mm: t.delta_ya_mm,
+        delta_za_mm: t.delta_za_mm,
+        alpha_ya_deg: t.alpha_ya_deg,
+        alpha_za_deg: t.alpha_za_deg,
+    }
+}
+
+#[test]
+fn probing_cycle_identifies_the_injected_errors() {
+    for seed in 1..=5u64 {
+        let job = RotaryJob {
+            seed,
+            ..RotaryJob::default()
+        };
+        let mut machine = job.simulated();
+        let constants = MachineConstants::default();
+        let mut calls = 0;
+        let m = measure(&mut machine, &constants, &MeasurePlan::default(), |_, _| {
+            calls += 1
+        })
+        .expect("the cycle completes");
+        assert_eq!(m.balls.len(), 2 * (12 + 7));
+        assert_eq!(calls, m.balls.len());
+        // 6 points per ball, each touched fast then slow.
+        assert_eq!(m.probe_touches, m.balls.len() * 6 * 2);
+        assert!(machine.time_s > 60.0, "simulated time {} s", machine.time_s);
+        let id = identify(&m.centres(), &constants).unwrap();
+        let want = injected();
+        for ((name, got), (_, w)) in id.errors.named().iter().zip(want.named()) {
+            let tol = if name.ends_with("_deg") {
+                0.0005
+            } else {
+                0.001
+            };
+            let diff = (got - w).abs();
+            assert!(
+                diff <= tol,
+                "seed {seed} {name}: identified {got}, injected {w}"
+            );
+        }
+    }
+}
+
+#[test]
+fn a_ball_not_where_expected_stops_the_cycle_with_the_points_so_far() {
+    let job = RotaryJob::default();
+    let mut machine = job.simulated();
+    // The 41 mm ball is really 6 mm further out than the plan says: the first touch
+    // on it finds nothing within the overtravel.
+    machine.sim.balls[1].centre_mm[0] += 6.0;
+    let err = measure(
+        &mut machine,
+        &MachineConstants::default(),
+        &MeasurePlan::default(),
+        |_, _| {},
+    )
+    .unwrap_err();
+    assert!(
+        err.error.to_string().contains("ball 2") && err.error.to_string().contains("no contact"),
+        "{}",
+        err.error
+    );
+    assert_eq!(err.so_far.balls.len(), 1, "ball 1 of step 0 was measured");
+}
+
+#[test]
+fn a_sphere_off_its_certificate_is_rejected() {
+    let job = RotaryJob::default();
+    let mut machine = job.simulated();
+    // A 41 mm ball that is really 40.98 mm: its fitted radius is 10 um short.
+    machine.sim.balls[1].radius_mm -= 0.01;
+    let err = measure(
+        &mut machine,
+        &MachineConstants::default(),
+        &MeasurePlan::default(),
+        |_, _| {},
+    )
+    .unwrap_err();
+    let msg = err.error.to_string();
+    assert!(
+        msg.contains("certified") && msg.contains("rejected"),
+        "{msg}"
+    );
+}
+
+/// The tool tip and direction errors (mm, rad) of a command against the nominal pose
+/// of the programmed command, in the simulation's truth.
+fn truth_errors(truth: &world::rotary::RotaryMachineSim, nominal: &Axes, cmd: &Axes) -> (f64, f64) {
+    let ideal = RotaryMachine::nominal(MachineConstants::default()).forward(nominal);
+    let (p, d) = truth.tool_in_workpiece([cmd.x, cmd.y, cmd.z, cmd.a, cmd.c]);
+    let pos = (p - ideal.position).norm();
+    let dir = d.dot(&ideal.direction).clamp(-1.0, 1.0).acos();
+    (pos, dir)
+}
+
+#[test]
+fn compensated_five_axis_program_is_95_percent_better_against_the_truth() {
+    let job = RotaryJob {
+        seed: 5,
+        ..RotaryJob::default()
+    };
+    let mut machine = job.simulated();
+    let constants = MachineConstants::default();
+    let m = measure(&mut machine, &constants, &MeasurePlan::default(), |_, _| {}).unwrap();
+    let id = identify(&m.centres(), &constants).unwrap();
+    let model = RotaryMachine::with_errors(constants, id.errors);
+    let truth = &machine.sim;
+    // A 5-axis test program: the A range from 2° to 90° (within 0.57° of A = 0 the
+    // direction is corrected through A alone, see RotaryMachine::inverse), C all
+    // round, tool tips spread over the part.
+    let mut program = Vec::new();
+    for (i, a) in [2.0, 10.0, 25.0, 40.0, 55.0, 70.0, 85.0, 90.0]
+        .iter()
+        .enumerate()
+    {
+        for (j, c) in [0.0, 45.0, 135.0, 200.0, 290.0].iter().enumerate() {
+            program.push(Axes::new(
+                -40.0 + 11.0 * i as f64,
+                30.0 - 13.0 * j as f64,
+                -180.0 - 3.0 * i as f64,
+                *a,
+                *c,
+            ));
+        }
+    }
+    let (mut before, mut after) = ((0.0f64, 0.0f64), (0.0f64, 0.0f64));
+    for nominal in &program {
+        let cmd = model.command_for(nominal).unwrap();
+        let (p0, d0) = truth_errors(truth, nominal, nominal);
+        let (p1, d1) = truth_errors(truth, nominal, &cmd);
+        before = (before.0.max(p0), before.1.max(d0));
+        after = (after.0.max(p1), after.1.max(d1));
+    }
+    let gain_pos = 1.0 - after.0 / before.0;
+    let gain_dir = 1.0 - after.1 / before.1;
+    assert!(
+        gain_pos >= 0.95 && gain_dir >= 0.95,
+        "tip {:.4} -> {:.6} mm ({:.1} %), direction {:.6} -> {:.8} rad ({:.1} %)",
+        before.0,
+        after.0,
+        gain_pos * 100.0,
+        before.1,
+        after.1,
+        gain_dir * 100.0
+    );
+}
+
+#[test]
+fn the_model_with_the_true_errors_matches_the_simulated_truth() {
+    // Two independent chains (small-angle HTMs vs exact rotations about the actual
+    // lines) agree to second order in the errors.
+    let truth = RotaryJob::default().simulated().sim;
+    let model = RotaryMachine::with_errors(MachineConstants::default(), injected());
+    for a in [0.0, 30.0, 90.0] {
+        for c in [0.0, 120.0, 250.0] {
+            let cmd = Axes::new(20.0, -15.0, -170.0, a, c);
+            let ours = model.forward(&cmd);
+            let (p, d) = truth.tool_in_workpiece([cmd.x, cmd.y, cmd.z, cmd.a, cmd.c]);
+            assert!(
+                (ours.position - p).norm() < 2e-4,
+                "A {a} C {c}: {}",
+                ours.position - p
+            );
+            assert!(
+                (ours.direction - d).norm() < 1e-6,
+                "{}",
+                (ours.direction - d).norm()
+            );
+        }
+    }
+}
+
+#[test]
+fn rewritten_five_axis_program_runs_on_the_programmed_path_in_the_truth() {
+    let job = RotaryJob {
+        seed: 3,
+        ..RotaryJob::default()
+    };
+    let mut machine = job.simulated();
+    let constants = MachineConstants::default();
+    let m = measure(&mut machine, &constants, &MeasurePlan::default(), |_, _| {}).unwrap();
+    let id = identify(&m.centres(), &constants).unwrap();
+    let model = RotaryMachine::with_errors(constants, id.errors);
+    let truth = &machine.sim;
+    // Feed moves across the whole A range, C turning, the tool over the part.
+    let program = "G21 G90 G94\nG0 X-30 Y20 Z-170 A5 C0\nG1 X-10 Y0 Z-185 A30 C60 F400\n\
+                   G1 X15 Y-25 Z-200 A60 C150\nG1 X30 Y10 Z-190 A90 C250\n\
+                   G1 X0 Y30 Z-175 A45 C330\nG0 Z-100\n";
+    let (_, report) =
+        rotary::rewrite::rewrite_program(program, &model, &Default::default()).unwrap();
+    assert!(report.pieces_added > 0);
+    let (mut before, mut after) = ((0.0f64, 0.0f64), (0.0f64, 0.0f64));
+    let mut check = |nominal: &Axes, cmd: &Axes| {
+        let (p0, d0) = truth_errors(truth, nominal, nominal);
+        let (p1, d1) = truth_errors(truth, nominal, cmd);
+        before = (before.0.max(p0), before.1.max(d0));
+        after = (after.0.max(p1), after.1.max(d1));
+    };
+    let mid = |a: &Axes, b: &Axes| {
+        Axes::new(
+            (a.x + b.x) / 2.0,
+            (a.y + b.y) / 2.0,
+            (a.z + b.z) / 2.0,
+            (a.a + b.a) / 2.0,
+            (a.c + b.c) / 2.0,
+        )
+    };
+    for (k, p) in report.points.iter().enumerate() {
+        check(&p.nominal, &p.command);
+        // The controller's straight line between two written commands, at its middle,
+        // against the middle of the programmed move.
+        if k > 0 && p.feed_move {
+            let q = &report.points[k - 1];
+            check(&mid(&q.nominal, &p.nominal), &mid(&q.command, &p.command));
+        }
+    }
+    eprintln!(
+        "rewritten program: {} points written ({} pieces added); tip {:.4} -> {:.5} mm, direction {:.6} -> {:.7} rad",
+        report.points.len(),
+        report.pieces_added,
+        before.0,
+        after.0,
+        before.1,
+        after.1
+    );
+    assert!(after.0 < 0.002, "tip error after {} mm", after.0);
+    assert!(
+        1.0 - after.0 / before.0 >= 0.95 && 1.0 - after.1 / before.1 >= 0.95,
+        "tip {} -> {} mm, direction {} -> {} rad",
+        before.0,
+        after.0,
+        before.1,
+        after.1
+    );
+}
 
 mod grbl_common;
 
-use drivers::{Axis, AxisValues, DriverError, ProbeMode, Stage};
-use emulators::grbl::{GrblConfig, GrblDevice, GrblPty};
-use grbl_common::{connect, runtime};
-use world::axes::AxesMachine;
-use world::rotary::{RotaryMachineSim, RotaryWorkpiece, TouchProbe};
+/// The same machine behind the GRBL emulator on a real pseudo-terminal, driven by the
+/// GRBL driver: six axes found from `$$` and the status reports, rotary capabilities,
+/// probing moves onto the simulated balls, and the whole cycle through the link.
+mod through_the_link {
+    use super::grbl_common::{connect, runtime};
+    use drivers::{Axis, AxisValues, DriverError, ProbeMode, Stage};
+    use emulators::grbl::{GrblConfig, GrblDevice, GrblPty};
+    use world::axes::AxesMachine;
+    use world::rotary::{RotaryMachineSim, RotaryWorkpiece, TouchProbe};
 
-fn noiseless() -> RotaryMachineSim {
-    let mut s = RotaryMachineSim::paper(3);
-    s.probe = TouchProbe {
-        noise_mm: 0.0,
-        ..TouchProbe::default()
-    };
-    s
-}
-
-fn five_axis_emulator() -> GrblPty {
-    let m = AxesMachine::new(Box::new(RotaryWorkpiece { sim: noiseless() })).shared();
-    GrblPty::spawn(GrblDevice::with_axes(m, GrblConfig::default()), None).expect("pty")
-}
-
-const TOWARD: ProbeMode = ProbeMode {
-    toward: true,
-    must_trigger: true,
-};
-
-#[test]
-fn the_driver_finds_six_axes_and_probes_a_ball_through_the_pty() {
-    runtime().block_on(async {
-        let pty = five_axis_emulator();
-        let mut stage = connect(pty.path()).await;
-        let axes: Vec<Axis> = stage.info().axes.iter().map(|a| a.axis).collect();
-        assert_eq!(axes, Axis::ALL.to_vec());
-        assert_eq!(
-            stage.capabilities().rotary_axes,
-            vec![Axis::A, Axis::B, Axis::C]
-        );
-        assert!(stage.capabilities().probing);
-
-        // Above the 26 mm ball at A 15, C 30, then straight down onto its top.
-        let truth = noiseless();
-        let (a, c) = (15.0, 30.0);
-        let centre = truth.ball_centre(0, a, c);
-        let l = truth.geometry.tool_length_mm;
-        let above = AxisValues::default()
-            .with(Axis::X, centre.x)
-            .with(Axis::Y, centre.y)
-            .with(Axis::Z, centre.z + l + 25.0)
-            .with(Axis::A, a)
-            .with(Axis::C, c);
-        stage.move_to(above, 2000.0).await.unwrap();
-        stage.wait_idle().await.unwrap();
-        let p = stage.position().await.unwrap();
-        assert_eq!((p.get(Axis::A), p.get(Axis::C)), (Some(15.0), Some(30.0)));
-        let down = AxisValues::default().with(Axis::Z, centre.z + l);
-        let hit = stage.probe(down, 100.0, TOWARD).await.unwrap();
-        assert!(hit.touched);
-        // The stylus (radius 1.5) meets the ball (radius 13) on top of the centre; the
-        // trigger comes 0.8 um later; the report has 1 um steps.
-        let z = hit.position.get(Axis::Z).unwrap();
-        let expected = centre.z + 13.0 + 1.5 + l - 0.0008;
-        assert!((z - expected).abs() <= 0.0006, "{z} vs {expected}");
-        assert_eq!(hit.position.get(Axis::C), Some(30.0));
-
-        // Beside the ball nothing is touched: G38.2 ends in ALARM:5, an error.
-        stage
-            .move_to(
-                AxisValues::default().with(Axis::Z, centre.z + l + 25.0),
-                2000.0,
-            )
-            .await
-            .unwrap();
-        stage
-            .move_to(AxisValues::default().with(Axis::X, centre.x + 40.0), 2000.0)
-            .await
-            .unwrap();
-        stage.wait_idle().await.unwrap();
-        let miss = stage.probe(down, 100.0, TOWARD).await;
-        assert!(
-            matches!(miss, Err(DriverError::Alarm { ref code, .. }) if *code == 5),
-            "{miss:?}"
-        );
-    });
-}
-
-/// The measurement cycle's view of a machine behind a GRBL link: each move and probe is
-/// a driver call, run to its end on the test's runtime.
-struct LinkProber<'a> {
-    rt: &'a tokio::runtime::Runtime,
-    stage: drivers::grbl::GrblStage,
-    probes: usize,
-}
-
-impl rotary::measure::ProbingMachine for LinkProber<'_> {
-    fn move_to(&mut self, t: &rotary::Axes) -> Result<(), String> {
-        let target = AxisValues::default()
-            .with(Axis::X, t.x)
-            .with(Axis::Y, t.y)
-            .with(Axis::Z, t.z)
-            .with(Axis::A, t.a)
-            .with(Axis::C, t.c);
-        self.rt
-            .block_on(async {
-                self.stage.move_to(target, 3000.0).await?;
-                self.stage.wait_idle().await
-            })
-            .map_err(|e| e.to_string())
-    }
-
-    fn probe_towards(&mut self, to: [f64; 3], feed: f64) -> Result<Option<[f64; 3]>, String> {
-        let target = AxisValues::default()
-            .with(Axis::X, to[0])
-            .with(Axis::Y, to[1])
-            .with(Axis::Z, to[2]);
-        let mode = ProbeMode {
-            toward: true,
-            must_trigger: false,
+    fn noiseless() -> RotaryMachineSim {
+        let mut s = RotaryMachineSim::paper(3);
+        s.probe = TouchProbe {
+            noise_mm: 0.0,
+            ..TouchProbe::default()
         };
-        self.probes += 1;
-        let hit = self
-            .rt
-            .block_on(self.stage.probe(target, feed, mode))
-            .map_err(|e| e.to_string())?;
-        let p = |a| hit.position.get(a).unwrap_or(f64::NAN);
-        Ok(hit.touched.then(|| [p(Axis::X), p(Axis::Y), p(Axis::Z)]))
+        s
     }
-}
 
-#[test]
-fn the_paper_cycle_through_the_link_identifies_the_injected_errors() {
-    let rt = runtime();
-    let sim = RotaryMachineSim::paper(11);
-    let injected = sim.errors;
-    let m = AxesMachine::new(Box::new(RotaryWorkpiece { sim })).shared();
-    let pty = {
-        let _enter = rt.enter();
+    fn five_axis_emulator() -> GrblPty {
+        let m = AxesMachine::new(Box::new(RotaryWorkpiece { sim: noiseless() })).shared();
         GrblPty::spawn(GrblDevice::with_axes(m, GrblConfig::default()), None).expect("pty")
+    }
+
+    const TOWARD: ProbeMode = ProbeMode {
+        toward: true,
+        must_trigger: true,
     };
-    let stage = rt.block_on(connect(pty.path()));
-    let mut prober = LinkProber {
-        rt: &rt,
-        stage,
-        probes: 0,
-    };
-    let constants = rotary::MachineConstants::default();
-    let plan = rotary::measure::MeasurePlan::default();
-    let m = rotary::measure::measure(&mut prober, &constants, &plan, |_, _| {})
-        .unwrap_or_else(|s| panic!("{}", s.error));
-    // 2 balls at every step of both sweeps, 6 points each, touched fast then slow.
-    let steps = rotary::sweep(rotary::Axis::C).len() + rotary::sweep(rotary::Axis::A).len();
-    assert_eq!(m.balls.len(), 2 * steps);
-    assert_eq!(prober.probes, 2 * steps * 6 * 2);
-    let id = rotary::identify(&m.centres(), &constants).unwrap();
-    let truth = [
-        injected.delta_xc_mm,
-        injected.delta_yc_mm,
-        injected.alpha_xc_deg,
-        injected.alpha_yc_deg,
-        injected.delta_ya_mm,
-        injected.delta_za_mm,
-        injected.alpha_ya_deg,
-        injected.alpha_za_deg,
-    ];
-    for ((name, got), want) in id.errors.named().iter().zip(truth) {
-        // The paper's figures to reach: 1 um and 0.0005 deg, with the controller's
-        // reports at 1 um resolution.
-        let tol = if name.ends_with("_mm") { 0.001 } else { 0.0005 };
-        assert!(
-            (got - want).abs() <= tol,
-            "{name}: {got} vs injected {want}"
-        );
+
+    #[test]
+    fn the_driver_finds_six_axes_and_probes_a_ball_through_the_pty() {
+        runtime().block_on(async {
+            let pty = five_axis_emulator();
+            let mut stage = connect(pty.path()).await;
+            let axes: Vec<Axis> = stage.info().axes.iter().map(|a| a.axis).collect();
+            assert_eq!(axes, Axis::ALL.to_vec());
+            assert_eq!(
+                stage.capabilities().rotary_axes,
+                vec![Axis::A, Axis::B, Axis::C]
+            );
+            assert!(stage.capabilities().probing);
+
+            // Above the 26 mm ball at A 15, C 30, then straight down onto its top.
+            let truth = noiseless();
+            let (a, c) = (15.0, 30.0);
+            let centre = truth.ball_centre(0, a, c);
+            let l = truth.geometry.tool_length_mm;
+            let above = AxisValues::default()
+                .with(Axis::X, centre.x)
+                .with(Axis::Y, centre.y)
+                .with(Axis::Z, centre.z + l + 25.0)
+                .with(Axis::A, a)
+                .with(Axis::C, c);
+            stage.move_to(above, 2000.0).await.unwrap();
+            stage.wait_idle().await.unwrap();
+            let p = stage.position().await.unwrap();
+            assert_eq!((p.get(Axis::A), p.get(Axis::C)), (Some(15.0), Some(30.0)));
+            let down = AxisValues::default().with(Axis::Z, centre.z + l);
+            let hit = stage.probe(down, 100.0, TOWARD).await.unwrap();
+            assert!(hit.touched);
+            // The stylus (radius 1.5) meets the ball (radius 13) on top of the centre; the
+            // trigger comes 0.8 um later; the report has 1 um steps.
+            let z = hit.position.get(Axis::Z).unwrap();
+            let expected = centre.z + 13.0 + 1.5 + l - 0.0008;
+            assert!((z - expected).abs() <= 0.0006, "{z} vs {expected}");
+            assert_eq!(hit.position.get(Axis::C), Some(30.0));
+
+            // Beside the ball nothing is touched: G38.2 ends in ALARM:5, an error.
+            stage
+                .move_to(
+                    AxisValues::default().with(Axis::Z, centre.z + l + 25.0),
+                    2000.0,
+                )
+                .await
+                .unwrap();
+            stage
+                .move_to(AxisValues::default().with(Axis::X, centre.x + 40.0), 2000.0)
+                .await
+                .unwrap();
+            stage.wait_idle().await.unwrap();
+            let miss = stage.probe(down, 100.0, TOWARD).await;
+            assert!(
+                matches!(miss, Err(DriverError::Alarm { ref code, .. }) if *code == 5),
+                "{miss:?}"
+            );
+        });
+    }
+
+    /// The measurement cycle's view of a machine behind a GRBL link: each move and probe is
+    /// a driver call, run to its end on the test's runtime.
+    struct LinkProber<'a> {
+        rt: &'a tokio::runtime::Runtime,
+        stage: drivers::grbl::GrblStage,
+        probes: usize,
+    }
+
+    impl rotary::measure::ProbingMachine for LinkProber<'_> {
+        fn move_to(&mut self, t: &rotary::Axes) -> Result<(), String> {
+            let target = AxisValues::default()
+                .with(Axis::X, t.x)
+                .with(Axis::Y, t.y)
+                .with(Axis::Z, t.z)
+                .with(Axis::A, t.a)
+                .with(Axis::C, t.c);
+            self.rt
+                .block_on(async {
+                    self.stage.move_to(target, 3000.0).await?;
+                    self.stage.wait_idle().await
+                })
+                .map_err(|e| e.to_string())
+        }
+
+        fn probe_towards(&mut self, to: [f64; 3], feed: f64) -> Result<Option<[f64; 3]>, String> {
+            let target = AxisValues::default()
+                .with(Axis::X, to[0])
+                .with(Axis::Y, to[1])
+                .with(Axis::Z, to[2]);
+            let mode = ProbeMode {
+                toward: true,
+                must_trigger: false,
+            };
+            self.probes += 1;
+            let hit = self
+                .rt
+                .block_on(self.stage.probe(target, feed, mode))
+                .map_err(|e| e.to_string())?;
+            let p = |a| hit.position.get(a).unwrap_or(f64::NAN);
+            Ok(hit.touched.then(|| [p(Axis::X), p(Axis::Y), p(Axis::Z)]))
+        }
+    }
+
+    #[test]
+    fn the_paper_cycle_through_the_link_identifies_the_injected_errors() {
+        let rt = runtime();
+        let sim = RotaryMachineSim::paper(11);
+        let injected = sim.errors;
+        let m = AxesMachine::new(Box::new(RotaryWorkpiece { sim })).shared();
+        let pty = {
+            let _enter = rt.enter();
+            GrblPty::spawn(GrblDevice::with_axes(m, GrblConfig::default()), None).expect("pty")
+        };
+        let stage = rt.block_on(connect(pty.path()));
+        let mut prober = LinkProber {
+            rt: &rt,
+            stage,
+            probes: 0,
+        };
+        let constants = rotary::MachineConstants::default();
+        let plan = rotary::measure::MeasurePlan::default();
+        let m = rotary::measure::measure(&mut prober, &constants, &plan, |_, _| {})
+            .unwrap_or_else(|s| panic!("{}", s.error));
+        // 2 balls at every step of both sweeps, 6 points each, touched fast then slow.
+        let steps = rotary::sweep(rotary::Axis::C).len() + rotary::sweep(rotary::Axis::A).len();
+        assert_eq!(m.balls.len(), 2 * steps);
+        assert_eq!(prober.probes, 2 * steps * 6 * 2);
+        let id = rotary::identify(&m.centres(), &constants).unwrap();
+        let truth = [
+            injected.delta_xc_mm,
+            injected.delta_yc_mm,
+            injected.alpha_xc_deg,
+            injected.alpha_yc_deg,
+            injected.delta_ya_mm,
+            injected.delta_za_mm,
+            injected.alpha_ya_deg,
+            injected.alpha_za_deg,
+        ];
+        for ((name, got), want) in id.errors.named().iter().zip(truth) {
+            // The paper's figures to reach: 1 um and 0.0005 deg, with the controller's
+            // reports at 1 um resolution.
+            let tol = if name.ends_with("_mm") { 0.001 } else { 0.0005 };
+            assert!(
+                (got - want).abs() <= tol,
+                "{name}: {got} vs injected {want}"
+            );
+        }
     }
 }
