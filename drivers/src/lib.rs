@@ -31,7 +31,8 @@ pub use factory::{open_camera, open_stage};
 pub use link_spec::{CameraLink, StageLink};
 pub use multi_axis::{AxisDrive, AxisStatus, MultiAxisStage};
 pub use stage::{
-    Axis, AxisInfo, AxisValues, Capabilities, Stage, StageInfo, StageState, StageStatus,
+    Axis, AxisInfo, AxisValues, Capabilities, ProbeHit, ProbeMode, Stage, StageInfo, StageState,
+    StageStatus,
 };
 
 /// Run CPU-heavy work (rendering, localization: milliseconds) from async code without

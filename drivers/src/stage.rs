@@ -155,6 +155,26 @@ pub struct StageStatus {
     pub position: AxisValues,
 }
 
+/// What a probing move looks for (G38.2 to G38.5).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ProbeMode {
+    /// Toward the work until contact (G38.2/G38.3), else away until contact is lost
+    /// (G38.4/G38.5).
+    pub toward: bool,
+    /// Reaching the target without a trigger is an error (G38.2/G38.4: the controller
+    /// raises its probe alarm), else it is a result with `touched` false.
+    pub must_trigger: bool,
+}
+
+/// Where a probing move ended.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ProbeHit {
+    /// Machine position where the probe triggered (or where the move ended), per axis
+    /// the controller reports (mm, degrees for A B C).
+    pub position: AxisValues,
+    pub touched: bool,
+}
+
 /// A motion stage made of axes, driven through its controller.
 ///
 /// Moves are absolute in machine coordinates (mm). `move_to` returns once the
@@ -185,4 +205,19 @@ pub trait Stage: Send {
     async fn wait_idle(&mut self) -> Result<(), DriverError>;
     async fn stop(&mut self) -> Result<(), DriverError>;
     async fn status(&mut self) -> Result<StageStatus, DriverError>;
+    /// A probing move to `target` (machine coordinates) at `feed` (units/min) that stops
+    /// where the probe triggers. Only controllers whose [`Capabilities::probing`] is
+    /// true implement it; the default refuses.
+    async fn probe(
+        &mut self,
+        target: AxisValues,
+        feed: f64,
+        mode: ProbeMode,
+    ) -> Result<ProbeHit, DriverError> {
+        let _ = (target, feed, mode);
+        Err(DriverError::Unsupported {
+            device: self.info().name.clone(),
+            message: "this controller has no probing moves (capability `probing` is false)".into(),
+        })
+    }
 }

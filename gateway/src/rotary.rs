@@ -5,7 +5,7 @@
 use anyhow::Context;
 use clap::Subcommand;
 use indicatif::{ProgressBar, ProgressStyle};
-use job::rotary::RotaryJob;
+use job::rotary::{RotaryJob, RotaryLink};
 use rotary::measure::measure;
 use rotary::{
     identify, parse_centres, write_centres, Axes, Identification, LocationErrors, MachineConstants,
@@ -198,6 +198,7 @@ fn measure_cmd(config: &Path, out: &Path, json: bool) -> anyhow::Result<ExitCode
     let constants = job.machine.unwrap_or_default();
     let plan = job.plan.unwrap_or_default();
     let mut machine = job.simulated();
+    let link = job.link;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let bar = if json {
         ProgressBar::hidden()
@@ -208,10 +209,17 @@ fn measure_cmd(config: &Path, out: &Path, json: bool) -> anyhow::Result<ExitCode
         ProgressStyle::with_template("{bar:40} {pos}/{len} balls {msg}")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
-    let result = measure(&mut machine, &constants, &plan, |done, total| {
+    let progress = |done: usize, total: usize| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);
-    });
+    };
+    let (result, link_time_s) = match link {
+        None => (measure(&mut machine, &constants, &plan, progress), None),
+        Some(RotaryLink::GrblEmulator) => {
+            let (r, t) = measure_through_grbl_emulator(&machine.sim, &constants, &plan, progress)?;
+            (r, Some(t))
+        }
+    };
     bar.finish_and_clear();
     let (m, stopped) = match result {
         Ok(m) => (m, None),
@@ -268,7 +276,7 @@ fn measure_cmd(config: &Path, out: &Path, json: bool) -> anyhow::Result<ExitCode
     };
     let check = compensation_check(&machine.sim, &constants, &id.errors)?;
     let touches = m.probe_touches;
-    let time_s = machine.time_s;
+    let time_s = link_time_s.unwrap_or(machine.time_s);
     if json {
         let obj = report.as_object_mut().expect("an object");
         let mut truth = serde_json::Map::new();
@@ -347,6 +355,93 @@ fn measure_cmd(config: &Path, out: &Path, json: bool) -> anyhow::Result<ExitCode
         );
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// The cycle through a controller link: the GRBL emulator with `sim` behind it (six
+/// axes X Y Z A B C, B fixed) on a pseudo-terminal, the GRBL driver moving the axes and
+/// probing with G38.3. Returns the result and the emulated machine time (s).
+fn measure_through_grbl_emulator(
+    sim: &world::rotary::RotaryMachineSim,
+    constants: &MachineConstants,
+    plan: &rotary::measure::MeasurePlan,
+    progress: impl FnMut(usize, usize),
+) -> anyhow::Result<(
+    Result<rotary::measure::Measurement, Box<rotary::measure::Stopped>>,
+    f64,
+)> {
+    use drivers::grbl::{GrblOptions, GrblStage};
+    use emulators::grbl::{GrblConfig, GrblDevice, GrblPty};
+    use world::axes::{lock_axes, AxesMachine};
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    let axes = AxesMachine::new(Box::new(world::rotary::RotaryWorkpiece {
+        sim: sim.clone(),
+    }))
+    .shared();
+    let pty = {
+        let _enter = rt.enter();
+        GrblPty::spawn(
+            GrblDevice::with_axes(axes.clone(), GrblConfig::default()),
+            None,
+        )
+        .context("starting the GRBL emulator on a pseudo-terminal")?
+    };
+    let opts = GrblOptions {
+        poll_interval: std::time::Duration::from_millis(2),
+        ..GrblOptions::default()
+    };
+    let stage = rt
+        .block_on(GrblStage::open(pty.path(), 115_200, opts))
+        .context("connecting to the GRBL emulator")?;
+    let mut prober = LinkProber { rt: &rt, stage };
+    let result = measure(&mut prober, constants, plan, progress);
+    let time_s = lock_axes(&axes).now_s();
+    Ok((result, time_s))
+}
+
+/// The measurement cycle's machine behind a GRBL link: each move and probing move is a
+/// driver call run to its end (moves at 3000 units/min, probing with G38.3 so a miss is
+/// the cycle's own "ball not found").
+struct LinkProber<'a> {
+    rt: &'a tokio::runtime::Runtime,
+    stage: drivers::grbl::GrblStage,
+}
+
+impl rotary::measure::ProbingMachine for LinkProber<'_> {
+    fn move_to(&mut self, t: &Axes) -> Result<(), String> {
+        use drivers::{Axis, AxisValues, Stage};
+        let target = AxisValues::default()
+            .with(Axis::X, t.x)
+            .with(Axis::Y, t.y)
+            .with(Axis::Z, t.z)
+            .with(Axis::A, t.a)
+            .with(Axis::C, t.c);
+        self.rt
+            .block_on(async {
+                self.stage.move_to(target, 3000.0).await?;
+                self.stage.wait_idle().await
+            })
+            .map_err(|e| e.to_string())
+    }
+
+    fn probe_towards(&mut self, to: [f64; 3], feed: f64) -> Result<Option<[f64; 3]>, String> {
+        use drivers::{Axis, AxisValues, ProbeMode, Stage};
+        let target = AxisValues::default()
+            .with(Axis::X, to[0])
+            .with(Axis::Y, to[1])
+            .with(Axis::Z, to[2]);
+        let mode = ProbeMode {
+            toward: true,
+            must_trigger: false,
+        };
+        let hit = self
+            .rt
+            .block_on(self.stage.probe(target, feed, mode))
+            .map_err(|e| e.to_string())?;
+        let p = |a| hit.position.get(a).unwrap_or(f64::NAN);
+        Ok(hit.touched.then(|| [p(Axis::X), p(Axis::Y), p(Axis::Z)]))
+    }
 }
 
 /// The compensation of a 5-axis test program checked against the simulation's truth.

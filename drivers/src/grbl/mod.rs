@@ -24,7 +24,8 @@ mod tests;
 
 use crate::error::DriverError;
 use crate::stage::{
-    Axis, AxisInfo, AxisValues, Capabilities, Stage, StageInfo, StageState, StageStatus,
+    Axis, AxisInfo, AxisValues, Capabilities, ProbeHit, ProbeMode, Stage, StageInfo, StageState,
+    StageStatus,
 };
 use async_trait::async_trait;
 use link::Link;
@@ -67,6 +68,8 @@ pub struct GrblStage {
     locked: bool,
     /// Last absolute target sent, exactly (GRBL reports positions to 1 um only).
     commanded: Option<[f64; 3]>,
+    /// Position fields of the status reports (3 on GRBL 1.1, up to 6 on grblHAL).
+    reported_axes: usize,
 }
 
 fn with_deadline(d: Duration) -> Instant {
@@ -104,6 +107,7 @@ impl GrblStage {
             needs_reset: false,
             locked: false,
             commanded: None,
+            reported_axes: 3,
         };
         s.handshake().await?;
         Ok(s)
@@ -201,9 +205,10 @@ impl GrblStage {
             }
         }
         self.settings = settings;
-        self.info = self.stage_info();
-        // First status: state, WCO.
+        // First status: state, WCO, and how many axes it reports.
         let s = self.status_report().await?;
+        self.reported_axes = s.position.len().clamp(3, 6);
+        self.info = self.stage_info();
         if s.state == MachineState::Alarm && self.last_alarm.is_none() {
             self.locked = true;
         }
@@ -212,11 +217,21 @@ impl GrblStage {
 
     fn stage_info(&self) -> StageInfo {
         let force_origin = self.build.options.contains('Z');
-        let axes = [Axis::X, Axis::Y, Axis::Z]
+        let homing = self.settings.homing_enabled();
+        let axes = Axis::ALL
             .into_iter()
+            .take(self.axis_count())
             .enumerate()
             .filter_map(|(k, axis)| {
-                let (min_mm, max_mm) = self.settings.travel_range(k, force_origin)?;
+                // Without homing, machine zero is wherever the controller powered up:
+                // every reachable position lies within one travel of it either way.
+                let (min_mm, max_mm) = match homing {
+                    true => self.settings.travel_range(k, force_origin)?,
+                    false => {
+                        let t = self.settings.max_travel_mm(k)?;
+                        (-t, t)
+                    }
+                };
                 Some(AxisInfo {
                     axis,
                     min_mm,
@@ -230,6 +245,12 @@ impl GrblStage {
             name: format!("GRBL {} ({})", self.build.version, self.link.device),
             axes,
         }
+    }
+
+    /// Axes of the controller: as many as `$$` lists ($103.. for A) or the status
+    /// reports carry, whichever is more (X Y Z, then A B C).
+    pub fn axis_count(&self) -> usize {
+        self.settings.axes().max(self.reported_axes).min(6)
     }
 
     pub fn settings(&self) -> &Settings {
@@ -573,14 +594,76 @@ impl Stage for GrblStage {
     }
 
     /// GRBL 1.1 runs streamed programs (character counting, see [`GrblStage::stream_program`])
-    /// with G38.2-G38.5 probing; it has no compensation table and drives X, Y and Z only.
+    /// with G38.2-G38.5 probing; it has no compensation table. It drives X, Y and Z;
+    /// grblHAL builds add A, B, C (rotary).
     fn capabilities(&self) -> Capabilities {
         Capabilities {
             program_streaming: true,
             table_upload: false,
             probing: true,
-            rotary_axes: Vec::new(),
+            rotary_axes: Capabilities::rotary_among(self.info.axes.iter().map(|a| a.axis)),
         }
+    }
+
+    /// `G38.2`..`G38.5` in work coordinates (GRBL allows G53 only with G0/G1): the
+    /// machine target less the last reported work offset. GRBL answers `[PRB:...]`
+    /// then `ok`; a miss with G38.2/G38.4 is `ALARM:5`, a probe already in the state
+    /// looked for `ALARM:4`, both errors here.
+    async fn probe(
+        &mut self,
+        target: AxisValues,
+        feed: f64,
+        mode: ProbeMode,
+    ) -> Result<ProbeHit, DriverError> {
+        self.info.check_limits(&target)?;
+        crate::stage::check_feed(&self.device(), feed)?;
+        if target.is_empty() {
+            return Err(DriverError::Unsupported {
+                device: self.device(),
+                message: "a probing move needs at least one axis target".into(),
+            });
+        }
+        let code = match (mode.toward, mode.must_trigger) {
+            (true, true) => 38.2,
+            (true, false) => 38.3,
+            (false, true) => 38.4,
+            (false, false) => 38.5,
+        };
+        let wco = self.last_wco.clone().unwrap_or_default();
+        let mut w = BlockWriter::new().g(21.0).g(90.0).g(code);
+        for (a, v) in target.iter() {
+            let offset = wco.get(a.index()).copied().unwrap_or(0.0);
+            w = w.word(a.letter(), v - offset, self.opts.decimals);
+        }
+        w = w.word('F', feed, 0);
+        let info = self
+            .command_with(&Command::Gcode(w.to_string()), self.opts.motion_timeout)
+            .await?;
+        self.commanded = None;
+        let report = info
+            .iter()
+            .find_map(|r| match r {
+                Response::Parameter { name, value } if name == "PRB" => {
+                    Some(protocol::grbl::probe::ProbeReport::parse_value(value))
+                }
+                _ => None,
+            })
+            .ok_or_else(|| DriverError::Protocol {
+                device: self.device(),
+                message: format!("`{w}` answered without a [PRB:...] report"),
+            })?
+            .map_err(|e| DriverError::Protocol {
+                device: self.device(),
+                message: e.to_string(),
+            })?;
+        let mut position = AxisValues::default();
+        for (a, x) in Axis::ALL.into_iter().zip(&report.position) {
+            position.set(a, *x);
+        }
+        Ok(ProbeHit {
+            position,
+            touched: report.touched,
+        })
     }
 
     /// `$H` (needs `$22=1`; GRBL answers `error:5` otherwise). Clears a critical
@@ -649,7 +732,7 @@ impl Stage for GrblStage {
         let s = self.status_report().await?;
         let p = self.machine_position(s).await?;
         let mut v = AxisValues::default();
-        for (k, a) in [Axis::X, Axis::Y, Axis::Z].into_iter().enumerate() {
+        for (k, a) in Axis::ALL.into_iter().enumerate() {
             if let Some(x) = p.get(k) {
                 v.set(a, *x);
             }
@@ -758,7 +841,7 @@ impl Stage for GrblStage {
         };
         let p = self.machine_position(s).await?;
         let mut position = AxisValues::default();
-        for (k, a) in [Axis::X, Axis::Y, Axis::Z].into_iter().enumerate() {
+        for (k, a) in Axis::ALL.into_iter().enumerate() {
             if let Some(x) = p.get(k) {
                 position.set(a, *x);
             }

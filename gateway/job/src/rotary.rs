@@ -26,6 +26,17 @@ pub struct RotaryJob {
     pub machine: Option<MachineConstants>,
     /// Machine speeds for the simulated time.
     pub speeds: Option<Speeds>,
+    /// Run the cycle through a controller link instead of in-process (`"grbl_emulator"`:
+    /// the GRBL emulator with this job's machine behind it, on a pseudo-terminal,
+    /// driven by the GRBL driver).
+    pub link: Option<RotaryLink>,
+}
+
+/// The controller link a measurement job runs through.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RotaryLink {
+    GrblEmulator,
 }
 
 /// How fast the simulated machine moves.

@@ -49,9 +49,12 @@ pub fn grbl_response(data: &[u8]) {
 
 /// A program sent to GRBL: every line through the byte filter and the host-side line
 /// check, then through one interpreter (lines starting `$J=` as jogs), with its
-/// `$G` state read after each line.
+/// `$G` state read after each line. A six-axis interpreter (X Y Z A B C) runs beside it:
+/// a refused line leaves it unchanged too, and on a line without A, B or C it answers
+/// exactly as the three-axis one.
 pub fn grbl_gcode(data: &[u8]) {
     let mut interp = Interpreter::new();
+    let mut six = Interpreter::<6>::with_axes();
     for raw in data.split(|&b| b == b'\n').take(64) {
         let (filtered, overflow) = filter_bytes(raw);
         // GRBL's buffer counts the bytes kept: one character each here.
@@ -69,6 +72,20 @@ pub fn grbl_gcode(data: &[u8]) {
             None => (filtered.as_str(), false),
         };
         let before = interp.parser_state();
+        let six_before = six.clone();
+        let six_result = six.execute(line, jog);
+        if six_result.is_err() {
+            assert_eq!(six, six_before, "a refused line changed the six-axis state");
+        }
+        let rotary_words = line.contains(['A', 'B', 'C']);
+        let three_result = interp.clone().execute(line, jog);
+        if !rotary_words {
+            assert_eq!(
+                six_result.as_ref().map(Vec::len),
+                three_result.as_ref().map(Vec::len),
+                "{line:?}: six axes and three answer differently"
+            );
+        }
         match interp.execute(line, jog) {
             Ok(actions) => {
                 // Arcs come as chords: at most GRBL's segment count, plus the rest.
