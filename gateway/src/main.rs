@@ -109,6 +109,14 @@ enum Cmd {
         /// A volumetric model file (`gateway volumetric identify`): X, Y and Z corrected.
         #[arg(long)]
         volumetric: Option<PathBuf>,
+        /// The location errors of an A/C tilting table (`gateway rotary identify` or
+        /// `measure`): a 5-axis program (X Y Z A C) rewritten so the tool tip and
+        /// direction land where programmed (the same rewrite as `gateway rotary rewrite`).
+        #[arg(long)]
+        rotary: Option<PathBuf>,
+        /// With --rotary: the machine constants (JSON), default the built-in ones.
+        #[arg(long, requires = "rotary")]
+        machine: Option<PathBuf>,
         #[arg(long)]
         out: PathBuf,
         /// Largest distance of the executed path from the compensated path, um.
@@ -135,15 +143,15 @@ enum Cmd {
         #[command(subcommand)]
         cmd: rotary::RotaryCmd,
     },
-    /// The live pass-through: a pseudo-terminal that answers as a GRBL 1.1 controller to
-    /// the G-code sender you already use (UGS, CNCjs, bCNC), rewriting every line with
-    /// the error map and streaming it to the job's GRBL controller. Status reports show
-    /// the programmed position. Ctrl-C stops.
     /// Cutting layouts for a multi-tool conveyor cutter (Source C).
     Layout {
         #[command(subcommand)]
         cmd: layout::LayoutCmd,
     },
+    /// The live pass-through: a pseudo-terminal that answers as a GRBL 1.1 controller to
+    /// the G-code sender you already use (UGS, CNCjs, bCNC), rewriting every line with
+    /// the error map and streaming it to the job's GRBL controller. Status reports show
+    /// the programmed position. Ctrl-C stops.
     Proxy {
         /// The job file (its stage must be a GRBL controller, real or emulated).
         #[arg(long)]
@@ -383,6 +391,46 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             input,
             map,
             volumetric,
+            rotary: Some(errors),
+            machine,
+            out,
+            tolerance_um,
+            max_correction_um,
+            offsets,
+            start,
+            limits,
+            json,
+        } => {
+            // The 5-axis rewrite has its own program rules (absolute mm, no arcs); the
+            // 3-axis options do not apply to it.
+            let other = [
+                (map.is_some(), "--map"),
+                (volumetric.is_some(), "--volumetric"),
+                (offsets.is_some(), "--offsets"),
+                (start.is_some(), "--start"),
+                (limits.is_some(), "--limits"),
+                (max_correction_um != 200.0, "--max-correction-um"),
+            ];
+            if let Some((_, flag)) = other.iter().find(|(given, _)| *given) {
+                anyhow::bail!(
+                    "--rotary rewrites a 5-axis program on its own; {flag} does not apply to it"
+                );
+            }
+            rotary::run(rotary::RotaryCmd::Rewrite {
+                input,
+                errors,
+                out,
+                machine,
+                tolerance_um,
+                json,
+            })
+        }
+        Cmd::Rewrite {
+            input,
+            map,
+            volumetric,
+            rotary: None,
+            machine: _,
             out,
             tolerance_um,
             max_correction_um,

@@ -110,6 +110,55 @@ fn measure_then_identify_from_its_centres() {
     // The errors file it wrote is what the rewriter reads.
     let text = std::fs::read_to_string(out.join("errors.json")).unwrap();
     rotary::LocationErrors::from_json(&text).unwrap();
+
+    // `gateway rewrite --rotary` is the same 5-axis rewrite as `gateway rotary rewrite`.
+    let program = out.join("five-axis.nc");
+    std::fs::write(
+        &program,
+        "G21 G90 G94\nG0 X10 Y5 Z-30 A0 C0\nG1 X12 Y6 Z-35 A15 C30 F500\nG1 X-8 Y4 Z-40 A-30 C120\n",
+    )
+    .unwrap();
+    let errors = out.join("errors.json");
+    let through_rewrite = out.join("via-rewrite.nc");
+    let through_rotary = out.join("via-rotary.nc");
+    let a = gateway(&[
+        "rewrite",
+        program.to_str().unwrap(),
+        "--rotary",
+        errors.to_str().unwrap(),
+        "--out",
+        through_rewrite.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(a.status.success(), "{}", String::from_utf8_lossy(&a.stderr));
+    let b = gateway(&[
+        "rotary",
+        "rewrite",
+        program.to_str().unwrap(),
+        "--errors",
+        errors.to_str().unwrap(),
+        "--out",
+        through_rotary.to_str().unwrap(),
+    ]);
+    assert!(b.status.success(), "{}", String::from_utf8_lossy(&b.stderr));
+    let rewritten = std::fs::read_to_string(&through_rewrite).unwrap();
+    assert_eq!(rewritten, std::fs::read_to_string(&through_rotary).unwrap());
+    assert_ne!(rewritten, std::fs::read_to_string(&program).unwrap());
+    // A 3-axis option beside --rotary is refused, naming it; nothing is written.
+    let refused_out = out.join("refused.nc");
+    let c = gateway(&[
+        "rewrite",
+        program.to_str().unwrap(),
+        "--rotary",
+        errors.to_str().unwrap(),
+        "--start",
+        "0,0,0",
+        "--out",
+        refused_out.to_str().unwrap(),
+    ]);
+    assert!(!c.status.success());
+    assert!(String::from_utf8_lossy(&c.stderr).contains("--start"));
+    assert!(!refused_out.exists());
 }
 
 #[test]
