@@ -22,6 +22,7 @@ mod proxy;
 mod rewrite;
 mod rotary;
 mod scan;
+mod serve;
 mod verify;
 mod volumetric;
 
@@ -139,6 +140,13 @@ enum Cmd {
     /// the G-code sender you already use (UGS, CNCjs, bCNC), rewriting every line with
     /// the error map and streaming it to the job's GRBL controller. Status reports show
     /// the programmed position. Ctrl-C stops.
+    /// Run the gateway as a service: machines, job queues, the HTTP/WebSocket API and
+    /// the web page, as configured in BOX.toml. SIGTERM/SIGINT stop it cleanly.
+    Serve {
+        /// The box's configuration (see config/box/demo.toml).
+        #[arg(long)]
+        config: std::path::PathBuf,
+    },
     /// Cutting layouts for a multi-tool conveyor cutter (Source C).
     Layout {
         #[command(subcommand)]
@@ -293,6 +301,7 @@ fn main() -> ExitCode {
         Cmd::Iso230(a) => a.json(),
         Cmd::Volumetric { cmd } => cmd.json(),
         Cmd::Layout { cmd } => cmd.json(),
+        Cmd::Serve { .. } => false,
     };
     match run(cli) {
         Ok(code) => code,
@@ -403,6 +412,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             json,
         }),
         Cmd::Layout { cmd } => layout::run(cmd),
+        Cmd::Serve { config } => serve::serve(&config),
         Cmd::Proxy {
             config,
             map,
