@@ -1020,3 +1020,24 @@ fn current_activation(
         )
         .optional()?)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn foreign_keys_are_enforced() {
+        let store = Store::open_in_memory().unwrap();
+        let on: bool = store
+            .connection
+            .query_row("PRAGMA foreign_keys", [], |row| row.get(0))
+            .unwrap();
+        assert!(on);
+        // A measurement of a job that does not exist is refused by the database itself.
+        let refused = store.connection.execute(
+            "INSERT INTO measurements (job_id, taken_at, body) VALUES (99, 'x', '{}')",
+            [],
+        );
+        assert!(refused.is_err());
+    }
+}

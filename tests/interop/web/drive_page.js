@@ -1,0 +1,168 @@
+#!/usr/bin/env node
+// Drives the service's web page in headless Chromium (Debian `chromium`) through
+// playwright-core, as an operator would: open the page with the token in the URL
+// fragment, start a job, watch its live progress and see it finish in the history, look
+// at its chart and the error map's heat map, activate a profile version and roll back.
+// Every wait is a Playwright wait on the DOM (no sleeps).
+//
+// Usage: node drive_page.js BASE_URL TOKEN MACHINE KIND PARAMS_JSON SCREENSHOT USER_DATA_DIR [CHARTS]
+//   CHARTS: "required" (default: the finished job must show a chart that loads) or
+//   "optional" (a job kind that draws none; the chart list is still checked if present).
+// Prints one JSON object with what it saw; exit status 1 (with {"ok": false, "why"})
+// on any failure.
+'use strict';
+const path = require('path');
+const { chromium } = require(path.join(__dirname, 'node_modules', 'playwright-core'));
+
+const [base, token, machine, kind, paramsJson, screenshot, userDataDir, chartsArg] = process.argv.slice(2);
+const chartsRequired = (chartsArg || 'required') === 'required';
+const JOB_TIMEOUT_MS = 180000;
+const UI_TIMEOUT_MS = 20000;
+const out = { ok: false, steps: [] };
+
+function step(name, detail) {
+  out.steps.push(detail === undefined ? name : { [name]: detail });
+}
+
+async function startJob(page) {
+  const before = await page.$$eval('#history-rows tr[data-job-id]', (rows) =>
+    rows.reduce((max, row) => Math.max(max, Number(row.dataset.jobId)), 0));
+  await page.selectOption('#job-machine', machine);
+  await page.selectOption('#job-kind', kind);
+  await page.fill('#job-params', paramsJson);
+  await page.click('#start-job');
+  // The new job is the newest row, with an id above every earlier one.
+  const handle = await page.waitForFunction((earlier) => {
+    const row = document.querySelector('#history-rows tr[data-job-id]');
+    return row && Number(row.dataset.jobId) > earlier ? Number(row.dataset.jobId) : null;
+  }, before, { timeout: UI_TIMEOUT_MS });
+  const id = await handle.jsonValue();
+  step('started', id);
+  // Live progress over the WebSocket: at least one progress event for this job, counted
+  // by the page on its history row (kept after the job ends, so a fast job is not missed).
+  await page.locator(`#history-rows tr[data-job-id="${id}"]:not([data-live-progress="0"])`)
+    .waitFor({ timeout: JOB_TIMEOUT_MS });
+  step('live progress');
+  const finished = page.locator(`#history-rows tr[data-job-id="${id}"]`)
+    .and(page.locator('[data-state="succeeded"], [data-state="failed"], [data-state="cancelled"], [data-state="interrupted"]'));
+  await finished.waitFor({ timeout: JOB_TIMEOUT_MS });
+  const state = await finished.getAttribute('data-state');
+  step('finished', state);
+  if (state !== 'succeeded') throw new Error(`job ${id} ended ${state}`);
+  return id;
+}
+
+async function main() {
+  const context = await chromium.launchPersistentContext(userDataDir, {
+    executablePath: '/usr/bin/chromium',
+    headless: true,
+    args: ['--headless', '--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run',
+      '--disable-background-networking', '--disable-component-update', '--disable-sync'],
+    viewport: { width: 1280, height: 1600 },
+  });
+  const page = context.pages()[0] || await context.newPage();
+  const pageErrors = [];
+  page.on('pageerror', (error) => pageErrors.push(String(error)));
+  try {
+    // Without a token the page asks for one; a wrong one is refused with a message.
+    await page.goto(`${base}/`);
+    await page.locator('#login:not([hidden])').waitFor({ timeout: UI_TIMEOUT_MS });
+    await page.fill('#token-input', 'not-the-token');
+    await page.click('#login-button');
+    await page.locator('#login-error:text("refused")').waitFor({ timeout: UI_TIMEOUT_MS });
+    step('wrong token refused');
+    await page.goto(`${base}/#token=${encodeURIComponent(token)}`);
+    await page.locator('#connection[data-state="open"]').waitFor({ timeout: UI_TIMEOUT_MS });
+    // The token left the address bar and sits in sessionStorage.
+    out.url_after_load = page.url();
+    if (page.url().includes(token)) throw new Error('the token is still in the address bar');
+    if (await page.evaluate(() => sessionStorage.getItem('gateway.token')) !== token) {
+      throw new Error('the token is not in sessionStorage');
+    }
+    const machineRow = page.locator(`#machines li[data-machine="${machine}"]`);
+    await machineRow.waitFor({ timeout: UI_TIMEOUT_MS });
+    out.machine_state_before = await machineRow.getAttribute('data-state');
+
+    const jobId = await startJob(page);
+    out.job_id = jobId;
+    await page.locator(`#machines li[data-machine="${machine}"][data-state="idle"]`)
+      .waitFor({ timeout: UI_TIMEOUT_MS });
+    out.machine_state_after = 'idle';
+
+    // The job's detail: a chart (an SVG that loaded) and its measurements.
+    await page.click(`button.show-job[data-job-id="${jobId}"]`);
+    await page.locator(`#job-detail[data-job-id="${jobId}"]`).waitFor({ timeout: UI_TIMEOUT_MS });
+    // Charts and measurements arrive together; wait for the measurement count first.
+    await page.locator('#job-measurement-count[data-count]').waitFor({ timeout: UI_TIMEOUT_MS });
+    const chart = page.locator('#job-charts img[data-chart]').first();
+    if (chartsRequired || await chart.count() > 0) {
+      await chart.waitFor({ timeout: UI_TIMEOUT_MS });
+      await page.waitForFunction(() => {
+        const img = document.querySelector('#job-charts img[data-chart]');
+        return img && img.complete && img.naturalWidth > 0;
+      }, null, { timeout: UI_TIMEOUT_MS });
+      out.chart = await chart.getAttribute('data-chart');
+    } else {
+      out.chart = null;
+    }
+    out.job_detail_state = await page.locator('#job-detail').getAttribute('data-state');
+    out.measurements = Number(await page.locator('#job-measurement-count').getAttribute('data-count'));
+
+    // Profiles: two versions of one error map are needed for activate/rollback; a
+    // second job of the same kind makes the second version.
+    const mapRows = page.locator('#profile-rows tr[data-kind="error_map"]');
+    await mapRows.first().waitFor({ timeout: UI_TIMEOUT_MS });
+    if (await mapRows.count() < 2) await startJob(page);
+    await page.waitForFunction(() =>
+      document.querySelectorAll('#profile-rows tr[data-kind="error_map"]').length >= 2,
+    null, { timeout: UI_TIMEOUT_MS });
+    const profiles = await mapRows.evaluateAll((rows) =>
+      rows.map((r) => ({ name: r.dataset.profile, version: Number(r.dataset.version), active: r.dataset.active === 'true' })));
+    const name = profiles[0].name;
+    const versions = profiles.filter((p) => p.name === name).map((p) => p.version).sort((a, b) => a - b);
+    if (versions.length < 2) throw new Error(`profile ${name} has only versions ${versions}`);
+    const [older, newer] = versions.slice(-2);
+    const row = (v) => page.locator(`#profile-rows tr[data-profile="${name}"][data-version="${v}"]`);
+    const activeRow = (v) => page.locator(`#profile-rows tr[data-profile="${name}"][data-version="${v}"][data-active="true"]`);
+
+    await row(newer).locator('button.activate').click();
+    await activeRow(newer).waitFor({ timeout: UI_TIMEOUT_MS });
+    await row(older).locator('button.activate').click();
+    await activeRow(older).waitFor({ timeout: UI_TIMEOUT_MS });
+    step('activated', [newer, older]);
+    await row(older).locator('button.rollback').click();
+    await activeRow(newer).waitFor({ timeout: UI_TIMEOUT_MS });
+    out.rolled_back_to = newer;
+    out.active_after_rollback = await page.$$eval(
+      `#profile-rows tr[data-profile="${name}"][data-active="true"]`, (rows) => rows.map((r) => Number(r.dataset.version)));
+
+    // The heat map of the active error map, an SVG that loaded.
+    await page.locator(`#heatmap[data-profile="${name}"][data-version="${newer}"] img`).waitFor({ timeout: UI_TIMEOUT_MS });
+    await page.waitForFunction(() => {
+      const img = document.querySelector('#heatmap-image img');
+      return img && img.complete && img.naturalWidth > 0;
+    }, null, { timeout: UI_TIMEOUT_MS });
+    out.heatmap = { profile: name, version: newer };
+
+    out.page_errors = pageErrors;
+    out.error_text = await page.locator('#error').textContent();
+    await page.screenshot({ path: screenshot, fullPage: true });
+    out.screenshot = screenshot;
+    out.ok = pageErrors.length === 0;
+    if (!out.ok) out.why = 'errors in the page: ' + pageErrors.join('; ');
+  } catch (error) {
+    out.why = String(error && error.message || error);
+    out.page_errors = pageErrors;
+    try { await page.screenshot({ path: screenshot, fullPage: true }); out.screenshot = screenshot; } catch (_) { /* best effort */ }
+  } finally {
+    await context.close();
+  }
+  process.stdout.write(JSON.stringify(out) + '\n');
+  process.exit(out.ok ? 0 : 1);
+}
+
+main().catch((error) => {
+  out.why = String(error && error.stack || error);
+  process.stdout.write(JSON.stringify(out) + '\n');
+  process.exit(1);
+});

@@ -1,0 +1,150 @@
+//! The service's web page in a real browser: the service runs in-process (demo machine,
+//! port 0, a fresh data directory) and tests/interop/web/drive_page.js drives headless
+//! Debian Chromium through playwright-core: the page opens with the token in the URL
+//! fragment, starts a job, sees its live progress over the WebSocket and the finished
+//! job in the history, shows its chart and measurements and the error map's heat map,
+//! activates a profile version and rolls back. Needs `node`, `/usr/bin/chromium` and
+//! playwright-core in tests/interop/web (all installed by .ci/run); without them the test
+//! fails naming what to install. The screenshot is kept as
+//! `$CARGO_TARGET_DIR/tmp/service_web/page.png` (target/tmp/service_web/page.png by default).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use plot::plotters::coord::Shift;
+use plot::plotters::prelude::*;
+use system_tests::workspace;
+
+/// The job the page starts on the demo machine (the kind the service runs so far; it
+/// draws no chart yet, so the driver is told charts are optional).
+const JOB_KIND: &str = "compensate";
+const JOB_PARAMS: &str = r#"{"targets": 1}"#;
+const CHARTS: &str = "optional";
+
+/// A 3 x 3 heat map drawn with the plot crate, the body's `heatmap_svg` of the two
+/// error-map versions put in the store before the service starts (the service's jobs do
+/// not make error maps yet).
+struct Grid([f64; 9]);
+
+impl plot::Chart for Grid {
+    fn draw<DB: DrawingBackend>(
+        &self,
+        area: &DrawingArea<DB, Shift>,
+    ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+        area.fill(&WHITE)?;
+        for (cell, value) in area.split_evenly((3, 3)).iter().zip(self.0) {
+            let red = (255.0 * value) as u8;
+            cell.fill(&RGBColor(red, 60, 255 - red))?;
+        }
+        Ok(())
+    }
+}
+
+fn seed_profiles(data_dir: &Path) {
+    let mut store = store::Store::open(&data_dir.join("gateway.sqlite")).expect("the store opens");
+    for values in [[0.1, 0.5, 0.9, 0.2, 0.4, 0.6, 0.3, 0.7, 1.0], [0.0; 9]] {
+        let svg = plot::render_svg(&Grid(values), 300, 300).expect("the heat map renders");
+        store
+            .add_profile(
+                "demo",
+                "demo-map",
+                store::ProfileKind::ErrorMap,
+                &serde_json::json!({ "heatmap_svg": svg }),
+                None,
+                Some("seeded by the browser test"),
+            )
+            .expect("a profile version");
+    }
+}
+
+/// What is missing to run the browser, as an install instruction.
+fn missing_tools(web_dir: &Path) -> Option<String> {
+    if Command::new("node").arg("--version").output().is_err() {
+        return Some("node is not installed (apt-get install -y nodejs npm)".into());
+    }
+    if !Path::new("/usr/bin/chromium").exists() {
+        return Some("/usr/bin/chromium is not installed (apt-get install -y chromium)".into());
+    }
+    if !web_dir
+        .join("node_modules/playwright-core/package.json")
+        .exists()
+    {
+        return Some(format!(
+            "playwright-core is not installed in {0} (npm install --prefix {0} --no-package-lock, \
+             which installs the pinned version of its package.json; .ci/run does it)",
+            web_dir.display()
+        ));
+    }
+    None
+}
+
+fn fresh_dir(path: PathBuf) -> PathBuf {
+    let _ = std::fs::remove_dir_all(&path);
+    std::fs::create_dir_all(&path).expect("a temp dir under the target dir");
+    path
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
+    let web_dir = workspace().join("tests/interop/web");
+    if let Some(missing) = missing_tools(&web_dir) {
+        panic!("cannot run the browser test: {missing}");
+    }
+    let artefacts = fresh_dir(PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("service_web"));
+    let data_dir = fresh_dir(artefacts.join("data"));
+    let profile_dir = fresh_dir(artefacts.join("chromium-profile"));
+    let screenshot = artefacts.join("page.png");
+    seed_profiles(&data_dir);
+
+    let running = service::start(service::BoxConfig::demo(&data_dir))
+        .await
+        .expect("the demo service starts");
+    let base = format!("http://{}", running.local_addr());
+    let token = running.token().to_string();
+
+    let driver = web_dir.join("drive_page.js");
+    let args: Vec<String> = vec![
+        driver.display().to_string(),
+        base,
+        token.clone(),
+        "demo".into(),
+        JOB_KIND.into(),
+        JOB_PARAMS.into(),
+        screenshot.display().to_string(),
+        profile_dir.display().to_string(),
+        CHARTS.into(),
+    ];
+    let output = tokio::task::spawn_blocking(move || Command::new("node").args(&args).output())
+        .await
+        .expect("the driver task")
+        .expect("node runs");
+    running.shutdown().await;
+
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    let report: serde_json::Value = serde_json::from_str(stdout.trim())
+        .unwrap_or_else(|e| panic!("driver output is not JSON ({e}): {stdout}\n{stderr}"));
+    assert_eq!(
+        report["ok"],
+        true,
+        "the page walk failed (screenshot {}): {report}\n{stderr}",
+        screenshot.display()
+    );
+    // The token left the address bar.
+    let url = report["url_after_load"].as_str().unwrap();
+    assert!(!url.contains(&token) && !url.contains("token="), "{url}");
+    assert_eq!(report["machine_state_before"], "idle");
+    assert_eq!(report["machine_state_after"], "idle");
+    assert_eq!(report["job_detail_state"], "succeeded");
+    assert!(report["measurements"].as_u64().unwrap_or(0) > 0, "{report}");
+    // Activating the older version and rolling back leaves exactly the newer one active.
+    let newer = report["rolled_back_to"].as_u64().unwrap();
+    assert_eq!(report["active_after_rollback"], serde_json::json!([newer]));
+    assert_eq!(report["heatmap"]["version"], newer);
+    let png = std::fs::read(&screenshot).expect("the screenshot was written");
+    assert!(
+        png.starts_with(b"\x89PNG\r\n\x1a\n"),
+        "not a PNG: {}",
+        screenshot.display()
+    );
+}
