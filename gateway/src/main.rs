@@ -22,6 +22,7 @@ mod proxy;
 mod rewrite;
 mod rotary;
 mod scan;
+mod serve;
 mod verify;
 mod volumetric;
 
@@ -142,6 +143,13 @@ enum Cmd {
     Rotary {
         #[command(subcommand)]
         cmd: rotary::RotaryCmd,
+    },
+    /// Run the gateway as a service: machines, job queues, the HTTP/WebSocket API and
+    /// the web page, as configured in BOX.toml. SIGTERM/SIGINT stop it cleanly.
+    Serve {
+        /// The box's configuration (see config/box/demo.toml).
+        #[arg(long)]
+        config: std::path::PathBuf,
     },
     /// Cutting layouts for a multi-tool conveyor cutter (Source C).
     Layout {
@@ -301,6 +309,7 @@ fn main() -> ExitCode {
         Cmd::Iso230(a) => a.json(),
         Cmd::Volumetric { cmd } => cmd.json(),
         Cmd::Layout { cmd } => cmd.json(),
+        Cmd::Serve { .. } => false,
     };
     match run(cli) {
         Ok(code) => code,
@@ -451,6 +460,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             json,
         }),
         Cmd::Layout { cmd } => layout::run(cmd),
+        Cmd::Serve { config } => serve::serve(&config),
         Cmd::Proxy {
             config,
             map,

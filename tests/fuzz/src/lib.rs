@@ -24,6 +24,7 @@ mod modbus;
 mod nc;
 mod rewrite;
 mod rotary;
+mod service;
 mod slcan;
 mod volumetric;
 
@@ -39,6 +40,7 @@ pub use modbus::modbus_frame;
 pub use nc::nc_program;
 pub use rewrite::{nc_rewrite, proxy_stream};
 pub use rotary::{grbl_probe, rotary_centres, rotary_json, rotary_rewrite};
+pub use service::box_toml;
 pub use slcan::slcan;
 pub use volumetric::volumetric_model;
 
@@ -65,6 +67,7 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("png_load", png_load),
     ("localize", localize),
     ("job_toml", job_toml),
+    ("box_toml", box_toml),
     ("board_toml", board_toml),
     ("machine_toml", machine_toml),
     ("camera_toml", camera_toml),

@@ -1,0 +1,545 @@
+//! The service end to end, in-process on port 0 with a temp data dir and the embedded
+//! demo machine: a job through the API with its events on the WebSocket, cancel,
+//! restart recovery, the auth sweep of every route of the OpenAPI document, bad input.
+//! No wall-time sleeps: every wait is on a WebSocket event.
+
+use futures_util::StreamExt;
+use reqwest::{Client, StatusCode};
+use serde_json::{json, Value};
+use service::{BoxConfig, Running};
+use std::path::Path;
+use tokio_tungstenite::tungstenite::client::IntoClientRequest;
+use tokio_tungstenite::tungstenite::Message;
+
+type Ws =
+    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+
+fn config(dir: &Path) -> BoxConfig {
+    let mut c = BoxConfig::demo(dir);
+    // Keep the wrong-token delay short so the sweep stays quick (the growth is the same).
+    c.service.bad_token_delay_cap_ms = 5;
+    c
+}
+
+async fn start(dir: &Path) -> Running {
+    service::start(config(dir)).await.expect("service starts")
+}
+
+fn url(s: &Running, path: &str) -> String {
+    format!("http://{}{}", s.local_addr(), path)
+}
+
+async fn get(c: &Client, s: &Running, path: &str) -> (StatusCode, Value) {
+    let r = c
+        .get(url(s, path))
+        .bearer_auth(s.token())
+        .send()
+        .await
+        .unwrap();
+    let status = r.status();
+    (status, r.json().await.unwrap_or(Value::Null))
+}
+
+async fn post(c: &Client, s: &Running, path: &str, body: Value) -> (StatusCode, Value) {
+    let r = c
+        .post(url(s, path))
+        .bearer_auth(s.token())
+        .json(&body)
+        .send()
+        .await
+        .unwrap();
+    let status = r.status();
+    (status, r.json().await.unwrap_or(Value::Null))
+}
+
+/// Connects with the browser's way of authenticating: the subprotocol list.
+async fn events(s: &Running) -> Ws {
+    let mut req = format!("ws://{}/api/v1/events", s.local_addr())
+        .into_client_request()
+        .unwrap();
+    req.headers_mut().insert(
+        "Sec-WebSocket-Protocol",
+        format!("gateway.v1, bearer.{}", s.token()).parse().unwrap(),
+    );
+    let (mut ws, response) = tokio_tungstenite::connect_async(req)
+        .await
+        .expect("ws connects");
+    assert_eq!(
+        response.headers().get("sec-websocket-protocol").unwrap(),
+        "gateway.v1"
+    );
+    let hello = next(&mut ws).await;
+    assert_eq!(hello["type"], "hello");
+    assert_eq!(hello["machines"][0]["id"], "demo");
+    ws
+}
+
+async fn next(ws: &mut Ws) -> Value {
+    loop {
+        match ws.next().await.expect("event stream open").expect("event") {
+            Message::Text(t) => return serde_json::from_str(&t).unwrap(),
+            Message::Close(_) => panic!("event stream closed"),
+            _ => {}
+        }
+    }
+}
+
+/// Reads events until `pred` holds for one; returns every event seen up to it.
+async fn until(ws: &mut Ws, pred: impl Fn(&Value) -> bool) -> Vec<Value> {
+    let mut seen = Vec::new();
+    loop {
+        let e = next(ws).await;
+        let done = pred(&e);
+        seen.push(e);
+        if done {
+            return seen;
+        }
+    }
+}
+
+fn job_in(e: &Value, id: &Value, state: &str) -> bool {
+    e["type"] == "job" && e["job"]["id"] == *id && e["job"]["state"] == state
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_job_runs_to_the_end_with_its_events() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = start(dir.path()).await;
+    let c = Client::new();
+    let mut ws = events(&s).await;
+    let (status, job) = post(
+        &c,
+        &s,
+        "/api/v1/machines/demo/jobs",
+        json!({"kind": "compensate", "params": {"targets": 1}}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::ACCEPTED, "{job}");
+    assert_eq!(job["state"], "queued");
+    let id = job["id"].clone();
+    let seen = until(&mut ws, |e| job_in(e, &id, "succeeded")).await;
+    assert!(seen.iter().any(|e| job_in(e, &id, "running")));
+    assert!(seen
+        .iter()
+        .any(|e| e["type"] == "measurement" && e["job_id"] == id));
+    assert!(seen
+        .iter()
+        .any(|e| e["type"] == "progress" && e["done"] == 1 && e["total"] == 1));
+    assert!(seen
+        .iter()
+        .any(|e| e["type"] == "machine" && e["machine"]["state"] == "busy"));
+    let (status, record) = get(&c, &s, &format!("/api/v1/jobs/{id}")).await;
+    assert_eq!(status, StatusCode::OK);
+    assert_eq!(record["state"], "succeeded");
+    assert_eq!(record["progress"], json!({"done": 1, "total": 1}));
+    assert_eq!(record["result"]["converged"], 1);
+    let (_, ms) = get(&c, &s, &format!("/api/v1/jobs/{id}/measurements")).await;
+    let n_measured = seen.iter().filter(|e| e["type"] == "measurement").count();
+    assert_eq!(ms.as_array().unwrap().len(), n_measured);
+    let (_, list) = get(&c, &s, "/api/v1/jobs?machine=demo&state=succeeded").await;
+    assert_eq!(list.as_array().unwrap().len(), 1);
+    let (_, charts) = get(&c, &s, &format!("/api/v1/jobs/{id}/charts")).await;
+    assert_eq!(charts, json!([]));
+    s.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn cancel_a_queued_and_a_running_job() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = start(dir.path()).await;
+    let c = Client::new();
+    let mut ws = events(&s).await;
+    let (_, long) = post(
+        &c,
+        &s,
+        "/api/v1/machines/demo/jobs",
+        json!({"kind": "compensate"}),
+    )
+    .await;
+    let (_, waiting) = post(
+        &c,
+        &s,
+        "/api/v1/machines/demo/jobs",
+        json!({"kind": "compensate", "params": {"targets": 1}}),
+    )
+    .await;
+    let (long_id, waiting_id) = (long["id"].clone(), waiting["id"].clone());
+    // The queued one goes at once.
+    let (status, r) = post(
+        &c,
+        &s,
+        &format!("/api/v1/jobs/{waiting_id}/cancel"),
+        json!({}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK, "{r}");
+    assert_eq!(r["state"], "cancelled");
+    // The running one stops after its first measurement, which is kept.
+    until(&mut ws, |e| {
+        e["type"] == "measurement" && e["job_id"] == long_id
+    })
+    .await;
+    let (status, r) = post(&c, &s, &format!("/api/v1/jobs/{long_id}/cancel"), json!({})).await;
+    assert_eq!(status, StatusCode::OK, "{r}");
+    assert_eq!(r["state"], "cancelled");
+    assert!(r["result"]["targets_done"].as_u64().unwrap() < 30);
+    let (_, ms) = get(&c, &s, &format!("/api/v1/jobs/{long_id}/measurements")).await;
+    assert!(!ms.as_array().unwrap().is_empty());
+    // A finished job cannot be cancelled: 409, and it stays as it was.
+    let (status, e) = post(&c, &s, &format!("/api/v1/jobs/{long_id}/cancel"), json!({})).await;
+    assert_eq!(status, StatusCode::CONFLICT);
+    assert_eq!(e["error"], "job_finished");
+    s.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn restart_marks_the_running_job_interrupted_and_runs_the_queue() {
+    let dir = tempfile::tempdir().unwrap();
+    {
+        // The state a crash leaves: one job running, one queued.
+        let mut store = store::Store::open(&dir.path().join("gateway.sqlite")).unwrap();
+        let running = store.enqueue("demo", "compensate", &json!({})).unwrap();
+        store.start(running.id, None).unwrap();
+        store.add_measurement(running.id, &json!({"x": 1})).unwrap();
+        store
+            .enqueue("demo", "compensate", &json!({"targets": 1}))
+            .unwrap();
+    }
+    // Subscribe before the worker can start the queued job: start, then connect; the
+    // job may already be done, so read its record if the event was missed.
+    let s = start(dir.path()).await;
+    let c = Client::new();
+    let (_, first) = get(&c, &s, "/api/v1/jobs/1").await;
+    assert_eq!(first["state"], "interrupted");
+    let (_, ms) = get(&c, &s, "/api/v1/jobs/1/measurements").await;
+    assert_eq!(ms, json!([{"x": 1}]));
+    let mut ws = events(&s).await;
+    let (_, second) = get(&c, &s, "/api/v1/jobs/2").await;
+    if second["state"] != "succeeded" {
+        until(&mut ws, |e| job_in(e, &json!(2), "succeeded")).await;
+    }
+    let (_, second) = get(&c, &s, "/api/v1/jobs/2").await;
+    assert_eq!(second["state"], "succeeded");
+    s.shutdown().await;
+}
+
+/// Every route of the OpenAPI document, with its path parameters filled in.
+async fn all_routes(c: &Client, s: &Running) -> Vec<(String, String)> {
+    let (status, doc) = get(c, s, "/api/v1/openapi.json").await;
+    assert_eq!(status, StatusCode::OK);
+    assert!(doc["openapi"].as_str().unwrap().starts_with("3."));
+    let mut routes = Vec::new();
+    for (path, item) in doc["paths"].as_object().unwrap() {
+        let concrete = path
+            .replace("{machine}", "demo")
+            .replace("{id}", "1")
+            .replace("{name}", "error_map")
+            .replace("{version}", "1")
+            .replace("{file}", "deviation.svg");
+        for method in item.as_object().unwrap().keys() {
+            routes.push((method.to_uppercase(), concrete.clone()));
+        }
+    }
+    assert!(routes.len() >= 16, "{routes:?}");
+    routes
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn no_route_answers_with_data_without_the_right_token() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = start(dir.path()).await;
+    let c = Client::new();
+    // Some data to leak: a job (on the demo machine) and a profile.
+    post(
+        &c,
+        &s,
+        "/api/v1/machines/demo/jobs",
+        json!({"kind": "compensate", "params": {"targets": 1}}),
+    )
+    .await;
+    s.store()
+        .lock()
+        .unwrap()
+        .add_profile(
+            "demo",
+            "error_map",
+            store::ProfileKind::ErrorMap,
+            &json!({"secret": 1}),
+            None,
+            None,
+        )
+        .unwrap();
+    for (method, path) in all_routes(&c, &s).await {
+        let m: reqwest::Method = method.parse().unwrap();
+        let cases = [
+            (
+                "no token",
+                c.request(m.clone(), url(&s, &path)),
+                StatusCode::UNAUTHORIZED,
+            ),
+            (
+                "wrong token",
+                c.request(m.clone(), url(&s, &path))
+                    .bearer_auth("0".repeat(64)),
+                StatusCode::UNAUTHORIZED,
+            ),
+            (
+                "token in query",
+                c.request(m.clone(), url(&s, &format!("{path}?token={}", s.token()))),
+                StatusCode::BAD_REQUEST,
+            ),
+            (
+                "token in query with header",
+                c.request(
+                    m.clone(),
+                    url(&s, &format!("{path}?access_token={}", s.token())),
+                )
+                .bearer_auth(s.token()),
+                StatusCode::BAD_REQUEST,
+            ),
+        ];
+        for (what, req, want) in cases {
+            let r = req
+                .header("content-type", "application/json")
+                .body("{}")
+                .send()
+                .await
+                .unwrap();
+            assert_eq!(r.status(), want, "{method} {path} {what}");
+            let body: Value = r.json().await.unwrap();
+            assert!(body["error"].is_string(), "{method} {path} {what}: {body}");
+            assert_eq!(
+                body.as_object().unwrap().len(),
+                2,
+                "{method} {path} {what}: {body}"
+            );
+        }
+    }
+    // The open routes hold no data.
+    let r = c.get(url(&s, "/healthz")).send().await.unwrap();
+    assert_eq!(r.json::<Value>().await.unwrap(), json!({"status": "ok"}));
+    for page in ["/", "/app.js", "/style.css"] {
+        assert_eq!(
+            c.get(url(&s, page)).send().await.unwrap().status(),
+            StatusCode::OK
+        );
+    }
+    // Nothing was changed by the refused requests: still one job, no active profile.
+    let (_, jobs) = get(&c, &s, "/api/v1/jobs").await;
+    assert_eq!(jobs.as_array().unwrap().len(), 1);
+    let (_, profiles) = get(&c, &s, "/api/v1/machines/demo/profiles").await;
+    assert_eq!(profiles[0]["active"], false);
+    s.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_input_gets_its_error_and_changes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut cfg = config(dir.path());
+    let mut other = cfg.machines[0].clone();
+    other.id = "other".into();
+    cfg.machines.push(other);
+    cfg.service.max_body_bytes = 1024;
+    let s = service::start(cfg).await.unwrap();
+    let c = Client::new();
+    s.store()
+        .lock()
+        .unwrap()
+        .add_profile(
+            "demo",
+            "error_map",
+            store::ProfileKind::ErrorMap,
+            &json!({}),
+            None,
+            None,
+        )
+        .unwrap();
+    let jobs_path = "/api/v1/machines/demo/jobs";
+    let raw = |body: &'static str| {
+        c.post(url(&s, jobs_path))
+            .bearer_auth(s.token())
+            .header("content-type", "application/json")
+            .body(body)
+    };
+    let checks: Vec<(&str, reqwest::RequestBuilder, StatusCode, &str)> = vec![
+        (
+            "bad JSON",
+            raw("{\"kind\": "),
+            StatusCode::BAD_REQUEST,
+            "bad_json",
+        ),
+        (
+            "wrong shape",
+            raw("{\"kind\": 3}"),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "invalid_body",
+        ),
+        (
+            "unknown field",
+            raw("{\"kind\": \"compensate\", \"x\": 1}"),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "invalid_body",
+        ),
+        (
+            "unknown kind",
+            raw("{\"kind\": \"format_disk\"}"),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "invalid_job",
+        ),
+        (
+            "bad params",
+            raw("{\"kind\": \"compensate\", \"params\": {\"targets\": -1}}"),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "invalid_job",
+        ),
+        (
+            "body too large",
+            c.post(url(&s, jobs_path))
+                .bearer_auth(s.token())
+                .header("content-type", "application/json")
+                .body(format!(
+                    "{{\"kind\": \"compensate\", \"params\": {{\"pad\": \"{}\"}}}}",
+                    "x".repeat(4096)
+                )),
+            StatusCode::PAYLOAD_TOO_LARGE,
+            "body_too_large",
+        ),
+        (
+            "unknown machine",
+            c.post(url(&s, "/api/v1/machines/nope/jobs"))
+                .bearer_auth(s.token())
+                .json(&json!({"kind": "compensate"})),
+            StatusCode::NOT_FOUND,
+            "unknown_machine",
+        ),
+        (
+            "unknown job",
+            c.get(url(&s, "/api/v1/jobs/999")).bearer_auth(s.token()),
+            StatusCode::NOT_FOUND,
+            "unknown_job",
+        ),
+        (
+            "job id not a number",
+            c.get(url(&s, "/api/v1/jobs/abc")).bearer_auth(s.token()),
+            StatusCode::BAD_REQUEST,
+            "bad_path",
+        ),
+        (
+            "cancel unknown job",
+            c.post(url(&s, "/api/v1/jobs/999/cancel"))
+                .bearer_auth(s.token()),
+            StatusCode::NOT_FOUND,
+            "unknown_job",
+        ),
+        (
+            "bad state filter",
+            c.get(url(&s, "/api/v1/jobs?state=exploded"))
+                .bearer_auth(s.token()),
+            StatusCode::BAD_REQUEST,
+            "bad_query",
+        ),
+        (
+            "profile of another machine",
+            c.get(url(&s, "/api/v1/machines/other/profiles/error_map/1"))
+                .bearer_auth(s.token()),
+            StatusCode::NOT_FOUND,
+            "unknown_profile",
+        ),
+        (
+            "activate a profile of another machine",
+            c.post(url(
+                &s,
+                "/api/v1/machines/other/profiles/error_map/1/activate",
+            ))
+            .bearer_auth(s.token()),
+            StatusCode::NOT_FOUND,
+            "unknown_profile",
+        ),
+        (
+            "unknown profile version",
+            c.get(url(&s, "/api/v1/machines/demo/profiles/error_map/7"))
+                .bearer_auth(s.token()),
+            StatusCode::NOT_FOUND,
+            "unknown_profile",
+        ),
+        (
+            "path traversal",
+            c.get(url(&s, "/api/v1/machines/..%2F..%2Fetc/profiles"))
+                .bearer_auth(s.token()),
+            StatusCode::NOT_FOUND,
+            "unknown_machine",
+        ),
+        (
+            "unknown route",
+            c.get(url(&s, "/api/v1/nothing")).bearer_auth(s.token()),
+            StatusCode::NOT_FOUND,
+            "not_found",
+        ),
+    ];
+    for (what, req, want, code) in checks {
+        let r = req.send().await.unwrap();
+        assert_eq!(r.status(), want, "{what}");
+        let body: Value = r.json().await.unwrap();
+        assert_eq!(body["error"], code, "{what}: {body}");
+        assert!(!body["message"].as_str().unwrap().is_empty(), "{what}");
+    }
+    let (_, jobs) = get(&c, &s, "/api/v1/jobs").await;
+    assert_eq!(jobs, json!([]), "a refused request queued a job");
+    let (_, profiles) = get(&c, &s, "/api/v1/machines/demo/profiles").await;
+    assert_eq!(profiles[0]["active"], false);
+
+    // `if_idle` on a busy machine: 409, nothing queued.
+    let mut ws = events(&s).await;
+    let (_, long) = post(&c, &s, jobs_path, json!({"kind": "compensate"})).await;
+    let long_id = long["id"].clone();
+    until(&mut ws, |e| job_in(e, &long_id, "running")).await;
+    let (status, e) = post(
+        &c,
+        &s,
+        jobs_path,
+        json!({"kind": "compensate", "if_idle": true}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::CONFLICT);
+    assert_eq!(e["error"], "machine_busy");
+    let (_, jobs) = get(&c, &s, "/api/v1/jobs").await;
+    assert_eq!(jobs.as_array().unwrap().len(), 1);
+    // Without if_idle it queues.
+    let (status, _) = post(
+        &c,
+        &s,
+        jobs_path,
+        json!({"kind": "compensate", "params": {"targets": 1}}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::ACCEPTED);
+    // Activating and rolling back go through.
+    let (status, p) = post(
+        &c,
+        &s,
+        "/api/v1/machines/demo/profiles/error_map/1/activate",
+        json!({}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK);
+    assert_eq!(p["active"], true);
+    let (status, e) = post(
+        &c,
+        &s,
+        "/api/v1/machines/demo/profiles/error_map/rollback",
+        json!({}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::CONFLICT, "{e}");
+    // Shutdown stops the running job safely: saved as cancelled with its measurements.
+    let store = s.store();
+    s.shutdown().await;
+    let record = store
+        .lock()
+        .unwrap()
+        .job(long_id.as_i64().unwrap())
+        .unwrap()
+        .unwrap();
+    assert_eq!(record.state, store::JobState::Cancelled);
+    ws.close(None).await.ok();
+}
