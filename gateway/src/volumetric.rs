@@ -4,8 +4,8 @@
 use anyhow::{bail, Context};
 use clap::Subcommand;
 use protocol::volumetric::{
-    parse_instrument, parse_model, parse_points, parse_squareness, write_model, InstrumentFile,
-    Structure, AXES, COMPONENTS, SQUARENESS,
+    parse_instrument, parse_model, parse_points, parse_squareness, write_isg_csv, write_isg_lis,
+    write_model, InstrumentFile, Structure, AXES,
 };
 use serde_json::json;
 use std::path::{Path, PathBuf};
@@ -71,8 +71,9 @@ pub enum VolumetricCmd {
         #[arg(long)]
         json: bool,
     },
-    /// Export the model's per-axis tables in the ISG volumetric CSV form (X.csv, Y.csv,
-    /// Z.csv with `X,EXX,EYX,EZX,EAX,EBX,ECX`..., mm and rad; squareness.csv), into DIR.
+    /// Export the model for the ISG kernel (Beckhoff TF5280) into DIR: volcomp.csv in the
+    /// ISG CSV format (blocks `C0Y B0Z A0Z P0X P0Y P0Z`, `X EXX ... ECX`, ..., mm and
+    /// rad) and the compensation list volcomp.lis that names it.
     ExportIsg {
         #[arg(long)]
         model: PathBuf,
@@ -392,30 +393,15 @@ pub fn run(cmd: VolumetricCmd) -> anyhow::Result<ExitCode> {
         VolumetricCmd::ExportIsg { model, out, json } => {
             let m = load_model(&model)?;
             std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-            for a in 0..3 {
-                let mut csv = String::from(AXES[a]);
-                for c in COMPONENTS {
-                    csv += &format!(",E{c}{}", AXES[a]);
-                }
-                csv.push('\n');
-                let t = &m.file.tables[a];
-                for (p, e) in t.positions_mm.iter().zip(&t.errors) {
-                    csv += &format!(
-                        "{p},{},{},{},{},{},{}\n",
-                        e[0], e[1], e[2], e[3], e[4], e[5]
-                    );
-                }
-                write(&out.join(format!("{}.csv", AXES[a])), csv)?;
-            }
-            let mut sq = String::from("name,value_rad\n");
-            for (k, n) in SQUARENESS.iter().enumerate() {
-                sq += &format!("{n},{}\n", m.file.squareness_rad[k]);
-            }
-            write(&out.join("squareness.csv"), sq)?;
+            write(&out.join("volcomp.csv"), write_isg_csv(&m.file))?;
+            write(
+                &out.join("volcomp.lis"),
+                write_isg_lis(&m.file, "volcomp.csv"),
+            )?;
             if json {
                 println!(
                     "{}",
-                    json!({"out": out, "files": ["X.csv", "Y.csv", "Z.csv", "squareness.csv"]})
+                    json!({"out": out, "files": ["volcomp.csv", "volcomp.lis"]})
                 );
             } else {
                 println!("ISG tables written to {}", out.display());
