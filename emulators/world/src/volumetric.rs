@@ -30,10 +30,13 @@
 //! Noise is Gaussian: 0.3 µm and 0.3 µrad standard deviation, stated uncertainty 1 µm
 //! and 1 µrad; squareness noise 1 µrad, stated 2 µrad.
 
+use crate::camera::{CameraModel, CameraPose};
+use crate::render::{render, RenderedFrame};
 use crate::rng::Rng;
 use kinematics::{exact_error, translation, Htm};
 use nalgebra::Vector4;
 use protocol::volumetric::Structure;
+use protocol::Board;
 
 const TAU: f64 = std::f64::consts::TAU;
 
@@ -234,6 +237,128 @@ impl VolumetricMachine {
     }
 }
 
+/// Where the dot board lies for one height of the camera plan: its surface at
+/// `origin_mm[2]` in the workpiece frame (on a riser of that height), its origin at
+/// `origin_mm[0..2]` and its x axis turned by `rotation_rad` about Z. The board is put on
+/// each riser against a fence: placements differ by tenths of a mm and up to 0.2 mrad.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BoardPlacement {
+    pub origin_mm: [f64; 3],
+    pub rotation_rad: f64,
+}
+
+/// The camera measurement plan: the board's dots seen at every `xs` x `ys` point with
+/// the board raised to each height in `zs` (the first height is the reference), in
+/// `runs` repeated runs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraPlan {
+    pub xs: Vec<f64>,
+    pub ys: Vec<f64>,
+    pub zs: Vec<f64>,
+    pub runs: usize,
+}
+
+impl CameraPlan {
+    /// Every 50 mm over X and Y, heights 0, 150 and 300 mm, 2 runs.
+    pub fn default_for(travel_mm: [f64; 3]) -> CameraPlan {
+        let grid = |l: f64| {
+            let n = (l / 50.0).round() as usize;
+            (0..=n)
+                .map(|i| l * i as f64 / n as f64)
+                .collect::<Vec<f64>>()
+        };
+        CameraPlan {
+            xs: grid(travel_mm[0]),
+            ys: grid(travel_mm[1]),
+            zs: vec![0.0, 150.0, 300.0],
+            runs: 2,
+        }
+    }
+}
+
+impl VolumetricMachine {
+    /// What the camera at the spindle sees at command `q` of a board placed at
+    /// `placement`: the board point on its optical axis (the tool frame's z axis through
+    /// the tool point, which is the camera's focal point) and the image's extra rotation,
+    /// as a [`CameraPose`] for [`render`].
+    pub fn camera_pose(&self, q: [f64; 3], placement: &BoardPlacement) -> CameraPose {
+        let rel = self.relative(q);
+        let p = [rel[(0, 3)], rel[(1, 3)], rel[(2, 3)]];
+        let d = [rel[(0, 2)], rel[(1, 2)], rel[(2, 2)]];
+        let o = placement.origin_mm;
+        let lambda = (o[2] - p[2]) / d[2];
+        let hit = [p[0] + lambda * d[0] - o[0], p[1] + lambda * d[1] - o[1]];
+        let (s, c) = placement.rotation_rad.sin_cos();
+        CameraPose {
+            centre_mm: [c * hit[0] + s * hit[1], -s * hit[0] + c * hit[1]],
+            rotation_rad: rel[(1, 0)].atan2(rel[(0, 0)]) - placement.rotation_rad,
+        }
+    }
+
+    /// The frame the camera grabs at command `q` (world's renderer at the pose above).
+    pub fn camera_frame(
+        &self,
+        q: [f64; 3],
+        placement: &BoardPlacement,
+        board: &Board,
+        camera: &CameraModel,
+        noise_seed: u64,
+    ) -> RenderedFrame {
+        render(board, camera, &self.camera_pose(q, placement), noise_seed)
+    }
+
+    /// The board's placement on each of the plan's risers (truth, seeded).
+    pub fn board_placements(&self, plan: &CameraPlan, seed: u64) -> Vec<BoardPlacement> {
+        let mut rng = Rng::new(seed ^ 0x626f_6172_64);
+        plan.zs
+            .iter()
+            .map(|&z| BoardPlacement {
+                // Riser heights are ground to a few µm of nominal.
+                origin_mm: [
+                    rng.range(-0.3, 0.3),
+                    rng.range(-0.3, 0.3),
+                    z + rng.range(-0.005, 0.005),
+                ],
+                rotation_rad: rng.range(-2e-4, 2e-4),
+            })
+            .collect()
+    }
+
+    /// The simulated camera campaign `camera.csv`: for each run, height and plan point
+    /// (numbered `point`), the command and the board coordinates of the image centre as
+    /// the localizer reports them (0.05 µm localization noise, stated uncertainty 0.2 µm).
+    /// Returns the file and the placements used (truth).
+    pub fn camera_campaign(&self, plan: &CameraPlan, seed: u64) -> (String, Vec<BoardPlacement>) {
+        let placements = self.board_placements(plan, seed);
+        let mut rng = Rng::new(seed ^ 0x6361_6d65_7261);
+        let mut probe = self.clone();
+        probe.tool_offset_mm = [0.0; 3];
+        probe.work_offset_mm = [0.0; 3];
+        let mut f = String::from(
+            "# instrument: camera at the spindle, dot board on risers\n# uncertainty_um: 0.2\n\
+             run,point,x_mm,y_mm,z_mm,board_x_mm,board_y_mm\n",
+        );
+        for run in 1..=plan.runs {
+            let mut point = 0;
+            for (k, &z) in plan.zs.iter().enumerate() {
+                for &y in &plan.ys {
+                    for &x in &plan.xs {
+                        let pose = probe.camera_pose([x, y, z], &placements[k]);
+                        let b = pose.centre_mm;
+                        f += &format!(
+                            "{run},{point},{x},{y},{z},{:.6},{:.6}\n",
+                            b[0] + 5e-5 * rng.normal(),
+                            b[1] + 5e-5 * rng.normal()
+                        );
+                        point += 1;
+                    }
+                }
+            }
+        }
+        (f, placements)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -276,6 +401,100 @@ mod tests {
         m.errors[0][0].lin = 0.010;
         let e = m.true_error([250.0, 0.0, 0.0]);
         assert!((e[0] + 0.005).abs() < 1e-12 && e[1].abs() < 1e-12, "{e:?}");
+    }
+
+    fn perfect(structure: Structure) -> VolumetricMachine {
+        let mut m = VolumetricMachine::new(structure, 1);
+        m.squareness_rad = [0.0; 3];
+        for a in 0..3 {
+            for c in 0..6 {
+                m.errors[a][c].lin = 0.0;
+                m.errors[a][c].waves = [(0.0, 1.0, 0.0); 3];
+            }
+        }
+        m
+    }
+
+    #[test]
+    fn the_camera_sees_the_pitch_of_a_table_axis_grow_with_height() {
+        // XYFZ, X carries the board: E_BX = 20 µrad at x = 250 (linear 40 µrad over
+        // 500 mm). The tool point at height z lands -z·E_BX off in x (README's ex), so
+        // raising the board from 0 to 300 mm moves the seen point by -6 µm.
+        let mut m = perfect(Structure::Xyfz);
+        m.errors[0][4].lin = 40e-6;
+        let flat = |z: f64| BoardPlacement {
+            origin_mm: [0.0, 0.0, z],
+            rotation_rad: 0.0,
+        };
+        let low = m.camera_pose([250.0, 100.0, 0.0], &flat(0.0)).centre_mm;
+        let high = m.camera_pose([250.0, 100.0, 300.0], &flat(300.0)).centre_mm;
+        assert!((high[0] - low[0] + 0.006).abs() < 1e-9, "{low:?} {high:?}");
+        assert!((high[1] - low[1]).abs() < 1e-9);
+        // A board turned by 1 mrad at (1, 2) mm: the seen point in board coordinates.
+        let p = BoardPlacement {
+            origin_mm: [1.0, 2.0, 0.0],
+            rotation_rad: 1e-3,
+        };
+        let c = perfect(Structure::Xyfz)
+            .camera_pose([101.0, 2.0, 0.0], &p)
+            .centre_mm;
+        let want = [100.0 * 1e-3f64.cos(), -100.0 * 1e-3f64.sin()];
+        assert!((c[0] - want[0]).abs() < 1e-12 && (c[1] - want[1]).abs() < 1e-12);
+    }
+
+    #[test]
+    fn rendered_frame_centres_on_the_seen_board_point() {
+        let m = VolumetricMachine::new(Structure::Xyfz, 5);
+        let board = Board::nominal(
+            "test",
+            0.5,
+            0.25,
+            protocol::Polarity::DarkOnLight,
+            1200,
+            1000,
+            [-50.0, -50.0],
+        );
+        let camera = CameraModel {
+            model: "test".into(),
+            width: 64,
+            height: 48,
+            bit_depth: 8,
+            um_per_px: 20.0,
+            rotation_deg: 0.0,
+            mirrored: false,
+            distortion_px_at_corner: 0.0,
+            blur_sigma_px: 0.0,
+            noise_sigma: 0.0,
+            background_level: 0.9,
+            dot_level: 0.1,
+            illumination_gradient: 0.0,
+            illumination_angle_deg: 0.0,
+            vignetting: 0.0,
+        };
+        let place = BoardPlacement {
+            origin_mm: [0.0, 0.0, 200.0],
+            rotation_rad: 0.0,
+        };
+        let q = [250.0, 100.0, 200.0];
+        let pose = m.camera_pose(q, &place);
+        let frame = m.camera_frame(q, &place, &board, &camera, 1);
+        assert!(!frame.dots.is_empty());
+        for d in &frame.dots {
+            let b = board.true_xy(d.i, d.j).unwrap();
+            let back = camera.pixel_to_board(&pose, d.centre_px);
+            assert!((back[0] - b[0]).abs() < 1e-9 && (back[1] - b[1]).abs() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn camera_campaign_lists_every_point_of_the_plan() {
+        let m = VolumetricMachine::new(Structure::Xyfz, 3);
+        let plan = CameraPlan::default_for(m.travel_mm);
+        let (f, placements) = m.camera_campaign(&plan, 9);
+        assert_eq!(placements.len(), 3);
+        // 11 x 9 points at 3 heights, 2 runs.
+        assert_eq!(f.lines().filter(|l| l.starts_with("2,")).count(), 297);
+        assert!(f.contains("\nrun,point,x_mm,y_mm,z_mm,board_x_mm,board_y_mm\n1,0,0,0,0,"));
     }
 
     #[test]
