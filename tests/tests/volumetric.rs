@@ -2,32 +2,14 @@
 //! campaign, read its files, identify, write and read the model file, compensate 1000
 //! random points of the volume, and compare the tool point's true error before and after.
 
-use protocol::volumetric::{
-    parse_instrument, parse_model, parse_squareness, write_model, Structure,
-};
-use volumetric::identify::{identify, laser_columns, level_columns, Campaign};
+use protocol::volumetric::{parse_instrument, parse_model, write_model, Structure};
+use volumetric::identify::{identify, laser_columns, Campaign};
 use volumetric::Model;
 use world::rng::Rng;
 use world::volumetric::VolumetricMachine;
 
 fn campaign(files: &[(String, String)]) -> Campaign {
-    let get = |n: &str| {
-        &files
-            .iter()
-            .find(|f| f.0 == n)
-            .unwrap_or_else(|| panic!("campaign lacks {n}"))
-            .1
-    };
-    let parse = |n: String, cols: Vec<String>| {
-        let cols: Vec<&str> = cols.iter().map(String::as_str).collect();
-        parse_instrument(get(&n), &cols).unwrap_or_else(|e| panic!("{n}: {e}"))
-    };
-    let axes = ['X', 'Y', 'Z'];
-    Campaign {
-        laser: std::array::from_fn(|a| parse(format!("laser_{}.csv", axes[a]), laser_columns(a))),
-        level: std::array::from_fn(|a| parse(format!("level_{}.csv", axes[a]), level_columns(a))),
-        squareness: parse_squareness(get("squareness.csv")).unwrap(),
-    }
+    Campaign::from_files(files).unwrap_or_else(|e| panic!("{e}"))
 }
 
 fn norm(v: [f64; 3]) -> f64 {
@@ -89,12 +71,12 @@ fn compensation_removes_at_least_90_percent_of_the_volumetric_error() {
 fn a_campaign_file_with_bad_content_is_refused_with_its_line_and_column() {
     let files = VolumetricMachine::new(Structure::Xyfz, 5).campaign(6);
     let laser_y = &files.iter().find(|f| f.0 == "laser_Y.csv").unwrap().1;
-    // Line 6 is run 1's first data row (4 header lines, the column row): NaN in E_XY.
+    // Line 7 is run 1's first data row (5 header lines, the column row): NaN in E_XY.
     let bad: String = laser_y
         .lines()
         .enumerate()
         .map(|(i, l)| {
-            if i == 5 {
+            if i == 6 {
                 "1,0,NaN,0,0,0,0\n".to_string()
             } else {
                 format!("{l}\n")
@@ -104,10 +86,10 @@ fn a_campaign_file_with_bad_content_is_refused_with_its_line_and_column() {
     let cols = laser_columns(1);
     let cols: Vec<&str> = cols.iter().map(String::as_str).collect();
     let e = parse_instrument(&bad, &cols).unwrap_err();
-    assert_eq!((e.line, e.column), (6, 5), "{e}");
+    assert_eq!((e.line, e.column), (7, 5), "{e}");
     // The X columns given for Y: missing axis data is named.
     let xcols = laser_columns(0);
     let xcols: Vec<&str> = xcols.iter().map(String::as_str).collect();
     let e = parse_instrument(laser_y, &xcols).unwrap_err();
-    assert_eq!(e.line, 5, "{e}");
+    assert_eq!(e.line, 6, "{e}");
 }

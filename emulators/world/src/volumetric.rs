@@ -72,6 +72,35 @@ impl ErrorFn {
     }
 }
 
+/// Least-squares slope of (x, y) pairs.
+fn lsq_slope(points: impl Iterator<Item = (f64, f64)> + Clone) -> f64 {
+    let n = points.clone().count() as f64;
+    let (sx, sy) = points
+        .clone()
+        .fold((0.0, 0.0), |(a, b), (x, y)| (a + x, b + y));
+    let (mx, my) = (sx / n, sy / n);
+    let (num, den) = points.fold((0.0, 0.0), |(a, b), (x, y)| {
+        (a + (x - mx) * (y - my), b + (x - mx) * (x - mx))
+    });
+    num / den
+}
+
+/// Removes each run's least-squares line from column `col` of `rows` (position in
+/// column 0), then shifts it to read 0 at the first position.
+fn detrend(rows: &mut [Vec<f64>], col: usize) {
+    let slope = lsq_slope(rows.iter().map(|r| (r[0], r[col])));
+    let n = rows.len() as f64;
+    let mx = rows.iter().map(|r| r[0]).sum::<f64>() / n;
+    let my = rows.iter().map(|r| r[col]).sum::<f64>() / n;
+    for r in rows.iter_mut() {
+        r[col] -= my + slope * (r[0] - mx);
+    }
+    let first = rows[0][col];
+    for r in rows.iter_mut() {
+        r[col] -= first;
+    }
+}
+
 /// The emulated machine.
 #[derive(Debug, Clone)]
 pub struct VolumetricMachine {
@@ -102,13 +131,53 @@ impl VolumetricMachine {
             })
         });
         let squareness_rad = std::array::from_fn(|_| rng.range(-40e-6, 40e-6));
-        VolumetricMachine {
+        let mut m = VolumetricMachine {
             structure,
             travel_mm,
             tool_offset_mm: [0.0, 0.0, 0.0],
             work_offset_mm: [0.0, 0.0, 0.0],
             squareness_rad,
             errors,
+        };
+        m.straightness_about_mean_lines();
+        m
+    }
+
+    /// ISO 230-1's frame: each axis's straightness is its deviation from the
+    /// least-squares line of its trajectory, and the lines' angles are the squareness
+    /// constants (X the reference). So the straightness that a laser reads along each
+    /// axis's line through the reference point, squareness aside, gets a zero
+    /// least-squares slope: each straightness function's linear term is corrected (the
+    /// readings are linear in it; two passes settle the second-order rest).
+    fn straightness_about_mean_lines(&mut self) {
+        for _ in 0..2 {
+            let mut square_free = self.clone();
+            square_free.squareness_rad = [0.0; 3];
+            square_free.tool_offset_mm = [0.0; 3];
+            square_free.work_offset_mm = [0.0; 3];
+            for a in 0..3 {
+                let l = self.travel_mm[a];
+                // At the campaign's positions (every 25 mm), where the laser's software
+                // fits its line.
+                let n = (l / 25.0).round() as usize;
+                let pts: Vec<(f64, [f64; 3])> = (0..=n)
+                    .map(|i| {
+                        let mut q = [0.0; 3];
+                        q[a] = l * i as f64 / n as f64;
+                        (q[a], square_free.true_error(q))
+                    })
+                    .collect();
+                for c in (0..3).filter(|&c| c != a) {
+                    let slope = lsq_slope(pts.iter().map(|p| (p.0, p.1[c])));
+                    // The reading holds +δ for a tool-side axis, −δ for a workpiece one.
+                    let sign = if self.structure.moves_work(a) {
+                        -1.0
+                    } else {
+                        1.0
+                    };
+                    self.errors[a][c].lin -= sign * slope * l;
+                }
+            }
         }
     }
 
@@ -180,7 +249,7 @@ impl VolumetricMachine {
             let roll = 3 + a;
             let axis = names[a];
             let mut laser = format!(
-                "# instrument: laser interferometer\n# axis: {axis}\n# uncertainty_um: 1.0\n# uncertainty_urad: 1.0\nrun,position_mm"
+                "# instrument: laser interferometer\n# axis: {axis}\n# straightness: least-squares line removed, zero at position 0\n# uncertainty_um: 1.0\n# uncertainty_urad: 1.0\nrun,position_mm"
             );
             for c in 0..3 {
                 laser += &format!(",E_{}{axis}_um", comp[c]);
@@ -196,6 +265,7 @@ impl VolumetricMachine {
             );
             let n = (self.travel_mm[a] / 25.0).round() as usize;
             for run in 1..=3 {
+                let mut rows: Vec<Vec<f64>> = Vec::with_capacity(n + 1);
                 for i in 0..=n {
                     let pos = self.travel_mm[a] * i as f64 / n as f64;
                     let mut q = [0.0; 3];
@@ -208,31 +278,41 @@ impl VolumetricMachine {
                         -rel[(2, 0)].asin(),
                         rel[(1, 0)].atan2(rel[(0, 0)]),
                     ];
-                    laser += &format!("{run},{pos}");
-                    for v in d {
-                        laser += &format!(",{:.4}", v * 1e3 + 0.3 * rng.normal());
-                    }
-                    for &c in &angular {
-                        laser += &format!(",{:.4}", ang[c - 3] * 1e6 + 0.3 * rng.normal());
-                    }
-                    laser.push('\n');
+                    let mut row = vec![pos];
+                    row.extend(d.iter().map(|v| v * 1e3 + 0.3 * rng.normal()));
+                    row.extend(
+                        angular
+                            .iter()
+                            .map(|&c| ang[c - 3] * 1e6 + 0.3 * rng.normal()),
+                    );
+                    rows.push(row);
                     level += &format!(
                         "{run},{pos},{:.4}\n",
                         ang[roll - 3] * 1e6 + 0.3 * rng.normal()
                     );
                 }
+                // The straightness optics are aligned to the line of motion: the
+                // software removes the least-squares line.
+                for c in (0..3).filter(|&c| c != a) {
+                    detrend(&mut rows, 1 + c);
+                }
+                for row in rows {
+                    laser += &format!("{run},{}", row[0]);
+                    for v in &row[1..] {
+                        laser += &format!(",{v:.4}");
+                    }
+                    laser.push('\n');
+                }
             }
             files.push((format!("laser_{axis}.csv"), laser));
             files.push((format!("level_{axis}.csv"), level));
         }
-        let mut sq = String::from("# instrument: ball bar\nname,value_urad,uncertainty_urad\n");
-        for (k, name) in ["E_C0Y", "E_B0Z", "E_A0Z"].iter().enumerate() {
-            sq += &format!(
-                "{name},{:.3},2.0\n",
-                self.squareness_rad[k] * 1e6 + rng.normal()
-            );
+        for circle in BallbarCircle::standard() {
+            files.push((
+                format!("ballbar_{}.csv", BALLBAR_PLANES[circle.plane].0),
+                probe.ballbar(&circle, seed),
+            ));
         }
-        files.push(("squareness.csv".to_string(), sq));
         files
     }
 }
@@ -259,10 +339,10 @@ pub struct CameraPlan {
 }
 
 impl CameraPlan {
-    /// Every 50 mm over X and Y, heights 0, 150 and 300 mm, 2 runs.
+    /// Every 25 mm over X and Y (the laser's spacing), heights 0, 150 and 300 mm, 2 runs.
     pub fn default_for(travel_mm: [f64; 3]) -> CameraPlan {
         let grid = |l: f64| {
-            let n = (l / 50.0).round() as usize;
+            let n = (l / 25.0).round() as usize;
             (0..=n)
                 .map(|i| l * i as f64 / n as f64)
                 .collect::<Vec<f64>>()
@@ -309,7 +389,7 @@ impl VolumetricMachine {
 
     /// The board's placement on each of the plan's risers (truth, seeded).
     pub fn board_placements(&self, plan: &CameraPlan, seed: u64) -> Vec<BoardPlacement> {
-        let mut rng = Rng::new(seed ^ 0x626f_6172_64);
+        let mut rng = Rng::new(seed ^ 0x0062_6f61_7264);
         plan.zs
             .iter()
             .map(|&z| BoardPlacement {
@@ -356,6 +436,77 @@ impl VolumetricMachine {
             }
         }
         (f, placements)
+    }
+}
+
+/// A ball-bar test's circle: in `plane` (0 XY, 1 XZ, 2 YZ; the angle runs from the
+/// plane's first axis towards its second), about the pivot at command `centre_mm`, of
+/// the bar's nominal length `radius_mm`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BallbarCircle {
+    pub plane: usize,
+    pub centre_mm: [f64; 3],
+    pub radius_mm: f64,
+}
+
+/// The plane names and their axes.
+pub const BALLBAR_PLANES: [(&str, usize, usize); 3] = [("XY", 0, 1), ("XZ", 0, 2), ("YZ", 1, 2)];
+
+impl BallbarCircle {
+    /// The three circles of the simulated campaign: R 150 mm about the middle of the
+    /// 500 x 400 x 400 mm volume.
+    pub fn standard() -> [BallbarCircle; 3] {
+        std::array::from_fn(|plane| BallbarCircle {
+            plane,
+            centre_mm: [250.0, 200.0, 200.0],
+            radius_mm: 150.0,
+        })
+    }
+
+    /// The command at angle `deg` on the circle.
+    pub fn command(&self, deg: f64) -> [f64; 3] {
+        let (_, i, j) = BALLBAR_PLANES[self.plane];
+        let (s, c) = deg.to_radians().sin_cos();
+        let mut q = self.centre_mm;
+        q[i] += self.radius_mm * c;
+        q[j] += self.radius_mm * s;
+        q
+    }
+}
+
+impl VolumetricMachine {
+    /// The ball-bar file of one circle, as ISO 230-4's test reads it: the bar's length
+    /// deviation from nominal (µm) every degree, one run counter-clockwise and one
+    /// clockwise (listed by angle). The pivot ball is set on the table where the tool
+    /// ball sits at the centre command, within a few µm (the setting error, seeded);
+    /// the tool ball is the tool point. Noise 0.1 µm, stated uncertainty 0.5 µm.
+    pub fn ballbar(&self, circle: &BallbarCircle, seed: u64) -> String {
+        let mut rng = Rng::new(seed ^ 0x6261_6c6c ^ circle.plane as u64);
+        let centre = self.tool_in_work(circle.centre_mm);
+        let pivot: [f64; 3] = std::array::from_fn(|k| centre[k] + rng.range(-0.003, 0.003));
+        let c = circle.centre_mm;
+        let mut f = format!(
+            "# instrument: ball bar\n# plane: {}\n# radius_mm: {}\n# centre_mm: {} {} {}\n# uncertainty_um: 0.5\nrun,angle_deg,deviation_um\n",
+            BALLBAR_PLANES[circle.plane].0,
+            circle.radius_mm,
+            c[0],
+            c[1],
+            c[2]
+        );
+        for run in 1..=2 {
+            for k in 0..360 {
+                let p = self.tool_in_work(circle.command(k as f64));
+                let d = (0..3)
+                    .map(|i| (p[i] - pivot[i]).powi(2))
+                    .sum::<f64>()
+                    .sqrt();
+                f += &format!(
+                    "{run},{k},{:.4}\n",
+                    (d - circle.radius_mm) * 1e3 + 0.1 * rng.normal()
+                );
+            }
+        }
+        f
     }
 }
 
@@ -492,8 +643,8 @@ mod tests {
         let plan = CameraPlan::default_for(m.travel_mm);
         let (f, placements) = m.camera_campaign(&plan, 9);
         assert_eq!(placements.len(), 3);
-        // 11 x 9 points at 3 heights, 2 runs.
-        assert_eq!(f.lines().filter(|l| l.starts_with("2,")).count(), 297);
+        // 21 x 17 points at 3 heights, 2 runs.
+        assert_eq!(f.lines().filter(|l| l.starts_with("2,")).count(), 1071);
         assert!(f.contains("\nrun,point,x_mm,y_mm,z_mm,board_x_mm,board_y_mm\n1,0,0,0,0,"));
     }
 
@@ -510,7 +661,9 @@ mod tests {
                 "level_Y.csv",
                 "laser_Z.csv",
                 "level_Z.csv",
-                "squareness.csv"
+                "ballbar_XY.csv",
+                "ballbar_XZ.csv",
+                "ballbar_YZ.csv"
             ]
         );
         assert!(files[4]
