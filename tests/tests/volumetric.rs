@@ -1,12 +1,13 @@
 //! The volumetric pipeline end to end against the emulated machine's truth: simulate a
 //! campaign, read its files, identify, write and read the model file, compensate 1000
-//! random points of the volume, and compare the tool point's true error before and after.
+//! random points of the volume, and compare the tool point's true error before and after
+//! (with and without the camera campaign at several heights).
 
 use protocol::volumetric::{parse_instrument, parse_model, write_model, Structure};
 use volumetric::identify::{identify, laser_columns, Campaign};
 use volumetric::Model;
 use world::rng::Rng;
-use world::volumetric::VolumetricMachine;
+use world::volumetric::{CameraPlan, VolumetricMachine};
 
 fn campaign(files: &[(String, String)]) -> Campaign {
     Campaign::from_files(files).unwrap_or_else(|e| panic!("{e}"))
@@ -24,46 +25,54 @@ fn compensation_removes_at_least_90_percent_of_the_volumetric_error() {
         (Structure::Xfyz, 3),
         (Structure::Xyzf, 4),
     ] {
-        let machine = VolumetricMachine::new(structure, seed);
-        let id = identify(structure, &campaign(&machine.campaign(seed + 100))).unwrap();
-        assert!(id.model.file.fit, "{structure}");
-        // Through the model file, as the CLI would.
-        let model = Model::new(parse_model(&write_model(&id.model.file)).unwrap()).unwrap();
-        let mut rng = Rng::new(seed * 7919);
-        let (mut before_ss, mut after_ss) = (0.0, 0.0);
-        let (mut before_max, mut after_max) = (0.0f64, 0.0f64);
-        for _ in 0..1000 {
-            let target: [f64; 3] =
-                std::array::from_fn(|a| rng.range(1.0, machine.travel_mm[a] - 1.0));
-            let before = norm(machine.true_error(target));
-            let command = model.command_for(target).unwrap();
-            let real = machine.tool_in_work(command);
-            let after = norm(std::array::from_fn(|k| real[k] - target[k]));
-            before_ss += before * before;
-            after_ss += after * after;
-            before_max = before_max.max(before);
-            after_max = after_max.max(after);
+        for with_camera in [false, true] {
+            let machine = VolumetricMachine::new(structure, seed);
+            let mut files = machine.campaign(seed + 100);
+            if with_camera {
+                let plan = CameraPlan::default_for(machine.travel_mm);
+                files.push(("camera.csv".into(), machine.camera_campaign(&plan, seed).0));
+            }
+            let id = identify(structure, &campaign(&files)).unwrap();
+            assert!(id.model.file.fit, "{structure}");
+            assert_eq!(id.camera.is_some(), with_camera);
+            // Through the model file, as the CLI would.
+            let model = Model::new(parse_model(&write_model(&id.model.file)).unwrap()).unwrap();
+            let mut rng = Rng::new(seed * 7919);
+            let (mut before_ss, mut after_ss) = (0.0, 0.0);
+            let (mut before_max, mut after_max) = (0.0f64, 0.0f64);
+            for _ in 0..1000 {
+                let target: [f64; 3] =
+                    std::array::from_fn(|a| rng.range(1.0, machine.travel_mm[a] - 1.0));
+                let before = norm(machine.true_error(target));
+                let command = model.command_for(target).unwrap();
+                let real = machine.tool_in_work(command);
+                let after = norm(std::array::from_fn(|k| real[k] - target[k]));
+                before_ss += before * before;
+                after_ss += after * after;
+                before_max = before_max.max(before);
+                after_max = after_max.max(after);
+            }
+            let (before_rms, after_rms) = ((before_ss / 1000.0).sqrt(), (after_ss / 1000.0).sqrt());
+            eprintln!(
+                "{structure} (camera {with_camera}): RMS {:.2} -> {:.3} µm, max {:.2} -> {:.3} µm",
+                before_rms * 1e3,
+                after_rms * 1e3,
+                before_max * 1e3,
+                after_max * 1e3
+            );
+            assert!(
+                before_rms > 0.005,
+                "{structure}: the machine has errors to remove"
+            );
+            assert!(
+                after_rms <= 0.1 * before_rms,
+                "{structure}: {after_rms} of {before_rms}"
+            );
+            assert!(
+                after_max <= 0.1 * before_max,
+                "{structure}: {after_max} of {before_max}"
+            );
         }
-        let (before_rms, after_rms) = ((before_ss / 1000.0).sqrt(), (after_ss / 1000.0).sqrt());
-        eprintln!(
-            "{structure}: RMS {:.2} -> {:.3} µm, max {:.2} -> {:.3} µm",
-            before_rms * 1e3,
-            after_rms * 1e3,
-            before_max * 1e3,
-            after_max * 1e3
-        );
-        assert!(
-            before_rms > 0.005,
-            "{structure}: the machine has errors to remove"
-        );
-        assert!(
-            after_rms <= 0.1 * before_rms,
-            "{structure}: {after_rms} of {before_rms}"
-        );
-        assert!(
-            after_max <= 0.1 * before_max,
-            "{structure}: {after_max} of {before_max}"
-        );
     }
 }
 
