@@ -24,11 +24,23 @@
 //! - `level_X.csv`: `run,position_mm,E_AX_urad` (Y: E_BY, Z: E_CZ); header `instrument:
 //!   electronic level` (for Z, whose roll a level cannot see, angular optics),
 //!   `uncertainty_urad`.
-//! - `squareness.csv`: `name,value_urad,uncertainty_urad` rows E_C0Y, E_B0Z, E_A0Z, as
-//!   the ball-bar software reports them (the true constants plus instrument noise).
+//!   The straightness columns have each run's least-squares line removed and read 0 at
+//!   position 0, as the instrument's software gives them (the optics are aligned to the
+//!   line of motion, so the slope is not measured); header `straightness: ...`.
+//! - `ballbar_XY.csv`, `ballbar_XZ.csv`, `ballbar_YZ.csv`: `run,angle_deg,deviation_um`,
+//!   the bar's length deviation every degree on a 150 mm circle about (250, 200, 200) mm,
+//!   two runs; header `plane`, `radius_mm`, `centre_mm` (three numbers), `uncertainty_um`
+//!   (0.5; noise 0.1 µm; pivot set within 3 µm).
+//! - `camera.csv` (written by [`VolumetricMachine::camera_campaign`], not `campaign`):
+//!   `run,point,x_mm,y_mm,z_mm,board_x_mm,board_y_mm`, the board coordinates of the image
+//!   centre with the board on risers at each height of the plan.
+//!
+//! The truth's straightness functions are about the mean lines of motion (ISO 230-1:
+//! X's line is the x direction, the other lines' angles are the squareness constants),
+//! so the squareness the ball-bar finds is the machine's.
 //!
 //! Noise is Gaussian: 0.3 µm and 0.3 µrad standard deviation, stated uncertainty 1 µm
-//! and 1 µrad; squareness noise 1 µrad, stated 2 µrad.
+//! and 1 µrad.
 
 use crate::camera::{CameraModel, CameraPose};
 use crate::render::{render, RenderedFrame};
