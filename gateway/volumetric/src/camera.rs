@@ -48,8 +48,10 @@
 //!
 //! Unknowns: `E_AX, E_BX` at the laser's X positions and `E_AY, E_BY` at its Y positions
 //! (the camera's grid points interpolate linearly between them), and `c_k, φ_k` per
-//! raised height. One combination is invisible to the camera: equal slopes of the two
-//! rolls `E_AX(x) = αx`, `E_BY(y) = αy` (with `s_X = s_Y`) give `Δz α (s y, −s x)`, a pure
+//! raised height. Some combinations are invisible to the camera: a constant added to
+//! one of the four errors is a change of board offset (`c_k` takes it; the instruments
+//! are zeroed at position 0, which fixes it), and equal slopes of the two rolls
+//! `E_AX(x) = αx`, `E_BY(y) = αy` (with `s_X = s_Y`) give `Δz α (s y, −s x)`, a pure
 //! rotation that `φ_k` takes. So the camera is combined with the instruments: every table
 //! value identified from the laser and level enters as a prior with its standard
 //! uncertainty, each camera difference as an observation with `√2 U / √runs` (U the
@@ -314,4 +316,76 @@ pub fn combine(
         repeatability_mm,
         points: first.len(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use protocol::volumetric::parse_instrument;
+
+    fn prior(l: f64) -> AnglePrior {
+        AnglePrior {
+            positions_mm: vec![0.0, l / 2.0, l],
+            values: [vec![0.0; 3], vec![0.0; 3]],
+            sigma: [1e-6, 1e-6],
+        }
+    }
+
+    fn file(rows: &str) -> InstrumentFile {
+        let text = format!(
+            "# uncertainty_um: 0.2\nrun,point,x_mm,y_mm,z_mm,board_x_mm,board_y_mm\n{rows}"
+        );
+        parse_instrument(&text, &CAMERA_COLUMNS).unwrap()
+    }
+
+    #[test]
+    fn a_pitch_seen_at_two_heights_is_recovered() {
+        // XYFZ (s = −1): E_BX = 20 µrad at x = 500 (linear), E_BY = 0; raised 300 mm:
+        // d_x = −300 · E_BX(x), so −6 µm at x = 250 and −12 µm at x = 500. Loose priors
+        // (100 µrad): the camera decides.
+        let mut rows = String::new();
+        let mut p = 0;
+        for (z, dz) in [(0.0, 0.0), (300.0, 300.0)] {
+            for y in [0.0, 200.0, 400.0] {
+                for x in [0.0, 250.0, 500.0] {
+                    let bx = x - dz * 40e-6 * x / 500.0;
+                    rows += &format!("1,{p},{x},{y},{z},{bx},{y}\n");
+                    p += 1;
+                }
+            }
+        }
+        let mut px = prior(500.0);
+        let mut py = prior(400.0);
+        px.sigma = [100e-6; 2];
+        py.sigma = [100e-6; 2];
+        let fit = combine(Structure::Xyfz, &file(&rows), [&px, &py]).unwrap();
+        // A constant in E_BX is a change of board offset to the camera: with loose
+        // priors only the values relative to position 0 are the camera's.
+        let ebx = &fit.values[0][1];
+        assert!((ebx[1] - ebx[0] - 20e-6).abs() < 0.01e-6, "{ebx:?}");
+        assert!((ebx[2] - ebx[0] - 40e-6).abs() < 0.01e-6, "{ebx:?}");
+        assert!(fit.residual_rms_mm < 1e-6, "{}", fit.residual_rms_mm);
+        assert!(fit.fit());
+    }
+
+    #[test]
+    fn refusals_name_what_is_wrong() {
+        let (px, py) = (prior(500.0), prior(400.0));
+        let one = file("1,0,0,0,0,0,0\n1,1,500,0,0,500,0\n");
+        assert_eq!(
+            combine(Structure::Xyfz, &one, [&px, &py]),
+            Err(CameraError::OneHeight(1))
+        );
+        let orphan = file("1,0,0,0,0,0,0\n1,1,500,0,100,500,0\n");
+        let e = combine(Structure::Xyfz, &orphan, [&px, &py]).unwrap_err();
+        assert!(e.to_string().contains("point 1 at (500, 0, 100) mm"), "{e}");
+        let outside = file("1,0,0,0,0,0,0\n1,1,600,0,0,600,0\n1,2,600,0,100,600,0\n");
+        let e = combine(Structure::Xyfz, &outside, [&px, &py]).unwrap_err();
+        assert!(e.to_string().contains("X = 600 mm is outside"), "{e}");
+        let runs = file("1,0,0,0,0,0,0\n1,1,0,0,100,0,0\n2,0,0,0,0,0,0\n2,1,0,0,120,0,0\n");
+        assert_eq!(
+            combine(Structure::Xyfz, &runs, [&px, &py]),
+            Err(CameraError::RunMismatch { run: 2, point: 1 })
+        );
+    }
 }

@@ -339,9 +339,16 @@ pub fn identify(structure: Structure, c: &Campaign) -> Result<Identification, Id
                 }
                 let r = squareness(name, &base, &circle)?;
                 sq[k] = r.squareness_rad;
+                // The circle must also agree with the model within the bar's stated
+                // uncertainty; if not, the squareness is not to be trusted.
+                let agrees = r.model_residual_rms_mm <= circle.uncertainty_mm;
                 quality[18 + k] = Some(ErrorQuality {
                     name: NAMES[18 + k],
-                    residual: r.residual_rad,
+                    residual: if agrees {
+                        r.residual_rad
+                    } else {
+                        f64::INFINITY
+                    },
                     uncertainty: r.uncertainty_rad,
                     stated: r.uncertainty_rad,
                 });
