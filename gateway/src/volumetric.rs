@@ -9,6 +9,7 @@ use protocol::volumetric::{
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use volumetric::ballbar::BallbarChart;
 use volumetric::contributions::{contributions, plane_map, ContributionChart, Plane};
 use volumetric::identify::{identify, Campaign};
 use volumetric::Model;
@@ -16,7 +17,8 @@ use volumetric::Model;
 #[derive(Subcommand)]
 pub enum VolumetricCmd {
     /// Identify the model from a campaign directory (laser_X.csv, level_X.csv, ...,
-    /// squareness.csv) and write the model file.
+    /// ballbar_XY.csv ... or squareness.csv, camera.csv if measured) and write the
+    /// model file.
     Identify {
         #[arg(long)]
         campaign: PathBuf,
@@ -31,6 +33,9 @@ pub enum VolumetricCmd {
         /// The workpiece reference point in the last workpiece carriage's frame, mm.
         #[arg(long, default_value = "0,0,0")]
         work_offset_mm: String,
+        /// Write the ball-bar plots (ballbar_XY.svg/.png, ...) into this directory.
+        #[arg(long)]
+        plots: Option<PathBuf>,
         #[arg(long)]
         json: bool,
     },
@@ -144,6 +149,7 @@ pub fn run(cmd: VolumetricCmd) -> anyhow::Result<ExitCode> {
             out,
             tool_offset_mm,
             work_offset_mm,
+            plots,
             json,
         } => {
             let s = structure(&s)?;
@@ -174,6 +180,21 @@ pub fn run(cmd: VolumetricCmd) -> anyhow::Result<ExitCode> {
             id.model.file.tool_offset_mm = tool;
             id.model.file.work_offset_mm = work;
             write(&out, write_model(&id.model.file))?;
+            if let Some(dir) = &plots {
+                std::fs::create_dir_all(dir)
+                    .with_context(|| format!("creating {}", dir.display()))?;
+                for b in &id.ballbar {
+                    let chart = BallbarChart(b);
+                    write(
+                        &dir.join(format!("ballbar_{}.svg", b.plane)),
+                        plot::render_svg(&chart, 800, 800)?,
+                    )?;
+                    write(
+                        &dir.join(format!("ballbar_{}.png", b.plane)),
+                        plot::render_png(&chart, 800, 800)?,
+                    )?;
+                }
+            }
             let fit = id.model.file.fit;
             if json {
                 let q: Vec<_> = id

@@ -100,6 +100,96 @@ pub struct CircleResult {
     /// RMS of the readings minus the fitted model's prediction (with the fitted
     /// squareness and the fitted offset and centre), mm.
     pub model_residual_rms_mm: f64,
+    /// Per reading: angle (rad), the reading less the bar offset and the pivot setting
+    /// (mm), and the fitted model's prediction less the same (mm): the plotted traces.
+    pub trace: Vec<(f64, f64, f64)>,
+}
+
+/// The ball-bar plot: the nominal circle, the measured trace and the model's, the
+/// deviations magnified, with the 45° and 135° diagonals the squareness is read along.
+pub struct BallbarChart<'a>(pub &'a CircleResult);
+
+impl plot::Chart for BallbarChart<'_> {
+    fn draw<DB: plot::plotters::prelude::DrawingBackend>(
+        &self,
+        area: &plot::plotters::prelude::DrawingArea<DB, plot::plotters::coord::Shift>,
+    ) -> Result<(), plot::plotters::prelude::DrawingAreaErrorKind<DB::ErrorType>> {
+        use plot::plotters::prelude::*;
+        let r = self.0;
+        area.fill(&WHITE)?;
+        let span = r
+            .trace
+            .iter()
+            .map(|t| t.1.abs().max(t.2.abs()))
+            .fold(1e-6, f64::max);
+        // The largest deviation is drawn as 40 % of the nominal radius.
+        let k = 0.4 / span;
+        let at = |t: f64, d: f64| ((1.0 + k * d) * t.cos(), (1.0 + k * d) * t.sin());
+        let (a, b) = (&r.plane[0..1], &r.plane[1..2]);
+        let mut chart = ChartBuilder::on(area)
+            .caption(
+                format!(
+                    "Ball bar {}: G {:.2} µm, squareness reading {:.1} µrad, model {:.1} ± {:.1} µrad (1 div = {:.1} µm)",
+                    r.plane,
+                    r.circular_deviation_mm * 1e3,
+                    r.iso_squareness_rad * 1e6,
+                    r.squareness_rad * 1e6,
+                    r.uncertainty_rad * 1e6,
+                    span * 1e3 / 2.0
+                ),
+                (plot::FONT, 15),
+            )
+            .margin(10)
+            .x_label_area_size(30)
+            .y_label_area_size(30)
+            .build_cartesian_2d(-1.6..1.6, -1.6..1.6)?;
+        chart
+            .configure_mesh()
+            .disable_mesh()
+            .x_desc(format!("+{a}"))
+            .y_desc(format!("+{b}"))
+            .x_label_formatter(&|_| String::new())
+            .y_label_formatter(&|_| String::new())
+            .label_style((plot::FONT, 12))
+            .draw()?;
+        let ring = |f: f64| (0..=360).map(move |i| at((i as f64).to_radians(), f / k));
+        for f in [-0.4, -0.2, 0.2, 0.4] {
+            chart.draw_series(LineSeries::new(ring(f), RGBColor(225, 225, 225)))?;
+        }
+        chart.draw_series(LineSeries::new(ring(0.0), RGBColor(150, 150, 150)))?;
+        for deg in [45.0f64, 135.0] {
+            let (s, c) = deg.to_radians().sin_cos();
+            chart.draw_series(LineSeries::new(
+                [(-1.5 * c, -1.5 * s), (1.5 * c, 1.5 * s)],
+                RGBColor(200, 200, 200),
+            ))?;
+        }
+        let mut model: Vec<(f64, f64)> = r.trace.iter().map(|t| at(t.0, t.2)).collect();
+        model.push(model[0]);
+        chart
+            .draw_series(LineSeries::new(
+                model,
+                RGBColor(230, 120, 30).stroke_width(2),
+            ))?
+            .label("model (fitted squareness)")
+            .legend(|(x, y)| PathElement::new([(x, y), (x + 15, y)], RGBColor(230, 120, 30)));
+        chart
+            .draw_series(
+                r.trace
+                    .iter()
+                    .map(|t| Circle::new(at(t.0, t.1), 1, RGBColor(30, 80, 180).filled())),
+            )?
+            .label("measured")
+            .legend(|(x, y)| Circle::new((x + 7, y), 3, RGBColor(30, 80, 180).filled()));
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperLeft)
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .label_font((plot::FONT, 12))
+            .draw()?;
+        Ok(())
+    }
 }
 
 /// Reads a parsed `ballbar_<plane>.csv` (header keys `plane`, `radius_mm`, `centre_mm`
@@ -255,6 +345,20 @@ pub fn squareness(file: &str, base: &Model, c: &Circle) -> Result<CircleResult, 
         .iter()
         .map(|&(t, r)| (r - g[0] - g[1] * t.cos() - g[2] * t.sin()).powi(2))
         .sum();
+    let trace = c
+        .readings
+        .iter()
+        .zip(&diff)
+        .map(|(&(t, d), &(_, r))| {
+            let setting = h[0] + h[1] * t.cos() + h[2] * t.sin();
+            // The model's trace shares the measured one's offset and centre.
+            (
+                t,
+                d - setting,
+                d - setting - (r - g[0] - g[1] * t.cos() - g[2] * t.sin()),
+            )
+        })
+        .collect();
     Ok(CircleResult {
         plane: PLANES[c.plane].0,
         harmonics: h,
@@ -264,6 +368,7 @@ pub fn squareness(file: &str, base: &Model, c: &Circle) -> Result<CircleResult, 
         uncertainty_rad,
         residual_rad,
         model_residual_rms_mm: (ss / n).sqrt(),
+        trace,
     })
 }
 
