@@ -20,6 +20,8 @@
 
 mod arc;
 #[cfg(test)]
+mod axes;
+#[cfg(test)]
 mod characterization;
 mod check;
 mod error;
@@ -31,8 +33,8 @@ mod state;
 
 pub use error::GcodeError;
 pub use state::{
-    Action, Interpreter, Modal, Motion, Plane, ProgramFlow, Rate, Spindle, Word, MM_PER_INCH,
-    N_AXIS,
+    Action, Interpreter, Modal, Motion, Plane, ProgramFlow, Rate, Spindle, Word, AXIS_LETTERS,
+    FIRST_ROTARY, MAX_AXES, MM_PER_INCH, N_AXIS,
 };
 
 use crate::nc;
@@ -161,28 +163,48 @@ fn grbl_word(token: Result<nc::Token<'_>, nc::NcError>) -> Result<Word, GcodeErr
     Ok(Word { letter, value })
 }
 
-impl Default for Interpreter {
+impl<const N: usize> Default for Interpreter<N> {
     fn default() -> Self {
-        Self::new()
+        Self::with_axes()
     }
 }
 
 impl Interpreter {
+    /// GRBL 1.1's three axes, X Y Z.
     pub fn new() -> Self {
+        Self::with_axes()
+    }
+}
+
+impl<const N: usize> Interpreter<N> {
+    /// Only 3 to 6 axes (X Y Z, then A B C) exist: checked when compiling.
+    const AXES_IN_RANGE: () = assert!(N >= N_AXIS && N <= MAX_AXES);
+
+    /// A controller with `N` axes, the first `N` of X Y Z A B C.
+    pub fn with_axes() -> Self {
+        let () = Self::AXES_IN_RANGE;
         Self {
             modal: Modal::default(),
             feed_rate: 0.0,
             spindle_speed: 0.0,
             tool: 0,
             line_number: 0,
-            position: [0.0; N_AXIS],
-            coord_system: [0.0; N_AXIS],
-            coord_offset: [0.0; N_AXIS],
+            position: [0.0; N],
+            coord_system: [0.0; N],
+            coord_offset: [0.0; N],
             tool_length_offset: 0.0,
-            stored: [[0.0; N_AXIS]; 8],
+            stored: [[0.0; N]; 8],
             arc_tolerance: 0.002,
-            probe: ([0.0; N_AXIS], false),
+            probe: ([0.0; N], false),
+            axes: N,
         }
+    }
+
+    /// Drive only the first `axes` of the `N` (clamped to 3..=N): a device that keeps
+    /// six slots but was built with fewer axes.
+    pub fn restrict_axes(mut self, axes: usize) -> Self {
+        self.axes = axes.clamp(N_AXIS, N);
+        self
     }
 
     /// GRBL's `gc_init` after a reset: modal state and G92 back to defaults, the G54
@@ -192,7 +214,9 @@ impl Interpreter {
         let position = self.position;
         let tol = self.arc_tolerance;
         let probe = self.probe;
-        *self = Self::new();
+        let axes = self.axes;
+        *self = Self::with_axes();
+        self.axes = axes;
         self.stored = stored;
         self.position = position;
         self.arc_tolerance = tol;
@@ -201,9 +225,9 @@ impl Interpreter {
     }
 
     /// Work coordinate offset: what `WCO:` reports (MPos = WPos + WCO).
-    pub fn wco(&self) -> [f64; N_AXIS] {
-        let mut w = [0.0; N_AXIS];
-        for i in 0..N_AXIS {
+    pub fn wco(&self) -> [f64; N] {
+        let mut w = [0.0; N];
+        for i in 0..N {
             w[i] = self.coord_system[i] + self.coord_offset[i];
         }
         w[2] += self.tool_length_offset;
@@ -243,15 +267,15 @@ impl Interpreter {
 
     /// Execute one filtered line (`jog`: the part after `$J=`). On error the state is
     /// unchanged and GRBL's status code comes back.
-    pub fn execute(&mut self, line: &str, jog: bool) -> Result<Vec<Action>, u8> {
+    pub fn execute(&mut self, line: &str, jog: bool) -> Result<Vec<Action<N>>, u8> {
         self.execute_block(line, jog).map_err(|e| e.code())
     }
 
     /// GRBL's `gc_execute_line`: read the words, check the block against the state
     /// (without changing it), then run it.
-    fn execute_block(&mut self, line: &str, jog: bool) -> Result<Vec<Action>, GcodeError> {
+    fn execute_block(&mut self, line: &str, jog: bool) -> Result<Vec<Action<N>>, GcodeError> {
         let words = grbl_words(line)?;
-        let block = BlockWords::read(&words, self.modal, jog)?;
+        let block = BlockWords::read(&words, self.modal, jog, self.axes)?;
         let plan = self.plan(block, jog)?;
         Ok(self.run(plan, jog))
     }

@@ -63,10 +63,37 @@ pub const TABLE: &[(u16, SettingKind, &str)] = &[
     (132, SettingKind::Float(3), "Z maximum travel, mm"),
 ];
 
-/// Kind and description of a setting number, if GRBL 1.1 has it.
+/// The per-axis settings of grblHAL's A, B and C axes ($103-$105, $113-$115,
+/// $123-$125, $133-$135): the same four groups as X Y Z, in degrees for a rotary axis.
+pub const ROTARY_TABLE: &[(u16, SettingKind, &str)] = &[
+    (103, SettingKind::Float(3), "A steps/deg"),
+    (104, SettingKind::Float(3), "B steps/deg"),
+    (105, SettingKind::Float(3), "C steps/deg"),
+    (113, SettingKind::Float(3), "A maximum rate, deg/min"),
+    (114, SettingKind::Float(3), "B maximum rate, deg/min"),
+    (115, SettingKind::Float(3), "C maximum rate, deg/min"),
+    (123, SettingKind::Float(3), "A acceleration, deg/s^2"),
+    (124, SettingKind::Float(3), "B acceleration, deg/s^2"),
+    (125, SettingKind::Float(3), "C acceleration, deg/s^2"),
+    (133, SettingKind::Float(3), "A maximum travel, deg"),
+    (134, SettingKind::Float(3), "B maximum travel, deg"),
+    (135, SettingKind::Float(3), "C maximum travel, deg"),
+];
+
+/// Kind and description of a setting number, if GRBL 1.1 (three axes) has it.
 pub fn describe(number: u16) -> Option<(SettingKind, &'static str)> {
+    describe_for_axes(number, 3)
+}
+
+/// Kind and description of a setting number on a controller with `axes` axes (3..=6,
+/// X Y Z then A B C): $103 exists from four axes on, $105 only with six.
+pub fn describe_for_axes(number: u16, axes: usize) -> Option<(SettingKind, &'static str)> {
+    let rotary = ROTARY_TABLE
+        .iter()
+        .filter(|(n, _, _)| usize::from(n % 10) < axes.min(6));
     TABLE
         .iter()
+        .chain(rotary)
         .find(|(n, _, _)| *n == number)
         .map(|(_, k, d)| (*k, *d))
 }
@@ -113,6 +140,8 @@ pub const DEFAULTS: &[(u16, f64)] = &[
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Settings {
     values: BTreeMap<u16, f64>,
+    /// Axes of the controller beyond GRBL 1.1's three (0..=3: A, B, C).
+    extra_axes: usize,
 }
 
 impl Settings {
@@ -120,7 +149,28 @@ impl Settings {
     pub fn defaults() -> Self {
         Self {
             values: DEFAULTS.iter().copied().collect(),
+            extra_axes: 0,
         }
+    }
+
+    /// The defaults of a controller with `axes` axes (clamped to 3..=6): the A B C
+    /// groups take grblHAL's generic defaults, the same numbers as X (250 steps/deg,
+    /// 500 deg/min, 10 deg/s^2, 200 deg).
+    pub fn defaults_for_axes(axes: usize) -> Self {
+        let mut s = Self::defaults();
+        s.extra_axes = axes.clamp(3, 6) - 3;
+        for axis in 3..s.axes() {
+            for base in [100, 110, 120, 130] {
+                let x = s.get(base).unwrap_or(0.0);
+                s.values.insert(base + axis as u16, x);
+            }
+        }
+        s
+    }
+
+    /// How many axes these settings describe (3..=6).
+    pub fn axes(&self) -> usize {
+        3 + self.extra_axes
     }
 
     pub fn get(&self, n: u16) -> Option<f64> {
@@ -141,6 +191,9 @@ impl Settings {
 
     /// Record a value as read from a device (no validation: the device is the authority).
     pub fn insert(&mut self, n: u16, v: f64) {
+        if let Some(axis) = axis_of_setting(n).filter(|&a| a >= 3) {
+            self.extra_axes = self.extra_axes.max(axis - 2);
+        }
         self.values.insert(n, v);
     }
 
@@ -149,7 +202,7 @@ impl Settings {
     /// Disabling homing also disables soft limits, as GRBL does. Integer settings are
     /// truncated as GRBL's uint8 storage does.
     pub fn write(&mut self, n: u16, value: f64) -> Result<(), u8> {
-        let (kind, _) = describe(n).ok_or(status::INVALID_STATEMENT)?;
+        let (kind, _) = describe_for_axes(n, self.axes()).ok_or(status::INVALID_STATEMENT)?;
         if value < 0.0 {
             return Err(status::NEGATIVE_VALUE);
         }
@@ -180,7 +233,10 @@ impl Settings {
     pub fn line(&self, n: u16) -> Option<String> {
         let v = self.get(n)?;
         Some(
-            match describe(n).map(|d| d.0).unwrap_or(SettingKind::Float(3)) {
+            match describe_for_axes(n, self.axes())
+                .map(|d| d.0)
+                .unwrap_or(SettingKind::Float(3))
+            {
                 SettingKind::Float(d) => format!("${n}={v:.d$}"),
                 _ => format!("${n}={}", v as u64),
             },
@@ -191,7 +247,7 @@ impl Settings {
         self.get(n).is_some_and(|v| v != 0.0)
     }
 
-    /// Axis index 0..3 (X, Y, Z) value of an axis setting group (100, 110, 120, 130).
+    /// Axis index 0..6 (X, Y, Z, A, B, C) value of an axis setting group (100, 110, 120, 130).
     fn axis(&self, base: u16, axis: usize) -> Option<f64> {
         self.get(base + axis as u16)
     }
@@ -253,6 +309,11 @@ impl Settings {
     }
 }
 
+/// The axis (0..6) a per-axis setting ($100-$135) belongs to.
+fn axis_of_setting(n: u16) -> Option<usize> {
+    ((100..=135).contains(&n) && n % 10 < 6).then_some(usize::from(n % 10))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -285,5 +346,30 @@ mod tests {
         assert_eq!(s.travel_range(0, true), Some((0.0, 200.0)));
         assert_eq!(s.travel_range(0, false), Some((-200.0, 0.0)));
         assert_eq!(s.travel_range(1, true), Some((-200.0, 0.0)));
+    }
+
+    #[test]
+    fn rotary_settings_exist_only_on_controllers_with_those_axes() {
+        let mut three = Settings::defaults();
+        assert_eq!(three.write(103, 100.0), Err(status::INVALID_STATEMENT));
+        let mut five = Settings::defaults_for_axes(5);
+        assert_eq!(five.axes(), 5);
+        assert_eq!(five.get(104), Some(250.0));
+        assert_eq!(five.get(105), None);
+        five.write(133, 360.0).unwrap();
+        assert_eq!(five.line(133).unwrap(), "$133=360.000");
+        assert_eq!(five.write(135, 1.0), Err(status::INVALID_STATEMENT));
+        assert_eq!(
+            describe_for_axes(115, 6).unwrap().1,
+            "C maximum rate, deg/min"
+        );
+        assert_eq!(describe_for_axes(115, 5), None);
+        // What a driver reads with `$$` tells it the axes.
+        let mut read = Settings::default();
+        read.insert(100, 250.0);
+        assert_eq!(read.axes(), 3);
+        read.insert(135, 360.0);
+        assert_eq!(read.axes(), 6);
+        assert_eq!(read.max_travel_mm(5), Some(360.0));
     }
 }

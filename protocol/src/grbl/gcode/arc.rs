@@ -1,6 +1,5 @@
 //! GRBL's arc segmentation (`mc_arc`): an arc becomes chords within the arc tolerance.
 
-use super::state::N_AXIS;
 use std::f64::consts::PI;
 
 const ARC_ANGULAR_TRAVEL_EPSILON: f64 = 5e-7;
@@ -9,14 +8,14 @@ pub(super) const MAX_SEGMENTS: u16 = u16::MAX;
 
 /// Chord end points of an arc (GRBL's `mc_arc`): as many segments as keep the chord
 /// within the arc tolerance; the last point is exactly the target.
-pub(super) fn arc_points(
-    position: [f64; N_AXIS],
-    target: [f64; N_AXIS],
-    offset: [f64; N_AXIS],
-    (a0, a1, lin): (usize, usize, usize),
+pub(super) fn arc_points<const N: usize>(
+    position: [f64; N],
+    target: [f64; N],
+    offset: [f64; N],
+    (a0, a1, _lin): (usize, usize, usize),
     clockwise: bool,
     tolerance: f64,
-) -> Vec<[f64; N_AXIS]> {
+) -> Vec<[f64; N]> {
     let c0 = position[a0] + offset[a0];
     let c1 = position[a1] + offset[a1];
     let r0 = -offset[a0];
@@ -52,7 +51,10 @@ pub(super) fn arc_points(
         let mut p = position;
         p[a0] = c0 + r0 * c - r1 * s;
         p[a1] = c1 + r0 * s + r1 * c;
-        p[lin] = position[lin] + (target[lin] - position[lin]) * k as f64 / segments as f64;
+        // The linear axis and any rotary axis move in proportion (grblHAL's `mc_arc`).
+        for axis in (0..N).filter(|&i| i != a0 && i != a1) {
+            p[axis] = position[axis] + (target[axis] - position[axis]) * k as f64 / segments as f64;
+        }
         pts.push(p);
     }
     pts.push(target);

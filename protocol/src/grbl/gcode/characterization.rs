@@ -28,7 +28,11 @@ fn step(i: &mut Interpreter, line: &str) -> (String, String) {
         return (i.parser_state(), String::new());
     }
     let r = run_line(i, line);
-    (outcome(&r), format!("{r:?}{i:?}"))
+    // `axes` came later (grblHAL's A B C) and is 3 throughout these tables: left out
+    // so the digest recorded before it still checks everything else.
+    assert_eq!(i.axes, 3);
+    let state = format!("{i:?}").replace(", axes: 3 }", " }");
+    (outcome(&r), format!("{r:?}{state}"))
 }
 
 /// FNV-1a, enough to notice any change in a long Debug text.

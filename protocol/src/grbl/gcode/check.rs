@@ -5,50 +5,49 @@
 
 use super::error::GcodeError;
 use super::read::{group, AxisCommand, BlockWords, NonModal, Values};
-use super::state::{Interpreter, Motion, MM_PER_INCH, N_AXIS};
+use super::state::{Interpreter, Motion, FIRST_ROTARY, MM_PER_INCH};
 
 const MAX_LINE_NUMBER: f64 = 10_000_000.0;
 
 /// A checked block: the read words and every value its execution needs.
-pub(super) struct Plan {
+pub(super) struct Plan<const N: usize> {
     pub block: BlockWords,
     /// mm/min, or 1/min in inverse time mode.
     pub feed: f64,
     pub spindle_speed: f64,
     pub tool_length_offset: f64,
     /// Offset of the block's coordinate system.
-    pub coord_system: [f64; N_AXIS],
+    pub coord_system: [f64; N],
     /// G10: which stored system (0..5) and its new offset.
-    pub new_stored: Option<(usize, [f64; N_AXIS])>,
+    pub new_stored: Option<(usize, [f64; N])>,
     /// G92 / G92.1: the new G92 offset.
-    pub new_offset: Option<[f64; N_AXIS]>,
+    pub new_offset: Option<[f64; N]>,
     /// G4: seconds.
     pub dwell: Option<f64>,
     /// Where the axis words point, machine mm.
-    pub target: [f64; N_AXIS],
-    pub arc: Option<ArcCentre>,
+    pub target: [f64; N],
+    pub arc: Option<ArcCentre<N>>,
     /// The motion mode moves this block.
     pub moves: bool,
 }
 
 /// G2/G3: where the centre is, from the position, and which way the arc turns.
 #[derive(Clone, Copy)]
-pub(super) struct ArcCentre {
-    pub offset: [f64; N_AXIS],
+pub(super) struct ArcCentre<const N: usize> {
+    pub offset: [f64; N],
     pub clockwise: bool,
 }
 
 /// What the non-modal command of a block stores or waits.
-#[derive(Default)]
-struct NonModalData {
-    new_stored: Option<(usize, [f64; N_AXIS])>,
-    new_offset: Option<[f64; N_AXIS]>,
+struct NonModalData<const N: usize> {
+    new_stored: Option<(usize, [f64; N])>,
+    new_offset: Option<[f64; N]>,
     dwell: Option<f64>,
 }
 
-impl Interpreter {
+impl<const N: usize> Interpreter<N> {
     /// Checks a block in GRBL's order and plans it.
-    pub(super) fn plan(&self, mut block: BlockWords, jog: bool) -> Result<Plan, GcodeError> {
+    pub(super) fn plan(&self, mut block: BlockWords, jog: bool) -> Result<Plan<N>, GcodeError> {
         if jog {
             check_jog(&block)?;
         }
@@ -110,13 +109,13 @@ impl Interpreter {
             return Ok(0.0);
         }
         match block.values.xyz {
-            [None, None, Some(z)] => Ok(z * unit),
+            [None, None, Some(z), None, None, None] => Ok(z * unit),
             _ => Err(GcodeError::G43DynamicAxisError),
         }
     }
 
     /// The offset of the coordinate system the block selects (G54..G59) or is in.
-    fn block_coord_system(&self, block: &mut BlockWords) -> [f64; N_AXIS] {
+    fn block_coord_system(&self, block: &mut BlockWords) -> [f64; N] {
         match block.coord_select {
             Some(cs) => {
                 block.modal.coord_select = cs;
@@ -132,9 +131,13 @@ impl Interpreter {
         block: &mut BlockWords,
         unit: f64,
         tlo: f64,
-        coord_system: [f64; N_AXIS],
-    ) -> Result<NonModalData, GcodeError> {
-        let mut data = NonModalData::default();
+        coord_system: [f64; N],
+    ) -> Result<NonModalData<N>, GcodeError> {
+        let mut data = NonModalData {
+            new_stored: None,
+            new_offset: None,
+            dwell: None,
+        };
         match block.non_modal {
             NonModal::Dwell => {
                 data.dwell = Some(block.values.p.take().ok_or(GcodeError::ValueWordMissing)?);
@@ -143,7 +146,7 @@ impl Interpreter {
             NonModal::SetCoordOffset => {
                 data.new_offset = Some(self.coord_offset_from(block, unit, tlo, coord_system)?);
             }
-            NonModal::ResetCoordOffset => data.new_offset = Some([0.0; N_AXIS]),
+            NonModal::ResetCoordOffset => data.new_offset = Some([0.0; N]),
             NonModal::AbsoluteOverride
                 if !matches!(block.modal.motion, Motion::Rapid | Motion::Linear) =>
             {
@@ -161,7 +164,7 @@ impl Interpreter {
         block: &mut BlockWords,
         unit: f64,
         tlo: f64,
-    ) -> Result<(usize, [f64; N_AXIS]), GcodeError> {
+    ) -> Result<(usize, [f64; N]), GcodeError> {
         let v = &mut block.values;
         if !v.has_axis_words() {
             return Err(GcodeError::NoAxisWords);
@@ -200,8 +203,8 @@ impl Interpreter {
         block: &BlockWords,
         unit: f64,
         tlo: f64,
-        coord_system: [f64; N_AXIS],
-    ) -> Result<[f64; N_AXIS], GcodeError> {
+        coord_system: [f64; N],
+    ) -> Result<[f64; N], GcodeError> {
         if !block.values.has_axis_words() {
             return Err(GcodeError::NoAxisWords);
         }
@@ -219,9 +222,9 @@ impl Interpreter {
         block: &BlockWords,
         unit: f64,
         tlo: f64,
-        coord_system: [f64; N_AXIS],
-        offset: [f64; N_AXIS],
-    ) -> [f64; N_AXIS] {
+        coord_system: [f64; N],
+        offset: [f64; N],
+    ) -> [f64; N] {
         let mut target = self.position;
         let moves_axes = matches!(
             block.axis_command,
@@ -259,8 +262,8 @@ impl Interpreter {
         block: &mut BlockWords,
         unit: f64,
         feed: f64,
-        target: [f64; N_AXIS],
-    ) -> Result<(Option<ArcCentre>, bool), GcodeError> {
+        target: [f64; N],
+    ) -> Result<(Option<ArcCentre<N>>, bool), GcodeError> {
         let axis_words = block.values.has_axis_words();
         let motion = block.modal.motion;
         if motion == Motion::None {
@@ -292,8 +295,8 @@ impl Interpreter {
         &self,
         block: &mut BlockWords,
         unit: f64,
-        target: [f64; N_AXIS],
-    ) -> Result<[f64; N_AXIS], GcodeError> {
+        target: [f64; N],
+    ) -> Result<[f64; N], GcodeError> {
         let v = &mut block.values;
         if !v.has_axis_words() {
             return Err(GcodeError::NoAxisWords);
@@ -309,18 +312,18 @@ impl Interpreter {
         let clockwise = block.modal.motion == Motion::ArcCw;
         let (o0, o1) = match v.r.take() {
             Some(r) => {
-                v.ijk = [None; N_AXIS];
+                v.ijk = [None; 3];
                 arc_offset_from_radius(chord, r * unit, clockwise)?
             }
             None => arc_offset_from_ijk(v, axes, chord, unit)?,
         };
-        let mut offset = [0.0; N_AXIS];
+        let mut offset = [0.0; N];
         offset[a0] = o0;
         offset[a1] = o1;
         Ok(offset)
     }
 
-    fn check_probe(&self, axis_words: bool, target: [f64; N_AXIS]) -> Result<(), GcodeError> {
+    fn check_probe(&self, axis_words: bool, target: [f64; N]) -> Result<(), GcodeError> {
         if !axis_words {
             return Err(GcodeError::NoAxisWords);
         }
@@ -361,9 +364,14 @@ fn check_unused_words(values: &Values) -> Result<(), GcodeError> {
     Ok(())
 }
 
-/// The axis words given, in mm.
+/// The axis words given: linear axes in mm (G20 inches scaled), rotary axes in
+/// degrees as written (grblHAL scales only linear axes by G20).
 fn axis_values(values: &Values, unit: f64) -> impl Iterator<Item = (usize, f64)> + '_ {
-    (0..N_AXIS).filter_map(move |i| values.xyz[i].map(|x| (i, x * unit)))
+    values
+        .xyz
+        .iter()
+        .enumerate()
+        .filter_map(move |(i, x)| x.map(|x| (i, if i < FIRST_ROTARY { x * unit } else { x })))
 }
 
 /// The tool length offset applies to Z only (subtracting 0.0 changes nothing, not even

@@ -4,15 +4,16 @@
 //! violation; unsupported letter, repeated word, negative value, tool number).
 
 use super::error::GcodeError;
-use super::state::{Modal, Motion, Plane, ProgramFlow, Spindle, Word, N_AXIS};
+use super::state::{Modal, Motion, Plane, ProgramFlow, Spindle, Word, FIRST_ROTARY, MAX_AXES};
 
 const MAX_TOOL_NUMBER: f64 = 255.0;
 
 /// Value words of a block (GRBL truncates L, N and T).
 #[derive(Default)]
 pub(super) struct Values {
-    pub xyz: [Option<f64>; N_AXIS],
-    pub ijk: [Option<f64>; N_AXIS],
+    /// X Y Z A B C (the reader refuses letters beyond the controller's axes).
+    pub xyz: [Option<f64>; MAX_AXES],
+    pub ijk: [Option<f64>; 3],
     pub f: Option<f64>,
     pub l: Option<f64>,
     pub n: Option<f64>,
@@ -91,13 +92,23 @@ pub(super) struct BlockWords {
 
 impl BlockWords {
     /// Reads every word in order; a jog starts from G1 G94 whatever the modal state.
-    pub fn read(words: &[Word], mut modal: Modal, jog: bool) -> Result<Self, GcodeError> {
+    /// `axes`: how many of X Y Z A B C the controller has; a letter beyond them is
+    /// unknown to it (error 20, as GRBL built without that axis answers).
+    pub fn read(
+        words: &[Word],
+        mut modal: Modal,
+        jog: bool,
+        axes: usize,
+    ) -> Result<Self, GcodeError> {
         if jog {
             modal.motion = Motion::Linear;
             modal.inverse_time = false;
         }
         let mut block = BlockWords::new(modal);
         for word in words {
+            if axis_index(word.letter).is_some_and(|i| i >= axes) {
+                return Err(GcodeError::UnsupportedCommand);
+            }
             block.read_word(*word)?;
         }
         if block.values.has_axis_words() && block.axis_command == AxisCommand::None {
@@ -295,7 +306,10 @@ impl BlockWords {
             'R' => &mut v.r,
             'S' => &mut v.s,
             'T' => &mut v.t,
-            _ => &mut v.xyz[(letter as u8 - b'X') as usize],
+            _ => match axis_index(letter) {
+                Some(i) => &mut v.xyz[i],
+                None => return,
+            },
         };
         *slot = Some(if matches!(letter, 'L' | 'N' | 'T') {
             x.trunc()
@@ -340,5 +354,14 @@ fn program_flow(int_value: i64) -> Option<ProgramFlow> {
 
 /// GRBL's bit for each value letter it knows (for repeated-word detection).
 fn value_slot(letter: char) -> Option<u32> {
-    "FIJKLNPRSTXYZ".find(letter).map(|i| i as u32)
+    "FIJKLNPRSTXYZABC".find(letter).map(|i| i as u32)
+}
+
+/// Index of an axis letter in report order (X Y Z A B C).
+fn axis_index(letter: char) -> Option<usize> {
+    match letter {
+        'X' | 'Y' | 'Z' => Some((letter as u8 - b'X') as usize),
+        'A' | 'B' | 'C' => Some(FIRST_ROTARY + (letter as u8 - b'A') as usize),
+        _ => None,
+    }
 }

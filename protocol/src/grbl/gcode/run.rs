@@ -5,11 +5,11 @@
 use super::arc::arc_points;
 use super::check::{ArcCentre, Plan};
 use super::read::NonModal;
-use super::state::{Action, Interpreter, Modal, Motion, Plane, ProgramFlow, Rate, Spindle, N_AXIS};
+use super::state::{Action, Interpreter, Modal, Motion, Plane, ProgramFlow, Rate, Spindle};
 
-impl Interpreter {
+impl<const N: usize> Interpreter<N> {
     /// Executes a planned block; it cannot fail any more.
-    pub(super) fn run(&mut self, mut plan: Plan, jog: bool) -> Vec<Action> {
+    pub(super) fn run(&mut self, mut plan: Plan<N>, jog: bool) -> Vec<Action<N>> {
         let line_number = plan.block.values.n.map(|n| n as u32).filter(|&n| n > 0);
         if jog {
             return self.run_jog(&plan, line_number);
@@ -31,7 +31,7 @@ impl Interpreter {
     }
 
     /// A jog changes nothing modal, only the planned position.
-    fn run_jog(&mut self, plan: &Plan, line_number: Option<u32>) -> Vec<Action> {
+    fn run_jog(&mut self, plan: &Plan<N>, line_number: Option<u32>) -> Vec<Action<N>> {
         let mut actions = Vec::new();
         if plan.target != self.position {
             actions.push(Action::Move {
@@ -45,7 +45,7 @@ impl Interpreter {
         actions
     }
 
-    fn set_line_feed_and_tool(&mut self, plan: &Plan) {
+    fn set_line_feed_and_tool(&mut self, plan: &Plan<N>) {
         let v = &plan.block.values;
         if let Some(n) = v.n {
             self.line_number = n as u32;
@@ -60,7 +60,7 @@ impl Interpreter {
 
     /// New spindle state, a new speed while the spindle runs, or new coolant: wait for
     /// motion to end, then switch.
-    fn set_spindle_and_coolant(&mut self, plan: &mut Plan, actions: &mut Vec<Action>) {
+    fn set_spindle_and_coolant(&mut self, plan: &mut Plan<N>, actions: &mut Vec<Action<N>>) {
         let block = &mut plan.block;
         let speed_changed = block.values.s.is_some() && plan.spindle_speed != self.spindle_speed;
         let changed = block.spindle.is_some_and(|s| s != self.modal.spindle)
@@ -80,7 +80,7 @@ impl Interpreter {
 
     /// Tool length offset, coordinate system, stored data and G92 offset; any change
     /// of the work offset waits for motion to end and is reported.
-    fn set_offsets(&mut self, plan: &Plan, actions: &mut Vec<Action>) {
+    fn set_offsets(&mut self, plan: &Plan<N>, actions: &mut Vec<Action<N>>) {
         let mut wco_changed = false;
         let block = &plan.block;
         if block.tool_length_change.is_some() && plan.tool_length_offset != self.tool_length_offset
@@ -109,7 +109,7 @@ impl Interpreter {
     }
 
     /// G28/G30: go to the stored position; G28.1/G30.1: store the position.
-    fn run_home(&mut self, plan: &Plan, line_number: Option<u32>, actions: &mut Vec<Action>) {
+    fn run_home(&mut self, plan: &Plan<N>, line_number: Option<u32>, actions: &mut Vec<Action<N>>) {
         match plan.block.non_modal {
             NonModal::GoHome0 => self.go_home(6, plan, line_number, actions),
             NonModal::GoHome1 => self.go_home(7, plan, line_number, actions),
@@ -123,9 +123,9 @@ impl Interpreter {
     fn go_home(
         &mut self,
         index: usize,
-        plan: &Plan,
+        plan: &Plan<N>,
         line_number: Option<u32>,
-        actions: &mut Vec<Action>,
+        actions: &mut Vec<Action<N>>,
     ) {
         let home = self.stored[index];
         let via = plan.block.values.has_axis_words().then_some(plan.target);
@@ -140,7 +140,12 @@ impl Interpreter {
         self.position = home;
     }
 
-    fn run_motion(&mut self, plan: &Plan, line_number: Option<u32>, actions: &mut Vec<Action>) {
+    fn run_motion(
+        &mut self,
+        plan: &Plan<N>,
+        line_number: Option<u32>,
+        actions: &mut Vec<Action<N>>,
+    ) {
         let modal = &plan.block.modal;
         let target = plan.target;
         match (modal.motion, plan.arc) {
@@ -179,14 +184,14 @@ impl Interpreter {
 
     /// G0 at the rapid rate; a feed move at F, or in G93 at F times the length (the
     /// move takes 1/F minutes).
-    fn straight_rate(&self, modal: &Modal, feed: f64, target: [f64; N_AXIS]) -> Rate {
+    fn straight_rate(&self, modal: &Modal, feed: f64, target: [f64; N]) -> Rate {
         if modal.motion == Motion::Rapid {
             return Rate::Rapid;
         }
         if !modal.inverse_time {
             return Rate::Feed(feed);
         }
-        let length = (0..N_AXIS)
+        let length = (0..N)
             .map(|i| (target[i] - self.position[i]).powi(2))
             .sum::<f64>()
             .sqrt();
@@ -199,7 +204,7 @@ impl Interpreter {
         &mut self,
         flow: ProgramFlow,
         modal: &mut Modal,
-        actions: &mut Vec<Action>,
+        actions: &mut Vec<Action<N>>,
     ) {
         actions.push(Action::Sync);
         if flow == ProgramFlow::Paused {

@@ -3,8 +3,15 @@
 
 /// Millimetres per inch (G20 programs are converted on reading).
 pub const MM_PER_INCH: f64 = 25.4;
-/// GRBL 1.1 drives X, Y and Z.
+/// GRBL 1.1 drives X, Y and Z: the default number of axes.
 pub const N_AXIS: usize = 3;
+/// grblHAL drives up to six axes, lettered X Y Z A B C in that order (the first
+/// `N` of them on an `N`-axis controller).
+pub const MAX_AXES: usize = 6;
+/// The axis letters in report order (`MPos:x,y,z,a,b,c`).
+pub const AXIS_LETTERS: [char; MAX_AXES] = ['X', 'Y', 'Z', 'A', 'B', 'C'];
+/// Axes from this index on (A, B, C) are rotary: degrees, never scaled by G20.
+pub const FIRST_ROTARY: usize = 3;
 
 /// One word of a block.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -102,10 +109,10 @@ pub enum Rate {
 
 /// What an accepted block asks the machine to do, in order.
 #[derive(Clone, Debug, PartialEq)]
-pub enum Action {
-    /// A straight move to a target in machine coordinates, mm. Arcs come as chords.
+pub enum Action<const N: usize = N_AXIS> {
+    /// A straight move to a target in machine coordinates, mm (A B C: degrees). Arcs come as chords.
     Move {
-        target: [f64; N_AXIS],
+        target: [f64; N],
         rate: Rate,
         line_number: Option<u32>,
         jog: bool,
@@ -116,7 +123,7 @@ pub enum Action {
     Dwell(f64),
     /// G38.x probe towards a target.
     Probe {
-        target: [f64; N_AXIS],
+        target: [f64; N],
         feed: f64,
         toward: bool,
         fail_is_error: bool,
@@ -134,23 +141,26 @@ pub enum Action {
 /// GRBL's G-code interpreter state: modal state, planned position (machine mm), work
 /// offsets and the stored coordinate systems (its EEPROM parameters).
 #[derive(Clone, Debug, PartialEq)]
-pub struct Interpreter {
+pub struct Interpreter<const N: usize = N_AXIS> {
     pub modal: Modal,
     pub feed_rate: f64,
     pub spindle_speed: f64,
     pub tool: u8,
     pub line_number: u32,
     /// Where the last planned block ends, machine coordinates, mm.
-    pub position: [f64; N_AXIS],
+    pub position: [f64; N],
     /// Offset of the active coordinate system (G54..G59).
-    pub coord_system: [f64; N_AXIS],
+    pub coord_system: [f64; N],
     /// G92 offset.
-    pub coord_offset: [f64; N_AXIS],
+    pub coord_offset: [f64; N],
     pub tool_length_offset: f64,
     /// Stored G54..G59 (0..5), G28 (6), G30 (7).
-    pub stored: [[f64; N_AXIS]; 8],
+    pub stored: [[f64; N]; 8],
     /// `$12` arc tolerance, mm.
     pub arc_tolerance: f64,
     /// Last probe result (machine mm) and success.
-    pub probe: ([f64; N_AXIS], bool),
+    pub probe: ([f64; N], bool),
+    /// How many of X Y Z A B C the controller drives (3..=N; `N` unless restricted with
+    /// [`Interpreter::restrict_axes`]): letters beyond are unknown to it (error 20).
+    pub axes: usize,
 }
