@@ -22,12 +22,13 @@
 //! sync), so tests never wait on wall time for motion.
 
 use protocol::grbl::codes::{alarm, status as st};
-use protocol::grbl::gcode::{filter_bytes, Action, Interpreter, Rate, MM_PER_INCH, N_AXIS};
+use protocol::grbl::gcode::{filter_bytes, Action, Interpreter, Rate, MAX_AXES, MM_PER_INCH};
 use protocol::grbl::realtime::{classify, Realtime, RxByte};
 use protocol::grbl::settings::Settings;
 use protocol::grbl::status::{MachineState, PositionKind, StatusReport};
 use protocol::grbl::{GRBL_VERSION, PLANNER_BLOCKS};
 use std::collections::VecDeque;
+use world::axes::{lock_axes, AxesRefusal, SharedAxes};
 use world::machine::MachineRefusal;
 use world::{lock, Clock, SharedRig};
 
@@ -88,13 +89,25 @@ enum State {
     Sleep,
 }
 
+/// Every axis slot X Y Z A B C; a controller with fewer axes leaves the rest at 0.
+type Position = [f64; MAX_AXES];
+type Actions = Action<MAX_AXES>;
+
+/// The machine the controller drives: the X-Y stage (with a phantom Z), or a machine of
+/// N independent axes (the 5-axis rotary machine, ...).
+enum Machine {
+    Rig(SharedRig),
+    Axes(SharedAxes),
+}
+
 #[derive(Clone, Debug)]
 struct Block {
-    target: [f64; N_AXIS],
+    target: Position,
     rate: Rate,
     line_number: Option<u32>,
     jog: bool,
-    probe: Option<bool>,
+    /// A probing move: (G38.2/G38.4: a miss is an alarm, toward the work: G38.2/G38.3).
+    probe: Option<(bool, bool)>,
 }
 
 #[derive(Clone, Debug)]
@@ -107,7 +120,7 @@ struct Running {
 /// A line being executed whose remaining actions wait for a condition.
 #[derive(Clone, Debug)]
 struct Pending {
-    actions: VecDeque<Action>,
+    actions: VecDeque<Actions>,
     /// True while waiting for the M0 pause to be resumed.
     paused: bool,
 }
@@ -120,11 +133,11 @@ enum BusyKind {
 
 /// The emulated controller.
 pub struct GrblDevice {
-    rig: SharedRig,
+    machine: Machine,
     cfg: GrblConfig,
     settings: Settings,
     default_settings: Settings,
-    interp: Interpreter,
+    interp: Interpreter<MAX_AXES>,
     state: State,
     /// Hard/soft limit alarm: everything blocked until a soft reset.
     critical: bool,
@@ -174,12 +187,39 @@ impl GrblDevice {
         s.insert(20, 1.0);
         s.insert(23, 3.0);
         s.insert(25, 3000.0);
+        Self::build(Machine::Rig(rig), cfg, s)
+    }
+
+    /// A controller with as many axes as the machine has (grblHAL's X Y Z A B C): `$10x`
+    /// `$11x` `$13x` from the machine's axes (`$100`.. 1000 steps per unit, travels in
+    /// machine coordinates from the axis minimum), no homing (the axes start at 0, the
+    /// machine's reference), soft limits off (the machine refuses a move out of travel
+    /// with a hard-limit alarm). Probing moves (G38.2-G38.5) probe what the machine
+    /// carries.
+    pub fn with_axes(machine: SharedAxes, cfg: GrblConfig) -> Self {
+        let axes = lock_axes(&machine).axes();
+        let mut s = Settings::defaults_for_axes(axes);
+        {
+            let m = lock_axes(&machine);
+            for k in 0..axes {
+                let l = m.limits(k);
+                let k = k as u16;
+                s.insert(100 + k, 1000.0);
+                s.insert(110 + k, l.max_rate);
+                s.insert(130 + k, l.max - l.min);
+            }
+        }
+        Self::build(Machine::Axes(machine), cfg, s)
+    }
+
+    fn build(machine: Machine, cfg: GrblConfig, s: Settings) -> Self {
+        let axes = s.axes();
         let mut d = Self {
-            rig,
+            machine,
             cfg,
             default_settings: s.clone(),
             settings: s,
-            interp: Interpreter::new(),
+            interp: Interpreter::with_axes().restrict_axes(axes),
             state: State::Idle,
             critical: false,
             rx: VecDeque::new(),
@@ -352,13 +392,13 @@ impl GrblDevice {
                 if dt < left {
                     self.busy = Some((left - dt, kind));
                     if dwell {
-                        lock(&self.rig).machine_mut().advance(dt);
+                        self.machine_advance(dt);
                     }
                     return;
                 }
                 dt -= left;
                 if dwell {
-                    lock(&self.rig).machine_mut().advance(left);
+                    self.machine_advance(left);
                 }
                 self.busy = None;
                 if let BusyKind::Homing = kind {
@@ -375,18 +415,14 @@ impl GrblDevice {
             if let Some(mut run) = self.running.take() {
                 let left = (run.duration - run.elapsed).max(0.0);
                 let step = dt.min(left);
-                let mut r = lock(&self.rig);
-                r.machine_mut().advance(step);
+                self.machine_advance(step);
                 run.elapsed += step;
                 dt -= step;
-                if run.elapsed >= run.duration || !r.machine().is_moving() {
-                    r.machine_mut().finish_motion();
-                    drop(r);
+                if run.elapsed >= run.duration || !self.machine_moving() {
+                    self.machine_finish();
                     self.planner.pop_front();
-                    if let Some(fail) = run.block.probe {
-                        self.interp.probe = (self.mpos_3(), false);
-                        if fail {
-                            self.alarm(alarm::PROBE_FAIL_CONTACT, false);
+                    if let Some((fail, _)) = run.block.probe {
+                        if !self.probe_done(fail) {
                             return;
                         }
                     }
@@ -417,9 +453,12 @@ impl GrblDevice {
         let Some(block) = self.planner.front().cloned() else {
             return false;
         };
+        if let Machine::Axes(m) = &self.machine {
+            return self.start_axes_block(m.clone(), block);
+        }
         let spm = [self.steps_per_mm(0), self.steps_per_mm(1)];
         let duration = {
-            let mut r = lock(&self.rig);
+            let mut r = lock(self.rig());
             let cfg = r.machine().config().clone();
             let cpm = [cfg.axes.x.counts_per_mm, cfg.axes.y.counts_per_mm];
             // Steps commanded by GRBL, turned into where the motor takes the axis.
@@ -495,10 +534,21 @@ impl GrblDevice {
     }
 
     /// Machine position from the step counters (X, Y from the machine, Z phantom).
-    fn mpos_3(&self) -> [f64; N_AXIS] {
-        let counts = lock(&self.rig).machine().counts();
+    fn mpos_3(&self) -> Position {
+        let rig = match &self.machine {
+            Machine::Rig(rig) => rig,
+            Machine::Axes(m) => {
+                // The step counters: each axis at a whole number of steps.
+                let p = lock_axes(m).position();
+                return std::array::from_fn(|k| {
+                    let spu = self.steps_per_mm(k);
+                    (p[k] * spu).round() / spu
+                });
+            }
+        };
+        let counts = lock(rig).machine().counts();
         let cpm = {
-            let r = lock(&self.rig);
+            let r = lock(rig);
             let c = r.machine().config();
             [c.axes.x.counts_per_mm, c.axes.y.counts_per_mm]
         };
@@ -512,7 +562,141 @@ impl GrblDevice {
             steps[0] / self.steps_per_mm(0),
             steps[1] / self.steps_per_mm(1),
             self.z_steps as f64 / self.steps_per_mm(2),
+            0.0,
+            0.0,
+            0.0,
         ]
+    }
+
+    fn rig(&self) -> &SharedRig {
+        match &self.machine {
+            Machine::Rig(rig) => rig,
+            Machine::Axes(_) => unreachable!("only the X-Y stage's paths ask for the rig"),
+        }
+    }
+
+    fn machine_advance(&self, dt: f64) {
+        match &self.machine {
+            Machine::Rig(rig) => lock(rig).machine_mut().advance(dt),
+            Machine::Axes(m) => lock_axes(m).advance(dt),
+        }
+    }
+
+    fn machine_moving(&self) -> bool {
+        match &self.machine {
+            Machine::Rig(rig) => lock(rig).machine().is_moving(),
+            Machine::Axes(m) => lock_axes(m).is_moving(),
+        }
+    }
+
+    fn machine_finish(&self) {
+        match &self.machine {
+            Machine::Rig(rig) => lock(rig).machine_mut().finish_motion(),
+            Machine::Axes(m) => lock_axes(m).finish_motion(),
+        }
+    }
+
+    fn machine_stop(&self) {
+        match &self.machine {
+            Machine::Rig(rig) => lock(rig).machine_mut().stop(),
+            Machine::Axes(m) => lock_axes(m).stop(),
+        }
+    }
+
+    /// A block on the N-axis machine: a straight move, or a probing move that ends at
+    /// the trigger point.
+    fn start_axes_block(&mut self, m: SharedAxes, block: Block) -> bool {
+        let axes = self.interp.axes;
+        let max = (0..axes)
+            .filter_map(|k| self.settings.max_rate_mm_min(k))
+            .fold(f64::INFINITY, f64::min);
+        let max = if max.is_finite() { max } else { 500.0 };
+        let feed = match (block.rate, block.jog) {
+            (Rate::Feed(f), true) => f.min(max),
+            (Rate::Rapid, true) => max,
+            (Rate::Rapid, false) => max * f64::from(self.overrides[1]) / 100.0,
+            (Rate::Feed(f), false) => (f * f64::from(self.overrides[0]) / 100.0).min(max),
+        };
+        if let Some((_, toward)) = block.probe {
+            // GRBL checks the pin before moving: already triggered toward the work, or
+            // not touching for a move away, is ALARM:4 (no probe report).
+            if self.probe_pin() == toward {
+                let owed = self.pending.is_some();
+                self.alarm(alarm::PROBE_FAIL_INITIAL, false);
+                if owed {
+                    self.respond(Ok(()));
+                }
+                return false;
+            }
+        }
+        let started = {
+            let mut g = lock_axes(&m);
+            match block.probe {
+                Some((_, toward)) => g.start_probe(block.target, feed.max(1e-3), toward),
+                None => g.start_move(block.target, feed.max(1e-3)),
+            }
+        };
+        let duration = match started {
+            Ok(d) => d,
+            Err(AxesRefusal::OutOfTravel { .. }) => {
+                self.alarm(alarm::HARD_LIMIT, true);
+                return false;
+            }
+        };
+        if self.state == State::Idle {
+            self.state = if block.jog { State::Jog } else { State::Cycle };
+        }
+        self.running = Some(Running {
+            block,
+            elapsed: 0.0,
+            duration,
+        });
+        true
+    }
+
+    /// The probe input as the controller reads it: the probe touching, inverted by `$6`.
+    fn probe_pin(&self) -> bool {
+        let touching = match &self.machine {
+            Machine::Rig(_) => false,
+            Machine::Axes(m) => lock_axes(m).probe_touching(),
+        };
+        touching != self.settings.get(6).is_some_and(|v| v != 0.0)
+    }
+
+    /// A probing move ended: record where (`[PRB:...]`, reported at once as GRBL 1.1
+    /// does), and for G38.2/G38.4 without contact raise `ALARM:4`. False when an alarm
+    /// stopped everything.
+    fn probe_done(&mut self, fail_is_error: bool) -> bool {
+        let touched = match &self.machine {
+            Machine::Rig(_) => false,
+            Machine::Axes(m) => lock_axes(m).probe_triggered(),
+        };
+        let at = self.mpos_3();
+        // GRBL's `mc_probe_cycle`: the probe position is where it triggered, or for
+        // G38.3/G38.5 where the move ended; a G38.2/G38.4 miss keeps the previous one
+        // and raises the alarm before the `[PRB:...:0]` report.
+        let failed = !touched && fail_is_error;
+        if !failed {
+            self.interp.probe = (at, touched);
+        } else {
+            self.interp.probe.1 = false;
+        }
+        if touched {
+            // The planned position continues from where the probe stopped.
+            self.interp.position = at;
+        }
+        if failed {
+            // Not a critical alarm: GRBL still reports the probe, then answers the line.
+            let owed = self.pending.is_some();
+            self.alarm(alarm::PROBE_FAIL_CONTACT, false);
+            self.report_probe();
+            if owed {
+                self.respond(Ok(()));
+            }
+            return false;
+        }
+        self.report_probe();
+        true
     }
 
     // ------------------------------------------------------------------ main loop
@@ -628,7 +812,15 @@ impl GrblDevice {
                             return false;
                         }
                     }
+                    let probe = matches!(a, Action::Probe { .. });
                     self.plan(a);
+                    if probe {
+                        // GRBL's probe cycle runs to its end inside the line: the
+                        // `[PRB:...]` report comes before the line's `ok`.
+                        p.actions.pop_front();
+                        p.actions.push_front(Action::Sync);
+                        continue;
+                    }
                 }
                 p.actions.pop_front();
                 continue;
@@ -666,7 +858,7 @@ impl GrblDevice {
         true
     }
 
-    fn plan(&mut self, a: Action) {
+    fn plan(&mut self, a: Actions) {
         let block = match a {
             Action::Move {
                 target,
@@ -684,13 +876,13 @@ impl GrblDevice {
                 target,
                 feed,
                 fail_is_error,
-                ..
+                toward,
             } => Block {
                 target,
                 rate: Rate::Feed(feed),
                 line_number: None,
                 jog: false,
-                probe: Some(fail_is_error),
+                probe: Some((fail_is_error, toward)),
             },
             _ => return,
         };
@@ -702,8 +894,8 @@ impl GrblDevice {
         }
     }
 
-    fn violates_travel(&self, target: &[f64; N_AXIS]) -> bool {
-        (0..N_AXIS).any(|k| {
+    fn violates_travel(&self, target: &Position) -> bool {
+        (0..self.interp.axes).any(|k| {
             let (lo, hi) = self
                 .settings
                 .travel_range(k, true)
@@ -715,7 +907,7 @@ impl GrblDevice {
     // ------------------------------------------------------------------ alarms, reset
 
     fn stop_motion(&mut self) {
-        lock(&self.rig).machine_mut().stop();
+        self.machine_stop();
         self.running = None;
         self.planner.clear();
         self.busy = None;
@@ -889,7 +1081,7 @@ impl GrblDevice {
     /// deceleration model); the rest of the block runs again from there on resume.
     fn hold_motion(&mut self) {
         if let Some(run) = self.running.take() {
-            lock(&self.rig).machine_mut().stop();
+            self.machine_stop();
             let _ = run;
         }
     }
@@ -944,10 +1136,15 @@ impl GrblDevice {
         let mpos = self.mpos_3();
         let wco = self.interp.wco();
         let mpos_kind = self.settings.reports_mpos();
-        let position: Vec<f64> = (0..N_AXIS)
-            .map(|k| if mpos_kind { mpos[k] } else { mpos[k] - wco[k] } * scale)
+        // Rotary axes report degrees whatever `$13` says.
+        let unit = |k: usize| if k < 3 { scale } else { 1.0 };
+        let position: Vec<f64> = (0..self.interp.axes)
+            .map(|k| if mpos_kind { mpos[k] } else { mpos[k] - wco[k] } * unit(k))
             .collect();
         let mut r = StatusReport::new(state, position);
+        if self.probe_pin() {
+            r.pins = Some("P".into());
+        }
         r.position_kind = if mpos_kind {
             PositionKind::Machine
         } else {
@@ -963,7 +1160,10 @@ impl GrblDevice {
         // GRBL reports the real-time rate of its step generator (`st_get_realtime_rate`),
         // not the programmed feed: lower while accelerating, 0 when nothing moves.
         let feed = if self.running.is_some() {
-            lock(&self.rig).machine().speed_mm_min()
+            match &self.machine {
+                Machine::Rig(rig) => lock(rig).machine().speed_mm_min(),
+                Machine::Axes(m) => lock_axes(m).rate(),
+            }
         } else {
             0.0
         };
@@ -985,7 +1185,7 @@ impl GrblDevice {
             if self.ovr_counter == 0 {
                 self.ovr_counter = 1;
             }
-            r.wco = Some(wco.iter().map(|w| w * scale).collect());
+            r.wco = Some((0..self.interp.axes).map(|k| wco[k] * unit(k)).collect());
         }
         if self.ovr_counter > 0 {
             self.ovr_counter -= 1;
@@ -1172,7 +1372,7 @@ impl GrblDevice {
                             self.settings = self.default_settings.clone();
                         }
                         if target != 0 {
-                            self.interp.stored = [[0.0; N_AXIS]; 8];
+                            self.interp.stored = [[0.0; MAX_AXES]; 8];
                         }
                         if target == 2 {
                             self.startup_lines = [String::new(), String::new()];
@@ -1250,9 +1450,12 @@ impl GrblDevice {
         } else {
             (1.0, 3)
         };
-        let f = |v: &[f64; N_AXIS]| {
-            v.iter()
-                .map(|x| format!("{:.dec$}", x * scale))
+        let axes = self.interp.axes;
+        let f = |v: &Position| {
+            v[..axes]
+                .iter()
+                .enumerate()
+                .map(|(k, x)| format!("{:.dec$}", if k < 3 { x * scale } else { *x }))
                 .collect::<Vec<_>>()
                 .join(",")
         };
@@ -1267,17 +1470,44 @@ impl GrblDevice {
             "[TLO:{:.dec$}]",
             self.interp.tool_length_offset * scale
         ));
-        let (p, ok) = self.interp.probe;
-        lines.push(format!("[PRB:{}:{}]", f(&p), u8::from(ok)));
+        lines.push(self.probe_line());
         for l in lines {
             self.send(&l);
         }
     }
 
+    /// `[PRB:x,y,z,...:1|0]`: the last probe's machine position (one number per axis,
+    /// in the report units) and whether it touched.
+    fn probe_line(&self) -> String {
+        let inches = self.settings.report_inches();
+        let (scale, dec) = if inches {
+            (1.0 / MM_PER_INCH, 4)
+        } else {
+            (1.0, 3)
+        };
+        let (p, ok) = self.interp.probe;
+        let values: Vec<String> = p[..self.interp.axes]
+            .iter()
+            .enumerate()
+            .map(|(k, x)| format!("{:.dec$}", if k < 3 { x * scale } else { *x }))
+            .collect();
+        format!("[PRB:{}:{}]", values.join(","), u8::from(ok))
+    }
+
+    fn report_probe(&mut self) {
+        let l = self.probe_line();
+        self.send(&l);
+    }
+
     fn start_homing(&mut self) {
         self.state = State::Homing;
+        if let Machine::Axes(_) = self.machine {
+            // The N-axis machine's axes start at their reference: homing only syncs.
+            self.homing_done();
+            return;
+        }
         let took = {
-            let mut r = lock(&self.rig);
+            let mut r = lock(self.rig());
             let t0 = r.machine().now_s();
             r.machine_mut().home();
             r.machine().now_s() - t0
@@ -1414,7 +1644,7 @@ mod tests {
         assert_eq!(s.state, MachineState::Idle);
         // 2000 steps/mm: 10.00013 mm is 20000.26 steps -> 20000 steps -> 10.000 mm.
         assert_eq!(s.position, vec![10.0, 5.0, 0.0]);
-        let counts = h.dev.rig.lock().unwrap().machine().counts();
+        let counts = h.dev.rig().lock().unwrap().machine().counts();
         assert_eq!(counts, [20000, 10000]);
     }
 
@@ -1650,5 +1880,147 @@ mod tests {
             vec![Response::Ok, Response::Ok],
             "CR LF is two lines"
         );
+    }
+}
+
+#[cfg(test)]
+mod five_axis_tests {
+    use super::*;
+    use protocol::grbl::response::{LineDecoder, Response};
+    use world::axes::AxesMachine;
+    use world::rotary::{RotaryMachineSim, RotaryWorkpiece, TouchProbe};
+
+    /// The paper's machine with a noiseless probe (trigger points exact to the step).
+    fn sim() -> RotaryMachineSim {
+        let mut s = RotaryMachineSim::paper(7);
+        s.probe = TouchProbe {
+            noise_mm: 0.0,
+            ..TouchProbe::default()
+        };
+        s
+    }
+
+    struct Host {
+        dev: GrblDevice,
+        dec: LineDecoder,
+    }
+
+    impl Host {
+        fn new() -> Self {
+            let m = AxesMachine::new(Box::new(RotaryWorkpiece { sim: sim() })).shared();
+            let mut dev = GrblDevice::with_axes(m, GrblConfig::default());
+            dev.power_on(0.0);
+            let mut h = Host {
+                dev,
+                dec: LineDecoder::new(),
+            };
+            h.send(b"");
+            h
+        }
+        fn send(&mut self, bytes: &[u8]) -> Vec<Response> {
+            self.dev.receive(bytes, 0.0);
+            let mut out = Vec::new();
+            self.dec.feed(&self.dev.take_output(), &mut out);
+            out
+        }
+        fn status(&mut self) -> StatusReport {
+            self.send(b"?");
+            match self.send(b"?").pop() {
+                Some(Response::Status(s)) => s,
+                other => panic!("no status: {other:?}"),
+            }
+        }
+    }
+
+    fn prb(r: &[Response]) -> (Vec<f64>, String) {
+        r.iter()
+            .find_map(|r| match r {
+                Response::Parameter { name, value } if name == "PRB" => {
+                    let (v, ok) = value.rsplit_once(':').unwrap();
+                    Some((
+                        v.split(',').map(|x| x.parse().unwrap()).collect(),
+                        ok.into(),
+                    ))
+                }
+                _ => None,
+            })
+            .unwrap_or_else(|| panic!("no PRB in {r:?}"))
+    }
+
+    #[test]
+    fn six_axis_status_settings_and_rotary_moves() {
+        let mut h = Host::new();
+        assert_eq!(h.send(b"G0 X10 A30 C-90\n"), vec![Response::Ok]);
+        assert_eq!(h.status().position, vec![10.0, 0.0, 0.0, 30.0, 0.0, -90.0]);
+        let settings = h.send(b"$$\n");
+        let has = |n: &str| {
+            settings
+                .iter()
+                .any(|r| matches!(r, Response::Setting { number, .. } if number.to_string() == n))
+        };
+        assert!(has("105") && has("135") && !has("106"));
+        // G20: X in inches, A in degrees.
+        assert_eq!(
+            h.send(b"G20 G0 X1 A10\nG21\n"),
+            vec![Response::Ok, Response::Ok]
+        );
+        let s = h.status().position;
+        assert_eq!((s[0], s[3]), (25.4, 10.0));
+    }
+
+    #[test]
+    fn g38_2_touches_the_ball_top_and_reports_six_axes_before_ok() {
+        let mut h = Host::new();
+        let truth = sim();
+        let c = truth.ball_centre(0, 0.0, 0.0);
+        let l = truth.geometry.tool_length_mm;
+        let (x, y) = (c.x, c.y);
+        let r = h.send(format!("G0 X{x:.3} Y{y:.3} Z{:.3}\n", c.z + l + 30.0).as_bytes());
+        assert_eq!(r, vec![Response::Ok]);
+        let r = h.send(format!("G38.2 Z{:.3} F100\n", c.z + l).as_bytes());
+        assert_eq!(r.last(), Some(&Response::Ok));
+        let (p, ok) = prb(&r);
+        assert_eq!(ok, "1");
+        assert_eq!(p.len(), 6);
+        // Gauge point at contact: centre + ball radius + stylus radius + tool length,
+        // less the pre-travel; the stylus centre is at most 0.0005 from (x, y) of the
+        // centre, so the contact height is off by < 1e-6.
+        let expected = c.z + 13.0 + 1.5 + l - 0.0008;
+        assert!((p[2] - expected).abs() <= 0.0006, "{} vs {expected}", p[2]);
+        let s = h.status();
+        assert_eq!(
+            s.pins.as_deref(),
+            Some("P"),
+            "still touching after pre-travel"
+        );
+        // G38.2 again from there: the probe is already triggered, ALARM:4, no report.
+        let r = h.send(b"G38.2 Z0 F100\n");
+        assert_eq!(r, vec![Response::Alarm(4), Response::Ok]);
+        // Away from the ball: contact lost just above the touching height.
+        h.send(b"$X\n");
+        let r = h.send(format!("G38.4 Z{:.3} F100\n", c.z + l + 20.0).as_bytes());
+        let (p2, ok) = prb(&r);
+        assert_eq!(ok, "1");
+        assert!((p2[2] - (c.z + 14.5 + l)).abs() <= 0.0006, "{}", p2[2]);
+    }
+
+    #[test]
+    fn a_miss_is_alarm_5_with_g38_2_and_silent_with_g38_3() {
+        let mut h = Host::new();
+        assert_eq!(h.send(b"G0 X0 Y150 Z100\n"), vec![Response::Ok]);
+        let r = h.send(b"G38.3 Z50 F200\n");
+        let (p, ok) = prb(&r);
+        assert_eq!((ok.as_str(), p[2]), ("0", 50.0));
+        assert_eq!(r.last(), Some(&Response::Ok));
+        let r = h.send(b"G38.2 Z0 F200\n");
+        assert_eq!(r[0], Response::Alarm(5));
+        let (p, ok) = prb(&r);
+        // The failed probe keeps the previous probe position.
+        assert_eq!((ok.as_str(), p[2]), ("0", 50.0));
+        assert_eq!(r.last(), Some(&Response::Ok));
+        assert_eq!(h.status().state, MachineState::Alarm);
+        // $6 inverts the pin: nothing touches, yet the pin reads triggered.
+        h.send(b"$X\n$6=1\n");
+        assert_eq!(h.status().pins.as_deref(), Some("P"));
     }
 }

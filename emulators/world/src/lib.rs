@@ -9,6 +9,7 @@
 //! through [`rig::SimRig::truth`], for tests and reports. The gateway's pipeline crates
 //! cannot depend on this crate at all.
 
+pub mod axes;
 pub mod camera;
 pub mod clock;
 pub mod machine;

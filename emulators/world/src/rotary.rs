@@ -250,6 +250,72 @@ impl RotaryMachineSim {
     }
 }
 
+/// The rotary machine behind an N-axis controller: six axis slots X Y Z A B C as
+/// grblHAL orders them (a 5-axis X Y Z A C machine is a six-axis build whose B has no
+/// travel), the touch probe against the plate's balls.
+pub struct RotaryWorkpiece {
+    pub sim: RotaryMachineSim,
+}
+
+impl RotaryWorkpiece {
+    /// Travels: X, Y -250..250 mm, Z -400..200 mm (gauge point; the table face is near -260), A -120..120 deg, B
+    /// fixed at 0, C -3600..3600 deg (ten turns).
+    pub const LIMITS: [(f64, f64, f64); 6] = [
+        (-250.0, 250.0, 3000.0),
+        (-250.0, 250.0, 3000.0),
+        (-400.0, 200.0, 3000.0),
+        (-120.0, 120.0, 5400.0),
+        (0.0, 0.0, 5400.0),
+        (-3600.0, 3600.0, 5400.0),
+    ];
+
+    /// The true tool tip and direction in the workpiece frame with the axes at `at`.
+    pub fn tool(&self, at: &crate::axes::AxesPosition) -> (Vector3<f64>, Vector3<f64>) {
+        self.sim
+            .tool_in_workpiece([at[0], at[1], at[2], at[3], at[5]])
+    }
+}
+
+impl crate::axes::Workpiece for RotaryWorkpiece {
+    fn axes(&self) -> usize {
+        6
+    }
+
+    fn limits(&self, axis: usize) -> crate::axes::AxisLimits {
+        let (min, max, max_rate) = Self::LIMITS[axis.min(5)];
+        crate::axes::AxisLimits { min, max, max_rate }
+    }
+
+    /// Probing moves with the table still (A and C the same at both ends); a move that
+    /// turns the table does not probe (no contact).
+    fn probe_contact(
+        &mut self,
+        from: &crate::axes::AxesPosition,
+        to: &crate::axes::AxesPosition,
+    ) -> Option<crate::axes::AxesPosition> {
+        if from[3] != to[3] || from[5] != to[5] {
+            return None;
+        }
+        let p = self.sim.probe_move(
+            [from[0], from[1], from[2]],
+            [to[0], to[1], to[2]],
+            to[3],
+            to[5],
+        )?;
+        let mut at = *to;
+        at[..3].copy_from_slice(&p);
+        Some(at)
+    }
+
+    fn probe_touching(&self, at: &crate::axes::AxesPosition) -> bool {
+        let tip = Vector3::new(at[0], at[1], at[2] - self.sim.geometry.tool_length_mm);
+        (0..2).any(|b| {
+            let reach = self.sim.balls[b].radius_mm + self.sim.probe.stylus_radius_mm;
+            (tip - self.sim.ball_centre(b, at[3], at[5])).norm() <= reach
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
