@@ -6,8 +6,9 @@
 //! the tool point's error at the program's points and its distance from the programmed
 //! path, before and after.
 //!
-//! Not yet through the serial driver and the GRBL emulator: the emulator still drives
-//! the 2-axis rig (its n-axis machine is to come), so this runs the interpreter alone.
+//! Not yet through the GRBL emulator: `world::volumetric::VolumetricWorkpiece` puts the
+//! machine behind `GrblDevice::with_axes` (the n-axis emulator that landed at the end
+//! of the session), but streaming a program to it did not finish in time.
 
 use protocol::grbl::gcode::{filter_line, Action, Interpreter, Rate};
 use protocol::volumetric::Structure;

@@ -522,6 +522,37 @@ impl VolumetricMachine {
     }
 }
 
+/// The machine behind an N-axis controller emulator ([`crate::axes::AxesMachine`]):
+/// X, Y, Z over the travel, 5000 mm/min; no probe target. The controller moves the
+/// axes; where the tool point really is comes from [`VolumetricMachine::tool_in_work`].
+pub struct VolumetricWorkpiece(pub VolumetricMachine);
+
+impl crate::axes::Workpiece for VolumetricWorkpiece {
+    fn axes(&self) -> usize {
+        3
+    }
+
+    fn limits(&self, axis: usize) -> crate::axes::AxisLimits {
+        crate::axes::AxisLimits {
+            min: 0.0,
+            max: self.0.travel_mm[axis.min(2)],
+            max_rate: 5000.0,
+        }
+    }
+
+    fn probe_contact(
+        &mut self,
+        _: &crate::axes::AxesPosition,
+        _: &crate::axes::AxesPosition,
+    ) -> Option<crate::axes::AxesPosition> {
+        None
+    }
+
+    fn probe_touching(&self, _: &crate::axes::AxesPosition) -> bool {
+        false
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
