@@ -4,20 +4,21 @@
 use anyhow::{bail, Context};
 use clap::Subcommand;
 use protocol::volumetric::{
-    parse_instrument, parse_model, parse_points, parse_squareness, write_model, InstrumentFile,
-    Structure, AXES, COMPONENTS, SQUARENESS,
+    parse_model, parse_points, write_isg_csv, write_isg_lis, write_model, Structure, AXES,
 };
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use volumetric::ballbar::BallbarChart;
 use volumetric::contributions::{contributions, plane_map, ContributionChart, Plane};
-use volumetric::identify::{identify, laser_columns, level_columns, Campaign};
+use volumetric::identify::{identify, Campaign};
 use volumetric::Model;
 
 #[derive(Subcommand)]
 pub enum VolumetricCmd {
     /// Identify the model from a campaign directory (laser_X.csv, level_X.csv, ...,
-    /// squareness.csv) and write the model file.
+    /// ballbar_XY.csv ... or squareness.csv, camera.csv if measured) and write the
+    /// model file.
     Identify {
         #[arg(long)]
         campaign: PathBuf,
@@ -32,6 +33,9 @@ pub enum VolumetricCmd {
         /// The workpiece reference point in the last workpiece carriage's frame, mm.
         #[arg(long, default_value = "0,0,0")]
         work_offset_mm: String,
+        /// Write the ball-bar plots (ballbar_XY.svg/.png, ...) into this directory.
+        #[arg(long)]
+        plots: Option<PathBuf>,
         #[arg(long)]
         json: bool,
     },
@@ -71,8 +75,9 @@ pub enum VolumetricCmd {
         #[arg(long)]
         json: bool,
     },
-    /// Export the model's per-axis tables in the ISG volumetric CSV form (X.csv, Y.csv,
-    /// Z.csv with `X,EXX,EYX,EZX,EAX,EBX,ECX`..., mm and rad; squareness.csv), into DIR.
+    /// Export the model for the ISG kernel (Beckhoff TF5280) into DIR: volcomp.csv in the
+    /// ISG CSV format (blocks `C0Y B0Z A0Z P0X P0Y P0Z`, `X EXX ... ECX`, ..., mm and
+    /// rad) and the compensation list volcomp.lis that names it.
     ExportIsg {
         #[arg(long)]
         model: PathBuf,
@@ -122,12 +127,6 @@ pub fn load_model(path: &Path) -> anyhow::Result<Model> {
     Model::new(file).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
 
-fn instrument(dir: &Path, name: &str, cols: Vec<String>) -> anyhow::Result<InstrumentFile> {
-    let path = dir.join(name);
-    let cols: Vec<&str> = cols.iter().map(String::as_str).collect();
-    parse_instrument(&read(&path)?, &cols).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
-}
-
 /// Translations (E_X?, E_Y?, E_Z?) in µm, angles in µrad.
 fn display_unit(name: &str, micron: &'static str) -> (f64, &'static str) {
     let is_length = name.len() == 4 && matches!(&name[2..3], "X" | "Y" | "Z");
@@ -150,42 +149,52 @@ pub fn run(cmd: VolumetricCmd) -> anyhow::Result<ExitCode> {
             out,
             tool_offset_mm,
             work_offset_mm,
+            plots,
             json,
         } => {
             let s = structure(&s)?;
             let tool = parse_xyz("--tool-offset-mm", &tool_offset_mm)?;
             let work = parse_xyz("--work-offset-mm", &work_offset_mm)?;
-            let mut laser = Vec::new();
-            let mut level = Vec::new();
-            for a in 0..3 {
-                laser.push(instrument(
-                    &campaign,
-                    &format!("laser_{}.csv", AXES[a]),
-                    laser_columns(a),
-                )?);
-                level.push(instrument(
-                    &campaign,
-                    &format!("level_{}.csv", AXES[a]),
-                    level_columns(a),
-                )?);
+            // Every file the campaign may hold; the identification says which are due.
+            let mut files = Vec::new();
+            let mut names: Vec<String> = Vec::new();
+            for a in AXES {
+                names.push(format!("laser_{a}.csv"));
+                names.push(format!("level_{a}.csv"));
             }
-            let sq_path = campaign.join("squareness.csv");
-            let squareness = parse_squareness(&read(&sq_path)?)
-                .map_err(|e| anyhow::anyhow!("{}: {e}", sq_path.display()))?;
-            let c = Campaign {
-                laser: laser
-                    .try_into()
-                    .map_err(|_| anyhow::anyhow!("three axes"))?,
-                level: level
-                    .try_into()
-                    .map_err(|_| anyhow::anyhow!("three axes"))?,
-                squareness,
-            };
+            for p in ["XY", "XZ", "YZ"] {
+                names.push(format!("ballbar_{p}.csv"));
+            }
+            names.push("squareness.csv".into());
+            names.push("camera.csv".into());
+            for n in names {
+                let path = campaign.join(&n);
+                if path.exists() {
+                    files.push((n, read(&path)?));
+                }
+            }
+            let c = Campaign::from_files(&files)
+                .map_err(|e| anyhow::anyhow!("{}/{e}", campaign.display()))?;
             let mut id =
                 identify(s, &c).map_err(|e| anyhow::anyhow!("{}: {e}", campaign.display()))?;
             id.model.file.tool_offset_mm = tool;
             id.model.file.work_offset_mm = work;
             write(&out, write_model(&id.model.file))?;
+            if let Some(dir) = &plots {
+                std::fs::create_dir_all(dir)
+                    .with_context(|| format!("creating {}", dir.display()))?;
+                for b in &id.ballbar {
+                    let chart = BallbarChart(b);
+                    write(
+                        &dir.join(format!("ballbar_{}.svg", b.plane)),
+                        plot::render_svg(&chart, 800, 800)?,
+                    )?;
+                    write(
+                        &dir.join(format!("ballbar_{}.png", b.plane)),
+                        plot::render_png(&chart, 800, 800)?,
+                    )?;
+                }
+            }
             let fit = id.model.file.fit;
             if json {
                 let q: Vec<_> = id
@@ -197,9 +206,36 @@ pub fn run(cmd: VolumetricCmd) -> anyhow::Result<ExitCode> {
                                "uncertainty": q.uncertainty * scale, "stated": q.stated * scale, "fit": q.fit()})
                     })
                     .collect();
+                let ballbar: Vec<_> = id
+                    .ballbar
+                    .iter()
+                    .map(|b| {
+                        json!({"plane": b.plane, "circular_deviation_um": b.circular_deviation_mm * 1e3,
+                               "iso_squareness_urad": b.iso_squareness_rad * 1e6,
+                               "squareness_urad": b.squareness_rad * 1e6,
+                               "uncertainty_urad": b.uncertainty_rad * 1e6,
+                               "model_residual_rms_um": b.model_residual_rms_mm * 1e3})
+                    })
+                    .collect();
+                let camera = id.camera.as_ref().map(|c| {
+                    let per: Vec<_> = (0..2)
+                        .flat_map(|a| (0..2).map(move |k| (a, k)))
+                        .map(|(a, k)| {
+                            json!({"name": c.names[a][k],
+                                   "uncertainty_urad": c.sigma[a][k].iter().fold(0.0f64, |m, v| m.max(*v)) * 1e6,
+                                   "largest_change_from_instruments_urad": c.change[a][k] * 1e6})
+                        })
+                        .collect();
+                    json!({"points": c.points, "heights_mm": c.heights_mm,
+                           "residual_rms_um": c.residual_rms_mm * 1e3, "stated_um": c.stated_mm * 1e3,
+                           "repeatability_um": c.repeatability_mm * 1e3,
+                           "board_rotation_urad": c.board_rotation_rad.iter().map(|v| v * 1e6).collect::<Vec<_>>(),
+                           "fit": c.fit(), "angles": per})
+                });
                 println!(
                     "{}",
-                    json!({"model": out, "structure": s.name(), "fit_for_compensation": fit, "errors": q})
+                    json!({"model": out, "structure": s.name(), "fit_for_compensation": fit, "errors": q,
+                           "ballbar": ballbar, "camera": camera})
                 );
             } else {
                 println!(
@@ -220,6 +256,37 @@ pub fn run(cmd: VolumetricCmd) -> anyhow::Result<ExitCode> {
                             "  EXCEEDS the stated uncertainty"
                         }
                     );
+                }
+                for b in &id.ballbar {
+                    println!(
+                        "ball bar {}: circular deviation {:.2} µm, ISO squareness reading {:.2} µrad, model squareness {:.2} ± {:.2} µrad, residual {:.3} µm RMS",
+                        b.plane,
+                        b.circular_deviation_mm * 1e3,
+                        b.iso_squareness_rad * 1e6,
+                        b.squareness_rad * 1e6,
+                        b.uncertainty_rad * 1e6,
+                        b.model_residual_rms_mm * 1e3
+                    );
+                }
+                if let Some(c) = &id.camera {
+                    println!(
+                        "camera: {} points at heights {:?} mm, residual {:.3} µm RMS (stated {:.3}), {}",
+                        c.points,
+                        c.heights_mm,
+                        c.residual_rms_mm * 1e3,
+                        c.stated_mm * 1e3,
+                        if c.fit() { "consistent" } else { "INCONSISTENT with the model" }
+                    );
+                    for a in 0..2 {
+                        for k in 0..2 {
+                            println!(
+                                "  {}: uncertainty {:.3} µrad combined, largest change from the instruments {:.3} µrad",
+                                c.names[a][k],
+                                c.sigma[a][k].iter().fold(0.0f64, |m, v| m.max(*v)) * 1e6,
+                                c.change[a][k] * 1e6
+                            );
+                        }
+                    }
                 }
                 println!(
                     "model written to {} ({})",
@@ -369,7 +436,9 @@ pub fn run(cmd: VolumetricCmd) -> anyhow::Result<ExitCode> {
             let s = structure(&s)?;
             std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
             let machine = world::volumetric::VolumetricMachine::new(s, seed);
-            let files = machine.campaign(seed);
+            let mut files = machine.campaign(seed);
+            let plan = world::volumetric::CameraPlan::default_for(machine.travel_mm);
+            files.push(("camera.csv".into(), machine.camera_campaign(&plan, seed).0));
             for (name, text) in &files {
                 write(&out.join(name), text)?;
             }
@@ -392,30 +461,15 @@ pub fn run(cmd: VolumetricCmd) -> anyhow::Result<ExitCode> {
         VolumetricCmd::ExportIsg { model, out, json } => {
             let m = load_model(&model)?;
             std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-            for a in 0..3 {
-                let mut csv = String::from(AXES[a]);
-                for c in COMPONENTS {
-                    csv += &format!(",E{c}{}", AXES[a]);
-                }
-                csv.push('\n');
-                let t = &m.file.tables[a];
-                for (p, e) in t.positions_mm.iter().zip(&t.errors) {
-                    csv += &format!(
-                        "{p},{},{},{},{},{},{}\n",
-                        e[0], e[1], e[2], e[3], e[4], e[5]
-                    );
-                }
-                write(&out.join(format!("{}.csv", AXES[a])), csv)?;
-            }
-            let mut sq = String::from("name,value_rad\n");
-            for (k, n) in SQUARENESS.iter().enumerate() {
-                sq += &format!("{n},{}\n", m.file.squareness_rad[k]);
-            }
-            write(&out.join("squareness.csv"), sq)?;
+            write(&out.join("volcomp.csv"), write_isg_csv(&m.file))?;
+            write(
+                &out.join("volcomp.lis"),
+                write_isg_lis(&m.file, "volcomp.csv"),
+            )?;
             if json {
                 println!(
                     "{}",
-                    json!({"out": out, "files": ["X.csv", "Y.csv", "Z.csv", "squareness.csv"]})
+                    json!({"out": out, "files": ["volcomp.csv", "volcomp.lis"]})
                 );
             } else {
                 println!("ISG tables written to {}", out.display());

@@ -58,6 +58,37 @@ fn campaign_identify_eval_contributions() {
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["fit_for_compensation"], true);
     assert_eq!(v["errors"].as_array().unwrap().len(), 21);
+    // Squareness from the three ball-bar circles, angles sharpened by the camera.
+    assert_eq!(v["ballbar"].as_array().unwrap().len(), 3);
+    assert_eq!(v["ballbar"][1]["plane"], "XZ");
+    assert_eq!(v["camera"]["fit"], true);
+    assert_eq!(v["camera"]["heights_mm"][2], 300.0);
+    let isg = d.join("isg");
+    let out = gateway(&[
+        "volumetric",
+        "export-isg",
+        "--model",
+        &s(&model),
+        "--out",
+        &s(&isg),
+    ]);
+    assert!(out.status.success());
+    let csv = std::fs::read_to_string(isg.join("volcomp.csv")).unwrap();
+    let headers: Vec<&str> = csv
+        .lines()
+        .filter(|l| l.chars().next().is_some_and(|c| c.is_ascii_alphabetic()))
+        .collect();
+    assert_eq!(
+        headers,
+        [
+            "C0Y B0Z A0Z P0X P0Y P0Z",
+            "X EXX EYX EZX EAX EBX ECX",
+            "Y EXY EYY EZY EAY EBY ECY",
+            "Z EXZ EYZ EZZ EAZ EBZ ECZ"
+        ]
+    );
+    let lis = std::fs::read_to_string(isg.join("volcomp.lis")).unwrap();
+    assert!(lis.contains("workpiece_axes           1\n"), "{lis}");
     let points = d.join("p.csv");
     std::fs::write(&points, "x_mm,y_mm,z_mm\n0,0,0\n250,200,100\n").unwrap();
     let eval = |first: bool| {

@@ -434,6 +434,68 @@ pub fn write_model(m: &VolumetricFile) -> String {
     s
 }
 
+/// The ISG names of the squareness constants (ISO 230-1 `E_C0Y` is ISG `C0Y`, ...).
+pub const ISG_SQUARENESS: [&str; 3] = ["C0Y", "B0Z", "A0Z"];
+
+/// The model's tables in the ISG CSV format of the ISG kernel's volumetric
+/// compensation (Beckhoff TwinCAT 3 CNC TF5280, "ISG CSV format"): blocks separated by
+/// a line holding `#` (the format's file break), each a header line naming the columns
+/// (argument, then parameters) followed by its records, values separated by blanks,
+/// comments starting `//`. The first block holds the position errors (the squareness
+/// constants `C0Y B0Z A0Z`) and the tool's zero position `P0X P0Y P0Z`, one record;
+/// then one block per axis, `X EXX EYX EZX EAX EBX ECX` and likewise for Y and Z.
+/// Units as the format requires: parameter values mm and rad, arguments mm.
+pub fn write_isg_csv(m: &VolumetricFile) -> String {
+    let mut s = String::from(
+        "// Volumetric compensation parameters, ISG CSV format (mm, rad; arguments mm)\n",
+    );
+    s += &format!(
+        "// structure {}: workpiece axes {}; ISO 230-1 names without the E_ of squareness\n",
+        m.structure,
+        m.structure.work_chain().len()
+    );
+    s += &format!("{} P0X P0Y P0Z\n", ISG_SQUARENESS.join(" "));
+    let q = m.squareness_rad;
+    let t = m.tool_offset_mm;
+    s += &format!("{} {} {} {} {} {}\n", q[0], q[1], q[2], t[0], t[1], t[2]);
+    for a in 0..3 {
+        s += "#\n";
+        s.push(AXES[a]);
+        for c in COMPONENTS {
+            s += &format!(" E{c}{}", AXES[a]);
+        }
+        s.push('\n');
+        let tab = &m.tables[a];
+        for (p, e) in tab.positions_mm.iter().zip(&tab.errors) {
+            s += &format!(
+                "{p} {} {} {} {} {} {}\n",
+                e[0], e[1], e[2], e[3], e[4], e[5]
+            );
+        }
+    }
+    s
+}
+
+/// The compensation list (`.lis`) that points the ISG kernel at `csv_name`: the logical
+/// axis numbers of X, Y and Z (1, 2, 3 here: the machine's own must be put in), the
+/// number of workpiece-side axes of the structure (`workpiece_axes`), the parameter
+/// file and its format `ISG_CSV`, grid interpolation. Keys as in Beckhoff's published
+/// example; the kinematic chain parameter is not written (its values are not published
+/// in the pages we could check).
+pub fn write_isg_lis(m: &VolumetricFile, csv_name: &str) -> String {
+    let mut s = String::from("# Volumetric compensation list (ISG kernel / TF5280)\n");
+    s += &format!("# structure {}\n", m.structure);
+    s += &format!(
+        "workpiece_axes           {}\n",
+        m.structure.work_chain().len()
+    );
+    s += "X                        1\nY                        2\nZ                        3\n";
+    s += "interpolation            GRID\n";
+    s += &format!("file[0]                  {csv_name}\n");
+    s += "file_format[0]           ISG_CSV\n";
+    s
+}
+
 /// One instrument file: header keys, column names and runs of rows.
 #[derive(Debug, Clone, PartialEq)]
 pub struct InstrumentFile {
@@ -689,6 +751,56 @@ mod tests {
          Y,EXY,EYY,EZY,EAY,EBY,ECY\n0,0,0,0,0,0,0\n400000,1,2,3,4,5,6\n\
          Z,EXZ,EYZ,EZZ,EAZ,EBZ,ECZ\n0,0,0,0,0,0,0\n400000,1,2,3,4,5,6\n"
             .to_string()
+    }
+
+    #[test]
+    fn isg_csv_has_the_documented_blocks() {
+        let m = VolumetricFile {
+            structure: Structure::Xyfz,
+            tool_offset_mm: [0.0, 0.0, 100.0],
+            work_offset_mm: [0.0; 3],
+            squareness_rad: [2e-5, -1.5e-5, 1e-5],
+            fit: true,
+            tables: [
+                AxisTable {
+                    positions_mm: vec![0.0, 250.0],
+                    errors: vec![[0.0; 6], [0.005, -0.001, 0.0, 1e-6, 0.0, -2e-6]],
+                },
+                AxisTable {
+                    positions_mm: vec![0.0, 10.5],
+                    errors: vec![[0.0; 6]; 2],
+                },
+                AxisTable {
+                    positions_mm: vec![0.0, 400.0],
+                    errors: vec![[0.0; 6], [0.0, 0.0, 0.25, 0.0, 0.0, 0.0]],
+                },
+            ],
+        };
+        let csv = write_isg_csv(&m);
+        let data: Vec<&str> = csv.lines().filter(|l| !l.starts_with("//")).collect();
+        assert_eq!(
+            data,
+            [
+                "C0Y B0Z A0Z P0X P0Y P0Z",
+                "0.00002 -0.000015 0.00001 0 0 100",
+                "#",
+                "X EXX EYX EZX EAX EBX ECX",
+                "0 0 0 0 0 0 0",
+                "250 0.005 -0.001 0 0.000001 0 -0.000002",
+                "#",
+                "Y EXY EYY EZY EAY EBY ECY",
+                "0 0 0 0 0 0 0",
+                "10.5 0 0 0 0 0 0",
+                "#",
+                "Z EXZ EYZ EZZ EAZ EBZ ECZ",
+                "0 0 0 0 0 0 0",
+                "400 0 0 0.25 0 0 0",
+            ]
+        );
+        let lis = write_isg_lis(&m, "volcomp.csv");
+        assert!(lis.contains("workpiece_axes           2\n"), "{lis}");
+        assert!(lis
+            .contains("file[0]                  volcomp.csv\nfile_format[0]           ISG_CSV\n"));
     }
 
     #[test]

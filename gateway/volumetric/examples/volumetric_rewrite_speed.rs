@@ -6,11 +6,11 @@
 //! of 0.2 to 2 mm wandering through the volume, a long diagonal every 500 lines) at
 //! tolerance T_UM (default 0.5 µm) on one thread, and prints the time.
 
-use protocol::volumetric::{parse_instrument, parse_squareness, Structure};
+use protocol::volumetric::Structure;
 use rewrite::{rewrite_program, Options};
 use std::fmt::Write;
 use std::time::Instant;
-use volumetric::identify::{identify, laser_columns, level_columns, Campaign};
+use volumetric::identify::{identify, Campaign};
 use world::volumetric::VolumetricMachine;
 
 fn main() {
@@ -19,24 +19,7 @@ fn main() {
     let t_um: f64 = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(0.5);
     let machine = VolumetricMachine::new(Structure::Xyfz, 1);
     let files = machine.campaign(1);
-    let get = |n: String| {
-        files
-            .iter()
-            .find(|f| f.0 == n)
-            .expect("campaign file")
-            .1
-            .clone()
-    };
-    let axes = ['X', 'Y', 'Z'];
-    let parse = |n: String, cols: Vec<String>| {
-        let cols: Vec<&str> = cols.iter().map(String::as_str).collect();
-        parse_instrument(&get(n), &cols).expect("campaign parses")
-    };
-    let campaign = Campaign {
-        laser: std::array::from_fn(|a| parse(format!("laser_{}.csv", axes[a]), laser_columns(a))),
-        level: std::array::from_fn(|a| parse(format!("level_{}.csv", axes[a]), level_columns(a))),
-        squareness: parse_squareness(&get("squareness.csv".into())).expect("squareness"),
-    };
+    let campaign = Campaign::from_files(&files).expect("campaign parses");
     let model = identify(Structure::Xyfz, &campaign)
         .expect("identifies")
         .model;

@@ -16,20 +16,90 @@
 //! standard deviation, n runs), the largest over the positions. A model whose residual
 //! exceeds the stated uncertainty for any error is marked unfit for compensation.
 
+use crate::ballbar::{circle, squareness, CircleResult, BALLBAR_COLUMNS, PLANES};
+use crate::camera::{combine, AnglePrior, CameraFit, CAMERA_COLUMNS};
 use crate::{Model, NAMES};
 use nalgebra::Vector3;
-use protocol::volumetric::{AxisTable, InstrumentFile, Structure, VolumetricFile};
+use protocol::volumetric::{
+    parse_instrument, parse_squareness, AxisTable, InstrumentFile, Structure, VolumetricFile,
+};
 
 const AXES: [char; 3] = ['X', 'Y', 'Z'];
 const COMP: [char; 6] = ['X', 'Y', 'Z', 'A', 'B', 'C'];
 
+/// Where the squareness constants come from.
+#[derive(Debug, Clone)]
+pub enum SquarenessSource {
+    /// Results of a diagonal or ball-bar test as numbers ((value, uncertainty) rad,
+    /// E_C0Y, E_B0Z, E_A0Z: `squareness.csv`), for straightness readings that keep
+    /// their slope.
+    Values([(f64, f64); 3]),
+    /// The ball-bar files of the XY, XZ and YZ circles (file name, parsed file), in
+    /// that order: squareness fitted against the model (see [`crate::ballbar`]).
+    Ballbar(Box<[(String, InstrumentFile); 3]>),
+}
+
 /// The campaign as parsed files: per axis the laser and level file, and the squareness
-/// results ((value, uncertainty) rad, E_C0Y, E_B0Z, E_A0Z).
+/// source.
 #[derive(Debug, Clone)]
 pub struct Campaign {
     pub laser: [InstrumentFile; 3],
     pub level: [InstrumentFile; 3],
-    pub squareness: [(f64, f64); 3],
+    pub squareness: SquarenessSource,
+    /// `camera.csv` (columns [`crate::camera::CAMERA_COLUMNS`]), if measured.
+    pub camera: Option<InstrumentFile>,
+}
+
+impl Campaign {
+    /// The campaign from its files' (name, text): `laser_<axis>.csv` and `level_<axis>.csv`
+    /// for X, Y, Z; squareness from `ballbar_XY.csv`, `ballbar_XZ.csv`, `ballbar_YZ.csv`
+    /// or else `squareness.csv`; `camera.csv` if present. Errors name the file (and
+    /// line and column).
+    pub fn from_files(files: &[(String, String)]) -> Result<Campaign, String> {
+        let get = |n: &str| files.iter().find(|f| f.0 == n).map(|f| f.1.as_str());
+        let parse = |n: String, cols: &[&str]| -> Result<InstrumentFile, String> {
+            let text = get(&n).ok_or_else(|| format!("{n}: missing from the campaign"))?;
+            parse_instrument(text, cols).map_err(|e| format!("{n}: {e}"))
+        };
+        let axis = |a: usize, laser: bool| -> Result<InstrumentFile, String> {
+            let (name, cols) = if laser {
+                (format!("laser_{}.csv", AXES[a]), laser_columns(a))
+            } else {
+                (format!("level_{}.csv", AXES[a]), level_columns(a))
+            };
+            let cols: Vec<&str> = cols.iter().map(String::as_str).collect();
+            parse(name, &cols)
+        };
+        let ballbar_names: [String; 3] =
+            std::array::from_fn(|k| format!("ballbar_{}.csv", PLANES[k].0));
+        let squareness = if ballbar_names.iter().any(|n| get(n).is_some()) {
+            let mut v = Vec::new();
+            for n in ballbar_names {
+                let f = parse(n.clone(), &BALLBAR_COLUMNS)?;
+                v.push((n, f));
+            }
+            SquarenessSource::Ballbar(Box::new(
+                v.try_into().map_err(|_| "three circles".to_string())?,
+            ))
+        } else {
+            let text = get("squareness.csv").ok_or(
+                "squareness: neither ballbar_XY.csv, ballbar_XZ.csv, ballbar_YZ.csv nor squareness.csv in the campaign",
+            )?;
+            SquarenessSource::Values(
+                parse_squareness(text).map_err(|e| format!("squareness.csv: {e}"))?,
+            )
+        };
+        let camera = match get("camera.csv") {
+            Some(_) => Some(parse("camera.csv".into(), &CAMERA_COLUMNS)?),
+            None => None,
+        };
+        Ok(Campaign {
+            laser: [axis(0, true)?, axis(1, true)?, axis(2, true)?],
+            level: [axis(0, false)?, axis(1, false)?, axis(2, false)?],
+            squareness,
+            camera,
+        })
+    }
 }
 
 /// The columns (after `run`) of `laser_<axis>.csv`.
@@ -59,6 +129,12 @@ pub enum IdentifyError {
     Meta { file: String, key: String },
     #[error("{file}: positions differ from laser_{axis}.csv's")]
     Positions { file: String, axis: char },
+    #[error(transparent)]
+    Camera(#[from] crate::camera::CameraError),
+    #[error(transparent)]
+    Ballbar(#[from] crate::ballbar::BallbarError),
+    #[error("{file}: header `plane` must be {want} for this file")]
+    Plane { file: String, want: &'static str },
     #[error("identified model: {0}")]
     Model(#[from] crate::VolError),
 }
@@ -86,6 +162,10 @@ pub struct Identification {
     pub model: Model,
     /// In [`NAMES`] order.
     pub quality: Vec<ErrorQuality>,
+    /// The camera campaign's combination, when there was one.
+    pub camera: Option<CameraFit>,
+    /// The ball-bar circles' readings (XY, XZ, YZ), when squareness came from them.
+    pub ballbar: Vec<CircleResult>,
 }
 
 fn stated(f: &InstrumentFile, file: &str, key: &str) -> Result<f64, IdentifyError> {
@@ -119,11 +199,19 @@ fn channel(f: &InstrumentFile, col: usize, scale: f64, u: f64) -> (Vec<f64>, f64
     (means, rms, worst_u)
 }
 
-/// Builds the model of a machine of `structure` from the campaign.
+/// Builds the model of a machine of `structure` from the campaign (with the camera
+/// campaign when there is one: see [`crate::camera`]).
 pub fn identify(structure: Structure, c: &Campaign) -> Result<Identification, IdentifyError> {
-    let [(c0y, uc), (b0z, ub), (a0z, ua)] = c.squareness;
+    // With the ball-bar, the tables are built without squareness and the constants
+    // fitted afterwards against them.
+    let [(c0y, _), (b0z, _), (a0z, _)] = match &c.squareness {
+        SquarenessSource::Values(v) => *v,
+        SquarenessSource::Ballbar(_) => [(0.0, 0.0); 3],
+    };
     let mut tables: [AxisTable; 3] = Default::default();
     let mut quality: Vec<Option<ErrorQuality>> = vec![None; 21];
+    // Per axis: positions and the mean readings in component order X, Y, Z, A, B, C.
+    let mut axes: Vec<(Vec<f64>, [Vec<f64>; 6])> = Vec::with_capacity(3);
     for a in 0..3 {
         let laser_name = format!("laser_{}.csv", AXES[a]);
         let level_name = format!("level_{}.csv", AXES[a]);
@@ -140,7 +228,6 @@ pub fn identify(structure: Structure, c: &Campaign) -> Result<Identification, Id
                 axis: AXES[a],
             });
         }
-        // Channels in component order X, Y, Z, A, B, C.
         let mut means: [Vec<f64>; 6] = Default::default();
         let mut laser_col = 1;
         for k in 0..6 {
@@ -161,6 +248,38 @@ pub fn identify(structure: Structure, c: &Campaign) -> Result<Identification, Id
                 stated: st,
             });
         }
+        axes.push((positions, means));
+    }
+    // The camera's heights sharpen the X and Y angles about X and Y (model sign ε:
+    // the reading for a tool-side axis, minus it for a workpiece-side one).
+    let sign = |a: usize| if structure.moves_work(a) { -1.0 } else { 1.0 };
+    let camera = match &c.camera {
+        None => None,
+        Some(file) => {
+            let priors: [AnglePrior; 2] = std::array::from_fn(|a| AnglePrior {
+                positions_mm: axes[a].0.clone(),
+                values: std::array::from_fn(|k| {
+                    axes[a].1[3 + k].iter().map(|v| sign(a) * v).collect()
+                }),
+                sigma: std::array::from_fn(|k| {
+                    quality[a * 6 + 3 + k]
+                        .as_ref()
+                        .map_or(0.0, |q| q.uncertainty)
+                }),
+            });
+            let fit = combine(structure, file, [&priors[0], &priors[1]])?;
+            for a in 0..2 {
+                for k in 0..2 {
+                    axes[a].1[3 + k] = fit.values[a][k].iter().map(|v| sign(a) * v).collect();
+                    if let Some(q) = quality[a * 6 + 3 + k].as_mut() {
+                        q.uncertainty = fit.sigma[a][k].iter().fold(0.0, |m, v| m.max(*v));
+                    }
+                }
+            }
+            Some(fit)
+        }
+    };
+    for (a, (positions, means)) in axes.iter().enumerate() {
         let work_side = structure.moves_work(a);
         let mut errors = Vec::with_capacity(positions.len());
         for (i, &q) in positions.iter().enumerate() {
@@ -182,53 +301,88 @@ pub fn identify(structure: Structure, c: &Campaign) -> Result<Identification, Id
             errors.push([delta.x, delta.y, delta.z, eps.x, eps.y, eps.z]);
         }
         tables[a] = AxisTable {
-            positions_mm: positions,
+            positions_mm: positions.clone(),
             errors,
         };
     }
-    for (k, u) in [uc, ub, ua].into_iter().enumerate() {
-        // One ball-bar result per constant: no run-to-run residual, the stated uncertainty.
-        quality[18 + k] = Some(ErrorQuality {
-            name: NAMES[18 + k],
-            residual: 0.0,
-            uncertainty: u,
-            stated: u,
-        });
-    }
+    let mut ballbar = Vec::new();
+    let squareness_rad = match &c.squareness {
+        SquarenessSource::Values(v) => {
+            for (k, (_, u)) in v.iter().enumerate() {
+                // One result per constant: no run-to-run residual, the stated uncertainty.
+                quality[18 + k] = Some(ErrorQuality {
+                    name: NAMES[18 + k],
+                    residual: 0.0,
+                    uncertainty: *u,
+                    stated: *u,
+                });
+            }
+            [v[0].0, v[1].0, v[2].0]
+        }
+        SquarenessSource::Ballbar(files) => {
+            let base = Model::new(VolumetricFile {
+                structure,
+                tool_offset_mm: [0.0; 3],
+                work_offset_mm: [0.0; 3],
+                squareness_rad: [0.0; 3],
+                fit: true,
+                tables: tables.clone(),
+            })?;
+            let mut sq = [0.0; 3];
+            for (k, (name, f)) in files.iter().enumerate() {
+                let circle = circle(name, f)?;
+                if circle.plane != k {
+                    return Err(IdentifyError::Plane {
+                        file: name.clone(),
+                        want: PLANES[k].0,
+                    });
+                }
+                let r = squareness(name, &base, &circle)?;
+                sq[k] = r.squareness_rad;
+                // The circle must also agree with the model within the bar's stated
+                // uncertainty; if not, the squareness is not to be trusted.
+                let agrees = r.model_residual_rms_mm <= circle.uncertainty_mm;
+                quality[18 + k] = Some(ErrorQuality {
+                    name: NAMES[18 + k],
+                    residual: if agrees {
+                        r.residual_rad
+                    } else {
+                        f64::INFINITY
+                    },
+                    uncertainty: r.uncertainty_rad,
+                    stated: r.uncertainty_rad,
+                });
+                ballbar.push(r);
+            }
+            sq
+        }
+    };
     let quality: Vec<ErrorQuality> = quality.into_iter().flatten().collect();
-    let fit = quality.iter().all(ErrorQuality::fit);
+    let fit = quality.iter().all(ErrorQuality::fit) && camera.as_ref().is_none_or(CameraFit::fit);
     let model = Model::new(VolumetricFile {
         structure,
         tool_offset_mm: [0.0; 3],
         work_offset_mm: [0.0; 3],
-        squareness_rad: [c0y, b0z, a0z],
+        squareness_rad,
         fit,
         tables,
     })?;
-    Ok(Identification { model, quality })
+    Ok(Identification {
+        model,
+        quality,
+        camera,
+        ballbar,
+    })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use protocol::volumetric::{parse_instrument, parse_squareness};
-    use world::volumetric::VolumetricMachine;
+    use crate::camera::CAMERA_COLUMNS;
+    use world::volumetric::{CameraPlan, VolumetricMachine};
 
     pub(crate) fn campaign_of(files: &[(String, String)]) -> Campaign {
-        let get = |n: String| &files.iter().find(|f| f.0 == n).unwrap().1;
-        let parse = |n: String, cols: Vec<String>| {
-            let cols: Vec<&str> = cols.iter().map(String::as_str).collect();
-            parse_instrument(get(n), &cols).unwrap()
-        };
-        Campaign {
-            laser: std::array::from_fn(|a| {
-                parse(format!("laser_{}.csv", AXES[a]), laser_columns(a))
-            }),
-            level: std::array::from_fn(|a| {
-                parse(format!("level_{}.csv", AXES[a]), level_columns(a))
-            }),
-            squareness: parse_squareness(get("squareness.csv".into())).unwrap(),
-        }
+        Campaign::from_files(files).unwrap()
     }
 
     #[test]
@@ -255,6 +409,91 @@ mod tests {
                 }
             }
             assert!(after <= 0.1 * before, "{s}: {after} of {before}");
+        }
+    }
+
+    #[test]
+    fn ballbar_circles_give_the_true_squareness() {
+        // The laser's straightness has its slope removed, so squareness comes only from
+        // the circles; the truth's straightness is about the mean lines (ISO 230-1), so
+        // the machine's constants are what the circles must give back.
+        for s in Structure::ALL {
+            let machine = VolumetricMachine::new(s, 21);
+            let id = identify(s, &campaign_of(&machine.campaign(8))).unwrap();
+            assert_eq!(id.ballbar.len(), 3);
+            for k in 0..3 {
+                let got = id.model.file.squareness_rad[k];
+                let want = machine.squareness_rad[k];
+                let q = &id.quality[18 + k];
+                eprintln!(
+                    "{s} {}: {:.3} vs {:.3} urad, u {:.3}, G {:.2} um, iso {:.2} urad",
+                    q.name,
+                    got * 1e6,
+                    want * 1e6,
+                    q.uncertainty * 1e6,
+                    id.ballbar[k].circular_deviation_mm * 1e3,
+                    id.ballbar[k].iso_squareness_rad * 1e6
+                );
+                // Within 2 µrad: the circles' 0.35 µrad standard uncertainty plus the
+                // tables' linear interpolation between 25 mm rows (a tenth of a µm of
+                // ellipse on a 150 mm circle is 1.3 µrad).
+                assert!(
+                    (got - want).abs() <= 2e-6,
+                    "{s} {}: {got} vs {want}",
+                    q.name
+                );
+            }
+        }
+    }
+
+    /// Largest |identified − truth| of E_AX, E_BX, E_AY, E_BY over the laser positions,
+    /// and its ratio to the reported standard uncertainty.
+    fn angle_errors(id: &Identification, machine: &VolumetricMachine) -> (f64, f64) {
+        let mut worst: f64 = 0.0;
+        let mut ratio: f64 = 0.0;
+        for a in 0..2 {
+            let t = &id.model.file.tables[a];
+            for k in 3..5 {
+                let u = id.quality[a * 6 + k].uncertainty;
+                for (p, e) in t.positions_mm.iter().zip(&t.errors) {
+                    let d = (e[k] - machine.error_motion(a, k, *p)).abs();
+                    worst = worst.max(d);
+                    ratio = ratio.max(d / u);
+                }
+            }
+        }
+        (worst, ratio)
+    }
+
+    #[test]
+    fn camera_heights_identify_the_table_angles_within_their_uncertainty() {
+        for s in Structure::ALL {
+            let machine = VolumetricMachine::new(s, 11);
+            let mut c = campaign_of(&machine.campaign(5));
+            let (plain_worst, _) = angle_errors(&identify(s, &c).unwrap(), &machine);
+            let plan = CameraPlan::default_for(machine.travel_mm);
+            let (file, _) = machine.camera_campaign(&plan, 6);
+            c.camera = Some(parse_instrument(&file, &CAMERA_COLUMNS).unwrap());
+            let id = identify(s, &c).unwrap();
+            let cam = id.camera.as_ref().unwrap();
+            assert!(cam.fit(), "{s}: {cam:?}");
+            assert!(id.model.file.fit);
+            let (worst, ratio) = angle_errors(&id, &machine);
+            eprintln!(
+                "{s}: without camera {:.3} urad, with {:.3} urad, {ratio:.2} sigma, residual {:.4} um, sigma max {:?}",
+                plain_worst * 1e6,
+                worst * 1e6,
+                cam.residual_rms_mm * 1e3,
+                cam.sigma
+                    .iter()
+                    .flatten()
+                    .map(|v| v.iter().fold(0.0f64, |m, x| m.max(*x)) * 1e6)
+                    .collect::<Vec<_>>()
+            );
+            // Injected (truth) angles recovered within 3 standard uncertainties, and
+            // the camera at least halves the worst error of the instruments alone.
+            assert!(ratio <= 3.0, "{s}: {ratio}");
+            assert!(worst <= 0.5 * plain_worst, "{s}: {worst} vs {plain_worst}");
         }
     }
 

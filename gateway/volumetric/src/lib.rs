@@ -49,6 +49,8 @@
 //! (products of two errors dropped; the test `first_order_matches_exact` checks it against
 //! the full HTM product within 0.1 µm.)
 
+pub mod ballbar;
+pub mod camera;
 mod compensation;
 pub mod contributions;
 pub mod identify;
