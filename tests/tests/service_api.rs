@@ -543,3 +543,89 @@ async fn bad_input_gets_its_error_and_changes_nothing() {
     assert_eq!(record.state, store::JobState::Cancelled);
     ws.close(None).await.ok();
 }
+
+/// An ISO 230-2 job through the API: its measurements as they come, the figures in the
+/// result, the deviation chart served as SVG; asked with the map while no error map is
+/// active, it fails saying so, and nothing moved.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_iso230_job_keeps_its_figures_and_chart() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = start(dir.path()).await;
+    let c = Client::new();
+    let mut ws = events(&s).await;
+    let (status, job) = post(
+        &c,
+        &s,
+        "/api/v1/machines/demo/jobs",
+        json!({"kind": "iso230", "params": {"axis": "X", "positions": 5, "runs": 5}}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::ACCEPTED, "{job}");
+    let id = job["id"].clone();
+    let seen = until(&mut ws, |e| {
+        e["type"] == "job"
+            && e["job"]["id"] == id
+            && ["succeeded", "failed"].contains(&e["job"]["state"].as_str().unwrap_or(""))
+    })
+    .await;
+    let last = &seen.last().unwrap()["job"];
+    assert_eq!(last["state"], "succeeded", "{last}");
+    // 5 positions x 5 runs x 2 directions, each seen live and kept.
+    let live = seen
+        .iter()
+        .filter(|e| e["type"] == "measurement" && e["job_id"] == id)
+        .count();
+    assert_eq!(live, 50);
+    let (_, kept) = get(&c, &s, &format!("/api/v1/jobs/{id}/measurements")).await;
+    assert_eq!(kept.as_array().unwrap().len(), 50);
+    assert!(kept[0]["deviation_um"].as_f64().unwrap().is_finite());
+    let (_, record) = get(&c, &s, &format!("/api/v1/jobs/{id}")).await;
+    assert_eq!(record["result"]["standard"], "ISO 230-2");
+    assert_eq!(record["result"]["positions"], 5);
+    assert_eq!(record["result"]["runs_up"], json!([5, 5, 5, 5, 5]));
+    assert!(record["profile"].is_null());
+    let (status, charts) = get(&c, &s, &format!("/api/v1/jobs/{id}/charts")).await;
+    assert_eq!(status, StatusCode::OK);
+    assert_eq!(charts[0]["name"], "deviation_x", "{charts}");
+    let svg = c
+        .get(url(&s, charts[0]["url"].as_str().unwrap()))
+        .bearer_auth(s.token())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(svg.status(), StatusCode::OK);
+    assert!(svg.text().await.unwrap().contains("<svg"));
+
+    // With the map, but no error map is active on this machine.
+    let (status, job) = post(
+        &c,
+        &s,
+        "/api/v1/machines/demo/jobs",
+        json!({"kind": "iso230", "params": {"axis": "Y", "with_map": true}}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::ACCEPTED, "{job}");
+    let id = job["id"].clone();
+    until(&mut ws, |e| job_in(e, &id, "failed")).await;
+    let (_, record) = get(&c, &s, &format!("/api/v1/jobs/{id}")).await;
+    assert!(
+        record["error"]
+            .as_str()
+            .unwrap()
+            .contains("no active error_map profile"),
+        "{record}"
+    );
+    let (_, kept) = get(&c, &s, &format!("/api/v1/jobs/{id}/measurements")).await;
+    assert!(kept.as_array().unwrap().is_empty());
+    // Bad parameters are refused when queued.
+    let (status, body) = post(
+        &c,
+        &s,
+        "/api/v1/machines/demo/jobs",
+        json!({"kind": "iso230", "params": {"axis": "Z"}}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
+    assert!(body["message"].as_str().unwrap().contains("params.axis"));
+    s.shutdown().await;
+}

@@ -9,12 +9,12 @@ use runner::{Event, JobError, Orchestrator};
 use serde_json::{json, Map, Value};
 use std::sync::Arc;
 use std::time::Duration;
-use store::{JobRecord, Outcome};
+use store::{JobRecord, Outcome, ProfileKind, ProfileRef};
 use tokio::sync::Notify;
 use tracing::{info, info_span, warn, Instrument};
 
 /// Job kinds a worker runs; others are refused when queued (422).
-pub const KINDS: &[&str] = &["compensate"];
+pub const KINDS: &[&str] = &["compensate", "iso230"];
 
 /// `"<driver>"` or `"<driver>:<link>"` for the API's `stage` and `camera`.
 pub fn describe(job: &Job) -> (String, String) {
@@ -44,6 +44,9 @@ pub fn check_params(kind: &str, params: &Value) -> Result<(), String> {
     let Some(obj) = params.as_object() else {
         return Err("params must be a JSON object".into());
     };
+    if kind == "iso230" {
+        return check_iso230_params(obj);
+    }
     for (key, value) in obj {
         match key.as_str() {
             "targets" => match value.as_u64() {
@@ -55,6 +58,36 @@ pub fn check_params(kind: &str, params: &Value) -> Result<(), String> {
                 }
             },
             other => return Err(format!("params.{other}: unknown parameter of a {kind} job")),
+        }
+    }
+    Ok(())
+}
+
+/// An ISO 230-2 job: `axis` ("X" or "Y", required), `positions` (>= 5; default the
+/// standard's minimum for the travel), `runs` (>= 5, default 5), `with_map` (bool: test
+/// with the machine's active error map, whose version the job records).
+fn check_iso230_params(obj: &Map<String, Value>) -> Result<(), String> {
+    match obj.get("axis").and_then(Value::as_str) {
+        Some("X" | "Y") => {}
+        _ => return Err("params.axis must be \"X\" or \"Y\"".into()),
+    }
+    for (key, value) in obj {
+        match key.as_str() {
+            "axis" => {}
+            "positions" | "runs" => match value.as_u64() {
+                Some(n) if (5..=1000).contains(&n) => {}
+                _ => {
+                    return Err(format!(
+                        "params.{key} must be an integer from 5 to 1000 (ISO 230-2's minimum is 5), got {value}"
+                    ))
+                }
+            },
+            "with_map" => {
+                if !value.is_boolean() {
+                    return Err(format!("params.with_map must be true or false, got {value}"));
+                }
+            }
+            other => return Err(format!("params.{other}: unknown parameter of an iso230 job")),
         }
     }
     Ok(())
@@ -147,7 +180,43 @@ async fn run_one(
     let id = record.id;
     let cancel = Arc::new(Notify::new());
     *machine.cancel.lock().unwrap_or_else(|p| p.into_inner()) = Some((id, cancel.clone()));
-    let started = lock(&shared.store).start(id, None);
+    // The profile the job uses, resolved before it starts so the record says which.
+    let wants_map = record.kind == "iso230"
+        && record.params.get("with_map").and_then(Value::as_bool) == Some(true);
+    let profile = if wants_map {
+        lock(&shared.store)
+            .active_profile(&machine.id, ProfileKind::ErrorMap)
+            .ok()
+            .flatten()
+    } else {
+        None
+    };
+    if wants_map && profile.is_none() {
+        let _ = lock(&shared.store)
+            .start(id, None)
+            .map(|r| shared.emit_job(&r));
+        let failed = lock(&shared.store).finish(
+            id,
+            Outcome::Failed {
+                error: format!(
+                    "params.with_map: machine {} has no active error_map profile; activate one first",
+                    machine.id
+                ),
+                result: None,
+                metrics: Map::new(),
+            },
+        );
+        if let Ok(r) = failed {
+            shared.emit_job(&r);
+        }
+        *machine.cancel.lock().unwrap_or_else(|p| p.into_inner()) = None;
+        return None;
+    }
+    let profile_ref = profile.as_ref().map(|(v, _)| ProfileRef {
+        name: v.name.clone(),
+        version: v.version,
+    });
+    let started = lock(&shared.store).start(id, profile_ref);
     let started = match started {
         Ok(r) => r,
         Err(e) => {
@@ -170,6 +239,10 @@ async fn run_one(
     };
     let (outcome, lost) = match record.kind.as_str() {
         "compensate" => compensate(shared, &machine.id, config, devices, &record, stop).await,
+        "iso230" => {
+            let map = profile.map(|(_, body)| body);
+            iso230_job(shared, &machine.id, config, devices, &record, map, stop).await
+        }
         other => (
             Outcome::Failed {
                 error: format!("job kind {other:?} is not run by this service"),
@@ -294,4 +367,183 @@ async fn compensate(
             )
         }
     }
+}
+
+fn failed(error: String) -> (Outcome, Option<String>) {
+    (
+        Outcome::Failed {
+            error,
+            result: None,
+            metrics: Map::new(),
+        },
+        None,
+    )
+}
+
+/// An ISO 230-2 positioning test of one axis (the same cycle as `gateway iso230`), its
+/// evaluation and deviation chart kept in the result; with `map`, compensated.
+async fn iso230_job(
+    shared: &Arc<Shared>,
+    machine: &str,
+    config: &MachineConfig,
+    devices: &mut Devices,
+    record: &JobRecord,
+    map: Option<Value>,
+    stop: impl std::future::Future<Output = ()>,
+) -> (Outcome, Option<String>) {
+    use iso230::plan::{targets, Cycle, CycleKind};
+    use runner::iso230::{run_iso230, test_area, Iso230Spec, AXIS_NAMES};
+    const OVERRUN_MM: f64 = 1.0;
+    let job = match config.job.load() {
+        Ok(j) => j,
+        Err(e) => return failed(format!("job file: {e}")),
+    };
+    let p = &record.params;
+    let axis = usize::from(p.get("axis").and_then(Value::as_str) == Some("Y"));
+    let model = match map {
+        None => None,
+        Some(body) => {
+            // A profile body is the map file's JSON (perhaps beside drawings of it).
+            let text = body.get("map").unwrap_or(&body).to_string();
+            match protocol::errormap::ErrorMap::from_json("error_map profile", &text) {
+                Ok(m) => Some(errormap::MapModel::new(m)),
+                Err(e) => return failed(format!("the active error_map profile: {e}")),
+            }
+        }
+    };
+    let limits = match runner::soft_limits(devices.stage.info()) {
+        Ok(l) => l,
+        Err(e) => return failed(e.to_string()),
+    };
+    let (mut lo, mut hi) = test_area(&job, &limits, OVERRUN_MM);
+    if let Some(m) = &model {
+        let (mlo, mhi) = m.extent();
+        for k in 0..2 {
+            lo[k] = lo[k].max(mlo[k]);
+            hi[k] = hi[k].min(mhi[k]);
+        }
+    }
+    let positions = p
+        .get("positions")
+        .and_then(Value::as_u64)
+        .map(|n| n as usize);
+    let runs = p.get("runs").and_then(Value::as_u64).unwrap_or(5) as usize;
+    let cycle = match targets(lo[axis], hi[axis], positions)
+        .map_err(|e| e.to_string())
+        .and_then(|t| Cycle::new(t, runs, OVERRUN_MM, CycleKind::Linear).map_err(|e| e.to_string()))
+    {
+        Ok(c) => c,
+        Err(e) => return failed(format!("params: {e}")),
+    };
+    let spec = Iso230Spec {
+        axis,
+        cycle: cycle.clone(),
+        across_mm: (lo[1 - axis] + hi[1 - axis]) / 2.0,
+        still_frames: 10,
+    };
+    let id = record.id;
+    let total = cycle.measurements() as u64;
+    let _ = lock(&shared.store).set_progress(id, 0, total);
+    let mut cancelled = false;
+    let run = {
+        let cancelled_ref = &mut cancelled;
+        run_iso230(
+            &job,
+            devices,
+            &spec,
+            model.as_ref(),
+            &mut |m| {
+                let v = json!({"axis": m.axis, "position_index": m.position_index,
+                    "target_mm": m.target_mm, "run": m.run, "direction": m.direction,
+                    "deviation_um": m.deviation_um});
+                if let Err(e) = lock(&shared.store).add_measurement(id, &v) {
+                    warn!(error = %e, "measurement not saved");
+                }
+                shared.emit(json!({"type": "measurement", "job_id": id, "machine": machine, "measurement": v}));
+            },
+            &mut |done, of| {
+                let _ = lock(&shared.store).set_progress(id, done as u64, of as u64);
+                shared.emit(json!({"type": "progress", "job_id": id, "machine": machine, "done": done, "total": of}));
+            },
+            async {
+                stop.await;
+                *cancelled_ref = true;
+            },
+        )
+        .await
+    };
+    let run = match run {
+        Ok(r) => r,
+        Err(e) => {
+            let lost = matches!(
+                e,
+                runner::iso230::Iso230Error::Reference(JobError::Driver(_))
+            )
+            .then(|| e.to_string());
+            let taken = lock(&shared.store)
+                .measurements(id)
+                .map(|m| m.len())
+                .unwrap_or(0);
+            let result = Some(json!({"measurements_taken": taken}));
+            let metrics = Map::new();
+            return if cancelled {
+                (Outcome::Cancelled { result, metrics }, None)
+            } else {
+                (
+                    Outcome::Failed {
+                        error: e.to_string(),
+                        result,
+                        metrics,
+                    },
+                    lost,
+                )
+            };
+        }
+    };
+    let evaluation = match iso230::evaluate(&run.measurements) {
+        Ok(e) => e,
+        Err(e) => return failed(format!("evaluation: {e}")),
+    };
+    let uncertainty = iso230::Uncertainty::new(1.0, &run.still_um);
+    let mut result = iso230::report::result_json(&evaluation, Some(&uncertainty));
+    let label = if model.is_some() {
+        "with the map"
+    } else {
+        "without compensation"
+    };
+    let chart = iso230::report::DeviationChart {
+        title: format!(
+            "ISO 230-2 axis {}: mean deviation and ±2s, {label}",
+            AXIS_NAMES[axis]
+        ),
+        series: vec![iso230::report::Series {
+            label: "",
+            evaluation: &evaluation,
+        }],
+    };
+    let name = format!("deviation_{}", AXIS_NAMES[axis].to_lowercase());
+    match plot::render_svg(&chart, 900, 520) {
+        Ok(svg) => {
+            if let Some(o) = result.as_object_mut() {
+                o.insert(
+                    "charts".into(),
+                    json!({ name: {"title": chart.title, "svg": svg} }),
+                );
+            }
+        }
+        Err(e) => warn!(error = %e, "chart not drawn"),
+    }
+    let f = &evaluation.figures;
+    let mut metrics = Map::new();
+    metrics.insert("axis".into(), json!(AXIS_NAMES[axis]));
+    for (k, v) in [
+        ("A_um", f.a),
+        ("B_um", f.b),
+        ("R_um", f.r),
+        ("E_um", f.e),
+        ("M_um", f.m),
+    ] {
+        metrics.insert(k.into(), json!(v));
+    }
+    (Outcome::Succeeded { result, metrics }, None)
 }
