@@ -325,14 +325,15 @@ async fn machine(
     Ok(Json(shared.machine_json(m)))
 }
 
-#[derive(Deserialize)]
+/// The body of `POST /api/v1/machines/{machine}/jobs`.
+#[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
-struct JobRequest {
-    kind: String,
+pub struct JobRequest {
+    pub kind: String,
     #[serde(default = "empty_object")]
-    params: Value,
+    pub params: Value,
     #[serde(default)]
-    if_idle: bool,
+    pub if_idle: bool,
 }
 
 fn empty_object() -> Value {

@@ -40,7 +40,7 @@ pub use modbus::modbus_frame;
 pub use nc::nc_program;
 pub use rewrite::{nc_rewrite, proxy_stream};
 pub use rotary::{grbl_probe, rotary_centres, rotary_json, rotary_rewrite};
-pub use service::box_toml;
+pub use service::{api_job_body, box_toml};
 pub use slcan::slcan;
 pub use volumetric::volumetric_model;
 
@@ -68,6 +68,7 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("localize", localize),
     ("job_toml", job_toml),
     ("box_toml", box_toml),
+    ("api_job_body", api_job_body),
     ("board_toml", board_toml),
     ("machine_toml", machine_toml),
     ("camera_toml", camera_toml),

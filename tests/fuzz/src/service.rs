@@ -17,3 +17,27 @@ pub fn box_toml(data: &[u8]) {
         Err(e) => assert!(e.to_string().starts_with("box.toml"), "{e}"),
     }
 }
+
+/// A job request body as the API receives it (`service::api::JobRequest`, then
+/// `worker::check_params`): an accepted one is queued in an in-memory store and read
+/// back with the same kind and parameters; a refusal names a parameter or the kind.
+pub fn api_job_body(data: &[u8]) {
+    let Ok(request) = serde_json::from_slice::<service::api::JobRequest>(data) else {
+        return;
+    };
+    match service::worker::check_params(&request.kind, &request.params) {
+        Ok(()) => {
+            let mut store = store::Store::open_in_memory().expect("in-memory store");
+            let queued = store
+                .enqueue("m", &request.kind, &request.params)
+                .expect("an accepted job is queued");
+            let back = store.job(queued.id).expect("read").expect("present");
+            assert_eq!(back.kind, request.kind);
+            assert_eq!(back.params, request.params);
+        }
+        Err(message) => assert!(
+            message.starts_with("params") || message.contains("job kind"),
+            "{message}"
+        ),
+    }
+}
