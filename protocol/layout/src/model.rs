@@ -198,7 +198,7 @@ pub fn check_part(part: &Part) -> Result<(), LayoutError> {
         }
     }
     let polygon = part.polygon();
-    if let Some(problem) = polygon.validation_errors().into_iter().next() {
+    if let Err(problem) = polygon.check_validation() {
         return Err(bad(problem.to_string()));
     }
     Ok(())

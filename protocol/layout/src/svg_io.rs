@@ -103,6 +103,9 @@ fn ring_area(r: &[Point]) -> f64 {
         / 2.0
 }
 
+/// The largest arc radius read, in user units (a kilometre in millimetres).
+const MAX_ARC_RADIUS: f64 = 1e6;
+
 /// Closed rings of a path's `d` in the element's own coordinates.
 fn path_rings(d: &str, tol: f64, join: f64) -> Result<Vec<Vec<Point>>, String> {
     let mut rings = Vec::new();
@@ -133,6 +136,18 @@ fn path_rings(d: &str, tol: f64, join: f64) -> Result<Vec<Vec<Point>>, String> {
         rings.push(std::mem::take(ring));
         Ok(())
     };
+    // svgtypes turns an arc into cubics within 0.1 user units (kurbo), so their count
+    // grows with the radius: a radius of 1e50 in a file would ask for ~1e8 of them.
+    // Radii past any cutting table are refused before that conversion.
+    for seg in svgtypes::PathParser::from(d) {
+        if let Ok(svgtypes::PathSegment::EllipticalArc { rx, ry, .. }) = seg {
+            if !(rx.abs() <= MAX_ARC_RADIUS && ry.abs() <= MAX_ARC_RADIUS) {
+                return Err(format!(
+                    "path data: an arc of radii {rx} x {ry} (more than {MAX_ARC_RADIUS} user units)"
+                ));
+            }
+        }
+    }
     for seg in SimplifyingPathParser::from(d) {
         let seg = seg.map_err(|e| format!("path data: {e}"))?;
         match seg {

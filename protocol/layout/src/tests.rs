@@ -130,6 +130,22 @@ fn a_contour_that_turns_back_on_itself_is_refused_wherever_it_lies() {
 }
 
 #[test]
+fn an_svg_arc_of_absurd_radius_is_refused_before_it_is_converted() {
+    let svg = br#"<svg xmlns="http://www.w3.org/2000/svg" width="200mm" height="100mm" viewBox="0 0 200 100">
+  <path id="giant" d="M20 50 a 6e49 10 31 1 0 30 0 z"/>
+</svg>"#;
+    let e = Layout::read(svg, Format::Svg, &opts())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("giant") && e.contains("radii"), "{e}");
+    // A large but sane radius still reads (a 10 m arc through two points).
+    let ok = br#"<svg xmlns="http://www.w3.org/2000/svg" width="200mm" height="100mm" viewBox="0 0 200 100">
+  <path id="flat" d="M20 50 A 10000 10000 0 0 1 80 50 L 80 90 L 20 90 Z"/>
+</svg>"#;
+    Layout::read(ok, Format::Svg, &opts()).unwrap();
+}
+
+#[test]
 fn json_bad_parts_are_named() {
     let bow_tie = br#"{"parts":[{"id":"tie","contours":[[[0,0],[10,10],[10,0],[0,10]]]}]}"#;
     let e = Layout::read(bow_tie, Format::Json, &opts())
