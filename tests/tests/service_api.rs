@@ -629,3 +629,94 @@ async fn an_iso230_job_keeps_its_figures_and_chart() {
     assert!(body["message"].as_str().unwrap().contains("params.axis"));
     s.shutdown().await;
 }
+
+/// The error map of the demo machine as a profile: refused when unreadable, stored,
+/// drawn as a heat map, activated, and used by an ISO 230-2 job that records its version.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_uploaded_error_map_is_drawn_activated_and_used_by_a_job() {
+    use job::{Job, StageSpec};
+    let dir = tempfile::tempdir().unwrap();
+    let s = start(dir.path()).await;
+    let c = Client::new();
+    let mut ws = events(&s).await;
+    let demo = Job::demo();
+    let StageSpec::Sim { machine } = &demo.stage else {
+        unreachable!("the demo job is simulated")
+    };
+    let mut cold = machine.clone();
+    cold.thermal = None;
+    let identity = protocol::errormap::Identity {
+        machine: "sim".into(),
+        controller: "sim".into(),
+        board: demo.board.name.clone(),
+        certificate_sha256: demo.board.fingerprint_sha256(),
+        camera: "sim".into(),
+    };
+    let map = system_tests::truth_map::map_from_truth(&cold, identity);
+    let text = map.to_json();
+    let body: Value = serde_json::from_str(&text).unwrap();
+
+    // An unreadable body is refused naming what is wrong; nothing is stored.
+    let (status, err) = post(
+        &c,
+        &s,
+        "/api/v1/machines/demo/profiles/stage-map",
+        json!({"kind": "error_map", "body": {"schema": "nonsense"}}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{err}");
+    assert_eq!(err["error"], "invalid_profile");
+    let (_, list) = get(&c, &s, "/api/v1/machines/demo/profiles").await;
+    assert!(list.as_array().unwrap().is_empty());
+
+    let (status, p) = post(
+        &c,
+        &s,
+        "/api/v1/machines/demo/profiles/stage-map",
+        json!({"kind": "error_map", "body": body, "note": "from the truth"}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::CREATED, "{p}");
+    assert_eq!(p["version"], 1);
+    assert_eq!(p["active"], false);
+    let heat = c
+        .get(url(
+            &s,
+            "/api/v1/machines/demo/profiles/stage-map/1/heatmap.svg",
+        ))
+        .bearer_auth(s.token())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(heat.status(), StatusCode::OK);
+    let svg = heat.text().await.unwrap();
+    assert!(svg.contains("<svg") && svg.contains("Error map stage-map v1"));
+    let (status, _) = post(
+        &c,
+        &s,
+        "/api/v1/machines/demo/profiles/stage-map/1/activate",
+        json!({}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK);
+
+    let (status, job) = post(
+        &c,
+        &s,
+        "/api/v1/machines/demo/jobs",
+        json!({"kind": "iso230", "params": {"axis": "X", "positions": 5, "runs": 5, "with_map": true}}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::ACCEPTED, "{job}");
+    let id = job["id"].clone();
+    let seen = until(&mut ws, |e| {
+        e["type"] == "job"
+            && e["job"]["id"] == id
+            && ["succeeded", "failed"].contains(&e["job"]["state"].as_str().unwrap_or(""))
+    })
+    .await;
+    let last = &seen.last().unwrap()["job"];
+    assert_eq!(last["state"], "succeeded", "{last}");
+    assert_eq!(last["profile"], json!({"name": "stage-map", "version": 1}));
+    s.shutdown().await;
+}

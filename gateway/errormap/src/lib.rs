@@ -35,6 +35,7 @@
 
 mod compensation;
 pub mod export;
+pub mod heatmap;
 pub mod scan;
 
 use protocol::errormap::{ErrorMap, Measured, Node};

@@ -16,7 +16,7 @@ use serde_json::{json, Value};
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Duration;
-use store::{JobFilter, JobId, JobState, StoreError};
+use store::{JobFilter, JobId, JobState, ProfileKind, StoreError};
 use subtle::ConstantTimeEq;
 use tokio::sync::broadcast::error::RecvError;
 use tracing::warn;
@@ -190,6 +190,10 @@ async fn require_token(State(shared): State<AppState>, req: Request, next: Next)
 }
 
 /// The router of the whole service.
+/// The largest profile body accepted (an error map with dense lines is a few hundred kB,
+/// above the service's request limit).
+pub const MAX_PROFILE_BYTES: usize = 16 * 1024 * 1024;
+
 pub fn router(shared: AppState, max_body_bytes: usize, cors_origins: &[String]) -> Router {
     let api = Router::new()
         .route("/api/v1/openapi.json", get(openapi))
@@ -203,6 +207,10 @@ pub fn router(shared: AppState, max_body_bytes: usize, cors_origins: &[String]) 
         .route("/api/v1/jobs/{id}/charts", get(charts))
         .route("/api/v1/jobs/{id}/charts/{file}", get(chart))
         .route("/api/v1/machines/{machine}/profiles", get(profiles))
+        .route(
+            "/api/v1/machines/{machine}/profiles/{name}",
+            post(add_profile),
+        )
         .route(
             "/api/v1/machines/{machine}/profiles/{name}/{version}",
             get(profile),
@@ -269,7 +277,7 @@ fn static_file(content_type: &'static str, body: &'static str) -> Response {
 #[openapi(
     info(title = "gateway service", description = "Machines, job queues, profiles and events of a gateway box."),
     paths(openapi, machines, machine, enqueue, jobs, job, cancel, measurements, charts, chart,
-          profiles, profile, heatmap, activate, rollback, events),
+          profiles, add_profile, profile, heatmap, activate, rollback, events),
     modifiers(&BearerAuth)
 )]
 pub struct ApiDoc;
@@ -607,6 +615,97 @@ async fn profiles(
     Ok(Json(serde_json::to_value(list).unwrap_or(Value::Null)))
 }
 
+/// The body of `POST /api/v1/machines/{machine}/profiles/{name}`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProfileUpload {
+    /// "error_map", "volumetric" or "rotary".
+    pub kind: String,
+    /// error_map: a map version file's JSON (`gateway map`); rotary: the errors JSON
+    /// (`gateway rotary identify`); volumetric: `{"text": "<model file>"}`.
+    pub body: Value,
+    #[serde(default)]
+    pub note: Option<String>,
+}
+
+/// Checks a profile body with the reader of its kind; the error names what is wrong.
+pub fn check_profile(kind: &str, body: &Value) -> Result<ProfileKind, String> {
+    match kind {
+        "error_map" => protocol::errormap::ErrorMap::from_json("body", &body.to_string())
+            .map(|_| ProfileKind::ErrorMap)
+            .map_err(|e| e.to_string()),
+        "rotary" => rotary::LocationErrors::from_json(&body.to_string())
+            .map(|_| ProfileKind::Rotary)
+            .map_err(|e| format!("body: {e}")),
+        "volumetric" => {
+            let text = body
+                .get("text")
+                .and_then(Value::as_str)
+                .ok_or("body.text: the volumetric model file's text is missing")?;
+            protocol::volumetric::parse_model(text)
+                .map(|_| ProfileKind::Volumetric)
+                .map_err(|e| format!("body.text: {e}"))
+        }
+        other => Err(format!(
+            "kind {other:?}: one of \"error_map\", \"volumetric\", \"rotary\""
+        )),
+    }
+}
+
+/// Add a profile version (not active until activated): the body is checked by the
+/// reader of its kind first, so nothing unreadable is stored.
+#[utoipa::path(post, path = "/api/v1/machines/{machine}/profiles/{name}",
+    params(("machine" = String, Path), ("name" = String, Path)),
+    request_body(content = Object, description = "{\"kind\": \"error_map\", \"body\": {...}, \"note\": \"...\"}"),
+    responses((status = 201, description = "ProfileVersion"), (status = 404, description = "unknown machine"),
+        (status = 409, description = "the name holds another kind"), (status = 422, description = "invalid profile")))]
+async fn add_profile(
+    State(shared): State<AppState>,
+    path: Result<Path<(String, String)>, PathRejection>,
+    body: axum::body::Body,
+) -> ApiResult<(StatusCode, Json<Value>)> {
+    let Path((machine, name)) = path?;
+    find_machine(&shared, &machine)?;
+    // Read here with the profile's own limit (the service's body limit is for requests).
+    let bytes = axum::body::to_bytes(body, MAX_PROFILE_BYTES)
+        .await
+        .map_err(|_| {
+            ApiError::new(
+                StatusCode::PAYLOAD_TOO_LARGE,
+                "body_too_large",
+                format!("a profile body is at most {MAX_PROFILE_BYTES} bytes"),
+            )
+        })?;
+    let upload: ProfileUpload = serde_json::from_slice(&bytes).map_err(|e| {
+        ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "invalid_json",
+            format!("body: {e}"),
+        )
+    })?;
+    if !crate::config::valid_id(&name) {
+        return Err(ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "invalid_profile",
+            format!("profile name {name:?}: letters, digits, '-', '_' and '.' only"),
+        ));
+    }
+    let kind = check_profile(&upload.kind, &upload.body)
+        .map_err(|m| ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, "invalid_profile", m))?;
+    let p = lock(&shared.store).add_profile(
+        &machine,
+        &name,
+        kind,
+        &upload.body,
+        None,
+        upload.note.as_deref(),
+    )?;
+    Ok((
+        StatusCode::CREATED,
+        Json(serde_json::to_value(p).unwrap_or(Value::Null)),
+    ))
+}
+
 fn profile_of(
     shared: &Shared,
     machine: &str,
@@ -646,17 +745,30 @@ async fn heatmap(
     path: Result<Path<(String, String, u32)>, PathRejection>,
 ) -> ApiResult<Response> {
     let Path((machine, name, version)) = path?;
-    let (_, body) = profile_of(&shared, &machine, &name, version)?;
-    let svg = body
-        .get("heatmap_svg")
-        .and_then(Value::as_str)
-        .ok_or_else(|| {
-            ApiError::not_found(
-                "no_heatmap",
-                format!("profile {name:?} version {version} has no heat map"),
-            )
-        })?;
-    Ok(([(header::CONTENT_TYPE, "image/svg+xml")], svg.to_string()).into_response())
+    let (profile, body) = profile_of(&shared, &machine, &name, version)?;
+    let no_heatmap = || {
+        ApiError::not_found(
+            "no_heatmap",
+            format!("profile {name:?} version {version} has no heat map"),
+        )
+    };
+    // A drawing kept with the profile, else one drawn from the error map itself.
+    let svg = match body.get("heatmap_svg").and_then(Value::as_str) {
+        Some(svg) => svg.to_string(),
+        None if profile.kind == ProfileKind::ErrorMap => {
+            let map = protocol::errormap::ErrorMap::from_json("profile", &body.to_string())
+                .map_err(|_| no_heatmap())?;
+            let chart = errormap::heatmap::HeatMap {
+                map: &map,
+                title: format!("Error map {name} v{version}"),
+            };
+            plot::render_svg(&chart, 900, 600).map_err(|e| {
+                ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, "internal", e.to_string())
+            })?
+        }
+        None => return Err(no_heatmap()),
+    };
+    Ok(([(header::CONTENT_TYPE, "image/svg+xml")], svg).into_response())
 }
 
 /// Make a profile version the active one of its name.

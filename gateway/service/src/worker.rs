@@ -227,8 +227,10 @@ async fn run_one(
         }
     };
     info!("job started");
-    shared.emit_job(&started);
+    // Busy before the job's `running` event: a client that reacts to it finds the
+    // machine busy (an `if_idle` request then gets its 409).
     shared.set_status(machine, MachineState::Busy, None, Some(id));
+    shared.emit_job(&started);
 
     let mut shutdown = shared.shutdown.clone();
     let stop = async move {
