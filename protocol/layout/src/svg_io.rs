@@ -103,8 +103,9 @@ fn ring_area(r: &[Point]) -> f64 {
         / 2.0
 }
 
-/// The largest arc radius read, in user units (a kilometre in millimetres).
-const MAX_ARC_RADIUS: f64 = 1e6;
+/// The largest coordinate or arc radius read in path data, in user units (a kilometre
+/// in millimetres).
+const MAX_PATH_NUMBER: f64 = 1e6;
 
 /// Closed rings of a path's `d` in the element's own coordinates.
 fn path_rings(d: &str, tol: f64, join: f64) -> Result<Vec<Vec<Point>>, String> {
@@ -137,15 +138,34 @@ fn path_rings(d: &str, tol: f64, join: f64) -> Result<Vec<Vec<Point>>, String> {
         Ok(())
     };
     // svgtypes turns an arc into cubics within 0.1 user units (kurbo), so their count
-    // grows with the radius: a radius of 1e50 in a file would ask for ~1e8 of them.
-    // Radii past any cutting table are refused before that conversion.
+    // grows with the radius, which is at least half the chord: a radius or an end point
+    // of 1e50 in a file would ask for ~1e8 of them. Numbers past any cutting table are
+    // refused before that conversion.
     for seg in svgtypes::PathParser::from(d) {
-        if let Ok(svgtypes::PathSegment::EllipticalArc { rx, ry, .. }) = seg {
-            if !(rx.abs() <= MAX_ARC_RADIUS && ry.abs() <= MAX_ARC_RADIUS) {
-                return Err(format!(
-                    "path data: an arc of radii {rx} x {ry} (more than {MAX_ARC_RADIUS} user units)"
-                ));
-            }
+        use svgtypes::PathSegment as S;
+        let numbers: &[f64] = match &seg {
+            Ok(S::MoveTo { x, y, .. }) | Ok(S::LineTo { x, y, .. }) => &[*x, *y],
+            Ok(S::HorizontalLineTo { x, .. }) => &[*x],
+            Ok(S::VerticalLineTo { y, .. }) => &[*y],
+            Ok(S::CurveTo {
+                x1,
+                y1,
+                x2,
+                y2,
+                x,
+                y,
+                ..
+            }) => &[*x1, *y1, *x2, *y2, *x, *y],
+            Ok(S::SmoothCurveTo { x2, y2, x, y, .. }) => &[*x2, *y2, *x, *y],
+            Ok(S::Quadratic { x1, y1, x, y, .. }) => &[*x1, *y1, *x, *y],
+            Ok(S::SmoothQuadratic { x, y, .. }) => &[*x, *y],
+            Ok(S::EllipticalArc { rx, ry, x, y, .. }) => &[*rx, *ry, *x, *y],
+            Ok(S::ClosePath { .. }) | Err(_) => &[],
+        };
+        if let Some(v) = numbers.iter().find(|v| !(v.abs() <= MAX_PATH_NUMBER)) {
+            return Err(format!(
+                "path data: the number {v} is beyond {MAX_PATH_NUMBER} user units"
+            ));
         }
     }
     for seg in SimplifyingPathParser::from(d) {

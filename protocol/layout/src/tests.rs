@@ -137,7 +137,15 @@ fn an_svg_arc_of_absurd_radius_is_refused_before_it_is_converted() {
     let e = Layout::read(svg, Format::Svg, &opts())
         .unwrap_err()
         .to_string();
-    assert!(e.contains("giant") && e.contains("radii"), "{e}");
+    assert!(e.contains("giant") && e.contains("beyond"), "{e}");
+    // A small radius with a far end point: SVG scales the radii up to reach it.
+    let far = br#"<svg xmlns="http://www.w3.org/2000/svg" width="200mm" height="100mm" viewBox="0 0 200 100">
+  <path id="far" d="M20 50 a 20 10 30 1 0 8e75 0 z"/>
+</svg>"#;
+    let e = Layout::read(far, Format::Svg, &opts())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("far") && e.contains("beyond"), "{e}");
     // A large but sane radius still reads (a 10 m arc through two points).
     let ok = br#"<svg xmlns="http://www.w3.org/2000/svg" width="200mm" height="100mm" viewBox="0 0 200 100">
   <path id="flat" d="M20 50 A 10000 10000 0 0 1 80 50 L 80 90 L 20 90 Z"/>
