@@ -1,8 +1,8 @@
 //! `gateway verify`: camera spot checks with the map's compensation acting.
 
-use crate::scan::without_link;
 use anyhow::Context;
 use devices::open_devices_async;
+use errormap::scan::without_link;
 use errormap::{Approach, Direction, MapModel};
 use job::Job;
 use protocol::errormap::{ErrorMap, Identity};

@@ -720,3 +720,58 @@ async fn an_uploaded_error_map_is_drawn_activated_and_used_by_a_job() {
     assert_eq!(last["profile"], json!({"name": "stage-map", "version": 1}));
     s.shutdown().await;
 }
+
+/// A map job scans the demo machine and leaves the map as the next version of its
+/// profile (inactive), with the job as its source; its heat map is drawn.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_map_job_becomes_a_profile_version() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = start(dir.path()).await;
+    let c = Client::new();
+    let mut ws = events(&s).await;
+    let (status, body) = post(
+        &c,
+        &s,
+        "/api/v1/machines/demo/jobs",
+        json!({"kind": "map", "params": {"name": "bad name!"}}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
+    let (status, job) = post(
+        &c,
+        &s,
+        "/api/v1/machines/demo/jobs",
+        json!({"kind": "map", "params": {"name": "scan", "grid_step_mm": 50.0, "line_step_mm": 25.0, "passes": 1}}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::ACCEPTED, "{job}");
+    let id = job["id"].clone();
+    let seen = until(&mut ws, |e| {
+        e["type"] == "job"
+            && e["job"]["id"] == id
+            && ["succeeded", "failed"].contains(&e["job"]["state"].as_str().unwrap_or(""))
+    })
+    .await;
+    let last = &seen.last().unwrap()["job"];
+    assert_eq!(last["state"], "succeeded", "{last}");
+    assert_eq!(
+        last["result"]["profile"],
+        json!({"name": "scan", "version": 1})
+    );
+    let frames = last["result"]["frames"].as_u64().unwrap();
+    let (_, kept) = get(&c, &s, &format!("/api/v1/jobs/{id}/measurements")).await;
+    assert_eq!(kept.as_array().unwrap().len() as u64, frames);
+    let (_, list) = get(&c, &s, "/api/v1/machines/demo/profiles").await;
+    assert_eq!(list[0]["name"], "scan");
+    assert_eq!(list[0]["kind"], "error_map");
+    assert_eq!(list[0]["active"], false);
+    assert_eq!(list[0]["source_job"], id);
+    let heat = c
+        .get(url(&s, "/api/v1/machines/demo/profiles/scan/1/heatmap.svg"))
+        .bearer_auth(s.token())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(heat.status(), StatusCode::OK);
+    s.shutdown().await;
+}

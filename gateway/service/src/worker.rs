@@ -14,7 +14,7 @@ use tokio::sync::Notify;
 use tracing::{info, info_span, warn, Instrument};
 
 /// Job kinds a worker runs; others are refused when queued (422).
-pub const KINDS: &[&str] = &["compensate", "iso230"];
+pub const KINDS: &[&str] = &["compensate", "iso230", "map"];
 
 /// `"<driver>"` or `"<driver>:<link>"` for the API's `stage` and `camera`.
 pub fn describe(job: &Job) -> (String, String) {
@@ -46,6 +46,9 @@ pub fn check_params(kind: &str, params: &Value) -> Result<(), String> {
     };
     if kind == "iso230" {
         return check_iso230_params(obj);
+    }
+    if kind == "map" {
+        return check_map_params(obj);
     }
     for (key, value) in obj {
         match key.as_str() {
@@ -88,6 +91,32 @@ fn check_iso230_params(obj: &Map<String, Value>) -> Result<(), String> {
                 }
             }
             other => return Err(format!("params.{other}: unknown parameter of an iso230 job")),
+        }
+    }
+    Ok(())
+}
+
+/// A map scan: `name` (the error_map profile the map becomes a version of, required),
+/// `grid_step_mm` (> 0), `line_step_mm` (> 0), `passes` (1..=10); defaults as `gateway map`.
+fn check_map_params(obj: &Map<String, Value>) -> Result<(), String> {
+    match obj.get("name").and_then(Value::as_str) {
+        Some(n) if crate::config::valid_id(n) => {}
+        _ => {
+            return Err("params.name must name the profile (letters, digits, '-', '_', '.')".into())
+        }
+    }
+    for (key, value) in obj {
+        match key.as_str() {
+            "name" => {}
+            "grid_step_mm" | "line_step_mm" => match value.as_f64() {
+                Some(v) if v > 0.0 && v.is_finite() => {}
+                _ => return Err(format!("params.{key} must be a number > 0, got {value}")),
+            },
+            "passes" => match value.as_u64() {
+                Some(1..=10) => {}
+                _ => return Err(format!("params.passes must be 1 to 10, got {value}")),
+            },
+            other => return Err(format!("params.{other}: unknown parameter of a map job")),
         }
     }
     Ok(())
@@ -241,6 +270,7 @@ async fn run_one(
     };
     let (outcome, lost) = match record.kind.as_str() {
         "compensate" => compensate(shared, &machine.id, config, devices, &record, stop).await,
+        "map" => map_job(shared, &machine.id, config, devices, &record, stop).await,
         "iso230" => {
             let map = profile.map(|(_, body)| body);
             iso230_job(shared, &machine.id, config, devices, &record, map, stop).await
@@ -547,5 +577,161 @@ async fn iso230_job(
     ] {
         metrics.insert(k.into(), json!(v));
     }
+    (Outcome::Succeeded { result, metrics }, None)
+}
+
+/// A scan of the machine into an error map (as `gateway map`), kept as the next version
+/// of the error_map profile `params.name` (inactive until activated). Each frame is a
+/// measurement of the job, so a stopped scan keeps what it measured.
+async fn map_job(
+    shared: &Arc<Shared>,
+    machine: &str,
+    config: &MachineConfig,
+    devices: &mut Devices,
+    record: &JobRecord,
+    stop: impl std::future::Future<Output = ()>,
+) -> (Outcome, Option<String>) {
+    use errormap::scan::{rfc3339, without_link, MapBuilder, ScanPlan, ScanSpec};
+    let job = match config.job.load() {
+        Ok(j) => j,
+        Err(e) => return failed(format!("job file: {e}")),
+    };
+    let p = &record.params;
+    let name = p
+        .get("name")
+        .and_then(Value::as_str)
+        .unwrap_or("map")
+        .to_string();
+    let mut spec = ScanSpec::default();
+    if let Some(v) = p.get("grid_step_mm").and_then(Value::as_f64) {
+        spec.grid_step_mm = v;
+    }
+    if let Some(v) = p.get("line_step_mm").and_then(Value::as_f64) {
+        spec.line_step_mm = v;
+    }
+    if let Some(v) = p.get("passes").and_then(Value::as_u64) {
+        spec.passes = v as u32;
+    }
+    let limits = match runner::soft_limits(devices.stage.info()) {
+        Ok(l) => l,
+        Err(e) => return failed(e.to_string()),
+    };
+    let (lo, hi) = runner::scan::scan_area(&job, &limits);
+    let plan = match ScanPlan::new(lo, hi, spec) {
+        Ok(p) => p,
+        Err(e) => return failed(format!("the scan plan: {e}")),
+    };
+    let stage_name = without_link(&devices.stage.info().name);
+    let identity = protocol::errormap::Identity {
+        machine: stage_name.clone(),
+        controller: stage_name,
+        board: job.board.name.clone(),
+        certificate_sha256: job.board.fingerprint_sha256(),
+        camera: devices.camera.info().model.clone(),
+    };
+    let id = record.id;
+    let total = plan.points.len() as u64;
+    let _ = lock(&shared.store).set_progress(id, 0, total);
+    let mut builder = MapBuilder::new();
+    let mut cancelled = false;
+    let run = {
+        let cancelled_ref = &mut cancelled;
+        runner::scan::run_scan(
+            &job,
+            devices,
+            &plan,
+            &mut builder,
+            &mut |index, sample| {
+                let v = json!({"index": index, "sample": errormap::scan::journal::line(index, sample).trim_end()});
+                lock(&shared.store)
+                    .add_measurement(id, &v)
+                    .map(|_| ())
+                    .map_err(|e| e.to_string())
+            },
+            &mut |done, of| {
+                let _ = lock(&shared.store).set_progress(id, done as u64, of as u64);
+                shared.emit(json!({"type": "progress", "job_id": id, "machine": machine, "done": done, "total": of}));
+            },
+            async {
+                stop.await;
+                *cancelled_ref = true;
+            },
+        )
+        .await
+    };
+    let reference = match run {
+        Ok(r) => r,
+        Err(e) => {
+            let result = Some(json!({"frames_taken": builder.done(), "frames_planned": total}));
+            let lost = matches!(e, runner::scan::ScanError::Reference(JobError::Driver(_)))
+                .then(|| e.to_string());
+            return if cancelled {
+                (
+                    Outcome::Cancelled {
+                        result,
+                        metrics: Map::new(),
+                    },
+                    None,
+                )
+            } else {
+                (
+                    Outcome::Failed {
+                        error: e.to_string(),
+                        result,
+                        metrics: Map::new(),
+                    },
+                    lost,
+                )
+            };
+        }
+    };
+    let store_version = lock(&shared.store)
+        .profiles(machine)
+        .map(|v| {
+            v.iter()
+                .filter(|p| p.name == name)
+                .map(|p| p.version)
+                .max()
+                .unwrap_or(0)
+                + 1
+        })
+        .unwrap_or(1);
+    let Some(map) = builder.finish(
+        &plan,
+        identity,
+        store_version,
+        rfc3339(std::time::SystemTime::now()),
+        [0.0, 0.0],
+        job.board_at_machine_zero_mm,
+        reference.command_mm,
+    ) else {
+        return failed("the scan ended without every frame".into());
+    };
+    let body: Value = match serde_json::from_str(&map.to_json()) {
+        Ok(v) => v,
+        Err(e) => return failed(format!("the map's JSON: {e}")),
+    };
+    let note = format!("scanned by job {id}");
+    let profile = match lock(&shared.store).add_profile(
+        machine,
+        &name,
+        ProfileKind::ErrorMap,
+        &body,
+        Some(id),
+        Some(&note),
+    ) {
+        Ok(p) => p,
+        Err(e) => return failed(format!("the map was measured but not stored: {e}")),
+    };
+    let mut metrics = Map::new();
+    metrics.insert("frames".into(), json!(total));
+    metrics.insert("uncertainty_um".into(), json!(map.uncertainty_um));
+    metrics.insert("profile_version".into(), json!(profile.version));
+    let result = json!({
+        "profile": {"name": profile.name, "version": profile.version},
+        "frames": total, "grid": [plan.xs.len(), plan.ys.len()],
+        "lines": [plan.x_line.len(), plan.y_line.len()], "passes": spec.passes,
+        "uncertainty_um": map.uncertainty_um,
+    });
     (Outcome::Succeeded { result, metrics }, None)
 }
