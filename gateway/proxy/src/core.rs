@@ -12,7 +12,7 @@
 //! sent: the sender gets `[MSG:...]` naming the reason and `error:N` (see
 //! [`refusal_code`]) in its turn.
 
-use protocol::grbl::realtime::{classify, RxByte};
+use protocol::grbl::realtime::{classify, Realtime, RxByte};
 use protocol::grbl::response::Response;
 use protocol::grbl::status::{MachineState, StatusReport};
 use rewrite::{Compensation, Pose, RewriteError, RewriteErrorKind, Rewriter, N_AXIS};
@@ -117,6 +117,9 @@ pub struct Proxy<'a> {
     deferred: VecDeque<(String, f64)>,
     /// A `?` of the gateway's own is on its way.
     position_asked: bool,
+    /// The sender sent `?` and has not had its report yet. GRBL reports only when asked,
+    /// so the gateway's own polls are answered to it alone.
+    sender_asked_status: bool,
 }
 
 /// Marks a line of the gateway's own (`$#`, `$G`) in the controller's buffer: its
@@ -145,6 +148,7 @@ impl<'a> Proxy<'a> {
             lost: false,
             deferred: VecDeque::new(),
             position_asked: false,
+            sender_asked_status: false,
         }
     }
 
@@ -161,8 +165,9 @@ impl<'a> Proxy<'a> {
     }
 
     /// A status request of the gateway's own, while lines are on their way: the reports
-    /// show whether the controller's planner ran dry (counted as starvation events) and
-    /// reach the sender too (senders take unsolicited reports).
+    /// show whether the controller's planner ran dry (counted as starvation events). They
+    /// reach the sender only when it asked too (GRBL reports only when asked; a sender may
+    /// not expect a report inside a `$$` listing).
     pub fn poll_status(&mut self) {
         if self.busy() && !self.lost {
             self.to_controller.push(b'?');
@@ -240,12 +245,16 @@ impl<'a> Proxy<'a> {
                         continue;
                     }
                     self.to_controller.push(rt.byte());
+                    if rt == Realtime::StatusQuery {
+                        self.sender_asked_status = true;
+                    }
                     if rt.byte() == 0x18 {
                         // Soft reset: the controller drops its buffer and modal state;
                         // so does the gateway (the sender knows from the banner).
                         self.drop_pending();
                         self.rewriter.controller_reset();
                         self.position_asked = false;
+                        self.sender_asked_status = false;
                     }
                 }
                 RxByte::Buffered(b'\n' | b'\r') => {
@@ -469,9 +478,11 @@ impl<'a> Proxy<'a> {
             }
         }
         // GRBL's decimals for mm reports ($13=0, the default; the gateway's map is in mm).
-        let line = report.to_line(3);
-        self.to_sender.extend_from_slice(line.as_bytes());
-        self.to_sender.extend_from_slice(b"\r\n");
+        if std::mem::take(&mut self.sender_asked_status) {
+            let line = report.to_line(3);
+            self.to_sender.extend_from_slice(line.as_bytes());
+            self.to_sender.extend_from_slice(b"\r\n");
+        }
         self.release_deferred();
     }
 

@@ -45,10 +45,20 @@ fn text(b: Vec<u8>) -> String {
 fn own_queries_are_not_passed_on_and_the_status_shows_the_programmed_position() {
     let comp = Skewed;
     let mut p = started(&comp);
-    let to_sender = text(p.take_to_sender());
-    // Only the status report reaches the sender, in programmed coordinates.
-    assert_eq!(to_sender, "<Idle|MPos:10.000,10.000,0.000|FS:0,0>\r\n");
+    // None of the gateway's own answers reach the sender: GRBL reports only when asked.
+    assert_eq!(text(p.take_to_sender()), "");
     assert!(p.rewriter().position_known());
+    // The sender's `?` goes on at once; its report comes back in programmed coordinates.
+    p.from_sender(b"?", 0.5);
+    assert_eq!(p.take_to_controller(), b"?");
+    p.from_controller(b"<Idle|MPos:10.010,9.990,0.000|FS:0,0>\r\n", 0.6);
+    assert_eq!(
+        text(p.take_to_sender()),
+        "<Idle|MPos:10.000,10.000,0.000|FS:0,0>\r\n"
+    );
+    // A report of the gateway's own poll afterwards is not passed on.
+    p.from_controller(b"<Idle|MPos:10.010,9.990,0.000|FS:0,0>\r\n", 0.7);
+    assert_eq!(text(p.take_to_sender()), "");
 }
 
 #[test]
