@@ -143,6 +143,9 @@ pub enum LayoutError {
     },
 }
 
+/// The largest coordinate of a part, mm: a kilometre, beyond any cutting table.
+pub const MAX_COORDINATE_MM: f64 = 1e6;
+
 /// The first vertex where a closed ring reverses its direction (the edges before and after
 /// it run back along one line). Such a spike has no width to cut; whether a validity
 /// check sees it as a self-intersection depends on the last bits of the coordinates, so
@@ -184,6 +187,15 @@ pub fn check_part(part: &Part) -> Result<(), LayoutError> {
     for ring in std::iter::once(&part.outer).chain(&part.holes) {
         if ring.iter().any(|p| !p[0].is_finite() || !p[1].is_finite()) {
             return Err(bad("a coordinate is not a finite number".into()));
+        }
+        if let Some(p) = ring
+            .iter()
+            .find(|p| !(p[0].abs() <= MAX_COORDINATE_MM && p[1].abs() <= MAX_COORDINATE_MM))
+        {
+            return Err(bad(format!(
+                "the point ({}, {}) mm is more than {MAX_COORDINATE_MM} mm (1 km) from the origin",
+                p[0], p[1]
+            )));
         }
     }
     if part.outer.len() < 3 || part.holes.iter().any(|h| h.len() < 3) {

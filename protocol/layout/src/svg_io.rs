@@ -103,9 +103,10 @@ fn ring_area(r: &[Point]) -> f64 {
         / 2.0
 }
 
-/// The largest coordinate or arc radius read in path data, in user units (a kilometre
-/// in millimetres).
-const MAX_PATH_NUMBER: f64 = 1e6;
+/// The largest coordinate or arc radius read in path data, in user units: far above
+/// any part a layout may hold (`MAX_COORDINATE_MM` in model.rs, whatever the
+/// viewBox's scale), low enough that an arc stays a few hundred cubics.
+const MAX_PATH_NUMBER: f64 = 1e9;
 
 /// Closed rings of a path's `d` in the element's own coordinates.
 fn path_rings(d: &str, tol: f64, join: f64) -> Result<Vec<Vec<Point>>, String> {

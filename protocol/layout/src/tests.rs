@@ -154,6 +154,17 @@ fn an_svg_arc_of_absurd_radius_is_refused_before_it_is_converted() {
 }
 
 #[test]
+fn a_part_beyond_a_kilometre_is_refused() {
+    let far = br#"{"parts":[{"id":"far","contours":[[[0,0],[150,30],[1519030,0]]]}]}"#;
+    let e = Layout::read(far, Format::Json, &opts())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("part `far`") && e.contains("1 km"), "{e}");
+    let near = br#"{"parts":[{"id":"near","contours":[[[0,0],[150,30],[999000,0]]]}]}"#;
+    Layout::read(near, Format::Json, &opts()).unwrap();
+}
+
+#[test]
 fn json_bad_parts_are_named() {
     let bow_tie = br#"{"parts":[{"id":"tie","contours":[[[0,0],[10,10],[10,0],[0,10]]]}]}"#;
     let e = Layout::read(bow_tie, Format::Json, &opts())
