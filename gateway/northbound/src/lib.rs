@@ -1,1 +1,0 @@
-//! MQTT Sparkplug B northbound (being built; see issue 15).
