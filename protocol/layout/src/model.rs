@@ -146,6 +146,10 @@ pub enum LayoutError {
 /// The largest coordinate of a part, mm: a kilometre, beyond any cutting table.
 pub const MAX_COORDINATE_MM: f64 = 1e6;
 
+/// The smallest width and height of a part, mm: a micrometre. Smaller contours are
+/// rounding noise (a viewBox of 5e14 units on 200 mm makes parts of 1e-11 mm), not parts.
+pub const MIN_SIZE_MM: f64 = 1e-3;
+
 /// The first vertex where a closed ring reverses its direction (the edges before and after
 /// it run back along one line). Such a spike has no width to cut; whether a validity
 /// check sees it as a self-intersection depends on the last bits of the coordinates, so
@@ -177,8 +181,8 @@ fn turns_back(ring: &[[f64; 2]]) -> Option<[f64; 2]> {
     })
 }
 
-/// A part's contours: finite, at least 3 distinct points, no self-intersection and no
-/// zero-width spike, holes inside the outer contour and apart from each other (`geo`'s OGC validity rules).
+/// A part's contours: finite, within a kilometre of the origin, at least a micrometre
+/// across, at least 3 distinct points, no self-intersection and no zero-width spike, holes inside the outer contour and apart from each other (`geo`'s OGC validity rules).
 pub fn check_part(part: &Part) -> Result<(), LayoutError> {
     let bad = |message: String| LayoutError::Part {
         part: part.id.clone(),
@@ -208,6 +212,21 @@ pub fn check_part(part: &Part) -> Result<(), LayoutError> {
                 at[0], at[1]
             )));
         }
+    }
+    let (lo, hi) = part.outer.iter().fold(
+        ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]),
+        |(lo, hi), p| {
+            (
+                [lo[0].min(p[0]), lo[1].min(p[1])],
+                [hi[0].max(p[0]), hi[1].max(p[1])],
+            )
+        },
+    );
+    let (w, h) = (hi[0] - lo[0], hi[1] - lo[1]);
+    if w < MIN_SIZE_MM || h < MIN_SIZE_MM {
+        return Err(bad(format!(
+            "the part is {w:.3e} x {h:.3e} mm, less than {MIN_SIZE_MM} mm across: nothing a cutter can cut"
+        )));
     }
     let polygon = part.polygon();
     if let Err(problem) = polygon.check_validation() {

@@ -123,7 +123,11 @@ fn path_rings(d: &str, tol: f64, join: f64) -> Result<Vec<Vec<Point>>, String> {
         }
         let (a, b) = (ring[0], ring[ring.len() - 1]);
         let gap = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt();
-        if gap <= join {
+        // A `Z` closes the subpath itself: its last point is a vertex of its own unless
+        // it repeats the start (up to rounding of relative moves). Without `Z`, an end
+        // within the join tolerance of the start closes it.
+        let repeats_start = gap <= 1e-9 * (1.0 + a[0].abs().max(a[1].abs()));
+        if repeats_start || (!closed && gap <= join) {
             ring.pop();
         } else if !closed {
             return Err(format!(
@@ -165,7 +169,7 @@ fn path_rings(d: &str, tol: f64, join: f64) -> Result<Vec<Vec<Point>>, String> {
         };
         if let Some(v) = numbers.iter().find(|v| !(v.abs() <= MAX_PATH_NUMBER)) {
             return Err(format!(
-                "path data: the number {v} is beyond {MAX_PATH_NUMBER} user units"
+                "path data: the number {v:e} is beyond {MAX_PATH_NUMBER:e} user units"
             ));
         }
     }

@@ -165,6 +165,27 @@ fn a_part_beyond_a_kilometre_is_refused() {
 }
 
 #[test]
+fn a_part_under_a_micrometre_is_refused_and_a_closing_vertex_is_kept() {
+    let speck = br#"{"parts":[{"id":"speck","contours":[[[0,0],[1e-11,0],[0,1e-11]]]}]}"#;
+    let e = Layout::read(speck, Format::Json, &opts())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("part `speck`") && e.contains("across"), "{e}");
+    // With `Z`, a last vertex near the start (closer than the join tolerance) is a vertex.
+    let svg = br#"<svg xmlns="http://www.w3.org/2000/svg" width="200mm" height="100mm" viewBox="0 0 200 100">
+  <path id="t" d="M0 0 L10 0 L10 10 L0.004 0.004 Z"/>
+</svg>"#;
+    let l = Layout::read(svg, Format::Svg, &opts()).unwrap();
+    assert_eq!(l.parts[0].outer.len(), 4);
+    // A relative path back to its start, up to rounding, does not repeat the start.
+    let svg = br#"<svg xmlns="http://www.w3.org/2000/svg" width="200mm" height="100mm" viewBox="0 0 200 100">
+  <path id="r" d="m0.1 0.2 l10.1 0 l0 10.2 l-10.1 -10.2 z"/>
+</svg>"#;
+    let l = Layout::read(svg, Format::Svg, &opts()).unwrap();
+    assert_eq!(l.parts[0].outer.len(), 3);
+}
+
+#[test]
 fn json_bad_parts_are_named() {
     let bow_tie = br#"{"parts":[{"id":"tie","contours":[[[0,0],[10,10],[10,0],[0,10]]]}]}"#;
     let e = Layout::read(bow_tie, Format::Json, &opts())
