@@ -17,6 +17,7 @@ mod json_io;
 mod layout;
 mod model;
 mod svg_io;
+mod validity;
 
 pub use flatten::{arc_points, bulge_points, nurbs_points};
 pub use layout::Layout;

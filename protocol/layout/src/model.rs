@@ -2,7 +2,7 @@
 
 use std::collections::BTreeMap;
 
-use geo::{Coord, LineString, Polygon, Validation};
+use geo::{Coord, LineString, Polygon};
 use serde::{Deserialize, Serialize};
 
 /// A point in millimetres: `[x, y]`, X along the feed, Y across the material.
@@ -228,9 +228,6 @@ pub fn check_part(part: &Part) -> Result<(), LayoutError> {
             "the part is {w:.3e} x {h:.3e} mm, less than {MIN_SIZE_MM} mm across: nothing a cutter can cut"
         )));
     }
-    let polygon = part.polygon();
-    if let Err(problem) = polygon.check_validation() {
-        return Err(bad(problem.to_string()));
-    }
+    crate::validity::check_polygon(&part.polygon()).map_err(bad)?;
     Ok(())
 }
