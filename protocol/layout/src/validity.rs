@@ -156,7 +156,8 @@ mod tests {
     /// a vertex, run back along themselves, or repeat a point.
     #[test]
     fn agrees_with_geo_on_simple_and_broken_rings() {
-        let cases: Vec<(Vec<(f64, f64)>, Vec<Vec<(f64, f64)>>)> = vec![
+        type Ring = Vec<(f64, f64)>;
+        let cases: Vec<(Ring, Vec<Ring>)> = vec![
             (
                 vec![(0., 0.), (10., 0.), (10., 10.), (0., 10.), (0., 0.)],
                 vec![],
