@@ -40,6 +40,11 @@ pub enum LayoutCmd {
         /// Force a part into a group (group ids as printed, 1-based); repeatable.
         #[arg(long = "assign", value_name = "PART=GROUP")]
         assign: Vec<String>,
+        /// When moving parts leaves overlaps, move later windows (along X) or upper lanes
+        /// (along Y) further apart than S8's one gap until none is left (reported as
+        /// `widenings`); without it such overlaps are an error.
+        #[arg(long)]
+        widen: bool,
         /// Where to write the shifted layout.
         #[arg(long)]
         out: PathBuf,
@@ -92,6 +97,7 @@ pub fn run(cmd: LayoutCmd) -> anyhow::Result<ExitCode> {
         width_mm,
         clearance_mm,
         assign,
+        widen,
         out,
         picture,
         chord_tolerance_mm,
@@ -121,7 +127,11 @@ pub fn run(cmd: LayoutCmd) -> anyhow::Result<ExitCode> {
     let t0 = Instant::now();
     let mut partition = layout::partition(&doc.parts, &params)?;
     let pinned = layout::assign(&doc.parts, &mut partition, &forced)?;
-    let resolution = layout::resolve(&doc.parts, &mut partition, &pinned)?;
+    let resolution = if widen {
+        layout::resolve_widening(&doc.parts, &mut partition, &pinned)?
+    } else {
+        layout::resolve(&doc.parts, &mut partition, &pinned)?
+    };
     let elapsed_ms = t0.elapsed().as_secs_f64() * 1e3;
     let figures = layout::figures(&doc.parts, &partition);
 
@@ -192,6 +202,7 @@ fn report(
             "a": id(o.a), "b": id(o.b), "group_a": o.group_a, "group_b": o.group_b,
             "distance_mm": o.distance_mm,
         })).collect::<Vec<_>>(),
+        "widenings": resolution.widenings,
         "overlaps_resolved": resolution.found.len(),
         "overlaps_left": 0,
         "figures": figures,
@@ -241,6 +252,12 @@ fn print_text(
             m.because_of
                 .map(|b| doc.parts[b].id.as_str())
                 .unwrap_or("-")
+        );
+    }
+    for w in &resolution.widenings {
+        println!(
+            "  widened: every {} from {} on moved {:.3} mm further",
+            w.between, w.from, w.extra_mm
         );
     }
     let row = |name: &str, m: &layout::Material| {

@@ -9,7 +9,9 @@
 
 use std::time::Instant;
 
-use layout::{detect, detect_exhaustive, figures, partition, resolve, Params, Partition};
+use layout::{
+    detect, detect_exhaustive, figures, partition, resolve, resolve_widening, Params, Partition,
+};
 use layout_io::{Format, Layout, Part, ReadOptions};
 
 const LAYOUTS: [(&str, &str); 3] = [
@@ -23,21 +25,59 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
-/// Partition + overlap resolution, timed (median of `runs`); the partition after S8
-/// (for the figures) and the outcome of the resolution.
-fn run(parts: &[Part], params: &Params, runs: usize) -> (f64, Partition, Result<usize, String>) {
+/// What one layout's partition and resolution gave.
+struct Run {
+    /// Median time of partition + resolution, ms.
+    ms: f64,
+    /// The partition after S8, before any move.
+    s8: Partition,
+    /// After the resolution.
+    resolved: Partition,
+    /// "N moves, widened ..." or the error.
+    outcome: String,
+}
+
+/// Partition + overlap resolution (`widen`: with widening), timed (median of `runs`).
+fn run(parts: &[Part], params: &Params, runs: usize, widen: bool) -> Run {
     let mut times = Vec::new();
     let mut last = None;
     for _ in 0..runs {
         let t = Instant::now();
         let mut p = partition(parts, params).expect("partition");
         let s8 = p.clone();
-        let r = resolve(parts, &mut p, &[]);
+        let r = if widen {
+            resolve_widening(parts, &mut p, &[])
+        } else {
+            resolve(parts, &mut p, &[])
+        };
         times.push(t.elapsed().as_secs_f64() * 1e3);
-        last = Some((s8, r.map(|r| r.moves.len()).map_err(|e| e.to_string())));
+        let outcome = match r {
+            Ok(r) => {
+                let widened: Vec<String> = r
+                    .widenings
+                    .iter()
+                    .map(|w| format!("{} {} +{:.3}", w.between, w.from, w.extra_mm))
+                    .collect();
+                if widened.is_empty() {
+                    format!("{} moves", r.moves.len())
+                } else {
+                    format!("{} moves, widened {}", r.moves.len(), widened.join(", "))
+                }
+            }
+            Err(e) => format!(
+                "unresolved: {}",
+                e.to_string().split(':').nth(1).unwrap_or("").trim()
+            ),
+        };
+        last = Some((s8, p, outcome));
     }
-    let (s8, r) = last.expect("one run");
-    (median(times), s8, r)
+    let (s8, resolved, outcome) = last.expect("one run");
+    Run {
+        ms: median(times),
+        s8,
+        resolved,
+        outcome,
+    }
 }
 
 /// Star-shaped parts on a jittered 20 mm grid, touching or interlocking their neighbours.
@@ -76,8 +116,8 @@ fn generated(n: usize, seed: u64) -> Vec<Part> {
 }
 
 fn main() {
-    println!("| layout | parts | W | L' | gap | clearance | overlaps after S8 | resolution | time ms (median) | detection ms | L no gap | L partitioned | L gap every part | added / every part | indexed = exhaustive |");
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("| layout | parts | W | L' | gap | clearance | overlaps after S8 | resolution | left (exhaustive) | time ms (median) | detection ms | L no gap | L S8 | L resolved | L gap every part | added / every part | indexed = exhaustive |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for (name, text) in LAYOUTS {
         let doc =
             Layout::read(text.as_bytes(), Format::Json, &ReadOptions::default()).expect("layout");
@@ -90,28 +130,32 @@ fn main() {
                 width_mm: Some(w),
                 clearance_mm: Some(w / 80.0 * clearance),
             };
-            let (ms, s8, outcome) = run(&doc.parts, &params, 51);
-            let t = Instant::now();
-            let found = detect(&doc.parts, &s8);
-            let detect_ms = t.elapsed().as_secs_f64() * 1e3;
-            let same = found == detect_exhaustive(&doc.parts, &s8);
-            let f = figures(&doc.parts, &s8);
-            let outcome = match outcome {
-                Ok(moves) => format!("{moves} moves, none left"),
-                Err(e) => format!("unresolved: {}", e.split(':').nth(1).unwrap_or("").trim()),
-            };
-            println!(
-                "| {name} | {} | {w} | {:.1} | {:.3} | {:.3} | {} | {outcome} | {ms:.3} | {detect_ms:.3} | {:.2} | {:.2} | {:.2} | {:.1} % | {same} |",
+            for widen in [false, true] {
+                let r = run(&doc.parts, &params, 51, widen);
+                let t = Instant::now();
+                let found = detect(&doc.parts, &r.s8);
+                let detect_ms = t.elapsed().as_secs_f64() * 1e3;
+                let same = found == detect_exhaustive(&doc.parts, &r.s8);
+                let left = detect_exhaustive(&doc.parts, &r.resolved).len();
+                let f8 = figures(&doc.parts, &r.s8);
+                let f = figures(&doc.parts, &r.resolved);
+                println!(
+                "| {name}{} | {} | {w} | {:.1} | {:.3} | {:.3} | {} | {} | {left} | {:.3} | {detect_ms:.3} | {:.2} | {:.2} | {:.2} | {:.2} | {:.1} % | {same} |",
+                if widen { " --widen" } else { "" },
                 doc.parts.len(),
                 params.window_mm,
                 params.gap_mm,
                 params.clearance_mm.unwrap_or(params.gap_mm),
                 found.len(),
+                r.outcome,
+                r.ms,
                 f.no_gap.length_mm,
+                f8.partitioned.length_mm,
                 f.partitioned.length_mm,
                 f.gap_every_part.length_mm,
                 f.added_length_fraction.unwrap_or(f64::NAN) * 100.0,
             );
+            }
         }
     }
     let parts = generated(10_000, 7);
@@ -122,28 +166,27 @@ fn main() {
         width_mm: Some(1000.0),
         clearance_mm: None,
     };
-    let (ms, s8, outcome) = run(&parts, &params, 5);
-    let f = figures(&parts, &s8);
+    let r = run(&parts, &params, 5, false);
+    let (ms, s8) = (r.ms, &r.s8);
+    let f = figures(&parts, &r.resolved);
     let t = Instant::now();
-    let found = detect(&parts, &s8);
+    let found = detect(&parts, s8);
     let detect_ms = t.elapsed().as_secs_f64() * 1e3;
     println!(
         "\ngenerated: {} parts, 4 tools, L' 300 mm, gap 2 mm: partition + resolution {ms:.1} ms (median of 5), detection alone {detect_ms:.1} ms, {} overlaps after S8, {}; length {:.1} -> {:.1} mm (gap every part {:.1} mm, {:.1} %)",
         parts.len(),
         found.len(),
-        match outcome {
-            Ok(m) => format!("{m} moves, none left"),
-            Err(e) => format!("unresolved ({})", e.split(" pair").next().unwrap_or("")),
-        },
+        r.outcome,
         f.no_gap.length_mm,
         f.partitioned.length_mm,
         f.gap_every_part.length_mm,
         f.added_length_fraction.unwrap_or(f64::NAN) * 100.0
     );
     let t = Instant::now();
-    let same = found == detect_exhaustive(&parts, &s8);
+    let same = found == detect_exhaustive(&parts, s8);
     println!(
-        "exhaustive pairwise check on the generated layout: identical = {same} ({:.0} ms)",
-        t.elapsed().as_secs_f64() * 1e3
+        "exhaustive pairwise check on the generated layout: identical = {same} ({:.0} ms); pairs left after the resolution: {}",
+        t.elapsed().as_secs_f64() * 1e3,
+        detect_exhaustive(&parts, &r.resolved).len()
     );
 }

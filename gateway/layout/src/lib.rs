@@ -39,7 +39,9 @@ use layout_io::Part;
 use serde::Serialize;
 
 pub use figures::{figures, Figures, Material};
-pub use overlap::{detect, detect_exhaustive, resolve, Move, Overlap, Resolution};
+pub use overlap::{
+    detect, detect_exhaustive, resolve, resolve_widening, Move, Overlap, Resolution, Widening,
+};
 pub use picture::Picture;
 
 /// What the cutter is and how far apart groups go.

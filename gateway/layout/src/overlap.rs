@@ -42,7 +42,25 @@ pub struct Resolution {
     /// Overlaps after S8 (and the operator's assignments), before any automatic move.
     pub found: Vec<Overlap>,
     pub moves: Vec<Move>,
+    /// Where the groups' shifts were widened beyond S8's because no move resolved an
+    /// overlap (empty when moves sufficed or widening was not allowed).
+    pub widenings: Vec<Widening>,
 }
+
+/// Extra shift added to every group from a window (or lane) on, beyond S8's
+/// `window x gap` (`tool x gap`).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Widening {
+    /// "window": DX of every group of window index >= `from` grows by `extra_mm`;
+    /// "lane": DY of every group of tool index >= `from`.
+    pub between: &'static str,
+    pub from: usize,
+    pub extra_mm: f64,
+}
+
+/// How many widening rounds before giving up (each round widens by at least an eighth
+/// of the clearance; a layout a kilometre long needs far fewer).
+const MAX_WIDENING_ROUNDS: usize = 10_000;
 
 type Entry = GeomWithData<Rectangle<[f64; 2]>, usize>;
 
@@ -196,8 +214,28 @@ fn neighbours(partition: &Partition, g: usize) -> Vec<usize> {
         .collect()
 }
 
-/// Finds the overlaps and resolves them (the patent leaves this to the operator; here it
-/// is automatic).
+/// Like [`resolve`], then, for what moves leave, widens the shifts beyond S8's (the
+/// operator's `--widen`): the output is always cuttable, at the cost of material.
+///
+/// Widening: for each overlap left, its two groups are in different windows (the later
+/// window's groups, and every window after, move along X) or in the same window and
+/// different lanes (the upper lane's groups, and every lane above, move along Y). The
+/// extra shift at each such boundary is the largest shortfall `clearance - distance` of
+/// its pairs (a translation by e changes a distance by at most e, so less cannot do),
+/// at least an eighth of the clearance; then moves are tried again. Shifts only grow and
+/// parts of windows (lanes) far enough apart cannot be close, so this ends, with no pair
+/// below the clearance. Every widening is reported; groups' `dx_mm`/`dy_mm` include it.
+pub fn resolve_widening(
+    parts: &[Part],
+    partition: &mut Partition,
+    pinned: &[usize],
+) -> Result<Resolution, PartitionError> {
+    resolve_with(parts, partition, pinned, true)
+}
+
+/// Finds the overlaps and resolves them by moving parts between neighbouring groups
+/// until none is left, keeping S8's shifts (the patent leaves this to the operator);
+/// an overlap no move resolves is an error naming every pair left.
 ///
 /// A candidate move takes one part of an overlapping pair into a neighbouring group:
 /// part b into a's group, part a into b's group, then b into each other group next to
@@ -212,20 +250,121 @@ fn neighbours(partition: &Partition, g: usize) -> Vec<usize> {
 /// Repeatedly, for the first overlap (in order of (a, b)) that has a candidate of
 /// negative score, the best such candidate (lowest score, first in the order above on
 /// ties) is applied. Every move lowers the number of overlaps, so this ends: with none
-/// left, or with overlaps that no move reduces, which are reported (all of them, with
-/// both parts and groups) and nothing is written.
+/// left, or with overlaps that no move reduces (densely nested layouts, whose parts touch
+/// their neighbours, often leave some: a part moved only trades one contact for
+/// another; [`resolve_widening`] then ends them).
 pub fn resolve(
     parts: &[Part],
     partition: &mut Partition,
     pinned: &[usize],
 ) -> Result<Resolution, PartitionError> {
-    let gap = partition.clearance_mm;
+    resolve_with(parts, partition, pinned, false)
+}
+
+fn resolve_with(
+    parts: &[Part],
+    partition: &mut Partition,
+    pinned: &[usize],
+    widen: bool,
+) -> Result<Resolution, PartitionError> {
     let bounds: Vec<[f64; 4]> = parts.iter().map(Part::bounds).collect();
-    let mut placed = Placed::new(parts, partition);
-    let found = detect_placed(partition, &placed);
-    let mut current: std::collections::BTreeSet<(usize, usize)> =
-        found.iter().map(|o| (o.a, o.b)).collect();
+    let found = detect(parts, partition);
     let mut moves = Vec::new();
+    let mut widenings: Vec<Widening> = Vec::new();
+    let mut rounds = 0;
+    loop {
+        let left = move_parts(partition, &bounds, pinned, parts, &mut moves);
+        if left.is_empty() {
+            return Ok(Resolution {
+                found,
+                moves,
+                widenings,
+            });
+        }
+        rounds += 1;
+        if !widen || rounds > MAX_WIDENING_ROUNDS {
+            let gap = partition.clearance_mm;
+            let list: Vec<String> = left
+                .iter()
+                .map(|o| {
+                    format!(
+                        "`{}` (group {}) and `{}` (group {}) {:.3} mm apart",
+                        parts[o.a].id, o.group_a, parts[o.b].id, o.group_b, o.distance_mm
+                    )
+                })
+                .collect();
+            return Err(PartitionError::Unresolvable(format!(
+                "{} pair(s) below the {gap:.3} mm clearance: {}{}",
+                list.len(),
+                list.join("; "),
+                if widen {
+                    ""
+                } else {
+                    " (--widen moves later windows or lanes further apart instead)"
+                }
+            )));
+        }
+        widen_once(partition, &left, &mut widenings);
+    }
+}
+
+/// Widens the shifts once for the overlaps `left` (see [`resolve_widening`]).
+fn widen_once(partition: &mut Partition, left: &[Overlap], widenings: &mut Vec<Widening>) {
+    let clearance = partition.clearance_mm;
+    let minimum = clearance / 8.0;
+    // (between, from) -> extra
+    let mut extra: std::collections::BTreeMap<(&'static str, usize), f64> = Default::default();
+    for o in left {
+        let (ga, gb) = (
+            &partition.groups[partition.group_of[o.a]],
+            &partition.groups[partition.group_of[o.b]],
+        );
+        let key = if ga.window != gb.window {
+            ("window", ga.window.max(gb.window))
+        } else {
+            ("lane", ga.tool.max(gb.tool))
+        };
+        let need = (clearance - o.distance_mm).max(minimum);
+        let e = extra.entry(key).or_insert(0.0);
+        *e = e.max(need);
+    }
+    for ((between, from), extra_mm) in extra {
+        for g in &mut partition.groups {
+            match between {
+                "window" if g.window >= from => g.dx_mm += extra_mm,
+                "lane" if g.tool >= from => g.dy_mm += extra_mm,
+                _ => {}
+            }
+        }
+        match widenings
+            .iter_mut()
+            .find(|w| w.between == between && w.from == from)
+        {
+            Some(w) => w.extra_mm += extra_mm,
+            None => widenings.push(Widening {
+                between,
+                from,
+                extra_mm,
+            }),
+        }
+    }
+    widenings.sort_by(|a, b| (a.between, a.from).cmp(&(b.between, b.from)));
+}
+
+/// Moves parts as [`resolve`] describes; returns the overlaps no move reduces.
+fn move_parts(
+    partition: &mut Partition,
+    bounds: &[[f64; 4]],
+    pinned: &[usize],
+    parts: &[Part],
+    moves: &mut Vec<Move>,
+) -> Vec<Overlap> {
+    let gap = partition.clearance_mm;
+    let mut placed = Placed::new(parts, partition);
+    let mut current: std::collections::BTreeSet<(usize, usize)> = detect_placed(partition, &placed)
+        .iter()
+        .map(|o| (o.a, o.b))
+        .collect();
     // Where each candidate (part, group) would leave the part, kept while no move can
     // change it.
     let mut cache: std::collections::HashMap<(usize, usize), Option<Vec<usize>>> =
@@ -253,7 +392,7 @@ pub fn resolve(
                 }
                 let Some(after) = cache
                     .entry((p, g))
-                    .or_insert_with(|| overlaps_if_moved(partition, &bounds, &placed, p, g))
+                    .or_insert_with(|| overlaps_if_moved(partition, bounds, &placed, p, g))
                     .clone()
                 else {
                     continue;
@@ -303,26 +442,12 @@ pub fn resolve(
                 continue 'search;
             }
         }
-        let list: Vec<String> = current
+        return current
             .iter()
-            .map(|&(a, b)| {
-                format!(
-                    "`{}` (group {}) and `{}` (group {}) {:.3} mm apart",
-                    parts[a].id,
-                    partition.groups[partition.group_of[a]].id,
-                    parts[b].id,
-                    partition.groups[partition.group_of[b]].id,
-                    placed.distance(a, b)
-                )
-            })
+            .filter_map(|&(a, b)| overlap(partition, &placed, a, b, gap))
             .collect();
-        return Err(PartitionError::Unresolvable(format!(
-            "{} pair(s) below the {gap:.3} mm clearance: {}",
-            list.len(),
-            list.join("; ")
-        )));
     }
-    Ok(Resolution { found, moves })
+    Vec::new()
 }
 
 /// The parts of other groups part `p` would be too close to in group index `g`, or None

@@ -426,3 +426,95 @@ fn a_smaller_clearance_accepts_what_the_gap_refuses() {
         ));
     }
 }
+
+#[test]
+fn widening_ends_an_overlap_no_group_can_take() {
+    // B sits 2 mm above A2 over 30 mm of X; no move resolves it (see the test above).
+    let parts = crossing_layout(false);
+    let mut p = partition(&parts, &params(2, 150.0, 5.0, Some(100.0))).unwrap();
+    let r = resolve_widening(&parts, &mut p, &[]).unwrap();
+    assert!(detect_exhaustive(&parts, &p).is_empty());
+    assert_eq!(r.widenings.len(), 1, "{:?}", r.widenings);
+    let w = &r.widenings[0];
+    assert_eq!((w.between, w.from), ("window", 1));
+    // B must clear A2's far end so that hypot(dx, 2) >= 5: its X start 110 + 5 + e at
+    // least 140 + sqrt(21); each round adds at most the 3 mm shortfall.
+    let least = 140.0 + 21f64.sqrt() - 115.0;
+    assert!(
+        w.extra_mm >= least && w.extra_mm < least + 3.0,
+        "{}",
+        w.extra_mm
+    );
+    let b = p.groups[p.group_of[2]].clone();
+    assert_eq!(b.window, 1);
+    assert!((b.dx_mm - (5.0 + w.extra_mm)).abs() < 1e-12);
+    // Window 0 keeps S8's shifts.
+    assert_eq!(p.offsets()[0], [0.0, 0.0]);
+}
+
+/// The public nesting layouts (parts touching their neighbours) with the benchmark's
+/// parameters: moves alone leave pairs and name them; with widening none is left by the
+/// exhaustive pairwise check, and no group outgrows its window.
+#[test]
+fn benchmark_layouts_end_with_no_pair_closer_than_the_clearance() {
+    for (name, text) in [
+        ("shirts", include_str!("../data/esicup/shirts.json")),
+        ("trousers", include_str!("../data/esicup/trousers.json")),
+        ("swim", include_str!("../data/esicup/swim.json")),
+    ] {
+        let doc = layout_io::Layout::read(
+            text.as_bytes(),
+            layout_io::Format::Json,
+            &layout_io::ReadOptions::default(),
+        )
+        .unwrap();
+        let w = doc.width_mm.unwrap();
+        for clearance in [1.0, 0.5] {
+            let params = Params {
+                tools: 2,
+                window_mm: 0.8 * w,
+                gap_mm: w / 80.0,
+                width_mm: Some(w),
+                clearance_mm: Some(w / 80.0 * clearance),
+            };
+            let mut by_moves = partition(&doc.parts, &params).unwrap();
+            match resolve(&doc.parts, &mut by_moves, &[]) {
+                Ok(_) => assert!(detect_exhaustive(&doc.parts, &by_moves).is_empty()),
+                Err(e) => assert!(e.to_string().contains("--widen"), "{name}: {e}"),
+            }
+            let mut p = partition(&doc.parts, &params).unwrap();
+            let r = resolve_widening(&doc.parts, &mut p, &[]).unwrap();
+            assert!(
+                detect_exhaustive(&doc.parts, &p).is_empty(),
+                "{name} clearance {clearance}"
+            );
+            let boxes: Vec<[f64; 4]> = doc.parts.iter().map(Part::bounds).collect();
+            for g in 0..p.groups.len() {
+                if !p.groups[g].parts.is_empty() {
+                    let e = p.extent_with(&boxes, g, None);
+                    assert!(e[1] - e[0] < params.window_mm, "{name} group {}", g + 1);
+                }
+                // Shifts are S8's plus the widenings reported, never less.
+                let grp = &p.groups[g];
+                let extra_x: f64 = r
+                    .widenings
+                    .iter()
+                    .filter(|w| w.between == "window" && grp.window >= w.from)
+                    .map(|w| w.extra_mm)
+                    .sum();
+                let extra_y: f64 = r
+                    .widenings
+                    .iter()
+                    .filter(|w| w.between == "lane" && grp.tool >= w.from)
+                    .map(|w| w.extra_mm)
+                    .sum();
+                let s8 = [
+                    grp.window as f64 * params.gap_mm,
+                    grp.tool as f64 * params.gap_mm,
+                ];
+                assert!((grp.dx_mm - s8[0] - extra_x).abs() < 1e-9, "{name}");
+                assert!((grp.dy_mm - s8[1] - extra_y).abs() < 1e-9, "{name}");
+            }
+        }
+    }
+}
