@@ -213,11 +213,21 @@ fn measure_cmd(config: &Path, out: &Path, json: bool) -> anyhow::Result<ExitCode
         bar.set_length(total as u64);
         bar.set_position(done as u64);
     };
-    let (result, link_time_s) = match link {
-        None => (measure(&mut machine, &constants, &plan, progress), None),
+    // The real controller's truth is unknown: no comparison then, and its time is the
+    // wall clock's.
+    let (result, link_time_s, truth_known) = match &link {
+        None => (
+            measure(&mut machine, &constants, &plan, progress),
+            None,
+            true,
+        ),
         Some(RotaryLink::GrblEmulator) => {
             let (r, t) = measure_through_grbl_emulator(&machine.sim, &constants, &plan, progress)?;
-            (r, Some(t))
+            (r, Some(t), true)
+        }
+        Some(RotaryLink::Grbl(port)) => {
+            let (r, t) = measure_through_grbl_port(port, &constants, &plan, progress)?;
+            (r, Some(t), false)
         }
     };
     bar.finish_and_clear();
@@ -262,6 +272,50 @@ fn measure_cmd(config: &Path, out: &Path, json: bool) -> anyhow::Result<ExitCode
     let errors_path = out.join("errors.json");
     std::fs::write(&errors_path, serde_json::to_string_pretty(&report)?)
         .with_context(|| format!("writing {}", errors_path.display()))?;
+    let touches = m.probe_touches;
+    if let (Some(obj), Some(c)) = (report.as_object_mut(), &m.c_centre) {
+        obj.insert("c_centre".into(), serde_json::to_value(c)?);
+    }
+    if !json {
+        if let Some(c) = &m.c_centre {
+            println!(
+                "C centre on the rim: ({:.4}, {:.4}) mm, ({:+.4}, {:+.4}) mm from the nominal axis, rim radius {:.4} mm",
+                c.x_mm, c.y_mm, c.offset_mm[0], c.offset_mm[1], c.rim_radius_mm
+            );
+        }
+    }
+    if !truth_known {
+        let time_s = link_time_s.unwrap_or(0.0);
+        if json {
+            let obj = report.as_object_mut().expect("an object");
+            obj.insert(
+                "cycle".into(),
+                json!({
+                    "balls": m.balls.len(),
+                    "probe_points": touches / 2,
+                    "probe_touches": touches,
+                    "wall_time_s": time_s,
+                }),
+            );
+            println!("{report}");
+        } else {
+            print_table(&id);
+            println!(
+                "cycle: {} balls, {} probe points ({} touches), {:.1} min",
+                m.balls.len(),
+                touches / 2,
+                touches,
+                time_s / 60.0
+            );
+            println!(
+                "wrote {}, {}, {}",
+                centres_path.display(),
+                points_path.display(),
+                errors_path.display()
+            );
+        }
+        return Ok(ExitCode::SUCCESS);
+    }
     // The simulation knows the truth: compare.
     let t = machine.sim.errors;
     let injected = LocationErrors {
@@ -275,7 +329,6 @@ fn measure_cmd(config: &Path, out: &Path, json: bool) -> anyhow::Result<ExitCode
         alpha_za_deg: t.alpha_za_deg,
     };
     let check = compensation_check(&machine.sim, &constants, &id.errors)?;
-    let touches = m.probe_touches;
     let time_s = link_time_s.unwrap_or(machine.time_s);
     if json {
         let obj = report.as_object_mut().expect("an object");
@@ -398,6 +451,50 @@ fn measure_through_grbl_emulator(
     let result = measure(&mut prober, constants, plan, progress);
     let time_s = lock_axes(&axes).now_s();
     Ok((result, time_s))
+}
+
+/// The cycle through a real controller on a serial port: it must have the A and C axes
+/// and a probe input (checked from its settings before any motion). Returns the result
+/// and the wall time of the cycle (s).
+fn measure_through_grbl_port(
+    port: &job::rotary::GrblPort,
+    constants: &MachineConstants,
+    plan: &rotary::measure::MeasurePlan,
+    progress: impl FnMut(usize, usize),
+) -> anyhow::Result<(
+    Result<rotary::measure::Measurement, Box<rotary::measure::Stopped>>,
+    f64,
+)> {
+    use drivers::grbl::{GrblOptions, GrblStage};
+    use drivers::{Axis, Stage};
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    let mut opts = GrblOptions::default();
+    if let Some(ms) = port.poll_ms {
+        opts.poll_interval = std::time::Duration::from_millis(ms);
+    }
+    let stage = rt
+        .block_on(GrblStage::open(&port.port, port.baud, opts))
+        .with_context(|| format!("connecting to the GRBL controller on {}", port.port))?;
+    let caps = stage.capabilities();
+    for axis in [Axis::A, Axis::C] {
+        anyhow::ensure!(
+            caps.rotary_axes.contains(&axis),
+            "the controller on {} has no {axis:?} axis (its axes: {:?}); the cycle needs A and C",
+            port.port,
+            caps.rotary_axes
+        );
+    }
+    anyhow::ensure!(
+        caps.probing,
+        "the controller on {} reports no probe input; the cycle probes the balls",
+        port.port
+    );
+    let started = std::time::Instant::now();
+    let mut prober = LinkProber { rt: &rt, stage };
+    let result = measure(&mut prober, constants, plan, progress);
+    Ok((result, started.elapsed().as_secs_f64()))
 }
 
 /// The measurement cycle's machine behind a GRBL link: each move and probing move is a

@@ -64,7 +64,7 @@ fn measure_then_identify_from_its_centres() {
         assert!(d.abs() <= tol, "{name}: {d}");
         assert!(v["uncertainty"][name].as_f64().unwrap() > 0.0);
     }
-    assert_eq!(v["cycle"]["probe_points"], 228);
+    assert_eq!(v["cycle"]["probe_points"], 231);
     assert!(
         v["compensation_check"]["tip_improvement_pct"]
             .as_f64()
@@ -174,4 +174,121 @@ fn a_bad_centres_file_is_refused_naming_line_and_column() {
     assert!(!run.status.success());
     let err = String::from_utf8_lossy(&run.stderr);
     assert!(err.contains("line 3, column 5 (x_mm): `oops`"), "{err}");
+}
+
+/// The cycle run by the `gateway` process against a controller on a serial port it knows
+/// only by its path: here the GRBL emulator (six axes, the paper's table with its
+/// default errors behind it) on a pseudo-terminal served by this test process. The
+/// identified errors are compared with the ones the emulated table carries.
+#[test]
+fn measure_through_a_controller_on_a_serial_port() {
+    use emulators::grbl::{GrblConfig, GrblDevice, GrblPty};
+    use world::axes::AxesMachine;
+    let job = job::rotary::RotaryJob::default();
+    let truth = job.simulated().sim.errors;
+    let sim = job.simulated().sim;
+    let (path_tx, path_rx) = std::sync::mpsc::channel();
+    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+    let controller = std::thread::spawn(move || {
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        let axes = AxesMachine::new(Box::new(world::rotary::RotaryWorkpiece { sim })).shared();
+        let pty = {
+            let _enter = rt.enter();
+            GrblPty::spawn(GrblDevice::with_axes(axes, GrblConfig::default()), None).unwrap()
+        };
+        path_tx.send(pty.path().to_string()).unwrap();
+        rt.block_on(async {
+            let _ = stop_rx.await;
+        });
+        drop(pty);
+    });
+    let port = path_rx.recv().unwrap();
+    let out = scratch("serial");
+    let config = out.join("job.json");
+    std::fs::write(
+        &config,
+        serde_json::json!({"link": {"grbl": {"port": port, "poll_ms": 2}}}).to_string(),
+    )
+    .unwrap();
+    let run = gateway(&[
+        "rotary",
+        "measure",
+        "--config",
+        config.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--json",
+    ]);
+    let _ = stop_tx.send(());
+    controller.join().unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    // A real controller's truth is unknown to the gateway: no comparison in its report.
+    assert!(v.get("truth").is_none() && v.get("compensation_check").is_none());
+    assert_eq!(v["cycle"]["probe_points"], 231);
+    // The C centre from the rim: the actual axis (delta_XC, delta_YC off the nominal)
+    // within the rim's run-out (1.2 and 0.8 um) and the probe's scatter.
+    let offset = &v["c_centre"]["offset_mm"];
+    assert!(
+        (offset[0].as_f64().unwrap() - truth.delta_xc_mm).abs() < 0.003,
+        "{offset}"
+    );
+    assert!(
+        (offset[1].as_f64().unwrap() - truth.delta_yc_mm).abs() < 0.003,
+        "{offset}"
+    );
+    let injected = [
+        truth.delta_xc_mm,
+        truth.delta_yc_mm,
+        truth.alpha_xc_deg,
+        truth.alpha_yc_deg,
+        truth.delta_ya_mm,
+        truth.delta_za_mm,
+        truth.alpha_ya_deg,
+        truth.alpha_za_deg,
+    ];
+    for (name, want) in NAMES.iter().zip(injected) {
+        let got = v[name].as_f64().unwrap();
+        let tol = if name.ends_with("_deg") {
+            0.0005
+        } else {
+            0.001
+        };
+        assert!((got - want).abs() <= tol, "{name}: {got} vs {want}");
+    }
+    assert!(out.join("errors.json").is_file());
+}
+
+/// Simulation settings beside a real port are refused: they would describe a machine
+/// that is not there.
+#[test]
+fn a_real_port_job_refuses_simulation_settings() {
+    let out = scratch("serial-refused");
+    let config = out.join("job.json");
+    std::fs::write(
+        &config,
+        r#"{"seed": 3, "link": {"grbl": {"port": "/dev/ttyUSB7"}}}"#,
+    )
+    .unwrap();
+    let run = gateway(&[
+        "rotary",
+        "measure",
+        "--config",
+        config.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!run.status.success());
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        err.contains("`seed`") && err.contains("/dev/ttyUSB7"),
+        "{err}"
+    );
 }

@@ -38,8 +38,8 @@ fn probing_cycle_identifies_the_injected_errors() {
         .expect("the cycle completes");
         assert_eq!(m.balls.len(), 2 * (12 + 7));
         assert_eq!(calls, m.balls.len());
-        // 6 points per ball, each touched fast then slow.
-        assert_eq!(m.probe_touches, m.balls.len() * 6 * 2);
+        // 3 points on the rim and 6 per ball, each touched fast then slow.
+        assert_eq!(m.probe_touches, (3 + m.balls.len() * 6) * 2);
         assert!(machine.time_s > 60.0, "simulated time {} s", machine.time_s);
         let id = identify(&m.centres(), &constants).unwrap();
         let want = injected();
@@ -56,6 +56,78 @@ fn probing_cycle_identifies_the_injected_errors() {
             );
         }
     }
+}
+
+/// The C centre found on the rim is the actual C axis at the table face (the injected
+/// delta_XC, delta_YC off the nominal) within the rim's run-out and the probe's scatter.
+#[test]
+fn the_rim_locates_the_c_centre() {
+    let job = RotaryJob::default();
+    let mut machine = job.simulated();
+    let m = measure(
+        &mut machine,
+        &MachineConstants::default(),
+        &MeasurePlan::default(),
+        |_, _| {},
+    )
+    .unwrap();
+    let c = m.c_centre.expect("located");
+    let sim = &machine.sim;
+    // The rim's true centre is the C axis at the face plus the run-out (workpiece frame,
+    // which at A = C = 0 is the machine frame less the nominal table origin).
+    let want = sim.rim_centre();
+    for (got, want) in c.offset_mm.iter().zip(want) {
+        // Three touches of 0.3 um scatter; the stylus's pre-travel is radial and cancels.
+        assert!((got - want).abs() < 0.002, "{:?} vs {want}", c.offset_mm);
+    }
+    assert!((want[0] - (sim.errors.delta_xc_mm + sim.rim.runout_mm[0])).abs() < 1e-3);
+    assert!(
+        (c.rim_radius_mm - sim.rim.radius_mm).abs() < 0.002,
+        "{}",
+        c.rim_radius_mm
+    );
+    assert_eq!(c.points.len(), 3);
+}
+
+/// Machine constants 1.5 mm off the real table: the rim shows it and the cycle stops
+/// before moving to balls that are not where the constants put them; 5 mm off, the
+/// stylus meets the table on its way down beside the rim and the cycle stops there.
+#[test]
+fn a_table_far_from_its_constants_stops_the_cycle_at_the_rim() {
+    let job = RotaryJob::default();
+    let mut machine = job.simulated();
+    let constants = MachineConstants {
+        a_axis_y_mm: MachineConstants::default().a_axis_y_mm + 1.5,
+        ..MachineConstants::default()
+    };
+    let plan = MeasurePlan::default();
+    let err = measure(&mut machine, &constants, &plan, |_, _| {}).unwrap_err();
+    let msg = err.error.to_string();
+    assert!(
+        msg.contains("table rim") && msg.contains("from the nominal axis"),
+        "{msg}"
+    );
+    assert!(err.so_far.balls.is_empty());
+    let constants = MachineConstants {
+        a_axis_y_mm: MachineConstants::default().a_axis_y_mm - 5.0,
+        ..MachineConstants::default()
+    };
+    let err = measure(&mut job.simulated(), &constants, &plan, |_, _| {}).unwrap_err();
+    let msg = err.error.to_string();
+    assert!(msg.contains("on the way down"), "{msg}");
+    assert!(err.so_far.balls.is_empty() && err.so_far.probe_touches == 0);
+    // 5 mm the other way: the first touch (at +Y) finds no rim within the overtravel.
+    let constants = MachineConstants {
+        a_axis_y_mm: MachineConstants::default().a_axis_y_mm + 5.0,
+        ..MachineConstants::default()
+    };
+    let err = measure(&mut job.simulated(), &constants, &plan, |_, _| {}).unwrap_err();
+    let msg = err.error.to_string();
+    assert!(
+        msg.contains("table rim, touch 1") && msg.contains("no contact"),
+        "{msg}"
+    );
+    assert!(err.so_far.balls.is_empty());
 }
 
 #[test]
@@ -404,10 +476,12 @@ mod through_the_link {
         let plan = rotary::measure::MeasurePlan::default();
         let m = rotary::measure::measure(&mut prober, &constants, &plan, |_, _| {})
             .unwrap_or_else(|s| panic!("{}", s.error));
-        // 2 balls at every step of both sweeps, 6 points each, touched fast then slow.
+        // 2 balls at every step of both sweeps, 6 points each, and 3 on the rim, touched
+        // fast then slow; and the 3 protected descents beside the rim.
         let steps = rotary::sweep(rotary::Axis::C).len() + rotary::sweep(rotary::Axis::A).len();
         assert_eq!(m.balls.len(), 2 * steps);
-        assert_eq!(prober.probes, 2 * steps * 6 * 2);
+        assert_eq!(prober.probes, (2 * steps * 6 + 3) * 2 + 3);
+        assert_eq!(m.probe_touches, (2 * steps * 6 + 3) * 2);
         let id = rotary::identify(&m.centres(), &constants).unwrap();
         let truth = [
             injected.delta_xc_mm,

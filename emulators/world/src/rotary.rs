@@ -88,6 +88,28 @@ impl Default for TouchProbe {
     }
 }
 
+/// The table's cylindrical rim (NCTLT-125: a 125 mm face), turning with C: the probe
+/// finds the C rotation centre on it. Its centre is the actual C axis at the table face
+/// plus a run-out of a micrometre or two (rims are ground concentric to the bearing).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TableRim {
+    pub radius_mm: f64,
+    /// How far the rim reaches below the table face.
+    pub depth_mm: f64,
+    /// The rim's centre off the actual C axis (workpiece frame X, Y), mm.
+    pub runout_mm: [f64; 2],
+}
+
+impl Default for TableRim {
+    fn default() -> Self {
+        Self {
+            radius_mm: 62.5,
+            depth_mm: 20.0,
+            runout_mm: [0.0012, -0.0008],
+        }
+    }
+}
+
 /// The simulated machine.
 #[derive(Clone, Debug)]
 pub struct RotaryMachineSim {
@@ -96,6 +118,7 @@ pub struct RotaryMachineSim {
     /// The plate's balls where they really are: a few hundredths of a millimetre from
     /// where the drawing puts them (26 mm at (-60, 0, 30), 41 mm at (52, 0, 45)).
     pub balls: [TrueBall; 2],
+    pub rim: TableRim,
     pub probe: TouchProbe,
     rng: Rng,
 }
@@ -115,6 +138,7 @@ impl RotaryMachineSim {
                     centre_mm: [52.025, -0.031, 44.992],
                 },
             ],
+            rim: TableRim::default(),
             probe,
             rng: Rng::new(seed),
         }
@@ -199,6 +223,62 @@ impl RotaryMachineSim {
         (p - self.table_origin(), dir)
     }
 
+    /// A machine-frame point in the workpiece frame with the table at A, C (the inverse of
+    /// [`Self::table_point`]).
+    fn to_table(&self, m: &Vector3<f64>, a_deg: f64, c_deg: f64) -> Vector3<f64> {
+        let (qc, uc) = self.c_line();
+        let (qa, ua) = self.a_line();
+        let p = qa + Rotation3::from_axis_angle(&ua, a_deg.to_radians()).inverse() * (m - qa);
+        let p = qc + Rotation3::from_axis_angle(&uc, c_deg.to_radians()).inverse() * (p - qc);
+        p - self.table_origin()
+    }
+
+    /// The rim's centre in the workpiece frame (X, Y) at C = 0: the actual C axis where
+    /// it crosses the table face, plus the run-out.
+    pub fn rim_centre(&self) -> [f64; 2] {
+        let (qc, uc) = self.c_line();
+        // The C line at the face's height (workpiece z = 0).
+        let o = self.table_origin();
+        let t = (o.z - qc.z) / uc.z;
+        let at_face = qc + uc.into_inner() * t - o;
+        [
+            at_face.x + self.rim.runout_mm[0],
+            at_face.y + self.rim.runout_mm[1],
+        ]
+    }
+
+    /// Where along a straight stylus path (workpiece frame, from `start` in unit
+    /// direction `dir`, `length` long) the stylus ball first meets the rim, if it does:
+    /// its centre comes within the rim's radius plus the stylus radius of the rim's axis,
+    /// at a height on the rim.
+    fn rim_contact(&self, start: &Vector3<f64>, dir: &Vector3<f64>, length: f64) -> Option<f64> {
+        let c = self.rim_centre();
+        let r = self.probe.stylus_radius_mm;
+        let reach = self.rim.radius_mm + r;
+        let within = |p: Vector3<f64>, radius: f64| (p.x - c[0]).hypot(p.y - c[1]) <= radius;
+        // The face, from above: the stylus centre comes down to one stylus radius over
+        // it inside the rim.
+        let top = (dir.z < 0.0 && start.z > r)
+            .then(|| (r - start.z) / dir.z)
+            .filter(|&s| s <= length && within(start + dir * s, self.rim.radius_mm));
+        // The cylinder, from outside.
+        let (mx, my) = (start.x - c[0], start.y - c[1]);
+        let a = dir.x * dir.x + dir.y * dir.y;
+        let b = mx * dir.x + my * dir.y;
+        let cq = mx * mx + my * my - reach * reach;
+        let disc = b * b - a * cq;
+        let side = (a > 1e-18 && disc >= 0.0 && cq > 0.0)
+            .then(|| (-b - disc.sqrt()) / a)
+            .filter(|&s| {
+                let z = start.z + dir.z * s;
+                s >= 0.0 && s <= length && z <= 0.0 && z >= -self.rim.depth_mm
+            });
+        match (top, side) {
+            (Some(t), Some(s)) => Some(t.min(s)),
+            (t, s) => t.or(s),
+        }
+    }
+
     /// The true centre of ball `ball` (0 or 1) in the machine frame at A, C.
     pub fn ball_centre(&self, ball: usize, a_deg: f64, c_deg: f64) -> Vector3<f64> {
         self.table_point(&Vector3::from(self.balls[ball].centre_mm), a_deg, c_deg)
@@ -241,6 +321,14 @@ impl RotaryMachineSim {
             let s = -bq - disc.sqrt();
             let s = if cq <= 0.0 { 0.0 } else { s };
             if s >= 0.0 && s <= length && first.is_none_or(|f| s < f) {
+                first = Some(s);
+            }
+        }
+        // The rim, in the workpiece frame (a rigid motion keeps the path's length).
+        let from_t = self.to_table(&start, a_deg, c_deg);
+        let to_t = self.to_table(&end, a_deg, c_deg);
+        if let Some(s) = self.rim_contact(&from_t, &((to_t - from_t) / length), length) {
+            if first.is_none_or(|f| s < f) {
                 first = Some(s);
             }
         }
@@ -309,10 +397,17 @@ impl crate::axes::Workpiece for RotaryWorkpiece {
 
     fn probe_touching(&self, at: &crate::axes::AxesPosition) -> bool {
         let tip = Vector3::new(at[0], at[1], at[2] - self.sim.geometry.tool_length_mm);
-        (0..2).any(|b| {
-            let reach = self.sim.balls[b].radius_mm + self.sim.probe.stylus_radius_mm;
-            (tip - self.sim.ball_centre(b, at[3], at[5])).norm() <= reach
-        })
+        let on_rim = {
+            let t = self.sim.to_table(&tip, at[3], at[5]);
+            let c = self.sim.rim_centre();
+            let reach = self.sim.rim.radius_mm + self.sim.probe.stylus_radius_mm;
+            (t.x - c[0]).hypot(t.y - c[1]) <= reach && t.z <= 0.0 && t.z >= -self.sim.rim.depth_mm
+        };
+        on_rim
+            || (0..2).any(|b| {
+                let reach = self.sim.balls[b].radius_mm + self.sim.probe.stylus_radius_mm;
+                (tip - self.sim.ball_centre(b, at[3], at[5])).norm() <= reach
+            })
     }
 }
 

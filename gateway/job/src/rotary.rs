@@ -1,8 +1,9 @@
 //! The rotary-table measurement job (`gateway rotary measure --config`): the simulated
 //! 5-axis machine it runs on, and the adapter that lets the measurement cycle drive it.
 //!
-//! The machine is the emulated one (world::rotary): the probing link through a real
-//! controller is not part of this job yet.
+//! The machine is the emulated one (world::rotary) in-process, the same behind the GRBL
+//! emulator on a pseudo-terminal (`"link": "grbl_emulator"`), or a real controller on a
+//! serial port (`"link": {"grbl": {"port": "/dev/ttyUSB0"}}`), whose truth nobody knows.
 
 use rotary::measure::{MeasurePlan, ProbingMachine};
 use rotary::{Axes, MachineConstants};
@@ -28,15 +29,36 @@ pub struct RotaryJob {
     pub speeds: Option<Speeds>,
     /// Run the cycle through a controller link instead of in-process (`"grbl_emulator"`:
     /// the GRBL emulator with this job's machine behind it, on a pseudo-terminal,
-    /// driven by the GRBL driver).
+    /// driven by the GRBL driver; `{"grbl": {"port": ..}}`: a real controller).
     pub link: Option<RotaryLink>,
 }
 
 /// The controller link a measurement job runs through.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum RotaryLink {
     GrblEmulator,
+    /// A GRBL-family controller (grblHAL with A and C axes and a probe input) on a
+    /// serial port; the simulated parts of the job (seed, errors, probe, speeds) are
+    /// refused beside it, since they would describe a machine that is not there.
+    Grbl(GrblPort),
+}
+
+/// A controller's serial port.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GrblPort {
+    /// The device path (`/dev/ttyUSB0`, `/dev/ttyACM0`, a pseudo-terminal).
+    pub port: String,
+    /// Baud rate (GRBL's 115200 unless the controller was built otherwise).
+    #[serde(default = "default_baud")]
+    pub baud: u32,
+    /// Status polling period while waiting for motion, ms (the driver's 20 by default).
+    pub poll_ms: Option<u64>,
+}
+
+fn default_baud() -> u32 {
+    115_200
 }
 
 /// How fast the simulated machine moves.
@@ -62,6 +84,27 @@ impl RotaryJob {
         let job: RotaryJob = serde_json::from_str(text).map_err(|e| e.to_string())?;
         if let Some(m) = &job.machine {
             m.check()?;
+        }
+        if let Some(RotaryLink::Grbl(port)) = &job.link {
+            let simulated = [
+                ("seed", job.seed != 0),
+                ("errors", job.errors.is_some()),
+                ("probe", job.probe.is_some()),
+                ("speeds", job.speeds.is_some()),
+            ];
+            if let Some((name, _)) = simulated.iter().find(|(_, set)| *set) {
+                return Err(format!(
+                    "`{name}` describes the simulated machine; the job's link is the real \
+                     controller on {}",
+                    port.port
+                ));
+            }
+            if port.port.trim().is_empty() {
+                return Err("link.grbl.port: empty device path".into());
+            }
+            if port.poll_ms == Some(0) {
+                return Err("link.grbl.poll_ms: must be at least 1".into());
+            }
         }
         Ok(job)
     }

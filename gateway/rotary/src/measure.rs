@@ -1,5 +1,7 @@
 //! The measurement cycle on the machine with a touch probe (the paper's plan, executed
-//! through whatever drives the machine): C in 12 steps of 30° at A = 0, A in 6 steps of
+//! through whatever drives the machine): the C rotation centre first, from a circle
+//! through 3 points touched on the table's rim at A = C = 0 (the balls are then looked
+//! for around it); C in 12 steps of 30° at A = 0, A in 6 steps of
 //! 15° at C = 0; at each step 6 points on each ball, each approached along the sphere's
 //! normal, touched fast, backed off and touched again slowly; a sphere fitted per ball
 //! and step (radius free, checked against the certified radius plus the stylus); the
@@ -53,6 +55,55 @@ pub struct MeasurePlan {
     pub residual_limit_mm: f64,
     /// Height of the gauge point for moves between balls and steps (machine Z).
     pub safe_z_mm: f64,
+    /// Locating the C centre on the table's rim first (absent in a plan file: the
+    /// defaults).
+    #[serde(default)]
+    pub rim: RimPlan,
+}
+
+/// Where and how the C rotation centre is found: 3 touches on the table's cylindrical rim,
+/// horizontally towards the nominal C axis, at A = C = 0.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RimPlan {
+    /// The rim's radius as drawn (NCTLT-125: 62.5 mm).
+    pub radius_mm: f64,
+    /// Height of the touches below the table face.
+    pub depth_mm: f64,
+    /// Directions of the touches from the C axis, degrees from machine +X (the plate
+    /// lies along X: the default touches at 90°, 210° and 330° stay clear of it).
+    pub angles_deg: [f64; 3],
+    /// The fitted radius (less the stylus) must be within this of `radius_mm`.
+    pub radius_tolerance_mm: f64,
+    /// The located centre may be at most this far from the nominal C axis (X, Y); more
+    /// and the constants are wrong for this machine: the cycle stops before looking for
+    /// the balls where they are not.
+    pub max_offset_mm: f64,
+}
+
+impl Default for RimPlan {
+    fn default() -> Self {
+        Self {
+            radius_mm: 62.5,
+            depth_mm: 10.0,
+            angles_deg: [90.0, 210.0, 330.0],
+            radius_tolerance_mm: 0.05,
+            max_offset_mm: 1.0,
+        }
+    }
+}
+
+/// The C rotation centre found on the rim (machine frame, tool-tip coordinates, mm).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct CCentre {
+    pub x_mm: f64,
+    pub y_mm: f64,
+    /// The located centre minus the nominal C axis (the machine constants'), X and Y.
+    pub offset_mm: [f64; 2],
+    /// The rim's radius from the fit (stylus radius taken off).
+    pub rim_radius_mm: f64,
+    /// The stylus centres at the three slow touches.
+    pub points: Vec<[f64; 3]>,
 }
 
 impl Default for MeasurePlan {
@@ -69,6 +120,7 @@ impl Default for MeasurePlan {
             radius_tolerance_mm: 0.005,
             residual_limit_mm: 0.002,
             safe_z_mm: -20.0,
+            rim: RimPlan::default(),
         }
     }
 }
@@ -88,6 +140,8 @@ pub struct BallMeasurement {
 /// The cycle's result.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Measurement {
+    /// The C centre located on the rim before the balls (None if the cycle stopped there).
+    pub c_centre: Option<CCentre>,
     pub balls: Vec<BallMeasurement>,
     pub probe_touches: usize,
 }
@@ -129,6 +183,14 @@ pub enum MeasureError {
     },
     #[error("the machine: {0}")]
     Machine(String),
+    #[error("table rim, touch {touch} at {angle_deg}°: no contact within {overtravel_mm} mm past where the rim should be; stopped")]
+    RimNotFound {
+        touch: usize,
+        angle_deg: f64,
+        overtravel_mm: f64,
+    },
+    #[error("table rim: {0}; stopped before the balls")]
+    Rim(String),
 }
 
 /// A stopped cycle: why, and what was measured until then (to be saved).
@@ -136,6 +198,134 @@ pub enum MeasureError {
 pub struct Stopped {
     pub error: MeasureError,
     pub so_far: Measurement,
+}
+
+/// The C rotation centre from three touches on the table's rim (see [`RimPlan`]): each
+/// touch from outside, horizontally towards the nominal axis, fast then slow after a
+/// back-off; the circle through the three stylus centres.
+fn locate_c_centre(
+    machine: &mut impl ProbingMachine,
+    nominal: &RotaryMachine,
+    tool_length_mm: f64,
+    plan: &MeasurePlan,
+    touches: &mut usize,
+) -> Result<CCentre, MeasureError> {
+    let rim = &plan.rim;
+    let axis = kinematics::transform_point(&nominal.table(0.0, 0.0), &Vector3::zeros());
+    let z = axis.z - rim.depth_mm;
+    let reach = rim.radius_mm + plan.stylus_radius_mm;
+    let machine_error = MeasureError::Machine;
+    let at = |p: Vector3<f64>| Axes::new(p.x, p.y, p.z + tool_length_mm, 0.0, 0.0);
+    machine
+        .move_to(&Axes::new(axis.x, axis.y, plan.safe_z_mm, 0.0, 0.0))
+        .map_err(machine_error)?;
+    let mut points = Vec::new();
+    for (k, &angle_deg) in rim.angles_deg.iter().enumerate() {
+        let u = Vector3::new(
+            angle_deg.to_radians().cos(),
+            angle_deg.to_radians().sin(),
+            0.0,
+        );
+        let start = Vector3::new(axis.x, axis.y, z) + u * (reach + plan.approach_mm);
+        let end = Vector3::new(axis.x, axis.y, z) + u * (reach - plan.overtravel_mm);
+        let over = at(start);
+        machine
+            .move_to(&Axes::new(
+                over.x,
+                over.y,
+                plan.safe_z_mm.max(over.z),
+                0.0,
+                0.0,
+            ))
+            .map_err(machine_error)?;
+        // Down beside the rim as a probing move: if the table is not where the constants
+        // put it the stylus meets it here, and the machine stops instead of crashing.
+        if let Some(p) = machine
+            .probe_towards([over.x, over.y, over.z], plan.fast_feed_mm_min)
+            .map_err(machine_error)?
+        {
+            return Err(MeasureError::Rim(format!(
+                "touch {} at {angle_deg}°: contact at ({:.3}, {:.3}, {:.3}) mm on the way down \
+                 beside the rim; the table is not where the machine constants put it",
+                k + 1,
+                p[0],
+                p[1],
+                p[2]
+            )));
+        }
+        let not_found = MeasureError::RimNotFound {
+            touch: k + 1,
+            angle_deg,
+            overtravel_mm: plan.overtravel_mm,
+        };
+        let gauge = |p: Vector3<f64>| [p.x, p.y, p.z + tool_length_mm];
+        *touches += 1;
+        let fast = machine
+            .probe_towards(gauge(end), plan.fast_feed_mm_min)
+            .map_err(machine_error)?
+            .ok_or_else(|| not_found.clone())?;
+        let back = Vector3::from(fast) + u * plan.backoff_mm;
+        machine
+            .move_to(&Axes::new(back.x, back.y, back.z, 0.0, 0.0))
+            .map_err(machine_error)?;
+        *touches += 1;
+        let slow = machine
+            .probe_towards(gauge(end), plan.slow_feed_mm_min)
+            .map_err(machine_error)?
+            .ok_or(not_found)?;
+        points.push([slow[0], slow[1], slow[2] - tool_length_mm]);
+        machine.move_to(&over).map_err(machine_error)?;
+        machine
+            .move_to(&Axes::new(
+                over.x,
+                over.y,
+                plan.safe_z_mm.max(over.z),
+                0.0,
+                0.0,
+            ))
+            .map_err(machine_error)?;
+    }
+    let (cx, cy, r) = circle_through(&points)
+        .ok_or_else(|| MeasureError::Rim("the three touches lie on one line".into()))?;
+    let rim_radius_mm = r - plan.stylus_radius_mm;
+    if (rim_radius_mm - rim.radius_mm).abs() > rim.radius_tolerance_mm {
+        return Err(MeasureError::Rim(format!(
+            "fitted radius {rim_radius_mm:.4} mm, drawn {:.4} mm (tolerance {} mm)",
+            rim.radius_mm, rim.radius_tolerance_mm
+        )));
+    }
+    let offset_mm = [cx - axis.x, cy - axis.y];
+    if offset_mm[0].hypot(offset_mm[1]) > rim.max_offset_mm {
+        return Err(MeasureError::Rim(format!(
+            "the C centre is at ({cx:.4}, {cy:.4}) mm, ({:.4}, {:.4}) mm from the nominal axis: \
+             more than {} mm, the machine constants do not describe this machine",
+            offset_mm[0], offset_mm[1], rim.max_offset_mm
+        )));
+    }
+    Ok(CCentre {
+        x_mm: cx,
+        y_mm: cy,
+        offset_mm,
+        rim_radius_mm,
+        points,
+    })
+}
+
+/// The circle (centre X, Y and radius) through three points' X, Y; None when they are on
+/// one line.
+fn circle_through(p: &[[f64; 3]]) -> Option<(f64, f64, f64)> {
+    let [a, b, c] = [p[0], p[1], p[2]];
+    // Relative to `a`, for conditioning.
+    let (bx, by) = (b[0] - a[0], b[1] - a[1]);
+    let (cx, cy) = (c[0] - a[0], c[1] - a[1]);
+    let d = 2.0 * (bx * cy - by * cx);
+    if d.abs() < 1e-12 * (bx.hypot(by) * cx.hypot(cy)).max(1e-300) {
+        return None;
+    }
+    let (b2, c2) = (bx * bx + by * by, cx * cx + cy * cy);
+    let ux = (cy * b2 - by * c2) / d;
+    let uy = (bx * c2 - cx * b2) / d;
+    Some((a[0] + ux, a[1] + uy, ux.hypot(uy)))
 }
 
 /// The six approach directions (unit vectors from the ball's centre outwards, machine
@@ -167,6 +357,7 @@ pub fn measure(
     let nominal = RotaryMachine::nominal(*constants);
     let l = constants.tool_length_mm;
     let mut result = Measurement {
+        c_centre: None,
         balls: Vec::new(),
         probe_touches: 0,
     };
@@ -177,6 +368,10 @@ pub fn measure(
             so_far: so_far.clone(),
         })
     };
+    let located = locate_c_centre(machine, &nominal, l, plan, &mut result.probe_touches)
+        .map_err(|e| stop(e, &result))?;
+    let offset = Vector3::new(located.offset_mm[0], located.offset_mm[1], 0.0);
+    result.c_centre = Some(located);
     for axis in [Axis::C, Axis::A] {
         for (step, (a, c)) in sweep(axis).into_iter().enumerate() {
             let step = step as u32;
@@ -188,7 +383,10 @@ pub fn measure(
                 .map_err(|e| stop(MeasureError::Machine(e), &result))?;
             for (b, ball) in plan.artifact.balls.iter().enumerate() {
                 let ball_no = b as u8 + 1;
-                let centre = kinematics::transform_point(&table, &Vector3::from(ball.centre_mm));
+                // Where the ball should be, with the table where the rim says it is (the
+                // offset at A = 0 turned with A).
+                let centre = kinematics::transform_point(&table, &Vector3::from(ball.centre_mm))
+                    + nominal.table(a, 0.0).fixed_view::<3, 3>(0, 0) * offset;
                 // Around machine +Z: the probe comes from above; the points at
                 // `cone_deg` from the top reach down near the equator, so the centre's
                 // height is not left to the radius (a cap of 40° would make it 4 times
