@@ -6,9 +6,10 @@
 //! the tool point's error at the program's points and its distance from the programmed
 //! path, before and after.
 //!
-//! Not yet through the GRBL emulator: `world::volumetric::VolumetricWorkpiece` puts the
-//! machine behind `GrblDevice::with_axes` (the n-axis emulator that landed at the end
-//! of the session), but streaming a program to it did not finish in time.
+//! And the same through the whole stack: the machine behind the GRBL emulator
+//! (`GrblDevice::with_axes` over `world::volumetric::VolumetricWorkpiece`) on a real
+//! pseudo-terminal, the program streamed by the GRBL driver, the truth taken where the
+//! emulated axes really ended each move.
 
 use protocol::grbl::gcode::{filter_line, Action, Interpreter, Rate};
 use protocol::volumetric::Structure;
@@ -182,4 +183,93 @@ fn a_program_run_by_grbl_lands_on_the_nominal_path_after_the_volumetric_rewrite(
     assert!(after.point_max <= 0.1 * before.point_max);
     assert!(after.path_rms <= 0.1 * before.path_rms);
     assert!(after.path_max <= 0.1 * before.path_max);
+}
+
+/// Streams `program` through the GRBL driver to the emulator serving `machine` on a
+/// pseudo-terminal; returns where the axes ended each move (machine X, Y, Z).
+fn stream_through_grbl(machine: &VolumetricMachine, program: &str) -> Vec<P> {
+    use drivers::grbl::{GrblOptions, GrblStage, StreamOptions};
+    use drivers::Stage;
+    use emulators::grbl::{GrblConfig, GrblDevice, GrblPty};
+    use world::axes::{lock_axes, AxesMachine};
+    let rt = system_tests::runtime();
+    let axes = AxesMachine::new(Box::new(world::volumetric::VolumetricWorkpiece(
+        machine.clone(),
+    )))
+    .shared();
+    lock_axes(&axes).record_move_ends();
+    rt.block_on(async {
+        let pty = GrblPty::spawn(
+            GrblDevice::with_axes(axes.clone(), GrblConfig::default()),
+            None,
+        )
+        .expect("pseudo-terminal");
+        let opts = GrblOptions {
+            poll_interval: std::time::Duration::from_millis(2),
+            ..GrblOptions::default()
+        };
+        let mut stage = GrblStage::open(pty.path(), 115_200, opts)
+            .await
+            .expect("connect to the emulator");
+        let report = stage
+            .stream_program(program, &StreamOptions::default(), &mut |_| {})
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        stage.wait_idle().await.expect("idle at the end");
+        assert_eq!(report.progress.acknowledged, report.progress.total);
+        drop(pty);
+    });
+    let ends = lock_axes(&axes).take_move_ends();
+    ends.iter().map(|e| [e[0], e[1], e[2]]).collect()
+}
+
+#[test]
+fn a_program_streamed_to_the_emulated_machine_lands_on_the_nominal_path_after_the_rewrite() {
+    let machine = VolumetricMachine::new(Structure::Xyfz, 1);
+    let files = machine.campaign(101);
+    let model = identify(Structure::Xyfz, &Campaign::from_files(&files).unwrap())
+        .unwrap()
+        .model;
+    let text = program();
+    let (rewritten, _) = rewrite_program(
+        &text,
+        &model,
+        Options {
+            start: Some([0.0; 3]),
+            ..Options::default()
+        },
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    let (program_moves, points) = moves_and_points(&text);
+    let mut nominal = vec![[0.0; 3]];
+    nominal.extend(program_moves.iter().map(|m| m.0));
+    // The emulator's move ends, as commands (cutting or not does not matter for the
+    // points; every segment is sampled for the path, rapids included, so the path
+    // figures are looser than the interpreter-only test's).
+    let as_run =
+        |ends: Vec<P>| -> Vec<(P, bool)> { ends.into_iter().map(|e| (e, false)).collect() };
+    let plain = stream_through_grbl(&machine, &text);
+    let fixed = stream_through_grbl(&machine, &rewritten);
+    // GRBL moved the axes to exactly the interpreter's targets (arcs as the same chords).
+    let interpreted: Vec<P> = program_moves.iter().map(|m| m.0).collect();
+    assert_eq!(
+        plain.len(),
+        interpreted.len(),
+        "one move end per interpreted move"
+    );
+    for (a, b) in plain.iter().zip(&interpreted) {
+        assert!(dist(*a, *b) < 1e-4, "{a:?} vs {b:?}");
+    }
+    let before = run(&machine, &as_run(plain), &nominal, &points);
+    let after = run(&machine, &as_run(fixed), &nominal, &points);
+    eprintln!(
+        "through the emulator: points RMS {:.2} -> {:.3} um, max {:.2} -> {:.3} um",
+        before.point_rms * 1e3,
+        after.point_rms * 1e3,
+        before.point_max * 1e3,
+        after.point_max * 1e3
+    );
+    assert!(before.point_rms > 0.005, "the machine has errors to remove");
+    assert!(after.point_rms <= 0.1 * before.point_rms);
+    assert!(after.point_max <= 0.1 * before.point_max);
 }

@@ -63,6 +63,8 @@ pub struct AxesMachine {
     /// The probe fired during the last probing move.
     triggered: bool,
     now_s: f64,
+    /// Where each move ended, while a test asks for them (see [`Self::record_move_ends`]).
+    move_ends: Option<Vec<AxesPosition>>,
 }
 
 /// The machine shared between a controller emulator and tests.
@@ -81,6 +83,28 @@ impl AxesMachine {
             motion: None,
             triggered: false,
             now_s: 0.0,
+            move_ends: None,
+        }
+    }
+
+    /// From now on, keep the position where every move ends (reached, not stopped
+    /// short): the trace a test compares with the truth.
+    pub fn record_move_ends(&mut self) {
+        self.move_ends.get_or_insert_with(Vec::new);
+    }
+
+    /// The move ends kept since the last call (recording goes on).
+    pub fn take_move_ends(&mut self) -> Vec<AxesPosition> {
+        self.move_ends
+            .as_mut()
+            .map(std::mem::take)
+            .unwrap_or_default()
+    }
+
+    fn reached(&mut self, at: AxesPosition) {
+        self.position = at;
+        if let Some(ends) = &mut self.move_ends {
+            ends.push(at);
         }
     }
 
@@ -201,7 +225,7 @@ impl AxesMachine {
                 rate,
             });
         } else {
-            self.position = to;
+            self.reached(to);
         }
         duration_s
     }
@@ -214,8 +238,8 @@ impl AxesMachine {
         };
         m.elapsed_s += dt;
         if m.elapsed_s >= m.duration_s {
-            self.position = m.to;
             self.motion = None;
+            self.reached(m.to);
             return;
         }
         let k = m.elapsed_s / m.duration_s;
@@ -229,7 +253,7 @@ impl AxesMachine {
     pub fn finish_motion(&mut self) {
         if let Some(m) = self.motion.take() {
             self.now_s += (m.duration_s - m.elapsed_s).max(0.0);
-            self.position = m.to;
+            self.reached(m.to);
         }
     }
 
