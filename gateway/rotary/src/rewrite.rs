@@ -129,24 +129,123 @@ fn set_axes(block: &mut Block, c: &Axes) -> Result<(), RewriteError> {
     Ok(())
 }
 
-/// Rewrites `text` for `model` (its errors and limits); the program's start position
-/// is unknown until a move names all five axes.
-pub fn rewrite_program(
-    text: &str,
-    model: &RotaryMachine,
-    opts: &RewriteOptions,
-) -> Result<(String, RewriteReport), RewriteError> {
-    let program = Program::parse(text).map_err(|e| RewriteError::Parse(e.to_string()))?;
-    let mut report = RewriteReport {
-        lines: program.blocks.len(),
-        ..RewriteReport::default()
-    };
-    let mut out = Program { blocks: Vec::new() };
-    let mut known: [Option<f64>; 5] = [None; 5];
-    let mut motion = 0u8; // G0 until told otherwise
-    let mut last: Option<(Axes, Axes)> = None;
-    for (k, block) in program.blocks.into_iter().enumerate() {
-        let line = k + 1;
+/// The rewrite as a state machine, one block at a time: what a whole-program rewrite
+/// and the live pass-through share. It follows the five axes' programmed positions and
+/// the motion mode; the controller's own state (from its `$G` and `$#` replies) can be
+/// given, so that lines it would read in inches, incrementally or in a shifted work
+/// frame are refused rather than corrected on a guess.
+pub struct RotaryRewriter<'a> {
+    model: &'a RotaryMachine,
+    opts: RewriteOptions,
+    known: [Option<f64>; 5],
+    /// 0 (G0) or 1 (G1); G0 until told otherwise.
+    motion: u8,
+    last: Option<(Axes, Axes)>,
+    /// The controller reads in inches / incrementally (from its `$G`), until a line
+    /// sets G21 / G90.
+    inches: bool,
+    incremental: bool,
+    /// Active work coordinate system (0 = G54) and the stored offsets (X Y Z A B C as
+    /// the controller reports them); the rewrite works in machine coordinates, so a
+    /// non-zero active offset refuses moves.
+    coord_select: usize,
+    offsets: [[f64; 6]; 6],
+    pub report: RewriteReport,
+}
+
+impl<'a> RotaryRewriter<'a> {
+    pub fn new(model: &'a RotaryMachine, opts: RewriteOptions) -> Self {
+        Self {
+            model,
+            opts,
+            known: [None; 5],
+            motion: 0,
+            last: None,
+            inches: false,
+            incremental: false,
+            coord_select: 0,
+            offsets: [[0.0; 6]; 6],
+            report: RewriteReport::default(),
+        }
+    }
+
+    /// Whether all five axes' positions are known.
+    pub fn position_known(&self) -> bool {
+        self.known.iter().all(Option::is_some)
+    }
+
+    /// The machine is at `command` (from an idle status report): the programmed
+    /// position is the one whose command it is.
+    pub fn set_position(&mut self, nominal: Axes, command: Axes) {
+        self.known = [
+            Some(nominal.x),
+            Some(nominal.y),
+            Some(nominal.z),
+            Some(nominal.a),
+            Some(nominal.c),
+        ];
+        self.last = Some((nominal, command));
+    }
+
+    /// The position is no longer known (a reset, a homing, a lost controller).
+    pub fn forget_position(&mut self) {
+        self.known = [None; 5];
+        self.last = None;
+    }
+
+    /// The controller was reset: its modal state is back to G0 G54 G21 G90.
+    pub fn controller_reset(&mut self) {
+        self.forget_position();
+        self.motion = 0;
+        self.inches = false;
+        self.incremental = false;
+        self.coord_select = 0;
+    }
+
+    /// The controller's modal words (its `$G` reply, e.g. `G0 G54 G17 G21 G90 G94 ...`).
+    pub fn sync_modal(&mut self, words: &str) {
+        for w in words.split_whitespace() {
+            match w {
+                "G0" => self.motion = 0,
+                "G1" => self.motion = 1,
+                "G20" => self.inches = true,
+                "G21" => self.inches = false,
+                "G90" => self.incremental = false,
+                "G91" => self.incremental = true,
+                _ => {
+                    if let Some(n) = w.strip_prefix('G').and_then(|n| n.parse::<usize>().ok()) {
+                        if (54..=59).contains(&n) {
+                            self.coord_select = n - 54;
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// One stored work offset (`k` 0 = G54), as the controller reports it.
+    pub fn set_work_offset(&mut self, k: usize, values: &[f64]) {
+        if let Some(o) = self.offsets.get_mut(k) {
+            for (slot, v) in o.iter_mut().zip(values) {
+                *slot = *v;
+            }
+        }
+    }
+
+    /// The programmed position whose command the controller reports (the inverse of
+    /// `command_for`, through the model's forward chain and the nominal inverse).
+    pub fn nominal_of(&self, command: &Axes) -> Result<Axes, RotaryError> {
+        let pose = self.model.forward(command);
+        RotaryMachine::nominal(self.model.constants).inverse(&pose, (command.a, command.c))
+    }
+
+    /// Rewrites one block (line `line`, 1-based): the block with its axis words
+    /// replaced, then the extra pieces. On an error nothing changes.
+    pub fn block(&mut self, block: Block, line: usize) -> Result<Vec<Block>, RewriteError> {
+        let mut known = self.known;
+        let mut motion = self.motion;
+        let (mut inches, mut incremental, mut coord) =
+            (self.inches, self.incremental, self.coord_select);
         let mut has_axis = false;
         for w in block.words() {
             let letter = w.letter().to_ascii_uppercase();
@@ -160,8 +259,14 @@ pub fn rewrite_program(
                         return Err(refuse(line, "arcs (G2/G3) are not rewritten for 5 axes"));
                     } else if g == 20.0 {
                         return Err(refuse(line, "inches (G20): the table's model is in mm"));
+                    } else if g == 21.0 {
+                        inches = false;
                     } else if g == 91.0 {
                         return Err(refuse(line, "incremental moves (G91) are not rewritten"));
+                    } else if g == 90.0 {
+                        incremental = false;
+                    } else if (54.0..=59.0).contains(&g) && g.fract() == 0.0 {
+                        coord = g as usize - 54;
                     } else if [53.0, 28.0, 30.0, 92.0].contains(&g) || (38.0..39.0).contains(&g) {
                         return Err(refuse(
                             line,
@@ -187,8 +292,30 @@ pub fn rewrite_program(
             }
         }
         if !has_axis {
-            out.blocks.push(block);
-            continue;
+            (
+                self.motion,
+                self.inches,
+                self.incremental,
+                self.coord_select,
+            ) = (motion, inches, incremental, coord);
+            return Ok(vec![block]);
+        }
+        if inches || incremental {
+            return Err(refuse(
+                line,
+                "the controller reads this move in inches or incrementally (its $G says G20 or \
+                 G91): send G21 G90 first",
+            ));
+        }
+        if self.offsets[coord].iter().any(|v| *v != 0.0) {
+            return Err(refuse(
+                line,
+                format!(
+                    "the active work offset G{} is not zero on the controller: the table's \
+                     model is in machine coordinates",
+                    54 + coord
+                ),
+            ));
         }
         let Some(nominal) = (|| {
             Some(Axes::new(
@@ -206,15 +333,15 @@ pub fn rewrite_program(
                 format!("axes {missing} not known yet (name all five in the first move)"),
             ));
         };
-        let command = model
+        let command = self
+            .model
             .command_for(&nominal)
             .map_err(|e: RotaryError| refuse(line, e.to_string()))?;
-        report.moves += 1;
         let mut pieces = Vec::new();
-        match (&last, motion) {
+        match (&self.last, motion) {
             (Some((n0, c0)), 1) => split(
-                model,
-                opts,
+                self.model,
+                &self.opts,
                 line,
                 n0,
                 c0,
@@ -225,31 +352,53 @@ pub fn rewrite_program(
             )?,
             _ => pieces.push((nominal, command)),
         }
-        let mut block = block;
-        set_axes(&mut block, &pieces[0].1)?;
-        out.blocks.push(block);
-        report.points.push(WrittenPoint {
+        let mut first = block;
+        set_axes(&mut first, &pieces[0].1)?;
+        let mut out = vec![first];
+        let mut points = vec![WrittenPoint {
             line,
             nominal: pieces[0].0,
             command: pieces[0].1,
             feed_move: motion == 1,
-        });
+        }];
         for (n, c) in &pieces[1..] {
             let mut extra = Block::new();
             extra
                 .set_word('G', 1.0, 0)
                 .map_err(|e| RewriteError::Parse(e.to_string()))?;
             set_axes(&mut extra, c)?;
-            out.blocks.push(extra);
-            report.points.push(WrittenPoint {
+            out.push(extra);
+            points.push(WrittenPoint {
                 line,
                 nominal: *n,
                 command: *c,
                 feed_move: true,
             });
         }
-        report.pieces_added += pieces.len() - 1;
-        last = Some((nominal, command));
+        self.report.moves += 1;
+        self.report.pieces_added += pieces.len() - 1;
+        self.report.points.extend(points);
+        (self.known, self.motion, self.last) = (known, motion, Some((nominal, command)));
+        (self.inches, self.incremental, self.coord_select) = (inches, incremental, coord);
+        Ok(out)
     }
+}
+
+/// Rewrites `text` for `model` (its errors and limits); the program's start position
+/// is unknown until a move names all five axes.
+pub fn rewrite_program(
+    text: &str,
+    model: &RotaryMachine,
+    opts: &RewriteOptions,
+) -> Result<(String, RewriteReport), RewriteError> {
+    let program = Program::parse(text).map_err(|e| RewriteError::Parse(e.to_string()))?;
+    let lines = program.blocks.len();
+    let mut rewriter = RotaryRewriter::new(model, *opts);
+    let mut out = Program { blocks: Vec::new() };
+    for (k, block) in program.blocks.into_iter().enumerate() {
+        out.blocks.extend(rewriter.block(block, k + 1)?);
+    }
+    let mut report = rewriter.report;
+    report.lines = lines;
     Ok((out.to_string(), report))
 }
