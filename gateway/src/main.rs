@@ -157,22 +157,39 @@ enum Cmd {
         cmd: layout::LayoutCmd,
     },
     /// The live pass-through: a pseudo-terminal that answers as a GRBL 1.1 controller to
-    /// the G-code sender you already use (UGS, CNCjs, bCNC), rewriting every line with
-    /// the error map and streaming it to the job's GRBL controller. Status reports show
+    /// the G-code sender you already use (UGS, CNCjs, bCNC), rewriting every line and
+    /// streaming it to the GRBL controller: with an error map (`--config JOB --map MAP`,
+    /// the job's controller) or for a rotary table's location errors (`--rotary ERRORS
+    /// --controller PORT`, X Y Z A C on a grblHAL six-axis build). Status reports show
     /// the programmed position. Ctrl-C stops.
     Proxy {
-        /// The job file (its stage must be a GRBL controller, real or emulated).
+        /// The job file (its stage must be a GRBL controller, real or emulated); with
+        /// `--map`.
         #[arg(long)]
-        config: PathBuf,
+        config: Option<PathBuf>,
         #[arg(long)]
-        map: PathBuf,
+        map: Option<PathBuf>,
+        /// The rotary table's errors (the JSON `gateway rotary measure` or `identify`
+        /// writes); with `--controller`.
+        #[arg(long)]
+        rotary: Option<PathBuf>,
+        /// The machine constants of the rotary table (JSON), default the built-in ones.
+        #[arg(long)]
+        machine: Option<PathBuf>,
+        /// The controller's serial port, with `--rotary`.
+        #[arg(long)]
+        controller: Option<String>,
+        #[arg(long, default_value_t = 115_200)]
+        baud: u32,
         /// Also create a symlink to the sender's port at this path.
         #[arg(long)]
         link: Option<PathBuf>,
         #[arg(long, default_value_t = 0.5)]
         tolerance_um: f64,
-        #[arg(long, default_value_t = 200.0)]
-        max_correction_um: f64,
+        /// The largest correction a move may get (default 200 um with a map, 2000 um for
+        /// a rotary table, whose A-axis offsets reach tenths of a millimetre).
+        #[arg(long)]
+        max_correction_um: Option<f64>,
         /// An emulated controller's clock: simulated seconds per wall second, or
         /// `unconstrained`.
         #[arg(long, default_value = "1")]
@@ -464,6 +481,10 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Cmd::Proxy {
             config,
             map,
+            rotary,
+            machine,
+            controller,
+            baud,
             link,
             tolerance_um,
             max_correction_um,
@@ -473,6 +494,10 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         } => proxy::proxy(proxy::ProxyArgs {
             config,
             map,
+            rotary,
+            machine,
+            controller,
+            baud,
             link,
             tolerance_um,
             max_correction_um,

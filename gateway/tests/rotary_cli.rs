@@ -292,3 +292,152 @@ fn a_real_port_job_refuses_simulation_settings() {
         "{err}"
     );
 }
+
+/// `gateway proxy --rotary`: a sender streams a 5-axis program to the gateway's port; the
+/// gateway rewrites it for the table's errors and streams it to the controller on a
+/// pseudo-terminal (the GRBL emulator with the paper's table, served by this test). Every
+/// line is acknowledged, the moves were split, and the sender's status shows the
+/// programmed position while the controller's differs by the correction.
+#[test]
+fn the_pass_through_rewrites_a_five_axis_program_for_the_table() {
+    use emulators::grbl::{GrblConfig, GrblDevice, GrblPty};
+    use std::io::{BufRead, BufReader};
+    use tokio::io::{AsyncBufReadExt, AsyncWriteExt};
+    use world::axes::{lock_axes, AxesMachine};
+    let out = scratch("proxy");
+    let errors = out.join("errors.json");
+    let truth = job::rotary::RotaryJob::default().simulated().sim;
+    let t = truth.errors;
+    std::fs::write(
+        &errors,
+        serde_json::json!({
+            "delta_XC_mm": t.delta_xc_mm, "delta_YC_mm": t.delta_yc_mm,
+            "alpha_XC_deg": t.alpha_xc_deg, "alpha_YC_deg": t.alpha_yc_deg,
+            "delta_YA_mm": t.delta_ya_mm, "delta_ZA_mm": t.delta_za_mm,
+            "alpha_YA_deg": t.alpha_ya_deg, "alpha_ZA_deg": t.alpha_za_deg,
+        })
+        .to_string(),
+    )
+    .unwrap();
+    let (path_tx, path_rx) = std::sync::mpsc::channel();
+    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+    let controller = std::thread::spawn(move || {
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        let axes =
+            AxesMachine::new(Box::new(world::rotary::RotaryWorkpiece { sim: truth })).shared();
+        let pty = {
+            let _enter = rt.enter();
+            GrblPty::spawn(
+                GrblDevice::with_axes(axes.clone(), GrblConfig::default()),
+                None,
+            )
+            .unwrap()
+        };
+        path_tx.send(pty.path().to_string()).unwrap();
+        rt.block_on(async {
+            let _ = stop_rx.await;
+        });
+        let at = lock_axes(&axes).position();
+        drop(pty);
+        at
+    });
+    let port = path_rx.recv().unwrap();
+    let mut gateway = Command::new(env!("CARGO_BIN_EXE_gateway"))
+        .args([
+            "proxy",
+            "--rotary",
+            errors.to_str().unwrap(),
+            "--controller",
+            &port,
+            "--once",
+            "--json",
+        ])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdout = BufReader::new(gateway.stdout.take().unwrap());
+    let mut first = String::new();
+    stdout.read_line(&mut first).unwrap();
+    let hello: serde_json::Value =
+        serde_json::from_str(&first).unwrap_or_else(|e| panic!("{e}: {first:?}"));
+    let sender_port = hello["sender_port"].as_str().unwrap().to_string();
+    let program = "G21 G90 G94\nG0 X10 Y5 Z-170 A0 C0\nG1 X12 Y6 Z-175 A15 C30 F800\n\
+                   G1 X-8 Y4 Z-180 A40 C160\nG0 X0 Y0 Z-150 A10 C10\n";
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let (answers, status) = rt.block_on(async {
+        use tokio_serial::SerialPortBuilderExt;
+        let port = tokio_serial::new(&sender_port, 115_200)
+            .open_native_async()
+            .unwrap();
+        let (read, mut write) = tokio::io::split(port);
+        let mut lines = tokio::io::BufReader::new(read).lines();
+        let mut answers = Vec::new();
+        for line in program.lines() {
+            write
+                .write_all(format!("{line}\n").as_bytes())
+                .await
+                .unwrap();
+            loop {
+                let got =
+                    tokio::time::timeout(std::time::Duration::from_secs(30), lines.next_line())
+                        .await
+                        .expect("an answer")
+                        .unwrap()
+                        .unwrap();
+                let got = got.trim().to_string();
+                if got == "ok" || got.starts_with("error:") {
+                    answers.push(got);
+                    break;
+                }
+            }
+        }
+        let status = loop {
+            write.write_all(b"?").await.unwrap();
+            let got = tokio::time::timeout(std::time::Duration::from_secs(30), lines.next_line())
+                .await
+                .expect("a report")
+                .unwrap()
+                .unwrap();
+            if got.starts_with("<Idle") {
+                break got;
+            }
+        };
+        (answers, status)
+    });
+    let status_code = gateway.wait().unwrap();
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut stdout, &mut rest).unwrap();
+    let _ = stop_tx.send(());
+    let at = controller.join().unwrap();
+    assert!(status_code.success(), "{rest}");
+    assert!(answers.iter().all(|a| a == "ok"), "{answers:?}");
+    let session: serde_json::Value = serde_json::from_str(rest.trim()).unwrap();
+    assert_eq!(session["ending"], "sender left");
+    assert_eq!(session["lines"]["refused"], "none");
+    assert!(session["segments_added"].as_u64().unwrap() > 0, "{session}");
+    let mpos: Vec<f64> = status
+        .split('|')
+        .find_map(|f| f.strip_prefix("MPos:"))
+        .unwrap()
+        .split(',')
+        .map(|v| v.parse().unwrap())
+        .collect();
+    for (got, want) in [mpos[0], mpos[1], mpos[2], mpos[3], mpos[5]]
+        .iter()
+        .zip([0.0, 0.0, -150.0, 10.0, 10.0])
+    {
+        assert!((got - want).abs() <= 0.0015, "{status}");
+    }
+    // The controller's axes are where the correction put them, not on the program.
+    assert!(
+        (at[0] - 0.0).abs() + (at[1] - 0.0).abs() + (at[2] + 150.0).abs() > 0.05,
+        "{at:?}"
+    );
+}

@@ -12,10 +12,11 @@
 //! sent: the sender gets `[MSG:...]` naming the reason and `error:N` (see
 //! [`refusal_code`]) in its turn.
 
+use crate::line_rewriter::{CartesianRewriter, LineRewriter};
 use protocol::grbl::realtime::{classify, Realtime, RxByte};
 use protocol::grbl::response::Response;
 use protocol::grbl::status::{MachineState, StatusReport};
-use rewrite::{Compensation, Pose, RewriteError, RewriteErrorKind, Rewriter, N_AXIS};
+use rewrite::{Compensation, RewriteError, RewriteErrorKind, Rewriter};
 use std::collections::VecDeque;
 
 /// GRBL's serial RX buffer (stock 1.1).
@@ -93,8 +94,7 @@ pub struct ProxyStats {
 
 /// The pass-through state.
 pub struct Proxy<'a> {
-    rewriter: Rewriter<'a>,
-    compensation: &'a dyn Compensation,
+    rewriter: Box<dyn LineRewriter + 'a>,
     rx_buffer: usize,
     sender_partial: Vec<u8>,
     controller_partial: Vec<u8>,
@@ -127,10 +127,18 @@ pub struct Proxy<'a> {
 const OWN: u64 = 0;
 
 impl<'a> Proxy<'a> {
+    /// The pass-through for a 3-axis compensation (an error map, a volumetric model).
     pub fn new(rewriter: Rewriter<'a>, compensation: &'a dyn Compensation) -> Self {
-        Self {
+        Self::with_rewriter(Box::new(CartesianRewriter {
             rewriter,
             compensation,
+        }))
+    }
+
+    /// The pass-through for any line rewriter (the rotary table's 5-axis one).
+    pub fn with_rewriter(rewriter: Box<dyn LineRewriter + 'a>) -> Self {
+        Self {
+            rewriter,
             rx_buffer: RX_BUFFER,
             sender_partial: Vec::new(),
             controller_partial: Vec::new(),
@@ -200,8 +208,8 @@ impl<'a> Proxy<'a> {
         &self.stats
     }
 
-    pub fn rewriter(&self) -> &Rewriter<'a> {
-        &self.rewriter
+    pub fn rewriter(&self) -> &dyn LineRewriter {
+        self.rewriter.as_ref()
     }
 
     /// Bytes of the gateway's lines in the controller's RX buffer now.
@@ -402,7 +410,7 @@ impl<'a> Proxy<'a> {
             }
             Response::ParserState(words) if self.own_line_pending() => {
                 // A $G reply the controller would not refuse; a failure leaves defaults.
-                let _ = self.rewriter.sync_modal(&words);
+                self.rewriter.sync_modal(&words);
             }
             Response::Status(report) => self.status(report),
             Response::Banner { .. } => {
@@ -453,28 +461,16 @@ impl<'a> Proxy<'a> {
         }
         self.starving = idle && waiting;
         let machine = report.machine_position(self.last_wco.as_deref());
-        if let Some(m) = machine.filter(|m| m.len() >= N_AXIS) {
-            let mut command: Pose = [0.0; N_AXIS];
-            command.copy_from_slice(&m[..N_AXIS]);
-            let approach = self.rewriter.approach();
-            // Outside the map (e.g. at the home switches) the position is shown as the
-            // controller has it.
-            let nominal = self
-                .compensation
-                .tool_for(&command, &approach)
-                .unwrap_or(command);
+        if let Some(command) = machine {
             // At rest with nothing owed, the reported position is where the next move
             // starts (in Alarm too: GRBL then refuses moves itself, with error:9).
             let at_rest = matches!(
                 report.state,
                 MachineState::Idle | MachineState::Alarm | MachineState::Check
-            );
-            if at_rest && self.slots.is_empty() {
-                self.rewriter.set_position(nominal, command);
-            }
-            for i in 0..N_AXIS {
-                let shift = nominal[i] - command[i];
-                report.position[i] += shift;
+            ) && self.slots.is_empty();
+            let nominal = self.rewriter.nominal_position(&command, at_rest);
+            for (shown, (n, c)) in report.position.iter_mut().zip(nominal.iter().zip(&command)) {
+                *shown += n - c;
             }
         }
         // GRBL's decimals for mm reports ($13=0, the default; the gateway's map is in mm).
@@ -498,11 +494,7 @@ impl<'a> Proxy<'a> {
             .split(',')
             .filter_map(|x| x.trim().parse().ok())
             .collect();
-        if v.len() >= N_AXIS {
-            let mut offsets = self.rewriter.work_offsets();
-            offsets[k].copy_from_slice(&v[..N_AXIS]);
-            self.rewriter.set_work_offsets(offsets);
-        }
+        self.rewriter.set_work_offset(k, &v);
     }
 
     fn pass_on(&mut self, raw: &str) {

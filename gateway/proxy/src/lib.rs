@@ -10,9 +10,11 @@
 //! * [`serve`]: the I/O loop over the pseudo-terminal and the controller's port.
 
 pub mod core;
+pub mod line_rewriter;
 pub mod serve;
 
 pub use crate::core::{refusal_code, LineAccount, Proxy, ProxyStats, RX_BUFFER};
+pub use line_rewriter::{CartesianRewriter, FiveAxisRewriter, LineRewriter};
 pub use serve::{open_controller, serve, Ending, SenderPort};
 
 #[cfg(test)]

@@ -27,6 +27,10 @@ pub struct RewriteOptions {
     pub tolerance_deg: f64,
     /// At most 2^max_depth pieces per move.
     pub max_depth: u32,
+    /// The largest X Y Z correction (command minus programmed point) a move may get, mm;
+    /// beyond it the line is refused (the live pass-through bounds it; infinite for a
+    /// whole-program rewrite, whose output the operator reads before running it).
+    pub max_correction_mm: f64,
 }
 
 impl Default for RewriteOptions {
@@ -35,6 +39,7 @@ impl Default for RewriteOptions {
             tolerance_mm: 0.0005,
             tolerance_deg: 0.00002,
             max_depth: 10,
+            max_correction_mm: f64::INFINITY,
         }
     }
 }
@@ -351,6 +356,25 @@ impl<'a> RotaryRewriter<'a> {
                 &mut pieces,
             )?,
             _ => pieces.push((nominal, command)),
+        }
+        for (n, c) in &pieces {
+            let mm = ((c.x - n.x).powi(2) + (c.y - n.y).powi(2) + (c.z - n.z).powi(2)).sqrt();
+            if mm > self.opts.max_correction_mm {
+                return Err(refuse(
+                    line,
+                    format!(
+                        "the correction at X{:.4} Y{:.4} Z{:.4} A{:.4} C{:.4} is {:.1} um, beyond \
+                         the bound of {:.1} um: refused",
+                        n.x,
+                        n.y,
+                        n.z,
+                        n.a,
+                        n.c,
+                        mm * 1000.0,
+                        self.opts.max_correction_mm * 1000.0
+                    ),
+                ));
+            }
         }
         let mut first = block;
         set_axes(&mut first, &pieces[0].1)?;
