@@ -42,7 +42,7 @@ impl EdgeSequence {
     }
 
     /// The `seq` of the next DBIRTH, DDATA, NDATA or DDEATH (255 is followed by 0).
-    pub fn next(&mut self) -> u64 {
+    pub fn next_seq(&mut self) -> u64 {
         let s = self.seq;
         self.seq = self.seq.wrapping_add(1);
         u64::from(s)

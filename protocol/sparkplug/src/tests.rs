@@ -82,14 +82,14 @@ fn rebirth_is_asked_only_by_the_metric_set_true() {
 fn seq_restarts_at_each_birth_and_wraps_after_255() {
     let mut s = EdgeSequence::default();
     assert_eq!(s.birth(), 0);
-    assert_eq!(s.next(), 1);
+    assert_eq!(s.next_seq(), 1);
     for _ in 2..=255 {
-        s.next();
+        s.next_seq();
     }
-    assert_eq!(s.next(), 0, "255 is followed by 0");
-    assert_eq!(s.next(), 1);
+    assert_eq!(s.next_seq(), 0, "255 is followed by 0");
+    assert_eq!(s.next_seq(), 1);
     assert_eq!(s.birth(), 0);
-    assert_eq!(s.next(), 1);
+    assert_eq!(s.next_seq(), 1);
     assert_eq!(next_bdseq(None), 0);
     assert_eq!(next_bdseq(Some(7)), 8);
     assert_eq!(next_bdseq(Some(255)), 0);
