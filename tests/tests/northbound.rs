@@ -509,3 +509,72 @@ fn results_made_while_the_broker_is_down_arrive_once_flagged_historical() {
         nb.shutdown().await;
     });
 }
+
+/// The service with `[mqtt]`: its machine is born on the broker, a compensation job run
+/// through the API shows as state changes and ends as a DDATA with the job's summary.
+#[test]
+fn the_service_publishes_its_machines_and_a_jobs_result() {
+    let broker = Broker::start(0);
+    let rt = system_tests::runtime_two_workers();
+    rt.block_on(async {
+        let (_plant, mut rx) = plant(broker.port).await;
+        let dir = tempfile::tempdir().unwrap();
+        let mut config = service::BoxConfig::demo(dir.path());
+        config.mqtt = Some(config_for_service(broker.port));
+        let s = service::start(config).await.expect("the service starts");
+        let (nbirth, _) = until(&mut rx, "NBIRTH").await;
+        assert_eq!(uint(&nbirth, "Properties/Machines"), 1);
+        let (dbirth, _) = until(&mut rx, "DBIRTH").await;
+        assert_eq!(dbirth.device(), Some("demo"));
+        let r = reqwest::Client::new()
+            .post(format!(
+                "http://{}/api/v1/machines/demo/jobs",
+                s.local_addr()
+            ))
+            .bearer_auth(s.token())
+            .json(&serde_json::json!({"kind": "compensate", "params": {"targets": 1}}))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), reqwest::StatusCode::ACCEPTED);
+        let job: serde_json::Value = r.json().await.unwrap();
+        let id = job["id"].as_i64().unwrap();
+        // State changes while it runs, then its result.
+        let mut busy = false;
+        let result = loop {
+            let m = next(&mut rx).await;
+            if m.kind() == "DDATA" && m.device() == Some("demo") {
+                if m.value("State") == Some(&MetricValue::StringValue("busy".into())) {
+                    busy = true;
+                }
+                if m.payload.metric("Result/Outbox Id").is_some() {
+                    break m;
+                }
+            }
+        };
+        assert!(busy, "the machine was seen busy");
+        assert_eq!(
+            result.payload.metric("Result/Job Id").unwrap().as_i64(),
+            Some(id)
+        );
+        assert_eq!(
+            result
+                .payload
+                .metric("Result/targets_planned")
+                .unwrap()
+                .as_i64(),
+            Some(1)
+        );
+        assert_eq!(s.mqtt_connected(), Some(true));
+        s.shutdown().await;
+        let (death, _) = until(&mut rx, "NDEATH").await;
+        assert_eq!(uint(&death, "bdSeq"), uint(&nbirth, "bdSeq"));
+    });
+}
+
+fn config_for_service(port: u16) -> MqttConfig {
+    MqttConfig {
+        edge_node_id: "box-service".into(),
+        ..config(port)
+    }
+}

@@ -127,8 +127,8 @@ pub struct ServiceConfig {
 pub struct BoxConfig {
     pub service: ServiceConfig,
     pub machines: Vec<MachineConfig>,
-    /// `[mqtt]` as written (the northbound's `MqttConfig`); absent = no northbound.
-    pub mqtt: Option<toml::Table>,
+    /// `[mqtt]`: the Sparkplug B northbound; absent = none.
+    pub mqtt: Option<northbound::MqttConfig>,
 }
 
 impl BoxConfig {
@@ -209,7 +209,18 @@ impl BoxConfig {
                 bad_token_delay_cap_ms: raw.service.bad_token_delay_cap_ms,
             },
             machines,
-            mqtt: raw.mqtt,
+            mqtt: match raw.mqtt {
+                None => None,
+                Some(table) => {
+                    let mqtt: northbound::MqttConfig = toml::Value::Table(table)
+                        .try_into()
+                        .map_err(|e: toml::de::Error| {
+                            invalid("mqtt".into(), e.message().to_string())
+                        })?;
+                    mqtt.check().map_err(|e| invalid("mqtt".into(), e))?;
+                    Some(mqtt)
+                }
+            },
         })
     }
 
@@ -278,5 +289,41 @@ mod tests {
         let text = "[service]\ndata_dir = \"d\"\n[[machine]]\nid = \"a\"\njob = \"j\"\n[[machine]]\nid = \"a\"\njob = \"k\"\n";
         let e = BoxConfig::parse(text, "b.toml", Path::new(".")).unwrap_err();
         assert!(e.to_string().contains("machine[1].id"), "{e}");
+    }
+
+    #[test]
+    fn mqtt_is_read_and_checked() {
+        let base = "[service]\ndata_dir = \"d\"\n[mqtt]\nhost = \"broker\"\ngroup_id = \"plant\"\n";
+        let c = BoxConfig::parse(
+            &format!("{base}edge_node_id = \"box-1\"\n"),
+            "b.toml",
+            Path::new("."),
+        )
+        .unwrap();
+        let m = c.mqtt.unwrap();
+        assert_eq!(
+            (m.host.as_str(), m.port, m.keep_alive_s),
+            ("broker", 1883, 30)
+        );
+        // Sparkplug ids may not hold + # /.
+        let e = BoxConfig::parse(
+            &format!("{base}edge_node_id = \"box/1\"\n"),
+            "b.toml",
+            Path::new("."),
+        )
+        .unwrap_err();
+        assert!(
+            e.to_string().contains("mqtt") && e.to_string().contains("edge_node_id"),
+            "{e}"
+        );
+        let e = BoxConfig::parse(
+            &format!("{base}edge_node_id = \"b\"\nqos = 2\n"),
+            "b.toml",
+            Path::new("."),
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("qos"), "{e}");
+        let e = BoxConfig::parse(&format!("{base}\n"), "b.toml", Path::new(".")).unwrap_err();
+        assert!(e.to_string().contains("edge_node_id"), "{e}");
     }
 }

@@ -35,6 +35,8 @@ pub struct Running {
     server: tokio::task::JoinHandle<std::io::Result<()>>,
     /// One per machine worker thread, completed when it has ended.
     workers: Vec<tokio::sync::oneshot::Receiver<()>>,
+    /// The MQTT northbound, when `[mqtt]` is configured.
+    northbound: Option<northbound::Northbound>,
 }
 
 impl Running {
@@ -46,6 +48,11 @@ impl Running {
         &self.token
     }
 
+    /// Whether the MQTT northbound has a session up (None: no `[mqtt]`).
+    pub fn mqtt_connected(&self) -> Option<bool> {
+        self.northbound.as_ref().map(|n| n.connected())
+    }
+
     /// The store the service uses (tests and tools read or seed it directly).
     pub fn store(&self) -> Arc<Mutex<Store>> {
         self.shared.store.clone()
@@ -55,10 +62,15 @@ impl Running {
     /// server and every WebSocket closed.
     pub async fn shutdown(self) {
         let _ = self.stop.send(true);
+        // NDEATH and DISCONNECT after the workers have saved their jobs' ends (below).
+        let northbound = self.northbound;
         for w in self.workers {
             let _ = w.await;
         }
         let _ = self.server.await;
+        if let Some(n) = northbound {
+            n.shutdown().await;
+        }
         info!("service stopped");
     }
 }
@@ -116,9 +128,6 @@ pub async fn start(config: BoxConfig) -> anyhow::Result<Running> {
         info!(job_id = job.id, machine = %job.machine, "job was running when the service stopped: interrupted");
     }
     let token = load_or_create_token(&config.service.token_file)?;
-    if config.mqtt.is_some() {
-        tracing::warn!("[mqtt] is set but this build has no northbound yet; ignored");
-    }
 
     let mut machines = Vec::new();
     for m in &config.machines {
@@ -152,6 +161,19 @@ pub async fn start(config: BoxConfig) -> anyhow::Result<Running> {
         shutdown: shutdown.clone(),
         bad_tokens: Mutex::new(Default::default()),
         bad_token_delay_cap_ms: config.service.bad_token_delay_cap_ms,
+        device_states: watch::channel(Vec::new()).0,
+        outbox_ready: Arc::new(tokio::sync::Notify::new()),
+    });
+    shared.publish_states();
+    let northbound = config.mqtt.clone().map(|mqtt| {
+        info!(broker = %mqtt.host, port = mqtt.port, group = %mqtt.group_id, edge = %mqtt.edge_node_id, "MQTT northbound (Sparkplug B)");
+        northbound::spawn(
+            mqtt,
+            shared.store.clone(),
+            shared.machines.iter().map(|m| m.id.clone()).collect(),
+            shared.device_states.subscribe(),
+            shared.outbox_ready.clone(),
+        )
     });
     for job in &interrupted {
         shared.emit_job(
@@ -213,5 +235,6 @@ pub async fn start(config: BoxConfig) -> anyhow::Result<Running> {
         stop,
         server,
         workers,
+        northbound,
     })
 }

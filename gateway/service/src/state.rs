@@ -61,6 +61,10 @@ pub struct Shared {
     /// Wrong-token count and per peer, for the growing delay.
     pub bad_tokens: Mutex<HashMap<IpAddr, u32>>,
     pub bad_token_delay_cap_ms: u64,
+    /// Every machine's state for the MQTT northbound (sent on each change).
+    pub device_states: watch::Sender<Vec<northbound::DeviceState>>,
+    /// Woken when a finished job has put a row in the outbox.
+    pub outbox_ready: Arc<Notify>,
 }
 
 /// The store's lock; a panic while holding it does not make the data unusable
@@ -98,6 +102,40 @@ impl Shared {
 
     pub fn emit_job(&self, job: &JobRecord) {
         self.emit(json!({"type": "job", "job": job}));
+        if job.state.is_final() {
+            self.outbox_ready.notify_one();
+        }
+        self.publish_states();
+    }
+
+    /// Every machine's state, job and progress to the northbound's watch (a send with
+    /// nothing changed wakes it for nothing and publishes nothing).
+    pub fn publish_states(&self) {
+        let store = lock(&self.store);
+        let states = self
+            .machines
+            .iter()
+            .map(|m| {
+                let status = m.status.lock().unwrap_or_else(|p| p.into_inner()).clone();
+                let progress = status
+                    .job
+                    .and_then(|id| store.job(id).ok().flatten())
+                    .and_then(|j| j.progress);
+                northbound::DeviceState {
+                    machine: m.id.clone(),
+                    state: status.state.as_str().to_string(),
+                    job_id: status.job,
+                    progress_done: progress.as_ref().map_or(0, |p| p.done),
+                    progress_total: progress.as_ref().map_or(0, |p| p.total),
+                }
+            })
+            .collect::<Vec<_>>();
+        drop(store);
+        self.device_states.send_if_modified(|old| {
+            let changed = *old != states;
+            *old = states;
+            changed
+        });
     }
 
     pub fn emit_machine(&self, m: &Machine) {
@@ -119,5 +157,6 @@ impl Shared {
             s.job = job;
         }
         self.emit_machine(m);
+        self.publish_states();
     }
 }

@@ -342,6 +342,7 @@ async fn compensate(
             let done = (outcome.index + 1) as u64;
             let _ = lock(&shared.store).set_progress(id, done, of as u64);
             shared.emit(json!({"type": "progress", "job_id": id, "machine": machine, "done": done, "total": of}));
+            shared.publish_states();
         }
         Event::Homed => {}
     };
@@ -496,6 +497,7 @@ async fn iso230_job(
             &mut |done, of| {
                 let _ = lock(&shared.store).set_progress(id, done as u64, of as u64);
                 shared.emit(json!({"type": "progress", "job_id": id, "machine": machine, "done": done, "total": of}));
+                shared.publish_states();
             },
             async {
                 stop.await;
@@ -651,6 +653,7 @@ async fn map_job(
             &mut |done, of| {
                 let _ = lock(&shared.store).set_progress(id, done as u64, of as u64);
                 shared.emit(json!({"type": "progress", "job_id": id, "machine": machine, "done": done, "total": of}));
+                shared.publish_states();
             },
             async {
                 stop.await;

@@ -26,6 +26,7 @@ mod rewrite;
 mod rotary;
 mod service;
 mod slcan;
+mod sparkplug;
 mod volumetric;
 
 pub use canopen::{canopen_eds, sdo_client, sdo_server};
@@ -42,6 +43,7 @@ pub use rewrite::{nc_rewrite, proxy_stream};
 pub use rotary::{grbl_probe, rotary_centres, rotary_json, rotary_rewrite};
 pub use service::{api_job_body, box_toml};
 pub use slcan::slcan;
+pub use sparkplug::sparkplug_ncmd;
 pub use volumetric::volumetric_model;
 
 /// A fuzz target: any bytes in, a panic on a broken invariant.
@@ -68,6 +70,7 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("localize", localize),
     ("job_toml", job_toml),
     ("box_toml", box_toml),
+    ("sparkplug_ncmd", sparkplug_ncmd),
     ("api_job_body", api_job_body),
     ("board_toml", board_toml),
     ("machine_toml", machine_toml),
