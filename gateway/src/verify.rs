@@ -6,7 +6,7 @@ use errormap::scan::without_link;
 use errormap::{Approach, Direction, MapModel};
 use job::Job;
 use protocol::errormap::{ErrorMap, Identity};
-use runner::verify::{run_verify, CheckedPoint};
+use runner::verify::{check_points, run_verify, CheckedPoint};
 use serde_json::json;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -23,41 +23,6 @@ pub struct VerifyArgs {
     pub repeat: usize,
     pub every_s: f64,
     pub json: bool,
-}
-
-/// `n` points spread over the map (1 mm in from its edge), each with a random approach
-/// side per axis, from `seed` (xorshift: the same seed gives the same points).
-fn check_points(model: &MapModel, n: usize, seed: u64) -> Vec<([f64; 2], Direction)> {
-    let (lo, hi) = model.extent();
-    let mut s = seed.max(1);
-    let mut next = move || {
-        s ^= s << 13;
-        s ^= s >> 7;
-        s ^= s << 17;
-        (s >> 11) as f64 / (1u64 << 53) as f64
-    };
-    let side = |u: f64| {
-        if u < 0.5 {
-            Approach::Forward
-        } else {
-            Approach::Reverse
-        }
-    };
-    (0..n)
-        .map(|_| {
-            let p = [
-                lo[0] + 1.0 + (hi[0] - lo[0] - 2.0) * next(),
-                lo[1] + 1.0 + (hi[1] - lo[1] - 2.0) * next(),
-            ];
-            (
-                p,
-                Direction {
-                    x: side(next()),
-                    y: side(next()),
-                },
-            )
-        })
-        .collect()
 }
 
 fn stats(v: impl Iterator<Item = f64>) -> (f64, f64) {

@@ -718,6 +718,84 @@ async fn an_uploaded_error_map_is_drawn_activated_and_used_by_a_job() {
     let last = &seen.last().unwrap()["job"];
     assert_eq!(last["state"], "succeeded", "{last}");
     assert_eq!(last["profile"], json!({"name": "stage-map", "version": 1}));
+
+    // A verification with the active map: the camera's residual at random points is far
+    // below what the map predicts without it.
+    let (status, job) = post(
+        &c,
+        &s,
+        "/api/v1/machines/demo/jobs",
+        json!({"kind": "verify", "params": {"points": 4, "seed": 3}}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::ACCEPTED, "{job}");
+    let id = job["id"].clone();
+    let seen = until(&mut ws, |e| {
+        e["type"] == "job"
+            && e["job"]["id"] == id
+            && ["succeeded", "failed"].contains(&e["job"]["state"].as_str().unwrap_or(""))
+    })
+    .await;
+    let last = &seen.last().unwrap()["job"];
+    assert_eq!(last["state"], "succeeded", "{last}");
+    assert_eq!(last["profile"], json!({"name": "stage-map", "version": 1}));
+    let r = &last["result"];
+    assert_eq!(r["points"].as_array().unwrap().len(), 4);
+    let residual = r["residual_um"]["max"].as_f64().unwrap();
+    let without = r["uncompensated_um"]["max"].as_f64().unwrap();
+    assert!(residual < 0.2 * without, "{residual} vs {without}");
+    s.shutdown().await;
+}
+
+/// A layout job partitions a layout given in its params (no device moves); bad params
+/// are refused at queue time naming the parameter.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_layout_job_partitions_the_layout_it_is_given() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = start(dir.path()).await;
+    let c = Client::new();
+    let mut ws = events(&s).await;
+    // Three squares along X: L' 25 mm puts the third in a second window.
+    let layout = json!({"units": "mm", "width_mm": 40, "parts": [
+        {"id": "a", "contours": [[[0, 5], [10, 5], [10, 15], [0, 15]]]},
+        {"id": "b", "contours": [[[12, 5], [22, 5], [22, 15], [12, 15]]]},
+        {"id": "c", "contours": [[[24, 5], [34, 5], [34, 15], [24, 15]]]},
+    ]})
+    .to_string();
+    let (status, err) = post(
+        &c,
+        &s,
+        "/api/v1/machines/demo/jobs",
+        json!({"kind": "layout", "params": {"layout": layout, "format": "json", "tools": 2, "window_mm": 25}}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{err}");
+    assert!(err["message"].as_str().unwrap().contains("gap_mm"), "{err}");
+    let (status, job) = post(
+        &c,
+        &s,
+        "/api/v1/machines/demo/jobs",
+        json!({"kind": "layout", "params": {"layout": layout, "format": "json", "tools": 2, "window_mm": 25, "gap_mm": 2}}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::ACCEPTED, "{job}");
+    let id = job["id"].clone();
+    let seen = until(&mut ws, |e| {
+        e["type"] == "job"
+            && e["job"]["id"] == id
+            && ["succeeded", "failed"].contains(&e["job"]["state"].as_str().unwrap_or(""))
+    })
+    .await;
+    let last = &seen.last().unwrap()["job"];
+    assert_eq!(last["state"], "succeeded", "{last}");
+    let groups = last["result"]["groups"].as_array().unwrap();
+    assert_eq!(groups.len(), 2, "{groups:?}");
+    assert_eq!(groups[0]["parts"], json!(["a", "b"]));
+    assert_eq!(groups[1]["parts"], json!(["c"]));
+    assert_eq!(groups[1]["dx_mm"], 2.0);
+    // The shifted layout comes back in the format it was given.
+    let shifted: Value = serde_json::from_str(last["result"]["layout"].as_str().unwrap()).unwrap();
+    assert_eq!(shifted["parts"][2]["contours"][0][0], json!([26.0, 5.0]));
     s.shutdown().await;
 }
 

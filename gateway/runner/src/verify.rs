@@ -13,7 +13,7 @@ use crate::scan::approach_point;
 use crate::{JobError, Orchestrator};
 use devices::Devices;
 use drivers::AxisValues;
-use errormap::{Direction, MapModel};
+use errormap::{Approach, Direction, MapModel};
 use job::Job;
 use vision::localize::localize;
 
@@ -59,6 +59,41 @@ pub enum VerifyError {
         at: [f64; 2],
         message: String,
     },
+}
+
+/// `n` points spread over the map (1 mm in from its edge), each with a random approach
+/// side per axis, from `seed` (xorshift: the same seed gives the same points).
+pub fn check_points(model: &MapModel, n: usize, seed: u64) -> Vec<([f64; 2], Direction)> {
+    let (lo, hi) = model.extent();
+    let mut s = seed.max(1);
+    let mut next = move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        (s >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let side = |u: f64| {
+        if u < 0.5 {
+            Approach::Forward
+        } else {
+            Approach::Reverse
+        }
+    };
+    (0..n)
+        .map(|_| {
+            let p = [
+                lo[0] + 1.0 + (hi[0] - lo[0] - 2.0) * next(),
+                lo[1] + 1.0 + (hi[1] - lo[1] - 2.0) * next(),
+            ];
+            (
+                p,
+                Direction {
+                    x: side(next()),
+                    y: side(next()),
+                },
+            )
+        })
+        .collect()
 }
 
 /// Check `points` (nominal machine mm and approach sides). On an error, the points

@@ -176,11 +176,9 @@ pub async fn start(config: BoxConfig) -> anyhow::Result<Running> {
         )
     });
     for job in &interrupted {
-        shared.emit_job(
-            &lock(&shared.store)
-                .job(job.id)?
-                .unwrap_or_else(|| job.clone()),
-        );
+        // The store's lock is released before the event (emit_job reads the store).
+        let record = lock(&shared.store).job(job.id)?;
+        shared.emit_job(&record.unwrap_or_else(|| job.clone()));
     }
 
     let listener = tokio::net::TcpListener::bind(config.service.listen)

@@ -100,6 +100,8 @@ impl Shared {
         let _ = self.events.send(Arc::from(event.to_string()));
     }
 
+    /// The job's event; a final one wakes the northbound for the outbox. Reads the
+    /// store: never call it while holding the store's lock (it is not re-entrant).
     pub fn emit_job(&self, job: &JobRecord) {
         self.emit(json!({"type": "job", "job": job}));
         if job.state.is_final() {

@@ -14,7 +14,7 @@ use tokio::sync::Notify;
 use tracing::{info, info_span, warn, Instrument};
 
 /// Job kinds a worker runs; others are refused when queued (422).
-pub const KINDS: &[&str] = &["compensate", "iso230", "map"];
+pub const KINDS: &[&str] = &["compensate", "iso230", "map", "verify", "layout"];
 
 /// `"<driver>"` or `"<driver>:<link>"` for the API's `stage` and `camera`.
 pub fn describe(job: &Job) -> (String, String) {
@@ -49,6 +49,12 @@ pub fn check_params(kind: &str, params: &Value) -> Result<(), String> {
     }
     if kind == "map" {
         return check_map_params(obj);
+    }
+    if kind == "verify" {
+        return check_verify_params(obj);
+    }
+    if kind == "layout" {
+        return check_layout_params(obj);
     }
     for (key, value) in obj {
         match key.as_str() {
@@ -117,6 +123,95 @@ fn check_map_params(obj: &Map<String, Value>) -> Result<(), String> {
                 _ => return Err(format!("params.passes must be 1 to 10, got {value}")),
             },
             other => return Err(format!("params.{other}: unknown parameter of a map job")),
+        }
+    }
+    Ok(())
+}
+
+/// A verification with the machine's active error map (the same as `gateway verify`):
+/// `points` (1..=1000, default 20), `seed` (default 1), `spot_check` (bool: a drift check
+/// against `drift_threshold_um`, default 2.0).
+fn check_verify_params(obj: &Map<String, Value>) -> Result<(), String> {
+    for (key, value) in obj {
+        match key.as_str() {
+            "points" => match value.as_u64() {
+                Some(1..=1000) => {}
+                _ => return Err(format!("params.points must be 1 to 1000, got {value}")),
+            },
+            "seed" => {
+                if value.as_u64().is_none() {
+                    return Err(format!("params.seed must be an integer >= 0, got {value}"));
+                }
+            }
+            "spot_check" => {
+                if !value.is_boolean() {
+                    return Err(format!(
+                        "params.spot_check must be true or false, got {value}"
+                    ));
+                }
+            }
+            "drift_threshold_um" => match value.as_f64() {
+                Some(v) if v > 0.0 && v.is_finite() => {}
+                _ => {
+                    return Err(format!(
+                        "params.drift_threshold_um must be > 0, got {value}"
+                    ))
+                }
+            },
+            other => return Err(format!("params.{other}: unknown parameter of a verify job")),
+        }
+    }
+    Ok(())
+}
+
+/// A layout partition (source C, as `gateway layout partition`): `layout` (the layout
+/// file's text), `format` ("json", "dxf" or "svg"), `tools` (>= 1), `window_mm`,
+/// `gap_mm` (> 0), optional `width_mm`, `clearance_mm`, `widen` (bool), `assign`
+/// (["PART=GROUP", ...]).
+fn check_layout_params(obj: &Map<String, Value>) -> Result<(), String> {
+    for required in ["layout", "format", "tools", "window_mm", "gap_mm"] {
+        if !obj.contains_key(required) {
+            return Err(format!("params.{required} is required for a layout job"));
+        }
+    }
+    for (key, value) in obj {
+        match key.as_str() {
+            "layout" => {
+                if !value.is_string() {
+                    return Err("params.layout must be the layout file's text".into());
+                }
+            }
+            "format" => match value.as_str() {
+                Some("json" | "dxf" | "svg") => {}
+                _ => {
+                    return Err(format!(
+                        "params.format must be \"json\", \"dxf\" or \"svg\", got {value}"
+                    ))
+                }
+            },
+            "tools" => match value.as_u64() {
+                Some(1..=64) => {}
+                _ => return Err(format!("params.tools must be 1 to 64, got {value}")),
+            },
+            "window_mm" | "gap_mm" | "width_mm" | "clearance_mm" => match value.as_f64() {
+                Some(v) if v > 0.0 && v.is_finite() => {}
+                _ => return Err(format!("params.{key} must be a number > 0, got {value}")),
+            },
+            "widen" => {
+                if !value.is_boolean() {
+                    return Err(format!("params.widen must be true or false, got {value}"));
+                }
+            }
+            "assign" => {
+                let ok = value.as_array().is_some_and(|a| {
+                    a.iter()
+                        .all(|v| v.as_str().is_some_and(|t| t.contains('=')))
+                });
+                if !ok {
+                    return Err("params.assign must be a list of \"PART=GROUP\"".into());
+                }
+            }
+            other => return Err(format!("params.{other}: unknown parameter of a layout job")),
         }
     }
     Ok(())
@@ -210,8 +305,9 @@ async fn run_one(
     let cancel = Arc::new(Notify::new());
     *machine.cancel.lock().unwrap_or_else(|p| p.into_inner()) = Some((id, cancel.clone()));
     // The profile the job uses, resolved before it starts so the record says which.
-    let wants_map = record.kind == "iso230"
-        && record.params.get("with_map").and_then(Value::as_bool) == Some(true);
+    let wants_map = record.kind == "verify"
+        || (record.kind == "iso230"
+            && record.params.get("with_map").and_then(Value::as_bool) == Some(true));
     let profile = if wants_map {
         lock(&shared.store)
             .active_profile(&machine.id, ProfileKind::ErrorMap)
@@ -221,14 +317,21 @@ async fn run_one(
         None
     };
     if wants_map && profile.is_none() {
-        let _ = lock(&shared.store)
-            .start(id, None)
-            .map(|r| shared.emit_job(&r));
+        // The store's lock is released before the event (emit_job reads the store).
+        let started = lock(&shared.store).start(id, None);
+        if let Ok(r) = started {
+            shared.emit_job(&r);
+        }
         let failed = lock(&shared.store).finish(
             id,
             Outcome::Failed {
                 error: format!(
-                    "params.with_map: machine {} has no active error_map profile; activate one first",
+                    "{}: machine {} has no active error_map profile; activate one first",
+                    if record.kind == "verify" {
+                        "verify"
+                    } else {
+                        "params.with_map"
+                    },
                     machine.id
                 ),
                 result: None,
@@ -275,6 +378,11 @@ async fn run_one(
             let map = profile.map(|(_, body)| body);
             iso230_job(shared, &machine.id, config, devices, &record, map, stop).await
         }
+        "verify" => {
+            let map = profile.map(|(_, body)| body);
+            verify_job(config, devices, &record, map).await
+        }
+        "layout" => layout_job(&record),
         other => (
             Outcome::Failed {
                 error: format!("job kind {other:?} is not run by this service"),
@@ -736,5 +844,189 @@ async fn map_job(
         "lines": [plan.x_line.len(), plan.y_line.len()], "passes": spec.passes,
         "uncertainty_um": map.uncertainty_um,
     });
+    (Outcome::Succeeded { result, metrics }, None)
+}
+
+/// The machine's error map read from a profile body (the map file's JSON, perhaps beside
+/// drawings of it).
+fn map_model(body: &Value) -> Result<errormap::MapModel, String> {
+    let text = body.get("map").unwrap_or(body).to_string();
+    protocol::errormap::ErrorMap::from_json("error_map profile", &text)
+        .map(errormap::MapModel::new)
+        .map_err(|e| format!("the active error_map profile: {e}"))
+}
+
+/// A verification with the active map (see [`check_verify_params`]).
+async fn verify_job(
+    config: &MachineConfig,
+    devices: &mut Devices,
+    record: &JobRecord,
+    map: Option<Value>,
+) -> (Outcome, Option<String>) {
+    let job = match config.job.load() {
+        Ok(j) => j,
+        Err(e) => return failed(format!("job file: {e}")),
+    };
+    let Some(model) = map.as_ref().map(map_model) else {
+        return failed("verify: no active error_map profile".into());
+    };
+    let model = match model {
+        Ok(m) => m,
+        Err(e) => return failed(e),
+    };
+    let p = &record.params;
+    let spot = p.get("spot_check").and_then(Value::as_bool) == Some(true);
+    let n = p
+        .get("points")
+        .and_then(Value::as_u64)
+        .unwrap_or(if spot { 5 } else { 20 }) as usize;
+    let seed = p.get("seed").and_then(Value::as_u64).unwrap_or(1);
+    let threshold = p
+        .get("drift_threshold_um")
+        .and_then(Value::as_f64)
+        .unwrap_or(2.0);
+    let points = runner::verify::check_points(&model, n, seed);
+    let (checked, error) = match runner::verify::run_verify(&job, devices, &model, &points).await {
+        Ok(v) => (v.points, None),
+        Err((e, so_far)) => (so_far, Some(e)),
+    };
+    let norm = |v: [f64; 2]| v[0].hypot(v[1]);
+    let stats = |v: Vec<f64>| {
+        let max = v.iter().cloned().fold(0.0, f64::max);
+        let rms = (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
+        (max, rms)
+    };
+    let (res_max, res_rms) = stats(checked.iter().map(|c| norm(c.residual_um)).collect());
+    let (unc_max, unc_rms) = stats(checked.iter().map(|c| norm(c.uncompensated_um)).collect());
+    let rescan = spot && res_max > threshold;
+    let result = json!({
+        "points": checked.iter().map(|c| json!({
+            "x_mm": c.nominal_mm[0], "y_mm": c.nominal_mm[1],
+            "command_mm": c.command_mm, "residual_um": c.residual_um,
+            "uncompensated_um": c.uncompensated_um,
+        })).collect::<Vec<_>>(),
+        "residual_um": {"max": res_max, "rms": res_rms},
+        "uncompensated_um": {"max": unc_max, "rms": unc_rms},
+        "spot_check": spot, "drift_threshold_um": threshold, "rescan": rescan,
+    });
+    let mut metrics = Map::new();
+    metrics.insert("points".into(), json!(checked.len()));
+    metrics.insert("residual_max_um".into(), json!(res_max));
+    metrics.insert("residual_rms_um".into(), json!(res_rms));
+    metrics.insert("uncompensated_max_um".into(), json!(unc_max));
+    metrics.insert("rescan".into(), json!(rescan));
+    match error {
+        None => (Outcome::Succeeded { result, metrics }, None),
+        Some(e) => {
+            let lost = matches!(
+                e,
+                runner::verify::VerifyError::Point {
+                    source: JobError::Driver(_),
+                    ..
+                } | runner::verify::VerifyError::Reference(JobError::Driver(_))
+            )
+            .then(|| e.to_string());
+            (
+                Outcome::Failed {
+                    error: e.to_string(),
+                    result: Some(result),
+                    metrics,
+                },
+                lost,
+            )
+        }
+    }
+}
+
+/// A layout partition (see [`check_layout_params`]); no device moves.
+fn layout_job(record: &JobRecord) -> (Outcome, Option<String>) {
+    use layout_io::{Format, Layout, ReadOptions};
+    let p = &record.params;
+    let format = match p.get("format").and_then(Value::as_str) {
+        Some("dxf") => Format::Dxf,
+        Some("svg") => Format::Svg,
+        _ => Format::Json,
+    };
+    let text = p.get("layout").and_then(Value::as_str).unwrap_or("");
+    let doc = match Layout::read(text.as_bytes(), format, &ReadOptions::default()) {
+        Ok(d) => d,
+        Err(e) => return failed(format!("params.layout: {e}")),
+    };
+    let num = |k: &str| p.get(k).and_then(Value::as_f64);
+    let params = layout::Params {
+        tools: p.get("tools").and_then(Value::as_u64).unwrap_or(1) as usize,
+        window_mm: num("window_mm").unwrap_or(0.0),
+        gap_mm: num("gap_mm").unwrap_or(0.0),
+        width_mm: num("width_mm").or(doc.width_mm),
+        clearance_mm: num("clearance_mm"),
+    };
+    let forced: Vec<(String, usize)> = p
+        .get("assign")
+        .and_then(Value::as_array)
+        .map(|a| {
+            a.iter()
+                .filter_map(Value::as_str)
+                .filter_map(|t| {
+                    let (part, group) = t.rsplit_once('=')?;
+                    Some((
+                        part.to_string(),
+                        group.trim().trim_start_matches(['G', 'g']).parse().ok()?,
+                    ))
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    let outcome = (|| {
+        let mut partition = layout::partition(&doc.parts, &params)?;
+        let pinned = layout::assign(&doc.parts, &mut partition, &forced)?;
+        let resolution = if p.get("widen").and_then(Value::as_bool) == Some(true) {
+            layout::resolve_widening(&doc.parts, &mut partition, &pinned)?
+        } else {
+            layout::resolve(&doc.parts, &mut partition, &pinned)?
+        };
+        Ok::<_, layout::PartitionError>((partition, resolution))
+    })();
+    let (partition, resolution) = match outcome {
+        Ok(r) => r,
+        Err(e) => return failed(e.to_string()),
+    };
+    let figures = layout::figures(&doc.parts, &partition);
+    let shifted = match doc
+        .translated(&partition.offsets())
+        .and_then(|l| l.write(format))
+    {
+        Ok(bytes) => String::from_utf8_lossy(&bytes).into_owned(),
+        Err(e) => return failed(format!("writing the shifted layout: {e}")),
+    };
+    let id = |i: usize| doc.parts[i].id.clone();
+    let result = json!({
+        "parts": doc.parts.len(),
+        "groups": partition.groups.iter().filter(|g| !g.parts.is_empty()).map(|g| json!({
+            "id": g.id, "tool": g.tool, "window": g.window, "dx_mm": g.dx_mm, "dy_mm": g.dy_mm,
+            "parts": g.parts.iter().map(|&i| id(i)).collect::<Vec<_>>(),
+        })).collect::<Vec<_>>(),
+        "moves": resolution.moves.iter().map(|m| json!({
+            "part": id(m.part), "from_group": m.from_group, "to_group": m.to_group,
+            "because_of": m.because_of.map(id),
+        })).collect::<Vec<_>>(),
+        "overlaps_found": resolution.found.len(),
+        "widenings": resolution.widenings,
+        "figures": figures,
+        "layout": shifted,
+    });
+    let mut metrics = Map::new();
+    metrics.insert("parts".into(), json!(doc.parts.len()));
+    metrics.insert(
+        "groups".into(),
+        json!(partition
+            .groups
+            .iter()
+            .filter(|g| !g.parts.is_empty())
+            .count()),
+    );
+    metrics.insert("overlaps_found".into(), json!(resolution.found.len()));
+    metrics.insert("moves".into(), json!(resolution.moves.len()));
+    metrics.insert("length_mm".into(), json!(figures.partitioned.length_mm));
+    metrics.insert("utilisation".into(), json!(figures.partitioned.utilisation));
     (Outcome::Succeeded { result, metrics }, None)
 }
