@@ -6,7 +6,7 @@ use errormap::scan::without_link;
 use errormap::{Approach, Direction, MapModel};
 use job::Job;
 use protocol::errormap::{ErrorMap, Identity};
-use runner::verify::{check_points, run_verify, CheckedPoint};
+use runner::verify::{check_points, max_rms, run_verify, CheckedPoint};
 use serde_json::json;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -23,13 +23,6 @@ pub struct VerifyArgs {
     pub repeat: usize,
     pub every_s: f64,
     pub json: bool,
-}
-
-fn stats(v: impl Iterator<Item = f64>) -> (f64, f64) {
-    let v: Vec<f64> = v.collect();
-    let max = v.iter().cloned().fold(0.0, f64::max);
-    let rms = (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
-    (max, rms)
 }
 
 fn point_json(p: &CheckedPoint) -> serde_json::Value {
@@ -114,8 +107,8 @@ fn one_round(
         Err((e, so_far)) => (so_far, Some(e.to_string())),
     };
     let norm = |v: [f64; 2]| v[0].hypot(v[1]);
-    let (res_max, res_rms) = stats(checked.iter().map(|p| norm(p.residual_um)));
-    let (unc_max, unc_rms) = stats(checked.iter().map(|p| norm(p.uncompensated_um)));
+    let (res_max, res_rms) = max_rms(checked.iter().map(|p| norm(p.residual_um)));
+    let (unc_max, unc_rms) = max_rms(checked.iter().map(|p| norm(p.uncompensated_um)));
     let k = checked.len().max(1) as f64;
     let drift = [
         checked.iter().map(|p| p.residual_um[0]).sum::<f64>() / k,

@@ -96,6 +96,15 @@ pub fn check_points(model: &MapModel, n: usize, seed: u64) -> Vec<([f64; 2], Dir
         .collect()
 }
 
+/// The largest value and the root mean square of `v` (0 and 0 when empty): the
+/// figures a verification reports of its residuals.
+pub fn max_rms(v: impl Iterator<Item = f64>) -> (f64, f64) {
+    let v: Vec<f64> = v.collect();
+    let max = v.iter().cloned().fold(0.0, f64::max);
+    let rms = (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
+    (max, rms)
+}
+
 /// Check `points` (nominal machine mm and approach sides). On an error, the points
 /// checked so far come back with it.
 pub async fn run_verify(

@@ -891,13 +891,9 @@ async fn verify_job(
         Err((e, so_far)) => (so_far, Some(e)),
     };
     let norm = |v: [f64; 2]| v[0].hypot(v[1]);
-    let stats = |v: Vec<f64>| {
-        let max = v.iter().cloned().fold(0.0, f64::max);
-        let rms = (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
-        (max, rms)
-    };
-    let (res_max, res_rms) = stats(checked.iter().map(|c| norm(c.residual_um)).collect());
-    let (unc_max, unc_rms) = stats(checked.iter().map(|c| norm(c.uncompensated_um)).collect());
+    let (res_max, res_rms) = runner::verify::max_rms(checked.iter().map(|c| norm(c.residual_um)));
+    let (unc_max, unc_rms) =
+        runner::verify::max_rms(checked.iter().map(|c| norm(c.uncompensated_um)));
     let rescan = spot && res_max > threshold;
     let result = json!({
         "points": checked.iter().map(|c| json!({
