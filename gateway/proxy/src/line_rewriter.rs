@@ -95,15 +95,11 @@ impl LineRewriter for CartesianRewriter<'_> {
 /// The 5-axis rewriter of the rotary table, behind a controller reporting X Y Z A B C.
 pub struct FiveAxisRewriter<'a> {
     pub rewriter: RotaryRewriter<'a>,
-    largest_correction_um: f64,
 }
 
 impl<'a> FiveAxisRewriter<'a> {
     pub fn new(rewriter: RotaryRewriter<'a>) -> Self {
-        Self {
-            rewriter,
-            largest_correction_um: 0.0,
-        }
+        Self { rewriter }
     }
 }
 
@@ -116,7 +112,6 @@ impl LineRewriter for FiveAxisRewriter<'_> {
             line: line_no,
             kind: RewriteErrorKind::Syntax(e),
         })?;
-        let written_before = self.rewriter.report.points.len();
         let blocks = self
             .rewriter
             .block(block, line_no)
@@ -127,12 +122,6 @@ impl LineRewriter for FiveAxisRewriter<'_> {
                     other => other.to_string(),
                 }),
             })?;
-        for p in &self.rewriter.report.points[written_before..] {
-            let (n, c) = (&p.nominal, &p.command);
-            let um =
-                ((c.x - n.x).powi(2) + (c.y - n.y).powi(2) + (c.z - n.z).powi(2)).sqrt() * 1000.0;
-            self.largest_correction_um = self.largest_correction_um.max(um);
-        }
         Ok(blocks
             .into_iter()
             .map(|b| {
@@ -183,10 +172,16 @@ impl LineRewriter for FiveAxisRewriter<'_> {
     }
 
     fn summary(&self) -> (f64, usize) {
-        (
-            self.largest_correction_um,
-            self.rewriter.report.pieces_added,
-        )
+        let report = &self.rewriter.report;
+        let largest_um = report
+            .points
+            .iter()
+            .map(|p| {
+                let (n, c) = (&p.nominal, &p.command);
+                ((c.x - n.x).powi(2) + (c.y - n.y).powi(2) + (c.z - n.z).powi(2)).sqrt() * 1000.0
+            })
+            .fold(0.0, f64::max);
+        (largest_um, report.pieces_added)
     }
 }
 
