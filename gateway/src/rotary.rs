@@ -418,11 +418,7 @@ fn measure_through_grbl_emulator(
     constants: &MachineConstants,
     plan: &rotary::measure::MeasurePlan,
     progress: impl FnMut(usize, usize),
-) -> anyhow::Result<(
-    Result<rotary::measure::Measurement, Box<rotary::measure::Stopped>>,
-    f64,
-)> {
-    use drivers::grbl::{GrblOptions, GrblStage};
+) -> anyhow::Result<(Cycle, f64)> {
     use emulators::grbl::{GrblConfig, GrblDevice, GrblPty};
     use world::axes::{lock_axes, AxesMachine};
     let rt = tokio::runtime::Builder::new_current_thread()
@@ -440,61 +436,72 @@ fn measure_through_grbl_emulator(
         )
         .context("starting the GRBL emulator on a pseudo-terminal")?
     };
-    let opts = GrblOptions {
-        poll_interval: std::time::Duration::from_millis(2),
-        ..GrblOptions::default()
-    };
-    let stage = rt
-        .block_on(GrblStage::open(pty.path(), 115_200, opts))
-        .context("connecting to the GRBL emulator")?;
-    let mut prober = LinkProber { rt: &rt, stage };
-    let result = measure(&mut prober, constants, plan, progress);
+    let result = measure_over_grbl(&rt, pty.path(), 115_200, Some(2), constants, plan, progress)?;
     let time_s = lock_axes(&axes).now_s();
     Ok((result, time_s))
 }
 
-/// The cycle through a real controller on a serial port: it must have the A and C axes
-/// and a probe input (checked from its settings before any motion). Returns the result
-/// and the wall time of the cycle (s).
+/// The cycle through a real controller on a serial port. Returns the result and the
+/// wall time of the cycle (s).
 fn measure_through_grbl_port(
     port: &job::rotary::GrblPort,
     constants: &MachineConstants,
     plan: &rotary::measure::MeasurePlan,
     progress: impl FnMut(usize, usize),
-) -> anyhow::Result<(
-    Result<rotary::measure::Measurement, Box<rotary::measure::Stopped>>,
-    f64,
-)> {
-    use drivers::grbl::{GrblOptions, GrblStage};
-    use drivers::{Axis, Stage};
+) -> anyhow::Result<(Cycle, f64)> {
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
+    let started = std::time::Instant::now();
+    let result = measure_over_grbl(
+        &rt,
+        &port.port,
+        port.baud,
+        port.poll_ms,
+        constants,
+        plan,
+        progress,
+    )?;
+    Ok((result, started.elapsed().as_secs_f64()))
+}
+
+/// What the cycle gave: the measurement, or where it stopped with what it had.
+type Cycle = Result<rotary::measure::Measurement, Box<rotary::measure::Stopped>>;
+
+/// Connects to the GRBL controller at `path`, checks that it has the A and C axes and a
+/// probe input (before any motion), and runs the cycle through it.
+fn measure_over_grbl(
+    rt: &tokio::runtime::Runtime,
+    path: &str,
+    baud: u32,
+    poll_ms: Option<u64>,
+    constants: &MachineConstants,
+    plan: &rotary::measure::MeasurePlan,
+    progress: impl FnMut(usize, usize),
+) -> anyhow::Result<Cycle> {
+    use drivers::grbl::{GrblOptions, GrblStage};
+    use drivers::{Axis, Stage};
     let mut opts = GrblOptions::default();
-    if let Some(ms) = port.poll_ms {
+    if let Some(ms) = poll_ms {
         opts.poll_interval = std::time::Duration::from_millis(ms);
     }
     let stage = rt
-        .block_on(GrblStage::open(&port.port, port.baud, opts))
-        .with_context(|| format!("connecting to the GRBL controller on {}", port.port))?;
+        .block_on(GrblStage::open(path, baud, opts))
+        .with_context(|| format!("connecting to the GRBL controller on {path}"))?;
     let caps = stage.capabilities();
     for axis in [Axis::A, Axis::C] {
         anyhow::ensure!(
             caps.rotary_axes.contains(&axis),
-            "the controller on {} has no {axis:?} axis (its axes: {:?}); the cycle needs A and C",
-            port.port,
+            "the controller on {path} has no {axis:?} axis (its axes: {:?}); the cycle needs A and C",
             caps.rotary_axes
         );
     }
     anyhow::ensure!(
         caps.probing,
-        "the controller on {} reports no probe input; the cycle probes the balls",
-        port.port
+        "the controller on {path} reports no probe input; the cycle probes the balls"
     );
-    let started = std::time::Instant::now();
-    let mut prober = LinkProber { rt: &rt, stage };
-    let result = measure(&mut prober, constants, plan, progress);
-    Ok((result, started.elapsed().as_secs_f64()))
+    let mut prober = LinkProber { rt, stage };
+    Ok(measure(&mut prober, constants, plan, progress))
 }
 
 /// The measurement cycle's machine behind a GRBL link: each move and probing move is a
