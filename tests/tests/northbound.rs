@@ -159,6 +159,25 @@ async fn until(rx: &mut mpsc::UnboundedReceiver<Message>, kind: &str) -> (Messag
     }
 }
 
+/// The plant's host application asks edge node box-1 of plant-a for a rebirth (NCMD
+/// `Node Control/Rebirth` = true).
+async fn ask_rebirth(plant: &AsyncClient) {
+    let ncmd = Payload {
+        timestamp: Some(1),
+        metrics: vec![sparkplug::Metric::boolean("Node Control/Rebirth", true)],
+        ..Payload::default()
+    };
+    plant
+        .publish(
+            "spBv1.0/plant-a/NCMD/box-1",
+            QoS::AtLeastOnce,
+            false,
+            ncmd.encode_to_bytes(),
+        )
+        .await
+        .unwrap();
+}
+
 fn config(port: u16) -> MqttConfig {
     MqttConfig {
         host: "127.0.0.1".into(),
@@ -308,20 +327,7 @@ fn births_data_rebirth_and_death_on_a_real_broker() {
         assert!(store.lock().unwrap().outbox_pending(10).unwrap().is_empty());
 
         // Rebirth on NCMD: NBIRTH seq 0 with the same bdSeq, then every DBIRTH.
-        let ncmd = Payload {
-            timestamp: Some(1),
-            metrics: vec![sparkplug::Metric::boolean("Node Control/Rebirth", true)],
-            ..Payload::default()
-        };
-        plant_client
-            .publish(
-                "spBv1.0/plant-a/NCMD/box-1",
-                QoS::AtLeastOnce,
-                false,
-                ncmd.encode_to_bytes(),
-            )
-            .await
-            .unwrap();
+        ask_rebirth(&plant_client).await;
         let (reborn, _) = until(&mut rx, "NBIRTH").await;
         assert_eq!((seq(&reborn), uint(&reborn, "bdSeq")), (0, 0));
         let d1 = next(&mut rx).await;
@@ -486,19 +492,7 @@ fn results_made_while_the_broker_is_down_arrive_once_flagged_historical() {
         assert!(store.lock().unwrap().outbox_pending(10).unwrap().is_empty());
         // Nothing again: anything published before the answer to a rebirth request
         // arrives before its NBIRTH.
-        let ncmd = Payload {
-            metrics: vec![sparkplug::Metric::boolean("Node Control/Rebirth", true)],
-            ..Payload::default()
-        };
-        plant_client
-            .publish(
-                "spBv1.0/plant-a/NCMD/box-1",
-                QoS::AtLeastOnce,
-                false,
-                ncmd.encode_to_bytes(),
-            )
-            .await
-            .unwrap();
+        ask_rebirth(&plant_client).await;
         let (_, before) = until(&mut rx, "NBIRTH").await;
         assert!(
             before

@@ -97,6 +97,16 @@ async fn until(ws: &mut Ws, pred: impl Fn(&Value) -> bool) -> Vec<Value> {
     }
 }
 
+/// Reads events until job `id` has succeeded or failed; returns every event seen.
+async fn until_finished(ws: &mut Ws, id: &Value) -> Vec<Value> {
+    until(ws, |e| {
+        e["type"] == "job"
+            && e["job"]["id"] == *id
+            && ["succeeded", "failed"].contains(&e["job"]["state"].as_str().unwrap_or(""))
+    })
+    .await
+}
+
 fn job_in(e: &Value, id: &Value, state: &str) -> bool {
     e["type"] == "job" && e["job"]["id"] == *id && e["job"]["state"] == state
 }
@@ -562,12 +572,7 @@ async fn an_iso230_job_keeps_its_figures_and_chart() {
     .await;
     assert_eq!(status, StatusCode::ACCEPTED, "{job}");
     let id = job["id"].clone();
-    let seen = until(&mut ws, |e| {
-        e["type"] == "job"
-            && e["job"]["id"] == id
-            && ["succeeded", "failed"].contains(&e["job"]["state"].as_str().unwrap_or(""))
-    })
-    .await;
+    let seen = until_finished(&mut ws, &id).await;
     let last = &seen.last().unwrap()["job"];
     assert_eq!(last["state"], "succeeded", "{last}");
     // 5 positions x 5 runs x 2 directions, each seen live and kept.
@@ -709,12 +714,7 @@ async fn an_uploaded_error_map_is_drawn_activated_and_used_by_a_job() {
     .await;
     assert_eq!(status, StatusCode::ACCEPTED, "{job}");
     let id = job["id"].clone();
-    let seen = until(&mut ws, |e| {
-        e["type"] == "job"
-            && e["job"]["id"] == id
-            && ["succeeded", "failed"].contains(&e["job"]["state"].as_str().unwrap_or(""))
-    })
-    .await;
+    let seen = until_finished(&mut ws, &id).await;
     let last = &seen.last().unwrap()["job"];
     assert_eq!(last["state"], "succeeded", "{last}");
     assert_eq!(last["profile"], json!({"name": "stage-map", "version": 1}));
@@ -730,12 +730,7 @@ async fn an_uploaded_error_map_is_drawn_activated_and_used_by_a_job() {
     .await;
     assert_eq!(status, StatusCode::ACCEPTED, "{job}");
     let id = job["id"].clone();
-    let seen = until(&mut ws, |e| {
-        e["type"] == "job"
-            && e["job"]["id"] == id
-            && ["succeeded", "failed"].contains(&e["job"]["state"].as_str().unwrap_or(""))
-    })
-    .await;
+    let seen = until_finished(&mut ws, &id).await;
     let last = &seen.last().unwrap()["job"];
     assert_eq!(last["state"], "succeeded", "{last}");
     assert_eq!(last["profile"], json!({"name": "stage-map", "version": 1}));
@@ -780,12 +775,7 @@ async fn a_layout_job_partitions_the_layout_it_is_given() {
     .await;
     assert_eq!(status, StatusCode::ACCEPTED, "{job}");
     let id = job["id"].clone();
-    let seen = until(&mut ws, |e| {
-        e["type"] == "job"
-            && e["job"]["id"] == id
-            && ["succeeded", "failed"].contains(&e["job"]["state"].as_str().unwrap_or(""))
-    })
-    .await;
+    let seen = until_finished(&mut ws, &id).await;
     let last = &seen.last().unwrap()["job"];
     assert_eq!(last["state"], "succeeded", "{last}");
     let groups = last["result"]["groups"].as_array().unwrap();
@@ -824,12 +814,7 @@ async fn a_map_job_becomes_a_profile_version() {
     .await;
     assert_eq!(status, StatusCode::ACCEPTED, "{job}");
     let id = job["id"].clone();
-    let seen = until(&mut ws, |e| {
-        e["type"] == "job"
-            && e["job"]["id"] == id
-            && ["succeeded", "failed"].contains(&e["job"]["state"].as_str().unwrap_or(""))
-    })
-    .await;
+    let seen = until_finished(&mut ws, &id).await;
     let last = &seen.last().unwrap()["job"];
     assert_eq!(last["state"], "succeeded", "{last}");
     assert_eq!(
