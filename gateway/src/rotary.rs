@@ -5,10 +5,9 @@
 use anyhow::Context;
 use clap::Subcommand;
 use indicatif::{ProgressBar, ProgressStyle};
-use job::rotary::{RotaryJob, RotaryLink};
-use rotary::measure::measure;
+use job::rotary::RotaryJob;
 use rotary::{
-    identify, parse_centres, write_centres, Axes, Identification, LocationErrors, MachineConstants,
+    identify, parse_centres, write_centres, Identification, LocationErrors, MachineConstants,
     RotaryMachine,
 };
 use serde_json::json;
@@ -105,7 +104,14 @@ pub fn run(cmd: RotaryCmd) -> anyhow::Result<ExitCode> {
                 None => None,
             };
             if json {
-                println!("{}", identification_json(&id, &constants, plot_files));
+                let mut report = runner::rotary::identification_json(&id, &constants);
+                if let (Some(obj), Some((svg, png))) = (report.as_object_mut(), &plot_files) {
+                    obj.insert(
+                        "plot".into(),
+                        json!({ "svg": svg.display().to_string(), "png": png.display().to_string() }),
+                    );
+                }
+                println!("{report}");
             } else {
                 print_table(&id);
                 if let Some((svg, png)) = plot_files {
@@ -191,14 +197,12 @@ pub fn run(cmd: RotaryCmd) -> anyhow::Result<ExitCode> {
 }
 
 fn measure_cmd(config: &Path, out: &Path, json: bool) -> anyhow::Result<ExitCode> {
+    use runner::rotary::{cycle_report, run_cycle};
     let text =
         std::fs::read_to_string(config).with_context(|| format!("reading {}", config.display()))?;
     let job =
         RotaryJob::from_json(&text).map_err(|e| anyhow::anyhow!("{}: {e}", config.display()))?;
     let constants = job.machine.unwrap_or_default();
-    let plan = job.plan.unwrap_or_default();
-    let mut machine = job.simulated();
-    let link = job.link;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let bar = if json {
         ProgressBar::hidden()
@@ -213,32 +217,126 @@ fn measure_cmd(config: &Path, out: &Path, json: bool) -> anyhow::Result<ExitCode
         bar.set_length(total as u64);
         bar.set_position(done as u64);
     };
-    // The real controller's truth is unknown: no comparison then, and its time is the
-    // wall clock's.
-    let (result, link_time_s, truth_known) = match &link {
-        None => (
-            measure(&mut machine, &constants, &plan, progress),
-            None,
-            true,
-        ),
-        Some(RotaryLink::GrblEmulator) => {
-            let (r, t) = measure_through_grbl_emulator(&machine.sim, &constants, &plan, progress)?;
-            (r, Some(t), true)
-        }
-        Some(RotaryLink::Grbl(port)) => {
-            let (r, t) = measure_through_grbl_port(port, &constants, &plan, progress)?;
-            (r, Some(t), false)
-        }
-    };
+    // Nothing stops the command's cycle but a failure (Ctrl-C ends the process).
+    let never = std::sync::atomic::AtomicBool::new(false);
+    let run = run_cycle(&job, progress, &never)?;
     bar.finish_and_clear();
-    let (m, stopped) = match result {
+    let (m, stopped) = match &run.cycle {
         Ok(m) => (m, None),
-        Err(stop) => (stop.so_far, Some(stop.error)),
+        Err(stop) => (&stop.so_far, Some(&stop.error)),
     };
     let centres_path = out.join("centres.csv");
     std::fs::write(&centres_path, write_centres(&m.centres()))
         .with_context(|| format!("writing {}", centres_path.display()))?;
     let points_path = out.join("points.csv");
+    std::fs::write(&points_path, points_csv(m))
+        .with_context(|| format!("writing {}", points_path.display()))?;
+    if let Some(error) = stopped {
+        anyhow::bail!(
+            "{error} ({} balls measured, saved in {} and {})",
+            m.balls.len(),
+            centres_path.display(),
+            points_path.display()
+        );
+    }
+    let rows = m.centres();
+    let id = identify(&rows, &constants)?;
+    let (svg, png) = write_plot(out, &rows, &id)?;
+    let mut report = cycle_report(&run, m, &id, &constants)?;
+    if let Some(obj) = report.as_object_mut() {
+        obj.insert(
+            "plot".into(),
+            json!({ "svg": svg.display().to_string(), "png": png.display().to_string() }),
+        );
+    }
+    let errors_path = out.join("errors.json");
+    std::fs::write(&errors_path, serde_json::to_string_pretty(&report)?)
+        .with_context(|| format!("writing {}", errors_path.display()))?;
+    if json {
+        println!("{report}");
+        return Ok(ExitCode::SUCCESS);
+    }
+    if let Some(c) = &m.c_centre {
+        println!(
+            "C centre on the rim: ({:.4}, {:.4}) mm, ({:+.4}, {:+.4}) mm from the nominal axis, rim radius {:.4} mm",
+            c.x_mm, c.y_mm, c.offset_mm[0], c.offset_mm[1], c.rim_radius_mm
+        );
+    }
+    let touches = m.probe_touches;
+    match &run.truth {
+        // A real controller: its truth is unknown, its time the wall clock's.
+        None => {
+            print_table(&id);
+            println!(
+                "cycle: {} balls, {} probe points ({} touches), {:.1} min",
+                m.balls.len(),
+                touches / 2,
+                touches,
+                run.time_s / 60.0
+            );
+        }
+        // The simulation knows the truth: compare.
+        Some(truth) => {
+            let t = truth.errors;
+            let injected = LocationErrors {
+                delta_xc_mm: t.delta_xc_mm,
+                delta_yc_mm: t.delta_yc_mm,
+                alpha_xc_deg: t.alpha_xc_deg,
+                alpha_yc_deg: t.alpha_yc_deg,
+                delta_ya_mm: t.delta_ya_mm,
+                delta_za_mm: t.delta_za_mm,
+                alpha_ya_deg: t.alpha_ya_deg,
+                alpha_za_deg: t.alpha_za_deg,
+            };
+            println!(
+                "{:<14} {:>12} {:>12} {:>12} {:>10}",
+                "error", "injected", "identified", "difference", "u (k=1)"
+            );
+            for (((name, w), (_, g)), (_, u)) in injected
+                .named()
+                .iter()
+                .zip(id.errors.named())
+                .zip(id.uncertainty.named())
+            {
+                println!("{name:<14} {w:>12.6} {g:>12.6} {:>12.6} {u:>10.6}", g - w);
+            }
+            println!(
+                "cycle: {} balls, {} probe points ({} touches), simulated machine time {:.1} min",
+                m.balls.len(),
+                touches / 2,
+                touches,
+                run.time_s / 60.0
+            );
+            let check = runner::rotary::compensation_check(truth, &constants, &id.errors)?;
+            println!(
+                "compensated 5-axis program ({} poses, A 2..90°, C all round), against the truth:",
+                check.poses
+            );
+            println!(
+                "  tool tip   max {:.4} mm -> {:.5} mm ({:.1} % better), mean {:.4} -> {:.5}",
+                check.tip_max_before_mm,
+                check.tip_max_after_mm,
+                check.tip_improvement_pct,
+                check.tip_mean_before_mm,
+                check.tip_mean_after_mm
+            );
+            println!(
+                "  direction  max {:.6} rad -> {:.7} rad ({:.1} % better)",
+                check.dir_max_before_rad, check.dir_max_after_rad, check.dir_improvement_pct
+            );
+        }
+    }
+    println!(
+        "wrote {}, {}, {}",
+        centres_path.display(),
+        points_path.display(),
+        errors_path.display()
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Every probe point of the cycle (`axis,step,angle_deg,ball,touch,x_mm,y_mm,z_mm`).
+fn points_csv(m: &rotary::measure::Measurement) -> String {
     let mut points = String::from("axis,step,angle_deg,ball,touch,x_mm,y_mm,z_mm\n");
     for b in &m.balls {
         for (k, p) in b.points.iter().enumerate() {
@@ -255,365 +353,7 @@ fn measure_cmd(config: &Path, out: &Path, json: bool) -> anyhow::Result<ExitCode
             ));
         }
     }
-    std::fs::write(&points_path, points)
-        .with_context(|| format!("writing {}", points_path.display()))?;
-    if let Some(error) = stopped {
-        anyhow::bail!(
-            "{error} ({} balls measured, saved in {} and {})",
-            m.balls.len(),
-            centres_path.display(),
-            points_path.display()
-        );
-    }
-    let rows = m.centres();
-    let id = identify(&rows, &constants)?;
-    let plot_files = write_plot(out, &rows, &id)?;
-    let mut report = identification_json(&id, &constants, Some(plot_files));
-    let errors_path = out.join("errors.json");
-    std::fs::write(&errors_path, serde_json::to_string_pretty(&report)?)
-        .with_context(|| format!("writing {}", errors_path.display()))?;
-    let touches = m.probe_touches;
-    if let (Some(obj), Some(c)) = (report.as_object_mut(), &m.c_centre) {
-        obj.insert("c_centre".into(), serde_json::to_value(c)?);
-    }
-    if !json {
-        if let Some(c) = &m.c_centre {
-            println!(
-                "C centre on the rim: ({:.4}, {:.4}) mm, ({:+.4}, {:+.4}) mm from the nominal axis, rim radius {:.4} mm",
-                c.x_mm, c.y_mm, c.offset_mm[0], c.offset_mm[1], c.rim_radius_mm
-            );
-        }
-    }
-    if !truth_known {
-        let time_s = link_time_s.unwrap_or(0.0);
-        if json {
-            let obj = report.as_object_mut().expect("an object");
-            obj.insert(
-                "cycle".into(),
-                json!({
-                    "balls": m.balls.len(),
-                    "probe_points": touches / 2,
-                    "probe_touches": touches,
-                    "wall_time_s": time_s,
-                }),
-            );
-            println!("{report}");
-        } else {
-            print_table(&id);
-            println!(
-                "cycle: {} balls, {} probe points ({} touches), {:.1} min",
-                m.balls.len(),
-                touches / 2,
-                touches,
-                time_s / 60.0
-            );
-            println!(
-                "wrote {}, {}, {}",
-                centres_path.display(),
-                points_path.display(),
-                errors_path.display()
-            );
-        }
-        return Ok(ExitCode::SUCCESS);
-    }
-    // The simulation knows the truth: compare.
-    let t = machine.sim.errors;
-    let injected = LocationErrors {
-        delta_xc_mm: t.delta_xc_mm,
-        delta_yc_mm: t.delta_yc_mm,
-        alpha_xc_deg: t.alpha_xc_deg,
-        alpha_yc_deg: t.alpha_yc_deg,
-        delta_ya_mm: t.delta_ya_mm,
-        delta_za_mm: t.delta_za_mm,
-        alpha_ya_deg: t.alpha_ya_deg,
-        alpha_za_deg: t.alpha_za_deg,
-    };
-    let check = compensation_check(&machine.sim, &constants, &id.errors)?;
-    let time_s = link_time_s.unwrap_or(machine.time_s);
-    if json {
-        let obj = report.as_object_mut().expect("an object");
-        let mut truth = serde_json::Map::new();
-        for ((name, w), (_, g)) in injected.named().iter().zip(id.errors.named()) {
-            truth.insert(
-                (*name).into(),
-                json!({ "injected": w, "identified": g, "difference": g - w }),
-            );
-        }
-        obj.insert("truth".into(), serde_json::Value::Object(truth));
-        obj.insert(
-            "cycle".into(),
-            json!({
-                "balls": m.balls.len(),
-                "probe_points": touches / 2,
-                "probe_touches": touches,
-                "simulated_time_s": time_s,
-            }),
-        );
-        obj.insert(
-            "compensation_check".into(),
-            json!({
-                "poses": check.poses,
-                "tip_max_before_mm": check.tip_max_before_mm,
-                "tip_max_after_mm": check.tip_max_after_mm,
-                "tip_mean_before_mm": check.tip_mean_before_mm,
-                "tip_mean_after_mm": check.tip_mean_after_mm,
-                "tip_improvement_pct": check.tip_improvement_pct,
-                "direction_max_before_rad": check.dir_max_before_rad,
-                "direction_max_after_rad": check.dir_max_after_rad,
-                "direction_improvement_pct": check.dir_improvement_pct,
-            }),
-        );
-        println!("{report}");
-    } else {
-        println!(
-            "{:<14} {:>12} {:>12} {:>12} {:>10}",
-            "error", "injected", "identified", "difference", "u (k=1)"
-        );
-        for (((name, w), (_, g)), (_, u)) in injected
-            .named()
-            .iter()
-            .zip(id.errors.named())
-            .zip(id.uncertainty.named())
-        {
-            println!("{name:<14} {w:>12.6} {g:>12.6} {:>12.6} {u:>10.6}", g - w);
-        }
-        println!(
-            "cycle: {} balls, {} probe points ({} touches), simulated machine time {:.1} min",
-            m.balls.len(),
-            touches / 2,
-            touches,
-            time_s / 60.0
-        );
-        println!(
-            "compensated 5-axis program ({} poses, A 2..90°, C all round), against the truth:",
-            check.poses
-        );
-        println!(
-            "  tool tip   max {:.4} mm -> {:.5} mm ({:.1} % better), mean {:.4} -> {:.5}",
-            check.tip_max_before_mm,
-            check.tip_max_after_mm,
-            check.tip_improvement_pct,
-            check.tip_mean_before_mm,
-            check.tip_mean_after_mm
-        );
-        println!(
-            "  direction  max {:.6} rad -> {:.7} rad ({:.1} % better)",
-            check.dir_max_before_rad, check.dir_max_after_rad, check.dir_improvement_pct
-        );
-        println!(
-            "wrote {}, {}, {}",
-            centres_path.display(),
-            points_path.display(),
-            errors_path.display()
-        );
-    }
-    Ok(ExitCode::SUCCESS)
-}
-
-/// The cycle through a controller link: the GRBL emulator with `sim` behind it (six
-/// axes X Y Z A B C, B fixed) on a pseudo-terminal, the GRBL driver moving the axes and
-/// probing with G38.3. Returns the result and the emulated machine time (s).
-fn measure_through_grbl_emulator(
-    sim: &world::rotary::RotaryMachineSim,
-    constants: &MachineConstants,
-    plan: &rotary::measure::MeasurePlan,
-    progress: impl FnMut(usize, usize),
-) -> anyhow::Result<(Cycle, f64)> {
-    use emulators::grbl::{GrblConfig, GrblDevice, GrblPty};
-    use world::axes::{lock_axes, AxesMachine};
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()?;
-    let axes = AxesMachine::new(Box::new(world::rotary::RotaryWorkpiece {
-        sim: sim.clone(),
-    }))
-    .shared();
-    let pty = {
-        let _enter = rt.enter();
-        GrblPty::spawn(
-            GrblDevice::with_axes(axes.clone(), GrblConfig::default()),
-            None,
-        )
-        .context("starting the GRBL emulator on a pseudo-terminal")?
-    };
-    let result = measure_over_grbl(&rt, pty.path(), 115_200, Some(2), constants, plan, progress)?;
-    let time_s = lock_axes(&axes).now_s();
-    Ok((result, time_s))
-}
-
-/// The cycle through a real controller on a serial port. Returns the result and the
-/// wall time of the cycle (s).
-fn measure_through_grbl_port(
-    port: &job::rotary::GrblPort,
-    constants: &MachineConstants,
-    plan: &rotary::measure::MeasurePlan,
-    progress: impl FnMut(usize, usize),
-) -> anyhow::Result<(Cycle, f64)> {
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()?;
-    let started = std::time::Instant::now();
-    let result = measure_over_grbl(
-        &rt,
-        &port.port,
-        port.baud,
-        port.poll_ms,
-        constants,
-        plan,
-        progress,
-    )?;
-    Ok((result, started.elapsed().as_secs_f64()))
-}
-
-/// What the cycle gave: the measurement, or where it stopped with what it had.
-type Cycle = Result<rotary::measure::Measurement, Box<rotary::measure::Stopped>>;
-
-/// Connects to the GRBL controller at `path`, checks that it has the A and C axes and a
-/// probe input (before any motion), and runs the cycle through it.
-fn measure_over_grbl(
-    rt: &tokio::runtime::Runtime,
-    path: &str,
-    baud: u32,
-    poll_ms: Option<u64>,
-    constants: &MachineConstants,
-    plan: &rotary::measure::MeasurePlan,
-    progress: impl FnMut(usize, usize),
-) -> anyhow::Result<Cycle> {
-    use drivers::grbl::{GrblOptions, GrblStage};
-    use drivers::{Axis, Stage};
-    let mut opts = GrblOptions::default();
-    if let Some(ms) = poll_ms {
-        opts.poll_interval = std::time::Duration::from_millis(ms);
-    }
-    let stage = rt
-        .block_on(GrblStage::open(path, baud, opts))
-        .with_context(|| format!("connecting to the GRBL controller on {path}"))?;
-    let caps = stage.capabilities();
-    for axis in [Axis::A, Axis::C] {
-        anyhow::ensure!(
-            caps.rotary_axes.contains(&axis),
-            "the controller on {path} has no {axis:?} axis (its axes: {:?}); the cycle needs A and C",
-            caps.rotary_axes
-        );
-    }
-    anyhow::ensure!(
-        caps.probing,
-        "the controller on {path} reports no probe input; the cycle probes the balls"
-    );
-    let mut prober = LinkProber { rt, stage };
-    Ok(measure(&mut prober, constants, plan, progress))
-}
-
-/// The measurement cycle's machine behind a GRBL link: each move and probing move is a
-/// driver call run to its end (moves at 3000 units/min, probing with G38.3 so a miss is
-/// the cycle's own "ball not found").
-struct LinkProber<'a> {
-    rt: &'a tokio::runtime::Runtime,
-    stage: drivers::grbl::GrblStage,
-}
-
-impl rotary::measure::ProbingMachine for LinkProber<'_> {
-    fn move_to(&mut self, t: &Axes) -> Result<(), String> {
-        use drivers::{Axis, AxisValues, Stage};
-        let target = AxisValues::default()
-            .with(Axis::X, t.x)
-            .with(Axis::Y, t.y)
-            .with(Axis::Z, t.z)
-            .with(Axis::A, t.a)
-            .with(Axis::C, t.c);
-        self.rt
-            .block_on(async {
-                self.stage.move_to(target, 3000.0).await?;
-                self.stage.wait_idle().await
-            })
-            .map_err(|e| e.to_string())
-    }
-
-    fn probe_towards(&mut self, to: [f64; 3], feed: f64) -> Result<Option<[f64; 3]>, String> {
-        use drivers::{Axis, AxisValues, ProbeMode, Stage};
-        let target = AxisValues::default()
-            .with(Axis::X, to[0])
-            .with(Axis::Y, to[1])
-            .with(Axis::Z, to[2]);
-        let mode = ProbeMode {
-            toward: true,
-            must_trigger: false,
-        };
-        let hit = self
-            .rt
-            .block_on(self.stage.probe(target, feed, mode))
-            .map_err(|e| e.to_string())?;
-        let p = |a| hit.position.get(a).unwrap_or(f64::NAN);
-        Ok(hit.touched.then(|| [p(Axis::X), p(Axis::Y), p(Axis::Z)]))
-    }
-}
-
-/// The compensation of a 5-axis test program checked against the simulation's truth.
-struct CompensationCheck {
-    poses: usize,
-    tip_max_before_mm: f64,
-    tip_max_after_mm: f64,
-    tip_mean_before_mm: f64,
-    tip_mean_after_mm: f64,
-    tip_improvement_pct: f64,
-    dir_max_before_rad: f64,
-    dir_max_after_rad: f64,
-    dir_improvement_pct: f64,
-}
-
-/// A 5-axis test program (A from 2° to 90°, C all round, tips spread over the part)
-/// run as programmed and as compensated with `errors`, each pose's true tool tip and
-/// direction compared with the programmed ones.
-fn compensation_check(
-    truth: &world::rotary::RotaryMachineSim,
-    constants: &MachineConstants,
-    errors: &LocationErrors,
-) -> anyhow::Result<CompensationCheck> {
-    let model = RotaryMachine::with_errors(*constants, *errors);
-    let ideal_m = RotaryMachine::nominal(*constants);
-    let mut before = Vec::new();
-    let mut after = Vec::new();
-    for (i, a) in [2.0, 10.0, 25.0, 40.0, 55.0, 70.0, 85.0, 90.0]
-        .iter()
-        .enumerate()
-    {
-        for (j, c) in [0.0, 45.0, 135.0, 200.0, 290.0].iter().enumerate() {
-            let nominal = Axes::new(
-                -40.0 + 11.0 * i as f64,
-                30.0 - 13.0 * j as f64,
-                -180.0 - 3.0 * i as f64,
-                *a,
-                *c,
-            );
-            let ideal = ideal_m.forward(&nominal);
-            let cmd = model
-                .command_for(&nominal)
-                .with_context(|| format!("compensating {nominal:?}"))?;
-            for (list, cmd) in [(&mut before, nominal), (&mut after, cmd)] {
-                let (p, d) = truth.tool_in_workpiece([cmd.x, cmd.y, cmd.z, cmd.a, cmd.c]);
-                let dir = d.dot(&ideal.direction).clamp(-1.0, 1.0).acos();
-                list.push(((p - ideal.position).norm(), dir));
-            }
-        }
-    }
-    let max = |v: &[(f64, f64)], k: usize| {
-        v.iter()
-            .map(|p| if k == 0 { p.0 } else { p.1 })
-            .fold(0.0f64, f64::max)
-    };
-    let mean = |v: &[(f64, f64)]| v.iter().map(|p| p.0).sum::<f64>() / v.len() as f64;
-    let pct = |b: f64, a: f64| 100.0 * (1.0 - a / b);
-    Ok(CompensationCheck {
-        poses: before.len(),
-        tip_max_before_mm: max(&before, 0),
-        tip_max_after_mm: max(&after, 0),
-        tip_mean_before_mm: mean(&before),
-        tip_mean_after_mm: mean(&after),
-        tip_improvement_pct: pct(max(&before, 0), max(&after, 0)),
-        dir_max_before_rad: max(&before, 1),
-        dir_max_after_rad: max(&after, 1),
-        dir_improvement_pct: pct(max(&before, 1), max(&after, 1)),
-    })
+    points
 }
 
 /// The machine constants from a JSON file, or the defaults.
@@ -649,52 +389,6 @@ fn write_plot(
     std::fs::write(&png, plot::render_png(&chart, 1000, 460)?)
         .with_context(|| format!("writing {}", png.display()))?;
     Ok((svg, png))
-}
-
-/// The output JSON: the eight errors at the top level under their paper names, their
-/// standard uncertainties (k = 1) under `uncertainty`, and the fits.
-pub fn identification_json(
-    id: &Identification,
-    constants: &MachineConstants,
-    plot: Option<(PathBuf, PathBuf)>,
-) -> serde_json::Value {
-    let mut out = serde_json::Map::new();
-    for (name, v) in id.errors.named() {
-        out.insert(name.into(), json!(v));
-    }
-    let mut u = serde_json::Map::new();
-    for (name, v) in id.uncertainty.named() {
-        u.insert(name.into(), json!(v));
-    }
-    out.insert("uncertainty".into(), serde_json::Value::Object(u));
-    out.insert("coverage_factor".into(), json!(1));
-    let circles: Vec<serde_json::Value> = id
-        .circles
-        .iter()
-        .map(|(axis, ball, c)| {
-            json!({
-                "axis": axis.to_string(),
-                "ball": ball,
-                "centre_mm": c.centre,
-                "normal": c.normal,
-                "radius_mm": c.radius_mm,
-                "rms_plane_um": c.rms_plane_mm * 1e3,
-                "rms_radial_um": c.rms_radial_mm * 1e3,
-                "points": c.points,
-            })
-        })
-        .collect();
-    out.insert("circles".into(), json!(circles));
-    out.insert("c_axis".into(), json!(id.c_axis));
-    out.insert("a_axis".into(), json!(id.a_axis));
-    out.insert("machine".into(), json!(constants));
-    if let Some((svg, png)) = plot {
-        out.insert(
-            "plot".into(),
-            json!({ "svg": svg.display().to_string(), "png": png.display().to_string() }),
-        );
-    }
-    serde_json::Value::Object(out)
 }
 
 fn print_table(id: &Identification) {

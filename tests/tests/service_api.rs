@@ -838,3 +838,116 @@ async fn a_map_job_becomes_a_profile_version() {
     assert_eq!(heat.status(), StatusCode::OK);
     s.shutdown().await;
 }
+
+/// A rotary job measures the demo machine's simulated A/C table through the paper's
+/// cycle: progress per ball, every ball's sphere kept, the eight errors identified
+/// within the probe's noise of the injected ones, and kept as the next (inactive)
+/// version of a rotary profile whose body `gateway rewrite --rotary` reads.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_rotary_job_identifies_the_table_and_becomes_a_profile_version() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = start(dir.path()).await;
+    let c = Client::new();
+    let mut ws = events(&s).await;
+    let (_, machine) = get(&c, &s, "/api/v1/machines/demo").await;
+    assert_eq!(machine["rotary"], "sim", "{machine}");
+    let (status, body) = post(
+        &c,
+        &s,
+        "/api/v1/machines/demo/jobs",
+        json!({"kind": "rotary", "params": {"name": "table", "steps": 3}}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
+    assert!(
+        body["message"].as_str().unwrap().contains("params.steps"),
+        "{body}"
+    );
+    let (status, job) = post(
+        &c,
+        &s,
+        "/api/v1/machines/demo/jobs",
+        json!({"kind": "rotary", "params": {"name": "table"}}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::ACCEPTED, "{job}");
+    let id = job["id"].clone();
+    let seen = until_finished(&mut ws, &id).await;
+    let last = &seen.last().unwrap()["job"];
+    assert_eq!(last["state"], "succeeded", "{last}");
+    let progress: Vec<u64> = seen
+        .iter()
+        .filter(|e| e["type"] == "progress")
+        .map(|e| e["done"].as_u64().unwrap())
+        .collect();
+    let balls = last["result"]["cycle"]["balls"].as_u64().unwrap();
+    assert_eq!(progress.last(), Some(&balls), "{progress:?}");
+    let result = &last["result"];
+    for name in [
+        "delta_XC_mm",
+        "delta_YC_mm",
+        "alpha_XC_deg",
+        "alpha_YC_deg",
+        "delta_YA_mm",
+        "delta_ZA_mm",
+        "alpha_YA_deg",
+        "alpha_ZA_deg",
+    ] {
+        let d = result["truth"][name]["difference"].as_f64().unwrap();
+        let tol = if name.ends_with("_deg") {
+            0.0005
+        } else {
+            0.001
+        };
+        assert!(d.abs() <= tol, "{name}: {d}");
+    }
+    assert!(
+        result["compensation_check"]["tip_improvement_pct"]
+            .as_f64()
+            .unwrap()
+            >= 95.0
+    );
+    assert_eq!(result["profile"], json!({"name": "table", "version": 1}));
+    let (_, kept) = get(&c, &s, &format!("/api/v1/jobs/{id}/measurements")).await;
+    assert_eq!(kept.as_array().unwrap().len() as u64, balls);
+    let (_, charts) = get(&c, &s, &format!("/api/v1/jobs/{id}/charts")).await;
+    assert_eq!(charts[0]["name"], "rotary_sweeps", "{charts}");
+    let (_, list) = get(&c, &s, "/api/v1/machines/demo/profiles").await;
+    let profile = list
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|p| p["name"] == "table")
+        .unwrap();
+    assert_eq!(profile["kind"], "rotary");
+    assert_eq!(profile["active"], false);
+    assert_eq!(profile["source_job"], id);
+    // The body is the errors file `gateway rewrite --rotary` reads.
+    let (_, stored) = get(&c, &s, "/api/v1/machines/demo/profiles/table/1").await;
+    let errors = rotary::LocationErrors::from_json(&stored["body"].to_string()).unwrap();
+    assert_eq!(json!(errors.delta_xc_mm), result["delta_XC_mm"]);
+    s.shutdown().await;
+
+    // A machine without a rotary table refuses the job, naming what is missing.
+    let dir = tempfile::tempdir().unwrap();
+    let mut without = config(dir.path());
+    without.machines[0].rotary = None;
+    let s = service::start(without).await.expect("service starts");
+    let (_, machine) = get(&c, &s, "/api/v1/machines/demo").await;
+    assert_eq!(machine["rotary"], Value::Null);
+    let (status, body) = post(
+        &c,
+        &s,
+        "/api/v1/machines/demo/jobs",
+        json!({"kind": "rotary"}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
+    assert!(
+        body["message"].as_str().unwrap().contains("rotary"),
+        "{body}"
+    );
+    let (_, jobs) = get(&c, &s, "/api/v1/jobs").await;
+    assert_eq!(jobs.as_array().map(Vec::len), Some(0), "{jobs}");
+    s.shutdown().await;
+}

@@ -7,6 +7,7 @@
 //! the targets finished so far are kept.
 
 pub mod iso230;
+pub mod rotary;
 pub mod scan;
 pub mod verify;
 

@@ -365,6 +365,16 @@ async fn enqueue(
     let Json(request) = body?;
     worker::check_params(&request.kind, &request.params)
         .map_err(|msg| ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, "invalid_job", msg))?;
+    if request.kind == "rotary" && m.rotary.is_none() {
+        return Err(ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "invalid_job",
+            format!(
+                "machine {:?} has no rotary table: give its [[machine]] a `rotary` job file in BOX.toml",
+                m.id
+            ),
+        ));
+    }
     let record = {
         let mut store = lock(&shared.store);
         if request.if_idle {

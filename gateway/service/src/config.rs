@@ -66,6 +66,8 @@ struct RawMachine {
     job: String,
     #[serde(default)]
     map_profile: Option<String>,
+    #[serde(default)]
+    rotary: Option<String>,
 }
 
 fn default_listen() -> SocketAddr {
@@ -95,6 +97,29 @@ impl JobSource {
     }
 }
 
+/// Where a machine's rotary measurement job (source B) comes from: `rotary =
+/// "builtin:demo"` is the paper's A/C table simulated in-process, a path a rotary job
+/// file (JSON, as `gateway rotary measure --config`: its `link` says which controller).
+#[derive(Debug, Clone, PartialEq)]
+pub enum RotarySource {
+    BuiltinDemo,
+    File(PathBuf),
+}
+
+impl RotarySource {
+    pub fn load(&self) -> Result<job::rotary::RotaryJob, String> {
+        match self {
+            RotarySource::BuiltinDemo => Ok(job::rotary::RotaryJob::default()),
+            RotarySource::File(path) => {
+                let text = std::fs::read_to_string(path)
+                    .map_err(|e| format!("{}: {e}", path.display()))?;
+                job::rotary::RotaryJob::from_json(&text)
+                    .map_err(|e| format!("{}: {e}", path.display()))
+            }
+        }
+    }
+}
+
 /// One machine of the box.
 #[derive(Debug, Clone)]
 pub struct MachineConfig {
@@ -104,6 +129,9 @@ pub struct MachineConfig {
     pub job: JobSource,
     /// Name of the error-map profile verify jobs use (default "error_map").
     pub map_profile: String,
+    /// The rotary table's measurement job, if the machine has an A/C table (`rotary` jobs
+    /// are refused otherwise).
+    pub rotary: Option<RotarySource>,
 }
 
 /// The service's settings (`[service]`).
@@ -197,6 +225,13 @@ impl BoxConfig {
                 description: m.description.clone(),
                 job,
                 map_profile: m.map_profile.clone().unwrap_or_else(|| "error_map".into()),
+                rotary: m.rotary.as_deref().map(|r| {
+                    if r == BUILTIN_DEMO_JOB {
+                        RotarySource::BuiltinDemo
+                    } else {
+                        RotarySource::File(resolve(Path::new(r)))
+                    }
+                }),
             });
         }
         Ok(BoxConfig {
@@ -237,9 +272,11 @@ impl BoxConfig {
             },
             machines: vec![MachineConfig {
                 id: "demo".into(),
-                description: "Simulated stage and camera (the embedded demo job)".into(),
+                description:
+                    "Simulated stage and camera (the embedded demo job), simulated A/C table".into(),
                 job: JobSource::BuiltinDemo,
                 map_profile: "error_map".into(),
+                rotary: Some(RotarySource::BuiltinDemo),
             }],
             mqtt: None,
         }
@@ -271,6 +308,12 @@ mod tests {
         assert_eq!(
             c.machines[0].job,
             JobSource::File(PathBuf::from("/etc/gw/../gateway/demo.toml"))
+        );
+        assert_eq!(
+            c.machines[0].rotary,
+            Some(RotarySource::File(PathBuf::from(
+                "/etc/gw/../rotary/sim-table.json"
+            )))
         );
         assert!(c.mqtt.is_none());
     }

@@ -136,12 +136,22 @@ pub async fn start(config: BoxConfig) -> anyhow::Result<Running> {
             .load()
             .map_err(|e| anyhow::anyhow!("machine {:?}: job file: {e}", m.id))?;
         let (stage, camera) = worker::describe(&job);
+        // A rotary job file is read at start too, so a bad one stops the service here.
+        let rotary = match &m.rotary {
+            None => None,
+            Some(source) => {
+                Some(worker::describe_rotary(&source.load().map_err(|e| {
+                    anyhow::anyhow!("machine {:?}: rotary job file: {e}", m.id)
+                })?))
+            }
+        };
         machines.push(Arc::new(Machine {
             id: m.id.clone(),
             description: m.description.clone(),
             stage,
             camera,
             map_profile: m.map_profile.clone(),
+            rotary,
             status: Mutex::new(Status {
                 state: MachineState::Opening,
                 detail: None,

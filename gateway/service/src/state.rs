@@ -43,6 +43,9 @@ pub struct Machine {
     pub stage: String,
     pub camera: String,
     pub map_profile: String,
+    /// The A/C table's measurement link (`"sim"`, `"grbl-emulator"`, `"grbl:<port>"`);
+    /// None when the machine has no rotary table (its `rotary` jobs are refused).
+    pub rotary: Option<String>,
     pub status: Mutex<Status>,
     /// Woken when a job is queued for this machine.
     pub wake: Notify,
@@ -90,7 +93,7 @@ impl Shared {
         let queued = store.queued(&m.id).map(|q| q.len()).unwrap_or(0);
         json!({
             "id": m.id, "description": m.description, "stage": m.stage, "camera": m.camera,
-            "state": status.state.as_str(), "state_detail": status.detail,
+            "rotary": m.rotary, "state": status.state.as_str(), "state_detail": status.detail,
             "job": job, "queued": queued,
         })
     }

@@ -14,7 +14,7 @@ use tokio::sync::Notify;
 use tracing::{info, info_span, warn, Instrument};
 
 /// Job kinds a worker runs; others are refused when queued (422).
-pub const KINDS: &[&str] = &["compensate", "iso230", "map", "verify", "layout"];
+pub const KINDS: &[&str] = &["compensate", "iso230", "map", "verify", "layout", "rotary"];
 
 /// `"<driver>"` or `"<driver>:<link>"` for the API's `stage` and `camera`.
 pub fn describe(job: &Job) -> (String, String) {
@@ -31,6 +31,15 @@ pub fn describe(job: &Job) -> (String, String) {
         CameraSpec::Replay { folder } => format!("replay:{}", folder.display()),
     };
     (stage, camera)
+}
+
+/// The API's `rotary` of a machine: the link its A/C table is measured through.
+pub fn describe_rotary(job: &job::rotary::RotaryJob) -> String {
+    match &job.link {
+        None => "sim".into(),
+        Some(job::rotary::RotaryLink::GrblEmulator) => "grbl-emulator".into(),
+        Some(job::rotary::RotaryLink::Grbl(port)) => format!("grbl:{}", port.port),
+    }
 }
 
 /// Checks a job's params at queue time, so a bad request changes nothing.
@@ -55,6 +64,9 @@ pub fn check_params(kind: &str, params: &Value) -> Result<(), String> {
     }
     if kind == "layout" {
         return check_layout_params(obj);
+    }
+    if kind == "rotary" {
+        return check_rotary_params(obj);
     }
     for (key, value) in obj {
         match key.as_str() {
@@ -159,6 +171,26 @@ fn check_verify_params(obj: &Map<String, Value>) -> Result<(), String> {
                 }
             },
             other => return Err(format!("params.{other}: unknown parameter of a verify job")),
+        }
+    }
+    Ok(())
+}
+
+/// A measurement of the machine's A/C table (source B, as `gateway rotary measure` with
+/// the machine's rotary job file): `name`, the rotary profile the identified errors
+/// become a version of (default "rotary").
+fn check_rotary_params(obj: &Map<String, Value>) -> Result<(), String> {
+    for (key, value) in obj {
+        match key.as_str() {
+            "name" => match value.as_str() {
+                Some(n) if crate::config::valid_id(n) => {}
+                _ => {
+                    return Err(
+                        "params.name must name the profile (letters, digits, '-', '_')".into(),
+                    )
+                }
+            },
+            other => return Err(format!("params.{other}: unknown parameter of a rotary job")),
         }
     }
     Ok(())
@@ -383,6 +415,7 @@ async fn run_one(
             verify_job(config, devices, &record, map).await
         }
         "layout" => layout_job(&record),
+        "rotary" => rotary_job(shared, &machine.id, config, &record, stop).await,
         other => (
             Outcome::Failed {
                 error: format!("job kind {other:?} is not run by this service"),
@@ -932,6 +965,156 @@ async fn verify_job(
             )
         }
     }
+}
+
+/// A measurement of the A/C table through the machine's rotary link (see
+/// [`check_rotary_params`]): the paper's probing cycle on a blocking thread (it drives
+/// its link move by move), progress per ball, every ball's fitted sphere kept as a
+/// measurement (a stopped cycle keeps those it measured), and the identified errors kept
+/// as the next version of the rotary profile `params.name` (inactive until activated).
+async fn rotary_job(
+    shared: &Arc<Shared>,
+    machine: &str,
+    config: &MachineConfig,
+    record: &JobRecord,
+    stop: impl std::future::Future<Output = ()>,
+) -> (Outcome, Option<String>) {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let Some(source) = &config.rotary else {
+        return failed(format!("machine {machine} has no rotary job file"));
+    };
+    let job = match source.load() {
+        Ok(j) => j,
+        Err(e) => return failed(format!("rotary job file: {e}")),
+    };
+    let name = record
+        .params
+        .get("name")
+        .and_then(Value::as_str)
+        .unwrap_or("rotary")
+        .to_string();
+    let constants = job.machine.unwrap_or_default();
+    let id = record.id;
+    let stop_flag = Arc::new(AtomicBool::new(false));
+    let cycle = {
+        let (shared, flag, machine) = (shared.clone(), stop_flag.clone(), machine.to_string());
+        tokio::task::spawn_blocking(move || {
+            runner::rotary::run_cycle(
+                &job,
+                |done, of| {
+                    // The store's lock is released before the events (they read it).
+                    let _ = lock(&shared.store).set_progress(id, done as u64, of as u64);
+                    shared.emit(json!({"type": "progress", "job_id": id, "machine": machine, "done": done, "total": of}));
+                    shared.publish_states();
+                },
+                &flag,
+            )
+        })
+    };
+    tokio::pin!(cycle);
+    let mut cancelled = false;
+    let joined = tokio::select! {
+        r = &mut cycle => r,
+        _ = stop => {
+            // The cycle ends before its next move, keeping what it measured.
+            cancelled = true;
+            stop_flag.store(true, Ordering::Relaxed);
+            cycle.await
+        }
+    };
+    let run = match joined {
+        Ok(Ok(run)) => run,
+        Ok(Err(e)) => return failed(format!("{e:#}")),
+        Err(e) => return failed(format!("the measurement cycle ended abnormally: {e}")),
+    };
+    let (m, stopped) = match &run.cycle {
+        Ok(m) => (m, None),
+        Err(s) => (&s.so_far, Some(s.error.to_string())),
+    };
+    for b in &m.balls {
+        let v = json!({"axis": b.axis.to_string(), "step": b.step, "angle_deg": b.angle_deg,
+            "ball": b.ball, "centre_mm": b.sphere.centre, "radius_mm": b.sphere.radius_mm,
+            "rms_um": b.sphere.rms_mm * 1e3, "points": b.points});
+        if let Err(e) = lock(&shared.store).add_measurement(id, &v) {
+            warn!(error = %e, "measurement not saved");
+        }
+    }
+    if let Some(error) = stopped {
+        let result =
+            Some(json!({"balls_measured": m.balls.len(), "probe_touches": m.probe_touches}));
+        return if cancelled {
+            (
+                Outcome::Cancelled {
+                    result,
+                    metrics: Map::new(),
+                },
+                None,
+            )
+        } else {
+            (
+                Outcome::Failed {
+                    error: format!("the measurement cycle stopped: {error}"),
+                    result,
+                    metrics: Map::new(),
+                },
+                None,
+            )
+        };
+    }
+    let rows = m.centres();
+    let identified = match rotary::identify(&rows, &constants) {
+        Ok(i) => i,
+        Err(e) => return failed(format!("identification: {e}")),
+    };
+    let mut report = match runner::rotary::cycle_report(&run, m, &identified, &constants) {
+        Ok(r) => r,
+        Err(e) => return failed(format!("the report: {e:#}")),
+    };
+    let note = format!("measured by job {id}");
+    let profile = match lock(&shared.store).add_profile(
+        machine,
+        &name,
+        ProfileKind::Rotary,
+        &report,
+        Some(id),
+        Some(&note),
+    ) {
+        Ok(p) => p,
+        Err(e) => return failed(format!("the errors were identified but not stored: {e}")),
+    };
+    let mut metrics = Map::new();
+    for (error, v) in identified.errors.named() {
+        metrics.insert(error.into(), json!(v));
+    }
+    metrics.insert("balls".into(), json!(m.balls.len()));
+    metrics.insert("profile_version".into(), json!(profile.version));
+    let chart = rotary::chart::SweepChart {
+        rows: &rows,
+        identification: &identified,
+        magnification: 1000.0,
+    };
+    if let Some(obj) = report.as_object_mut() {
+        obj.insert(
+            "profile".into(),
+            json!({"name": profile.name, "version": profile.version}),
+        );
+        match plot::render_svg(&chart, 1000, 460) {
+            Ok(svg) => {
+                obj.insert(
+                    "charts".into(),
+                    json!({"rotary_sweeps": {"title": "Ball centres and fitted circles (deviations x1000)", "svg": svg}}),
+                );
+            }
+            Err(e) => warn!(error = %e, "chart not drawn"),
+        }
+    }
+    (
+        Outcome::Succeeded {
+            result: report,
+            metrics,
+        },
+        None,
+    )
 }
 
 /// A layout partition (see [`check_layout_params`]); no device moves.

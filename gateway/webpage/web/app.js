@@ -121,7 +121,9 @@ function renderMachines() {
       el('span', { class: 'state machine-state', 'data-state': machine.state, text: machine.state }),
       el('span', { class: 'machine-detail', text: detail }),
       el('span', { class: 'machine-queued', 'data-queued': machine.queued, text: ' queued: ' + machine.queued }),
-      el('div', { class: 'machine-description', text: machine.description || '' })));
+      el('div', { class: 'machine-description', text: machine.description || '' }),
+      el('div', { class: 'machine-links', text: 'stage ' + machine.stage + ', camera ' + machine.camera
+        + (machine.rotary ? ', A/C table ' + machine.rotary : '') })));
   }
   for (const select of [$('job-machine'), $('profile-machine')]) {
     const chosen = select.value;
