@@ -7,6 +7,7 @@
 //! the gateway only through the bytes and frames a real device would send.
 
 pub mod canopen;
+pub mod cutter;
 pub mod gige;
 pub mod grbl;
 pub mod modbus;

@@ -36,6 +36,12 @@ pub trait Workpiece: Send {
     fn probe_contact(&mut self, from: &AxesPosition, to: &AxesPosition) -> Option<AxesPosition>;
     /// Whether the probe touches something with the axes at `at` (the `Pn:P` pin).
     fn probe_touching(&self, at: &AxesPosition) -> bool;
+    /// A move of the axes ended, reached or stopped short: the straight path `from` ->
+    /// `to` run from `start_s` to `end_s` on the machine's clock. What a tool does to the
+    /// work happens here (a knife's cut); by default nothing.
+    fn moved(&mut self, from: &AxesPosition, to: &AxesPosition, start_s: f64, end_s: f64) {
+        let _ = (from, to, start_s, end_s);
+    }
 }
 
 /// Why the machine refuses a move.
@@ -53,6 +59,8 @@ struct Motion {
     elapsed_s: f64,
     /// Units per minute.
     rate: f64,
+    /// The machine's clock when the move began.
+    start_s: f64,
 }
 
 /// The axes of a machine and what they carry.
@@ -223,6 +231,7 @@ impl AxesMachine {
                 duration_s,
                 elapsed_s: 0.0,
                 rate,
+                start_s: self.now_s,
             });
         } else {
             self.reached(to);
@@ -240,6 +249,8 @@ impl AxesMachine {
         if m.elapsed_s >= m.duration_s {
             self.motion = None;
             self.reached(m.to);
+            self.workpiece
+                .moved(&m.from, &m.to, m.start_s, m.start_s + m.duration_s);
             return;
         }
         let k = m.elapsed_s / m.duration_s;
@@ -254,12 +265,16 @@ impl AxesMachine {
         if let Some(m) = self.motion.take() {
             self.now_s += (m.duration_s - m.elapsed_s).max(0.0);
             self.reached(m.to);
+            self.workpiece.moved(&m.from, &m.to, m.start_s, self.now_s);
         }
     }
 
     /// Stop where the axes are.
     pub fn stop(&mut self) {
-        self.motion = None;
+        if let Some(m) = self.motion.take() {
+            self.workpiece
+                .moved(&m.from, &self.position, m.start_s, self.now_s);
+        }
     }
 }
 

@@ -12,6 +12,7 @@
 pub mod axes;
 pub mod camera;
 pub mod clock;
+pub mod cutter;
 pub mod machine;
 pub mod plate;
 pub mod render;

@@ -31,6 +31,7 @@
 //! intersect or come closer than the gap, and moves parts to neighbouring groups until
 //! none is left (see its documentation).
 
+pub mod cut;
 mod figures;
 mod overlap;
 mod picture;

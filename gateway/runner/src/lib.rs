@@ -6,6 +6,7 @@
 //! device error stops the job before any further motion: the stage is told to stop and
 //! the targets finished so far are kept.
 
+pub mod cutter;
 pub mod iso230;
 pub mod rotary;
 pub mod scan;
