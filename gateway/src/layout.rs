@@ -10,6 +10,41 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
 
+/// The layout and how it is partitioned (shared by `partition` and `cut`).
+#[derive(clap::Args)]
+pub struct PartitionArgs {
+    /// The layout (.dxf, .svg or .json).
+    layout: PathBuf,
+    /// Number of tools k (equal lanes across the width).
+    #[arg(long)]
+    tools: usize,
+    /// Cutting window length L' along the feed (X), mm.
+    #[arg(long)]
+    window_mm: f64,
+    /// Gap between groups, mm.
+    #[arg(long)]
+    gap_mm: f64,
+    /// Material width W, mm, edge at Y = 0 (default: the JSON file's width_mm, else
+    /// the layout's extent across).
+    #[arg(long)]
+    width_mm: Option<f64>,
+    /// Parts of different groups closer than this after the shifts are overlaps, mm
+    /// (default: the gap). Between 0.001 mm and the gap.
+    #[arg(long)]
+    clearance_mm: Option<f64>,
+    /// Force a part into a group (group ids as printed, 1-based); repeatable.
+    #[arg(long = "assign", value_name = "PART=GROUP")]
+    assign: Vec<String>,
+    /// When moving parts leaves overlaps, move later windows (along X) or upper lanes
+    /// (along Y) further apart than S8's one gap until none is left (reported as
+    /// `widenings`); without it such overlaps are an error.
+    #[arg(long)]
+    widen: bool,
+    /// Chord tolerance for arcs and splines read from the layout, mm.
+    #[arg(long, default_value_t = 0.01)]
+    chord_tolerance_mm: f64,
+}
+
 #[derive(Subcommand)]
 pub enum LayoutCmd {
     /// Group the parts per tool lane and cutting window (steps S1-S7), shift the groups
@@ -18,42 +53,46 @@ pub enum LayoutCmd {
     /// extension: .dxf, .svg or .json). Nothing is written when an overlap cannot be
     /// resolved.
     Partition {
-        /// The layout (.dxf, .svg or .json).
-        layout: PathBuf,
-        /// Number of tools k (equal lanes across the width).
-        #[arg(long)]
-        tools: usize,
-        /// Cutting window length L' along the feed (X), mm.
-        #[arg(long)]
-        window_mm: f64,
-        /// Gap between groups, mm.
-        #[arg(long)]
-        gap_mm: f64,
-        /// Material width W, mm, edge at Y = 0 (default: the JSON file's width_mm, else
-        /// the layout's extent across).
-        #[arg(long)]
-        width_mm: Option<f64>,
-        /// Parts of different groups closer than this after the shifts are overlaps, mm
-        /// (default: the gap). Between 0.001 mm and the gap.
-        #[arg(long)]
-        clearance_mm: Option<f64>,
-        /// Force a part into a group (group ids as printed, 1-based); repeatable.
-        #[arg(long = "assign", value_name = "PART=GROUP")]
-        assign: Vec<String>,
-        /// When moving parts leaves overlaps, move later windows (along X) or upper lanes
-        /// (along Y) further apart than S8's one gap until none is left (reported as
-        /// `widenings`); without it such overlaps are an error.
-        #[arg(long)]
-        widen: bool,
+        #[command(flatten)]
+        args: PartitionArgs,
         /// Where to write the shifted layout.
         #[arg(long)]
         out: PathBuf,
         /// Also draw the result (.svg or .png), coloured by group.
         #[arg(long)]
         picture: Option<PathBuf>,
-        /// Chord tolerance for arcs and splines read from the layout, mm.
-        #[arg(long, default_value_t = 0.01)]
-        chord_tolerance_mm: f64,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Partition the layout as `partition` does and cut it on a conveyor cutter: the
+    /// conveyor's GRBL controller feeds the material stop by stop, each knife head's GRBL
+    /// controller cuts its group of the stop (all heads at once), the next feed waits for
+    /// every head. Without --conveyor, on the emulated cutter (k + 1 GRBL emulators on
+    /// pseudo-terminals), whose log of every knife stroke --log writes. Every point is
+    /// checked against its head's reach and the cutting area before anything moves.
+    Cut {
+        #[command(flatten)]
+        args: PartitionArgs,
+        /// The conveyor's controller (its X axis feeds the material); with --head for
+        /// each tool, in lane order. Default: the emulated cutter.
+        #[arg(long, requires = "head")]
+        conveyor: Option<String>,
+        /// A knife head's controller (X along the feed from the cutting area's start, Y
+        /// across from its origin, Z the knife); repeat once per tool.
+        #[arg(long, requires = "conveyor")]
+        head: Vec<String>,
+        /// With --head: each head's origin (material Y of its machine Y 0) and Y travel,
+        /// `ORIGIN:REACH` in mm, in head order; default: built for the partition.
+        #[arg(long = "head-reach", value_name = "ORIGIN:REACH")]
+        head_reach: Vec<String>,
+        #[arg(long, default_value_t = 115_200)]
+        baud: u32,
+        /// Knife feed along the contours, mm/min.
+        #[arg(long, default_value_t = 12_000.0)]
+        feed_mm_min: f64,
+        /// The emulated cutter's stroke log (JSON lines: one stroke each, then the feeds).
+        #[arg(long)]
+        log: Option<PathBuf>,
         #[arg(long)]
         json: bool,
     },
@@ -62,7 +101,7 @@ pub enum LayoutCmd {
 impl LayoutCmd {
     pub fn json(&self) -> bool {
         match self {
-            LayoutCmd::Partition { json, .. } => *json,
+            LayoutCmd::Partition { json, .. } | LayoutCmd::Cut { json, .. } => *json,
         }
     }
 }
@@ -88,51 +127,74 @@ fn parse_assign(text: &str) -> anyhow::Result<(String, usize)> {
     Ok((part.to_string(), group))
 }
 
-pub fn run(cmd: LayoutCmd) -> anyhow::Result<ExitCode> {
-    let LayoutCmd::Partition {
-        layout: input,
-        tools,
-        window_mm,
-        gap_mm,
-        width_mm,
-        clearance_mm,
-        assign,
-        widen,
-        out,
-        picture,
-        chord_tolerance_mm,
-        json,
-    } = cmd;
-    let in_format = format_of(&input)?;
-    let out_format = format_of(&out)?;
-    let forced = assign
+/// The layout read and partitioned, overlaps resolved: (layout, partition, moves,
+/// partition time in ms).
+fn partitioned(args: &PartitionArgs) -> anyhow::Result<(Layout, Partition, Resolution, f64)> {
+    let input = &args.layout;
+    let in_format = format_of(input)?;
+    let forced = args
+        .assign
         .iter()
         .map(|a| parse_assign(a))
         .collect::<anyhow::Result<Vec<_>>>()?;
-    let bytes = std::fs::read(&input).with_context(|| format!("reading {}", input.display()))?;
+    let bytes = std::fs::read(input).with_context(|| format!("reading {}", input.display()))?;
     let options = ReadOptions {
-        chord_tolerance_mm,
+        chord_tolerance_mm: args.chord_tolerance_mm,
         ..ReadOptions::default()
     };
     let doc = Layout::read(&bytes, in_format, &options)
         .with_context(|| format!("{}", input.display()))?;
     let params = Params {
-        tools,
-        window_mm,
-        gap_mm,
-        width_mm: width_mm.or(doc.width_mm),
-        clearance_mm,
+        tools: args.tools,
+        window_mm: args.window_mm,
+        gap_mm: args.gap_mm,
+        width_mm: args.width_mm.or(doc.width_mm),
+        clearance_mm: args.clearance_mm,
     };
-
     let t0 = Instant::now();
     let mut partition = layout::partition(&doc.parts, &params)?;
     let pinned = layout::assign(&doc.parts, &mut partition, &forced)?;
-    let resolution = if widen {
+    let resolution = if args.widen {
         layout::resolve_widening(&doc.parts, &mut partition, &pinned)?
     } else {
         layout::resolve(&doc.parts, &mut partition, &pinned)?
     };
     let elapsed_ms = t0.elapsed().as_secs_f64() * 1e3;
+    Ok((doc, partition, resolution, elapsed_ms))
+}
+
+pub fn run(cmd: LayoutCmd) -> anyhow::Result<ExitCode> {
+    let (args, out, picture, json) = match cmd {
+        LayoutCmd::Partition {
+            args,
+            out,
+            picture,
+            json,
+        } => (args, out, picture, json),
+        LayoutCmd::Cut {
+            args,
+            conveyor,
+            head,
+            head_reach,
+            baud,
+            feed_mm_min,
+            log,
+            json,
+        } => {
+            return crate::cutter::run(crate::cutter::CutCmd {
+                partitioned: partitioned(&args)?,
+                conveyor,
+                heads: head,
+                head_reach,
+                baud,
+                feed_mm_min,
+                log,
+                json,
+            })
+        }
+    };
+    let out_format = format_of(&out)?;
+    let (doc, partition, resolution, elapsed_ms) = partitioned(&args)?;
     let figures = layout::figures(&doc.parts, &partition);
 
     let shifted = doc.translated(&partition.offsets())?;

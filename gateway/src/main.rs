@@ -15,6 +15,7 @@ use std::process::ExitCode;
 use std::time::Instant;
 use vision::localize::{localize, LocalizeParams, LocalizeSettings, Method, PixelAxes};
 
+mod cutter;
 mod export;
 mod iso230;
 mod layout;

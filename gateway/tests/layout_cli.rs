@@ -155,3 +155,66 @@ fn an_unresolvable_overlap_is_reported_and_nothing_is_written() {
     ]);
     assert!(String::from_utf8_lossy(&o.stderr).contains("must be .dxf, .svg or .json"));
 }
+
+/// `layout cut` on the emulated cutter: the crossing layout's groups cut stop by stop,
+/// the stroke log written (every part's outline once: 4 strokes per rectangle), and a
+/// head too short for its parts refused before anything moves, naming the part.
+#[test]
+fn cut_runs_the_layout_on_the_emulated_cutter_and_writes_its_log() {
+    let dir = scratch("cut");
+    let input = dir.join("crossing.json");
+    std::fs::write(&input, CROSSING).unwrap();
+    let log = dir.join("strokes.jsonl");
+    let base = [
+        "layout",
+        "cut",
+        input.to_str().unwrap(),
+        "--tools",
+        "2",
+        "--window-mm",
+        "150",
+        "--gap-mm",
+        "5",
+    ];
+    let mut args = base.to_vec();
+    args.extend(["--log", log.to_str().unwrap(), "--json"]);
+    let o = gateway(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["parts"], 5);
+    assert_eq!(v["strokes"], 20, "{v}");
+    let groups: u64 = v["heads"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|h| h["groups"].as_u64().unwrap())
+        .sum();
+    assert_eq!(groups, v["groups"].as_u64().unwrap());
+    let lines: Vec<serde_json::Value> = std::fs::read_to_string(&log)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(lines.len(), 21, "20 strokes and the summary");
+    assert!(lines[..20]
+        .iter()
+        .all(|l| l["stroke"]["conveyor_moving"] == false));
+    assert_eq!(
+        lines[20]["feeds"].as_array().unwrap().len(),
+        v["stops"].as_array().unwrap().len()
+    );
+
+    let mut args = base.to_vec();
+    args.extend(["--head-reach", "0:40", "--head-reach", "50:40"]);
+    let refused = gateway(&args);
+    assert!(!refused.status.success());
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert!(
+        err.contains("part `B`") && err.contains("head 1's reach"),
+        "{err}"
+    );
+    let mut args = base.to_vec();
+    args.extend(["--head-reach", "0-40", "--head-reach", "50:40"]);
+    let err = gateway(&args);
+    assert!(String::from_utf8_lossy(&err.stderr).contains("ORIGIN:REACH"));
+}

@@ -234,7 +234,9 @@ impl AxesMachine {
                 start_s: self.now_s,
             });
         } else {
+            let from = self.position;
             self.reached(to);
+            self.workpiece.moved(&from, &to, self.now_s, self.now_s);
         }
         duration_s
     }

@@ -308,6 +308,14 @@ mod tests {
             (s.end_s - s.start_s - 1.0).abs() < 1e-12,
             "10 mm at 600 mm/min"
         );
+        // The conveyor's 300 mm at 30 m/min, then the head's travel, plunge and stroke.
+        let travel = (20f64.powi(2) + 10f64.powi(2) + 5f64.powi(2)).sqrt() / 6000.0 * 60.0;
+        let want = 0.6 + travel + 0.6 + 1.0;
+        assert!(
+            (log.machine_time_s() - want).abs() < 1e-9,
+            "{}",
+            log.machine_time_s()
+        );
     }
 
     /// A stroke while the conveyor still moves is logged as such.
