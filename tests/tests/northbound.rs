@@ -4,7 +4,9 @@
 //! DBIRTH contents and seq order, DDATA on state changes and for stored results, rebirth
 //! on NCMD, NDEATH with the NBIRTH's bdSeq on shutdown and (as the broker's will) when
 //! the connection is cut, and results kept through a broker outage, each published once,
-//! flagged historical. No sleeps: every wait is for a message, bounded only to fail.
+//! flagged historical; and an independent plant (Python paho-mqtt, the specification's
+//! proto compiled by protoc) decoding the births and death. No sleeps: every wait is for
+//! a message (or a line of the plant's), bounded only to fail.
 
 use northbound::{DeviceState, MqttConfig};
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
@@ -571,4 +573,119 @@ fn config_for_service(port: u16) -> MqttConfig {
         edge_node_id: "box-service".into(),
         ..config(port)
     }
+}
+
+/// The births and death decoded by an independent plant: Python paho-mqtt subscribed to
+/// the real broker, the payloads decoded with the specification's `sparkplug_b.proto`
+/// compiled by protoc (`tests/interop/sparkplug/plant.py`; none of our code): topics,
+/// seq, bdSeq, the metric names, Sparkplug datatypes and values as that decoder reads them.
+#[test]
+fn an_independent_plant_decodes_births_and_death_with_the_specifications_proto() {
+    if let Some(why) = system_tests::python_missing(
+        "paho.mqtt, grpc_tools, google.protobuf",
+        "paho-mqtt==2.1.0 grpcio-tools==1.85.1",
+    ) {
+        eprintln!("skipped: the independent plant cannot run: {why}");
+        return;
+    }
+    use std::io::BufRead;
+    let broker = Broker::start(0);
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/interop/sparkplug/plant.py");
+    let mut child = system_tests::Kill(
+        Command::new("python3")
+            .args([
+                script,
+                "--port",
+                &broker.port.to_string(),
+                "--group",
+                "plant-a",
+                "--until",
+                "NDEATH",
+            ])
+            .stdout(Stdio::piped())
+            .spawn()
+            .expect("python3 runs"),
+    );
+    // The plant's lines through a channel, so every wait is bounded.
+    let (tx, rx) = std::sync::mpsc::channel();
+    let stdout = child.0.stdout.take().unwrap();
+    std::thread::spawn(move || {
+        for l in std::io::BufReader::new(stdout)
+            .lines()
+            .map_while(Result::ok)
+        {
+            if tx.send(l).is_err() {
+                return;
+            }
+        }
+    });
+    let line = || -> serde_json::Value {
+        let l = rx.recv_timeout(BOUND).expect("the plant printed a line");
+        serde_json::from_str(&l).unwrap_or_else(|e| panic!("{e}: {l}"))
+    };
+    assert_eq!(line()["subscribed"], true);
+    // Worker threads: the northbound runs while this thread reads the plant's lines.
+    let rt = system_tests::runtime_two_workers();
+    let store = Arc::new(Mutex::new(Store::open_in_memory().unwrap()));
+    let (_states_tx, states) = watch::channel(vec![state("m1", "idle", None)]);
+    let nb = rt.block_on(async {
+        northbound::spawn(
+            config(broker.port),
+            store.clone(),
+            vec!["m1".into()],
+            states,
+            Arc::new(Notify::new()),
+        )
+    });
+    let nbirth = line();
+    let dbirth = line();
+    rt.block_on(nb.shutdown());
+    let ndeath = line();
+    let status = child.0.wait().unwrap();
+    assert!(status.success(), "the plant exited with {status}");
+
+    let metric = |m: &serde_json::Value, name: &str| -> serde_json::Value {
+        m["payload"]["metrics"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|x| x["name"] == name)
+            .unwrap_or_else(|| panic!("no metric {name:?} in {m}"))
+            .clone()
+    };
+    assert_eq!(nbirth["topic"], "spBv1.0/plant-a/NBIRTH/box-1");
+    assert_eq!(nbirth["payload"]["seq"], "0", "{nbirth}");
+    assert!(
+        nbirth["payload"]["timestamp"]
+            .as_str()
+            .unwrap()
+            .parse::<u64>()
+            .unwrap()
+            > 0
+    );
+    // Sparkplug datatypes: Int64 = 4, Boolean = 11, String = 12.
+    let bd = metric(&nbirth, "bdSeq");
+    assert_eq!(
+        (bd["datatype"].as_u64(), bd["long_value"].as_str()),
+        (Some(4), Some("0")),
+        "{bd}"
+    );
+    let rebirth = metric(&nbirth, "Node Control/Rebirth");
+    assert_eq!(
+        (rebirth["datatype"].as_u64(), &rebirth["boolean_value"]),
+        (Some(11), &serde_json::json!(false))
+    );
+    assert_eq!(dbirth["topic"], "spBv1.0/plant-a/DBIRTH/box-1/m1");
+    assert_eq!(dbirth["payload"]["seq"], "1");
+    let state = metric(&dbirth, "State");
+    assert_eq!(
+        (state["datatype"].as_u64(), &state["string_value"]),
+        (Some(12), &serde_json::json!("idle"))
+    );
+    assert_eq!(ndeath["topic"], "spBv1.0/plant-a/NDEATH/box-1");
+    assert!(
+        ndeath["payload"].get("seq").is_none(),
+        "NDEATH has no seq: {ndeath}"
+    );
+    assert_eq!(metric(&ndeath, "bdSeq")["long_value"], "0");
 }

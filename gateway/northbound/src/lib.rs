@@ -252,7 +252,7 @@ impl Node {
     fn ndeath(bdseq: u8) -> Vec<u8> {
         Payload {
             timestamp: Some(now_ms()),
-            metrics: vec![Metric::uint64(sparkplug::BDSEQ, u64::from(bdseq))],
+            metrics: vec![Metric::int64(sparkplug::BDSEQ, i64::from(bdseq))],
             ..Payload::default()
         }
         .encode_to_bytes()
@@ -360,7 +360,7 @@ impl Node {
             timestamp: Some(now),
             seq: Some(s.seq.birth()),
             metrics: vec![
-                Metric::uint64(sparkplug::BDSEQ, u64::from(s.bdseq)),
+                Metric::int64(sparkplug::BDSEQ, i64::from(s.bdseq)),
                 Metric::boolean(sparkplug::REBIRTH, false),
                 Metric::string(
                     "Properties/Software",
