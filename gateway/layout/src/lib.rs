@@ -33,6 +33,7 @@
 
 pub mod cut;
 mod figures;
+mod near;
 mod overlap;
 mod picture;
 

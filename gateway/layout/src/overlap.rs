@@ -1,7 +1,8 @@
-//! Overlaps between groups after S8, found with an R*-tree and exact polygon distances,
+//! Overlaps between groups after S8, found with an R*-tree and exact polygon distances
+//! (`near.rs`),
 //! and resolved by moving parts to neighbouring groups.
 
-use geo::{Distance, Euclidean, Polygon, Translate};
+use geo::{Polygon, Translate};
 use layout_io::Part;
 use rstar::primitives::{GeomWithData, Rectangle};
 use rstar::{RTree, AABB};
@@ -117,8 +118,15 @@ impl Placed {
             .map(|e| e.data)
     }
 
-    fn distance(&self, a: usize, b: usize) -> f64 {
-        Euclidean.distance(&self.shifted[a], &self.shifted[b])
+    /// The distance between parts `a` and `b` as placed, if below `limit`.
+    fn distance_below(&self, a: usize, b: usize, limit: f64) -> Option<f64> {
+        crate::near::distance_below(
+            &self.shifted[a],
+            self.boxes[a],
+            &self.shifted[b],
+            self.boxes[b],
+            limit,
+        )
     }
 
     fn place(&mut self, p: usize, d: [f64; 2], bounds: [f64; 4]) {
@@ -153,11 +161,8 @@ fn overlap(
     if ga == gb {
         return None;
     }
-    if box_distance(placed.boxes[a], placed.boxes[b]) >= gap - SLACK_MM {
-        return None;
-    }
-    let d = placed.distance(a, b);
-    (d < gap - SLACK_MM).then(|| Overlap {
+    let d = placed.distance_below(a, b, gap - SLACK_MM)?;
+    Some(Overlap {
         a: a.min(b),
         b: a.max(b),
         group_a: partition.groups[partition.group_of[a.min(b)]].id,
@@ -477,8 +482,14 @@ fn overlaps_if_moved(
     for q in placed.near(bx, gap).filter(|&q| q != p) {
         // Group mates keep their nested positions (the same shift): no check needed.
         if partition.group_of[q] != g
-            && box_distance(bx, placed.boxes[q]) < gap - SLACK_MM
-            && Euclidean.distance(&moved, &placed.shifted[q]) < gap - SLACK_MM
+            && crate::near::distance_below(
+                &moved,
+                bx,
+                &placed.shifted[q],
+                placed.boxes[q],
+                gap - SLACK_MM,
+            )
+            .is_some()
         {
             close.push(q);
         }
