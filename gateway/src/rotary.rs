@@ -278,16 +278,7 @@ fn measure_cmd(config: &Path, out: &Path, json: bool) -> anyhow::Result<ExitCode
         // The simulation knows the truth: compare.
         Some(truth) => {
             let t = truth.errors;
-            let injected = LocationErrors {
-                delta_xc_mm: t.delta_xc_mm,
-                delta_yc_mm: t.delta_yc_mm,
-                alpha_xc_deg: t.alpha_xc_deg,
-                alpha_yc_deg: t.alpha_yc_deg,
-                delta_ya_mm: t.delta_ya_mm,
-                delta_za_mm: t.delta_za_mm,
-                alpha_ya_deg: t.alpha_ya_deg,
-                alpha_za_deg: t.alpha_za_deg,
-            };
+            let injected = job::rotary::injected_errors(&t);
             println!(
                 "{:<14} {:>12} {:>12} {:>12} {:>10}",
                 "error", "injected", "identified", "difference", "u (k=1)"

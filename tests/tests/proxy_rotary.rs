@@ -11,7 +11,7 @@ use emulators::grbl::{GrblConfig, GrblDevice, GrblPty};
 use job::rotary::RotaryJob;
 use proxy::{open_controller, serve, Ending, FiveAxisRewriter, Proxy, SenderPort};
 use rotary::rewrite::{RewriteOptions, RotaryRewriter};
-use rotary::{Axes, LocationErrors, MachineConstants, RotaryMachine};
+use rotary::{Axes, MachineConstants, RotaryMachine};
 use std::time::Duration;
 use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
 use world::axes::{lock_axes, AxesMachine};
@@ -96,16 +96,7 @@ fn a_five_axis_program_through_the_pass_through_lands_on_the_programmed_tip_and_
     let t = sim.errors;
     // The model the gateway rewrites with: the table's errors as identified (here the
     // injected ones; the identification is tested elsewhere).
-    let errors = LocationErrors {
-        delta_xc_mm: t.delta_xc_mm,
-        delta_yc_mm: t.delta_yc_mm,
-        alpha_xc_deg: t.alpha_xc_deg,
-        alpha_yc_deg: t.alpha_yc_deg,
-        delta_ya_mm: t.delta_ya_mm,
-        delta_za_mm: t.delta_za_mm,
-        alpha_ya_deg: t.alpha_ya_deg,
-        alpha_za_deg: t.alpha_za_deg,
-    };
+    let errors = job::rotary::injected_errors(&t);
     let constants = MachineConstants::default();
     let model = RotaryMachine::with_errors(constants, errors);
     let axes = AxesMachine::new(Box::new(world::rotary::RotaryWorkpiece {

@@ -10,16 +10,7 @@ use world::rotary::TableErrors;
 
 fn injected() -> LocationErrors {
     let t = TableErrors::default();
-    LocationErrors {
-        delta_xc_mm: t.delta_xc_mm,
-        delta_yc_mm: t.delta_yc_mm,
-        alpha_xc_deg: t.alpha_xc_deg,
-        alpha_yc_deg: t.alpha_yc_deg,
-        delta_ya_mm: t.delta_ya_mm,
-        delta_za_mm: t.delta_za_mm,
-        alpha_ya_deg: t.alpha_ya_deg,
-        alpha_za_deg: t.alpha_za_deg,
-    }
+    job::rotary::injected_errors(&t)
 }
 
 #[test]

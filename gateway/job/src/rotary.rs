@@ -61,6 +61,21 @@ fn default_baud() -> u32 {
     115_200
 }
 
+/// The simulated table's true errors under the paper's names (what an identification
+/// is compared with).
+pub fn injected_errors(t: &TableErrors) -> rotary::LocationErrors {
+    rotary::LocationErrors {
+        delta_xc_mm: t.delta_xc_mm,
+        delta_yc_mm: t.delta_yc_mm,
+        alpha_xc_deg: t.alpha_xc_deg,
+        alpha_yc_deg: t.alpha_yc_deg,
+        delta_ya_mm: t.delta_ya_mm,
+        delta_za_mm: t.delta_za_mm,
+        alpha_ya_deg: t.alpha_ya_deg,
+        alpha_za_deg: t.alpha_za_deg,
+    }
+}
+
 /// How fast the simulated machine moves.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -399,16 +399,7 @@ pub fn cycle_report(
         return Ok(report);
     };
     let t = truth.errors;
-    let injected = LocationErrors {
-        delta_xc_mm: t.delta_xc_mm,
-        delta_yc_mm: t.delta_yc_mm,
-        alpha_xc_deg: t.alpha_xc_deg,
-        alpha_yc_deg: t.alpha_yc_deg,
-        delta_ya_mm: t.delta_ya_mm,
-        delta_za_mm: t.delta_za_mm,
-        alpha_ya_deg: t.alpha_ya_deg,
-        alpha_za_deg: t.alpha_za_deg,
-    };
+    let injected = job::rotary::injected_errors(&t);
     let mut comparison = serde_json::Map::new();
     for ((name, w), (_, g)) in injected.named().iter().zip(id.errors.named()) {
         comparison.insert(
