@@ -226,7 +226,7 @@ pub fn run(cmd: LayoutCmd) -> anyhow::Result<ExitCode> {
     if json {
         println!(
             "{}",
-            report(&doc, &partition, &resolution, &figures, elapsed_ms, &out)
+            report(&doc, &partition, &resolution, elapsed_ms, &out)
         );
     } else {
         print_text(&doc, &partition, &resolution, &figures, elapsed_ms, &out);
@@ -234,42 +234,22 @@ pub fn run(cmd: LayoutCmd) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+/// The layout crate's report with the CLI's own figures: where the layout was written
+/// and how long the partition took.
 fn report(
     doc: &Layout,
     partition: &Partition,
     resolution: &Resolution,
-    figures: &Figures,
     elapsed_ms: f64,
     out: &std::path::Path,
 ) -> serde_json::Value {
-    let id = |i: usize| doc.parts[i].id.clone();
-    json!({
-        "out": out.display().to_string(),
-        "parts": doc.parts.len(),
-        "tools": partition.tools,
-        "window_mm": partition.window_mm,
-        "gap_mm": partition.gap_mm,
-        "clearance_mm": partition.clearance_mm,
-        "width_mm": partition.width_mm,
-        "y0_mm": partition.y0_mm,
-        "groups": partition.groups.iter().filter(|g| !g.parts.is_empty()).map(|g| json!({
-            "id": g.id, "tool": g.tool, "window": g.window, "dx_mm": g.dx_mm, "dy_mm": g.dy_mm,
-            "parts": g.parts.iter().map(|&p| id(p)).collect::<Vec<_>>(),
-        })).collect::<Vec<_>>(),
-        "moves": resolution.moves.iter().map(|m| json!({
-            "part": id(m.part), "from_group": m.from_group, "to_group": m.to_group,
-            "because_of": m.because_of.map(id),
-        })).collect::<Vec<_>>(),
-        "overlaps_found": resolution.found.iter().map(|o| json!({
-            "a": id(o.a), "b": id(o.b), "group_a": o.group_a, "group_b": o.group_b,
-            "distance_mm": o.distance_mm,
-        })).collect::<Vec<_>>(),
-        "widenings": resolution.widenings,
-        "overlaps_resolved": resolution.found.len(),
-        "overlaps_left": 0,
-        "figures": figures,
-        "partition_ms": elapsed_ms,
-    })
+    let mut v = serde_json::to_value(layout::report(&doc.parts, partition, resolution))
+        .unwrap_or(serde_json::Value::Null);
+    if let Some(o) = v.as_object_mut() {
+        o.insert("out".into(), json!(out.display().to_string()));
+        o.insert("partition_ms".into(), json!(elapsed_ms));
+    }
+    v
 }
 
 fn print_text(

@@ -36,6 +36,7 @@ mod figures;
 mod near;
 mod overlap;
 mod picture;
+mod report;
 
 use layout_io::Part;
 use serde::Serialize;
@@ -45,6 +46,7 @@ pub use overlap::{
     detect, detect_exhaustive, resolve, resolve_widening, Move, Overlap, Resolution, Widening,
 };
 pub use picture::Picture;
+pub use report::{report, GroupReport, MoveReport, OverlapReport, Report};
 
 /// What the cutter is and how far apart groups go.
 #[derive(Debug, Clone, Copy)]

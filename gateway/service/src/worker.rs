@@ -1169,7 +1169,7 @@ fn layout_job(record: &JobRecord) -> (Outcome, Option<String>) {
         Ok(r) => r,
         Err(e) => return failed(e.to_string()),
     };
-    let figures = layout::figures(&doc.parts, &partition);
+    let report = layout::report(&doc.parts, &partition, &resolution);
     let shifted = match doc
         .translated(&partition.offsets())
         .and_then(|l| l.write(format))
@@ -1177,35 +1177,23 @@ fn layout_job(record: &JobRecord) -> (Outcome, Option<String>) {
         Ok(bytes) => String::from_utf8_lossy(&bytes).into_owned(),
         Err(e) => return failed(format!("writing the shifted layout: {e}")),
     };
-    let id = |i: usize| doc.parts[i].id.clone();
-    let result = json!({
-        "parts": doc.parts.len(),
-        "groups": partition.groups.iter().filter(|g| !g.parts.is_empty()).map(|g| json!({
-            "id": g.id, "tool": g.tool, "window": g.window, "dx_mm": g.dx_mm, "dy_mm": g.dy_mm,
-            "parts": g.parts.iter().map(|&i| id(i)).collect::<Vec<_>>(),
-        })).collect::<Vec<_>>(),
-        "moves": resolution.moves.iter().map(|m| json!({
-            "part": id(m.part), "from_group": m.from_group, "to_group": m.to_group,
-            "because_of": m.because_of.map(id),
-        })).collect::<Vec<_>>(),
-        "overlaps_found": resolution.found.len(),
-        "widenings": resolution.widenings,
-        "figures": figures,
-        "layout": shifted,
-    });
     let mut metrics = Map::new();
-    metrics.insert("parts".into(), json!(doc.parts.len()));
+    metrics.insert("parts".into(), json!(report.parts));
+    metrics.insert("groups".into(), json!(report.groups.len()));
+    metrics.insert("overlaps_found".into(), json!(report.overlaps_resolved));
+    metrics.insert("moves".into(), json!(report.moves.len()));
     metrics.insert(
-        "groups".into(),
-        json!(partition
-            .groups
-            .iter()
-            .filter(|g| !g.parts.is_empty())
-            .count()),
+        "length_mm".into(),
+        json!(report.figures.partitioned.length_mm),
     );
-    metrics.insert("overlaps_found".into(), json!(resolution.found.len()));
-    metrics.insert("moves".into(), json!(resolution.moves.len()));
-    metrics.insert("length_mm".into(), json!(figures.partitioned.length_mm));
-    metrics.insert("utilisation".into(), json!(figures.partitioned.utilisation));
+    metrics.insert(
+        "utilisation".into(),
+        json!(report.figures.partitioned.utilisation),
+    );
+    // The CLI's `--json` report, with the shifted layout in the format it was given.
+    let mut result = serde_json::to_value(&report).unwrap_or(Value::Null);
+    if let Some(o) = result.as_object_mut() {
+        o.insert("layout".into(), json!(shifted));
+    }
     (Outcome::Succeeded { result, metrics }, None)
 }
