@@ -91,6 +91,53 @@ async fn send(path: String) -> (Vec<String>, String) {
 
 #[test]
 fn a_five_axis_program_through_the_pass_through_lands_on_the_programmed_tip_and_direction() {
+    pass_through_lands_on_the_program(|path| tokio::spawn(send(path)));
+}
+
+/// The same with the independent Python sender of `tests/interop/grbl_sender.py` (what UGS
+/// and CNCjs do at connect, then character counting; whitespace and comments stripped as
+/// GRBL senders do): its status parsing and streaming against the 5-axis pass-through.
+#[test]
+fn an_independent_sender_streams_a_five_axis_program_through_the_pass_through() {
+    if let Some(why) = system_tests::python_missing("serial", "pyserial") {
+        eprintln!("SKIPPED: {why}");
+        return;
+    }
+    pass_through_lands_on_the_program(|path| {
+        tokio::task::spawn_blocking(move || {
+            let dir = tempfile::tempdir().unwrap();
+            let program = dir.path().join("five-axis.nc");
+            std::fs::write(&program, PROGRAM).unwrap();
+            let out = std::process::Command::new("python3")
+                .arg(system_tests::workspace().join("tests/interop/grbl_sender.py"))
+                .arg(&path)
+                .arg(&program)
+                .output()
+                .expect("python3 runs");
+            let stdout = String::from_utf8_lossy(&out.stdout);
+            assert!(
+                out.status.success(),
+                "sender failed: {stdout}\n{}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+            let v: serde_json::Value =
+                serde_json::from_str(stdout.trim()).unwrap_or_else(|e| panic!("{e}: {stdout}"));
+            assert_eq!(v["acknowledged"], PROGRAM.lines().count() as u64, "{v}");
+            let mut answers = vec!["ok".to_string(); PROGRAM.lines().count()];
+            for e in v["errors"].as_array().unwrap() {
+                answers.push(e.to_string());
+            }
+            (answers, v["final_status"].as_str().unwrap().to_string())
+        })
+    });
+}
+
+/// A sender (given the gateway's port) streams [`PROGRAM`] through the pass-through with
+/// the table's errors; the emulated axes land on the programmed tip and direction, and
+/// the sender sees programmed coordinates.
+fn pass_through_lands_on_the_program(
+    sender: impl FnOnce(String) -> tokio::task::JoinHandle<(Vec<String>, String)>,
+) {
     let job = RotaryJob::default();
     let sim = job.simulated().sim;
     let t = sim.errors;
@@ -117,7 +164,7 @@ fn a_five_axis_program_through_the_pass_through_lands_on_the_programmed_tip_and_
                 .unwrap();
         assert!(banner.contains("Grbl"), "{banner}");
         let mut sender_port = SenderPort::create(None).unwrap();
-        let client = tokio::spawn(send(sender_port.path().to_string()));
+        let client = sender(sender_port.path().to_string());
         let rewriter = RotaryRewriter::new(&model, RewriteOptions::default());
         let mut proxy = Proxy::with_rewriter(Box::new(FiveAxisRewriter::new(rewriter)));
         proxy.start();

@@ -108,6 +108,16 @@ const SLOTS: [usize; 5] = [0, 1, 2, 3, 5];
 
 impl LineRewriter for FiveAxisRewriter<'_> {
     fn line(&mut self, text: &str, line_no: usize) -> Result<Vec<String>, RewriteError> {
+        // `$` lines (settings, `$I`, `$G`, `$#`, homing, jogs) go to the controller as
+        // written, as in the 3-axis rewriter; homing and jogs leave the position unknown.
+        let trimmed = text.trim_start();
+        if trimmed.starts_with('$') {
+            let upper = trimmed.to_ascii_uppercase();
+            if upper.starts_with("$H") || upper.starts_with("$J=") {
+                self.rewriter.forget_position();
+            }
+            return Ok(vec![trimmed.to_string()]);
+        }
         let block = Block::parse(text, line_no).map_err(|e| RewriteError {
             line: line_no,
             kind: RewriteErrorKind::Syntax(e),
@@ -224,6 +234,25 @@ mod tests {
         assert!(r.line("G54 G1 X2 F100", 5).is_ok());
         assert!(r.position_known());
         r.controller_reset();
+        assert!(!r.position_known());
+    }
+
+    /// What senders send at connect (`$I`, `$$`, `$G`) goes through as written; homing
+    /// and jogs leave the position unknown (found by the independent Python sender,
+    /// whose `$I` the 5-axis pass-through refused).
+    #[test]
+    fn system_lines_go_through_and_homing_or_jogging_forgets_the_position() {
+        let model = table();
+        let mut r = rewriter(&model, 2.0);
+        for l in ["$I", "$$", "$G", "$#", "$X"] {
+            assert_eq!(r.line(l, 1).unwrap(), vec![l.to_string()]);
+        }
+        assert!(r.line("G90 G0 X1 Y2 Z-150 A0 C0", 2).is_ok());
+        assert!(r.position_known());
+        assert_eq!(r.line("$J=G91 X1 F100", 3).unwrap(), vec!["$J=G91 X1 F100"]);
+        assert!(!r.position_known());
+        assert!(r.line("G90 G0 X1 Y2 Z-150 A0 C0", 4).is_ok());
+        r.line("$H", 5).unwrap();
         assert!(!r.position_known());
     }
 
