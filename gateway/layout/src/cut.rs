@@ -10,11 +10,12 @@
 //! origin_y 45, reach 50): with the conveyor at 300, material (320, 55) is head 1's
 //! machine (20, 10); material (320, 100) would be Y 55, beyond its reach, and is refused.
 //!
-//! Stops: every head cuts its groups in window order, one group per stop. A stop puts the
-//! conveyor at the smallest X where a head's next group starts; every head whose next
-//! group then lies wholly in the area cuts it; the others wait for a later stop. The
-//! conveyor never goes back (each head's groups start further along X window by window),
-//! and each stop cuts at least one group (a group is shorter than L'). Within a group,
+//! Stops: every head cuts its groups in window order. A stop puts the conveyor at the
+//! smallest X where a head's next group starts; every head cuts its next groups, in
+//! order, as long as they lie wholly in the area; the others wait for a later stop. Each
+//! stop cuts at least one group (a group is shorter than L'). The conveyor never goes
+//! back: each head's groups start further along X window by window, and a partition
+//! where they do not (a part moved into an earlier window's group can do it) is refused. Within a group,
 //! each part's holes are cut before its outline (the part is still held while its
 //! inside is cut), parts in the layout's order.
 
@@ -181,6 +182,15 @@ pub enum CutError {
         lo: f64,
         hi: f64,
     },
+    #[error(
+        "group G-{group} (tool {tool}) starts at X {from:.3} mm, behind the conveyor's last stop at {conveyor:.3} mm: the tool's groups are not in feed order, and the conveyor does not go back"
+    )]
+    Backwards {
+        group: usize,
+        tool: usize,
+        from: f64,
+        conveyor: f64,
+    },
     #[error("part `{part}` has a point that is not a number")]
     NotANumber { part: String },
 }
@@ -245,27 +255,42 @@ pub fn plan(
             q.into()
         })
         .collect();
-    let mut stops = Vec::new();
+    let mut stops: Vec<Stop> = Vec::new();
     loop {
         let next: Vec<(usize, usize)> = queues
             .iter()
             .enumerate()
             .filter_map(|(t, q)| q.front().map(|&g| (t, g)))
             .collect();
-        let Some(conveyor_mm) = next
+        let Some(&(tool, first)) = next
             .iter()
-            .map(|&(_, g)| extent[g][0])
-            .min_by(f64::total_cmp)
+            .min_by(|a, b| extent[a.1][0].total_cmp(&extent[b.1][0]))
         else {
             break;
         };
-        let mut jobs = Vec::new();
-        for (t, g) in next {
-            if extent[g][1] > conveyor_mm + cutter.window_mm {
-                continue;
+        let conveyor_mm = extent[first][0];
+        if let Some(last) = stops.last() {
+            if conveyor_mm < last.conveyor_mm {
+                let group = &partition.groups[first];
+                return Err(CutError::Backwards {
+                    group: group.id,
+                    tool,
+                    from: conveyor_mm,
+                    conveyor: last.conveyor_mm,
+                });
             }
-            queues[t].pop_front();
-            jobs.push(head_job(parts, partition, g, conveyor_mm, cutter.heads[t]));
+        }
+        // Each head cuts every next group of its own that lies wholly in the area.
+        let mut jobs = Vec::new();
+        for (t, queue) in queues.iter_mut().enumerate() {
+            while let Some(&g) = queue.front() {
+                let [from, to] = extent[g];
+                if from < conveyor_mm || to > conveyor_mm + cutter.window_mm {
+                    break;
+                }
+                queue.pop_front();
+                jobs.push(head_job(parts, partition, g, conveyor_mm, cutter.heads[t]));
+            }
         }
         stops.push(Stop { conveyor_mm, jobs });
     }
@@ -429,6 +454,47 @@ mod tests {
             g.contains("G0 X100.000 Y10.000\nG1 Z-1.000 F3000\nF12000\nG1 X110.000 Y10.000\n"),
             "{g}"
         );
+    }
+
+    /// Two small consecutive groups of one head inside the area are cut at one stop, in
+    /// window order; groups that start behind an earlier stop are refused.
+    #[test]
+    fn a_head_cuts_every_next_group_inside_the_area_and_never_goes_back() {
+        let parts = vec![
+            square("a", 0.0, 10.0),
+            square("b", 100.0, 10.0),
+            square("c", 400.0, 10.0),
+        ];
+        let p = partition(
+            vec![
+                group(1, 0, 0, 0.0, 0.0, vec![0]),
+                group(2, 0, 1, 5.0, 0.0, vec![1]),
+                group(3, 0, 2, 10.0, 0.0, vec![2]),
+            ],
+            3,
+        );
+        let stops = plan(&parts, &p, &CutterSpec::for_partition(&parts, &p)).unwrap();
+        let summary: Vec<(f64, Vec<usize>)> = stops
+            .iter()
+            .map(|s| (s.conveyor_mm, s.jobs.iter().map(|j| j.group).collect()))
+            .collect();
+        assert_eq!(summary, vec![(0.0, vec![1, 2]), (410.0, vec![3])]);
+        // G-3 moved behind G-2 (as a resolution move could leave it).
+        let back = vec![
+            square("a", 0.0, 10.0),
+            square("b", 400.0, 10.0),
+            square("c", 350.0, 10.0),
+        ];
+        let p = partition(
+            vec![
+                group(1, 0, 0, 0.0, 0.0, vec![0]),
+                group(2, 0, 1, 0.0, 0.0, vec![1]),
+                group(3, 0, 2, 0.0, 0.0, vec![2]),
+            ],
+            3,
+        );
+        let e = plan(&back, &p, &CutterSpec::for_partition(&back, &p)).unwrap_err();
+        assert!(matches!(e, CutError::Backwards { group: 3, .. }), "{e}");
     }
 
     /// A head's next group that does not fit with another head's waits for its own stop.

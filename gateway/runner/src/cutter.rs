@@ -70,13 +70,15 @@ pub async fn run_cut(
         feed(conveyor, stop.conveyor_mm)
             .await
             .map_err(|e| fail(format!("conveyor: {e}")))?;
-        let programs: Vec<(usize, String)> = stop
-            .jobs
-            .iter()
-            .map(|j| (j.tool, j.program(settings)))
-            .collect();
+        // A head's groups at this stop, one after the other, in one program.
+        let mut programs: Vec<Option<String>> = vec![None; heads.len()];
+        for j in &stop.jobs {
+            programs[j.tool]
+                .get_or_insert_with(String::new)
+                .push_str(&j.program(settings));
+        }
         let streams = heads.iter_mut().enumerate().filter_map(|(t, head)| {
-            let program = programs.iter().find(|(tool, _)| *tool == t)?.1.clone();
+            let program = programs[t].take()?;
             Some(async move {
                 let r = head.stream_program(&program, stream, &mut |_| {}).await;
                 (t, r)
