@@ -35,7 +35,7 @@ pub use errormap::{error_map_json, scan_journal};
 pub use gige::{genicam_xml, gige_url, gige_zip, gvcp, gvsp};
 pub use grbl::{grbl_gcode, grbl_response};
 pub use iso230::iso230_csv;
-pub use layout::{layout_dxf, layout_json, layout_svg};
+pub use layout::{layout_cut, layout_dxf, layout_json, layout_svg};
 pub use media::{localize, png_load};
 pub use modbus::modbus_frame;
 pub use nc::nc_program;
@@ -80,6 +80,7 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("layout_dxf", layout_dxf),
     ("layout_svg", layout_svg),
     ("layout_json", layout_json),
+    ("layout_cut", layout_cut),
     ("nc_rewrite", nc_rewrite),
     ("proxy_stream", proxy_stream),
     ("rotary_centres", rotary_centres),
