@@ -119,6 +119,28 @@ pub fn assert_demo_figure(report: &compensation::report::Report, min_before_um: 
     );
 }
 
+/// The independent GRBL sender (`tests/interop/grbl_sender.py`, pyserial) streaming
+/// `program` to the controller (or pass-through) on `port`.
+pub fn grbl_sender(port: &Path, program: &Path) -> Command {
+    let mut c = Command::new("python3");
+    c.arg(workspace().join("tests/interop/grbl_sender.py"))
+        .arg(port)
+        .arg(program);
+    c
+}
+
+/// A sender process's one JSON object on stdout (our Python and Node peers print one),
+/// after checking it exited successfully.
+pub fn sender_json(out: &std::process::Output) -> serde_json::Value {
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "sender failed: {stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_str(stdout.trim()).unwrap_or_else(|e| panic!("{e}: {stdout}"))
+}
+
 /// Why an interoperation test cannot run here: python3 missing, or `modules` (a Python
 /// import list such as `"canopen, can, serial"`) not importable; `packages` is what to
 /// `pip install`. None when the peer can run. Callers print the reason and skip.

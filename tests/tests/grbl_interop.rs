@@ -47,21 +47,10 @@ fn pyserial_sender_connects_like_ugs_and_streams_by_character_counting() {
     let file = dir.join("prog.nc");
     std::fs::write(&file, &prog).unwrap();
 
-    let script = workspace().join("tests/interop/grbl_sender.py");
-    let out = Command::new("python3")
-        .arg(&script)
-        .arg(&link)
-        .arg(&file)
+    let out = system_tests::grbl_sender(&link, &file)
         .output()
         .expect("run the sender");
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "sender failed: {stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let v: serde_json::Value =
-        serde_json::from_str(stdout.trim()).unwrap_or_else(|e| panic!("{e}: {stdout}"));
+    let v = system_tests::sender_json(&out);
     let n = prog.lines().count() as u64;
     assert_eq!(v["streamed"], n);
     assert_eq!(v["acknowledged"], n);

@@ -166,17 +166,6 @@ fn unique() -> u32 {
     N.fetch_add(1, Ordering::Relaxed)
 }
 
-/// The sender's JSON, after checking it succeeded.
-fn sender_json(out: &std::process::Output) -> serde_json::Value {
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "sender failed: {stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_str(stdout.trim()).unwrap_or_else(|e| panic!("{e}: {stdout}"))
-}
-
 /// Every line answered, the true tool path within `bound_mm` of the program; prints the
 /// figures and returns the largest distance, mm.
 fn check_session(s: &Streamed, who: &str, bound_mm: f64) -> f64 {
@@ -246,13 +235,9 @@ fn an_independent_sender_streams_through_the_proxy_and_the_tool_follows_the_prog
         return;
     }
     let s = stream_through_proxy([0.0, 0.0], true, |link, program| {
-        let mut c = Command::new("python3");
-        c.arg(workspace().join("tests/interop/grbl_sender.py"))
-            .arg(link)
-            .arg(program);
-        c
+        system_tests::grbl_sender(link, program)
     });
-    let v = sender_json(&s.sender);
+    let v = system_tests::sender_json(&s.sender);
     let n = PROGRAM.lines().count() as u64;
     assert_eq!(v["acknowledged"], n, "{v}");
     assert_eq!(v["errors"].as_array().unwrap().len(), 0, "{v}");
@@ -285,16 +270,12 @@ fn a_tool_away_from_the_camera_follows_the_program_when_the_map_knows_the_arm() 
     // several um more than the camera sees (Abbe).
     let run = |map_told: bool| {
         stream_through_proxy([120.0, -80.0], map_told, |link, program| {
-            let mut c = Command::new("python3");
-            c.arg(workspace().join("tests/interop/grbl_sender.py"))
-                .arg(link)
-                .arg(program);
-            c
+            system_tests::grbl_sender(link, program)
         })
     };
     let told = run(true);
     assert_eq!(
-        sender_json(&told.sender)["errors"]
+        system_tests::sender_json(&told.sender)["errors"]
             .as_array()
             .unwrap()
             .len(),
@@ -355,7 +336,7 @@ fn cncjs_streams_through_the_proxy_and_the_tool_follows_the_program() {
             .arg(program);
         c
     });
-    let v = sender_json(&s.sender);
+    let v = system_tests::sender_json(&s.sender);
     // CNCjs adds one line of its own (`%wait`, a dwell) to every program.
     assert_eq!(v["received"], v["total"], "{v}");
     assert!(

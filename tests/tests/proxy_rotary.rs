@@ -108,20 +108,10 @@ fn an_independent_sender_streams_a_five_axis_program_through_the_pass_through() 
             let dir = tempfile::tempdir().unwrap();
             let program = dir.path().join("five-axis.nc");
             std::fs::write(&program, PROGRAM).unwrap();
-            let out = std::process::Command::new("python3")
-                .arg(system_tests::workspace().join("tests/interop/grbl_sender.py"))
-                .arg(&path)
-                .arg(&program)
+            let out = system_tests::grbl_sender(std::path::Path::new(&path), &program)
                 .output()
                 .expect("python3 runs");
-            let stdout = String::from_utf8_lossy(&out.stdout);
-            assert!(
-                out.status.success(),
-                "sender failed: {stdout}\n{}",
-                String::from_utf8_lossy(&out.stderr)
-            );
-            let v: serde_json::Value =
-                serde_json::from_str(stdout.trim()).unwrap_or_else(|e| panic!("{e}: {stdout}"));
+            let v = system_tests::sender_json(&out);
             assert_eq!(v["acknowledged"], PROGRAM.lines().count() as u64, "{v}");
             let mut answers = vec!["ok".to_string(); PROGRAM.lines().count()];
             for e in v["errors"].as_array().unwrap() {
