@@ -117,12 +117,7 @@ fn check_iso230_params(obj: &Map<String, Value>) -> Result<(), String> {
 /// A map scan: `name` (the error_map profile the map becomes a version of, required),
 /// `grid_step_mm` (> 0), `line_step_mm` (> 0), `passes` (1..=10); defaults as `gateway map`.
 fn check_map_params(obj: &Map<String, Value>) -> Result<(), String> {
-    match obj.get("name").and_then(Value::as_str) {
-        Some(n) if crate::config::valid_id(n) => {}
-        _ => {
-            return Err("params.name must name the profile (letters, digits, '-', '_', '.')".into())
-        }
-    }
+    check_profile_name(obj.get("name").unwrap_or(&Value::Null))?;
     for (key, value) in obj {
         match key.as_str() {
             "name" => {}
@@ -176,20 +171,23 @@ fn check_verify_params(obj: &Map<String, Value>) -> Result<(), String> {
     Ok(())
 }
 
+/// `params.name` of a job that makes a profile version: a plain name.
+fn check_profile_name(value: &Value) -> Result<(), String> {
+    match value.as_str() {
+        Some(n) if crate::config::valid_id(n) => Ok(()),
+        _ => Err(format!(
+            "params.name must name the profile (1 to 64 letters, digits, '-' or '_'), got {value}"
+        )),
+    }
+}
+
 /// A measurement of the machine's A/C table (source B, as `gateway rotary measure` with
 /// the machine's rotary job file): `name`, the rotary profile the identified errors
 /// become a version of (default "rotary").
 fn check_rotary_params(obj: &Map<String, Value>) -> Result<(), String> {
     for (key, value) in obj {
         match key.as_str() {
-            "name" => match value.as_str() {
-                Some(n) if crate::config::valid_id(n) => {}
-                _ => {
-                    return Err(
-                        "params.name must name the profile (letters, digits, '-', '_')".into(),
-                    )
-                }
-            },
+            "name" => check_profile_name(value)?,
             other => return Err(format!("params.{other}: unknown parameter of a rotary job")),
         }
     }
