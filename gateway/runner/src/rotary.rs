@@ -40,9 +40,9 @@ pub fn run_cycle(
 ) -> anyhow::Result<CycleRun> {
     let constants = job.machine.unwrap_or_default();
     let plan = job.plan.unwrap_or_default();
-    let mut table = job.simulated();
     match &job.link {
         None => {
+            let mut table = job.simulated();
             let cycle = measure(
                 &mut Stoppable {
                     inner: &mut table,
@@ -59,12 +59,12 @@ pub fn run_cycle(
             })
         }
         Some(RotaryLink::GrblEmulator) => {
-            let (cycle, time_s) =
-                through_grbl_emulator(&table.sim, &constants, &plan, progress, stop)?;
+            let sim = job.simulated().sim;
+            let (cycle, time_s) = through_grbl_emulator(&sim, &constants, &plan, progress, stop)?;
             Ok(CycleRun {
                 cycle,
                 time_s,
-                truth: Some(table.sim),
+                truth: Some(sim),
             })
         }
         Some(RotaryLink::Grbl(port)) => {
