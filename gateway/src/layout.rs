@@ -195,7 +195,6 @@ pub fn run(cmd: LayoutCmd) -> anyhow::Result<ExitCode> {
     };
     let out_format = format_of(&out)?;
     let (doc, partition, resolution, elapsed_ms) = partitioned(&args)?;
-    let figures = layout::figures(&doc.parts, &partition);
 
     let shifted = doc.translated(&partition.offsets())?;
     let written = shifted.write(out_format)?;
@@ -229,6 +228,7 @@ pub fn run(cmd: LayoutCmd) -> anyhow::Result<ExitCode> {
             report(&doc, &partition, &resolution, elapsed_ms, &out)
         );
     } else {
+        let figures = layout::figures(&doc.parts, &partition);
         print_text(&doc, &partition, &resolution, &figures, elapsed_ms, &out);
     }
     Ok(ExitCode::SUCCESS)
