@@ -234,15 +234,20 @@ fn check_log(
     }
     // Hold-down: a part's cut comes after (or with) the cut of a part of another group
     // closer than the gap: never.
-    let segments = |p: usize| -> Vec<[[f64; 2]; 2]> {
-        part_strokes[p]
-            .iter()
-            .map(|&si| [log.strokes[si].from_mm, log.strokes[si].to_mm])
-            .collect()
-    };
-    let boxes: Vec<[f64; 4]> = (0..doc.parts.len())
-        .map(|p| {
-            segments(p).iter().flatten().fold(
+    // Each part's strokes as segments, and their box, once.
+    let segments: Vec<Vec<[[f64; 2]; 2]>> = part_strokes
+        .iter()
+        .map(|strokes| {
+            strokes
+                .iter()
+                .map(|&si| [log.strokes[si].from_mm, log.strokes[si].to_mm])
+                .collect()
+        })
+        .collect();
+    let boxes: Vec<[f64; 4]> = segments
+        .iter()
+        .map(|segs| {
+            segs.iter().flatten().fold(
                 [
                     f64::INFINITY,
                     f64::INFINITY,
@@ -273,9 +278,9 @@ fn check_log(
                 continue;
             }
             pairs_checked += 1;
-            let d = segments(p)
+            let d = segments[p]
                 .iter()
-                .flat_map(|s| segments(q).into_iter().map(move |t| dist_segments(*s, t)))
+                .flat_map(|s| segments[q].iter().map(move |t| dist_segments(*s, *t)))
                 .fold(f64::INFINITY, f64::min);
             assert!(
                 d >= gap - TOL_MM,
