@@ -5,7 +5,8 @@
 
 use crate::camera::Camera;
 use crate::error::DriverError;
-use crate::stage::Stage;
+use crate::prober::{Prober, ProberError, StageProber};
+use crate::stage::{Axis, Stage};
 use link_spec::{CameraLink, StageLink};
 
 #[cfg(any(not(feature = "serial"), not(feature = "modbus")))]
@@ -50,6 +51,17 @@ pub async fn open_stage(link: &StageLink) -> Result<Box<dyn Stage>, DriverError>
             Ok(Box::new(stage))
         }
     }
+}
+
+/// Open the stage a link names as a [`Prober`]: refused, before anything moves, when
+/// its capabilities lack probing moves or one of `rotary_axes` (the stage is closed
+/// again).
+pub async fn open_prober(
+    link: &StageLink,
+    rotary_axes: &[Axis],
+) -> Result<Box<dyn Prober>, ProberError> {
+    let stage = open_stage(link).await?;
+    Ok(Box::new(StageProber::new(stage, rotary_axes)?))
 }
 
 /// Open the camera a link names.

@@ -5,6 +5,8 @@
 //! * [`AxisDrive`]: one independently driven axis (a CANopen or Modbus drive); any set of
 //!   them becomes a `Stage` through [`MultiAxisStage`].
 //! * [`Camera`]: grab a frame with its metadata.
+//! * [`Prober`]: positioning and probing moves of a touch probe (a [`Stage`] with the
+//!   `probing` capability through [`StageProber`], opened by [`open_prober`]).
 //!
 //! Architecture invariant: drivers know nothing of the compensation pipeline and never
 //! read the simulated truth; the `sim` backend reaches the simulated machine only
@@ -21,15 +23,19 @@ pub mod grbl;
 #[cfg(feature = "modbus")]
 pub mod modbus;
 pub mod multi_axis;
+pub mod prober;
+pub mod program;
 #[cfg(feature = "sim")]
 pub mod sim;
 pub mod stage;
 
 pub use camera::{Camera, CameraInfo, Frame, FrameMeta};
 pub use error::DriverError;
-pub use factory::{open_camera, open_stage};
+pub use factory::{open_camera, open_prober, open_stage};
 pub use link_spec::{CameraLink, StageLink};
 pub use multi_axis::{AxisDrive, AxisStatus, MultiAxisStage};
+pub use prober::{Prober, ProberError, StageProber};
+pub use program::{StreamError, StreamOptions, StreamReport};
 pub use stage::{
     Axis, AxisInfo, AxisValues, Capabilities, ProbeHit, ProbeMode, Stage, StageInfo, StageState,
     StageStatus,

@@ -1,8 +1,10 @@
 //! The motion stage trait and its value types.
 
 use crate::error::DriverError;
+use crate::program::{StreamError, StreamOptions, StreamReport};
 use async_trait::async_trait;
 pub use link_spec::Capabilities;
+use protocol::grbl::stream::StreamProgress;
 use serde::Serialize;
 
 pub use link_spec::Axis;
@@ -218,6 +220,30 @@ pub trait Stage: Send {
         Err(DriverError::Unsupported {
             device: self.info().name.clone(),
             message: "this controller has no probing moves (capability `probing` is false)".into(),
+        })
+    }
+    /// Run a G-code program streamed line by line; `progress` is told whenever lines
+    /// are acknowledged or known executed. Only controllers whose
+    /// [`Capabilities::program_streaming`] is true implement it; the default refuses
+    /// before anything is sent.
+    async fn stream_program(
+        &mut self,
+        program: &str,
+        opts: &StreamOptions,
+        progress: &mut (dyn FnMut(StreamProgress) + Send),
+    ) -> Result<StreamReport, StreamError> {
+        let _ = (program, opts, progress);
+        Err(StreamError {
+            cause: DriverError::Unsupported {
+                device: self.info().name.clone(),
+                message: "this controller does not run streamed programs (capability \
+                          `program_streaming` is false)"
+                    .into(),
+            },
+            line: None,
+            text: None,
+            progress: StreamProgress::default(),
+            acknowledged_after: Vec::new(),
         })
     }
 }

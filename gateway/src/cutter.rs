@@ -109,39 +109,39 @@ pub fn run(cmd: CutCmd) -> anyhow::Result<ExitCode> {
         match &cmd.conveyor {
             Some(conveyor) => {
                 let opts = GrblOptions::default();
-                let (mut c, mut h) =
-                    runner::cutter::open_links(conveyor, &cmd.heads, cmd.baud, &opts)
-                        .await
-                        .context("connecting to the cutter's controllers")?;
-                let run =
-                    runner::cutter::run_cut(&stops, &mut c, &mut h, &settings, &stream, progress)
-                        .await;
+                let mut links = devices::open_cutter(conveyor, &cmd.heads, cmd.baud, &opts)
+                    .await
+                    .context("connecting to the cutter's controllers")?;
+                let run = runner::cutter::run_cut(
+                    &stops,
+                    links.conveyor.as_mut(),
+                    &mut links.heads,
+                    &settings,
+                    &stream,
+                    progress,
+                )
+                .await;
                 anyhow::Ok((run, None))
             }
             None => {
                 let geometry = runner::cutter::emulated_geometry(&cutter, &stops);
-                let emulated = emulators::cutter::CutterPty::spawn(&geometry)
-                    .context("starting the emulated cutter on pseudo-terminals")?;
-                let opts = GrblOptions {
-                    poll_interval: Duration::from_millis(2),
-                    ..GrblOptions::default()
-                };
+                let mut emulated = devices::open_emulated_cutter(&geometry)
+                    .await
+                    .context("the emulated cutter")?;
                 let stream = StreamOptions {
                     status_interval: Duration::from_millis(2),
                     ..stream
                 };
-                let (mut c, mut h) = runner::cutter::open_links(
-                    emulated.conveyor.path(),
-                    &emulated.head_paths(),
-                    115_200,
-                    &opts,
+                let run = runner::cutter::run_cut(
+                    &stops,
+                    emulated.conveyor.as_mut(),
+                    &mut emulated.heads,
+                    &settings,
+                    &stream,
+                    progress,
                 )
-                .await
-                .context("connecting to the emulated cutter")?;
-                let run =
-                    runner::cutter::run_cut(&stops, &mut c, &mut h, &settings, &stream, progress)
-                        .await;
-                Ok((run, Some(emulated.log())))
+                .await;
+                Ok((run, emulated.log()))
             }
         }
     })?;

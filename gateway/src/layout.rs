@@ -3,12 +3,11 @@
 
 use anyhow::Context;
 use clap::Subcommand;
-use layout::{Figures, Params, Partition, Resolution};
-use layout_io::{Format, Layout, ReadOptions};
-use serde_json::json;
+use layout::{Partition, Resolution};
+use layout_io::{Format, Layout};
+use procedure::request::{LayoutFormat, LayoutRequest, PictureFormat};
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::time::Instant;
 
 /// The layout and how it is partitioned (shared by `partition` and `cut`).
 #[derive(clap::Args)]
@@ -115,52 +114,36 @@ fn format_of(path: &std::path::Path) -> anyhow::Result<Format> {
     })
 }
 
-fn parse_assign(text: &str) -> anyhow::Result<(String, usize)> {
-    let (part, group) = text
-        .rsplit_once('=')
-        .with_context(|| format!("--assign `{text}`: write PART=GROUP"))?;
-    let group: usize = group
-        .trim()
-        .trim_start_matches(['G', 'g'])
-        .parse()
-        .with_context(|| format!("--assign `{text}`: the group is a number (1, 2, ...)"))?;
-    Ok((part.to_string(), group))
+/// The request the flags describe (the layout file read through the bounded reader).
+fn request(args: &PartitionArgs) -> anyhow::Result<LayoutRequest> {
+    let input = &args.layout;
+    let format = format_of(input)?;
+    let text = protocol::config::read_data_file(input)
+        .with_context(|| format!("reading {}", input.display()))?;
+    let request = LayoutRequest {
+        layout: text,
+        format: LayoutFormat::of(format),
+        tools: args.tools as u64,
+        window_mm: args.window_mm,
+        gap_mm: args.gap_mm,
+        width_mm: args.width_mm,
+        clearance_mm: args.clearance_mm,
+        assign: args.assign.clone(),
+        widen: args.widen,
+        chord_tolerance_mm: args.chord_tolerance_mm,
+        out_format: None,
+        picture: None,
+    };
+    request.check().map_err(|e| anyhow::anyhow!(e.for_cli()))?;
+    Ok(request)
 }
 
 /// The layout read and partitioned, overlaps resolved: (layout, partition, moves,
 /// partition time in ms).
 fn partitioned(args: &PartitionArgs) -> anyhow::Result<(Layout, Partition, Resolution, f64)> {
-    let input = &args.layout;
-    let in_format = format_of(input)?;
-    let forced = args
-        .assign
-        .iter()
-        .map(|a| parse_assign(a))
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    let bytes = std::fs::read(input).with_context(|| format!("reading {}", input.display()))?;
-    let options = ReadOptions {
-        chord_tolerance_mm: args.chord_tolerance_mm,
-        ..ReadOptions::default()
-    };
-    let doc = Layout::read(&bytes, in_format, &options)
-        .with_context(|| format!("{}", input.display()))?;
-    let params = Params {
-        tools: args.tools,
-        window_mm: args.window_mm,
-        gap_mm: args.gap_mm,
-        width_mm: args.width_mm.or(doc.width_mm),
-        clearance_mm: args.clearance_mm,
-    };
-    let t0 = Instant::now();
-    let mut partition = layout::partition(&doc.parts, &params)?;
-    let pinned = layout::assign(&doc.parts, &mut partition, &forced)?;
-    let resolution = if args.widen {
-        layout::resolve_widening(&doc.parts, &mut partition, &pinned)?
-    } else {
-        layout::resolve(&doc.parts, &mut partition, &pinned)?
-    };
-    let elapsed_ms = t0.elapsed().as_secs_f64() * 1e3;
-    Ok((doc, partition, resolution, elapsed_ms))
+    let p = procedure::layout::partitioned(&request(args)?)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", args.layout.display()))?;
+    Ok((p.doc, p.partition, p.resolution, p.elapsed_ms))
 }
 
 pub fn run(cmd: LayoutCmd) -> anyhow::Result<ExitCode> {
@@ -193,138 +176,33 @@ pub fn run(cmd: LayoutCmd) -> anyhow::Result<ExitCode> {
             })
         }
     };
-    let out_format = format_of(&out)?;
-    let (doc, partition, resolution, elapsed_ms) = partitioned(&args)?;
-
-    let shifted = doc.translated(&partition.offsets())?;
-    let written = shifted.write(out_format)?;
-    std::fs::write(&out, written).with_context(|| format!("writing {}", out.display()))?;
+    let mut request = request(&args)?;
+    request.out_format = Some(LayoutFormat::of(format_of(&out)?));
+    let mut sink = crate::front::CliSink::new("", true)
+        .inputs(&[args.layout.as_path()])
+        .artifact_to(&format!("layout.{}", ext_of(&out)), out.clone());
     if let Some(path) = &picture {
-        let pic = layout::Picture {
-            parts: &doc.parts,
-            partition: &partition,
-            moves: &resolution.moves,
-        };
-        let (w, h) = pic.size(1600);
-        let ext = path
-            .extension()
-            .and_then(|e| e.to_str())
-            .unwrap_or("")
-            .to_ascii_lowercase();
-        let bytes = match ext.as_str() {
-            "svg" => plot::render_svg(&pic, w, h)?.into_bytes(),
-            "png" => plot::render_png(&pic, w, h)?,
+        let kind = match ext_of(path).as_str() {
+            "svg" => PictureFormat::Svg,
+            "png" => PictureFormat::Png,
             _ => anyhow::bail!(
                 "--picture {}: the extension must be .svg or .png",
                 path.display()
             ),
         };
-        std::fs::write(path, bytes).with_context(|| format!("writing {}", path.display()))?;
+        request.picture = Some(kind);
+        sink = sink.artifact_to(&format!("picture.{}", ext_of(path)), path.clone());
     }
-
-    if json {
-        println!(
-            "{}",
-            report(&doc, &partition, &resolution, elapsed_ms, &out)
-        );
-    } else {
-        let figures = layout::figures(&doc.parts, &partition);
-        print_text(&doc, &partition, &resolution, &figures, elapsed_ms, &out);
-    }
-    Ok(ExitCode::SUCCESS)
+    let outcome = procedure::layout::partition(&request, &mut sink);
+    crate::front::print(&outcome, json, |r| {
+        print!("{}", procedure::layout::summary(r));
+        println!("written {}", out.display());
+    })
 }
 
-/// The layout crate's report with the CLI's own figures: where the layout was written
-/// and how long the partition took.
-fn report(
-    doc: &Layout,
-    partition: &Partition,
-    resolution: &Resolution,
-    elapsed_ms: f64,
-    out: &std::path::Path,
-) -> serde_json::Value {
-    let mut v = serde_json::to_value(layout::report(&doc.parts, partition, resolution))
-        .unwrap_or(serde_json::Value::Null);
-    if let Some(o) = v.as_object_mut() {
-        o.insert("out".into(), json!(out.display().to_string()));
-        o.insert("partition_ms".into(), json!(elapsed_ms));
-    }
-    v
-}
-
-fn print_text(
-    doc: &Layout,
-    partition: &Partition,
-    resolution: &Resolution,
-    figures: &Figures,
-    elapsed_ms: f64,
-    out: &std::path::Path,
-) {
-    println!(
-        "{} parts, {} tools, window {} mm, gap {} mm, width {} mm: {:.3} ms",
-        doc.parts.len(),
-        partition.tools,
-        partition.window_mm,
-        partition.gap_mm,
-        partition.width_mm,
-        elapsed_ms
-    );
-    println!("group  tool  window  dx_mm  dy_mm  parts");
-    for g in partition.groups.iter().filter(|g| !g.parts.is_empty()) {
-        println!(
-            "{:>5}  {:>4}  {:>6}  {:>5}  {:>5}  {}",
-            g.id,
-            g.tool,
-            g.window,
-            g.dx_mm,
-            g.dy_mm,
-            g.parts.len()
-        );
-    }
-    println!(
-        "overlaps between groups after S8: {}",
-        resolution.found.len()
-    );
-    for m in &resolution.moves {
-        println!(
-            "  moved `{}` from group {} to group {} (too close to `{}`)",
-            doc.parts[m.part].id,
-            m.from_group,
-            m.to_group,
-            m.because_of
-                .map(|b| doc.parts[b].id.as_str())
-                .unwrap_or("-")
-        );
-    }
-    for w in &resolution.widenings {
-        println!(
-            "  widened: every {} from {} on moved {:.3} mm further",
-            w.between, w.from, w.extra_mm
-        );
-    }
-    let row = |name: &str, m: &layout::Material| {
-        println!(
-            "{name:<18} length {:>10.3} mm  width {:>9.3} mm  area {:>12.1} mm2  utilisation {:>6.2} %",
-            m.length_mm,
-            m.width_mm,
-            m.area_mm2,
-            m.utilisation * 100.0
-        )
-    };
-    row("no gap", &figures.no_gap);
-    row("partitioned", &figures.partitioned);
-    row("gap every part", &figures.gap_every_part);
-    match figures.added_length_fraction {
-        Some(f) => println!(
-            "length added: {:.3} mm by the groups, {:.3} mm with a gap around every part ({:.1} %)",
-            figures.added_length_partitioned_mm,
-            figures.added_length_every_part_mm,
-            f * 100.0
-        ),
-        None => println!(
-            "length added: {:.3} mm by the groups",
-            figures.added_length_partitioned_mm
-        ),
-    }
-    println!("written {}", out.display());
+fn ext_of(path: &std::path::Path) -> String {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase()
 }

@@ -2,13 +2,11 @@
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
-use compensation::report::Report;
 use devices::open_devices_async;
 use errormap::scan::ScanSpec;
-use indicatif::{ProgressBar, ProgressStyle};
 use job::Job;
+use procedure::request::CompensateRequest;
 use protocol::Board;
-use runner::run_job_until;
 use serde_json::json;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -17,6 +15,7 @@ use vision::localize::{localize, LocalizeParams, LocalizeSettings, Method, Pixel
 
 mod cutter;
 mod export;
+mod front;
 mod iso230;
 mod layout;
 mod proxy;
@@ -63,6 +62,9 @@ enum Cmd {
         /// loopback UDP port, rendering the same machine, read by the GigE driver).
         #[arg(long, default_value = "sim")]
         camera: String,
+        /// Only the first N targets.
+        #[arg(long)]
+        targets: Option<u64>,
     },
     /// Run the compensation job described by a configuration file.
     Compensate {
@@ -72,6 +74,9 @@ enum Cmd {
         json: bool,
         #[arg(long)]
         method: Option<String>,
+        /// Only the first N targets.
+        #[arg(long)]
+        targets: Option<u64>,
     },
     /// Scan the machine into an error map: a grid over the travel and dense lines along
     /// each axis, every point approached from both sides, `--passes` times. Written as a
@@ -351,6 +356,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             stage,
             transport,
             camera,
+            targets,
         } => {
             let mut job = Job::demo();
             match camera.as_str() {
@@ -371,21 +377,24 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     "--stage `{other}`: this build knows sim, grbl, modbus and canopen"
                 ),
             }
-            if let Some(m) = method {
-                job.localize.method = parse_method(&m)?;
-            }
-            compensate(job, json)
+            let request = CompensateRequest {
+                targets,
+                method: method.as_deref().map(parse_method).transpose()?,
+            };
+            compensate(job, request, json)
         }
         Cmd::Compensate {
             config,
             json,
             method,
+            targets,
         } => {
-            let mut job = Job::load(&config)?;
-            if let Some(m) = method {
-                job.localize.method = parse_method(&m)?;
-            }
-            compensate(job, json)
+            let job = Job::load(&config)?;
+            let request = CompensateRequest {
+                targets,
+                method: method.as_deref().map(parse_method).transpose()?,
+            };
+            compensate(job, request, json)
         }
         Cmd::Map {
             config,
@@ -398,21 +407,23 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             json,
         } => {
             let job = Job::load(&config)?;
-            let spec = ScanSpec {
-                grid_step_mm,
-                line_step_mm,
-                passes,
-            };
             let name = name.unwrap_or_else(|| {
                 config
                     .file_stem()
                     .map(|s| s.to_string_lossy().into_owned())
                     .unwrap_or_else(|| "map".into())
             });
-            let tool = parse_xy(&tool_offset_mm).map_err(|_| {
+            let tool_offset_mm = parse_xy(&tool_offset_mm).map_err(|_| {
                 anyhow::anyhow!("--tool-offset-mm `{tool_offset_mm}`: expected X,Y in mm")
             })?;
-            scan::map(&job, spec, &out, &name, tool, json)
+            let request = procedure::request::MapRequest {
+                name,
+                grid_step_mm,
+                line_step_mm,
+                passes,
+                tool_offset_mm,
+            };
+            scan::map(&job, request, &out, json)
         }
         Cmd::Rewrite {
             input,
@@ -521,10 +532,12 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         } => verify::verify(verify::VerifyArgs {
             config,
             map,
-            points,
-            seed,
-            spot_check,
-            drift_threshold_um,
+            request: procedure::request::VerifyRequest {
+                points: points.map(|n| n as u64),
+                seed,
+                spot_check,
+                drift_threshold_um,
+            },
             repeat,
             every_s,
             json,
@@ -599,50 +612,20 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     }
 }
 
-fn compensate(job: Job, json: bool) -> anyhow::Result<ExitCode> {
-    // Two workers: bus tasks (heartbeats, status polling, emulators in-process) keep
-    // running while a frame is rendered or localized on the other (see drivers::blocking).
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()?;
+fn compensate(job: Job, request: CompensateRequest, json: bool) -> anyhow::Result<ExitCode> {
+    request.check().map_err(|e| anyhow::anyhow!(e.for_cli()))?;
+    let rt = front::runtime()?;
     let mut devices = rt.block_on(open_devices_async(&job))?;
-    let bar = if json {
-        ProgressBar::hidden()
-    } else {
-        ProgressBar::new(job.targets.len() as u64)
-    };
-    bar.set_style(
-        ProgressStyle::with_template(
-            "{spinner} compensating [{bar:30}] {pos}/{len} targets {elapsed}",
-        )
-        .expect("valid template")
-        .progress_chars("=> "),
-    );
+    let mut sink = front::CliSink::new("targets", json);
     // Ctrl-C stops the job cleanly: the stage is told to stop and the report printed
     // with everything measured so far.
-    let interrupted = async {
-        if tokio::signal::ctrl_c().await.is_err() {
-            // No signal handling here: never interrupt.
-            std::future::pending::<()>().await;
-        }
-    };
-    let report: Report = rt.block_on(run_job_until(
+    let (outcome, report) = rt.block_on(procedure::compensate::run_with_report(
+        &request,
         &job,
         &mut devices,
-        &mut |done, _| bar.set_position(done as u64),
-        interrupted,
+        &mut sink,
+        front::ctrl_c(),
     ));
-    bar.finish_and_clear();
-    if json {
-        println!("{}", serde_json::to_string(&report)?);
-    } else {
-        print!("{}", report.to_text());
-    }
-    let ok = report.error.is_none() && report.converged == report.targets;
-    Ok(if ok {
-        ExitCode::SUCCESS
-    } else {
-        ExitCode::FAILURE
-    })
+    sink.finish();
+    front::print(&outcome, json, |_| print!("{}", report.to_text()))
 }

@@ -83,20 +83,16 @@ fn proxy_map(
 ) -> anyhow::Result<ExitCode> {
     let job = Job::load(config)?;
     let map = ErrorMap::load(map_path)?;
-    // The map must belong to this set-up: the board and its certificate are the length
-    // reference it was measured against.
-    if map.identity.board != job.board.name
-        || map.identity.certificate_sha256 != job.board.fingerprint_sha256()
-    {
-        anyhow::bail!(
-            "{}: the map was measured with board `{}` (certificate {}), this job uses `{}` ({})",
-            map_path.display(),
-            map.identity.board,
-            map.identity.certificate_sha256,
-            job.board.name,
-            job.board.fingerprint_sha256()
-        );
-    }
+    // The map must belong to this machine, controller, board certificate and camera:
+    // the one identity check of every procedure, on the job's devices (opened, asked,
+    // closed) before the controller's port is opened for the pass-through.
+    let here = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?
+        .block_on(procedure::identity_of_job(&job))
+        .map_err(|e| anyhow::anyhow!(e))?;
+    procedure::check_identity(&map, &here, &map_path.display().to_string())
+        .map_err(|e| anyhow::anyhow!(e))?;
     let model = MapModel::new(map);
     let StageSpec::Grbl { link, baud } = &job.stage else {
         anyhow::bail!(

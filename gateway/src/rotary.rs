@@ -218,8 +218,10 @@ fn measure_cmd(config: &Path, out: &Path, json: bool) -> anyhow::Result<ExitCode
         bar.set_position(done as u64);
     };
     // Nothing stops the command's cycle but a failure (Ctrl-C ends the process).
-    let never = std::sync::atomic::AtomicBool::new(false);
-    let run = run_cycle(&job, progress, &never)?;
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    let run = rt.block_on(run_cycle(&job, progress, std::future::pending()))?;
     bar.finish_and_clear();
     let (m, stopped) = match &run.cycle {
         Ok(m) => (m, None),

@@ -139,7 +139,11 @@ fn an_unresolvable_overlap_is_reported_and_nothing_is_written() {
         "--out",
         out.to_str().unwrap(),
     ]);
-    assert!(String::from_utf8_lossy(&o.stderr).contains("--tools must be at least 1"));
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        e.contains("--tools: must be an integer from 1 to 64, got 0"),
+        "{e}"
+    );
     let o = gateway(&[
         "layout",
         "partition",

@@ -86,7 +86,7 @@ fn a_partitioned_layout_is_cut_window_by_window_each_part_once_never_beside_a_cu
             poll_interval: Duration::from_millis(2),
             ..GrblOptions::default()
         };
-        let (mut conveyor, mut heads) = runner::cutter::open_links(
+        let mut links = devices::open_cutter(
             emulated.conveyor.path(),
             &emulated.head_paths(),
             115_200,
@@ -100,8 +100,8 @@ fn a_partitioned_layout_is_cut_window_by_window_each_part_once_never_beside_a_cu
         };
         let run = runner::cutter::run_cut(
             &stops,
-            &mut conveyor,
-            &mut heads,
+            links.conveyor.as_mut(),
+            &mut links.heads,
             &CutSettings::default(),
             &stream,
             |_, _| {},

@@ -192,7 +192,7 @@ async fn cancel_a_queued_and_a_running_job() {
     let (status, r) = post(&c, &s, &format!("/api/v1/jobs/{long_id}/cancel"), json!({})).await;
     assert_eq!(status, StatusCode::OK, "{r}");
     assert_eq!(r["state"], "cancelled");
-    assert!(r["result"]["targets_done"].as_u64().unwrap() < 30);
+    assert!(r["result"]["targets"].as_u64().unwrap() < 30, "{r}");
     let (_, ms) = get(&c, &s, &format!("/api/v1/jobs/{long_id}/measurements")).await;
     assert!(!ms.as_array().unwrap().is_empty());
     // A finished job cannot be cancelled: 409, and it stays as it was.
@@ -399,8 +399,8 @@ async fn bad_input_gets_its_error_and_changes_nothing() {
         (
             "bad params",
             raw("{\"kind\": \"compensate\", \"params\": {\"targets\": -1}}"),
-            StatusCode::UNPROCESSABLE_ENTITY,
-            "invalid_job",
+            StatusCode::BAD_REQUEST,
+            "invalid_params",
         ),
         (
             "body too large",
@@ -630,7 +630,7 @@ async fn an_iso230_job_keeps_its_figures_and_chart() {
         json!({"kind": "iso230", "params": {"axis": "Z"}}),
     )
     .await;
-    assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
+    assert_eq!(status, StatusCode::BAD_REQUEST, "{body}");
     assert!(body["message"].as_str().unwrap().contains("params.axis"));
     s.shutdown().await;
 }
@@ -650,13 +650,8 @@ async fn an_uploaded_error_map_is_drawn_activated_and_used_by_a_job() {
     };
     let mut cold = machine.clone();
     cold.thermal = None;
-    let identity = protocol::errormap::Identity {
-        machine: "sim".into(),
-        controller: "sim".into(),
-        board: demo.board.name.clone(),
-        certificate_sha256: demo.board.fingerprint_sha256(),
-        camera: "sim".into(),
-    };
+    // The machine's own identity (a map of another machine is refused by every job).
+    let identity = procedure::identity_of_job(&demo).await.unwrap();
     let map = system_tests::truth_map::map_from_truth(&cold, identity);
     let text = map.to_json();
     let body: Value = serde_json::from_str(&text).unwrap();
@@ -764,7 +759,7 @@ async fn a_layout_job_partitions_the_layout_it_is_given() {
         json!({"kind": "layout", "params": {"layout": layout, "format": "json", "tools": 2, "window_mm": 25}}),
     )
     .await;
-    assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{err}");
+    assert_eq!(status, StatusCode::BAD_REQUEST, "{err}");
     assert!(err["message"].as_str().unwrap().contains("gap_mm"), "{err}");
     let (status, job) = post(
         &c,
@@ -804,7 +799,7 @@ async fn a_map_job_becomes_a_profile_version() {
         json!({"kind": "map", "params": {"name": "bad name!"}}),
     )
     .await;
-    assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
+    assert_eq!(status, StatusCode::BAD_REQUEST, "{body}");
     let (status, job) = post(
         &c,
         &s,
@@ -818,9 +813,10 @@ async fn a_map_job_becomes_a_profile_version() {
     let last = &seen.last().unwrap()["job"];
     assert_eq!(last["state"], "succeeded", "{last}");
     assert_eq!(
-        last["result"]["profile"],
-        json!({"name": "scan", "version": 1})
+        (&last["result"]["name"], &last["result"]["version"]),
+        (&json!("scan"), &json!(1))
     );
+    assert_eq!(last["result"]["kept_as"], "error_map profile scan v1");
     let frames = last["result"]["frames"].as_u64().unwrap();
     let (_, kept) = get(&c, &s, &format!("/api/v1/jobs/{id}/measurements")).await;
     assert_eq!(kept.as_array().unwrap().len() as u64, frames);
@@ -858,7 +854,7 @@ async fn a_rotary_job_identifies_the_table_and_becomes_a_profile_version() {
         json!({"kind": "rotary", "params": {"name": "table", "steps": 3}}),
     )
     .await;
-    assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
+    assert_eq!(status, StatusCode::BAD_REQUEST, "{body}");
     assert!(
         body["message"].as_str().unwrap().contains("params.steps"),
         "{body}"

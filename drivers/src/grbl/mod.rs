@@ -15,9 +15,9 @@
 mod link;
 mod stream;
 
+pub use crate::program::{StreamError, StreamOptions, StreamReport};
 pub use link::Transport;
 pub use link_spec::grbl::GrblOptions;
-pub use stream::{StreamError, StreamOptions, StreamReport};
 
 #[cfg(test)]
 mod tests;
@@ -603,6 +603,16 @@ impl Stage for GrblStage {
             probing: true,
             rotary_axes: Capabilities::rotary_among(self.info.axes.iter().map(|a| a.axis)),
         }
+    }
+
+    /// Character counting: [`GrblStage::stream_program`].
+    async fn stream_program(
+        &mut self,
+        program: &str,
+        opts: &StreamOptions,
+        progress: &mut (dyn FnMut(protocol::grbl::stream::StreamProgress) + Send),
+    ) -> Result<StreamReport, StreamError> {
+        GrblStage::stream_program(self, program, opts, progress).await
     }
 
     /// `G38.2`..`G38.5` in work coordinates (GRBL allows G53 only with G0/G1): the

@@ -2,7 +2,10 @@
 //! stage that keeps its emulator alive.
 
 use async_trait::async_trait;
-use drivers::{AxisValues, Capabilities, DriverError, Stage, StageInfo, StageStatus};
+use drivers::{
+    AxisValues, Capabilities, DriverError, ProbeHit, ProbeMode, Stage, StageInfo, StageStatus,
+    StreamError, StreamOptions, StreamReport,
+};
 use job::Job;
 use protocol::config::ConfigDoc;
 use std::any::Any;
@@ -55,6 +58,22 @@ impl Stage for EmulatedStage {
     }
     async fn status(&mut self) -> Result<StageStatus, DriverError> {
         self.stage.status().await
+    }
+    async fn probe(
+        &mut self,
+        target: AxisValues,
+        feed: f64,
+        mode: ProbeMode,
+    ) -> Result<ProbeHit, DriverError> {
+        self.stage.probe(target, feed, mode).await
+    }
+    async fn stream_program(
+        &mut self,
+        program: &str,
+        opts: &StreamOptions,
+        progress: &mut (dyn FnMut(protocol::grbl::stream::StreamProgress) + Send),
+    ) -> Result<StreamReport, StreamError> {
+        self.stage.stream_program(program, opts, progress).await
     }
 }
 

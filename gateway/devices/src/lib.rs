@@ -1,6 +1,8 @@
 //! Opening the devices a job names: spec -> boxed [`Stage`] and [`Camera`], over real
 //! links through the drivers, or over in-process emulators of the same buses driving a
-//! simulated machine (whose rig is returned so that reports can learn the truth).
+//! simulated machine (whose rig is returned so that reports can learn the truth). The
+//! rotary table's probing cycle ([`open_rotary`]: a `drivers::Prober`) and the conveyor
+//! cutter ([`open_cutter`], [`open_emulated_cutter`]) are opened here too.
 //!
 //! The only crate besides the runner that touches both drivers and emulators; the
 //! pipeline crates (vision, compensation) never see what it opens, only frames and
@@ -8,15 +10,19 @@
 
 mod camera;
 mod canopen;
+mod cutter;
 mod emulated;
 mod error;
 mod grbl;
 mod modbus;
+mod rotary;
 
 pub use camera::{open_camera, EmulatedGige, ReplayCamera};
+pub use cutter::{open_cutter, open_emulated_cutter, Cutter};
 pub use emulated::{new_rig, EmulatedStage, OpenedStage};
 pub use error::OpenError;
 pub use grbl::spawn_grbl_emulator;
+pub use rotary::{open_rotary, LinkedTable, RotaryOpenError, RotaryTable, CYCLE_AXES};
 
 use drivers::sim::{SimCamera, SimStage};
 use drivers::{Camera, Stage};

@@ -76,6 +76,29 @@ pub enum ScanError {
     BadPasses(u32),
     #[error("measurement #{0} is not in the plan")]
     NotInPlan(usize),
+    #[error("the plan would take {frames:.0} frames; at most {MAX_SCAN_FRAMES} are accepted (a coarser step)")]
+    TooManyFrames { frames: f64 },
+}
+
+/// The most frames one scan may take (a dense 1 mm grid over the demo stage is
+/// 120 000): a plan is refused past it before anything is allocated.
+pub const MAX_SCAN_FRAMES: u64 = 250_000;
+
+/// How many positions [`positions`] gives, as a float (no overflow for any step).
+fn position_count(lo: f64, hi: f64, step: f64) -> f64 {
+    ((hi - lo) / step).ceil().max(1.0) + 1.0
+}
+
+/// The frames a scan of `spec` over `lo..hi` takes: (grid frames, dense-line frames),
+/// computed without building the plan (floats: a tiny step gives a huge number, never
+/// an overflow).
+pub fn frames(lo: [f64; 2], hi: [f64; 2], spec: ScanSpec) -> (f64, f64) {
+    let per_point = 2.0 * f64::from(spec.passes);
+    let grid = position_count(lo[0], hi[0], spec.grid_step_mm)
+        * position_count(lo[1], hi[1], spec.grid_step_mm);
+    let lines = position_count(lo[0], hi[0], spec.line_step_mm)
+        + position_count(lo[1], hi[1], spec.line_step_mm);
+    (grid * per_point, lines * per_point)
 }
 
 /// Positions from `lo` to `hi` at most `step` apart, both ends included.
@@ -102,6 +125,12 @@ impl ScanPlan {
         }
         if !(1..=10).contains(&spec.passes) {
             return Err(ScanError::BadPasses(spec.passes));
+        }
+        let (grid, lines) = frames(lo, hi, spec);
+        if grid + lines > MAX_SCAN_FRAMES as f64 {
+            return Err(ScanError::TooManyFrames {
+                frames: grid + lines,
+            });
         }
         let xs = positions(lo[0], hi[0], spec.grid_step_mm);
         let ys = positions(lo[1], hi[1], spec.grid_step_mm);

@@ -215,3 +215,117 @@ impl ProbingMachine for SimulatedTable {
         Ok(hit)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rotary::measure::{measure, Action, MeasureError, MeasureSession};
+
+    /// The simulated table, failing call number `at` (1-based).
+    struct FailAt {
+        table: SimulatedTable,
+        calls: usize,
+        at: usize,
+    }
+
+    impl ProbingMachine for FailAt {
+        fn move_to(&mut self, t: &Axes) -> Result<(), String> {
+            self.calls += 1;
+            if self.calls == self.at {
+                return Err("link lost".into());
+            }
+            self.table.move_to(t)
+        }
+
+        fn probe_towards(&mut self, to: [f64; 3], feed: f64) -> Result<Option<[f64; 3]>, String> {
+            self.calls += 1;
+            if self.calls == self.at {
+                return Err("link lost".into());
+            }
+            self.table.probe_towards(to, feed)
+        }
+    }
+
+    /// The cycle, driven by its session, on the simulated table: the figures the
+    /// synchronous cycle always gave (every call of it counted: 1637 moves and probing
+    /// moves, 462 touches, 38 balls).
+    #[test]
+    fn the_cycle_on_the_simulated_table_keeps_its_figures() {
+        let mut table = RotaryJob::default().simulated();
+        let m = measure(
+            &mut table,
+            &MachineConstants::default(),
+            &MeasurePlan::default(),
+            |_, _| {},
+        )
+        .unwrap_or_else(|s| panic!("{}", s.error));
+        assert_eq!(table.moves, 1637);
+        assert_eq!(m.probe_touches, 462);
+        assert_eq!(m.balls.len(), 38);
+        assert!(m.c_centre.is_some());
+    }
+
+    /// A machine failing at call `at` stops the cycle with what the synchronous cycle
+    /// kept there: (call, balls, touches, C centre located).
+    #[test]
+    fn a_failure_keeps_what_the_cycle_always_kept() {
+        for (at, balls, touches, located) in [
+            (1, 0, 0, false),
+            (4, 0, 1, false),
+            (10, 0, 2, false),
+            (37, 0, 10, true),
+            (204, 4, 57, true),
+            (207, 4, 58, true),
+            (400, 8, 112, true),
+        ] {
+            let mut machine = FailAt {
+                table: RotaryJob::default().simulated(),
+                calls: 0,
+                at,
+            };
+            let stopped = measure(
+                &mut machine,
+                &MachineConstants::default(),
+                &MeasurePlan::default(),
+                |_, _| {},
+            )
+            .expect_err("the machine failed");
+            assert_eq!(stopped.error, MeasureError::Machine("link lost".into()));
+            let m = &stopped.so_far;
+            assert_eq!(
+                (m.balls.len(), m.probe_touches, m.c_centre.is_some()),
+                (balls, touches, located),
+                "failure at call {at}"
+            );
+        }
+    }
+
+    /// A stop after n balls keeps the n balls (and the rim), on the simulated table.
+    #[test]
+    fn a_stop_after_n_balls_keeps_them() {
+        for n in [1, 2, 20] {
+            let mut table = RotaryJob::default().simulated();
+            let mut s = MeasureSession::new(&MachineConstants::default(), &MeasurePlan::default());
+            loop {
+                if s.progress().0 == n {
+                    s.stop();
+                }
+                match s.next_action() {
+                    Action::Finished => break,
+                    Action::MoveTo(t) => {
+                        table.move_to(&t).unwrap();
+                        s.moved();
+                    }
+                    Action::ProbeTowards { to, feed_mm_min } => {
+                        s.probed(table.probe_towards(to, feed_mm_min).unwrap())
+                    }
+                }
+            }
+            let stopped = s.finish().expect_err("stopped");
+            assert_eq!(stopped.error, MeasureError::StopRequested);
+            assert_eq!(stopped.so_far.balls.len(), n);
+            // The rim's 3 points and 6 per ball, each touched fast then slow.
+            assert_eq!(stopped.so_far.probe_touches, (3 + 6 * n) * 2);
+        }
+    }
+}

@@ -6,6 +6,13 @@
 //! normal, touched fast, backed off and touched again slowly; a sphere fitted per ball
 //! and step (radius free, checked against the certified radius plus the stylus); the
 //! centres then go to [`crate::identify`].
+//!
+//! The cycle is sans-IO: a [`MeasureSession`] says what the machine is to do next
+//! ([`Action`]: a positioning move, a probing move, or finished) and is told how it went
+//! ([`MeasureSession::moved`], [`MeasureSession::probed`], [`MeasureSession::failed`]),
+//! so whoever owns the machine (a synchronous [`ProbingMachine`] through [`measure`], an
+//! async driver in the runner) drives the same cycle move for move. A stop
+//! ([`MeasureSession::stop`]) ends it before its next move, keeping what it measured.
 
 use crate::centres::{Axis, CentreRow};
 use crate::identify::{check_sphere, fit_sphere, FitError, SphereFit};
@@ -191,7 +198,16 @@ pub enum MeasureError {
     },
     #[error("table rim: {0}; stopped before the balls")]
     Rim(String),
+    /// Stopped from outside ([`MeasureSession::stop`]) before the next move.
+    #[error("{STOPPED_ON_REQUEST}")]
+    StopRequested,
+    /// The session ended ([`MeasureSession::finish`]) before its last move.
+    #[error("the cycle ended before its last move")]
+    Unfinished,
 }
+
+/// What a stopped cycle's error says when it was stopped on request.
+pub const STOPPED_ON_REQUEST: &str = "stopped on request";
 
 /// A stopped cycle: why, and what was measured until then (to be saved).
 #[derive(Debug, Clone, PartialEq)]
@@ -200,27 +216,489 @@ pub struct Stopped {
     pub so_far: Measurement,
 }
 
-/// The C rotation centre from three touches on the table's rim (see [`RimPlan`]): each
-/// touch from outside, horizontally towards the nominal axis, fast then slow after a
-/// back-off; the circle through the three stylus centres.
-fn locate_c_centre(
-    machine: &mut impl ProbingMachine,
-    nominal: &RotaryMachine,
+/// What the machine is to do next (machine X, Y, Z of the spindle gauge point in mm, A
+/// and C in degrees).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Action {
+    /// A positioning move (rapid) of all five axes, run to its end; answer
+    /// [`MeasureSession::moved`].
+    MoveTo(Axes),
+    /// A probing move (G38.3-like: no alarm on a miss) of X, Y, Z from where the machine
+    /// is to `to` at `feed_mm_min`, the rotary axes staying, stopping at the trigger
+    /// point (or at `to`); answer [`MeasureSession::probed`] with the gauge point where
+    /// the probe triggered, or `None`.
+    ProbeTowards { to: [f64; 3], feed_mm_min: f64 },
+    /// Nothing more to do: [`MeasureSession::finish`] gives the result.
+    Finished,
+}
+
+/// The moves of one touch, on the rim or on a ball, in their order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Leg {
+    /// Over the start point at the safe height.
+    Above,
+    /// Down to the start point (beside the rim: a probing move, so a table that is not
+    /// where the constants put it stops the machine instead of crashing it).
+    Descend,
+    /// The fast touch.
+    Fast,
+    /// Back off from the fast touch point along the normal.
+    BackOff,
+    /// The slow touch.
+    Slow,
+    /// Back out to the start point.
+    Retract,
+    /// Up to the safe height.
+    Up,
+}
+
+/// Where the cycle is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Cursor {
+    /// Over the nominal C axis at the safe height.
+    RimStart,
+    /// Rim touch `touch` (0-based).
+    Rim { touch: usize, leg: Leg },
+    /// Turning the table for `step` of sweep `sweep` (0: C, 1: A), the probe up.
+    Turn { sweep: usize, step: usize },
+    /// Touch `touch` on ball `ball` (0-based) at a step.
+    Ball {
+        sweep: usize,
+        step: usize,
+        ball: usize,
+        touch: usize,
+        leg: Leg,
+    },
+    /// Every move done, or stopped.
+    Done,
+}
+
+const SWEEPS: [Axis; 2] = [Axis::C, Axis::A];
+
+/// Touches per ball (the pole and five around it, see `directions`).
+const TOUCHES_PER_BALL: usize = 6;
+
+/// One rim touch's geometry.
+struct RimTouch {
+    /// Outwards from the C axis, horizontal.
+    u: Vector3<f64>,
+    /// The start point (gauge point, A = C = 0).
+    over: Axes,
+    /// Where the probing moves go (gauge point).
+    end: [f64; 3],
+}
+
+/// One ball touch's geometry.
+struct BallTouch {
+    axis: Axis,
+    a: f64,
+    c: f64,
+    /// Outwards from the ball's centre.
+    d: Vector3<f64>,
+    /// The start point (gauge point).
+    start: [f64; 3],
+    /// Where the probing moves go (gauge point).
+    end: [f64; 3],
+    /// Certified radius plus the stylus's.
+    reach: f64,
+}
+
+/// Where one ball should be at one step, worked out once for its touches.
+#[derive(Clone, Debug)]
+struct BallPlace {
+    /// Sweep, step, ball.
+    key: (usize, usize, usize),
+    axis: Axis,
+    a: f64,
+    c: f64,
+    centre: Vector3<f64>,
+    /// Certified radius plus the stylus's.
+    reach: f64,
+    /// Outwards from the centre, one per touch.
+    directions: Vec<Vector3<f64>>,
+}
+
+/// The measurement cycle as a state machine: [`next_action`](Self::next_action) says
+/// what the machine is to do, and the answer ([`moved`](Self::moved),
+/// [`probed`](Self::probed) or [`failed`](Self::failed)) moves the cycle on. The
+/// result is [`finish`](Self::finish)'s; what was measured so far is readable any time
+/// ([`measurement`](Self::measurement), [`progress`](Self::progress)).
+#[derive(Clone, Debug)]
+pub struct MeasureSession {
+    plan: MeasurePlan,
+    nominal: RotaryMachine,
     tool_length_mm: f64,
-    plan: &MeasurePlan,
-    touches: &mut usize,
-) -> Result<CCentre, MeasureError> {
-    let rim = &plan.rim;
-    let axis = kinematics::transform_point(&nominal.table(0.0, 0.0), &Vector3::zeros());
-    let z = axis.z - rim.depth_mm;
-    let reach = rim.radius_mm + plan.stylus_radius_mm;
-    let machine_error = MeasureError::Machine;
-    let at = |p: Vector3<f64>| Axes::new(p.x, p.y, p.z + tool_length_mm, 0.0, 0.0);
-    machine
-        .move_to(&Axes::new(axis.x, axis.y, plan.safe_z_mm, 0.0, 0.0))
-        .map_err(machine_error)?;
-    let mut points = Vec::new();
-    for (k, &angle_deg) in rim.angles_deg.iter().enumerate() {
+    result: Measurement,
+    cursor: Cursor,
+    /// What `cursor` asks of the machine (computed when the cursor moves).
+    action: Action,
+    error: Option<MeasureError>,
+    /// The rim's slow touches (stylus centres).
+    rim_points: Vec<[f64; 3]>,
+    /// The current ball's slow touches (stylus centres).
+    ball_points: Vec<[f64; 3]>,
+    /// The last fast touch (gauge point).
+    fast: [f64; 3],
+    /// The located C centre less the nominal axis (X, Y, 0), once the rim is done.
+    offset: Vector3<f64>,
+    /// The current ball's place.
+    place: Option<BallPlace>,
+    total: usize,
+}
+
+impl MeasureSession {
+    /// The cycle for a machine with these nominal constants, to this plan; nothing has
+    /// moved yet.
+    pub fn new(constants: &MachineConstants, plan: &MeasurePlan) -> Self {
+        let mut s = Self {
+            plan: *plan,
+            nominal: RotaryMachine::nominal(*constants),
+            tool_length_mm: constants.tool_length_mm,
+            result: Measurement {
+                c_centre: None,
+                balls: Vec::new(),
+                probe_touches: 0,
+            },
+            cursor: Cursor::Done,
+            action: Action::Finished,
+            error: None,
+            rim_points: Vec::new(),
+            ball_points: Vec::new(),
+            fast: [0.0; 3],
+            offset: Vector3::zeros(),
+            place: None,
+            total: SWEEPS
+                .iter()
+                .map(|&axis| sweep(axis).len() * plan.artifact.balls.len())
+                .sum(),
+        };
+        s.enter(Cursor::RimStart);
+        s
+    }
+
+    /// What the machine is to do now (the same until it is answered).
+    pub fn next_action(&self) -> Action {
+        self.action
+    }
+
+    /// The positioning move of [`Action::MoveTo`] ended where it was sent.
+    pub fn moved(&mut self) {
+        if !matches!(self.action, Action::MoveTo(_)) {
+            return self.misuse("a positioning move ended");
+        }
+        let next = match self.cursor {
+            Cursor::RimStart => Cursor::Rim {
+                touch: 0,
+                leg: Leg::Above,
+            },
+            Cursor::Rim { touch, leg } => match leg {
+                Leg::Above => Cursor::Rim {
+                    touch,
+                    leg: Leg::Descend,
+                },
+                Leg::BackOff => Cursor::Rim {
+                    touch,
+                    leg: Leg::Slow,
+                },
+                Leg::Retract => Cursor::Rim {
+                    touch,
+                    leg: Leg::Up,
+                },
+                Leg::Up if touch + 1 < self.plan.rim.angles_deg.len() => Cursor::Rim {
+                    touch: touch + 1,
+                    leg: Leg::Above,
+                },
+                Leg::Up => match self.rim_done() {
+                    Ok(()) => Cursor::Turn { sweep: 0, step: 0 },
+                    Err(e) => return self.stop_with(e),
+                },
+                Leg::Descend | Leg::Fast | Leg::Slow => unreachable!("probing legs"),
+            },
+            Cursor::Turn { sweep, step } => Cursor::Ball {
+                sweep,
+                step,
+                ball: 0,
+                touch: 0,
+                leg: Leg::Above,
+            },
+            Cursor::Ball {
+                sweep,
+                step,
+                ball,
+                touch,
+                leg,
+            } => {
+                let at = |touch, leg| Cursor::Ball {
+                    sweep,
+                    step,
+                    ball,
+                    touch,
+                    leg,
+                };
+                match leg {
+                    Leg::Above => at(touch, Leg::Descend),
+                    Leg::Descend => at(touch, Leg::Fast),
+                    Leg::BackOff => at(touch, Leg::Slow),
+                    Leg::Retract => at(touch, Leg::Up),
+                    Leg::Up if touch + 1 < TOUCHES_PER_BALL => at(touch + 1, Leg::Above),
+                    Leg::Up => match self.ball_done(step, ball) {
+                        Ok(()) => self.after_ball(sweep, step, ball),
+                        Err(e) => return self.stop_with(e),
+                    },
+                    Leg::Fast | Leg::Slow => unreachable!("probing legs"),
+                }
+            }
+            Cursor::Done => unreachable!("no move is asked once done"),
+        };
+        self.enter(next);
+    }
+
+    /// The probing move of [`Action::ProbeTowards`] ended: `hit` is the gauge point
+    /// where the probe triggered, `None` if it reached its target without contact.
+    pub fn probed(&mut self, hit: Option<[f64; 3]>) {
+        if !matches!(self.action, Action::ProbeTowards { .. }) {
+            return self.misuse("a probing move ended");
+        }
+        let l = self.tool_length_mm;
+        let next = match self.cursor {
+            Cursor::Rim { touch, leg } => {
+                let angle_deg = self.plan.rim.angles_deg[touch];
+                let not_found = MeasureError::RimNotFound {
+                    touch: touch + 1,
+                    angle_deg,
+                    overtravel_mm: self.plan.overtravel_mm,
+                };
+                match (leg, hit) {
+                    (Leg::Descend, Some(p)) => {
+                        return self.stop_with(MeasureError::Rim(format!(
+                            "touch {} at {angle_deg}°: contact at ({:.3}, {:.3}, {:.3}) mm on \
+                             the way down beside the rim; the table is not where the machine \
+                             constants put it",
+                            touch + 1,
+                            p[0],
+                            p[1],
+                            p[2]
+                        )))
+                    }
+                    (Leg::Descend, None) => Cursor::Rim {
+                        touch,
+                        leg: Leg::Fast,
+                    },
+                    (Leg::Fast | Leg::Slow, None) => return self.stop_with(not_found),
+                    (Leg::Fast, Some(p)) => {
+                        self.fast = p;
+                        Cursor::Rim {
+                            touch,
+                            leg: Leg::BackOff,
+                        }
+                    }
+                    (Leg::Slow, Some(p)) => {
+                        self.rim_points.push([p[0], p[1], p[2] - l]);
+                        Cursor::Rim {
+                            touch,
+                            leg: Leg::Retract,
+                        }
+                    }
+                    _ => unreachable!("positioning legs"),
+                }
+            }
+            Cursor::Ball {
+                sweep,
+                step,
+                ball,
+                touch,
+                leg,
+            } => {
+                // A ball's touches count once the machine answered.
+                self.result.probe_touches += 1;
+                let Some(p) = hit else {
+                    return self.stop_with(MeasureError::BallNotFound {
+                        axis: SWEEPS[sweep],
+                        step: step as u32,
+                        ball: ball as u8 + 1,
+                        touch: touch + 1,
+                        overtravel_mm: self.plan.overtravel_mm,
+                    });
+                };
+                let at = |leg| Cursor::Ball {
+                    sweep,
+                    step,
+                    ball,
+                    touch,
+                    leg,
+                };
+                match leg {
+                    Leg::Fast => {
+                        self.fast = p;
+                        at(Leg::BackOff)
+                    }
+                    Leg::Slow => {
+                        self.ball_points.push([p[0], p[1], p[2] - l]);
+                        at(Leg::Retract)
+                    }
+                    _ => unreachable!("positioning legs"),
+                }
+            }
+            Cursor::RimStart | Cursor::Turn { .. } | Cursor::Done => {
+                unreachable!("no probing move asked")
+            }
+        };
+        self.enter(next);
+    }
+
+    /// The machine could not do what [`next_action`](Self::next_action) asked
+    /// (`message`: its words): the cycle stops, keeping what it measured.
+    pub fn failed(&mut self, message: impl Into<String>) {
+        if self.cursor != Cursor::Done {
+            self.stop_with(MeasureError::Machine(message.into()));
+        }
+    }
+
+    /// Stop before the next move, keeping what was measured (the error is
+    /// [`MeasureError::StopRequested`]). Nothing changes once the cycle is finished.
+    pub fn stop(&mut self) {
+        if self.cursor != Cursor::Done {
+            self.stop_with(MeasureError::StopRequested);
+        }
+    }
+
+    /// Balls measured so far and balls in the whole cycle.
+    pub fn progress(&self) -> (usize, usize) {
+        (self.result.balls.len(), self.total)
+    }
+
+    /// What was measured so far.
+    pub fn measurement(&self) -> &Measurement {
+        &self.result
+    }
+
+    /// Why the cycle stopped, once it did.
+    pub fn error(&self) -> Option<&MeasureError> {
+        self.error.as_ref()
+    }
+
+    /// No more moves: finished or stopped.
+    pub fn is_finished(&self) -> bool {
+        self.cursor == Cursor::Done
+    }
+
+    /// The measurement, or why the cycle stopped with what it measured until then. A
+    /// session ended before [`Action::Finished`] is stopped ([`MeasureError::Unfinished`]).
+    pub fn finish(self) -> Result<Measurement, Box<Stopped>> {
+        let error = match (self.error, self.cursor) {
+            (Some(error), _) => error,
+            (None, Cursor::Done) => return Ok(self.result),
+            (None, _) => MeasureError::Unfinished,
+        };
+        Err(Box::new(Stopped {
+            error,
+            so_far: self.result,
+        }))
+    }
+
+    fn misuse(&mut self, what: &str) {
+        if self.cursor != Cursor::Done {
+            let asked = match self.action {
+                Action::MoveTo(_) => "a positioning move",
+                Action::ProbeTowards { .. } => "a probing move",
+                Action::Finished => "nothing",
+            };
+            self.stop_with(MeasureError::Machine(format!(
+                "the cycle was told {what} while it had asked for {asked}"
+            )));
+        }
+    }
+
+    fn stop_with(&mut self, error: MeasureError) {
+        self.error = Some(error);
+        self.enter(Cursor::Done);
+    }
+
+    /// Moves to `cursor` and works out what it asks of the machine. A rim touch counts
+    /// when it is asked for (a ball's when answered): the figures of a stopped cycle are
+    /// the same as they always were.
+    fn enter(&mut self, cursor: Cursor) {
+        self.cursor = cursor;
+        if let Cursor::Ball {
+            sweep, step, ball, ..
+        } = cursor
+        {
+            if self.place.as_ref().map(|p| p.key) != Some((sweep, step, ball)) {
+                self.place = Some(self.ball_place(sweep, step, ball));
+            }
+        }
+        if let Cursor::Rim {
+            leg: Leg::Fast | Leg::Slow,
+            ..
+        } = cursor
+        {
+            self.result.probe_touches += 1;
+        }
+        self.action = self.action_at(cursor);
+    }
+
+    fn action_at(&self, cursor: Cursor) -> Action {
+        let plan = &self.plan;
+        let safe = plan.safe_z_mm;
+        let probe = |to: [f64; 3], feed_mm_min: f64| Action::ProbeTowards { to, feed_mm_min };
+        match cursor {
+            Cursor::RimStart => {
+                let axis = self.c_axis();
+                Action::MoveTo(Axes::new(axis.x, axis.y, safe, 0.0, 0.0))
+            }
+            Cursor::Rim { touch, leg } => {
+                let t = self.rim_touch(touch);
+                let over = t.over;
+                let above = Axes::new(over.x, over.y, safe.max(over.z), 0.0, 0.0);
+                match leg {
+                    Leg::Above | Leg::Up => Action::MoveTo(above),
+                    Leg::Descend => probe([over.x, over.y, over.z], plan.fast_feed_mm_min),
+                    Leg::Fast => probe(t.end, plan.fast_feed_mm_min),
+                    Leg::BackOff => {
+                        let back = Vector3::from(self.fast) + t.u * plan.backoff_mm;
+                        Action::MoveTo(Axes::new(back.x, back.y, back.z, 0.0, 0.0))
+                    }
+                    Leg::Slow => probe(t.end, plan.slow_feed_mm_min),
+                    Leg::Retract => Action::MoveTo(over),
+                }
+            }
+            Cursor::Turn { sweep: k, step } => {
+                let (a, c) = sweep(SWEEPS[k])[step];
+                Action::MoveTo(Axes::new(0.0, 0.0, safe, a, c))
+            }
+            Cursor::Ball { touch, leg, .. } => {
+                let t = self.ball_touch(touch);
+                let (a, c, s) = (t.a, t.c, t.start);
+                let above = Axes::new(s[0], s[1], safe.max(s[2]), a, c);
+                let start = Axes::new(s[0], s[1], s[2], a, c);
+                match leg {
+                    Leg::Above | Leg::Up => Action::MoveTo(above),
+                    Leg::Descend | Leg::Retract => Action::MoveTo(start),
+                    Leg::Fast => probe(t.end, plan.fast_feed_mm_min),
+                    Leg::BackOff => {
+                        let back = Vector3::from(self.fast) + t.d * plan.backoff_mm;
+                        Action::MoveTo(Axes::new(back.x, back.y, back.z, a, c))
+                    }
+                    Leg::Slow => probe(t.end, plan.slow_feed_mm_min),
+                }
+            }
+            Cursor::Done => Action::Finished,
+        }
+    }
+
+    /// The nominal C axis at the table face, A = C = 0 (machine frame, tool tip).
+    fn c_axis(&self) -> Vector3<f64> {
+        kinematics::transform_point(&self.nominal.table(0.0, 0.0), &Vector3::zeros())
+    }
+
+    /// Rim touch `k`: from outside, horizontally towards the nominal axis (see
+    /// [`RimPlan`]).
+    fn rim_touch(&self, k: usize) -> RimTouch {
+        let (plan, rim, l) = (&self.plan, &self.plan.rim, self.tool_length_mm);
+        let axis = self.c_axis();
+        let z = axis.z - rim.depth_mm;
+        let reach = rim.radius_mm + plan.stylus_radius_mm;
+        let angle_deg = rim.angles_deg[k];
         let u = Vector3::new(
             angle_deg.to_radians().cos(),
             angle_deg.to_radians().sin(),
@@ -228,87 +706,157 @@ fn locate_c_centre(
         );
         let start = Vector3::new(axis.x, axis.y, z) + u * (reach + plan.approach_mm);
         let end = Vector3::new(axis.x, axis.y, z) + u * (reach - plan.overtravel_mm);
-        let over = at(start);
-        machine
-            .move_to(&Axes::new(
-                over.x,
-                over.y,
-                plan.safe_z_mm.max(over.z),
-                0.0,
-                0.0,
-            ))
-            .map_err(machine_error)?;
-        // Down beside the rim as a probing move: if the table is not where the constants
-        // put it the stylus meets it here, and the machine stops instead of crashing.
-        if let Some(p) = machine
-            .probe_towards([over.x, over.y, over.z], plan.fast_feed_mm_min)
-            .map_err(machine_error)?
-        {
+        RimTouch {
+            u,
+            over: Axes::new(start.x, start.y, start.z + l, 0.0, 0.0),
+            end: [end.x, end.y, end.z + l],
+        }
+    }
+
+    /// The circle through the rim's three touches: the C centre, checked (the rim's
+    /// radius, the centre's distance from the nominal axis).
+    fn rim_done(&mut self) -> Result<(), MeasureError> {
+        let (plan, rim) = (&self.plan, &self.plan.rim);
+        let axis = self.c_axis();
+        let points = std::mem::take(&mut self.rim_points);
+        let (cx, cy, r) = circle_through(&points)
+            .ok_or_else(|| MeasureError::Rim("the three touches lie on one line".into()))?;
+        let rim_radius_mm = r - plan.stylus_radius_mm;
+        if (rim_radius_mm - rim.radius_mm).abs() > rim.radius_tolerance_mm {
             return Err(MeasureError::Rim(format!(
-                "touch {} at {angle_deg}°: contact at ({:.3}, {:.3}, {:.3}) mm on the way down \
-                 beside the rim; the table is not where the machine constants put it",
-                k + 1,
-                p[0],
-                p[1],
-                p[2]
+                "fitted radius {rim_radius_mm:.4} mm, drawn {:.4} mm (tolerance {} mm)",
+                rim.radius_mm, rim.radius_tolerance_mm
             )));
         }
-        let not_found = MeasureError::RimNotFound {
-            touch: k + 1,
-            angle_deg,
-            overtravel_mm: plan.overtravel_mm,
+        let offset_mm = [cx - axis.x, cy - axis.y];
+        if offset_mm[0].hypot(offset_mm[1]) > rim.max_offset_mm {
+            return Err(MeasureError::Rim(format!(
+                "the C centre is at ({cx:.4}, {cy:.4}) mm, ({:.4}, {:.4}) mm from the nominal \
+                 axis: more than {} mm, the machine constants do not describe this machine",
+                offset_mm[0], offset_mm[1], rim.max_offset_mm
+            )));
+        }
+        self.offset = Vector3::new(offset_mm[0], offset_mm[1], 0.0);
+        self.result.c_centre = Some(CCentre {
+            x_mm: cx,
+            y_mm: cy,
+            offset_mm,
+            rim_radius_mm,
+            points,
+        });
+        Ok(())
+    }
+
+    /// Where ball `ball` should be at `step` of sweep `sweep`, and the directions of its
+    /// touches.
+    fn ball_place(&self, sweep_no: usize, step: usize, ball: usize) -> BallPlace {
+        let plan = &self.plan;
+        let axis = SWEEPS[sweep_no];
+        let (a, c) = sweep(axis)[step];
+        let table = self.nominal.table(a, c);
+        let b = &plan.artifact.balls[ball];
+        // Where the ball should be, with the table where the rim says it is (the offset
+        // at A = 0 turned with A).
+        let centre = kinematics::transform_point(&table, &Vector3::from(b.centre_mm))
+            + self.nominal.table(a, 0.0).fixed_view::<3, 3>(0, 0) * self.offset;
+        // Around machine +Z: the probe comes from above; the points at `cone_deg` from
+        // the top reach down near the equator, so the centre's height is not left to the
+        // radius (a cap of 40° would make it 4 times noisier than the touches). The stem
+        // (below the ball on the table normal) is at least 90° - (90° - cone) away at any
+        // A up to 90°.
+        BallPlace {
+            key: (sweep_no, step, ball),
+            axis,
+            a,
+            c,
+            centre,
+            reach: b.radius_mm + plan.stylus_radius_mm,
+            directions: directions(&Vector3::z(), plan.cone_deg),
+        }
+    }
+
+    /// Touch `touch` on the current ball (see `enter`).
+    fn ball_touch(&self, touch: usize) -> BallTouch {
+        let (plan, l) = (&self.plan, self.tool_length_mm);
+        let place = self
+            .place
+            .as_ref()
+            .expect("the ball's place is worked out on entry");
+        let (centre, reach) = (place.centre, place.reach);
+        let d = place.directions[touch];
+        let start = centre + d * (reach + plan.approach_mm);
+        let end = centre + d * (reach - plan.overtravel_mm);
+        let gauge = |p: Vector3<f64>| [p.x, p.y, p.z + l];
+        BallTouch {
+            axis: place.axis,
+            a: place.a,
+            c: place.c,
+            d,
+            start: gauge(start),
+            end: gauge(end),
+            reach,
+        }
+    }
+
+    /// The sphere through a ball's six touches, checked, added to the result.
+    fn ball_done(&mut self, step: usize, ball: usize) -> Result<(), MeasureError> {
+        let t = self.ball_touch(0);
+        let (axis, step) = (t.axis, step as u32);
+        let ball_no = ball as u8 + 1;
+        let points = std::mem::take(&mut self.ball_points);
+        let what = format!("axis {axis} step {step} ball {ball_no}");
+        let pts: Vec<Vector3<f64>> = points.iter().map(|p| Vector3::from(*p)).collect();
+        let sphere_error = |source| MeasureError::Sphere {
+            axis,
+            step,
+            ball: ball_no,
+            source,
         };
-        let gauge = |p: Vector3<f64>| [p.x, p.y, p.z + tool_length_mm];
-        *touches += 1;
-        let fast = machine
-            .probe_towards(gauge(end), plan.fast_feed_mm_min)
-            .map_err(machine_error)?
-            .ok_or_else(|| not_found.clone())?;
-        let back = Vector3::from(fast) + u * plan.backoff_mm;
-        machine
-            .move_to(&Axes::new(back.x, back.y, back.z, 0.0, 0.0))
-            .map_err(machine_error)?;
-        *touches += 1;
-        let slow = machine
-            .probe_towards(gauge(end), plan.slow_feed_mm_min)
-            .map_err(machine_error)?
-            .ok_or(not_found)?;
-        points.push([slow[0], slow[1], slow[2] - tool_length_mm]);
-        machine.move_to(&over).map_err(machine_error)?;
-        machine
-            .move_to(&Axes::new(
-                over.x,
-                over.y,
-                plan.safe_z_mm.max(over.z),
-                0.0,
-                0.0,
-            ))
-            .map_err(machine_error)?;
+        let sphere = fit_sphere(&what, &pts).map_err(sphere_error)?;
+        check_sphere(
+            &what,
+            &sphere,
+            t.reach,
+            self.plan.radius_tolerance_mm,
+            self.plan.residual_limit_mm,
+        )
+        .map_err(sphere_error)?;
+        self.result.balls.push(BallMeasurement {
+            axis,
+            step,
+            angle_deg: if axis == Axis::C { t.c } else { t.a },
+            ball: ball_no,
+            points,
+            sphere,
+        });
+        Ok(())
     }
-    let (cx, cy, r) = circle_through(&points)
-        .ok_or_else(|| MeasureError::Rim("the three touches lie on one line".into()))?;
-    let rim_radius_mm = r - plan.stylus_radius_mm;
-    if (rim_radius_mm - rim.radius_mm).abs() > rim.radius_tolerance_mm {
-        return Err(MeasureError::Rim(format!(
-            "fitted radius {rim_radius_mm:.4} mm, drawn {:.4} mm (tolerance {} mm)",
-            rim.radius_mm, rim.radius_tolerance_mm
-        )));
+
+    /// Where the cycle goes after a ball: the next ball, the next step, the next sweep,
+    /// or the end.
+    fn after_ball(&self, sweep_no: usize, step: usize, ball: usize) -> Cursor {
+        if ball + 1 < self.plan.artifact.balls.len() {
+            Cursor::Ball {
+                sweep: sweep_no,
+                step,
+                ball: ball + 1,
+                touch: 0,
+                leg: Leg::Above,
+            }
+        } else if step + 1 < sweep(SWEEPS[sweep_no]).len() {
+            Cursor::Turn {
+                sweep: sweep_no,
+                step: step + 1,
+            }
+        } else if sweep_no + 1 < SWEEPS.len() {
+            Cursor::Turn {
+                sweep: sweep_no + 1,
+                step: 0,
+            }
+        } else {
+            Cursor::Done
+        }
     }
-    let offset_mm = [cx - axis.x, cy - axis.y];
-    if offset_mm[0].hypot(offset_mm[1]) > rim.max_offset_mm {
-        return Err(MeasureError::Rim(format!(
-            "the C centre is at ({cx:.4}, {cy:.4}) mm, ({:.4}, {:.4}) mm from the nominal axis: \
-             more than {} mm, the machine constants do not describe this machine",
-            offset_mm[0], offset_mm[1], rim.max_offset_mm
-        )));
-    }
-    Ok(CCentre {
-        x_mm: cx,
-        y_mm: cy,
-        offset_mm,
-        rim_radius_mm,
-        points,
-    })
 }
 
 /// The circle (centre X, Y and radius) through three points' X, Y; None when they are on
@@ -347,130 +895,704 @@ fn directions(n: &Vector3<f64>, cone_deg: f64) -> Vec<Vector3<f64>> {
     out
 }
 
-/// Runs the cycle. `progress(done, total)` is called after each ball.
+/// Runs the cycle on a synchronous machine, move by move through a [`MeasureSession`].
+/// `progress(done, total)` is called after each ball.
 pub fn measure(
     machine: &mut impl ProbingMachine,
     constants: &MachineConstants,
     plan: &MeasurePlan,
     mut progress: impl FnMut(usize, usize),
 ) -> Result<Measurement, Box<Stopped>> {
-    let nominal = RotaryMachine::nominal(*constants);
-    let l = constants.tool_length_mm;
-    let mut result = Measurement {
-        c_centre: None,
-        balls: Vec::new(),
-        probe_touches: 0,
-    };
-    let total = 2 * (sweep(Axis::C).len() + sweep(Axis::A).len());
-    let stop = |error: MeasureError, so_far: &Measurement| {
-        Box::new(Stopped {
-            error,
-            so_far: so_far.clone(),
-        })
-    };
-    let located = locate_c_centre(machine, &nominal, l, plan, &mut result.probe_touches)
-        .map_err(|e| stop(e, &result))?;
-    let offset = Vector3::new(located.offset_mm[0], located.offset_mm[1], 0.0);
-    result.c_centre = Some(located);
-    for axis in [Axis::C, Axis::A] {
-        for (step, (a, c)) in sweep(axis).into_iter().enumerate() {
-            let step = step as u32;
-            let table = nominal.table(a, c);
-            // Turn the table with the probe up at the safe height.
-            let here = Axes::new(0.0, 0.0, plan.safe_z_mm, a, c);
-            machine
-                .move_to(&here)
-                .map_err(|e| stop(MeasureError::Machine(e), &result))?;
-            for (b, ball) in plan.artifact.balls.iter().enumerate() {
-                let ball_no = b as u8 + 1;
-                // Where the ball should be, with the table where the rim says it is (the
-                // offset at A = 0 turned with A).
-                let centre = kinematics::transform_point(&table, &Vector3::from(ball.centre_mm))
-                    + nominal.table(a, 0.0).fixed_view::<3, 3>(0, 0) * offset;
-                // Around machine +Z: the probe comes from above; the points at
-                // `cone_deg` from the top reach down near the equator, so the centre's
-                // height is not left to the radius (a cap of 40° would make it 4 times
-                // noisier than the touches). The stem (below the ball on the table
-                // normal) is at least 90° - (90° - cone) away at any A up to 90°.
-                let pole = Vector3::z();
-                let reach = ball.radius_mm + plan.stylus_radius_mm;
-                let mut points = Vec::new();
-                for (touch, d) in directions(&pole, plan.cone_deg).into_iter().enumerate() {
-                    let start = centre + d * (reach + plan.approach_mm);
-                    let end = centre + d * (reach - plan.overtravel_mm);
-                    let gauge = |p: Vector3<f64>| [p.x, p.y, p.z + l];
-                    let s = gauge(start);
-                    // Over the start point at the safe height, then down to it.
-                    for target in [
-                        Axes::new(s[0], s[1], plan.safe_z_mm.max(s[2]), a, c),
-                        Axes::new(s[0], s[1], s[2], a, c),
-                    ] {
-                        machine
-                            .move_to(&target)
-                            .map_err(|e| stop(MeasureError::Machine(e), &result))?;
-                    }
-                    let not_found = MeasureError::BallNotFound {
-                        axis,
-                        step,
-                        ball: ball_no,
-                        touch: touch + 1,
-                        overtravel_mm: plan.overtravel_mm,
-                    };
-                    let fast = machine
-                        .probe_towards(gauge(end), plan.fast_feed_mm_min)
-                        .map_err(|e| stop(MeasureError::Machine(e), &result))?;
-                    result.probe_touches += 1;
-                    let Some(fast) = fast else {
-                        return Err(stop(not_found, &result));
-                    };
-                    let back = Vector3::from(fast) + d * plan.backoff_mm;
-                    machine
-                        .move_to(&Axes::new(back.x, back.y, back.z, a, c))
-                        .map_err(|e| stop(MeasureError::Machine(e), &result))?;
-                    let slow = machine
-                        .probe_towards(gauge(end), plan.slow_feed_mm_min)
-                        .map_err(|e| stop(MeasureError::Machine(e), &result))?;
-                    result.probe_touches += 1;
-                    let Some(slow) = slow else {
-                        return Err(stop(not_found, &result));
-                    };
-                    points.push([slow[0], slow[1], slow[2] - l]);
-                    // Back out along the normal, then up.
-                    machine
-                        .move_to(&Axes::new(s[0], s[1], s[2], a, c))
-                        .map_err(|e| stop(MeasureError::Machine(e), &result))?;
-                    machine
-                        .move_to(&Axes::new(s[0], s[1], plan.safe_z_mm.max(s[2]), a, c))
-                        .map_err(|e| stop(MeasureError::Machine(e), &result))?;
+    let mut session = MeasureSession::new(constants, plan);
+    loop {
+        let done = session.progress().0;
+        match session.next_action() {
+            Action::Finished => break,
+            Action::MoveTo(target) => match machine.move_to(&target) {
+                Ok(()) => session.moved(),
+                Err(e) => session.failed(e),
+            },
+            Action::ProbeTowards { to, feed_mm_min } => {
+                match machine.probe_towards(to, feed_mm_min) {
+                    Ok(hit) => session.probed(hit),
+                    Err(e) => session.failed(e),
                 }
-                let what = format!("axis {axis} step {step} ball {ball_no}");
-                let pts: Vec<Vector3<f64>> = points.iter().map(|p| Vector3::from(*p)).collect();
-                let sphere_error = |source| MeasureError::Sphere {
-                    axis,
-                    step,
-                    ball: ball_no,
-                    source,
-                };
-                let sphere = fit_sphere(&what, &pts).map_err(|e| stop(sphere_error(e), &result))?;
-                check_sphere(
-                    &what,
-                    &sphere,
-                    reach,
-                    plan.radius_tolerance_mm,
-                    plan.residual_limit_mm,
-                )
-                .map_err(|e| stop(sphere_error(e), &result))?;
-                result.balls.push(BallMeasurement {
-                    axis,
-                    step,
-                    angle_deg: if axis == Axis::C { c } else { a },
-                    ball: ball_no,
-                    points,
-                    sphere,
-                });
-                progress(result.balls.len(), total);
+            }
+        }
+        let (now, total) = session.progress();
+        if now != done {
+            progress(now, total);
+        }
+    }
+    session.finish()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A perfect machine for the session: the nominal table, the balls exactly where
+    /// the artifact puts them (unless shifted or shrunk), the table a solid disk of the
+    /// rim's radius about the nominal C axis (at A = 0), a stylus of the plan's radius
+    /// without pre-travel.
+    #[derive(Clone)]
+    struct PerfectTable {
+        nominal: RotaryMachine,
+        tool_length_mm: f64,
+        plan: MeasurePlan,
+        position: Axes,
+        /// Ball 2 this much further out along the workpiece's X than the artifact says.
+        shift_mm: [f64; 2],
+        /// Ball 2 this much smaller.
+        shrink_mm: f64,
+        log: Vec<Action>,
+    }
+
+    impl PerfectTable {
+        fn new() -> Self {
+            let constants = MachineConstants::default();
+            Self {
+                nominal: RotaryMachine::nominal(constants),
+                tool_length_mm: constants.tool_length_mm,
+                plan: MeasurePlan::default(),
+                position: Axes::new(0.0, 0.0, 0.0, 0.0, 0.0),
+                shift_mm: [0.0, 0.0],
+                shrink_mm: 0.0,
+                log: Vec::new(),
+            }
+        }
+
+        /// The first t in [0, 1] where `from + t (to - from)` is `radius` from `centre`
+        /// (in the first `dims` coordinates), starting outside.
+        fn first_contact(
+            from: Vector3<f64>,
+            to: Vector3<f64>,
+            centre: Vector3<f64>,
+            radius: f64,
+            dims: usize,
+        ) -> Option<f64> {
+            let (d, f) = (to - from, from - centre);
+            let (d, f) = (d.rows(0, dims), f.rows(0, dims));
+            let (a, b, c) = (d.dot(&d), 2.0 * f.dot(&d), f.dot(&f) - radius * radius);
+            let disc = b * b - 4.0 * a * c;
+            if c <= 0.0 || a == 0.0 || disc < 0.0 {
+                return None;
+            }
+            let t = (-b - disc.sqrt()) / (2.0 * a);
+            (0.0..=1.0).contains(&t).then_some(t)
+        }
+
+        /// Where the stylus centre moving `from` -> `to` meets the table (a disk of
+        /// `radius` about `axis`, its face at `axis.z`, the stylus's radius added).
+        fn table_contact(
+            &self,
+            from: Vector3<f64>,
+            to: Vector3<f64>,
+            axis: Vector3<f64>,
+        ) -> Option<f64> {
+            let r = self.plan.stylus_radius_mm;
+            let (radius, top) = (self.plan.rim.radius_mm + r, axis.z + r);
+            let inside = |p: Vector3<f64>| (p - axis).xy().norm() <= radius;
+            let through_top = (from.z > top && to.z <= top)
+                .then(|| (top - from.z) / (to.z - from.z))
+                .filter(|&t| inside(from + (to - from) * t));
+            let side = Self::first_contact(from, to, axis, radius, 2)
+                .filter(|&t| (from + (to - from) * t).z <= top);
+            match (through_top, side) {
+                (Some(a), Some(b)) => Some(a.min(b)),
+                (a, b) => a.or(b),
             }
         }
     }
-    Ok(result)
+
+    impl ProbingMachine for PerfectTable {
+        fn move_to(&mut self, target: &Axes) -> Result<(), String> {
+            self.log.push(Action::MoveTo(*target));
+            self.position = *target;
+            Ok(())
+        }
+
+        fn probe_towards(
+            &mut self,
+            to: [f64; 3],
+            feed_mm_min: f64,
+        ) -> Result<Option<[f64; 3]>, String> {
+            self.log.push(Action::ProbeTowards { to, feed_mm_min });
+            let (a, c, l) = (self.position.a, self.position.c, self.tool_length_mm);
+            let tip = |p: [f64; 3]| Vector3::new(p[0], p[1], p[2] - l);
+            let from = tip([self.position.x, self.position.y, self.position.z]);
+            let end = tip(to);
+            let r = self.plan.stylus_radius_mm;
+            let table = self.nominal.table(a, c);
+            let mut hits: Vec<f64> = self
+                .plan
+                .artifact
+                .balls
+                .iter()
+                .enumerate()
+                .filter_map(|(k, b)| {
+                    let mut at = Vector3::from(b.centre_mm);
+                    at.x += self.shift_mm[k].copysign(at.x);
+                    let radius = b.radius_mm - if k == 1 { self.shrink_mm } else { 0.0 };
+                    let centre = kinematics::transform_point(&table, &at);
+                    Self::first_contact(from, end, centre, radius + r, 3)
+                })
+                .collect();
+            if a == 0.0 {
+                let axis = kinematics::transform_point(&table, &Vector3::zeros());
+                hits.extend(self.table_contact(from, end, axis));
+            }
+            let stop = hits
+                .into_iter()
+                .fold(None, |m: Option<f64>, t| Some(m.map_or(t, |m| m.min(t))))
+                .map(|t| from + (end - from) * t);
+            let at = stop.unwrap_or(end);
+            self.position.x = at.x;
+            self.position.y = at.y;
+            self.position.z = at.z + l;
+            Ok(stop.map(|p| [p.x, p.y, p.z + l]))
+        }
+    }
+
+    fn session() -> MeasureSession {
+        MeasureSession::new(&MachineConstants::default(), &MeasurePlan::default())
+    }
+
+    /// Answers the session's next action on `machine`; false once finished.
+    fn step(s: &mut MeasureSession, machine: &mut impl ProbingMachine) -> bool {
+        match s.next_action() {
+            Action::Finished => return false,
+            Action::MoveTo(t) => match machine.move_to(&t) {
+                Ok(()) => s.moved(),
+                Err(e) => s.failed(e),
+            },
+            Action::ProbeTowards { to, feed_mm_min } => {
+                match machine.probe_towards(to, feed_mm_min) {
+                    Ok(hit) => s.probed(hit),
+                    Err(e) => s.failed(e),
+                }
+            }
+        }
+        true
+    }
+
+    #[test]
+    fn the_whole_cycle_on_a_perfect_table_finds_every_ball_where_it_is() {
+        let mut table = PerfectTable::new();
+        let mut calls = Vec::new();
+        let m = measure(
+            &mut table,
+            &MachineConstants::default(),
+            &MeasurePlan::default(),
+            |done, total| calls.push((done, total)),
+        )
+        .unwrap_or_else(|s| panic!("{}", s.error));
+        let balls = 2 * (12 + 7);
+        assert_eq!(m.balls.len(), balls);
+        assert_eq!(calls, (1..=balls).map(|k| (k, balls)).collect::<Vec<_>>());
+        // 3 rim points and 6 per ball, each touched fast then slow; the 3 protected
+        // descents beside the rim are not touches.
+        assert_eq!(m.probe_touches, (3 + balls * 6) * 2);
+        let probes = table
+            .log
+            .iter()
+            .filter(|a| matches!(a, Action::ProbeTowards { .. }))
+            .count();
+        assert_eq!(probes, m.probe_touches + 3);
+        // Moves: 1 over the axis, 4 per rim touch; per step 1 turn and 5 per ball touch.
+        assert_eq!(
+            table.log.len() - probes,
+            1 + 3 * 4 + (12 + 7) + balls * 6 * 5
+        );
+        let c = m.c_centre.as_ref().expect("located");
+        assert!(c.offset_mm[0].abs() < 1e-9 && c.offset_mm[1].abs() < 1e-9);
+        let nominal = crate::centres_of(
+            &RotaryMachine::nominal(MachineConstants::default()),
+            &Artifact::default(),
+        );
+        for (got, want) in m.centres().iter().zip(&nominal) {
+            assert_eq!(
+                (got.axis, got.step, got.ball),
+                (want.axis, want.step, want.ball)
+            );
+            let d = (got.x_mm - want.x_mm)
+                .hypot(got.y_mm - want.y_mm)
+                .hypot(got.z_mm - want.z_mm);
+            assert!(d < 1e-9, "{got:?} vs {want:?}");
+        }
+    }
+
+    #[test]
+    fn the_first_move_is_over_the_c_axis_and_stays_until_answered() {
+        let mut s = session();
+        let constants = MachineConstants::default();
+        let axis = kinematics::transform_point(
+            &RotaryMachine::nominal(constants).table(0.0, 0.0),
+            &Vector3::zeros(),
+        );
+        let first = Action::MoveTo(Axes::new(axis.x, axis.y, -20.0, 0.0, 0.0));
+        assert_eq!(s.next_action(), first);
+        assert_eq!(s.next_action(), first);
+        assert_eq!(s.progress(), (0, 38));
+        s.moved();
+        // Over the first rim touch, then the protected descent beside the rim.
+        assert!(matches!(s.next_action(), Action::MoveTo(_)));
+        s.moved();
+        assert!(matches!(
+            s.next_action(),
+            Action::ProbeTowards { feed_mm_min, .. } if feed_mm_min == 300.0
+        ));
+        assert!(!s.is_finished() && s.error().is_none());
+    }
+
+    #[test]
+    fn a_stop_after_n_balls_keeps_n_balls() {
+        for n in [0, 1, 5, 24] {
+            let mut table = PerfectTable::new();
+            let mut s = session();
+            while s.progress().0 < n && step(&mut s, &mut table) {}
+            let moves = table.log.len();
+            s.stop();
+            assert_eq!(s.next_action(), Action::Finished);
+            assert!(!step(&mut s, &mut table));
+            assert_eq!(table.log.len(), moves, "nothing moves after a stop");
+            // A second stop, a late answer: nothing changes.
+            s.stop();
+            s.moved();
+            let stopped = s.finish().expect_err("stopped");
+            assert_eq!(stopped.error, MeasureError::StopRequested);
+            assert_eq!(stopped.error.to_string(), STOPPED_ON_REQUEST);
+            assert_eq!(stopped.so_far.balls.len(), n);
+            assert_eq!(stopped.so_far.c_centre.is_some(), n > 0);
+        }
+    }
+
+    #[test]
+    fn a_failed_move_stops_the_cycle_with_the_machines_words() {
+        let mut table = PerfectTable::new();
+        let mut s = session();
+        while s.progress().0 < 3 && step(&mut s, &mut table) {}
+        s.failed("link lost");
+        assert_eq!(s.next_action(), Action::Finished);
+        let stopped = s.finish().expect_err("stopped");
+        assert_eq!(stopped.error.to_string(), "the machine: link lost");
+        assert_eq!(stopped.so_far.balls.len(), 3);
+    }
+
+    #[test]
+    fn a_probe_that_never_touches_stops_at_the_first_rim_touch() {
+        let mut s = session();
+        // Over the axis, over the first touch, down beside the rim (no contact: good),
+        // then the fast touch finds nothing.
+        s.moved();
+        s.moved();
+        s.probed(None);
+        s.probed(None);
+        let stopped = s.finish().expect_err("stopped");
+        assert!(
+            matches!(stopped.error, MeasureError::RimNotFound { touch: 1, .. }),
+            "{}",
+            stopped.error
+        );
+        // The rim touch counts as asked, as it always did.
+        assert_eq!(stopped.so_far.probe_touches, 1);
+        assert!(stopped.so_far.c_centre.is_none());
+    }
+
+    #[test]
+    fn an_answer_to_a_question_not_asked_stops_the_cycle() {
+        let mut s = session();
+        s.probed(Some([0.0; 3]));
+        assert_eq!(s.next_action(), Action::Finished);
+        let e = s.finish().expect_err("stopped").error.to_string();
+        assert!(
+            e.contains("told a probing move ended while it had asked for a positioning move"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_session_finished_early_is_unfinished() {
+        let mut s = session();
+        s.moved();
+        let stopped = s.finish().expect_err("not finished");
+        assert_eq!(stopped.error, MeasureError::Unfinished);
+    }
+
+    /// The cycle as it was written before the session (a loop calling the machine),
+    /// frozen: the session must drive any machine move for move as it did.
+    mod frozen {
+        use super::super::*;
+
+        fn reference_locate_c_centre(
+            machine: &mut impl ProbingMachine,
+            nominal: &RotaryMachine,
+            tool_length_mm: f64,
+            plan: &MeasurePlan,
+            touches: &mut usize,
+        ) -> Result<CCentre, MeasureError> {
+            let rim = &plan.rim;
+            let axis = kinematics::transform_point(&nominal.table(0.0, 0.0), &Vector3::zeros());
+            let z = axis.z - rim.depth_mm;
+            let reach = rim.radius_mm + plan.stylus_radius_mm;
+            let machine_error = MeasureError::Machine;
+            let at = |p: Vector3<f64>| Axes::new(p.x, p.y, p.z + tool_length_mm, 0.0, 0.0);
+            machine
+                .move_to(&Axes::new(axis.x, axis.y, plan.safe_z_mm, 0.0, 0.0))
+                .map_err(machine_error)?;
+            let mut points = Vec::new();
+            for (k, &angle_deg) in rim.angles_deg.iter().enumerate() {
+                let u = Vector3::new(
+                    angle_deg.to_radians().cos(),
+                    angle_deg.to_radians().sin(),
+                    0.0,
+                );
+                let start = Vector3::new(axis.x, axis.y, z) + u * (reach + plan.approach_mm);
+                let end = Vector3::new(axis.x, axis.y, z) + u * (reach - plan.overtravel_mm);
+                let over = at(start);
+                machine
+                    .move_to(&Axes::new(
+                        over.x,
+                        over.y,
+                        plan.safe_z_mm.max(over.z),
+                        0.0,
+                        0.0,
+                    ))
+                    .map_err(machine_error)?;
+                // Down beside the rim as a probing move: if the table is not where the constants
+                // put it the stylus meets it here, and the machine stops instead of crashing.
+                if let Some(p) = machine
+                    .probe_towards([over.x, over.y, over.z], plan.fast_feed_mm_min)
+                    .map_err(machine_error)?
+                {
+                    return Err(MeasureError::Rim(format!(
+                        "touch {} at {angle_deg}°: contact at ({:.3}, {:.3}, {:.3}) mm on the way down \
+                         beside the rim; the table is not where the machine constants put it",
+                        k + 1,
+                        p[0],
+                        p[1],
+                        p[2]
+                    )));
+                }
+                let not_found = MeasureError::RimNotFound {
+                    touch: k + 1,
+                    angle_deg,
+                    overtravel_mm: plan.overtravel_mm,
+                };
+                let gauge = |p: Vector3<f64>| [p.x, p.y, p.z + tool_length_mm];
+                *touches += 1;
+                let fast = machine
+                    .probe_towards(gauge(end), plan.fast_feed_mm_min)
+                    .map_err(machine_error)?
+                    .ok_or_else(|| not_found.clone())?;
+                let back = Vector3::from(fast) + u * plan.backoff_mm;
+                machine
+                    .move_to(&Axes::new(back.x, back.y, back.z, 0.0, 0.0))
+                    .map_err(machine_error)?;
+                *touches += 1;
+                let slow = machine
+                    .probe_towards(gauge(end), plan.slow_feed_mm_min)
+                    .map_err(machine_error)?
+                    .ok_or(not_found)?;
+                points.push([slow[0], slow[1], slow[2] - tool_length_mm]);
+                machine.move_to(&over).map_err(machine_error)?;
+                machine
+                    .move_to(&Axes::new(
+                        over.x,
+                        over.y,
+                        plan.safe_z_mm.max(over.z),
+                        0.0,
+                        0.0,
+                    ))
+                    .map_err(machine_error)?;
+            }
+            let (cx, cy, r) = circle_through(&points)
+                .ok_or_else(|| MeasureError::Rim("the three touches lie on one line".into()))?;
+            let rim_radius_mm = r - plan.stylus_radius_mm;
+            if (rim_radius_mm - rim.radius_mm).abs() > rim.radius_tolerance_mm {
+                return Err(MeasureError::Rim(format!(
+                    "fitted radius {rim_radius_mm:.4} mm, drawn {:.4} mm (tolerance {} mm)",
+                    rim.radius_mm, rim.radius_tolerance_mm
+                )));
+            }
+            let offset_mm = [cx - axis.x, cy - axis.y];
+            if offset_mm[0].hypot(offset_mm[1]) > rim.max_offset_mm {
+                return Err(MeasureError::Rim(format!(
+                    "the C centre is at ({cx:.4}, {cy:.4}) mm, ({:.4}, {:.4}) mm from the nominal axis: \
+                     more than {} mm, the machine constants do not describe this machine",
+                    offset_mm[0], offset_mm[1], rim.max_offset_mm
+                )));
+            }
+            Ok(CCentre {
+                x_mm: cx,
+                y_mm: cy,
+                offset_mm,
+                rim_radius_mm,
+                points,
+            })
+        }
+
+        pub(super) fn reference_measure(
+            machine: &mut impl ProbingMachine,
+            constants: &MachineConstants,
+            plan: &MeasurePlan,
+            mut progress: impl FnMut(usize, usize),
+        ) -> Result<Measurement, Box<Stopped>> {
+            let nominal = RotaryMachine::nominal(*constants);
+            let l = constants.tool_length_mm;
+            let mut result = Measurement {
+                c_centre: None,
+                balls: Vec::new(),
+                probe_touches: 0,
+            };
+            let total = 2 * (sweep(Axis::C).len() + sweep(Axis::A).len());
+            let stop = |error: MeasureError, so_far: &Measurement| {
+                Box::new(Stopped {
+                    error,
+                    so_far: so_far.clone(),
+                })
+            };
+            let located =
+                reference_locate_c_centre(machine, &nominal, l, plan, &mut result.probe_touches)
+                    .map_err(|e| stop(e, &result))?;
+            let offset = Vector3::new(located.offset_mm[0], located.offset_mm[1], 0.0);
+            result.c_centre = Some(located);
+            for axis in [Axis::C, Axis::A] {
+                for (step, (a, c)) in sweep(axis).into_iter().enumerate() {
+                    let step = step as u32;
+                    let table = nominal.table(a, c);
+                    // Turn the table with the probe up at the safe height.
+                    let here = Axes::new(0.0, 0.0, plan.safe_z_mm, a, c);
+                    machine
+                        .move_to(&here)
+                        .map_err(|e| stop(MeasureError::Machine(e), &result))?;
+                    for (b, ball) in plan.artifact.balls.iter().enumerate() {
+                        let ball_no = b as u8 + 1;
+                        // Where the ball should be, with the table where the rim says it is (the
+                        // offset at A = 0 turned with A).
+                        let centre =
+                            kinematics::transform_point(&table, &Vector3::from(ball.centre_mm))
+                                + nominal.table(a, 0.0).fixed_view::<3, 3>(0, 0) * offset;
+                        // Around machine +Z: the probe comes from above; the points at
+                        // `cone_deg` from the top reach down near the equator, so the centre's
+                        // height is not left to the radius (a cap of 40° would make it 4 times
+                        // noisier than the touches). The stem (below the ball on the table
+                        // normal) is at least 90° - (90° - cone) away at any A up to 90°.
+                        let pole = Vector3::z();
+                        let reach = ball.radius_mm + plan.stylus_radius_mm;
+                        let mut points = Vec::new();
+                        for (touch, d) in directions(&pole, plan.cone_deg).into_iter().enumerate() {
+                            let start = centre + d * (reach + plan.approach_mm);
+                            let end = centre + d * (reach - plan.overtravel_mm);
+                            let gauge = |p: Vector3<f64>| [p.x, p.y, p.z + l];
+                            let s = gauge(start);
+                            // Over the start point at the safe height, then down to it.
+                            for target in [
+                                Axes::new(s[0], s[1], plan.safe_z_mm.max(s[2]), a, c),
+                                Axes::new(s[0], s[1], s[2], a, c),
+                            ] {
+                                machine
+                                    .move_to(&target)
+                                    .map_err(|e| stop(MeasureError::Machine(e), &result))?;
+                            }
+                            let not_found = MeasureError::BallNotFound {
+                                axis,
+                                step,
+                                ball: ball_no,
+                                touch: touch + 1,
+                                overtravel_mm: plan.overtravel_mm,
+                            };
+                            let fast = machine
+                                .probe_towards(gauge(end), plan.fast_feed_mm_min)
+                                .map_err(|e| stop(MeasureError::Machine(e), &result))?;
+                            result.probe_touches += 1;
+                            let Some(fast) = fast else {
+                                return Err(stop(not_found, &result));
+                            };
+                            let back = Vector3::from(fast) + d * plan.backoff_mm;
+                            machine
+                                .move_to(&Axes::new(back.x, back.y, back.z, a, c))
+                                .map_err(|e| stop(MeasureError::Machine(e), &result))?;
+                            let slow = machine
+                                .probe_towards(gauge(end), plan.slow_feed_mm_min)
+                                .map_err(|e| stop(MeasureError::Machine(e), &result))?;
+                            result.probe_touches += 1;
+                            let Some(slow) = slow else {
+                                return Err(stop(not_found, &result));
+                            };
+                            points.push([slow[0], slow[1], slow[2] - l]);
+                            // Back out along the normal, then up.
+                            machine
+                                .move_to(&Axes::new(s[0], s[1], s[2], a, c))
+                                .map_err(|e| stop(MeasureError::Machine(e), &result))?;
+                            machine
+                                .move_to(&Axes::new(s[0], s[1], plan.safe_z_mm.max(s[2]), a, c))
+                                .map_err(|e| stop(MeasureError::Machine(e), &result))?;
+                        }
+                        let what = format!("axis {axis} step {step} ball {ball_no}");
+                        let pts: Vec<Vector3<f64>> =
+                            points.iter().map(|p| Vector3::from(*p)).collect();
+                        let sphere_error = |source| MeasureError::Sphere {
+                            axis,
+                            step,
+                            ball: ball_no,
+                            source,
+                        };
+                        let sphere =
+                            fit_sphere(&what, &pts).map_err(|e| stop(sphere_error(e), &result))?;
+                        check_sphere(
+                            &what,
+                            &sphere,
+                            reach,
+                            plan.radius_tolerance_mm,
+                            plan.residual_limit_mm,
+                        )
+                        .map_err(|e| stop(sphere_error(e), &result))?;
+                        result.balls.push(BallMeasurement {
+                            axis,
+                            step,
+                            angle_deg: if axis == Axis::C { c } else { a },
+                            ball: ball_no,
+                            points,
+                            sphere,
+                        });
+                        progress(result.balls.len(), total);
+                    }
+                }
+            }
+            Ok(result)
+        }
+    }
+
+    /// One machine call as the machine saw it (numbers as bits), and its answer.
+    #[derive(Debug, PartialEq)]
+    enum Call {
+        Move([u64; 5]),
+        Probe([u64; 3], u64, Result<Option<[u64; 3]>, String>),
+    }
+
+    /// Logs every call to `inner`; call number `fail_at` (1-based) fails instead.
+    struct Recorder<M> {
+        inner: M,
+        log: Vec<Call>,
+        fail_at: Option<usize>,
+    }
+
+    impl<M: ProbingMachine> ProbingMachine for Recorder<M> {
+        fn move_to(&mut self, t: &Axes) -> Result<(), String> {
+            self.log
+                .push(Call::Move([t.x, t.y, t.z, t.a, t.c].map(f64::to_bits)));
+            if Some(self.log.len()) == self.fail_at {
+                return Err("link lost".into());
+            }
+            self.inner.move_to(t)
+        }
+
+        fn probe_towards(
+            &mut self,
+            to: [f64; 3],
+            feed_mm_min: f64,
+        ) -> Result<Option<[f64; 3]>, String> {
+            let r = if Some(self.log.len() + 1) == self.fail_at {
+                Err("link lost".to_string())
+            } else {
+                self.inner.probe_towards(to, feed_mm_min)
+            };
+            self.log.push(Call::Probe(
+                to.map(f64::to_bits),
+                feed_mm_min.to_bits(),
+                r.clone().map(|h| h.map(|p| p.map(f64::to_bits))),
+            ));
+            r
+        }
+    }
+
+    /// The session-driven cycle and the frozen one on two copies of `table`: the same
+    /// calls, answers, progress and result.
+    fn same_as_frozen(
+        table: PerfectTable,
+        constants: &MachineConstants,
+        fail_at: Option<usize>,
+    ) -> Result<Measurement, Box<Stopped>> {
+        let plan = MeasurePlan::default();
+        let mut ours = Recorder {
+            inner: table.clone(),
+            log: Vec::new(),
+            fail_at,
+        };
+        let mut theirs = Recorder {
+            inner: table,
+            log: Vec::new(),
+            fail_at,
+        };
+        let (mut p1, mut p2) = (Vec::new(), Vec::new());
+        let r1 = measure(&mut ours, constants, &plan, |d, n| p1.push((d, n)));
+        let r2 = frozen::reference_measure(&mut theirs, constants, &plan, |d, n| p2.push((d, n)));
+        assert_eq!(ours.log.len(), theirs.log.len(), "fail at {fail_at:?}");
+        assert!(
+            ours.log == theirs.log,
+            "fail at {fail_at:?}: the calls differ"
+        );
+        assert_eq!(p1, p2);
+        assert_eq!(r1, r2, "fail at {fail_at:?}");
+        r1
+    }
+
+    #[test]
+    fn the_session_drives_the_machine_move_for_move_as_the_frozen_cycle() {
+        let constants = MachineConstants::default();
+        let m = same_as_frozen(PerfectTable::new(), &constants, None).expect("measured");
+        assert_eq!(m.balls.len(), 38);
+        // A failure at every call of the rim and of the first ball, and later ones.
+        for n in (1..=70).chain([200, 203, 204, 205, 206, 900, 1637]) {
+            let stopped = same_as_frozen(PerfectTable::new(), &constants, Some(n))
+                .expect_err("the machine failed");
+            assert_eq!(stopped.error.to_string(), "the machine: link lost");
+        }
+    }
+
+    #[test]
+    fn the_session_stops_where_the_frozen_cycle_did() {
+        let stop = |table, dy: f64| {
+            let constants = MachineConstants {
+                a_axis_y_mm: MachineConstants::default().a_axis_y_mm + dy,
+                ..MachineConstants::default()
+            };
+            let stopped = same_as_frozen(table, &constants, None).expect_err("stopped");
+            (stopped.error, stopped.so_far)
+        };
+        // Ball 2 6 mm further out than planned: one of its touches finds nothing.
+        let mut moved = PerfectTable::new();
+        moved.shift_mm = [0.0, 6.0];
+        let (e, m) = stop(moved, 0.0);
+        assert!(
+            matches!(
+                e,
+                MeasureError::BallNotFound {
+                    ball: 2,
+                    step: 0,
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        assert_eq!(m.balls.len(), 1);
+        // Ball 2 10 um smaller: its sphere is rejected.
+        let mut small = PerfectTable::new();
+        small.shrink_mm = 0.01;
+        let (e, _) = stop(small, 0.0);
+        assert!(matches!(e, MeasureError::Sphere { ball: 2, .. }), "{e}");
+        // Constants off the table: stopped at the rim (1.5 mm: the centre too far from
+        // the nominal axis; -5 mm: contact on the way down; +5 mm: no rim within reach).
+        let (e, _) = stop(PerfectTable::new(), 1.5);
+        assert!(e.to_string().contains("from the nominal axis"), "{e}");
+        let (e, m) = stop(PerfectTable::new(), -5.0);
+        assert!(e.to_string().contains("on the way down"), "{e}");
+        assert_eq!(m.probe_touches, 0);
+        let (e, _) = stop(PerfectTable::new(), 5.0);
+        assert!(
+            matches!(e, MeasureError::RimNotFound { touch: 1, .. }),
+            "{e}"
+        );
+    }
 }

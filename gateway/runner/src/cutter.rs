@@ -2,10 +2,12 @@
 //! conveyor's controller feeds the material to each stop of the plan
 //! (`layout::cut::plan`), then every head with work at that stop streams its group's
 //! program over its own link, all heads at once, and the next feed waits until every
-//! head is idle again (a head never cuts while the material moves).
+//! head is idle again (a head never cuts while the material moves). The controllers are
+//! opened by `devices` (`devices::open_cutter`, `devices::open_emulated_cutter`); the
+//! heads run their programs through [`Stage::stream_program`] (the `program_streaming`
+//! capability).
 
-use drivers::grbl::{GrblStage, StreamOptions};
-use drivers::{Axis, AxisValues, DriverError, Stage};
+use drivers::{Axis, AxisValues, DriverError, Stage, StreamOptions};
 use layout::cut::{CutSettings, Stop};
 
 /// The conveyor's feed rate between stops, mm/min.
@@ -46,8 +48,8 @@ pub struct CutFailure {
 /// the conveyor is not fed again.
 pub async fn run_cut(
     stops: &[Stop],
-    conveyor: &mut GrblStage,
-    heads: &mut [GrblStage],
+    conveyor: &mut dyn Stage,
+    heads: &mut [Box<dyn Stage>],
     settings: &CutSettings,
     stream: &StreamOptions,
     mut progress: impl FnMut(usize, usize),
@@ -109,7 +111,7 @@ pub async fn run_cut(
 }
 
 /// The conveyor to `at` (its X axis), and idle.
-async fn feed(conveyor: &mut GrblStage, at: f64) -> Result<(), DriverError> {
+async fn feed(conveyor: &mut dyn Stage, at: f64) -> Result<(), DriverError> {
     conveyor
         .move_to(
             AxisValues::default().with(Axis::X, at),
@@ -145,18 +147,3 @@ pub fn emulated_geometry(
 }
 
 const TRAVEL_MARGIN_MM: f64 = 0.01;
-
-/// Opens the conveyor's and every head's GRBL link.
-pub async fn open_links(
-    conveyor: &str,
-    heads: &[String],
-    baud: u32,
-    opts: &drivers::grbl::GrblOptions,
-) -> Result<(GrblStage, Vec<GrblStage>), DriverError> {
-    let c = GrblStage::open(conveyor, baud, opts.clone()).await?;
-    let mut h = Vec::with_capacity(heads.len());
-    for path in heads {
-        h.push(GrblStage::open(path, baud, opts.clone()).await?);
-    }
-    Ok((c, h))
-}

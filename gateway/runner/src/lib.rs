@@ -296,6 +296,23 @@ pub async fn run_job_until(
     progress: Progress<'_>,
     cancel: impl std::future::Future<Output = ()>,
 ) -> Report {
+    let mut on_event = |e: &Event| {
+        if let Event::TargetDone { outcome, of } = e {
+            progress(outcome.index + 1, *of);
+        }
+    };
+    run_job_events(job, devices, &mut on_event, cancel).await.0
+}
+
+/// [`run_job_until`] with every event of the run handed on (measurements as they come,
+/// targets as they finish) and the error that stopped it, typed (a driver error means
+/// the link was lost).
+pub async fn run_job_events(
+    job: &Job,
+    devices: &mut Devices,
+    events: &mut dyn FnMut(&Event),
+    cancel: impl std::future::Future<Output = ()>,
+) -> (Report, Option<JobError>) {
     let started = Instant::now();
     let rig = devices.rig.clone();
     // Truth error (um) at the first and latest measurement of each target.
@@ -303,6 +320,7 @@ pub async fn run_job_until(
     let mut current: Option<(usize, TruthAt)> = None;
     let mut on_event = |e: Event| match e {
         Event::Measured { target_index, .. } => {
+            events(&e);
             if let Some(rig) = &rig {
                 let pose = world::lock(rig).truth();
                 let t = job.targets[target_index];
@@ -324,11 +342,11 @@ pub async fn run_job_until(
                 }
             }
         }
-        Event::TargetDone { outcome, of } => {
+        Event::TargetDone { .. } => {
             truth.push(current.take().map(|(_, at)| at));
-            progress(outcome.index + 1, of);
+            events(&e);
         }
-        Event::Homed => {}
+        Event::Homed => events(&e),
     };
     let stage_name = devices.stage.info().name.clone();
     let camera_name = devices.camera.info().model.clone();
@@ -340,7 +358,7 @@ pub async fn run_job_until(
     let result = orch.run_until(&mut on_event, cancel).await;
     let (outcomes, orientation, error) = match result {
         Ok(o) => (o.completed, o.orientation, None),
-        Err(f) => (f.completed, f.orientation, Some(f.error.to_string())),
+        Err(f) => (f.completed, f.orientation, Some(f.error)),
     };
     // The target the job stopped on (if any) has its truth still in `current`.
     if let Some((_, at)) = current {
@@ -355,8 +373,8 @@ pub async fn run_job_until(
         &outcomes,
         &truth,
         started.elapsed().as_secs_f64(),
-        error,
+        error.as_ref().map(|e| e.to_string()),
     );
     report.orientation = orientation;
-    report
+    (report, error)
 }

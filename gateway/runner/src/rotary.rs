@@ -3,18 +3,24 @@
 //!
 //! The link is the simulated table in-process (no `link`), the same table behind the
 //! GRBL emulator on a pseudo-terminal (`"grbl_emulator"`), or a real GRBL-family
-//! controller on a serial port (`{"grbl": {..}}`), whose truth nobody knows. The cycle
-//! itself is synchronous (`rotary::measure::measure` calls the machine move by move), so
-//! each link runs on a private single-thread runtime: callers inside a runtime call
-//! [`run_cycle`] from a blocking thread (`tokio::task::spawn_blocking`).
+//! controller on a serial port (`{"grbl": {..}}`), whose truth nobody knows; `devices`
+//! opens it ([`devices::open_rotary`], links through the drivers' factory). The cycle is
+//! the sans-IO [`MeasureSession`], driven here move by move through a
+//! [`drivers::Prober`] on the caller's runtime: the controller's, or the in-process
+//! table's behind an adapter (it computes each move at once and yields between moves).
 
-use anyhow::Context;
-use job::rotary::{GrblPort, RotaryJob, RotaryLink};
-use rotary::measure::{measure, MeasurePlan, Measurement, ProbingMachine, Stopped};
+use devices::{open_rotary, RotaryOpenError, RotaryTable};
+use drivers::{Axis, AxisValues, DriverError, Prober};
+use futures_util::FutureExt;
+use job::rotary::{RotaryJob, SimulatedTable};
+use rotary::measure::{Action, MeasureSession, Measurement, ProbingMachine, Stopped};
 use rotary::{Axes, Identification, LocationErrors, MachineConstants, RotaryMachine};
 use serde_json::{json, Value};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::future::Future;
+use std::pin::Pin;
 use world::rotary::RotaryMachineSim;
+
+pub use rotary::measure::STOPPED_ON_REQUEST;
 
 /// What the cycle gave: the measurement, or where it stopped with what it had.
 pub type Cycle = Result<Measurement, Box<Stopped>>;
@@ -29,235 +35,190 @@ pub struct CycleRun {
     pub truth: Option<RotaryMachineSim>,
 }
 
-/// Runs the job's measurement cycle through its link. `progress(done, total)` counts
-/// balls; once `stop` is set, the next move is refused and the cycle ends as stopped
-/// with what it measured. Errors are what kept the cycle from starting (the emulator,
-/// the port, a controller without A, C or a probe input), before any motion.
-pub fn run_cycle(
+/// What kept a cycle from starting, or a report from being made.
+#[derive(Debug, thiserror::Error)]
+pub enum RotaryError {
+    /// The job's machine could not be opened (the emulator, the port, a controller
+    /// without A, C or a probe input); nothing moved.
+    #[error(transparent)]
+    Open(#[from] RotaryOpenError),
+    /// A pose of the compensation check has no compensated command.
+    #[error("compensating {nominal:?}: {error}")]
+    Compensation {
+        nominal: Axes,
+        error: rotary::RotaryError,
+    },
+    /// A part of the report could not be written as JSON.
+    #[error("JSON: {0}")]
+    Json(serde_json::Error),
+}
+
+/// Runs the job's measurement cycle through its link, on the caller's runtime.
+/// `progress(done, total)` counts balls; once `stop` completes, the cycle ends before
+/// its next move (never in the middle of one) as stopped, with what it measured. Errors
+/// are what kept the cycle from starting (the emulator, the port, a controller without
+/// A, C or a probe input), before any motion.
+pub async fn run_cycle(
     job: &RotaryJob,
-    progress: impl FnMut(usize, usize),
-    stop: &AtomicBool,
-) -> anyhow::Result<CycleRun> {
+    mut progress: impl FnMut(usize, usize),
+    stop: impl Future<Output = ()>,
+) -> Result<CycleRun, RotaryError> {
     let constants = job.machine.unwrap_or_default();
     let plan = job.plan.unwrap_or_default();
-    match &job.link {
-        None => {
-            let mut table = job.simulated();
-            let cycle = measure(
-                &mut Stoppable {
-                    inner: &mut table,
-                    stop,
-                },
-                &constants,
-                &plan,
-                progress,
-            );
+    let session = MeasureSession::new(&constants, &plan);
+    let mut stop = std::pin::pin!(stop);
+    let started = std::time::Instant::now();
+    match open_rotary(job).await? {
+        RotaryTable::InProcess(mut table) => {
+            let cycle = drive(
+                &mut InProcess(&mut table),
+                session,
+                &mut progress,
+                stop.as_mut(),
+            )
+            .await;
             Ok(CycleRun {
                 cycle,
                 time_s: table.time_s,
                 truth: Some(table.sim),
             })
         }
-        Some(RotaryLink::GrblEmulator) => {
-            let sim = job.simulated().sim;
-            let (cycle, time_s) = through_grbl_emulator(&sim, &constants, &plan, progress, stop)?;
+        RotaryTable::Linked(mut linked) => {
+            let cycle = drive(
+                linked.prober.as_mut(),
+                session,
+                &mut progress,
+                stop.as_mut(),
+            )
+            .await;
+            let time_s = linked
+                .machine_time_s()
+                .unwrap_or_else(|| started.elapsed().as_secs_f64());
             Ok(CycleRun {
                 cycle,
                 time_s,
-                truth: Some(sim),
-            })
-        }
-        Some(RotaryLink::Grbl(port)) => {
-            let (cycle, time_s) = through_grbl_port(port, &constants, &plan, progress, stop)?;
-            Ok(CycleRun {
-                cycle,
-                time_s,
-                truth: None,
+                truth: linked.truth().cloned(),
             })
         }
     }
 }
 
-/// The cycle through the GRBL emulator with `sim` behind it (six axes X Y Z A B C, B
-/// fixed) on a pseudo-terminal, the GRBL driver moving the axes and probing with G38.3.
-/// Returns the result and the emulated machine time (s).
-fn through_grbl_emulator(
-    sim: &RotaryMachineSim,
-    constants: &MachineConstants,
-    plan: &MeasurePlan,
-    progress: impl FnMut(usize, usize),
-    stop: &AtomicBool,
-) -> anyhow::Result<(Cycle, f64)> {
-    use emulators::grbl::{GrblConfig, GrblDevice, GrblPty};
-    use world::axes::{lock_axes, AxesMachine};
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()?;
-    let axes = AxesMachine::new(Box::new(world::rotary::RotaryWorkpiece {
-        sim: sim.clone(),
-    }))
-    .shared();
-    let pty = {
-        let _enter = rt.enter();
-        GrblPty::spawn(
-            GrblDevice::with_axes(axes.clone(), GrblConfig::default()),
-            None,
-        )
-        .context("starting the GRBL emulator on a pseudo-terminal")?
-    };
-    let result = over_grbl(
-        &rt,
-        pty.path(),
-        115_200,
-        Some(2),
-        constants,
-        plan,
-        progress,
-        stop,
-    )?;
-    let time_s = lock_axes(&axes).now_s();
-    Ok((result, time_s))
-}
-
-/// The cycle through a real controller on a serial port. Returns the result and the
-/// wall time of the cycle (s).
-fn through_grbl_port(
-    port: &GrblPort,
-    constants: &MachineConstants,
-    plan: &MeasurePlan,
-    progress: impl FnMut(usize, usize),
-    stop: &AtomicBool,
-) -> anyhow::Result<(Cycle, f64)> {
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()?;
-    let started = std::time::Instant::now();
-    let result = over_grbl(
-        &rt,
-        &port.port,
-        port.baud,
-        port.poll_ms,
-        constants,
-        plan,
-        progress,
-        stop,
-    )?;
-    Ok((result, started.elapsed().as_secs_f64()))
-}
-
-/// Connects to the GRBL controller at `path`, checks that it has the A and C axes and a
-/// probe input (before any motion), and runs the cycle through it.
-#[allow(clippy::too_many_arguments)]
-fn over_grbl(
-    rt: &tokio::runtime::Runtime,
-    path: &str,
-    baud: u32,
-    poll_ms: Option<u64>,
-    constants: &MachineConstants,
-    plan: &MeasurePlan,
-    progress: impl FnMut(usize, usize),
-    stop: &AtomicBool,
-) -> anyhow::Result<Cycle> {
-    use drivers::grbl::{GrblOptions, GrblStage};
-    use drivers::{Axis, Stage};
-    let mut opts = GrblOptions::default();
-    if let Some(ms) = poll_ms {
-        opts.poll_interval = std::time::Duration::from_millis(ms);
+/// The session loop: each action of the session done by `machine` and answered, the
+/// stop looked at before each (a stopped cycle keeps what it measured).
+async fn drive<S: Future<Output = ()>>(
+    machine: &mut dyn Prober,
+    mut session: MeasureSession,
+    progress: &mut impl FnMut(usize, usize),
+    mut stop: Pin<&mut S>,
+) -> Cycle {
+    loop {
+        let action = session.next_action();
+        if action == Action::Finished {
+            break;
+        }
+        if stop.as_mut().now_or_never().is_some() {
+            session.stop();
+            break;
+        }
+        let done = session.progress().0;
+        match action {
+            Action::MoveTo(t) => match machine.move_to(five_axes(&t)).await {
+                Ok(()) => session.moved(),
+                Err(e) => session.failed(e.to_string()),
+            },
+            Action::ProbeTowards { to, feed_mm_min } => {
+                match machine.probe_towards(xyz(to), feed_mm_min).await {
+                    Ok(None) => session.probed(None),
+                    Ok(Some(hit)) => match gauge_point(&hit) {
+                        Some(p) => session.probed(Some(p)),
+                        None => session.failed(format!(
+                            "{}: the probing move's report has no X, Y and Z ({hit:?})",
+                            machine.name()
+                        )),
+                    },
+                    Err(e) => session.failed(e.to_string()),
+                }
+            }
+            Action::Finished => unreachable!("handled above"),
+        }
+        let (now, total) = session.progress();
+        if now != done {
+            progress(now, total);
+        }
     }
-    let stage = rt
-        .block_on(GrblStage::open(path, baud, opts))
-        .with_context(|| format!("connecting to the GRBL controller on {path}"))?;
-    let caps = stage.capabilities();
-    for axis in [Axis::A, Axis::C] {
-        anyhow::ensure!(
-            caps.rotary_axes.contains(&axis),
-            "the controller on {path} has no {axis:?} axis (its axes: {:?}); the cycle needs A and C",
-            caps.rotary_axes
+    session.finish()
+}
+
+fn five_axes(t: &Axes) -> AxisValues {
+    AxisValues::default()
+        .with(Axis::X, t.x)
+        .with(Axis::Y, t.y)
+        .with(Axis::Z, t.z)
+        .with(Axis::A, t.a)
+        .with(Axis::C, t.c)
+}
+
+fn xyz(p: [f64; 3]) -> AxisValues {
+    AxisValues::default()
+        .with(Axis::X, p[0])
+        .with(Axis::Y, p[1])
+        .with(Axis::Z, p[2])
+}
+
+fn gauge_point(v: &AxisValues) -> Option<[f64; 3]> {
+    Some([v.get(Axis::X)?, v.get(Axis::Y)?, v.get(Axis::Z)?])
+}
+
+/// The in-process simulated table (the synchronous [`ProbingMachine`] of the `job`
+/// crate) as a [`Prober`]: each move is computed at once on the table's clock, the task
+/// yielding first so the runtime's other tasks (the one that stops the cycle) run.
+/// Axes a move leaves out stay where the table is.
+struct InProcess<'a>(&'a mut SimulatedTable);
+
+impl InProcess<'_> {
+    const NAME: &'static str = "the simulated table";
+
+    fn refused(message: String) -> DriverError {
+        DriverError::Unsupported {
+            device: Self::NAME.into(),
+            message,
+        }
+    }
+}
+
+#[async_trait::async_trait]
+impl Prober for InProcess<'_> {
+    fn name(&self) -> &str {
+        Self::NAME
+    }
+
+    async fn move_to(&mut self, target: AxisValues) -> Result<(), DriverError> {
+        tokio::task::yield_now().await;
+        let [x, y, z, a, c] = self.0.position();
+        let v = |axis, here| target.get(axis).unwrap_or(here);
+        let t = Axes::new(
+            v(Axis::X, x),
+            v(Axis::Y, y),
+            v(Axis::Z, z),
+            v(Axis::A, a),
+            v(Axis::C, c),
         );
-    }
-    anyhow::ensure!(
-        caps.probing,
-        "the controller on {path} reports no probe input; the cycle probes the balls"
-    );
-    let mut prober = LinkProber { rt, stage };
-    Ok(measure(
-        &mut Stoppable {
-            inner: &mut prober,
-            stop,
-        },
-        constants,
-        plan,
-        progress,
-    ))
-}
-
-/// The measurement cycle's machine behind a GRBL link: each move and probing move is a
-/// driver call run to its end (moves at 3000 units/min, probing with G38.3 so a miss is
-/// the cycle's own "ball not found").
-struct LinkProber<'a> {
-    rt: &'a tokio::runtime::Runtime,
-    stage: drivers::grbl::GrblStage,
-}
-
-impl ProbingMachine for LinkProber<'_> {
-    fn move_to(&mut self, t: &Axes) -> Result<(), String> {
-        use drivers::{Axis, AxisValues, Stage};
-        let target = AxisValues::default()
-            .with(Axis::X, t.x)
-            .with(Axis::Y, t.y)
-            .with(Axis::Z, t.z)
-            .with(Axis::A, t.a)
-            .with(Axis::C, t.c);
-        self.rt
-            .block_on(async {
-                self.stage.move_to(target, 3000.0).await?;
-                self.stage.wait_idle().await
-            })
-            .map_err(|e| e.to_string())
+        self.0.move_to(&t).map_err(Self::refused)
     }
 
-    fn probe_towards(&mut self, to: [f64; 3], feed: f64) -> Result<Option<[f64; 3]>, String> {
-        use drivers::{Axis, AxisValues, ProbeMode, Stage};
-        let target = AxisValues::default()
-            .with(Axis::X, to[0])
-            .with(Axis::Y, to[1])
-            .with(Axis::Z, to[2]);
-        let mode = ProbeMode {
-            toward: true,
-            must_trigger: false,
-        };
+    async fn probe_towards(
+        &mut self,
+        to: AxisValues,
+        feed_mm_min: f64,
+    ) -> Result<Option<AxisValues>, DriverError> {
+        tokio::task::yield_now().await;
+        let [x, y, z, a, c] = self.0.position();
+        let v = |axis, here| to.get(axis).unwrap_or(here);
         let hit = self
-            .rt
-            .block_on(self.stage.probe(target, feed, mode))
-            .map_err(|e| e.to_string())?;
-        let p = |a| hit.position.get(a).unwrap_or(f64::NAN);
-        Ok(hit.touched.then(|| [p(Axis::X), p(Axis::Y), p(Axis::Z)]))
-    }
-}
-
-/// A machine whose next move is refused once `stop` is set: a cancelled cycle ends
-/// between two moves (never in the middle of a probing move), keeping what it measured.
-struct Stoppable<'a, M> {
-    inner: &'a mut M,
-    stop: &'a AtomicBool,
-}
-
-/// The error a stopped cycle names.
-pub const STOPPED_ON_REQUEST: &str = "stopped on request";
-
-impl<M: ProbingMachine> ProbingMachine for Stoppable<'_, M> {
-    fn move_to(&mut self, t: &Axes) -> Result<(), String> {
-        if self.stop.load(Ordering::Relaxed) {
-            return Err(STOPPED_ON_REQUEST.into());
-        }
-        self.inner.move_to(t)
-    }
-
-    fn probe_towards(&mut self, to: [f64; 3], feed: f64) -> Result<Option<[f64; 3]>, String> {
-        if self.stop.load(Ordering::Relaxed) {
-            return Err(STOPPED_ON_REQUEST.into());
-        }
-        self.inner.probe_towards(to, feed)
+            .0
+            .probe_towards([v(Axis::X, x), v(Axis::Y, y), v(Axis::Z, z)], feed_mm_min)
+            .map_err(Self::refused)?;
+        Ok(hit.map(|p| xyz(p).with(Axis::A, a).with(Axis::C, c)))
     }
 }
 
@@ -281,7 +242,7 @@ pub fn compensation_check(
     truth: &RotaryMachineSim,
     constants: &MachineConstants,
     errors: &LocationErrors,
-) -> anyhow::Result<CompensationCheck> {
+) -> Result<CompensationCheck, RotaryError> {
     let model = RotaryMachine::with_errors(*constants, *errors);
     let ideal_m = RotaryMachine::nominal(*constants);
     let mut before = Vec::new();
@@ -301,7 +262,7 @@ pub fn compensation_check(
             let ideal = ideal_m.forward(&nominal);
             let cmd = model
                 .command_for(&nominal)
-                .with_context(|| format!("compensating {nominal:?}"))?;
+                .map_err(|error| RotaryError::Compensation { nominal, error })?;
             for (list, cmd) in [(&mut before, nominal), (&mut after, cmd)] {
                 let (p, d) = truth.tool_in_workpiece([cmd.x, cmd.y, cmd.z, cmd.a, cmd.c]);
                 let dir = d.dot(&ideal.direction).clamp(-1.0, 1.0).acos();
@@ -375,11 +336,14 @@ pub fn cycle_report(
     m: &Measurement,
     id: &Identification,
     constants: &MachineConstants,
-) -> anyhow::Result<Value> {
+) -> Result<Value, RotaryError> {
     let mut report = identification_json(id, constants);
     let obj = report.as_object_mut().expect("an object");
     if let Some(c) = &m.c_centre {
-        obj.insert("c_centre".into(), serde_json::to_value(c)?);
+        obj.insert(
+            "c_centre".into(),
+            serde_json::to_value(c).map_err(RotaryError::Json)?,
+        );
     }
     let clock = if run.truth.is_some() {
         "simulated_time_s"
@@ -429,6 +393,23 @@ pub fn cycle_report(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::sync::atomic::{AtomicBool, Ordering};
+
+    fn runtime() -> tokio::runtime::Runtime {
+        tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap()
+    }
+
+    /// Completes once `flag` is set (looked at each time it is polled).
+    async fn set(flag: &AtomicBool) {
+        std::future::poll_fn(|_| match flag.load(Ordering::Relaxed) {
+            true => std::task::Poll::Ready(()),
+            false => std::task::Poll::Pending,
+        })
+        .await
+    }
 
     /// A stop asked for while the cycle runs ends it before its next move, keeping the
     /// balls measured so far (the service's cancel).
@@ -436,16 +417,17 @@ mod tests {
     fn a_stop_ends_the_cycle_keeping_what_it_measured() {
         let stop = AtomicBool::new(false);
         let job = RotaryJob::default();
-        let run = run_cycle(
-            &job,
-            |done, _| {
-                if done == 2 {
-                    stop.store(true, Ordering::Relaxed);
-                }
-            },
-            &stop,
-        )
-        .unwrap();
+        let run = runtime()
+            .block_on(run_cycle(
+                &job,
+                |done, _| {
+                    if done == 2 {
+                        stop.store(true, Ordering::Relaxed);
+                    }
+                },
+                set(&stop),
+            ))
+            .unwrap();
         let stopped = run.cycle.expect_err("the cycle stops");
         assert_eq!(stopped.so_far.balls.len(), 2);
         assert!(
@@ -456,13 +438,39 @@ mod tests {
         assert!(run.truth.is_some());
     }
 
+    /// A stop from another task of the runtime reaches the in-process cycle (it yields
+    /// between moves), which ends with what it measured.
+    #[test]
+    fn a_stop_from_another_task_reaches_the_in_process_cycle() {
+        runtime().block_on(async {
+            let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+            let stopper = tokio::spawn(async move {
+                tokio::task::yield_now().await;
+                let _ = tx.send(());
+            });
+            let run = run_cycle(&RotaryJob::default(), |_, _| {}, async {
+                let _ = rx.await;
+            })
+            .await
+            .unwrap();
+            stopper.await.unwrap();
+            let stopped = run.cycle.expect_err("stopped");
+            assert!(stopped.so_far.balls.len() < 38);
+            assert_eq!(stopped.error.to_string(), STOPPED_ON_REQUEST);
+        });
+    }
+
     /// Without a stop the in-process cycle measures every ball and identifies the
     /// injected errors (the paper's table, default plan).
     #[test]
     fn the_in_process_cycle_identifies_the_injected_errors() {
         let job = RotaryJob::default();
-        let run = run_cycle(&job, |_, _| {}, &AtomicBool::new(false)).unwrap();
+        let mut calls = 0;
+        let run = runtime()
+            .block_on(run_cycle(&job, |_, _| calls += 1, std::future::pending()))
+            .unwrap();
         let m = run.cycle.as_ref().expect("the cycle ends");
+        assert_eq!(calls, m.balls.len());
         let constants = MachineConstants::default();
         let id = rotary::identify(&m.centres(), &constants).unwrap();
         let report = cycle_report(&run, m, &id, &constants).unwrap();
@@ -475,5 +483,87 @@ mod tests {
         );
         assert!(report["cycle"]["simulated_time_s"].as_f64().unwrap() > 0.0);
         assert!(report.get("wall_time_s").is_none());
+    }
+
+    /// The in-process cycle through the adapter is the synchronous one, figure for
+    /// figure (the same session, the same table).
+    #[test]
+    fn the_in_process_cycle_is_the_synchronous_one() {
+        let job = RotaryJob {
+            seed: 3,
+            ..RotaryJob::default()
+        };
+        let run = runtime()
+            .block_on(run_cycle(&job, |_, _| {}, std::future::pending()))
+            .unwrap();
+        let mut table = job.simulated();
+        let sync = rotary::measure::measure(
+            &mut table,
+            &job.machine.unwrap_or_default(),
+            &job.plan.unwrap_or_default(),
+            |_, _| {},
+        );
+        assert_eq!(run.cycle, sync);
+        assert_eq!(run.time_s.to_bits(), table.time_s.to_bits());
+    }
+
+    /// The cycle's future can go to a multi-thread runtime's task (the service's).
+    #[test]
+    fn the_cycle_is_send() {
+        fn send<T: Send>(_: T) {}
+        let job = RotaryJob::default();
+        send(run_cycle(&job, |_, _| {}, std::future::pending()));
+    }
+
+    /// The cycle through the GRBL emulator, opened by `devices` through the factory,
+    /// on the test's runtime: the same table behind the link gives the injected errors.
+    #[test]
+    fn the_cycle_through_the_grbl_emulator_identifies_the_injected_errors() {
+        let job = RotaryJob {
+            link: Some(job::rotary::RotaryLink::GrblEmulator),
+            seed: 3,
+            ..RotaryJob::default()
+        };
+        let run = runtime()
+            .block_on(run_cycle(&job, |_, _| {}, std::future::pending()))
+            .unwrap();
+        let m = run.cycle.as_ref().unwrap_or_else(|s| panic!("{}", s.error));
+        assert_eq!(m.balls.len(), 38);
+        assert_eq!(m.probe_touches, 462);
+        let constants = MachineConstants::default();
+        let id = rotary::identify(&m.centres(), &constants).unwrap();
+        let report = cycle_report(&run, m, &id, &constants).unwrap();
+        for (name, _) in id.errors.named() {
+            let d = report["truth"][name]["difference"].as_f64().unwrap();
+            let tol = if name.ends_with("_deg") {
+                0.0005
+            } else {
+                0.001
+            };
+            assert!(d.abs() <= tol, "{name}: {d}");
+        }
+        assert!(report["cycle"]["simulated_time_s"].as_f64().unwrap() > 0.0);
+    }
+
+    #[test]
+    fn a_controller_that_is_not_there_is_an_error_before_the_cycle() {
+        let job = RotaryJob {
+            link: Some(job::rotary::RotaryLink::Grbl(job::rotary::GrblPort {
+                port: "/dev/does-not-exist-rotary-runner".into(),
+                baud: 115_200,
+                poll_ms: None,
+            })),
+            ..RotaryJob::default()
+        };
+        let e = runtime()
+            .block_on(run_cycle(&job, |_, _| {}, std::future::pending()))
+            .err()
+            .expect("refused");
+        assert!(
+            e.to_string().starts_with(
+                "connecting to the GRBL controller on /dev/does-not-exist-rotary-runner: "
+            ),
+            "{e}"
+        );
     }
 }

@@ -1,7 +1,6 @@
 //! The HTTP/WebSocket API (v1): routes, bearer-token auth, JSON errors, OpenAPI.
 
 use crate::state::{lock, MachineState, Shared};
-use crate::worker;
 use axum::extract::rejection::{JsonRejection, PathRejection, QueryRejection};
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
 use axum::extract::{ConnectInfo, DefaultBodyLimit, Path, Query, Request, State};
@@ -30,6 +29,8 @@ pub struct ApiError {
     pub status: StatusCode,
     pub code: &'static str,
     pub message: String,
+    /// The request field that was wrong, when one was.
+    pub field: Option<String>,
 }
 
 impl ApiError {
@@ -38,6 +39,7 @@ impl ApiError {
             status,
             code,
             message: message.into(),
+            field: None,
         }
     }
     fn not_found(code: &'static str, message: impl Into<String>) -> ApiError {
@@ -45,13 +47,21 @@ impl ApiError {
     }
 }
 
+impl ApiError {
+    /// Names the request field that was wrong (`params.grid_step_mm`).
+    fn with_field(mut self, field: String) -> ApiError {
+        self.field = Some(field);
+        self
+    }
+}
+
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
-        (
-            self.status,
-            Json(json!({"error": self.code, "message": self.message})),
-        )
-            .into_response()
+        let mut body = json!({"error": self.code, "message": self.message});
+        if let Some(f) = self.field {
+            body["field"] = json!(f);
+        }
+        (self.status, Json(body)).into_response()
     }
 }
 
@@ -363,8 +373,30 @@ async fn enqueue(
     let Path(id) = path?;
     let m = find_machine(&shared, &id)?.clone();
     let Json(request) = body?;
-    worker::check_params(&request.kind, &request.params)
-        .map_err(|msg| ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, "invalid_job", msg))?;
+    // The one check of a request: parsed into its procedure's type, every bound checked,
+    // the field named; what is stored is the normalized request (defaults written out).
+    let invalid = |e: procedure::RequestError| {
+        ApiError::new(
+            StatusCode::BAD_REQUEST,
+            "invalid_params",
+            format!("params.{e}"),
+        )
+        .with_field(format!("params.{}", e.field))
+    };
+    let parsed = procedure::Request::parse(&request.kind, &request.params).map_err(|e| {
+        if e.field == "kind" {
+            ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, "invalid_job", e.message)
+        } else {
+            invalid(e)
+        }
+    })?;
+    if let procedure::Request::Map(r) = &parsed {
+        let area = *m.scan_area.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some((lo, hi)) = area {
+            r.check_area(lo, hi).map_err(invalid)?;
+        }
+    }
+    let params = parsed.params();
     if request.kind == "rotary" && m.rotary.is_none() {
         return Err(ApiError::new(
             StatusCode::UNPROCESSABLE_ENTITY,
@@ -392,7 +424,7 @@ async fn enqueue(
                 ));
             }
         }
-        store.enqueue(&m.id, &request.kind, &request.params)?
+        store.enqueue(&m.id, &request.kind, &params)?
     };
     shared.emit_job(&record);
     shared.emit_machine(&m);

@@ -4,6 +4,7 @@
 use serde::Deserialize;
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 /// A BOX.toml that could not be used; the message names the file and the key.
 #[derive(Debug, thiserror::Error)]
@@ -55,6 +56,12 @@ struct RawService {
     max_body_bytes: usize,
     #[serde(default = "default_bad_token_delay_cap_ms")]
     bad_token_delay_cap_ms: u64,
+    #[serde(default = "default_header_timeout_s")]
+    header_timeout_s: f64,
+    #[serde(default = "default_idle_timeout_s")]
+    idle_timeout_s: f64,
+    #[serde(default = "default_max_connections")]
+    max_connections: usize,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -78,6 +85,34 @@ fn default_max_body() -> usize {
 }
 fn default_bad_token_delay_cap_ms() -> u64 {
     2000
+}
+fn default_header_timeout_s() -> f64 {
+    10.0
+}
+fn default_idle_timeout_s() -> f64 {
+    60.0
+}
+/// Well below `LimitNOFILE=8192` of `config/systemd/gateway.service`, which leaves room
+/// for the machines' device handles, the store and the MQTT link.
+fn default_max_connections() -> usize {
+    1024
+}
+
+/// The largest `max_connections` accepted.
+pub const MAX_CONNECTIONS_LIMIT: usize = 65536;
+
+/// The longest `header_timeout_s` / `idle_timeout_s` accepted (one day).
+const MAX_TIMEOUT_S: f64 = 86_400.0;
+
+/// A timeout in seconds from BOX.toml: finite, > 0, at most a day.
+fn timeout(value: f64) -> Result<Duration, String> {
+    if value.is_finite() && value > 0.0 && value <= MAX_TIMEOUT_S {
+        Ok(Duration::from_secs_f64(value))
+    } else {
+        Err(format!(
+            "{value} is not a timeout (seconds, more than 0 and at most {MAX_TIMEOUT_S})"
+        ))
+    }
 }
 
 /// Where a machine's job file comes from.
@@ -148,6 +183,18 @@ pub struct ServiceConfig {
     pub max_body_bytes: usize,
     /// Cap of the growing delay before answering a wrong token (ms).
     pub bad_token_delay_cap_ms: u64,
+    /// `header_timeout_s` (default 10): a connection must deliver a whole request head
+    /// within this time, counted from its accept for the first request and from the
+    /// first byte of the next one on a keep-alive connection; else it is closed.
+    pub header_timeout: Duration,
+    /// `idle_timeout_s` (default 60): a keep-alive connection with no request for this
+    /// long after its last response is closed. WebSockets are never idle-closed.
+    pub idle_timeout: Duration,
+    /// `max_connections` (default 1024, 1 to 65536): open connections (WebSockets
+    /// included). At the cap a new connection closes the one waiting longest for a
+    /// request; see `serve.rs` for the policy. Keep it well below the process's open-file
+    /// limit (`LimitNOFILE` in the systemd unit).
+    pub max_connections: usize,
 }
 
 /// BOX.toml, resolved.
@@ -193,6 +240,19 @@ impl BoxConfig {
             return Err(invalid(
                 "service.max_body_bytes".into(),
                 "must be at least 1".into(),
+            ));
+        }
+        let header_timeout = timeout(raw.service.header_timeout_s)
+            .map_err(|m| invalid("service.header_timeout_s".into(), m))?;
+        let idle_timeout = timeout(raw.service.idle_timeout_s)
+            .map_err(|m| invalid("service.idle_timeout_s".into(), m))?;
+        if !(1..=MAX_CONNECTIONS_LIMIT).contains(&raw.service.max_connections) {
+            return Err(invalid(
+                "service.max_connections".into(),
+                format!(
+                    "{} is not between 1 and {MAX_CONNECTIONS_LIMIT}",
+                    raw.service.max_connections
+                ),
             ));
         }
         let data_dir = resolve(&raw.service.data_dir);
@@ -242,6 +302,9 @@ impl BoxConfig {
                 cors_origins: raw.service.cors_origins,
                 max_body_bytes: raw.service.max_body_bytes,
                 bad_token_delay_cap_ms: raw.service.bad_token_delay_cap_ms,
+                header_timeout,
+                idle_timeout,
+                max_connections: raw.service.max_connections,
             },
             machines,
             mqtt: match raw.mqtt {
@@ -269,6 +332,9 @@ impl BoxConfig {
                 cors_origins: Vec::new(),
                 max_body_bytes: default_max_body(),
                 bad_token_delay_cap_ms: default_bad_token_delay_cap_ms(),
+                header_timeout: Duration::from_secs_f64(default_header_timeout_s()),
+                idle_timeout: Duration::from_secs_f64(default_idle_timeout_s()),
+                max_connections: default_max_connections(),
             },
             machines: vec![MachineConfig {
                 id: "demo".into(),
@@ -316,6 +382,44 @@ mod tests {
             )))
         );
         assert!(c.mqtt.is_none());
+        assert_eq!(c.service.header_timeout, Duration::from_secs(10));
+        assert_eq!(c.service.idle_timeout, Duration::from_secs(60));
+        assert_eq!(c.service.max_connections, 1024);
+    }
+
+    #[test]
+    fn connection_limits_are_read_and_checked() {
+        let base = "[service]\ndata_dir = \"d\"\n";
+        let c = BoxConfig::parse(
+            &format!("{base}header_timeout_s = 2.5\nidle_timeout_s = 30\nmax_connections = 8\n"),
+            "b.toml",
+            Path::new("."),
+        )
+        .unwrap();
+        assert_eq!(c.service.header_timeout, Duration::from_millis(2500));
+        assert_eq!(c.service.idle_timeout, Duration::from_secs(30));
+        assert_eq!(c.service.max_connections, 8);
+        let c = BoxConfig::parse(base, "b.toml", Path::new(".")).unwrap();
+        assert_eq!(
+            (c.service.header_timeout, c.service.idle_timeout),
+            (Duration::from_secs(10), Duration::from_secs(60))
+        );
+        for (line, key) in [
+            ("header_timeout_s = 0", "service.header_timeout_s"),
+            ("header_timeout_s = -1.0", "service.header_timeout_s"),
+            ("header_timeout_s = nan", "service.header_timeout_s"),
+            ("header_timeout_s = inf", "service.header_timeout_s"),
+            ("idle_timeout_s = 0.0", "service.idle_timeout_s"),
+            ("idle_timeout_s = 1e300", "service.idle_timeout_s"),
+            ("max_connections = 0", "service.max_connections"),
+            ("max_connections = 65537", "service.max_connections"),
+            ("max_connections = -3", "service.max_connections"),
+            ("max_connections = \"many\"", "service.max_connections"),
+        ] {
+            let e =
+                BoxConfig::parse(&format!("{base}{line}\n"), "b.toml", Path::new(".")).unwrap_err();
+            assert!(e.to_string().contains(key), "{line}: {e}");
+        }
     }
 
     #[test]

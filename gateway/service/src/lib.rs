@@ -9,12 +9,13 @@
 
 pub mod api;
 pub mod config;
+mod serve;
+pub mod sink;
 pub mod state;
 pub mod worker;
 
 pub use config::{BoxConfig, ConfigError, JobSource, MachineConfig, ServiceConfig};
 
-use anyhow::Context;
 use state::{lock, Machine, MachineState, Shared, Status};
 use std::net::SocketAddr;
 use std::path::Path;
@@ -32,7 +33,8 @@ pub struct Running {
     token: String,
     shared: Arc<Shared>,
     stop: watch::Sender<bool>,
-    server: tokio::task::JoinHandle<std::io::Result<()>>,
+    /// The accept loop; ends when its connections have ended after the stop signal.
+    server: tokio::task::JoinHandle<()>,
     /// One per machine worker thread, completed when it has ended.
     workers: Vec<tokio::sync::oneshot::Receiver<()>>,
     /// The MQTT northbound, when `[mqtt]` is configured.
@@ -75,25 +77,54 @@ impl Running {
     }
 }
 
+/// Why the service did not start: what it was doing and the cause.
+#[derive(Debug, thiserror::Error)]
+pub enum StartError {
+    #[error("{what}: {source}")]
+    Io {
+        what: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{what}: {source}")]
+    Store {
+        what: String,
+        #[source]
+        source: store::StoreError,
+    },
+    #[error("{0}")]
+    Config(String),
+}
+
+fn io(what: impl Into<String>) -> impl FnOnce(std::io::Error) -> StartError {
+    let what = what.into();
+    move |source| StartError::Io { what, source }
+}
+
+fn in_store(what: impl Into<String>) -> impl FnOnce(store::StoreError) -> StartError {
+    let what = what.into();
+    move |source| StartError::Store { what, source }
+}
+
 /// Reads the token file, or creates it with a fresh random 256-bit token (hex, mode 0600).
-pub fn load_or_create_token(path: &Path) -> anyhow::Result<String> {
-    if let Ok(text) = std::fs::read_to_string(path) {
+pub fn load_or_create_token(path: &Path) -> Result<String, StartError> {
+    if let Ok(text) = protocol::config::read_data_file(path) {
         let token = text.trim().to_string();
-        anyhow::ensure!(
-            token.len() >= 32 && token.bytes().all(|b| b.is_ascii_graphic()),
-            "{}: the token must be at least 32 printable characters",
-            path.display()
-        );
+        if !(token.len() >= 32 && token.bytes().all(|b| b.is_ascii_graphic())) {
+            return Err(StartError::Config(format!(
+                "{}: the token must be at least 32 printable characters",
+                path.display()
+            )));
+        }
         return Ok(token);
     }
     let mut bytes = [0u8; 32];
-    getrandom::fill(&mut bytes).map_err(|e| anyhow::anyhow!("random token: {e}"))?;
+    getrandom::fill(&mut bytes).map_err(|e| StartError::Config(format!("random token: {e}")))?;
     let token: String = bytes.iter().map(|b| format!("{b:02x}")).collect();
     if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).with_context(|| dir.display().to_string())?;
+        std::fs::create_dir_all(dir).map_err(io(dir.display().to_string()))?;
     }
-    write_private(path, &token)
-        .with_context(|| format!("{}: writing the token", path.display()))?;
+    write_private(path, &token).map_err(io(format!("{}: writing the token", path.display())))?;
     info!(file = %path.display(), "created a new API token (not logged; read it from the file)");
     Ok(token)
 }
@@ -117,13 +148,14 @@ fn write_private(path: &Path, text: &str) -> std::io::Result<()> {
 }
 
 /// Starts the service: store, token, workers, HTTP server.
-pub async fn start(config: BoxConfig) -> anyhow::Result<Running> {
+pub async fn start(config: BoxConfig) -> Result<Running, StartError> {
     let data_dir = &config.service.data_dir;
-    std::fs::create_dir_all(data_dir)
-        .with_context(|| format!("data_dir {}", data_dir.display()))?;
+    std::fs::create_dir_all(data_dir).map_err(io(format!("data_dir {}", data_dir.display())))?;
     let db = data_dir.join("gateway.sqlite");
-    let mut store = Store::open(&db).with_context(|| db.display().to_string())?;
-    let interrupted = store.recover()?;
+    let mut store = Store::open(&db).map_err(in_store(db.display().to_string()))?;
+    let interrupted = store
+        .recover()
+        .map_err(in_store("recovering interrupted jobs"))?;
     for job in &interrupted {
         info!(job_id = job.id, machine = %job.machine, "job was running when the service stopped: interrupted");
     }
@@ -134,16 +166,14 @@ pub async fn start(config: BoxConfig) -> anyhow::Result<Running> {
         let job = m
             .job
             .load()
-            .map_err(|e| anyhow::anyhow!("machine {:?}: job file: {e}", m.id))?;
+            .map_err(|e| StartError::Config(format!("machine {:?}: job file: {e}", m.id)))?;
         let (stage, camera) = worker::describe(&job);
         // A rotary job file is read at start too, so a bad one stops the service here.
         let rotary = match &m.rotary {
             None => None,
-            Some(source) => {
-                Some(worker::describe_rotary(&source.load().map_err(|e| {
-                    anyhow::anyhow!("machine {:?}: rotary job file: {e}", m.id)
-                })?))
-            }
+            Some(source) => Some(worker::describe_rotary(&source.load().map_err(|e| {
+                StartError::Config(format!("machine {:?}: rotary job file: {e}", m.id))
+            })?)),
         };
         machines.push(Arc::new(Machine {
             id: m.id.clone(),
@@ -159,6 +189,7 @@ pub async fn start(config: BoxConfig) -> anyhow::Result<Running> {
             }),
             wake: tokio::sync::Notify::new(),
             cancel: Mutex::new(None),
+            scan_area: Mutex::new(None),
         }));
     }
     let (stop, shutdown) = watch::channel(false);
@@ -187,30 +218,28 @@ pub async fn start(config: BoxConfig) -> anyhow::Result<Running> {
     });
     for job in &interrupted {
         // The store's lock is released before the event (emit_job reads the store).
-        let record = lock(&shared.store).job(job.id)?;
+        let record = lock(&shared.store)
+            .job(job.id)
+            .map_err(in_store("reading an interrupted job"))?;
         shared.emit_job(&record.unwrap_or_else(|| job.clone()));
     }
 
     let listener = tokio::net::TcpListener::bind(config.service.listen)
         .await
-        .with_context(|| format!("listen on {}", config.service.listen))?;
-    let addr = listener.local_addr()?;
+        .map_err(io(format!("listen on {}", config.service.listen)))?;
+    let addr = listener.local_addr().map_err(io("the listening address"))?;
     let app = api::router(
         shared.clone(),
         config.service.max_body_bytes,
         &config.service.cors_origins,
     );
-    let mut server_stop = shutdown.clone();
-    let server = tokio::spawn(async move {
-        axum::serve(
-            listener,
-            app.into_make_service_with_connect_info::<SocketAddr>(),
-        )
-        .with_graceful_shutdown(async move {
-            let _ = server_stop.wait_for(|s| *s).await;
-        })
-        .await
-    });
+    // Header/idle timeouts and the connection cap: see serve.rs.
+    let limits = serve::Limits {
+        header_timeout: config.service.header_timeout,
+        idle_timeout: config.service.idle_timeout,
+        max_connections: config.service.max_connections,
+    };
+    let server = tokio::spawn(serve::serve(listener, app, limits, shutdown.clone()));
     // Each machine has its own thread and single-threaded runtime: the runner's
     // futures are not `Send`, device emulators and bus tasks live on the runtime that
     // opened them, and a busy machine never slows the API down.
@@ -232,7 +261,7 @@ pub async fn start(config: BoxConfig) -> anyhow::Result<Running> {
                 }
                 let _ = done.send(());
             })
-            .context("machine worker thread")?;
+            .map_err(io("machine worker thread"))?;
         workers.push(finished);
     }
     info!(%addr, machines = config.machines.len(), "service listening");

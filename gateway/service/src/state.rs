@@ -52,6 +52,9 @@ pub struct Machine {
     /// Notified to cancel the job now running (a fresh one per job, so a stale
     /// cancel never stops the next job).
     pub cancel: Mutex<Option<(JobId, Arc<Notify>)>>,
+    /// The area a map scan covers (machine mm), known once the devices are open: a map
+    /// request whose frames would exceed the bound is refused when queued.
+    pub scan_area: Mutex<Option<([f64; 2], [f64; 2])>>,
 }
 
 pub struct Shared {

@@ -1,0 +1,402 @@
+//! The error map as a controller's own compensation table: LinuxCNC (a `COMP_FILE` per
+//! joint), Beckhoff/ISG (a plane compensation list per axis over X and Y) or a plain CSV
+//! of the model on the map's grid. Each table says what its format cannot hold, and a
+//! table further from the map than the tolerance is refused.
+//!
+//! All or nothing: every table is computed and checked against the tolerance before the
+//! first is handed to the sink, so a refused export leaves no new `_x` table beside a
+//! stale `_y`.
+
+use crate::request::{count, number, RequestError};
+use crate::{Artifact, Outcome, Sink};
+use errormap::export::{beckhoff_plane, linuxcnc_joint, plain_csv, LINUXCNC_MAX_ENTRIES};
+use errormap::MapModel;
+use protocol::errormap::ErrorMap;
+use serde::{Deserialize, Serialize};
+use serde_json::{json, Value};
+use std::fmt::Write;
+
+/// The memory an export may ask for (see [`ExportRequest::check_map`]).
+pub const MAX_EXPORT_BYTES: u64 = 256 << 20;
+
+/// Bytes per point of a Beckhoff table while it is built: its line of text (about 50
+/// bytes) and its value in the grid, both tables held until both are checked.
+const BECKHOFF_BYTES_PER_POINT: u64 = 2 * 64;
+
+/// The controller's format.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ExportFormat {
+    Linuxcnc,
+    Beckhoff,
+    Csv,
+}
+
+impl ExportFormat {
+    pub fn parse(text: &str) -> Result<ExportFormat, RequestError> {
+        match text {
+            "linuxcnc" => Ok(ExportFormat::Linuxcnc),
+            "beckhoff" => Ok(ExportFormat::Beckhoff),
+            "csv" => Ok(ExportFormat::Csv),
+            other => Err(RequestError::new(
+                "format",
+                format!("`{other}`: linuxcnc, beckhoff or csv"),
+            )),
+        }
+    }
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ExportFormat::Linuxcnc => "linuxcnc",
+            ExportFormat::Beckhoff => "beckhoff",
+            ExportFormat::Csv => "csv",
+        }
+    }
+}
+
+fn default_name() -> String {
+    "table".into()
+}
+fn default_tolerance() -> f64 {
+    1.0
+}
+fn default_entries() -> u64 {
+    LINUXCNC_MAX_ENTRIES as u64
+}
+fn default_interval() -> f64 {
+    1.0
+}
+
+/// An export of the error map.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExportRequest {
+    pub format: ExportFormat,
+    /// The table's file name; the per-axis formats add `_x`/`_y` before its extension.
+    #[serde(default = "default_name")]
+    pub name: String,
+    /// The largest difference accepted between a table and the map, um.
+    #[serde(default = "default_tolerance")]
+    pub tolerance_um: f64,
+    /// LinuxCNC entries per joint (2..256).
+    #[serde(default = "default_entries")]
+    pub entries: u64,
+    /// Beckhoff grid interval, mm.
+    #[serde(default = "default_interval")]
+    pub interval_mm: f64,
+}
+
+impl ExportRequest {
+    pub fn new(format: ExportFormat) -> Self {
+        Self {
+            format,
+            name: default_name(),
+            tolerance_um: default_tolerance(),
+            entries: default_entries(),
+            interval_mm: default_interval(),
+        }
+    }
+
+    pub fn check(&self) -> Result<(), RequestError> {
+        let n = &self.name;
+        if n.is_empty()
+            || n.len() > 255
+            || n == "."
+            || n == ".."
+            || n.contains(['/', '\\', '\0'])
+        {
+            return Err(RequestError::new(
+                "name",
+                format!("{n:?}: a plain file name of 1 to 255 bytes"),
+            ));
+        }
+        number("tolerance_um", self.tolerance_um, 1e-3, 1e3)?;
+        count("entries", self.entries, 2, LINUXCNC_MAX_ENTRIES as u64)?;
+        number("interval_mm", self.interval_mm, 0.1, 1e4)
+    }
+
+    /// The artifacts the export produces, in order: `NAME_x`, `NAME_y` (the extension
+    /// kept) for the per-axis formats, `NAME` for the CSV.
+    pub fn artifact_names(&self) -> Vec<String> {
+        match self.format {
+            ExportFormat::Csv => vec![self.name.clone()],
+            _ => ["x", "y"]
+                .iter()
+                .map(|axis| per_axis(&self.name, axis))
+                .collect(),
+        }
+    }
+
+    /// The memory the tables of this map would take, estimated from the map's extent
+    /// before any is built, refused past [`MAX_EXPORT_BYTES`]: a Beckhoff table has a
+    /// point every `interval_mm` over the map (named when too fine); a LinuxCNC joint is
+    /// checked every 0.05 mm of the map and a CSV has a row per node (`map` named when
+    /// the map itself is too large).
+    pub fn check_map(&self, model: &MapModel) -> Result<u64, RequestError> {
+        let (lo, hi) = model.extent();
+        let span = |k: usize| (hi[k] - lo[k]).max(0.0);
+        let (field, bytes) = match self.format {
+            ExportFormat::Beckhoff => {
+                let points: f64 = (0..2)
+                    .map(|k| (span(k) / self.interval_mm).floor() + 1.0)
+                    .product();
+                ("interval_mm", points * BECKHOFF_BYTES_PER_POINT as f64)
+            }
+            ExportFormat::Linuxcnc => ("map", (span(0).max(span(1)) / 0.05 + 2.0) * 8.0),
+            ExportFormat::Csv => {
+                let g = &model.map().grid;
+                ("map", (g.xs.len() * g.ys.len()) as f64 * 100.0)
+            }
+        };
+        if !(bytes <= MAX_EXPORT_BYTES as f64) {
+            return Err(RequestError::new(
+                field,
+                format!(
+                    "the {} tables of this {:.1} x {:.1} mm map would take about {:.0} MiB; at most {} MiB are accepted{}",
+                    self.format.as_str(),
+                    span(0),
+                    span(1),
+                    bytes / (1u64 << 20) as f64,
+                    MAX_EXPORT_BYTES >> 20,
+                    if field == "interval_mm" { " (a coarser interval)" } else { "" }
+                ),
+            ));
+        }
+        Ok(bytes as u64)
+    }
+}
+
+/// `NAME` with `_x`/`_y` before its extension.
+pub fn per_axis(name: &str, axis: &str) -> String {
+    match name.rsplit_once('.') {
+        Some((stem, ext)) if !stem.is_empty() => format!("{stem}_{axis}.{ext}"),
+        _ => format!("{name}_{axis}"),
+    }
+}
+
+/// Builds every table, checks each against the tolerance, and only then hands them to
+/// the sink ([`ExportRequest::artifact_names`]). The result: `format` and `tables`
+/// (per table: `file` (the artifact), the figures, what the format does not hold) or,
+/// for the CSV, `file` and `rows`.
+pub fn run(request: &ExportRequest, map: ErrorMap, sink: &mut dyn Sink) -> Outcome {
+    if let Err(e) = request.check() {
+        return Outcome::failed(e.to_string());
+    }
+    let model = MapModel::new(map);
+    if let Err(e) = request.check_map(&model) {
+        return Outcome::failed(e.to_string());
+    }
+    let names = request.artifact_names();
+    let tolerance = request.tolerance_um;
+    let mut texts = Vec::new();
+    let result = match request.format {
+        ExportFormat::Linuxcnc => {
+            let mut joints = Vec::new();
+            for (axis, file) in names.iter().enumerate() {
+                let t = match linuxcnc_joint(&model, axis, request.entries as usize, tolerance) {
+                    Ok(t) => t,
+                    Err(e) => return Outcome::failed(e.to_string()),
+                };
+                joints.push(json!({
+                    "file": file, "joint": axis, "entries": t.entries,
+                    "taken_at_mm": t.taken_at_mm, "interpolation_error_um": t.interpolation_error_um,
+                    "cross_terms_not_held_um": t.cross_terms_um,
+                }));
+                texts.push(t.text);
+            }
+            json!({ "format": "linuxcnc", "tables": joints })
+        }
+        ExportFormat::Beckhoff => {
+            let mut tables = Vec::new();
+            for (axis, file) in names.iter().enumerate() {
+                let t = match beckhoff_plane(&model, axis, request.interval_mm, tolerance) {
+                    Ok(t) => t,
+                    Err(e) => return Outcome::failed(e.to_string()),
+                };
+                tables.push(json!({
+                    "file": file, "axis": ["x", "y"][axis], "points": t.points,
+                    "interpolation_error_um": t.interpolation_error_um,
+                    "backlash_not_held_um": t.backlash_lost_um,
+                }));
+                texts.push(t.text);
+            }
+            json!({ "format": "beckhoff", "interval_mm": request.interval_mm, "tables": tables })
+        }
+        ExportFormat::Csv => {
+            let text = match plain_csv(&model) {
+                Ok(t) => t,
+                Err(e) => return Outcome::failed(e.to_string()),
+            };
+            let rows = text.lines().count().saturating_sub(1);
+            texts.push(text);
+            json!({ "format": "csv", "file": names[0], "rows": rows })
+        }
+    };
+    // Every table is within the tolerance: now they are handed over.
+    for (name, text) in names.into_iter().zip(texts) {
+        let media_type = if request.format == ExportFormat::Csv {
+            "text/csv"
+        } else {
+            "text/plain"
+        };
+        if let Err(e) = sink.artifact(Artifact {
+            name,
+            title: None,
+            media_type,
+            bytes: text.into_bytes(),
+        }) {
+            return Outcome::failed(e);
+        }
+    }
+    Outcome::succeeded(result, Default::default())
+}
+
+/// The export as text, one line per table (its `file` as the front end left it).
+pub fn summary(r: &Value) -> String {
+    let mut t = String::new();
+    let n = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
+    let file = |v: &Value| v["file"].as_str().unwrap_or("").to_string();
+    match r["format"].as_str() {
+        Some("linuxcnc") => {
+            for j in r["tables"].as_array().into_iter().flatten() {
+                let axis = j["joint"].as_u64().unwrap_or(0);
+                let (name, other) = if axis == 0 { ("X", "Y") } else { ("Y", "X") };
+                let _ = writeln!(
+                    t,
+                    "{}: joint {name} ([JOINT_{axis}] COMP_FILE = {}, COMP_FILE_TYPE = 0), {} entries taken at {other} = {:.3} mm; interpolation {:.2} um from the map; not held: {:.2} um of its error that depends on {other}",
+                    file(j), file(j), j["entries"], n(&j["taken_at_mm"]),
+                    n(&j["interpolation_error_um"]), n(&j["cross_terms_not_held_um"]),
+                );
+            }
+        }
+        Some("beckhoff") => {
+            for p in r["tables"].as_array().into_iter().flatten() {
+                let _ = writeln!(
+                    t,
+                    "{}: plane compensation of {} over X and Y, {} points every {} mm; interpolation {:.2} um from the map; not held: {:.2} um of backlash (one table for both directions)",
+                    file(p), p["axis"].as_str().unwrap_or("").to_uppercase(), p["points"],
+                    n(&r["interval_mm"]), n(&p["interpolation_error_um"]), n(&p["backlash_not_held_um"]),
+                );
+            }
+        }
+        _ => {
+            let _ = writeln!(
+                t,
+                "{}: the model at every node of the map's grid, both directions",
+                file(r)
+            );
+        }
+    }
+    t
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use protocol::errormap::{Grid, Identity, Measured, Node, Stat, SCHEMA};
+
+    #[derive(Default)]
+    struct Keep(Vec<Artifact>);
+    impl Sink for Keep {
+        fn progress(&mut self, _: u64, _: u64) {}
+        fn measurement(&mut self, _: &Value) -> Result<(), String> {
+            Ok(())
+        }
+        fn artifact(&mut self, a: Artifact) -> Result<(), String> {
+            self.0.push(a);
+            Ok(())
+        }
+    }
+
+    /// A map over `extent_mm` x 0.75 `extent_mm` whose X error grows 0.1 um per mm of
+    /// X and whose Y error is a wave along Y (which two entries cannot follow).
+    fn map(extent_mm: f64) -> ErrorMap {
+        let xs: Vec<f64> = (0..=8).map(|i| i as f64 * extent_mm / 8.0).collect();
+        let ys: Vec<f64> = (0..=6).map(|i| i as f64 * 0.75 * extent_mm / 6.0).collect();
+        let stat = |mean| Stat {
+            mean,
+            sd: 0.0,
+            n: 1,
+        };
+        let nodes = ys
+            .iter()
+            .flat_map(|&y| xs.iter().map(move |&x| (x, y)))
+            .map(|(x, y)| {
+                let m = Measured {
+                    ex_um: stat(0.1 * x),
+                    ey_um: stat(3.0 * (y * 0.3).sin()),
+                    yaw_urad: stat(0.0),
+                };
+                Node {
+                    forward: m,
+                    reverse: m,
+                }
+            })
+            .collect();
+        ErrorMap {
+            schema: SCHEMA.into(),
+            version: 1,
+            created: "2026-11-22T00:00:00Z".into(),
+            identity: Identity {
+                machine: "m".into(),
+                controller: "c".into(),
+                board: "b".into(),
+                certificate_sha256: String::new(),
+                camera: "cam".into(),
+            },
+            tool_offset_mm: [0.0, 0.0],
+            board_at_machine_zero_mm: [0.0, 0.0],
+            reference_mm: [0.0, 0.0],
+            grid: Grid { xs, ys, nodes },
+            x_lines: Vec::new(),
+            y_lines: Vec::new(),
+            uncertainty_um: 0.0,
+        }
+    }
+
+    #[test]
+    fn bounds_are_named() {
+        let mut r = ExportRequest::new(ExportFormat::Beckhoff);
+        r.tolerance_um = f64::NAN;
+        let e = r.check().unwrap_err();
+        assert_eq!(e.for_cli(), "--tolerance-um: must be a number from 0.001 to 1000, got NaN");
+        r.tolerance_um = 1.0;
+        r.entries = 1000;
+        assert_eq!(r.check().unwrap_err().field, "entries");
+        r.entries = 256;
+        r.name = "../x".into();
+        assert_eq!(r.check().unwrap_err().field, "name");
+        assert_eq!(ExportFormat::parse("fanuc").unwrap_err().flag(), "--format");
+        r.name = "t.txt".into();
+        r.interval_mm = 0.1;
+        let model = MapModel::new(map(10_000.0));
+        assert_eq!(r.check_map(&model).unwrap_err().field, "interval_mm");
+        // Refused before any table is built.
+        let out = run(&r, map(10_000.0), &mut Keep::default());
+        assert!(out.error().unwrap().starts_with("interval_mm: "));
+        assert_eq!(r.artifact_names(), ["t_x.txt", "t_y.txt"]);
+    }
+
+    #[test]
+    fn every_table_or_none() {
+        let mut r = ExportRequest::new(ExportFormat::Linuxcnc);
+        r.name = "comp.tbl".into();
+        let mut sink = Keep::default();
+        let out = run(&r, map(40.0), &mut sink);
+        // 256 entries follow both.
+        assert!(out.is_success(), "{:?}", out.error());
+        let names: Vec<_> = sink.0.iter().map(|a| a.name.as_str()).collect();
+        assert_eq!(names, ["comp_x.tbl", "comp_y.tbl"]);
+        assert!(summary(out.result.as_ref().unwrap()).contains("comp_y.tbl: joint Y"));
+        // Too few entries for Y's wave: refused, and X is not handed over either.
+        r.entries = 2;
+        let mut sink = Keep::default();
+        let out = run(&r, map(40.0), &mut sink);
+        assert!(out.error().is_some());
+        assert!(sink.0.is_empty());
+        let mut sink = Keep::default();
+        let out = run(&ExportRequest::new(ExportFormat::Csv), map(40.0), &mut sink);
+        assert_eq!(out.result.unwrap()["rows"], 63);
+        assert_eq!(sink.0[0].name, "table");
+    }
+}

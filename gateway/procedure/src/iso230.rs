@@ -1,0 +1,437 @@
+//! The ISO 230-2 positioning test of one axis: the measuring line chosen, the cycle run
+//! (compensated by a map when one is given), evaluated, charted and reported; and the
+//! evaluation of a measurements file from any instrument.
+
+use crate::request::Iso230Request;
+use crate::{Artifact, Outcome, Sink};
+use devices::Devices;
+use errormap::MapModel;
+use iso230::plan::{targets, Cycle};
+use iso230::report::{html, result_json, DeviationChart, Series, Tested};
+use iso230::{csv_io, evaluate, Evaluation, Measurement, Uncertainty};
+use job::Job;
+use protocol::errormap::ErrorMap;
+use runner::iso230::{run_iso230, test_area, Iso230Error, Iso230Spec, AXIS_NAMES};
+use runner::JobError;
+use serde_json::{json, Value};
+use std::cell::Cell;
+use std::future::Future;
+use std::time::Instant;
+
+/// Still frames at the reference point for the localization's repeatability.
+const STILL_FRAMES: usize = 10;
+
+/// An error map given to a test: the map and how messages name it (a file, a profile).
+pub struct NamedMap {
+    pub map: ErrorMap,
+    pub name: String,
+}
+
+/// The charts, `result.json` and `report.html` of an evaluation (and of the `before`
+/// test overlaid), as artifacts; returns the result object.
+pub fn outputs(
+    evaluation: &Evaluation,
+    uncertainty: Option<&Uncertainty>,
+    before: Option<&Evaluation>,
+    label: &str,
+    notes: &[String],
+    extra: Value,
+    sink: &mut dyn Sink,
+) -> Result<Value, String> {
+    let mut result = result_json(evaluation, uncertainty);
+    if let (Some(o), Value::Object(e)) = (result.as_object_mut(), extra) {
+        o.extend(e);
+    }
+    if let (Some(o), Some(b)) = (result.as_object_mut(), before) {
+        o.insert("before".into(), result_json(b, None));
+    }
+    let axis = &evaluation.axis;
+    let mut charts = vec![(
+        format!("deviation_{}", axis.to_lowercase()),
+        DeviationChart {
+            title: format!("ISO 230-2 axis {axis}: mean deviation and ±2s, {label}"),
+            series: vec![Series {
+                label: "",
+                evaluation,
+            }],
+        },
+    )];
+    if let Some(b) = before {
+        charts.push((
+            format!("before_after_{}", axis.to_lowercase()),
+            DeviationChart {
+                title: format!("ISO 230-2 axis {axis}: before and {label}"),
+                series: vec![
+                    Series {
+                        label: "before",
+                        evaluation: b,
+                    },
+                    Series { label, evaluation },
+                ],
+            },
+        ));
+    }
+    let mut svgs = Vec::new();
+    for (name, chart) in &charts {
+        let svg = plot::render_svg(chart, 900, 520).map_err(|e| format!("{name}: {e}"))?;
+        let png = plot::render_png(chart, 900, 520).map_err(|e| format!("{name}: {e}"))?;
+        sink.artifact(Artifact {
+            name: format!("{name}.svg"),
+            title: Some(chart.title.clone()),
+            media_type: "image/svg+xml",
+            bytes: svg.clone().into_bytes(),
+        })?;
+        sink.artifact(Artifact {
+            name: format!("{name}.png"),
+            title: None,
+            media_type: "image/png",
+            bytes: png,
+        })?;
+        svgs.push(svg);
+    }
+    let mut tested = Vec::new();
+    if let Some(b) = before {
+        tested.push(Tested {
+            label: "before",
+            evaluation: b,
+            uncertainty: None,
+        });
+    }
+    tested.push(Tested {
+        label,
+        evaluation,
+        uncertainty,
+    });
+    let report = html(
+        &format!("ISO 230-2 positioning test, axis {axis}"),
+        &tested,
+        &svgs,
+        notes,
+    );
+    sink.artifact(Artifact {
+        name: "report.html".into(),
+        title: None,
+        media_type: "text/html",
+        bytes: report.into_bytes(),
+    })?;
+    sink.artifact(Artifact {
+        name: "result.json".into(),
+        title: None,
+        media_type: "application/json",
+        bytes: (serde_json::to_string_pretty(&result).unwrap_or_default() + "\n").into_bytes(),
+    })?;
+    Ok(result)
+}
+
+/// Evaluates measurements from any instrument (and a `before` test overlaid).
+pub fn evaluate_measurements(
+    measurements: &[Measurement],
+    before: Option<&[Measurement]>,
+    source: &str,
+    sink: &mut dyn Sink,
+) -> Outcome {
+    let evaluation = match evaluate(measurements) {
+        Ok(e) => e,
+        Err(e) => return Outcome::failed(format!("{source}: {e}")),
+    };
+    let before = match before.map(evaluate).transpose() {
+        Ok(b) => b,
+        Err(e) => return Outcome::failed(format!("the before test: {e}")),
+    };
+    let label = if before.is_some() {
+        "after"
+    } else {
+        "measured"
+    };
+    match outputs(
+        &evaluation,
+        None,
+        before.as_ref(),
+        label,
+        &[format!("Evaluated from {source}.")],
+        json!({}),
+        sink,
+    ) {
+        Ok(result) => {
+            let metrics = figures_metrics(&evaluation);
+            Outcome::succeeded(result, metrics)
+        }
+        Err(e) => Outcome::failed(e),
+    }
+}
+
+fn figures_metrics(e: &Evaluation) -> serde_json::Map<String, Value> {
+    let f = &e.figures;
+    let mut metrics = serde_json::Map::new();
+    metrics.insert("axis".into(), json!(e.axis));
+    for (k, v) in [
+        ("A_um", f.a),
+        ("B_um", f.b),
+        ("R_um", f.r),
+        ("E_um", f.e),
+        ("M_um", f.m),
+    ] {
+        metrics.insert(k.into(), json!(v));
+    }
+    metrics
+}
+
+/// Runs the test on the machine. With `map`, every target is commanded through it
+/// (refused before any motion if the map was measured on another machine); `before`
+/// is a test of the same axis without compensation, overlaid on the charts. Each
+/// measurement goes to the sink as it is taken (`measurements.csv` rewritten by the
+/// CLI's sink), then the evaluation, charts and report as artifacts.
+pub async fn run(
+    request: &Iso230Request,
+    job: &Job,
+    devices: &mut Devices,
+    map: Option<NamedMap>,
+    before: Option<&[Measurement]>,
+    sink: &mut dyn Sink,
+    stop: impl Future<Output = ()>,
+) -> Outcome {
+    let started = Instant::now();
+    let axis = request.axis.index();
+    if request.with_map != map.is_some() {
+        return Outcome::failed(if request.with_map {
+            "with_map: no error map was given"
+        } else {
+            "an error map was given but with_map is false"
+        });
+    }
+    let map_name = map.as_ref().map(|m| m.name.clone());
+    let model = match map {
+        Some(m) => {
+            if let Err(e) = crate::check_identity(&m.map, &crate::identity(job, devices), &m.name) {
+                return Outcome::failed(e);
+            }
+            Some(MapModel::new(m.map))
+        }
+        None => None,
+    };
+    let before = match before.map(evaluate).transpose() {
+        Ok(b) => b,
+        Err(e) => return Outcome::failed(format!("the before test: {e}")),
+    };
+    let limits = match runner::soft_limits(devices.stage.info()) {
+        Ok(l) => l,
+        Err(e) => return Outcome::failed(e.to_string()),
+    };
+    let (mut lo, mut hi) = test_area(job, &limits, request.overrun_mm);
+    if let Some(m) = &model {
+        let (mlo, mhi) = m.extent();
+        for k in 0..2 {
+            lo[k] = lo[k].max(mlo[k]);
+            hi[k] = hi[k].min(mhi[k]);
+        }
+    }
+    let from = request.from_mm.unwrap_or(lo[axis]);
+    let to = request.to_mm.unwrap_or(hi[axis]);
+    if from < lo[axis] - 1e-9 || to > hi[axis] + 1e-9 {
+        return Outcome::failed(format!(
+            "{}: the segment {from:.3} .. {to:.3} mm leaves the usable travel of {} ({:.3} .. {:.3} mm: the limits less the overrun, the board{})",
+            if request.from_mm.is_some() && from < lo[axis] - 1e-9 { "from_mm" } else { "to_mm" },
+            AXIS_NAMES[axis],
+            lo[axis],
+            hi[axis],
+            if model.is_some() { ", the map" } else { "" }
+        ));
+    }
+    // Held where the map has its dense line along the axis (the short-period errors are
+    // known best there), else in the middle.
+    let map_line = model.as_ref().and_then(|m| {
+        let lines = if axis == 0 {
+            &m.map().x_lines
+        } else {
+            &m.map().y_lines
+        };
+        lines.first().map(|l| l.at_mm)
+    });
+    let across = request
+        .at_mm
+        .or(map_line)
+        .unwrap_or((lo[1 - axis] + hi[1 - axis]) / 2.0);
+    let positions = request.positions.map(|n| n as usize);
+    let cycle = match targets(from, to, positions).and_then(|t| {
+        Cycle::new(
+            t,
+            request.runs as usize,
+            request.overrun_mm,
+            request.cycle.kind(),
+        )
+    }) {
+        Ok(c) => c,
+        Err(e) => return Outcome::failed(format!("positions: {e}")),
+    };
+    let spec = Iso230Spec {
+        axis,
+        cycle: cycle.clone(),
+        across_mm: across,
+        still_frames: STILL_FRAMES,
+    };
+    let total = cycle.measurements() as u64;
+    sink.progress(0, total);
+    let cancelled = Cell::new(false);
+    let mut taken = 0usize;
+    let mut sink_error: Option<String> = None;
+    let run = {
+        let sink = &mut *sink;
+        let (taken, sink_error) = (&mut taken, &mut sink_error);
+        let mut on_measurement = |m: &Measurement| {
+            *taken += 1;
+            let row = json!({
+                "axis": m.axis, "position_index": m.position_index, "target_mm": m.target_mm,
+                "run": m.run, "direction": m.direction.sign(), "deviation_um": m.deviation_um,
+            });
+            if let Err(e) = sink.measurement(&row) {
+                sink_error.get_or_insert(e);
+            }
+        };
+        // Progress and measurements go to the one sink: progress is kept aside and
+        // handed on between measurements.
+        let progress_seen = Cell::new((0u64, total));
+        let run = run_iso230(
+            job,
+            devices,
+            &spec,
+            model.as_ref(),
+            &mut on_measurement,
+            &mut |done, of| progress_seen.set((done as u64, of as u64)),
+            async {
+                stop.await;
+                cancelled.set(true);
+            },
+        )
+        .await;
+        let (d, t) = progress_seen.get();
+        sink.progress(d, t);
+        run
+    };
+    let run = match run {
+        Ok(r) => r,
+        Err(e) => {
+            let lost = matches!(
+                e,
+                Iso230Error::Reference(JobError::Driver(_))
+                    | Iso230Error::Move(JobError::Driver(_))
+                    | Iso230Error::Measure {
+                        source: JobError::Driver(_),
+                        ..
+                    }
+            );
+            let result = json!({"measurements_taken": taken, "measurements_planned": total});
+            let error = format!("{e}; the {taken} measurements taken are kept");
+            return Outcome::stopped(
+                cancelled.get(),
+                error,
+                Some(result),
+                Default::default(),
+                lost,
+            );
+        }
+    };
+    if let Some(e) = sink_error {
+        return Outcome::failed(format!("a measurement was not kept: {e}"));
+    }
+    let evaluation = match evaluate(&run.measurements) {
+        Ok(e) => e,
+        Err(e) => return Outcome::failed(format!("evaluation: {e}")),
+    };
+    let uncertainty = Uncertainty::new(request.certificate_uncertainty_um, &run.still_um);
+    let machine_time_s = crate::machine_time_s(devices);
+    let label = if model.is_some() {
+        "with the map"
+    } else {
+        "without compensation"
+    };
+    let mut notes = vec![format!(
+        "Machine: {}; camera: {}; board: {} (the length reference). Axis {} from {from:.3} to {to:.3} mm at {} = {across:.3} mm, {} positions, {} runs each direction, {} cycle, overrun {} mm; {label}{}.",
+        devices.stage.info().name,
+        devices.camera.info().model,
+        job.board.name,
+        AXIS_NAMES[axis],
+        AXIS_NAMES[1 - axis],
+        cycle.targets_mm.len(),
+        cycle.runs,
+        request.cycle.as_str(),
+        cycle.overrun_mm,
+        map_name.as_ref().map(|p| format!(" ({p})")).unwrap_or_default(),
+    )];
+    if let Some(t) = machine_time_s {
+        notes.push(format!(
+            "Simulated machine time of the whole run (homing included): {t:.1} s."
+        ));
+    }
+    let extra = json!({
+        "map": map_name, "cycle": request.cycle.as_str(),
+        "runs": cycle.runs, "overrun_mm": cycle.overrun_mm, "across_mm": across,
+        "measurements": run.measurements.len(),
+        "machine_time_s": machine_time_s, "wall_time_s": started.elapsed().as_secs_f64(),
+    });
+    let csv = Artifact {
+        name: "measurements.csv".into(),
+        title: None,
+        media_type: "text/csv",
+        bytes: csv_io::write(&run.measurements).into_bytes(),
+    };
+    if let Err(e) = sink.artifact(csv) {
+        return Outcome::failed(e);
+    }
+    match outputs(
+        &evaluation,
+        Some(&uncertainty),
+        before.as_ref(),
+        label,
+        &notes,
+        extra,
+        sink,
+    ) {
+        Ok(result) => Outcome::succeeded(result, figures_metrics(&evaluation)),
+        Err(e) => Outcome::failed(e),
+    }
+}
+
+/// The figures as text, the before test first (the CLI's output without `--json`).
+pub fn summary(r: &Value) -> String {
+    use std::fmt::Write;
+    let mut t = String::new();
+    let figures = |t: &mut String, r: &Value, label: &str| {
+        let n = |k: &str| r[k].as_f64().unwrap_or(f64::NAN);
+        let _ = writeln!(
+            t,
+            "axis {} ({label}), {} positions: A {:.3} um (up {:.3}, down {:.3}), B {:.3}, mean reversal {:.3}, R {:.3} (up {:.3}, down {:.3}), E {:.3} (up {:.3}, down {:.3}), M {:.3}",
+            r["axis"].as_str().unwrap_or("?"), r["positions"],
+            n("A_um"), n("A_up_um"), n("A_down_um"), n("B_um"), n("mean_reversal_um"), n("R_um"),
+            n("R_up_um"), n("R_down_um"), n("E_um"), n("E_up_um"), n("E_down_um"), n("M_um")
+        );
+    };
+    let measured_here = r.get("cycle").is_some();
+    if let Some(b) = r.get("before") {
+        figures(&mut t, b, "before");
+    }
+    let label = match (
+        measured_here,
+        r.get("before").is_some(),
+        r["map"].is_string(),
+    ) {
+        (true, _, true) => "with the map",
+        (true, _, false) => "without compensation",
+        (false, true, _) => "after",
+        (false, false, _) => "measured",
+    };
+    figures(&mut t, r, label);
+    if measured_here {
+        let _ = writeln!(
+            t,
+            "uncertainty of one deviation {:.3} um (k = 2); {} measurements{}, {:.1} s",
+            r["uncertainty"]["expanded_um"].as_f64().unwrap_or(f64::NAN),
+            r["measurements"],
+            r["machine_time_s"]
+                .as_f64()
+                .map(|s| format!(", {s:.1} s of machine time"))
+                .unwrap_or_default(),
+            r["wall_time_s"].as_f64().unwrap_or(0.0),
+        );
+    }
+    t
+}

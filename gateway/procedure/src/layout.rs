@@ -1,0 +1,215 @@
+//! A cutting layout partitioned (source C): read, grouped per tool and window, shifted,
+//! overlaps resolved, the shifted layout and its picture as artifacts.
+
+use crate::request::{LayoutFormat, LayoutRequest, PictureFormat};
+use crate::{Artifact, Outcome, Sink};
+use layout::{Params, Partition, Resolution};
+use layout_io::{Layout, ReadOptions};
+use serde_json::{json, Value};
+use std::time::Instant;
+
+/// A partitioned layout: what the report and the cut are made from.
+pub struct Partitioned {
+    pub doc: Layout,
+    pub partition: Partition,
+    pub resolution: Resolution,
+    /// The partition's time, ms.
+    pub elapsed_ms: f64,
+}
+
+/// Reads and partitions the request's layout, overlaps resolved (shared by the
+/// partition and the cut).
+pub fn partitioned(request: &LayoutRequest) -> Result<Partitioned, String> {
+    let forced = request.assignments().map_err(|e| e.to_string())?;
+    let options = ReadOptions {
+        chord_tolerance_mm: request.chord_tolerance_mm,
+        ..ReadOptions::default()
+    };
+    let doc = Layout::read(request.layout.as_bytes(), request.format.format(), &options)
+        .map_err(|e| format!("layout: {e}"))?;
+    let params = Params {
+        tools: request.tools as usize,
+        window_mm: request.window_mm,
+        gap_mm: request.gap_mm,
+        width_mm: request.width_mm.or(doc.width_mm),
+        clearance_mm: request.clearance_mm,
+    };
+    let t0 = Instant::now();
+    let outcome = (|| {
+        let mut partition = layout::partition(&doc.parts, &params)?;
+        let pinned = layout::assign(&doc.parts, &mut partition, &forced)?;
+        let resolution = if request.widen {
+            layout::resolve_widening(&doc.parts, &mut partition, &pinned)?
+        } else {
+            layout::resolve(&doc.parts, &mut partition, &pinned)?
+        };
+        Ok::<_, layout::PartitionError>((partition, resolution))
+    })();
+    let (partition, resolution) = outcome.map_err(|e| e.to_string())?;
+    Ok(Partitioned {
+        doc,
+        partition,
+        resolution,
+        elapsed_ms: t0.elapsed().as_secs_f64() * 1e3,
+    })
+}
+
+/// The report of a partition: the layout crate's report and the partition's time.
+pub fn report(p: &Partitioned) -> Value {
+    let mut v = serde_json::to_value(layout::report(&p.doc.parts, &p.partition, &p.resolution))
+        .unwrap_or(Value::Null);
+    if let Some(o) = v.as_object_mut() {
+        o.insert("partition_ms".into(), json!(p.elapsed_ms));
+    }
+    v
+}
+
+/// Partitions the layout; the shifted layout (`layout.<ext>`, in `out_format` or the
+/// input's) and the picture (`picture.svg`/`.png`) go to the sink as artifacts. Nothing
+/// is produced when an overlap cannot be resolved.
+pub fn partition(request: &LayoutRequest, sink: &mut dyn Sink) -> Outcome {
+    let p = match partitioned(request) {
+        Ok(p) => p,
+        Err(e) => return Outcome::failed(e),
+    };
+    let out_format = request.out_format.unwrap_or(request.format);
+    let shifted = match p
+        .doc
+        .translated(&p.partition.offsets())
+        .and_then(|l| l.write(out_format.format()))
+    {
+        Ok(bytes) => bytes,
+        Err(e) => return Outcome::failed(format!("writing the shifted layout: {e}")),
+    };
+    let (ext, media_type) = match out_format {
+        LayoutFormat::Json => ("json", "application/json"),
+        LayoutFormat::Dxf => ("dxf", "image/vnd.dxf"),
+        LayoutFormat::Svg => ("svg", "image/svg+xml"),
+    };
+    if let Err(e) = sink.artifact(Artifact {
+        name: format!("layout.{ext}"),
+        title: None,
+        media_type,
+        bytes: shifted,
+    }) {
+        return Outcome::failed(e);
+    }
+    if let Some(kind) = request.picture {
+        let pic = layout::Picture {
+            parts: &p.doc.parts,
+            partition: &p.partition,
+            moves: &p.resolution.moves,
+        };
+        let (w, h) = pic.size(1600);
+        let drawn = match kind {
+            PictureFormat::Svg => plot::render_svg(&pic, w, h)
+                .map(String::into_bytes)
+                .map(|b| (b, "svg", "image/svg+xml")),
+            PictureFormat::Png => plot::render_png(&pic, w, h).map(|b| (b, "png", "image/png")),
+        };
+        let (bytes, ext, media_type) = match drawn {
+            Ok(d) => d,
+            Err(e) => return Outcome::failed(format!("the picture: {e}")),
+        };
+        if let Err(e) = sink.artifact(Artifact {
+            name: format!("picture.{ext}"),
+            title: Some("The partition, coloured by group".into()),
+            media_type,
+            bytes,
+        }) {
+            return Outcome::failed(e);
+        }
+    }
+    let result = report(&p);
+    let mut metrics = crate::metrics_from(&result, &["parts", "overlaps_resolved"]);
+    metrics.insert("groups".into(), json!(p.partition.groups.len()));
+    metrics.insert("moves".into(), json!(p.resolution.moves.len()));
+    metrics.insert(
+        "length_mm".into(),
+        json!(result["figures"]["partitioned"]["length_mm"]),
+    );
+    metrics.insert(
+        "utilisation".into(),
+        json!(result["figures"]["partitioned"]["utilisation"]),
+    );
+    Outcome::succeeded(result, metrics)
+}
+
+/// The report as text, one line per figure (the CLI's output without `--json`).
+pub fn summary(r: &Value) -> String {
+    use std::fmt::Write;
+    let mut t = String::new();
+    let n = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
+    let _ = writeln!(
+        t,
+        "{} parts, {} tools, window {} mm, gap {} mm, width {} mm: {:.3} ms",
+        r["parts"],
+        r["tools"],
+        r["window_mm"],
+        r["gap_mm"],
+        r["width_mm"],
+        n(&r["partition_ms"])
+    );
+    let _ = writeln!(t, "group  tool  window  dx_mm  dy_mm  parts");
+    for g in r["groups"].as_array().into_iter().flatten() {
+        let _ = writeln!(
+            t,
+            "{:>5}  {:>4}  {:>6}  {:>5}  {:>5}  {}",
+            g["id"].to_string(),
+            g["tool"].to_string(),
+            g["window"].to_string(),
+            g["dx_mm"].to_string(),
+            g["dy_mm"].to_string(),
+            g["parts"].as_array().map_or(0, Vec::len)
+        );
+    }
+    let found = r["overlaps_found"].as_array().map_or(0, Vec::len);
+    let _ = writeln!(t, "overlaps between groups after S8: {found}");
+    for m in r["moves"].as_array().into_iter().flatten() {
+        let _ = writeln!(
+            t,
+            "  moved `{}` from group {} to group {} (too close to `{}`)",
+            m["part"].as_str().unwrap_or(""),
+            m["from_group"],
+            m["to_group"],
+            m["because_of"].as_str().unwrap_or("-")
+        );
+    }
+    for w in r["widenings"].as_array().into_iter().flatten() {
+        let _ = writeln!(
+            t,
+            "  widened: every {} from {} on moved {:.3} mm further",
+            w["between"].as_str().unwrap_or(""),
+            w["from"],
+            n(&w["extra_mm"])
+        );
+    }
+    let f = &r["figures"];
+    let row = |t: &mut String, name: &str, m: &Value| {
+        let _ = writeln!(t,
+            "{name:<18} length {:>10.3} mm  width {:>9.3} mm  area {:>12.1} mm2  utilisation {:>6.2} %",
+            n(&m["length_mm"]),
+            n(&m["width_mm"]),
+            n(&m["area_mm2"]),
+            n(&m["utilisation"]) * 100.0
+        );
+    };
+    row(&mut t, "no gap", &f["no_gap"]);
+    row(&mut t, "partitioned", &f["partitioned"]);
+    row(&mut t, "gap every part", &f["gap_every_part"]);
+    let _ =
+        match f["added_length_fraction"].as_f64() {
+            Some(frac) => writeln!(t,
+            "length added: {:.3} mm by the groups, {:.3} mm with a gap around every part ({:.1} %)",
+            n(&f["added_length_partitioned_mm"]),
+            n(&f["added_length_every_part_mm"]),
+            frac * 100.0
+        ),
+            None => writeln!(
+                t,
+                "length added: {:.3} mm by the groups",
+                n(&f["added_length_partitioned_mm"])
+            ),
+        };
+    t
+}

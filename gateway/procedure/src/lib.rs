@@ -1,0 +1,187 @@
+//! One procedure per capability, shared by the command line and the service.
+//!
+//! Each capability is a [`request`] type (parsed and checked once, fields named), a
+//! procedure here that runs it over the device traits (the decisions stay in the pure
+//! crates' sessions and plans; the executors are `runner`'s), and one [`Outcome`]: the
+//! object the CLI's `--json` prints, the service stores and the page shows. What a front
+//! end does with progress, measurements and artifacts goes through a [`Sink`]; the stop
+//! signal is a future. The CLI and the service only translate in (flags or JSON to a
+//! request) and out (files and a progress bar, or the store and events).
+
+pub mod compensate;
+pub mod iso230;
+pub mod layout;
+pub mod map;
+pub mod request;
+pub mod verify;
+
+use devices::Devices;
+use job::Job;
+use protocol::errormap::{ErrorMap, Identity};
+use serde::Serialize;
+use serde_json::{Map, Value};
+
+pub use request::{Request, RequestError};
+
+/// How a procedure ended.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(tag = "state", rename_all = "lowercase")]
+pub enum End {
+    Succeeded,
+    Failed { error: String },
+    Cancelled,
+}
+
+/// What a procedure gives back, however it ended.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Outcome {
+    pub end: End,
+    /// The procedure's result object (also when it stopped: what was done so far).
+    pub result: Option<Value>,
+    /// The summary figures the plant gets (numbers and flags taken from `result`).
+    pub metrics: Map<String, Value>,
+    /// Set when the device link failed: the front end reopens the devices first.
+    pub link_lost: Option<String>,
+}
+
+impl Outcome {
+    pub fn succeeded(result: Value, metrics: Map<String, Value>) -> Self {
+        Self {
+            end: End::Succeeded,
+            result: Some(result),
+            metrics,
+            link_lost: None,
+        }
+    }
+
+    /// Failed before anything was measured.
+    pub fn failed(error: impl Into<String>) -> Self {
+        Self {
+            end: End::Failed {
+                error: error.into(),
+            },
+            result: None,
+            metrics: Map::new(),
+            link_lost: None,
+        }
+    }
+
+    /// Stopped by an error (or, when `cancelled`, by the operator) with `result` so far.
+    pub fn stopped(
+        cancelled: bool,
+        error: String,
+        result: Option<Value>,
+        metrics: Map<String, Value>,
+        link_lost: bool,
+    ) -> Self {
+        Self {
+            end: if cancelled {
+                End::Cancelled
+            } else {
+                End::Failed {
+                    error: error.clone(),
+                }
+            },
+            result,
+            metrics,
+            link_lost: (link_lost && !cancelled).then_some(error),
+        }
+    }
+
+    pub fn is_success(&self) -> bool {
+        self.end == End::Succeeded
+    }
+
+    /// The error message when it failed.
+    pub fn error(&self) -> Option<&str> {
+        match &self.end {
+            End::Failed { error } => Some(error),
+            _ => None,
+        }
+    }
+}
+
+/// A file-like product of a procedure (a chart, a table, a report).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Artifact {
+    /// A plain file name: `deviation_x.svg`, `measurements.csv`, `report.html`.
+    pub name: String,
+    /// A caption for a chart.
+    pub title: Option<String>,
+    pub media_type: &'static str,
+    pub bytes: Vec<u8>,
+}
+
+/// What a front end does with what a procedure produces while it runs.
+pub trait Sink {
+    /// `done` of `total` steps (targets, frames, measurements, balls).
+    fn progress(&mut self, done: u64, total: u64);
+    /// One measurement as it is taken, kept so nothing measured is lost. An error stops
+    /// the procedure (with the stage stopped).
+    fn measurement(&mut self, measurement: &Value) -> Result<(), String>;
+    /// A product of the procedure; an error fails it naming the artifact.
+    fn artifact(&mut self, artifact: Artifact) -> Result<(), String>;
+}
+
+/// A sink that keeps nothing (tests, `--json` without files).
+#[derive(Debug, Default)]
+pub struct Discard;
+
+impl Sink for Discard {
+    fn progress(&mut self, _: u64, _: u64) {}
+    fn measurement(&mut self, _: &Value) -> Result<(), String> {
+        Ok(())
+    }
+    fn artifact(&mut self, _: Artifact) -> Result<(), String> {
+        Ok(())
+    }
+}
+
+/// Who is being measured or compensated: the stage (its name without the port), the
+/// board and its certificate, the camera. A map records this when scanned; whoever
+/// applies a map compares it with [`check_identity`].
+pub fn identity(job: &Job, devices: &Devices) -> Identity {
+    let stage = errormap::scan::without_link(&devices.stage.info().name);
+    Identity {
+        machine: stage.clone(),
+        controller: stage,
+        board: job.board.name.clone(),
+        certificate_sha256: job.board.fingerprint_sha256(),
+        camera: devices.camera.info().model.clone(),
+    }
+}
+
+/// The one identity check wherever a map is applied (verify, ISO 230-2, the pass-through,
+/// a rewrite whose job is known, the service): the map must have been measured on this
+/// machine, controller, board certificate and camera; the error names the first field
+/// that differs and both values. `what` names the map (a file, a profile).
+pub fn check_identity(map: &ErrorMap, here: &Identity, what: &str) -> Result<(), String> {
+    map.check_identity(here).map_err(|e| {
+        format!("{what}: {e}: refused (a map applies only to the machine it was measured on)")
+    })
+}
+
+/// The simulated machine's clock, s, when the devices are emulated in-process.
+pub fn machine_time_s(devices: &Devices) -> Option<f64> {
+    devices
+        .rig
+        .as_ref()
+        .map(|rig| world::lock(rig).machine().now_s())
+}
+
+/// `{"name": value}` pairs from `result` into metrics.
+pub(crate) fn metrics_from(result: &Value, keys: &[&str]) -> Map<String, Value> {
+    keys.iter()
+        .filter_map(|k| result.get(*k).map(|v| (k.to_string(), v.clone())))
+        .collect()
+}
+
+/// The identity of the machine a job describes, read from its devices (opened, asked,
+/// closed): for a front end that applies a map without keeping the devices open, as the
+/// pass-through does before it opens the controller's port itself.
+pub async fn identity_of_job(job: &Job) -> Result<Identity, String> {
+    let devices = devices::open_devices_async(job)
+        .await
+        .map_err(|e| format!("reading the machine's identity: {e}"))?;
+    Ok(identity(job, &devices))
+}

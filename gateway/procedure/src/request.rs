@@ -1,0 +1,746 @@
+//! The typed requests of every procedure: one serde type per capability, unknown fields
+//! refused, every bound checked once in [`Request::parse`] (or `check` for a request
+//! built from command-line flags) with the field named. The CLI's flags and the API's
+//! JSON body both become these types; nothing downstream re-reads raw JSON.
+//!
+//! Field names are the JSON names; [`RequestError::flag`] gives the CLI's spelling
+//! (`grid_step_mm` -> `--grid-step-mm`).
+
+use errormap::scan::{ScanSpec, MAX_SCAN_FRAMES};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+use vision::localize::Method;
+
+/// A request refused: which field and why.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{field}: {message}")]
+pub struct RequestError {
+    /// The field's JSON name (`grid_step_mm`, `assign[2]`), or `params` for the whole.
+    pub field: String,
+    pub message: String,
+}
+
+impl RequestError {
+    pub fn new(field: impl Into<String>, message: impl Into<String>) -> Self {
+        Self {
+            field: field.into(),
+            message: message.into(),
+        }
+    }
+
+    /// The field as the command line spells it: `--grid-step-mm`.
+    pub fn flag(&self) -> String {
+        let base = self.field.split('[').next().unwrap_or(&self.field);
+        format!("--{}", base.replace('_', "-"))
+    }
+
+    /// The message as the CLI shows it: `--grid-step-mm: must be ...`.
+    pub fn for_cli(&self) -> String {
+        format!("{}: {}", self.flag(), self.message)
+    }
+}
+
+/// A finite number within `lo..=hi`.
+pub(crate) fn number(field: &str, v: f64, lo: f64, hi: f64) -> Result<(), RequestError> {
+    if !(v.is_finite() && v >= lo && v <= hi) {
+        return Err(RequestError::new(
+            field,
+            format!("must be a number from {lo} to {hi}, got {v}"),
+        ));
+    }
+    Ok(())
+}
+
+/// An integer within `lo..=hi`.
+pub(crate) fn count(field: &str, v: u64, lo: u64, hi: u64) -> Result<(), RequestError> {
+    if !(lo..=hi).contains(&v) {
+        return Err(RequestError::new(
+            field,
+            format!("must be an integer from {lo} to {hi}, got {v}"),
+        ));
+    }
+    Ok(())
+}
+
+/// A profile name: 1 to 64 letters, digits, `-` or `_`.
+pub fn check_name(field: &str, name: &str) -> Result<(), RequestError> {
+    let ok = !name.is_empty()
+        && name.len() <= 64
+        && name
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'_');
+    if !ok {
+        return Err(RequestError::new(
+            field,
+            format!("must be 1 to 64 letters, digits, '-' or '_', got {name:?}"),
+        ));
+    }
+    Ok(())
+}
+
+/// A compensation run over the job's targets (all, or the first `targets`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CompensateRequest {
+    /// Only the first N targets of the job.
+    #[serde(default)]
+    pub targets: Option<u64>,
+    /// The localization method (default: the job file's).
+    #[serde(default)]
+    pub method: Option<Method>,
+}
+
+impl CompensateRequest {
+    pub fn check(&self) -> Result<(), RequestError> {
+        if let Some(n) = self.targets {
+            count("targets", n, 1, 1_000_000)?;
+        }
+        Ok(())
+    }
+}
+
+fn default_map_name() -> String {
+    "map".into()
+}
+fn default_grid_step() -> f64 {
+    ScanSpec::default().grid_step_mm
+}
+fn default_line_step() -> f64 {
+    ScanSpec::default().line_step_mm
+}
+fn default_passes() -> u32 {
+    ScanSpec::default().passes
+}
+
+/// An error-map scan.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MapRequest {
+    /// The map's name (the profile it becomes a version of; the CLI's file name).
+    #[serde(default = "default_map_name")]
+    pub name: String,
+    #[serde(default = "default_grid_step")]
+    pub grid_step_mm: f64,
+    #[serde(default = "default_line_step")]
+    pub line_step_mm: f64,
+    #[serde(default = "default_passes")]
+    pub passes: u32,
+    /// Tool point minus camera centre, machine axes, mm.
+    #[serde(default)]
+    pub tool_offset_mm: [f64; 2],
+}
+
+impl Default for MapRequest {
+    fn default() -> Self {
+        Self {
+            name: default_map_name(),
+            grid_step_mm: default_grid_step(),
+            line_step_mm: default_line_step(),
+            passes: default_passes(),
+            tool_offset_mm: [0.0, 0.0],
+        }
+    }
+}
+
+/// The finest steps a scan accepts: half the board pitch on the grid (nodes closer than
+/// that see the same dots), 0.05 mm on the dense lines (a hundredth of a 5 mm lead).
+pub const MIN_GRID_STEP_MM: f64 = 0.25;
+pub const MIN_LINE_STEP_MM: f64 = 0.05;
+
+impl MapRequest {
+    pub fn spec(&self) -> ScanSpec {
+        ScanSpec {
+            grid_step_mm: self.grid_step_mm,
+            line_step_mm: self.line_step_mm,
+            passes: self.passes,
+        }
+    }
+
+    pub fn check(&self) -> Result<(), RequestError> {
+        check_name("name", &self.name)?;
+        number(
+            "grid_step_mm",
+            self.grid_step_mm,
+            MIN_GRID_STEP_MM,
+            10_000.0,
+        )?;
+        number(
+            "line_step_mm",
+            self.line_step_mm,
+            MIN_LINE_STEP_MM,
+            10_000.0,
+        )?;
+        count("passes", self.passes.into(), 1, 10)?;
+        for (k, v) in self.tool_offset_mm.iter().enumerate() {
+            number(&format!("tool_offset_mm[{k}]"), *v, -500.0, 500.0)?;
+        }
+        Ok(())
+    }
+
+    /// The frames this scan takes over `lo..hi` (machine mm), computed without building
+    /// the plan, refused past [`MAX_SCAN_FRAMES`] naming the step that makes it so.
+    pub fn check_area(&self, lo: [f64; 2], hi: [f64; 2]) -> Result<u64, RequestError> {
+        let (grid, lines) = errormap::scan::frames(lo, hi, self.spec());
+        let frames = grid + lines;
+        if frames > MAX_SCAN_FRAMES as f64 {
+            let field = if grid >= lines {
+                "grid_step_mm"
+            } else {
+                "line_step_mm"
+            };
+            return Err(RequestError::new(
+                field,
+                format!(
+                    "the scan over {:.1} x {:.1} mm would take {frames:.0} frames; at most {MAX_SCAN_FRAMES} are accepted (a coarser step)",
+                    hi[0] - lo[0],
+                    hi[1] - lo[1]
+                ),
+            ));
+        }
+        Ok(frames as u64)
+    }
+}
+
+fn default_seed() -> u64 {
+    1
+}
+fn default_drift_threshold() -> f64 {
+    2.0
+}
+
+/// A check of the error map with the camera at random points.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VerifyRequest {
+    /// Points to check (default 20, or 5 for a spot check).
+    #[serde(default)]
+    pub points: Option<u64>,
+    #[serde(default = "default_seed")]
+    pub seed: u64,
+    /// A drift check: `rescan` when any point is off by more than the threshold.
+    #[serde(default)]
+    pub spot_check: bool,
+    #[serde(default = "default_drift_threshold")]
+    pub drift_threshold_um: f64,
+}
+
+impl Default for VerifyRequest {
+    fn default() -> Self {
+        Self {
+            points: None,
+            seed: default_seed(),
+            spot_check: false,
+            drift_threshold_um: default_drift_threshold(),
+        }
+    }
+}
+
+impl VerifyRequest {
+    pub fn check(&self) -> Result<(), RequestError> {
+        if let Some(n) = self.points {
+            count("points", n, 1, 1000)?;
+        }
+        number("drift_threshold_um", self.drift_threshold_um, 1e-3, 1000.0)?;
+        Ok(())
+    }
+
+    pub fn point_count(&self) -> usize {
+        self.points.unwrap_or(if self.spot_check { 5 } else { 20 }) as usize
+    }
+}
+
+/// The axis an ISO 230-2 test moves.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum TestAxis {
+    #[serde(alias = "x")]
+    X,
+    #[serde(alias = "y")]
+    Y,
+}
+
+impl TestAxis {
+    pub fn index(self) -> usize {
+        match self {
+            TestAxis::X => 0,
+            TestAxis::Y => 1,
+        }
+    }
+}
+
+/// ISO 230-2's test cycle.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CycleName {
+    #[default]
+    Linear,
+    #[serde(alias = "pilgrim")]
+    PilgrimStep,
+}
+
+impl CycleName {
+    pub fn kind(self) -> iso230::plan::CycleKind {
+        match self {
+            CycleName::Linear => iso230::plan::CycleKind::Linear,
+            CycleName::PilgrimStep => iso230::plan::CycleKind::PilgrimStep,
+        }
+    }
+    pub fn as_str(self) -> &'static str {
+        match self {
+            CycleName::Linear => "linear",
+            CycleName::PilgrimStep => "pilgrim-step",
+        }
+    }
+}
+
+fn default_runs() -> u64 {
+    5
+}
+fn default_overrun() -> f64 {
+    1.0
+}
+fn default_certificate_uncertainty() -> f64 {
+    1.0
+}
+
+/// At most this many measurements in one ISO 230-2 test (positions x runs x 2).
+pub const MAX_ISO230_MEASUREMENTS: u64 = 100_000;
+
+/// An ISO 230-2 positioning test of one axis.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Iso230Request {
+    pub axis: TestAxis,
+    /// Target positions (default: the standard's minimum, 5 and 5 per metre).
+    #[serde(default)]
+    pub positions: Option<u64>,
+    /// Runs in each direction (at least 5).
+    #[serde(default = "default_runs")]
+    pub runs: u64,
+    #[serde(default)]
+    pub cycle: CycleName,
+    /// How far beyond the end targets the axis goes before reversing, mm.
+    #[serde(default = "default_overrun")]
+    pub overrun_mm: f64,
+    /// The measurement travel's start and end on the axis, machine mm (default: the
+    /// usable travel).
+    #[serde(default)]
+    pub from_mm: Option<f64>,
+    #[serde(default)]
+    pub to_mm: Option<f64>,
+    /// Where the other axis is held, machine mm (default: the map's dense line along
+    /// the axis, else the middle of the usable travel).
+    #[serde(default)]
+    pub at_mm: Option<f64>,
+    /// The board certificate's expanded uncertainty (k = 2) of a dot position, um.
+    #[serde(default = "default_certificate_uncertainty")]
+    pub certificate_uncertainty_um: f64,
+    /// Test with an error map acting (the CLI's `--map`, the service's active profile).
+    #[serde(default)]
+    pub with_map: bool,
+}
+
+impl Iso230Request {
+    pub fn new(axis: TestAxis) -> Self {
+        Self {
+            axis,
+            positions: None,
+            runs: default_runs(),
+            cycle: CycleName::default(),
+            overrun_mm: default_overrun(),
+            from_mm: None,
+            to_mm: None,
+            at_mm: None,
+            certificate_uncertainty_um: default_certificate_uncertainty(),
+            with_map: false,
+        }
+    }
+
+    pub fn check(&self) -> Result<(), RequestError> {
+        if let Some(n) = self.positions {
+            count("positions", n, 5, 10_000)?;
+        }
+        count("runs", self.runs, 5, 1000)?;
+        if let Some(n) = self.positions {
+            let m = n * self.runs * 2;
+            if m > MAX_ISO230_MEASUREMENTS {
+                return Err(RequestError::new(
+                    "positions",
+                    format!("{n} positions x {} runs x 2 directions = {m} measurements; at most {MAX_ISO230_MEASUREMENTS} are accepted", self.runs),
+                ));
+            }
+        }
+        number("overrun_mm", self.overrun_mm, 0.0, 50.0)?;
+        for (field, v) in [
+            ("from_mm", self.from_mm),
+            ("to_mm", self.to_mm),
+            ("at_mm", self.at_mm),
+        ] {
+            if let Some(v) = v {
+                number(field, v, -1e5, 1e5)?;
+            }
+        }
+        if let (Some(a), Some(b)) = (self.from_mm, self.to_mm) {
+            if b <= a {
+                return Err(RequestError::new(
+                    "to_mm",
+                    format!("must be past from_mm ({a} mm), got {b}"),
+                ));
+            }
+        }
+        number(
+            "certificate_uncertainty_um",
+            self.certificate_uncertainty_um,
+            0.0,
+            1000.0,
+        )?;
+        Ok(())
+    }
+}
+
+/// A layout file's format.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LayoutFormat {
+    Json,
+    Dxf,
+    Svg,
+}
+
+impl LayoutFormat {
+    pub fn format(self) -> layout_io::Format {
+        match self {
+            LayoutFormat::Json => layout_io::Format::Json,
+            LayoutFormat::Dxf => layout_io::Format::Dxf,
+            LayoutFormat::Svg => layout_io::Format::Svg,
+        }
+    }
+    pub fn of(format: layout_io::Format) -> Self {
+        match format {
+            layout_io::Format::Json => LayoutFormat::Json,
+            layout_io::Format::Dxf => LayoutFormat::Dxf,
+            layout_io::Format::Svg => LayoutFormat::Svg,
+        }
+    }
+}
+
+fn default_chord_tolerance() -> f64 {
+    0.01
+}
+
+/// The largest layout text a request carries (the service's body limit is lower).
+pub const MAX_LAYOUT_BYTES: usize = 64 << 20;
+
+/// A layout partition (source C).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LayoutRequest {
+    /// The layout file's text.
+    pub layout: String,
+    pub format: LayoutFormat,
+    /// Number of tools k.
+    pub tools: u64,
+    /// Cutting window length L' along the feed, mm.
+    pub window_mm: f64,
+    /// Gap between groups, mm.
+    pub gap_mm: f64,
+    /// Material width, mm (default: the layout's own, else its extent across).
+    #[serde(default)]
+    pub width_mm: Option<f64>,
+    /// Parts of different groups closer than this are overlaps, mm (default: the gap).
+    #[serde(default)]
+    pub clearance_mm: Option<f64>,
+    /// Parts forced into groups, `PART=GROUP` (groups 1-based, `G3` also accepted).
+    #[serde(default)]
+    pub assign: Vec<String>,
+    /// Move later windows or upper lanes further apart until no overlap is left.
+    #[serde(default)]
+    pub widen: bool,
+    /// Chord tolerance for arcs and splines, mm.
+    #[serde(default = "default_chord_tolerance")]
+    pub chord_tolerance_mm: f64,
+    /// The shifted layout's format (default: the input's).
+    #[serde(default)]
+    pub out_format: Option<LayoutFormat>,
+    /// Also draw the partition, coloured by group: `svg` or `png`.
+    #[serde(default)]
+    pub picture: Option<PictureFormat>,
+}
+
+/// A picture's format.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PictureFormat {
+    Svg,
+    Png,
+}
+
+impl LayoutRequest {
+    pub fn check(&self) -> Result<(), RequestError> {
+        if self.layout.len() > MAX_LAYOUT_BYTES {
+            return Err(RequestError::new(
+                "layout",
+                format!(
+                    "{} bytes; at most {MAX_LAYOUT_BYTES} are accepted",
+                    self.layout.len()
+                ),
+            ));
+        }
+        count("tools", self.tools, 1, 64)?;
+        number("window_mm", self.window_mm, 1e-3, 1e5)?;
+        number("gap_mm", self.gap_mm, 1e-3, 1e3)?;
+        if let Some(w) = self.width_mm {
+            number("width_mm", w, 1e-3, 1e5)?;
+        }
+        if let Some(c) = self.clearance_mm {
+            number("clearance_mm", c, 1e-3, self.gap_mm)?;
+        }
+        number("chord_tolerance_mm", self.chord_tolerance_mm, 1e-4, 10.0)?;
+        self.assignments()?;
+        Ok(())
+    }
+
+    /// The forced assignments, each `PART=GROUP` parsed; a malformed one is named.
+    pub fn assignments(&self) -> Result<Vec<(String, usize)>, RequestError> {
+        self.assign
+            .iter()
+            .enumerate()
+            .map(|(k, text)| {
+                let field = format!("assign[{k}]");
+                let (part, group) = text.rsplit_once('=').ok_or_else(|| {
+                    RequestError::new(&field, format!("`{text}`: write PART=GROUP"))
+                })?;
+                if part.is_empty() {
+                    return Err(RequestError::new(
+                        &field,
+                        format!("`{text}`: the part id is empty"),
+                    ));
+                }
+                let group: usize = group
+                    .trim()
+                    .trim_start_matches(['G', 'g'])
+                    .parse()
+                    .ok()
+                    .filter(|g| *g >= 1)
+                    .ok_or_else(|| {
+                        RequestError::new(
+                            &field,
+                            format!(
+                                "`{text}`: the group is a number from 1 (1, 2, ... or G1, G2, ...)"
+                            ),
+                        )
+                    })?;
+                Ok((part.to_string(), group))
+            })
+            .collect()
+    }
+}
+
+fn default_rotary_name() -> String {
+    "rotary".into()
+}
+
+/// A measurement of the A/C table through the machine's rotary link.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RotaryRequest {
+    /// The rotary profile the identified errors become a version of.
+    #[serde(default = "default_rotary_name")]
+    pub name: String,
+}
+
+impl Default for RotaryRequest {
+    fn default() -> Self {
+        Self {
+            name: default_rotary_name(),
+        }
+    }
+}
+
+impl RotaryRequest {
+    pub fn check(&self) -> Result<(), RequestError> {
+        check_name("name", &self.name)
+    }
+}
+
+/// Any request, by the kind the API names it.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Request {
+    Compensate(CompensateRequest),
+    Map(MapRequest),
+    Verify(VerifyRequest),
+    Iso230(Iso230Request),
+    Layout(LayoutRequest),
+    Rotary(RotaryRequest),
+}
+
+/// The kinds [`Request::parse`] knows.
+pub const KINDS: &[&str] = &["compensate", "iso230", "map", "verify", "layout", "rotary"];
+
+fn from_json<T: serde::de::DeserializeOwned>(params: &Value) -> Result<T, RequestError> {
+    serde_path_to_error::deserialize(params).map_err(|e| {
+        let path = e.path().to_string();
+        let message = e.into_inner().to_string();
+        // serde names an unknown or a missing field only in its message: that field is
+        // the one to name.
+        let named = ["unknown field `", "missing field `"]
+            .iter()
+            .find_map(|p| message.strip_prefix(p))
+            .and_then(|rest| rest.split('`').next());
+        let field = match (path.as_str(), named) {
+            (".", Some(f)) => f.to_string(),
+            // An unknown field is already the path's last step.
+            (p, Some(f)) if p == f || p.ends_with(&format!(".{f}")) => p.to_string(),
+            (p, Some(f)) => format!("{p}.{f}"),
+            (".", None) => "params".to_string(),
+            (p, None) => p.to_string(),
+        };
+        RequestError::new(field, message)
+    })
+}
+
+impl Request {
+    /// Parses and checks a request: `kind` and its `params` object. Unknown kinds and
+    /// fields are refused, every bound checked, the field named.
+    pub fn parse(kind: &str, params: &Value) -> Result<Request, RequestError> {
+        if !params.is_object() {
+            return Err(RequestError::new("params", "must be a JSON object"));
+        }
+        let request = match kind {
+            "compensate" => Request::Compensate(from_json(params)?),
+            "map" => Request::Map(from_json(params)?),
+            "verify" => Request::Verify(from_json(params)?),
+            "iso230" => Request::Iso230(from_json(params)?),
+            "layout" => Request::Layout(from_json(params)?),
+            "rotary" => Request::Rotary(from_json(params)?),
+            other => {
+                return Err(RequestError::new(
+                    "kind",
+                    format!(
+                        "unknown job kind {other:?}; this service runs: {}",
+                        KINDS.join(", ")
+                    ),
+                ))
+            }
+        };
+        request.check()?;
+        Ok(request)
+    }
+
+    pub fn check(&self) -> Result<(), RequestError> {
+        match self {
+            Request::Compensate(r) => r.check(),
+            Request::Map(r) => r.check(),
+            Request::Verify(r) => r.check(),
+            Request::Iso230(r) => r.check(),
+            Request::Layout(r) => r.check(),
+            Request::Rotary(r) => r.check(),
+        }
+    }
+
+    /// The request as its params object, every default written out (what the service
+    /// stores, so a stored job says exactly what it asked for).
+    pub fn params(&self) -> Value {
+        let v = match self {
+            Request::Compensate(r) => serde_json::to_value(r),
+            Request::Map(r) => serde_json::to_value(r),
+            Request::Verify(r) => serde_json::to_value(r),
+            Request::Iso230(r) => serde_json::to_value(r),
+            Request::Layout(r) => serde_json::to_value(r),
+            Request::Rotary(r) => serde_json::to_value(r),
+        };
+        v.unwrap_or(Value::Null)
+    }
+
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Request::Compensate(_) => "compensate",
+            Request::Map(_) => "map",
+            Request::Verify(_) => "verify",
+            Request::Iso230(_) => "iso230",
+            Request::Layout(_) => "layout",
+            Request::Rotary(_) => "rotary",
+        }
+    }
+
+    /// Whether the request uses the machine's active error map.
+    pub fn uses_map(&self) -> bool {
+        matches!(self, Request::Verify(_)) || matches!(self, Request::Iso230(r) if r.with_map)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    #[test]
+    fn a_tiny_grid_step_is_refused_naming_the_field() {
+        let e = Request::parse("map", &json!({"grid_step_mm": 1e-300})).unwrap_err();
+        assert_eq!(e.field, "grid_step_mm");
+        assert_eq!(e.flag(), "--grid-step-mm");
+        let e = Request::parse("map", &json!({"grid_step_mm": "x"})).unwrap_err();
+        assert_eq!(e.field, "grid_step_mm");
+    }
+
+    #[test]
+    fn unknown_fields_and_kinds_are_refused() {
+        let e = Request::parse("verify", &json!({"pionts": 3})).unwrap_err();
+        assert_eq!(e.field, "pionts", "{e}");
+        let e = Request::parse("layout", &json!({"format": "json"})).unwrap_err();
+        assert_eq!(e.field, "layout", "{e}");
+        let e = Request::parse("nope", &json!({})).unwrap_err();
+        assert_eq!(e.field, "kind");
+        let e = Request::parse("map", &json!([1])).unwrap_err();
+        assert_eq!(e.field, "params");
+    }
+
+    #[test]
+    fn the_frames_a_scan_implies_are_bounded_before_any_plan_is_built() {
+        let r = MapRequest {
+            grid_step_mm: MIN_GRID_STEP_MM,
+            ..MapRequest::default()
+        };
+        r.check().unwrap();
+        let e = r.check_area([0.0, 0.0], [1000.0, 1000.0]).unwrap_err();
+        assert_eq!(e.field, "grid_step_mm");
+        let ok = MapRequest::default()
+            .check_area([0.05, 0.05], [199.95, 149.95])
+            .unwrap();
+        assert_eq!(ok, 2752);
+    }
+
+    #[test]
+    fn a_bad_assignment_is_reported() {
+        let mut r = LayoutRequest {
+            layout: String::new(),
+            format: LayoutFormat::Json,
+            tools: 2,
+            window_mm: 100.0,
+            gap_mm: 5.0,
+            width_mm: None,
+            clearance_mm: None,
+            assign: vec!["a=2".into(), "b".into()],
+            widen: false,
+            chord_tolerance_mm: 0.01,
+            out_format: None,
+            picture: None,
+        };
+        let e = r.check().unwrap_err();
+        assert_eq!(e.field, "assign[1]");
+        r.assign = vec!["a=G0".into()];
+        assert_eq!(r.check().unwrap_err().field, "assign[0]");
+        r.assign = vec!["a=G2".into()];
+        assert_eq!(r.assignments().unwrap(), vec![("a".to_string(), 2)]);
+    }
+
+    #[test]
+    fn iso230_measurements_are_bounded() {
+        let mut r = Iso230Request::new(TestAxis::X);
+        r.positions = Some(10_000);
+        r.runs = 1000;
+        assert_eq!(r.check().unwrap_err().field, "positions");
+        let r: Iso230Request = from_json(&json!({"axis": "x", "cycle": "pilgrim"})).unwrap();
+        assert_eq!(r.axis, TestAxis::X);
+        assert_eq!(r.cycle, CycleName::PilgrimStep);
+    }
+}

@@ -1,0 +1,828 @@
+//! The 21-error volumetric model of a 3-axis machine (source D) from files: identified
+//! from a measurement campaign, evaluated at points, each error's contribution over the
+//! volume, the emulated machine's campaign, and the model as the ISG kernel's tables.
+//!
+//! Inputs are text the front end has read (through the bounded reader); the products go
+//! to the [`Sink`] as artifacts. A campaign is a folder of up to eleven named files:
+//! [`identify`] asks a [`CampaignFiles`] for each name a campaign may hold
+//! ([`CAMPAIGN_FILES`]), so the procedure decides what is read and the front end how (the
+//! CLI from a folder through `protocol::config::read_data_file`, at most 16 MiB each; a
+//! service from an upload, [`MemoryCampaign`]).
+//!
+//! Paths are the front end's: a result names its artifacts (`model`: [`MODEL_ARTIFACT`]),
+//! and the CLI replaces the name with the path it wrote or adds the folder (`out`).
+
+use crate::request::{count, number, RequestError};
+use crate::{Artifact, Outcome, Sink};
+use protocol::volumetric::{
+    parse_model, parse_points, write_isg_csv, write_isg_lis, write_model, Structure, AXES,
+};
+use serde::{Deserialize, Serialize};
+use serde_json::{json, Value};
+use std::fmt::Write;
+use volumetric::ballbar::BallbarChart;
+use volumetric::contributions::{contributions as contributions_over, plane_map, ContributionChart, Plane};
+use volumetric::identify::Campaign;
+use volumetric::Model;
+
+/// The model file [`identify`] produces.
+pub const MODEL_ARTIFACT: &str = "model.vol.csv";
+
+/// The largest offset of the tool point or the workpiece reference, mm.
+pub const MAX_OFFSET_MM: f64 = 10_000.0;
+
+/// The most points [`eval`] evaluates: its result holds one object per point (about
+/// 0.5 kB each), so 100 000 points stay near 50 MB.
+pub const MAX_EVAL_POINTS: usize = 100_000;
+
+/// The memory [`contributions`] may ask for: its `grid`³ points of the volume (24 bytes
+/// each) and one plane map at a time (`grid`² cells of about 320 bytes: the values, the
+/// CSV row and the SVG's cell and arrow). 256 MiB allows a grid of 219 points per axis.
+pub const MAX_CONTRIBUTIONS_BYTES: u64 = 256 << 20;
+
+/// The bytes [`contributions`] needs for a `grid` of `n` points per axis (see
+/// [`MAX_CONTRIBUTIONS_BYTES`]).
+pub fn contributions_bytes(n: u64) -> u128 {
+    let n = u128::from(n);
+    n * n * n * 24 + n * n * 320
+}
+
+fn structure_of(field: &str, text: &str) -> Result<Structure, RequestError> {
+    Structure::parse(text).ok_or_else(|| {
+        RequestError::new(field, format!("`{text}`: expected FXYZ, XFYZ, XYFZ or XYZF"))
+    })
+}
+
+fn offsets(field: &str, v: &[f64; 3]) -> Result<(), RequestError> {
+    for (k, c) in v.iter().enumerate() {
+        number(&format!("{field}[{k}]"), *c, -MAX_OFFSET_MM, MAX_OFFSET_MM)?;
+    }
+    Ok(())
+}
+
+/// Identify the model from a campaign.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VolumetricIdentifyRequest {
+    /// FXYZ, XFYZ, XYFZ or XYZF.
+    pub structure: String,
+    /// The tool point in the last tool carriage's frame, mm (the tool length).
+    #[serde(default)]
+    pub tool_offset_mm: [f64; 3],
+    /// The workpiece reference point in the last workpiece carriage's frame, mm.
+    #[serde(default)]
+    pub work_offset_mm: [f64; 3],
+    /// Also draw the ball-bar circles (`ballbar_XY.svg`/`.png`, ...).
+    #[serde(default)]
+    pub plots: bool,
+}
+
+impl VolumetricIdentifyRequest {
+    pub fn check(&self) -> Result<(), RequestError> {
+        structure_of("structure", &self.structure)?;
+        offsets("tool_offset_mm", &self.tool_offset_mm)?;
+        offsets("work_offset_mm", &self.work_offset_mm)
+    }
+}
+
+/// The files a campaign may hold; [`identify`] says which are due (laser and level per
+/// axis; three ball-bar circles or `squareness.csv`; `camera.csv` if measured).
+pub const CAMPAIGN_FILES: [&str; 11] = [
+    "laser_X.csv",
+    "level_X.csv",
+    "laser_Y.csv",
+    "level_Y.csv",
+    "laser_Z.csv",
+    "level_Z.csv",
+    "ballbar_XY.csv",
+    "ballbar_XZ.csv",
+    "ballbar_YZ.csv",
+    "squareness.csv",
+    "camera.csv",
+];
+
+/// Where a campaign's files are read from.
+pub trait CampaignFiles {
+    /// How messages name the campaign (a folder, an upload).
+    fn place(&self) -> String;
+    /// The text of the file `name` (one of [`CAMPAIGN_FILES`]), `None` when the
+    /// campaign has none; an error when it is there but cannot be read.
+    fn read(&mut self, name: &str) -> Result<Option<String>, String>;
+}
+
+/// A campaign held in memory: (file name, text).
+#[derive(Debug, Clone, Default)]
+pub struct MemoryCampaign {
+    pub place: String,
+    pub files: Vec<(String, String)>,
+}
+
+impl CampaignFiles for MemoryCampaign {
+    fn place(&self) -> String {
+        self.place.clone()
+    }
+    fn read(&mut self, name: &str) -> Result<Option<String>, String> {
+        Ok(self
+            .files
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, t)| t.clone()))
+    }
+}
+
+fn artifact(name: impl Into<String>, media_type: &'static str, bytes: Vec<u8>) -> Artifact {
+    Artifact {
+        name: name.into(),
+        title: None,
+        media_type,
+        bytes,
+    }
+}
+
+/// Translations (E_X?, E_Y?, E_Z?) in µm, angles in µrad.
+fn display_unit(name: &str) -> (f64, &'static str) {
+    let is_length = name.len() == 4 && matches!(&name[2..3], "X" | "Y" | "Z");
+    if is_length {
+        (1e3, "um")
+    } else {
+        (1e6, "urad")
+    }
+}
+
+/// Identifies the model from the campaign. The model file ([`MODEL_ARTIFACT`], marked
+/// fit or unfit for compensation) and, with `plots`, the ball-bar charts go to the sink.
+/// The result: `model` (the artifact), `structure`, `fit_for_compensation`, `errors`
+/// (per error: `name`, `unit`, `residual`, `uncertainty`, `stated`, `fit`), `ballbar`,
+/// `camera` (null without `camera.csv`). An unfit model is a success: the front end
+/// says so (the CLI's exit code 2).
+pub fn identify(
+    request: &VolumetricIdentifyRequest,
+    campaign: &mut dyn CampaignFiles,
+    sink: &mut dyn Sink,
+) -> Outcome {
+    let structure = match request.check() {
+        Ok(()) => structure_of("structure", &request.structure).expect("checked"),
+        Err(e) => return Outcome::failed(e.to_string()),
+    };
+    let place = campaign.place();
+    let mut files = Vec::new();
+    for name in CAMPAIGN_FILES {
+        match campaign.read(name) {
+            Ok(Some(text)) => files.push((name.to_string(), text)),
+            Ok(None) => {}
+            Err(e) => return Outcome::failed(e),
+        }
+    }
+    let parsed = match Campaign::from_files(&files) {
+        Ok(c) => c,
+        Err(e) => return Outcome::failed(format!("{place}/{e}")),
+    };
+    drop(files);
+    let mut id = match volumetric::identify::identify(structure, &parsed) {
+        Ok(id) => id,
+        Err(e) => return Outcome::failed(format!("{place}: {e}")),
+    };
+    id.model.file.tool_offset_mm = request.tool_offset_mm;
+    id.model.file.work_offset_mm = request.work_offset_mm;
+    let model = artifact(
+        MODEL_ARTIFACT,
+        "text/csv",
+        write_model(&id.model.file).into_bytes(),
+    );
+    if let Err(e) = sink.artifact(model) {
+        return Outcome::failed(e);
+    }
+    if request.plots {
+        for b in &id.ballbar {
+            let chart = BallbarChart(b);
+            let drawn = plot::render_svg(&chart, 800, 800)
+                .map(String::into_bytes)
+                .and_then(|svg| Ok((svg, plot::render_png(&chart, 800, 800)?)));
+            let (svg, png) = match drawn {
+                Ok(d) => d,
+                Err(e) => return Outcome::failed(format!("ballbar_{}: {e}", b.plane)),
+            };
+            let mut svg = artifact(format!("ballbar_{}.svg", b.plane), "image/svg+xml", svg);
+            svg.title = Some(format!("Ball bar, {} plane", b.plane));
+            for a in [svg, artifact(format!("ballbar_{}.png", b.plane), "image/png", png)] {
+                if let Err(e) = sink.artifact(a) {
+                    return Outcome::failed(e);
+                }
+            }
+        }
+    }
+    let errors: Vec<_> = id
+        .quality
+        .iter()
+        .map(|q| {
+            let (scale, unit) = display_unit(q.name);
+            json!({"name": q.name, "unit": unit, "residual": q.residual * scale,
+                   "uncertainty": q.uncertainty * scale, "stated": q.stated * scale, "fit": q.fit()})
+        })
+        .collect();
+    let ballbar: Vec<_> = id
+        .ballbar
+        .iter()
+        .map(|b| {
+            json!({"plane": b.plane, "circular_deviation_um": b.circular_deviation_mm * 1e3,
+                   "iso_squareness_urad": b.iso_squareness_rad * 1e6,
+                   "squareness_urad": b.squareness_rad * 1e6,
+                   "uncertainty_urad": b.uncertainty_rad * 1e6,
+                   "model_residual_rms_um": b.model_residual_rms_mm * 1e3})
+        })
+        .collect();
+    let camera = id.camera.as_ref().map(|c| {
+        let angles: Vec<_> = (0..2)
+            .flat_map(|a| (0..2).map(move |k| (a, k)))
+            .map(|(a, k)| {
+                json!({"name": c.names[a][k],
+                       "uncertainty_urad": c.sigma[a][k].iter().fold(0.0f64, |m, v| m.max(*v)) * 1e6,
+                       "largest_change_from_instruments_urad": c.change[a][k] * 1e6})
+            })
+            .collect();
+        json!({"points": c.points, "heights_mm": c.heights_mm,
+               "residual_rms_um": c.residual_rms_mm * 1e3, "stated_um": c.stated_mm * 1e3,
+               "repeatability_um": c.repeatability_mm * 1e3,
+               "board_rotation_urad": c.board_rotation_rad.iter().map(|v| v * 1e6).collect::<Vec<_>>(),
+               "fit": c.fit(), "angles": angles})
+    });
+    let result = json!({
+        "model": MODEL_ARTIFACT, "structure": structure.name(),
+        "fit_for_compensation": id.model.file.fit, "errors": errors,
+        "ballbar": ballbar, "camera": camera,
+    });
+    let metrics = crate::metrics_from(&result, &["fit_for_compensation"]);
+    Outcome::succeeded(result, metrics)
+}
+
+/// The identification as text: a table of the 21 errors, the ball-bar circles, the
+/// camera's figures.
+pub fn identify_summary(r: &Value) -> String {
+    let mut t = String::new();
+    let n = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
+    let _ = writeln!(
+        t,
+        "{:<6} {:>10} {:>12} {:>8}  unit",
+        "error", "residual", "uncertainty", "stated"
+    );
+    for q in r["errors"].as_array().into_iter().flatten() {
+        let unit = match q["unit"].as_str() {
+            Some("um") => "µm",
+            Some(u) => u,
+            None => "",
+        };
+        let _ = writeln!(
+            t,
+            "{:<6} {:>10.3} {:>12.3} {:>8.3}  {unit}{}",
+            q["name"].as_str().unwrap_or(""),
+            n(&q["residual"]),
+            n(&q["uncertainty"]),
+            n(&q["stated"]),
+            if q["fit"] == true {
+                ""
+            } else {
+                "  EXCEEDS the stated uncertainty"
+            }
+        );
+    }
+    for b in r["ballbar"].as_array().into_iter().flatten() {
+        let _ = writeln!(
+            t,
+            "ball bar {}: circular deviation {:.2} µm, ISO squareness reading {:.2} µrad, model squareness {:.2} ± {:.2} µrad, residual {:.3} µm RMS",
+            b["plane"].as_str().unwrap_or(""),
+            n(&b["circular_deviation_um"]),
+            n(&b["iso_squareness_urad"]),
+            n(&b["squareness_urad"]),
+            n(&b["uncertainty_urad"]),
+            n(&b["model_residual_rms_um"])
+        );
+    }
+    let c = &r["camera"];
+    if c.is_object() {
+        let heights: Vec<f64> = c["heights_mm"]
+            .as_array()
+            .into_iter()
+            .flatten()
+            .map(n)
+            .collect();
+        let _ = writeln!(
+            t,
+            "camera: {} points at heights {heights:?} mm, residual {:.3} µm RMS (stated {:.3}), {}",
+            c["points"],
+            n(&c["residual_rms_um"]),
+            n(&c["stated_um"]),
+            if c["fit"] == true {
+                "consistent"
+            } else {
+                "INCONSISTENT with the model"
+            }
+        );
+        for a in c["angles"].as_array().into_iter().flatten() {
+            let _ = writeln!(
+                t,
+                "  {}: uncertainty {:.3} µrad combined, largest change from the instruments {:.3} µrad",
+                a["name"].as_str().unwrap_or(""),
+                n(&a["uncertainty_urad"]),
+                n(&a["largest_change_from_instruments_urad"])
+            );
+        }
+    }
+    t
+}
+
+/// Reads and checks a model file; `name` names it in messages.
+pub fn read_model(name: &str, text: &str) -> Result<Model, String> {
+    let file = parse_model(text).map_err(|e| format!("{name}: {e}"))?;
+    Model::new(file).map_err(|e| format!("{name}: {e}"))
+}
+
+/// The volumetric error at each point of a points file (`x_mm,y_mm,z_mm`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VolumetricEvalRequest {
+    /// The first-order closed form instead of the full HTM product.
+    #[serde(default)]
+    pub first_order: bool,
+}
+
+impl VolumetricEvalRequest {
+    pub fn check(&self) -> Result<(), RequestError> {
+        Ok(())
+    }
+
+    /// The points a points file holds, counted before it is parsed; refused past
+    /// [`MAX_EVAL_POINTS`] naming `points`.
+    pub fn check_points(&self, text: &str) -> Result<usize, RequestError> {
+        let rows = text
+            .lines()
+            .map(str::trim)
+            .filter(|l| !l.is_empty() && !l.starts_with('#'))
+            .count()
+            .saturating_sub(1);
+        if rows > MAX_EVAL_POINTS {
+            return Err(RequestError::new(
+                "points",
+                format!("{rows} points; at most {MAX_EVAL_POINTS} are evaluated at once (split the file)"),
+            ));
+        }
+        Ok(rows)
+    }
+}
+
+/// The error at every point: the result `{first_order, points: [{x_mm, y_mm, z_mm,
+/// ex_um, ey_um, ez_um}]}`; a point outside the model's travel fails it, named by its
+/// number and line.
+pub fn eval(
+    request: &VolumetricEvalRequest,
+    model: &Model,
+    points_name: &str,
+    points: &str,
+) -> Outcome {
+    if let Err(e) = request.check_points(points) {
+        return Outcome::failed(e.to_string());
+    }
+    let pts = match parse_points(points) {
+        Ok(p) => p,
+        Err(e) => return Outcome::failed(format!("{points_name}: {e}")),
+    };
+    let mut rows = Vec::with_capacity(pts.len());
+    for (i, q) in pts.iter().enumerate() {
+        let e = match model.error(*q, request.first_order) {
+            Ok(e) => e,
+            Err(e) => {
+                return Outcome::failed(format!(
+                    "{points_name}: point {} (line {}): {e}",
+                    i + 1,
+                    i + 2
+                ))
+            }
+        };
+        rows.push(json!({"x_mm": q[0], "y_mm": q[1], "z_mm": q[2],
+                         "ex_um": e[0] * 1e3, "ey_um": e[1] * 1e3, "ez_um": e[2] * 1e3}));
+    }
+    let mut metrics = serde_json::Map::new();
+    metrics.insert("points".into(), json!(rows.len()));
+    Outcome::succeeded(
+        json!({"first_order": request.first_order, "points": rows}),
+        metrics,
+    )
+}
+
+/// The evaluation as CSV lines (`x_mm,y_mm,z_mm,ex_um,ey_um,ez_um`, header first).
+pub fn eval_lines(r: &Value) -> impl Iterator<Item = String> + '_ {
+    let n = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
+    std::iter::once("x_mm,y_mm,z_mm,ex_um,ey_um,ez_um".to_string()).chain(
+        r["points"].as_array().into_iter().flatten().map(move |p| {
+            format!(
+                "{},{},{},{:.4},{:.4},{:.4}",
+                n(&p["x_mm"]),
+                n(&p["y_mm"]),
+                n(&p["z_mm"]),
+                n(&p["ex_um"]),
+                n(&p["ey_um"]),
+                n(&p["ez_um"])
+            )
+        }),
+    )
+}
+
+fn default_grid() -> u64 {
+    11
+}
+
+/// Each error's contribution over the volume and the error maps of the middle planes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VolumetricContributionsRequest {
+    /// Grid points per axis.
+    #[serde(default = "default_grid")]
+    pub grid: u64,
+}
+
+impl Default for VolumetricContributionsRequest {
+    fn default() -> Self {
+        Self {
+            grid: default_grid(),
+        }
+    }
+}
+
+impl VolumetricContributionsRequest {
+    /// At least 2 points per axis; the memory the grid implies
+    /// ([`contributions_bytes`]) at most [`MAX_CONTRIBUTIONS_BYTES`].
+    pub fn check(&self) -> Result<(), RequestError> {
+        count("grid", self.grid, 2, u64::from(u32::MAX))?;
+        let bytes = contributions_bytes(self.grid);
+        if bytes > u128::from(MAX_CONTRIBUTIONS_BYTES) {
+            let largest = (2..)
+                .take_while(|n| contributions_bytes(*n) <= u128::from(MAX_CONTRIBUTIONS_BYTES))
+                .last()
+                .unwrap_or(2);
+            return Err(RequestError::new(
+                "grid",
+                format!(
+                    "a grid of {} points per axis needs about {} MiB; at most {} MiB are accepted (a grid of at most {largest})",
+                    self.grid,
+                    bytes >> 20,
+                    MAX_CONTRIBUTIONS_BYTES >> 20
+                ),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The 21 contributions over a `grid`³ grid (ranked: `contributions.csv`, `.svg`,
+/// `.png`) and the exact error over the XY, XZ and YZ planes through the middle
+/// (`map_XY.csv`, `.svg`, `.png`, ...), as artifacts. The result: `grid`,
+/// `total_max_um`, `total_rms_um`, `contributions` (`error`, `max_um`, `rms_um`).
+pub fn contributions(
+    request: &VolumetricContributionsRequest,
+    model: &Model,
+    sink: &mut dyn Sink,
+) -> Outcome {
+    if let Err(e) = request.check() {
+        return Outcome::failed(e.to_string());
+    }
+    let grid = request.grid as usize;
+    let (c, tmax, trms) = match contributions_over(model, grid) {
+        Ok(c) => c,
+        Err(e) => return Outcome::failed(e.to_string()),
+    };
+    let mut csv = String::from("rank,error,max_um,rms_um\n");
+    for (i, x) in c.iter().enumerate() {
+        let _ = writeln!(csv, "{},{},{:.4},{:.4}", i + 1, x.name, x.max_um, x.rms_um);
+    }
+    let chart = ContributionChart(&c);
+    let charts = plot::render_svg(&chart, 900, 700)
+        .and_then(|svg| Ok((svg, plot::render_png(&chart, 900, 700)?)));
+    let (svg, png) = match charts {
+        Ok(d) => d,
+        Err(e) => return Outcome::failed(format!("contributions: {e}")),
+    };
+    let mut svg = artifact("contributions.svg", "image/svg+xml", svg.into_bytes());
+    svg.title = Some("Contribution of each error".into());
+    for a in [
+        artifact("contributions.csv", "text/csv", csv.into_bytes()),
+        svg,
+        artifact("contributions.png", "image/png", png),
+    ] {
+        if let Err(e) = sink.artifact(a) {
+            return Outcome::failed(e);
+        }
+    }
+    for plane in [Plane::Xy, Plane::Xz, Plane::Yz] {
+        let map = match plane_map(model, plane, grid) {
+            Ok(m) => m,
+            Err(e) => return Outcome::failed(e.to_string()),
+        };
+        let (a, b, _) = plane.axes();
+        let mut csv = format!(
+            "{}_mm,{}_mm,ex_um,ey_um,ez_um\n",
+            AXES[a].to_ascii_lowercase(),
+            AXES[b].to_ascii_lowercase()
+        );
+        for (i, u) in map.u.iter().enumerate() {
+            for (j, v) in map.v.iter().enumerate() {
+                let e = map.errors[i][j];
+                let _ = writeln!(csv, "{u},{v},{:.4},{:.4},{:.4}", e[0], e[1], e[2]);
+            }
+        }
+        let name = format!("map_{}", plane.name());
+        let drawn = plot::render_svg(&map, 800, 650)
+            .and_then(|svg| Ok((svg, plot::render_png(&map, 800, 650)?)));
+        let (svg, png) = match drawn {
+            Ok(d) => d,
+            Err(e) => return Outcome::failed(format!("{name}: {e}")),
+        };
+        let mut svg = artifact(format!("{name}.svg"), "image/svg+xml", svg.into_bytes());
+        svg.title = Some(format!("Volumetric error, {} plane", plane.name()));
+        for a in [
+            artifact(format!("{name}.csv"), "text/csv", csv.into_bytes()),
+            svg,
+            artifact(format!("{name}.png"), "image/png", png),
+        ] {
+            if let Err(e) = sink.artifact(a) {
+                return Outcome::failed(e);
+            }
+        }
+    }
+    let list: Vec<_> = c
+        .iter()
+        .map(|x| json!({"error": x.name, "max_um": x.max_um, "rms_um": x.rms_um}))
+        .collect();
+    let result = json!({"grid": grid, "total_max_um": tmax, "total_rms_um": trms, "contributions": list});
+    let metrics = crate::metrics_from(&result, &["total_max_um", "total_rms_um"]);
+    Outcome::succeeded(result, metrics)
+}
+
+/// The contributions as text: the total, then each error ranked.
+pub fn contributions_summary(r: &Value) -> String {
+    let n = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
+    let mut t = format!(
+        "total (first order): max {:.2} µm, RMS {:.2} µm over a {}³ grid\n",
+        n(&r["total_max_um"]),
+        n(&r["total_rms_um"]),
+        r["grid"]
+    );
+    for (i, x) in r["contributions"].as_array().into_iter().flatten().enumerate() {
+        let _ = writeln!(
+            t,
+            "{:>2}. {:<6} max {:>8.3} µm  RMS {:>8.3} µm",
+            i + 1,
+            x["error"].as_str().unwrap_or(""),
+            n(&x["max_um"]),
+            n(&x["rms_um"])
+        );
+    }
+    t
+}
+
+fn default_campaign_structure() -> String {
+    "XYFZ".into()
+}
+fn default_campaign_seed() -> u64 {
+    1
+}
+
+/// The emulated machine's measurement campaign.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VolumetricCampaignRequest {
+    #[serde(default = "default_campaign_structure")]
+    pub structure: String,
+    #[serde(default = "default_campaign_seed")]
+    pub seed: u64,
+}
+
+impl Default for VolumetricCampaignRequest {
+    fn default() -> Self {
+        Self {
+            structure: default_campaign_structure(),
+            seed: default_campaign_seed(),
+        }
+    }
+}
+
+impl VolumetricCampaignRequest {
+    pub fn check(&self) -> Result<(), RequestError> {
+        structure_of("structure", &self.structure).map(|_| ())
+    }
+}
+
+/// The emulated machine's campaign (laser, level and ball-bar files, and the camera's
+/// at several heights), one artifact per file. The result: `structure`, `seed`, `files`.
+pub fn simulate_campaign(request: &VolumetricCampaignRequest, sink: &mut dyn Sink) -> Outcome {
+    let structure = match structure_of("structure", &request.structure) {
+        Ok(s) => s,
+        Err(e) => return Outcome::failed(e.to_string()),
+    };
+    let machine = world::volumetric::VolumetricMachine::new(structure, request.seed);
+    let mut files = machine.campaign(request.seed);
+    let plan = world::volumetric::CameraPlan::default_for(machine.travel_mm);
+    files.push((
+        "camera.csv".into(),
+        machine.camera_campaign(&plan, request.seed).0,
+    ));
+    let names: Vec<String> = files.iter().map(|f| f.0.clone()).collect();
+    for (name, text) in files {
+        if let Err(e) = sink.artifact(artifact(name, "text/csv", text.into_bytes())) {
+            return Outcome::failed(e);
+        }
+    }
+    Outcome::succeeded(
+        json!({"structure": structure.name(), "seed": request.seed, "files": names}),
+        Default::default(),
+    )
+}
+
+/// The ISG kernel's (Beckhoff TF5280) files.
+pub const ISG_FILES: [&str; 2] = ["volcomp.csv", "volcomp.lis"];
+
+/// The model for the ISG kernel: `volcomp.csv` (blocks `C0Y B0Z A0Z P0X P0Y P0Z`,
+/// `X EXX ... ECX`, ..., mm and rad) and the compensation list `volcomp.lis` naming it.
+/// The result: `files`.
+pub fn export_isg(model: &Model, sink: &mut dyn Sink) -> Outcome {
+    let [csv, lis] = ISG_FILES;
+    for a in [
+        artifact(csv, "text/csv", write_isg_csv(&model.file).into_bytes()),
+        artifact(lis, "text/plain", write_isg_lis(&model.file, csv).into_bytes()),
+    ] {
+        if let Err(e) = sink.artifact(a) {
+            return Outcome::failed(e);
+        }
+    }
+    Outcome::succeeded(json!({"files": ISG_FILES}), Default::default())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Discard;
+
+    /// Keeps every artifact.
+    #[derive(Default)]
+    struct Keep(Vec<Artifact>);
+    impl Sink for Keep {
+        fn progress(&mut self, _: u64, _: u64) {}
+        fn measurement(&mut self, _: &Value) -> Result<(), String> {
+            Ok(())
+        }
+        fn artifact(&mut self, a: Artifact) -> Result<(), String> {
+            self.0.push(a);
+            Ok(())
+        }
+    }
+
+    fn zero_model() -> Model {
+        let mut m = Model::zero(Structure::Xyfz, [500.0, 400.0, 400.0]);
+        m.file.tables[0].errors[1][0] = 0.010;
+        m
+    }
+
+    #[test]
+    fn a_grid_past_the_memory_cap_is_refused_naming_the_field() {
+        let e = VolumetricContributionsRequest { grid: 1000 }
+            .check()
+            .unwrap_err();
+        assert_eq!(e.field, "grid");
+        assert!(e.for_cli().starts_with("--grid: "), "{e}");
+        assert!(e.message.contains("at most 219"), "{e}");
+        VolumetricContributionsRequest { grid: 219 }.check().unwrap();
+        assert_eq!(
+            VolumetricContributionsRequest { grid: 1 }
+                .check()
+                .unwrap_err()
+                .field,
+            "grid"
+        );
+        assert_eq!(
+            VolumetricContributionsRequest { grid: u64::MAX }
+                .check()
+                .unwrap_err()
+                .field,
+            "grid"
+        );
+        // Refused by the procedure too, before anything is computed.
+        let out = contributions(
+            &VolumetricContributionsRequest { grid: 1000 },
+            &zero_model(),
+            &mut Discard,
+        );
+        assert!(out.error().unwrap().starts_with("grid: "));
+    }
+
+    #[test]
+    fn bad_structures_offsets_and_too_many_points_are_named() {
+        let mut r = VolumetricIdentifyRequest {
+            structure: "XZFY".into(),
+            tool_offset_mm: [0.0; 3],
+            work_offset_mm: [0.0; 3],
+            plots: false,
+        };
+        let e = r.check().unwrap_err();
+        assert_eq!(e.for_cli(), "--structure: `XZFY`: expected FXYZ, XFYZ, XYFZ or XYZF");
+        r.structure = "xyfz".into();
+        r.tool_offset_mm[2] = f64::NAN;
+        assert_eq!(r.check().unwrap_err().field, "tool_offset_mm[2]");
+        let parsed: Result<VolumetricCampaignRequest, _> =
+            serde_json::from_value(json!({"structure": "XYFZ", "seeds": 2}));
+        assert!(parsed.is_err());
+        let mut text = String::from("x_mm,y_mm,z_mm\n");
+        for _ in 0..=MAX_EVAL_POINTS {
+            text.push_str("1,1,1\n");
+        }
+        let e = VolumetricEvalRequest::default()
+            .check_points(&text)
+            .unwrap_err();
+        assert_eq!(e.field, "points");
+    }
+
+    #[test]
+    fn a_campaign_identified_evaluated_and_exported() {
+        let mut sink = Keep::default();
+        let out = simulate_campaign(
+            &VolumetricCampaignRequest {
+                structure: "XFYZ".into(),
+                seed: 9,
+            },
+            &mut sink,
+        );
+        assert!(out.is_success(), "{:?}", out.error());
+        let files: Vec<(String, String)> = sink
+            .0
+            .iter()
+            .map(|a| (a.name.clone(), String::from_utf8(a.bytes.clone()).unwrap()))
+            .collect();
+        assert!(files.iter().any(|f| f.0 == "ballbar_XY.csv"));
+        let mut campaign = MemoryCampaign {
+            place: "camp".into(),
+            files,
+        };
+        let mut sink = Keep::default();
+        let request = VolumetricIdentifyRequest {
+            structure: "XFYZ".into(),
+            tool_offset_mm: [0.0, 0.0, 50.0],
+            work_offset_mm: [0.0; 3],
+            plots: true,
+        };
+        let out = identify(&request, &mut campaign, &mut sink);
+        assert!(out.is_success(), "{:?}", out.error());
+        let r = out.result.unwrap();
+        assert_eq!(r["fit_for_compensation"], true);
+        assert_eq!(r["errors"].as_array().unwrap().len(), 21);
+        let names: Vec<&str> = sink.0.iter().map(|a| a.name.as_str()).collect();
+        assert_eq!(names[0], MODEL_ARTIFACT);
+        assert!(names.contains(&"ballbar_XZ.png"), "{names:?}");
+        assert!(identify_summary(&r).contains("ball bar XY"));
+        let model = read_model(
+            "m",
+            std::str::from_utf8(&sink.0[0].bytes).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(model.file.tool_offset_mm, [0.0, 0.0, 50.0]);
+        let out = eval(
+            &VolumetricEvalRequest::default(),
+            &model,
+            "p.csv",
+            "x_mm,y_mm,z_mm\n0,0,0\n250,200,100\n",
+        );
+        let r = out.result.unwrap();
+        assert_eq!(r["points"].as_array().unwrap().len(), 2);
+        assert_eq!(eval_lines(&r).count(), 3);
+        let out = eval(
+            &VolumetricEvalRequest::default(),
+            &model,
+            "p.csv",
+            "x_mm,y_mm,z_mm\n0,0,0\n1e6,0,0\n",
+        );
+        assert!(out.error().unwrap().starts_with("p.csv: point 2 (line 3)"));
+        let mut sink = Keep::default();
+        assert!(export_isg(&model, &mut sink).is_success());
+        assert_eq!(sink.0.len(), 2);
+        // A campaign without its files names what is missing.
+        let mut empty = MemoryCampaign {
+            place: "none".into(),
+            files: Vec::new(),
+        };
+        let out = identify(&request, &mut empty, &mut Discard);
+        assert!(out.error().unwrap().starts_with("none/"), "{:?}", out.error());
+    }
+
+    #[test]
+    fn contributions_of_a_small_grid() {
+        let mut sink = Keep::default();
+        let out = contributions(
+            &VolumetricContributionsRequest { grid: 5 },
+            &zero_model(),
+            &mut sink,
+        );
+        let r = out.result.unwrap();
+        assert_eq!(r["contributions"][0]["error"], "E_XX");
+        assert!((r["total_max_um"].as_f64().unwrap() - 10.0).abs() < 1e-9);
+        assert_eq!(sink.0.len(), 12);
+        let csv = &sink.0.iter().find(|a| a.name == "map_XY.csv").unwrap().bytes;
+        assert_eq!(csv.iter().filter(|b| **b == b'\n').count(), 26);
+        assert!(contributions_summary(&r).contains("over a 5³ grid"));
+    }
+}

@@ -1,0 +1,212 @@
+//! What the service does with a procedure's output: measurements and progress into the
+//! store and out as events, charts kept for the job's result; a map scan's journal in
+//! the store (a stopped scan's samples are the next scan's start) and its map as a
+//! profile version.
+
+use crate::state::{lock, Shared};
+use errormap::scan::{Sample, ScanPlan};
+use procedure::map::{sample_of, MapShelf, ScanJournal};
+use procedure::{Artifact, Sink};
+use protocol::errormap::ErrorMap;
+use serde_json::{json, Map, Value};
+use std::sync::Arc;
+use store::{JobFilter, JobId, JobState, ProfileKind};
+use tracing::warn;
+
+/// One running job's sink.
+pub struct StoreSink {
+    pub shared: Arc<Shared>,
+    pub machine: String,
+    pub job: JobId,
+    /// SVG charts by name (`{"title", "svg"}`), for the job's result.
+    pub charts: Map<String, Value>,
+    /// The shifted layout of a layout job (its text), for the job's result.
+    pub layout: Option<String>,
+}
+
+impl StoreSink {
+    pub fn new(shared: &Arc<Shared>, machine: &str, job: JobId) -> Self {
+        Self {
+            shared: shared.clone(),
+            machine: machine.to_string(),
+            job,
+            charts: Map::new(),
+            layout: None,
+        }
+    }
+}
+
+impl Sink for StoreSink {
+    fn progress(&mut self, done: u64, total: u64) {
+        // The store's lock is released before the events (they read the store).
+        let _ = lock(&self.shared.store).set_progress(self.job, done, total);
+        self.shared.emit(json!({"type": "progress", "job_id": self.job, "machine": self.machine, "done": done, "total": total}));
+        self.shared.publish_states();
+    }
+
+    fn measurement(&mut self, measurement: &Value) -> Result<(), String> {
+        lock(&self.shared.store)
+            .add_measurement(self.job, measurement)
+            .map_err(|e| e.to_string())?;
+        self.shared.emit(json!({"type": "measurement", "job_id": self.job, "machine": self.machine, "measurement": measurement}));
+        Ok(())
+    }
+
+    fn artifact(&mut self, artifact: Artifact) -> Result<(), String> {
+        // The page shows the SVG charts and a layout job's client takes the shifted
+        // layout from the result; other artifacts are the CLI's files.
+        if artifact.name.starts_with("layout.") {
+            self.layout = Some(String::from_utf8_lossy(&artifact.bytes).into_owned());
+            return Ok(());
+        }
+        if artifact.media_type == "image/svg+xml" {
+            if let Some(title) = artifact.title {
+                let name = artifact
+                    .name
+                    .strip_suffix(".svg")
+                    .unwrap_or(&artifact.name)
+                    .to_string();
+                let svg = String::from_utf8_lossy(&artifact.bytes).into_owned();
+                self.charts
+                    .insert(name, json!({"title": title, "svg": svg}));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A map job's journal: its measurements. A new scan of a profile name resumes the
+/// latest stopped scan of that name on the machine when its plan is the same: the
+/// stopped job's samples are copied into the new job (so it can be resumed in turn).
+pub struct StoreJournal {
+    pub shared: Arc<Shared>,
+    pub machine: String,
+    pub job: JobId,
+    pub name: String,
+    /// The job's params (the normalized request): only a scan asked the same way resumes.
+    pub params: Value,
+    /// Where the resumed samples came from, for the result.
+    pub resumed_from: Option<JobId>,
+}
+
+impl StoreJournal {
+    /// The latest map job of this name on this machine that did not finish.
+    fn stopped_scan(&self) -> Result<Option<(JobId, Value)>, String> {
+        let store = lock(&self.shared.store);
+        let jobs = store
+            .jobs(&JobFilter {
+                machine: Some(self.machine.clone()),
+                state: None,
+                limit: None,
+                before_id: Some(self.job),
+            })
+            .map_err(|e| e.to_string())?;
+        let latest = jobs.into_iter().find(|j| {
+            j.kind == "map"
+                && j.params.get("name").and_then(Value::as_str) == Some(self.name.as_str())
+        });
+        let latest = latest.filter(|j| j.params == self.params);
+        Ok(latest
+            .filter(|j| {
+                matches!(
+                    j.state,
+                    JobState::Failed | JobState::Cancelled | JobState::Interrupted
+                )
+            })
+            .map(|j| (j.id, j.result.unwrap_or(Value::Null))))
+    }
+}
+
+impl ScanJournal for StoreJournal {
+    fn resume(&mut self, plan: &ScanPlan) -> Result<Vec<(usize, Sample)>, String> {
+        let Some((id, result)) = self.stopped_scan()? else {
+            return Ok(Vec::new());
+        };
+        // Only the same plan continues (a job interrupted by a restart has no result:
+        // its samples are checked against the plan's points instead).
+        if let Some(p) = result.get("plan").and_then(Value::as_str) {
+            if p != plan.fingerprint() {
+                return Ok(Vec::new());
+            }
+        }
+        let rows = lock(&self.shared.store)
+            .measurements(id)
+            .map_err(|e| e.to_string())?;
+        let mut samples = Vec::with_capacity(rows.len());
+        for (k, row) in rows.iter().enumerate() {
+            match sample_of(row).filter(|(i, _)| *i < plan.points.len()) {
+                Some(s) => samples.push(s),
+                None => {
+                    return Err(format!(
+                        "job {id}'s measurement #{k} is not a sample of this plan: {row}"
+                    ))
+                }
+            }
+        }
+        let mut store = lock(&self.shared.store);
+        for row in &rows {
+            store
+                .add_measurement(self.job, row)
+                .map_err(|e| e.to_string())?;
+        }
+        self.resumed_from = Some(id);
+        Ok(samples)
+    }
+
+    fn append(&mut self, _: usize, _: &Sample) -> Result<(), String> {
+        // The sink keeps every sample as a measurement of the job already.
+        Ok(())
+    }
+
+    fn close(&mut self) {}
+}
+
+/// The machine's error_map profiles.
+pub struct ProfileShelf {
+    pub shared: Arc<Shared>,
+    pub machine: String,
+    pub job: JobId,
+}
+
+impl MapShelf for ProfileShelf {
+    fn next_version(&mut self, name: &str) -> Result<u32, String> {
+        let versions = lock(&self.shared.store)
+            .profiles(&self.machine)
+            .map_err(|e| e.to_string())?;
+        Ok(versions
+            .iter()
+            .filter(|p| p.name == name)
+            .map(|p| p.version)
+            .max()
+            .unwrap_or(0)
+            + 1)
+    }
+
+    fn keep(&mut self, name: &str, map: &ErrorMap) -> Result<String, String> {
+        let body: Value = serde_json::from_str(&map.to_json()).map_err(|e| e.to_string())?;
+        let note = format!("scanned by job {}", self.job);
+        let p = lock(&self.shared.store)
+            .add_profile(
+                &self.machine,
+                name,
+                ProfileKind::ErrorMap,
+                &body,
+                Some(self.job),
+                Some(&note),
+            )
+            .map_err(|e| e.to_string())?;
+        Ok(format!("error_map profile {} v{}", p.name, p.version))
+    }
+}
+
+/// The error map in an `error_map` profile's body (the map file's JSON, perhaps beside
+/// drawings of it).
+pub fn profile_map(body: &Value) -> Result<ErrorMap, String> {
+    let text = body.get("map").unwrap_or(body).to_string();
+    ErrorMap::from_json("error_map profile", &text).map_err(|e| e.to_string())
+}
+
+/// Logs a result the store did not take.
+pub fn warn_unsaved(what: &str, e: impl std::fmt::Display) {
+    warn!(error = %e, "{what} not saved");
+}

@@ -1,0 +1,194 @@
+//! What the command line does around a procedure: the runtime, Ctrl-C as the stop
+//! signal, a progress bar, artifacts written atomically into the output folder (never
+//! over an input), and the outcome printed (`--json`: the procedure's result object, the
+//! same one the service stores).
+
+use anyhow::Context;
+use indicatif::{ProgressBar, ProgressStyle};
+use procedure::{Artifact, Outcome, Sink};
+use serde_json::Value;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+/// A runtime for one command: two workers, so bus tasks (heartbeats, status polling,
+/// emulators in-process) keep running while a frame is localized on the other.
+pub fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
+    Ok(tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()?)
+}
+
+/// Completes on Ctrl-C (never where signals cannot be handled).
+pub async fn ctrl_c() {
+    if tokio::signal::ctrl_c().await.is_err() {
+        std::future::pending::<()>().await;
+    }
+}
+
+/// Writes `bytes` to `path` atomically (a new file beside it, then a rename), refusing
+/// to write over any of `inputs`.
+pub fn write_atomic(path: &Path, bytes: &[u8], inputs: &[PathBuf]) -> anyhow::Result<()> {
+    let target = path
+        .canonicalize()
+        .or_else(|_| -> std::io::Result<PathBuf> {
+            let dir = path.parent().filter(|d| !d.as_os_str().is_empty());
+            let dir = dir.unwrap_or(Path::new(".")).canonicalize()?;
+            Ok(dir.join(path.file_name().unwrap_or_default()))
+        })
+        .with_context(|| format!("writing {}", path.display()))?;
+    for input in inputs {
+        if input.canonicalize().is_ok_and(|i| i == target) {
+            anyhow::bail!(
+                "{}: is an input of this command; it is never written over",
+                path.display()
+            );
+        }
+    }
+    let dir = target.parent().unwrap_or(Path::new("."));
+    let stamp = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos())
+        .unwrap_or(0);
+    let tmp = dir.join(format!(
+        ".{}.{}.{stamp}.tmp",
+        target.file_name().unwrap_or_default().to_string_lossy(),
+        std::process::id()
+    ));
+    let result = (|| {
+        let mut f = std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        std::fs::rename(&tmp, &target)
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result.with_context(|| format!("writing {}", path.display()))
+}
+
+/// What the CLI does with each measurement as it comes (e.g. rewrite a file).
+type OnMeasurement = Box<dyn FnMut(&Value) -> Result<(), String>>;
+
+/// The command line's sink.
+pub struct CliSink {
+    bar: ProgressBar,
+    /// Where artifacts go (none: not written), and under which names.
+    out: Option<PathBuf>,
+    rename: Vec<(String, PathBuf)>,
+    inputs: Vec<PathBuf>,
+    on_measurement: Option<OnMeasurement>,
+}
+
+impl CliSink {
+    /// `what` names the steps on the bar ("targets", "frames"); hidden with `--json`.
+    pub fn new(what: &str, json: bool) -> Self {
+        let bar = if json {
+            ProgressBar::hidden()
+        } else {
+            ProgressBar::new(0)
+        };
+        bar.set_style(
+            ProgressStyle::with_template(&format!(
+                "{{spinner}} [{{bar:30}}] {{pos}}/{{len}} {what}, {{elapsed}} so far, about {{eta}} left"
+            ))
+            .expect("valid template")
+            .progress_chars("=> "),
+        );
+        Self {
+            bar,
+            out: None,
+            rename: Vec::new(),
+            inputs: Vec::new(),
+            on_measurement: None,
+        }
+    }
+
+    /// Artifacts are written into `dir` (created).
+    pub fn into_folder(mut self, dir: &Path) -> anyhow::Result<Self> {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        self.out = Some(dir.to_path_buf());
+        Ok(self)
+    }
+
+    /// The artifact `name` is written to `path` instead (only those named, when no
+    /// folder is given).
+    pub fn artifact_to(mut self, name: &str, path: PathBuf) -> Self {
+        self.rename.push((name.to_string(), path));
+        self
+    }
+
+    /// Files the command reads: never written over.
+    pub fn inputs(mut self, inputs: &[&Path]) -> Self {
+        self.inputs = inputs.iter().map(|p| p.to_path_buf()).collect();
+        self
+    }
+
+    pub fn on_measurement(mut self, f: impl FnMut(&Value) -> Result<(), String> + 'static) -> Self {
+        self.on_measurement = Some(Box::new(f));
+        self
+    }
+
+    pub fn finish(&self) {
+        self.bar.finish_and_clear();
+    }
+}
+
+impl Sink for CliSink {
+    fn progress(&mut self, done: u64, total: u64) {
+        if self.bar.length() != Some(total) {
+            self.bar.set_length(total);
+            self.bar.set_position(done);
+            self.bar.reset_eta();
+        }
+        self.bar.set_position(done);
+    }
+
+    fn measurement(&mut self, measurement: &Value) -> Result<(), String> {
+        match &mut self.on_measurement {
+            Some(f) => f(measurement),
+            None => Ok(()),
+        }
+    }
+
+    fn artifact(&mut self, artifact: Artifact) -> Result<(), String> {
+        let path = match self.rename.iter().find(|(n, _)| *n == artifact.name) {
+            Some((_, p)) => p.clone(),
+            None => match &self.out {
+                Some(dir) => dir.join(&artifact.name),
+                None => return Ok(()),
+            },
+        };
+        write_atomic(&path, &artifact.bytes, &self.inputs).map_err(|e| format!("{e:#}"))
+    }
+}
+
+/// Prints an outcome: `--json` the result object (the service's too), else `text` of
+/// it; a failure's message goes to stderr and the exit code is 1. A failure with
+/// nothing to show is returned as the error (main prints it, as JSON with `--json`).
+pub fn print(outcome: &Outcome, json: bool, text: impl FnOnce(&Value)) -> anyhow::Result<ExitCode> {
+    let Some(result) = &outcome.result else {
+        anyhow::bail!("{}", outcome.error().unwrap_or("cancelled"));
+    };
+    if json {
+        println!("{result}");
+    } else {
+        text(result);
+    }
+    std::io::stdout().flush()?;
+    match &outcome.end {
+        procedure::End::Succeeded => Ok(ExitCode::SUCCESS),
+        procedure::End::Failed { error } => {
+            eprintln!("error: {error}");
+            Ok(ExitCode::FAILURE)
+        }
+        procedure::End::Cancelled => {
+            eprintln!("cancelled: the stage was told to stop; what was measured is kept");
+            Ok(ExitCode::FAILURE)
+        }
+    }
+}

@@ -1,0 +1,270 @@
+//! One procedure per capability: the same request through the command line (`--json`)
+//! and through the service's API gives the same outcome object, modulo ids and times.
+//! Each side starts from a fresh simulated machine (a new process, a new service), so
+//! the seeded machine behaves the same on both. No wall-time sleeps: the API side waits
+//! on the job's events.
+
+use futures_util::StreamExt;
+use reqwest::{Client, StatusCode};
+use serde_json::{json, Value};
+use service::{BoxConfig, Running};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use tokio_tungstenite::tungstenite::client::IntoClientRequest;
+use tokio_tungstenite::tungstenite::Message;
+
+type Ws =
+    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+
+/// Keys whose values are times or where a product was delivered (the CLI writes files,
+/// the service keeps charts and the shifted layout in the record): they differ.
+const VOLATILE: &[&str] = &["wall_time_s", "partition_ms", "kept_as", "charts", "layout"];
+
+fn stripped(mut v: Value) -> Value {
+    fn walk(v: &mut Value) {
+        match v {
+            Value::Object(o) => {
+                for k in VOLATILE {
+                    o.remove(*k);
+                }
+                o.values_mut().for_each(walk);
+            }
+            Value::Array(a) => a.iter_mut().for_each(walk),
+            _ => {}
+        }
+    }
+    walk(&mut v);
+    v
+}
+
+fn workspace() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .unwrap()
+        .to_path_buf()
+}
+
+fn demo_job() -> String {
+    workspace()
+        .join("config/gateway/demo.toml")
+        .display()
+        .to_string()
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("procedures-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("scratch folder");
+    dir
+}
+
+/// The CLI's `--json` object (the command must succeed).
+fn cli(args: &[&str]) -> Value {
+    let o = Command::new(env!("CARGO_BIN_EXE_gateway"))
+        .args(args)
+        .output()
+        .expect("gateway runs");
+    assert!(
+        o.status.success(),
+        "gateway {args:?}: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    serde_json::from_slice(&o.stdout).expect("one JSON object")
+}
+
+struct Api {
+    _dir: tempfile::TempDir,
+    running: Running,
+    client: Client,
+    ws: Ws,
+}
+
+impl Api {
+    async fn start() -> Api {
+        let dir = tempfile::tempdir().unwrap();
+        let running = service::start(BoxConfig::demo(dir.path()))
+            .await
+            .expect("service starts");
+        let mut req = format!("ws://{}/api/v1/events", running.local_addr())
+            .into_client_request()
+            .unwrap();
+        req.headers_mut().insert(
+            "Sec-WebSocket-Protocol",
+            format!("gateway.v1, bearer.{}", running.token())
+                .parse()
+                .unwrap(),
+        );
+        let (ws, _) = tokio_tungstenite::connect_async(req).await.expect("ws");
+        Api {
+            _dir: dir,
+            running,
+            client: Client::new(),
+            ws,
+        }
+    }
+
+    async fn post(&self, path: &str, body: Value) -> (StatusCode, Value) {
+        let r = self
+            .client
+            .post(format!("http://{}{path}", self.running.local_addr()))
+            .bearer_auth(self.running.token())
+            .json(&body)
+            .send()
+            .await
+            .unwrap();
+        let status = r.status();
+        (status, r.json().await.unwrap_or(Value::Null))
+    }
+
+    /// Queues a job and waits for its final record.
+    async fn run(&mut self, kind: &str, params: Value) -> Value {
+        let (status, job) = self
+            .post(
+                "/api/v1/machines/demo/jobs",
+                json!({"kind": kind, "params": params}),
+            )
+            .await;
+        assert_eq!(status, StatusCode::ACCEPTED, "{job}");
+        let id = job["id"].clone();
+        loop {
+            let e = match self.ws.next().await.expect("events").expect("event") {
+                Message::Text(t) => serde_json::from_str::<Value>(&t).unwrap(),
+                _ => continue,
+            };
+            let state = e["job"]["state"].as_str().unwrap_or("");
+            if e["type"] == "job"
+                && e["job"]["id"] == id
+                && ["succeeded", "failed", "cancelled"].contains(&state)
+            {
+                return e["job"].clone();
+            }
+        }
+    }
+}
+
+async fn api_result(kind: &str, params: Value) -> Value {
+    let mut api = Api::start().await;
+    let job = api.run(kind, params).await;
+    assert_eq!(job["state"], "succeeded", "{job}");
+    job["result"].clone()
+}
+
+fn assert_same(cli: Value, api: Value) {
+    let (c, a) = (stripped(cli), stripped(api));
+    assert!(c == a, "the CLI and the API differ:\nCLI {c:#}\nAPI {a:#}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn compensate_through_the_cli_and_the_api_gives_one_outcome() {
+    let from_cli = cli(&["demo", "--json", "--targets", "2"]);
+    let from_api = api_result("compensate", json!({"targets": 2})).await;
+    assert_eq!(from_cli["targets"], 2);
+    assert_same(from_cli, from_api);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn map_verify_and_iso230_through_the_cli_and_the_api_give_one_outcome() {
+    let dir = scratch("map");
+    let out = dir.display().to_string();
+    let job = demo_job();
+    let scan = [
+        "--grid-step-mm",
+        "50",
+        "--line-step-mm",
+        "25",
+        "--passes",
+        "1",
+    ];
+    let mut args = vec![
+        "map", "--config", &job, "--out", &out, "--name", "scan", "--json",
+    ];
+    args.extend(scan);
+    let from_cli = cli(&args);
+    let from_api = api_result(
+        "map",
+        json!({"name": "scan", "grid_step_mm": 50.0, "line_step_mm": 25.0, "passes": 1}),
+    )
+    .await;
+    assert_eq!(from_cli["version"], 1);
+    assert_same(from_cli.clone(), from_api);
+
+    // Verify with that map: on the CLI from its file, on a fresh service as the
+    // machine's active profile.
+    let map_file = from_cli["kept_as"].as_str().unwrap().to_string();
+    let body: Value = serde_json::from_str(&std::fs::read_to_string(&map_file).unwrap()).unwrap();
+    let from_cli = cli(&[
+        "verify", "--config", &job, "--map", &map_file, "--points", "3", "--json",
+    ]);
+    let mut api = Api::start().await;
+    let (status, p) = api
+        .post(
+            "/api/v1/machines/demo/profiles/error_map",
+            json!({"kind": "error_map", "body": body}),
+        )
+        .await;
+    assert_eq!(status, StatusCode::CREATED, "{p}");
+    let (status, a) = api
+        .post(
+            "/api/v1/machines/demo/profiles/error_map/1/activate",
+            json!({}),
+        )
+        .await;
+    assert_eq!(status, StatusCode::OK, "{a}");
+    let job_record = api.run("verify", json!({"points": 3})).await;
+    assert_eq!(job_record["state"], "succeeded", "{job_record}");
+    assert_eq!(from_cli["points"].as_array().unwrap().len(), 3);
+    assert_same(from_cli, job_record["result"].clone());
+
+    // ISO 230-2 without a map.
+    let iso = scratch("iso230");
+    let iso_out = iso.display().to_string();
+    let from_cli = cli(&[
+        "iso230",
+        "--config",
+        &job,
+        "--axis",
+        "x",
+        "--positions",
+        "5",
+        "--runs",
+        "5",
+        "--out",
+        &iso_out,
+        "--json",
+    ]);
+    let from_api = api_result("iso230", json!({"axis": "X", "positions": 5, "runs": 5})).await;
+    assert!(iso.join("report.html").is_file());
+    assert!(iso.join("deviation_x.svg").is_file());
+    assert_same(from_cli, from_api);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn layout_through_the_cli_and_the_api_gives_one_outcome() {
+    let dir = scratch("layout");
+    let input = workspace().join("gateway/layout/data/esicup/shirts.json");
+    let out = dir.join("shifted.json");
+    let from_cli = cli(&[
+        "layout",
+        "partition",
+        input.to_str().unwrap(),
+        "--tools",
+        "2",
+        "--window-mm",
+        "20",
+        "--gap-mm",
+        "2",
+        "--widen",
+        "--out",
+        out.to_str().unwrap(),
+        "--json",
+    ]);
+    let text = std::fs::read_to_string(&input).unwrap();
+    let from_api = api_result(
+        "layout",
+        json!({"layout": text, "format": "json", "tools": 2, "window_mm": 20.0, "gap_mm": 2.0, "widen": true}),
+    )
+    .await;
+    assert!(out.is_file());
+    assert!(from_cli["groups"].as_array().unwrap().len() > 2);
+    assert_same(from_cli, from_api);
+}
