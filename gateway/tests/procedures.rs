@@ -268,3 +268,24 @@ async fn layout_through_the_cli_and_the_api_gives_one_outcome() {
     assert!(from_cli["groups"].as_array().unwrap().len() > 2);
     assert_same(from_cli, from_api);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn rotary_measure_through_the_cli_and_the_api_gives_one_outcome() {
+    let dir = scratch("rotary");
+    // The service's demo machine measures the built-in table: every default.
+    let config = dir.join("table.json");
+    std::fs::write(&config, "{}").unwrap();
+    let from_cli = cli(&[
+        "rotary",
+        "measure",
+        "--config",
+        config.to_str().unwrap(),
+        "--out",
+        dir.to_str().unwrap(),
+        "--json",
+    ]);
+    let from_api = api_result("rotary", json!({})).await;
+    assert!(dir.join("errors.json").is_file());
+    assert!(from_cli["cycle"]["balls"].as_u64().unwrap() > 10);
+    assert_same(from_cli, from_api);
+}

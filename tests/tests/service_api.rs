@@ -903,11 +903,11 @@ async fn a_rotary_job_identifies_the_table_and_becomes_a_profile_version() {
             .unwrap()
             >= 95.0
     );
-    assert_eq!(result["profile"], json!({"name": "table", "version": 1}));
+    assert_eq!(result["kept_as"], "rotary profile table v1");
     let (_, kept) = get(&c, &s, &format!("/api/v1/jobs/{id}/measurements")).await;
     assert_eq!(kept.as_array().unwrap().len() as u64, balls);
     let (_, charts) = get(&c, &s, &format!("/api/v1/jobs/{id}/charts")).await;
-    assert_eq!(charts[0]["name"], "rotary_sweeps", "{charts}");
+    assert_eq!(charts[0]["name"], "rotary-sweeps", "{charts}");
     let (_, list) = get(&c, &s, "/api/v1/machines/demo/profiles").await;
     let profile = list
         .as_array()

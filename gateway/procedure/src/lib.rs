@@ -9,11 +9,15 @@
 //! request) and out (files and a progress bar, or the store and events).
 
 pub mod compensate;
+pub mod export;
 pub mod iso230;
 pub mod layout;
 pub mod map;
 pub mod request;
+pub mod rewrite;
+pub mod rotary;
 pub mod verify;
+pub mod volumetric;
 
 use devices::Devices;
 use job::Job;

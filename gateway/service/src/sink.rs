@@ -199,6 +199,30 @@ impl MapShelf for ProfileShelf {
     }
 }
 
+/// The machine's rotary profiles: the identified errors' report as the body.
+pub struct RotaryShelf {
+    pub shared: Arc<Shared>,
+    pub machine: String,
+    pub job: JobId,
+}
+
+impl procedure::rotary::ErrorsShelf for RotaryShelf {
+    fn keep(&mut self, name: &str, report: &Value) -> Result<String, String> {
+        let note = format!("measured by job {}", self.job);
+        let p = lock(&self.shared.store)
+            .add_profile(
+                &self.machine,
+                name,
+                ProfileKind::Rotary,
+                report,
+                Some(self.job),
+                Some(&note),
+            )
+            .map_err(|e| e.to_string())?;
+        Ok(format!("rotary profile {} v{}", p.name, p.version))
+    }
+}
+
 /// The error map in an `error_map` profile's body (the map file's JSON, perhaps beside
 /// drawings of it).
 pub fn profile_map(body: &Value) -> Result<ErrorMap, String> {

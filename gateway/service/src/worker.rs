@@ -8,7 +8,7 @@
 //! [`CANCEL_GRACE`] drops it the same way.
 
 use crate::config::MachineConfig;
-use crate::sink::{profile_map, ProfileShelf, StoreJournal, StoreSink};
+use crate::sink::{profile_map, ProfileShelf, RotaryShelf, StoreJournal, StoreSink};
 use crate::state::{lock, Machine, MachineState, Shared};
 use devices::Devices;
 use futures_util::FutureExt;
@@ -161,17 +161,6 @@ fn to_store(outcome: procedure::Outcome, sink: StoreSink) -> (Outcome, Option<St
     (stored, outcome.link_lost)
 }
 
-fn failed(error: String) -> (Outcome, Option<String>) {
-    (
-        Outcome::Failed {
-            error,
-            result: None,
-            metrics: Map::new(),
-        },
-        None,
-    )
-}
-
 /// The text of a panic's payload.
 fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
     payload
@@ -256,10 +245,7 @@ async fn run_one(
     );
     let ended = supervise(job_future, stop_requested, stop_tx, CANCEL_GRACE).await;
     let (outcome, lost) = match ended {
-        Supervised::Ended((outcome, lost)) => match outcome {
-            Ran::Procedure(o) => to_store(o, sink),
-            Ran::Stored(o) => (o, lost),
-        },
+        Supervised::Ended(outcome) => to_store(outcome, sink),
         Supervised::Panicked(message) => {
             warn!(panic = %message, "the job panicked");
             let _ = devices.stage.stop().await;
@@ -336,12 +322,6 @@ pub(crate) async fn supervise<T>(
     }
 }
 
-/// What a job gave: a procedure's outcome, or the store's directly.
-enum Ran {
-    Procedure(procedure::Outcome),
-    Stored(Outcome),
-}
-
 /// Translates a stored request into its procedure's call: the machine's job file, its
 /// active map, the store as the sink.
 #[allow(clippy::too_many_arguments)]
@@ -355,28 +335,42 @@ async fn run_request(
     map: Option<(String, Value)>,
     sink: &mut StoreSink,
     stop: impl std::future::Future<Output = ()>,
-) -> (Ran, Option<String>) {
-    let done = |o: procedure::Outcome| (Ran::Procedure(o), None);
+) -> procedure::Outcome {
     let request = match request {
         Ok(r) => r,
-        Err(e) => return done(procedure::Outcome::failed(format!("params.{e}"))),
+        Err(e) => return procedure::Outcome::failed(format!("params.{e}")),
     };
     if let Request::Rotary(r) = &request {
-        let _ = r;
-        let (o, lost) = rotary_job(shared, &machine.id, config, record, stop).await;
-        return (Ran::Stored(o), lost);
+        // The table's own link, from the machine's rotary job file (the X-Y stage's
+        // devices are not used).
+        let Some(source) = &config.rotary else {
+            return procedure::Outcome::failed(format!(
+                "machine {} has no rotary job file",
+                machine.id
+            ));
+        };
+        let job = match source.load() {
+            Ok(j) => j,
+            Err(e) => return procedure::Outcome::failed(format!("rotary job file: {e}")),
+        };
+        let mut shelf = RotaryShelf {
+            shared: shared.clone(),
+            machine: machine.id.clone(),
+            job: record.id,
+        };
+        return procedure::rotary::measure(r, &job, &mut shelf, sink, stop).await;
     }
     if let Request::Layout(r) = &request {
-        return done(procedure::layout::partition(r, sink));
+        return procedure::layout::partition(r, sink);
     }
     let job = match config.job.load() {
         Ok(j) => j,
-        Err(e) => return done(procedure::Outcome::failed(format!("job file: {e}"))),
+        Err(e) => return procedure::Outcome::failed(format!("job file: {e}")),
     };
     let map = match (request.uses_map(), map) {
         (false, _) => None,
         (true, None) => {
-            return done(procedure::Outcome::failed(format!(
+            return procedure::Outcome::failed(format!(
                 "{}: machine {} has no active error_map profile; activate one first",
                 if request.kind() == "verify" {
                     "verify"
@@ -384,15 +378,11 @@ async fn run_request(
                     "params.with_map"
                 },
                 machine.id
-            )))
+            ))
         }
         (true, Some((name, body))) => match profile_map(&body) {
             Ok(map) => Some(NamedMap { map, name }),
-            Err(e) => {
-                return done(procedure::Outcome::failed(format!(
-                    "the active {name}: {e}"
-                )))
-            }
+            Err(e) => return procedure::Outcome::failed(format!("the active {name}: {e}")),
         },
     };
     let outcome = match &request {
@@ -426,147 +416,7 @@ async fn run_request(
         Request::Iso230(r) => procedure::iso230::run(r, &job, devices, map, None, sink, stop).await,
         Request::Layout(_) | Request::Rotary(_) => unreachable!("handled above"),
     };
-    done(outcome)
-}
-
-/// A measurement of the A/C table through the machine's rotary link (see
-/// [`check_rotary_params`]): the paper's probing cycle on a blocking thread (it drives
-/// its link move by move), progress per ball, every ball's fitted sphere kept as a
-/// measurement (a stopped cycle keeps those it measured), and the identified errors kept
-/// as the next version of the rotary profile `params.name` (inactive until activated).
-async fn rotary_job(
-    shared: &Arc<Shared>,
-    machine: &str,
-    config: &MachineConfig,
-    record: &JobRecord,
-    stop: impl std::future::Future<Output = ()>,
-) -> (Outcome, Option<String>) {
-    use std::sync::atomic::{AtomicBool, Ordering};
-    let Some(source) = &config.rotary else {
-        return failed(format!("machine {machine} has no rotary job file"));
-    };
-    let job = match source.load() {
-        Ok(j) => j,
-        Err(e) => return failed(format!("rotary job file: {e}")),
-    };
-    let name = record
-        .params
-        .get("name")
-        .and_then(Value::as_str)
-        .unwrap_or("rotary")
-        .to_string();
-    let constants = job.machine.unwrap_or_default();
-    let id = record.id;
-    let stop_asked = AtomicBool::new(false);
-    let stop = async {
-        stop.await;
-        // The cycle ends before its next move, keeping what it measured.
-        stop_asked.store(true, Ordering::Relaxed);
-    };
-    let cycle = runner::rotary::run_cycle(
-        &job,
-        |done, of| {
-            // The store's lock is released before the events (they read it).
-            let _ = lock(&shared.store).set_progress(id, done as u64, of as u64);
-            shared.emit(json!({"type": "progress", "job_id": id, "machine": machine, "done": done, "total": of}));
-            shared.publish_states();
-        },
-        stop,
-    )
-    .await;
-    let cancelled = stop_asked.load(Ordering::Relaxed);
-    let run = match cycle {
-        Ok(run) => run,
-        Err(e) => return failed(e.to_string()),
-    };
-    let (m, stopped) = match &run.cycle {
-        Ok(m) => (m, None),
-        Err(s) => (&s.so_far, Some(s.error.to_string())),
-    };
-    for b in &m.balls {
-        let v = json!({"axis": b.axis.to_string(), "step": b.step, "angle_deg": b.angle_deg,
-            "ball": b.ball, "centre_mm": b.sphere.centre, "radius_mm": b.sphere.radius_mm,
-            "rms_um": b.sphere.rms_mm * 1e3, "points": b.points});
-        if let Err(e) = lock(&shared.store).add_measurement(id, &v) {
-            warn!(error = %e, "measurement not saved");
-        }
-    }
-    if let Some(error) = stopped {
-        let result =
-            Some(json!({"balls_measured": m.balls.len(), "probe_touches": m.probe_touches}));
-        return if cancelled {
-            (
-                Outcome::Cancelled {
-                    result,
-                    metrics: Map::new(),
-                },
-                None,
-            )
-        } else {
-            (
-                Outcome::Failed {
-                    error: format!("the measurement cycle stopped: {error}"),
-                    result,
-                    metrics: Map::new(),
-                },
-                None,
-            )
-        };
-    }
-    let rows = m.centres();
-    let identified = match rotary::identify(&rows, &constants) {
-        Ok(i) => i,
-        Err(e) => return failed(format!("identification: {e}")),
-    };
-    let mut report = match runner::rotary::cycle_report(&run, m, &identified, &constants) {
-        Ok(r) => r,
-        Err(e) => return failed(format!("the report: {e}")),
-    };
-    let note = format!("measured by job {id}");
-    let profile = match lock(&shared.store).add_profile(
-        machine,
-        &name,
-        ProfileKind::Rotary,
-        &report,
-        Some(id),
-        Some(&note),
-    ) {
-        Ok(p) => p,
-        Err(e) => return failed(format!("the errors were identified but not stored: {e}")),
-    };
-    let mut metrics = Map::new();
-    for (error, v) in identified.errors.named() {
-        metrics.insert(error.into(), json!(v));
-    }
-    metrics.insert("balls".into(), json!(m.balls.len()));
-    metrics.insert("profile_version".into(), json!(profile.version));
-    let chart = rotary::chart::SweepChart {
-        rows: &rows,
-        identification: &identified,
-        magnification: 1000.0,
-    };
-    if let Some(obj) = report.as_object_mut() {
-        obj.insert(
-            "profile".into(),
-            json!({"name": profile.name, "version": profile.version}),
-        );
-        match plot::render_svg(&chart, 1000, 460) {
-            Ok(svg) => {
-                obj.insert(
-                    "charts".into(),
-                    json!({"rotary_sweeps": {"title": "Ball centres and fitted circles (deviations x1000)", "svg": svg}}),
-                );
-            }
-            Err(e) => warn!(error = %e, "chart not drawn"),
-        }
-    }
-    (
-        Outcome::Succeeded {
-            result: report,
-            metrics,
-        },
-        None,
-    )
+    outcome
 }
 
 #[cfg(test)]

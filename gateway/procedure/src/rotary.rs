@@ -1,0 +1,363 @@
+//! The A/C tilting table of source B: the paper's probing cycle through the rotary job's
+//! link and the identification of the eight location errors (`measure`), the errors
+//! from centres measured elsewhere (`identify`), and a 5-axis program rewritten for them
+//! (`rewrite`).
+
+use crate::request::RotaryRequest;
+use crate::{Artifact, Outcome, Sink};
+use job::rotary::RotaryJob;
+use rotary::{identify as identify_errors, write_centres, CentreRow, Identification};
+use rotary::{LocationErrors, MachineConstants, RotaryMachine};
+use serde_json::{json, Value};
+use std::cell::Cell;
+use std::future::Future;
+
+/// Where the identified errors are kept (the CLI: `errors.json` in its folder, written
+/// as an artifact; the service: the next version of a rotary profile).
+pub trait ErrorsShelf {
+    /// Keeps the report; returns where it went, for the result.
+    fn keep(&mut self, name: &str, report: &Value) -> Result<String, String>;
+}
+
+/// The sweep chart (centres and fitted circles, deviations x1000) as SVG and PNG.
+fn sweep_chart(rows: &[CentreRow], id: &Identification, sink: &mut dyn Sink) -> Result<(), String> {
+    let chart = rotary::chart::SweepChart {
+        rows,
+        identification: id,
+        magnification: 1000.0,
+    };
+    let svg = plot::render_svg(&chart, 1000, 460).map_err(|e| format!("the sweep chart: {e}"))?;
+    let png = plot::render_png(&chart, 1000, 460).map_err(|e| format!("the sweep chart: {e}"))?;
+    sink.artifact(Artifact {
+        name: "rotary-sweeps.svg".into(),
+        title: Some("Ball centres and fitted circles (deviations x1000)".into()),
+        media_type: "image/svg+xml",
+        bytes: svg.into_bytes(),
+    })?;
+    sink.artifact(Artifact {
+        name: "rotary-sweeps.png".into(),
+        title: None,
+        media_type: "image/png",
+        bytes: png,
+    })
+}
+
+/// Every probe point of the cycle (`axis,step,angle_deg,ball,touch,x_mm,y_mm,z_mm`).
+fn points_csv(m: &rotary::measure::Measurement) -> String {
+    let mut points = String::from("axis,step,angle_deg,ball,touch,x_mm,y_mm,z_mm\n");
+    for b in &m.balls {
+        for (k, p) in b.points.iter().enumerate() {
+            points.push_str(&format!(
+                "{},{},{},{},{},{:.6},{:.6},{:.6}\n",
+                b.axis,
+                b.step,
+                b.angle_deg,
+                b.ball,
+                k + 1,
+                p[0],
+                p[1],
+                p[2]
+            ));
+        }
+    }
+    points
+}
+
+fn text_artifact(name: &str, media_type: &'static str, text: String) -> Artifact {
+    Artifact {
+        name: name.into(),
+        title: None,
+        media_type,
+        bytes: text.into_bytes(),
+    }
+}
+
+/// Runs the paper's probing cycle through the job's link (the simulated table in-process,
+/// the GRBL emulator, or a real controller), each ball's sphere a measurement as it is
+/// fitted, `centres.csv` and `points.csv` as artifacts (also for a stopped cycle), then
+/// identifies the eight errors, keeps them on the shelf and draws the sweep chart. The
+/// result is the report (`runner::rotary::cycle_report`) with `name`, `kept_as`.
+pub async fn measure(
+    request: &RotaryRequest,
+    job: &RotaryJob,
+    shelf: &mut dyn ErrorsShelf,
+    sink: &mut dyn Sink,
+    stop: impl Future<Output = ()>,
+) -> Outcome {
+    let constants = job.machine.unwrap_or_default();
+    let cancelled = Cell::new(false);
+    let progress = std::cell::RefCell::new(&mut *sink);
+    let run = runner::rotary::run_cycle(
+        job,
+        |done, of| progress.borrow_mut().progress(done as u64, of as u64),
+        async {
+            stop.await;
+            cancelled.set(true);
+        },
+    )
+    .await;
+    let run = match run {
+        Ok(run) => run,
+        Err(e) => return Outcome::failed(e.to_string()),
+    };
+    let (m, stopped) = match &run.cycle {
+        Ok(m) => (m, None),
+        Err(s) => (&s.so_far, Some(s.error.to_string())),
+    };
+    for b in &m.balls {
+        let v = json!({"axis": b.axis.to_string(), "step": b.step, "angle_deg": b.angle_deg,
+            "ball": b.ball, "centre_mm": b.sphere.centre, "radius_mm": b.sphere.radius_mm,
+            "rms_um": b.sphere.rms_mm * 1e3, "points": b.points});
+        if let Err(e) = sink.measurement(&v) {
+            return Outcome::failed(format!("a ball's sphere was not kept: {e}"));
+        }
+    }
+    let rows = m.centres();
+    for a in [
+        text_artifact("centres.csv", "text/csv", write_centres(&rows)),
+        text_artifact("points.csv", "text/csv", points_csv(m)),
+    ] {
+        if let Err(e) = sink.artifact(a) {
+            return Outcome::failed(e);
+        }
+    }
+    if let Some(error) = stopped {
+        let result = json!({"name": request.name, "balls_measured": m.balls.len(), "probe_touches": m.probe_touches});
+        let error = format!(
+            "the measurement cycle stopped: {error} ({} balls measured, kept in centres.csv and points.csv)",
+            m.balls.len()
+        );
+        return Outcome::stopped(
+            cancelled.get(),
+            error,
+            Some(result),
+            Default::default(),
+            false,
+        );
+    }
+    let identified = match identify_errors(&rows, &constants) {
+        Ok(i) => i,
+        Err(e) => return Outcome::failed(format!("identification: {e}")),
+    };
+    let mut report = match runner::rotary::cycle_report(&run, m, &identified, &constants) {
+        Ok(r) => r,
+        Err(e) => return Outcome::failed(format!("the report: {e}")),
+    };
+    if let Err(e) = sweep_chart(&rows, &identified, sink) {
+        return Outcome::failed(e);
+    }
+    let kept_as = match shelf.keep(&request.name, &report) {
+        Ok(k) => k,
+        Err(e) => return Outcome::failed(format!("the errors were identified but not kept: {e}")),
+    };
+    let obj = report.as_object_mut().expect("an object");
+    obj.insert("name".into(), json!(request.name));
+    obj.insert("kept_as".into(), json!(kept_as));
+    let mut metrics = serde_json::Map::new();
+    for (error, v) in identified.errors.named() {
+        metrics.insert(error.into(), json!(v));
+    }
+    metrics.insert("balls".into(), json!(m.balls.len()));
+    Outcome::succeeded(report, metrics)
+}
+
+/// The eight errors from ball centres measured elsewhere (a CMM, as in the paper): the
+/// centres file's text in, the identification as the result, the sweep chart as
+/// artifacts.
+pub fn identify(
+    centres: &str,
+    source: &str,
+    constants: &MachineConstants,
+    sink: &mut dyn Sink,
+) -> Outcome {
+    let rows = match rotary::parse_centres(centres) {
+        Ok(r) => r,
+        Err(e) => return Outcome::failed(format!("{source}: {e}")),
+    };
+    let id = match identify_errors(&rows, constants) {
+        Ok(i) => i,
+        Err(e) => return Outcome::failed(format!("identifying from {source}: {e}")),
+    };
+    if let Err(e) = sweep_chart(&rows, &id, sink) {
+        return Outcome::failed(e);
+    }
+    Outcome::succeeded(
+        runner::rotary::identification_json(&id, constants),
+        Default::default(),
+    )
+}
+
+/// A 5-axis program (X Y Z A C, absolute, mm) rewritten for the errors: the program's
+/// text in, the rewritten program as the artifact `program.nc`, the figures as the
+/// result. `tolerance_um` is the largest distance of a piece's middle from the
+/// compensated path.
+pub fn rewrite(
+    program: &str,
+    source: &str,
+    errors: LocationErrors,
+    constants: MachineConstants,
+    tolerance_um: f64,
+    sink: &mut dyn Sink,
+) -> Outcome {
+    if !(tolerance_um > 0.0 && tolerance_um.is_finite() && tolerance_um <= 1000.0) {
+        return Outcome::failed(format!(
+            "tolerance_um: must be a number from 0 (excluded) to 1000, got {tolerance_um}"
+        ));
+    }
+    let model = RotaryMachine::with_errors(constants, errors);
+    let opts = rotary::rewrite::RewriteOptions {
+        tolerance_mm: tolerance_um / 1000.0,
+        ..Default::default()
+    };
+    let (rewritten, report) = match rotary::rewrite::rewrite_program(program, &model, &opts) {
+        Ok(r) => r,
+        Err(e) => return Outcome::failed(format!("{source}: {e}")),
+    };
+    let max_xyz = report
+        .points
+        .iter()
+        .map(|p| {
+            let (n, c) = (p.nominal, p.command);
+            ((c.x - n.x).powi(2) + (c.y - n.y).powi(2) + (c.z - n.z).powi(2)).sqrt()
+        })
+        .fold(0.0f64, f64::max);
+    let max_ac = report
+        .points
+        .iter()
+        .map(|p| {
+            (p.command.a - p.nominal.a)
+                .abs()
+                .max((p.command.c - p.nominal.c).abs())
+        })
+        .fold(0.0f64, f64::max);
+    if let Err(e) = sink.artifact(text_artifact("program.nc", "text/plain", rewritten)) {
+        return Outcome::failed(e);
+    }
+    Outcome::succeeded(
+        json!({
+            "lines": report.lines,
+            "moves": report.moves,
+            "pieces_added": report.pieces_added,
+            "max_correction_xyz_mm": max_xyz,
+            "max_correction_ac_deg": max_ac,
+        }),
+        Default::default(),
+    )
+}
+
+/// An identification or a cycle's report as text (the CLI's output without `--json`).
+pub fn summary(r: &Value) -> String {
+    use std::fmt::Write;
+    let mut t = String::new();
+    let n = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
+    if let Some(c) = r.get("c_centre") {
+        let _ = writeln!(
+            t,
+            "C centre on the rim: ({:.4}, {:.4}) mm, ({:+.4}, {:+.4}) mm from the nominal axis, rim radius {:.4} mm",
+            n(&c["x_mm"]), n(&c["y_mm"]), n(&c["offset_mm"][0]), n(&c["offset_mm"][1]), n(&c["rim_radius_mm"])
+        );
+    }
+    let names: Vec<&str> = LocationErrors::default()
+        .named()
+        .iter()
+        .map(|(name, _)| *name)
+        .collect();
+    match r.get("truth") {
+        None => {
+            let _ = writeln!(t, "{:<14} {:>12} {:>12}", "error", "value", "u (k=1)");
+            for name in &names {
+                let _ = writeln!(
+                    t,
+                    "{name:<14} {:>12.6} {:>12.6}",
+                    n(&r[*name]),
+                    n(&r["uncertainty"][*name])
+                );
+            }
+        }
+        Some(truth) => {
+            let _ = writeln!(
+                t,
+                "{:<14} {:>12} {:>12} {:>12} {:>10}",
+                "error", "injected", "identified", "difference", "u (k=1)"
+            );
+            for name in &names {
+                let c = &truth[*name];
+                let _ = writeln!(
+                    t,
+                    "{name:<14} {:>12.6} {:>12.6} {:>12.6} {:>10.6}",
+                    n(&c["injected"]),
+                    n(&c["identified"]),
+                    n(&c["difference"]),
+                    n(&r["uncertainty"][*name])
+                );
+            }
+        }
+    }
+    for c in r["circles"].as_array().into_iter().flatten() {
+        let _ = writeln!(
+            t,
+            "circle {} ball {}: radius {:.4} mm, rms {:.3} um radial, {:.3} um out of plane, {} centres",
+            c["axis"].as_str().unwrap_or("?"), c["ball"], n(&c["radius_mm"]),
+            n(&c["rms_radial_um"]), n(&c["rms_plane_um"]), c["points"]
+        );
+    }
+    for (name, key) in [("C", "c_axis"), ("A", "a_axis")] {
+        if let Some(line) = r.get(key) {
+            let _ = writeln!(
+                t,
+                "{name} axis: circle centres {:.3} mm apart, their line {:.5} deg from the normals",
+                n(&line["centre_separation_mm"]),
+                n(&line["centre_line_deviation_deg"])
+            );
+        }
+    }
+    if let Some(cycle) = r.get("cycle") {
+        let (clock, time_s) = match cycle.get("simulated_time_s") {
+            Some(s) => ("simulated machine time ", n(s)),
+            None => ("", n(&cycle["wall_time_s"])),
+        };
+        let _ = writeln!(
+            t,
+            "cycle: {} balls, {} probe points ({} touches), {clock}{:.1} min",
+            cycle["balls"],
+            cycle["probe_points"],
+            cycle["probe_touches"],
+            time_s / 60.0
+        );
+    }
+    if let Some(c) = r.get("compensation_check") {
+        let _ = writeln!(
+            t,
+            "compensated 5-axis program ({} poses, A 2..90°, C all round), against the truth:",
+            c["poses"]
+        );
+        let _ = writeln!(
+            t,
+            "  tool tip   max {:.4} mm -> {:.5} mm ({:.1} % better), mean {:.4} -> {:.5}",
+            n(&c["tip_max_before_mm"]),
+            n(&c["tip_max_after_mm"]),
+            n(&c["tip_improvement_pct"]),
+            n(&c["tip_mean_before_mm"]),
+            n(&c["tip_mean_after_mm"])
+        );
+        let _ = writeln!(
+            t,
+            "  direction  max {:.6} rad -> {:.7} rad ({:.1} % better)",
+            n(&c["direction_max_before_rad"]),
+            n(&c["direction_max_after_rad"]),
+            n(&c["direction_improvement_pct"])
+        );
+    }
+    if r.get("lines").is_some() {
+        let _ = writeln!(
+            t,
+            "{} lines, {} moves rewritten, {} pieces added; largest correction {:.4} mm, {:.5} deg",
+            r["lines"],
+            r["moves"],
+            r["pieces_added"],
+            n(&r["max_correction_xyz_mm"]),
+            n(&r["max_correction_ac_deg"])
+        );
+    }
+    t
+}
