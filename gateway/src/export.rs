@@ -1,11 +1,10 @@
-//! `gateway export`: the map as a controller's own compensation table.
+//! `gateway export`: flags to `procedure::export`'s request; the tables it hands over
+//! (all of them, or none when one is beyond the tolerance) written beside `--out`.
 
-use anyhow::Context;
-use errormap::export::{beckhoff_plane, linuxcnc_joint, plain_csv, LINUXCNC_MAX_ENTRIES};
-use errormap::MapModel;
+use procedure::export::{ExportFormat, ExportRequest};
 use protocol::errormap::ErrorMap;
-use serde_json::json;
-use std::path::{Path, PathBuf};
+use serde_json::{json, Value};
+use std::path::PathBuf;
 use std::process::ExitCode;
 
 pub struct ExportArgs {
@@ -18,88 +17,45 @@ pub struct ExportArgs {
     pub json: bool,
 }
 
-/// `OUT` with `_x`/`_y` before its extension (one table per axis).
-fn per_axis(out: &Path, axis: &str) -> PathBuf {
-    let stem = out
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let name = match out.extension() {
-        Some(e) => format!("{stem}_{axis}.{}", e.to_string_lossy()),
-        None => format!("{stem}_{axis}"),
-    };
-    out.with_file_name(name)
-}
-
-fn write(path: &Path, text: &str) -> anyhow::Result<()> {
-    std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
-}
-
 pub fn export(args: ExportArgs) -> anyhow::Result<ExitCode> {
-    let model = MapModel::new(ErrorMap::load(&args.map)?);
-    let report = match args.format.as_str() {
-        "linuxcnc" => {
-            let mut joints = Vec::new();
-            for (axis, name) in [(0, "x"), (1, "y")] {
-                let t = linuxcnc_joint(&model, axis, args.entries, args.tolerance_um)?;
-                let path = per_axis(&args.out, name);
-                write(&path, &t.text)?;
-                if !args.json {
-                    println!(
-                        "{}: joint {} ([JOINT_{axis}] COMP_FILE = {}, COMP_FILE_TYPE = 0), {} entries taken at {}{:.3} mm; interpolation {:.2} um from the map; not held: {:.2} um of its error that depends on {}",
-                        path.display(), name.to_uppercase(), path.display(), t.entries,
-                        if axis == 0 { "Y = " } else { "X = " }, t.taken_at_mm,
-                        t.interpolation_error_um, t.cross_terms_um,
-                        if axis == 0 { "Y" } else { "X" }
-                    );
-                }
-                joints.push(json!({
-                    "file": path.display().to_string(), "joint": axis, "entries": t.entries,
-                    "taken_at_mm": t.taken_at_mm, "interpolation_error_um": t.interpolation_error_um,
-                    "cross_terms_not_held_um": t.cross_terms_um,
-                }));
-            }
-            json!({ "format": "linuxcnc", "tables": joints })
-        }
-        "beckhoff" => {
-            let mut tables = Vec::new();
-            for (axis, name) in [(0, "x"), (1, "y")] {
-                let t = beckhoff_plane(&model, axis, args.interval_mm, args.tolerance_um)?;
-                let path = per_axis(&args.out, name);
-                write(&path, &t.text)?;
-                if !args.json {
-                    println!(
-                        "{}: plane compensation of {} over X and Y, {} points every {} mm; interpolation {:.2} um from the map; not held: {:.2} um of backlash (one table for both directions)",
-                        path.display(), name.to_uppercase(), t.points, args.interval_mm,
-                        t.interpolation_error_um, t.backlash_lost_um
-                    );
-                }
-                tables.push(json!({
-                    "file": path.display().to_string(), "axis": name, "points": t.points,
-                    "interpolation_error_um": t.interpolation_error_um,
-                    "backlash_not_held_um": t.backlash_lost_um,
-                }));
-            }
-            json!({ "format": "beckhoff", "tables": tables })
-        }
-        "csv" => {
-            let text = plain_csv(&model)?;
-            write(&args.out, &text)?;
-            if !args.json {
-                println!(
-                    "{}: the model at every node of the map's grid, both directions",
-                    args.out.display()
-                );
-            }
-            json!({ "format": "csv", "file": args.out.display().to_string(), "rows": text.lines().count() - 1 })
-        }
-        other => anyhow::bail!("--format `{other}`: linuxcnc, beckhoff or csv"),
+    let cli = |e: procedure::RequestError| anyhow::anyhow!(e.for_cli());
+    let name = args
+        .out
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .ok_or_else(|| anyhow::anyhow!("--out {}: must name a file", args.out.display()))?;
+    let request = ExportRequest {
+        format: ExportFormat::parse(&args.format).map_err(cli)?,
+        name,
+        tolerance_um: args.tolerance_um,
+        entries: args.entries as u64,
+        interval_mm: args.interval_mm,
     };
-    if args.json {
-        println!("{report}");
+    request.check().map_err(cli)?;
+    let map = ErrorMap::load(&args.map)?;
+    request.check_map(&map).map_err(cli)?;
+    // Each table goes beside --out, under the name the procedure gave it.
+    let mut sink = crate::front::CliSink::new("", true).inputs(&[args.map.as_path()]);
+    for name in request.artifact_names() {
+        let path = args.out.with_file_name(&name);
+        sink = sink.artifact_to(&name, path);
     }
-    Ok(ExitCode::SUCCESS)
+    let mut outcome = procedure::export::run(&request, map, &mut sink);
+    // `file`: where the table was written.
+    if let Some(r) = outcome.result.as_mut() {
+        let tables: Vec<&mut Value> = if r.get("tables").is_some() {
+            r["tables"].as_array_mut().into_iter().flatten().collect()
+        } else {
+            vec![r]
+        };
+        for t in tables {
+            if let Some(name) = t["file"].as_str() {
+                t["file"] = json!(args.out.with_file_name(name).display().to_string());
+            }
+        }
+    }
+    crate::front::print(&outcome, args.json, procedure::export::summary)
 }
 
 /// The default number of LinuxCNC entries.
-pub const DEFAULT_ENTRIES: usize = LINUXCNC_MAX_ENTRIES;
+pub const DEFAULT_ENTRIES: usize = errormap::export::LINUXCNC_MAX_ENTRIES;

@@ -167,19 +167,36 @@ impl Sink for CliSink {
     }
 }
 
+/// Writes `text` to stdout; a reader that has gone (`| head -1`) ends the output
+/// quietly instead of panicking as `println!` does on a closed pipe.
+pub fn emit(text: &str) -> std::io::Result<()> {
+    let mut out = std::io::stdout().lock();
+    match out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        other => other,
+    }
+}
+
 /// Prints an outcome: `--json` the result object (the service's too), else `text` of
 /// it; a failure's message goes to stderr and the exit code is 1. A failure with
 /// nothing to show is returned as the error (main prints it, as JSON with `--json`).
-pub fn print(outcome: &Outcome, json: bool, text: impl FnOnce(&Value)) -> anyhow::Result<ExitCode> {
+pub fn print(
+    outcome: &Outcome,
+    json: bool,
+    text: impl FnOnce(&Value) -> String,
+) -> anyhow::Result<ExitCode> {
     let Some(result) = &outcome.result else {
         anyhow::bail!("{}", outcome.error().unwrap_or("cancelled"));
     };
-    if json {
-        println!("{result}");
+    let mut shown = if json {
+        result.to_string()
     } else {
-        text(result);
+        text(result)
+    };
+    if !shown.ends_with('\n') {
+        shown.push('\n');
     }
-    std::io::stdout().flush()?;
+    emit(&shown)?;
     match &outcome.end {
         procedure::End::Succeeded => Ok(ExitCode::SUCCESS),
         procedure::End::Failed { error } => {

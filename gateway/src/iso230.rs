@@ -40,9 +40,7 @@ pub fn evaluate_file(
         &file.display().to_string(),
         &mut sink,
     );
-    crate::front::print(&outcome, json_out, |r| {
-        print!("{}", procedure::iso230::summary(r))
-    })
+    crate::front::print(&outcome, json_out, procedure::iso230::summary)
 }
 
 pub struct RunArgs {
@@ -117,14 +115,14 @@ pub fn run(args: RunArgs) -> anyhow::Result<ExitCode> {
     sink.finish();
     crate::front::print(&outcome, args.json, |r| {
         if outcome.is_success() {
-            print!("{}", procedure::iso230::summary(r));
-            println!("outputs in {}", args.out.display());
+            let out = args.out.display();
+            format!("{}outputs in {out}", procedure::iso230::summary(r))
         } else {
-            println!(
+            format!(
                 "{} measurements taken are in {}",
                 r["measurements_taken"],
                 args.out.join("measurements.csv").display()
-            );
+            )
         }
     })
 }

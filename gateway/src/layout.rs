@@ -3,9 +3,8 @@
 
 use anyhow::Context;
 use clap::Subcommand;
-use layout::{Partition, Resolution};
-use layout_io::{Format, Layout};
-use procedure::request::{LayoutFormat, LayoutRequest, PictureFormat};
+use layout_io::Format;
+use procedure::request::{CutRequest, HeadReach, LayoutFormat, LayoutRequest, PictureFormat};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -138,12 +137,20 @@ fn request(args: &PartitionArgs) -> anyhow::Result<LayoutRequest> {
     Ok(request)
 }
 
-/// The layout read and partitioned, overlaps resolved: (layout, partition, moves,
-/// partition time in ms).
-fn partitioned(args: &PartitionArgs) -> anyhow::Result<(Layout, Partition, Resolution, f64)> {
-    let p = procedure::layout::partitioned(&request(args)?)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", args.layout.display()))?;
-    Ok((p.doc, p.partition, p.resolution, p.elapsed_ms))
+/// `--head-reach ORIGIN:REACH` in mm.
+fn parse_reach(text: &str) -> anyhow::Result<HeadReach> {
+    let (origin, reach) = text
+        .split_once(':')
+        .with_context(|| format!("--head-reach `{text}`: write ORIGIN:REACH in mm"))?;
+    let num = |v: &str, what: &str| -> anyhow::Result<f64> {
+        v.trim()
+            .parse()
+            .with_context(|| format!("--head-reach `{text}`: the {what} is not a number"))
+    };
+    Ok(HeadReach {
+        origin_y_mm: num(origin, "origin")?,
+        reach_y_mm: num(reach, "reach")?,
+    })
 }
 
 pub fn run(cmd: LayoutCmd) -> anyhow::Result<ExitCode> {
@@ -164,16 +171,34 @@ pub fn run(cmd: LayoutCmd) -> anyhow::Result<ExitCode> {
             log,
             json,
         } => {
-            return crate::cutter::run(crate::cutter::CutCmd {
-                partitioned: partitioned(&args)?,
+            let request = CutRequest {
+                partition: request(&args)?,
                 conveyor,
                 heads: head,
-                head_reach,
+                head_reach: head_reach
+                    .iter()
+                    .map(|t| parse_reach(t))
+                    .collect::<anyhow::Result<_>>()?,
                 baud,
                 feed_mm_min,
-                log,
-                json,
-            })
+            };
+            request.check().map_err(|e| anyhow::anyhow!(e.for_cli()))?;
+            let mut sink = crate::front::CliSink::new("stops", json).inputs(&[&args.layout]);
+            if let Some(path) = &log {
+                sink = sink.artifact_to("strokes.jsonl", path.clone());
+            }
+            let rt = tokio::runtime::Builder::new_current_thread()
+                .enable_all()
+                .build()?;
+            let outcome = rt.block_on(procedure::cut::run(&request, &mut sink));
+            sink.finish();
+            return crate::front::print(&outcome, json, |r| {
+                let mut text = procedure::cut::summary(r);
+                if let Some(path) = log.as_ref().filter(|_| r["emulated"] == true) {
+                    text += &format!("log written to {}", path.display());
+                }
+                text
+            });
         }
     };
     let mut request = request(&args)?;
@@ -195,8 +220,7 @@ pub fn run(cmd: LayoutCmd) -> anyhow::Result<ExitCode> {
     }
     let outcome = procedure::layout::partition(&request, &mut sink);
     crate::front::print(&outcome, json, |r| {
-        print!("{}", procedure::layout::summary(r));
-        println!("written {}", out.display());
+        format!("{}written {}", procedure::layout::summary(r), out.display())
     })
 }
 

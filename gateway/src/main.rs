@@ -13,7 +13,6 @@ use std::process::ExitCode;
 use std::time::Instant;
 use vision::localize::{localize, LocalizeParams, LocalizeSettings, Method, PixelAxes};
 
-mod cutter;
 mod export;
 mod front;
 mod iso230;
@@ -627,5 +626,5 @@ fn compensate(job: Job, request: CompensateRequest, json: bool) -> anyhow::Resul
         front::ctrl_c(),
     ));
     sink.finish();
-    front::print(&outcome, json, |_| print!("{}", report.to_text()))
+    front::print(&outcome, json, |_| report.to_text())
 }

@@ -84,8 +84,7 @@ impl RotaryCmd {
 pub fn run(cmd: RotaryCmd) -> anyhow::Result<ExitCode> {
     let print = |outcome: &procedure::Outcome, json: bool, wrote: String| {
         crate::front::print(outcome, json, |r| {
-            print!("{}", procedure::rotary::summary(r));
-            println!("{wrote}");
+            format!("{}{wrote}", procedure::rotary::summary(r))
         })
     };
     match cmd {

@@ -97,5 +97,5 @@ pub fn map(job: &Job, request: MapRequest, out: &Path, json: bool) -> anyhow::Re
         crate::front::ctrl_c(),
     ));
     sink.finish();
-    crate::front::print(&outcome, json, |r| print!("{}", procedure::map::summary(r)))
+    crate::front::print(&outcome, json, procedure::map::summary)
 }

@@ -53,9 +53,7 @@ pub fn verify(args: VerifyArgs) -> anyhow::Result<ExitCode> {
             round as u64,
             &mut sink,
         ));
-        let code = crate::front::print(&outcome, args.json, |r| {
-            print!("{}", procedure::verify::summary(r))
-        })?;
+        let code = crate::front::print(&outcome, args.json, procedure::verify::summary)?;
         if code != ExitCode::SUCCESS {
             return Ok(code);
         }

@@ -1,17 +1,18 @@
-//! `gateway volumetric ...`: the 21-error volumetric model from files (identify, eval,
-//! contributions, ISG export) and the emulated machine's campaign (simulate-campaign).
+//! `gateway volumetric ...`: flags to the requests of `procedure::volumetric` (identify,
+//! eval, contributions, simulate-campaign, export-isg), files read through the bounded
+//! reader, artifacts written by the CLI's sink, results printed.
 
-use anyhow::{bail, Context};
+use crate::front::CliSink;
+use anyhow::Context;
 use clap::Subcommand;
-use protocol::volumetric::{
-    parse_model, parse_points, write_isg_csv, write_isg_lis, write_model, Structure, AXES,
+use procedure::volumetric::{
+    CampaignFiles, VolumetricCampaignRequest, VolumetricContributionsRequest,
+    VolumetricEvalRequest, VolumetricIdentifyRequest, CAMPAIGN_FILES, MODEL_ARTIFACT,
 };
-use serde_json::json;
+use procedure::{Outcome, RequestError};
+use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use volumetric::ballbar::BallbarChart;
-use volumetric::contributions::{contributions, plane_map, ContributionChart, Plane};
-use volumetric::identify::{identify, Campaign};
 use volumetric::Model;
 
 #[derive(Subcommand)]
@@ -58,9 +59,9 @@ pub enum VolumetricCmd {
         model: PathBuf,
         #[arg(long)]
         out: PathBuf,
-        /// Grid points per axis.
+        /// Grid points per axis (2 to 219: the memory the grid needs is bounded).
         #[arg(long, default_value_t = 11)]
-        grid: usize,
+        grid: u64,
         #[arg(long)]
         json: bool,
     },
@@ -100,195 +101,92 @@ impl VolumetricCmd {
     }
 }
 
-fn structure(s: &str) -> anyhow::Result<Structure> {
-    Structure::parse(s)
-        .ok_or_else(|| anyhow::anyhow!("--structure `{s}`: expected FXYZ, XFYZ, XYFZ or XYZF"))
-}
-
+/// `x,y,z` (mm) from a flag; the bounds are the request's.
 fn parse_xyz(flag: &str, text: &str) -> anyhow::Result<[f64; 3]> {
     let v: Vec<f64> = text
         .split(',')
         .map(|p| p.trim().parse::<f64>())
         .collect::<Result<_, _>>()
         .map_err(|_| anyhow::anyhow!("{flag} `{text}`: expected x,y,z in mm"))?;
-    match v[..] {
-        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([x, y, z]),
-        _ => bail!("{flag} `{text}`: expected three finite numbers x,y,z in mm"),
-    }
+    v.try_into()
+        .map_err(|_| anyhow::anyhow!("{flag} `{text}`: expected three numbers x,y,z in mm"))
 }
 
 fn read(path: &Path) -> anyhow::Result<String> {
-    std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))
+    protocol::config::read_data_file(path).with_context(|| format!("reading {}", path.display()))
 }
 
-/// Reads and checks a model file.
+/// Reads and checks a model file (through the bounded reader).
 pub fn load_model(path: &Path) -> anyhow::Result<Model> {
-    let file = parse_model(&read(path)?).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    Model::new(file).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    procedure::volumetric::read_model(&path.display().to_string(), &read(path)?)
+        .map_err(anyhow::Error::msg)
 }
 
-/// Translations (E_X?, E_Y?, E_Z?) in µm, angles in µrad.
-fn display_unit(name: &str, micron: &'static str) -> (f64, &'static str) {
-    let is_length = name.len() == 4 && matches!(&name[2..3], "X" | "Y" | "Z");
-    if is_length {
-        (1e3, micron)
-    } else {
-        (1e6, "urad")
+fn cli(e: RequestError) -> anyhow::Error {
+    anyhow::anyhow!(e.for_cli())
+}
+
+/// Sets `key` of the outcome's result (where the CLI wrote what the procedure named).
+fn located(mut outcome: Outcome, key: &str, path: &Path) -> Outcome {
+    if let Some(o) = outcome.result.as_mut().and_then(Value::as_object_mut) {
+        o.insert(key.into(), json!(path.display().to_string()));
     }
+    outcome
 }
 
-fn write(path: &Path, text: impl AsRef<[u8]>) -> anyhow::Result<()> {
-    std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
+/// The campaign folder: each file the procedure asks for, read through the bounded
+/// reader if it is there.
+struct FolderCampaign(PathBuf);
+
+impl CampaignFiles for FolderCampaign {
+    fn place(&self) -> String {
+        self.0.display().to_string()
+    }
+    fn read(&mut self, name: &str) -> Result<Option<String>, String> {
+        let path = self.0.join(name);
+        if !path.exists() {
+            return Ok(None);
+        }
+        read(&path).map(Some).map_err(|e| format!("{e:#}"))
+    }
 }
 
 pub fn run(cmd: VolumetricCmd) -> anyhow::Result<ExitCode> {
     match cmd {
         VolumetricCmd::Identify {
             campaign,
-            structure: s,
+            structure,
             out,
             tool_offset_mm,
             work_offset_mm,
             plots,
             json,
         } => {
-            let s = structure(&s)?;
-            let tool = parse_xyz("--tool-offset-mm", &tool_offset_mm)?;
-            let work = parse_xyz("--work-offset-mm", &work_offset_mm)?;
-            // Every file the campaign may hold; the identification says which are due.
-            let mut files = Vec::new();
-            let mut names: Vec<String> = Vec::new();
-            for a in AXES {
-                names.push(format!("laser_{a}.csv"));
-                names.push(format!("level_{a}.csv"));
-            }
-            for p in ["XY", "XZ", "YZ"] {
-                names.push(format!("ballbar_{p}.csv"));
-            }
-            names.push("squareness.csv".into());
-            names.push("camera.csv".into());
-            for n in names {
-                let path = campaign.join(&n);
-                if path.exists() {
-                    files.push((n, read(&path)?));
-                }
-            }
-            let c = Campaign::from_files(&files)
-                .map_err(|e| anyhow::anyhow!("{}/{e}", campaign.display()))?;
-            let mut id =
-                identify(s, &c).map_err(|e| anyhow::anyhow!("{}: {e}", campaign.display()))?;
-            id.model.file.tool_offset_mm = tool;
-            id.model.file.work_offset_mm = work;
-            write(&out, write_model(&id.model.file))?;
+            let request = VolumetricIdentifyRequest {
+                structure,
+                tool_offset_mm: parse_xyz("--tool-offset-mm", &tool_offset_mm)?,
+                work_offset_mm: parse_xyz("--work-offset-mm", &work_offset_mm)?,
+                plots: plots.is_some(),
+            };
+            request.check().map_err(cli)?;
+            let inputs: Vec<PathBuf> = CAMPAIGN_FILES.iter().map(|n| campaign.join(n)).collect();
+            let inputs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
+            let mut sink = CliSink::new("", true)
+                .inputs(&inputs)
+                .artifact_to(MODEL_ARTIFACT, out.clone());
             if let Some(dir) = &plots {
-                std::fs::create_dir_all(dir)
-                    .with_context(|| format!("creating {}", dir.display()))?;
-                for b in &id.ballbar {
-                    let chart = BallbarChart(b);
-                    write(
-                        &dir.join(format!("ballbar_{}.svg", b.plane)),
-                        plot::render_svg(&chart, 800, 800)?,
-                    )?;
-                    write(
-                        &dir.join(format!("ballbar_{}.png", b.plane)),
-                        plot::render_png(&chart, 800, 800)?,
-                    )?;
-                }
+                sink = sink.into_folder(dir)?;
             }
-            let fit = id.model.file.fit;
-            if json {
-                let q: Vec<_> = id
-                    .quality
-                    .iter()
-                    .map(|q| {
-                        let (scale, unit) = display_unit(q.name, "um");
-                        json!({"name": q.name, "unit": unit, "residual": q.residual * scale,
-                               "uncertainty": q.uncertainty * scale, "stated": q.stated * scale, "fit": q.fit()})
-                    })
-                    .collect();
-                let ballbar: Vec<_> = id
-                    .ballbar
-                    .iter()
-                    .map(|b| {
-                        json!({"plane": b.plane, "circular_deviation_um": b.circular_deviation_mm * 1e3,
-                               "iso_squareness_urad": b.iso_squareness_rad * 1e6,
-                               "squareness_urad": b.squareness_rad * 1e6,
-                               "uncertainty_urad": b.uncertainty_rad * 1e6,
-                               "model_residual_rms_um": b.model_residual_rms_mm * 1e3})
-                    })
-                    .collect();
-                let camera = id.camera.as_ref().map(|c| {
-                    let per: Vec<_> = (0..2)
-                        .flat_map(|a| (0..2).map(move |k| (a, k)))
-                        .map(|(a, k)| {
-                            json!({"name": c.names[a][k],
-                                   "uncertainty_urad": c.sigma[a][k].iter().fold(0.0f64, |m, v| m.max(*v)) * 1e6,
-                                   "largest_change_from_instruments_urad": c.change[a][k] * 1e6})
-                        })
-                        .collect();
-                    json!({"points": c.points, "heights_mm": c.heights_mm,
-                           "residual_rms_um": c.residual_rms_mm * 1e3, "stated_um": c.stated_mm * 1e3,
-                           "repeatability_um": c.repeatability_mm * 1e3,
-                           "board_rotation_urad": c.board_rotation_rad.iter().map(|v| v * 1e6).collect::<Vec<_>>(),
-                           "fit": c.fit(), "angles": per})
-                });
-                println!(
-                    "{}",
-                    json!({"model": out, "structure": s.name(), "fit_for_compensation": fit, "errors": q,
-                           "ballbar": ballbar, "camera": camera})
-                );
-            } else {
-                println!(
-                    "{:<6} {:>10} {:>12} {:>8}  unit",
-                    "error", "residual", "uncertainty", "stated"
-                );
-                for q in &id.quality {
-                    let (scale, unit) = display_unit(q.name, "µm");
-                    println!(
-                        "{:<6} {:>10.3} {:>12.3} {:>8.3}  {unit}{}",
-                        q.name,
-                        q.residual * scale,
-                        q.uncertainty * scale,
-                        q.stated * scale,
-                        if q.fit() {
-                            ""
-                        } else {
-                            "  EXCEEDS the stated uncertainty"
-                        }
-                    );
-                }
-                for b in &id.ballbar {
-                    println!(
-                        "ball bar {}: circular deviation {:.2} µm, ISO squareness reading {:.2} µrad, model squareness {:.2} ± {:.2} µrad, residual {:.3} µm RMS",
-                        b.plane,
-                        b.circular_deviation_mm * 1e3,
-                        b.iso_squareness_rad * 1e6,
-                        b.squareness_rad * 1e6,
-                        b.uncertainty_rad * 1e6,
-                        b.model_residual_rms_mm * 1e3
-                    );
-                }
-                if let Some(c) = &id.camera {
-                    println!(
-                        "camera: {} points at heights {:?} mm, residual {:.3} µm RMS (stated {:.3}), {}",
-                        c.points,
-                        c.heights_mm,
-                        c.residual_rms_mm * 1e3,
-                        c.stated_mm * 1e3,
-                        if c.fit() { "consistent" } else { "INCONSISTENT with the model" }
-                    );
-                    for a in 0..2 {
-                        for k in 0..2 {
-                            println!(
-                                "  {}: uncertainty {:.3} µrad combined, largest change from the instruments {:.3} µrad",
-                                c.names[a][k],
-                                c.sigma[a][k].iter().fold(0.0f64, |m, v| m.max(*v)) * 1e6,
-                                c.change[a][k] * 1e6
-                            );
-                        }
-                    }
-                }
-                println!(
+            let outcome =
+                procedure::volumetric::identify(&request, &mut FolderCampaign(campaign), &mut sink);
+            let outcome = located(outcome, "model", &out);
+            let fit = outcome
+                .result
+                .as_ref()
+                .is_some_and(|r| r["fit_for_compensation"] == true);
+            let code = crate::front::print(&outcome, json, |r| {
+                let mut text = procedure::volumetric::identify_summary(r);
+                text += &format!(
                     "model written to {} ({})",
                     out.display(),
                     if fit {
@@ -297,11 +195,12 @@ pub fn run(cmd: VolumetricCmd) -> anyhow::Result<ExitCode> {
                         "UNFIT for compensation: residuals exceed the instruments' stated uncertainty"
                     }
                 );
-            }
-            Ok(if fit {
-                ExitCode::SUCCESS
-            } else {
+                text
+            })?;
+            Ok(if code == ExitCode::SUCCESS && !fit {
                 ExitCode::from(2)
+            } else {
+                code
             })
         }
         VolumetricCmd::Eval {
@@ -310,45 +209,17 @@ pub fn run(cmd: VolumetricCmd) -> anyhow::Result<ExitCode> {
             first_order,
             json,
         } => {
+            let request = VolumetricEvalRequest { first_order };
             let m = load_model(&model)?;
-            let pts = parse_points(&read(&points)?)
-                .map_err(|e| anyhow::anyhow!("{}: {e}", points.display()))?;
-            let mut rows = Vec::with_capacity(pts.len());
-            for (i, q) in pts.iter().enumerate() {
-                let e = m.error(*q, first_order).map_err(|e| {
-                    anyhow::anyhow!(
-                        "{}: point {} (line {}): {e}",
-                        points.display(),
-                        i + 1,
-                        i + 2
-                    )
-                })?;
-                rows.push((q, e));
-            }
-            if json {
-                let out: Vec<_> = rows
-                    .iter()
-                    .map(|(q, e)| {
-                        json!({"x_mm": q[0], "y_mm": q[1], "z_mm": q[2],
-                        "ex_um": e[0] * 1e3, "ey_um": e[1] * 1e3, "ez_um": e[2] * 1e3})
-                    })
-                    .collect();
-                println!("{}", json!({"first_order": first_order, "points": out}));
-            } else {
-                println!("x_mm,y_mm,z_mm,ex_um,ey_um,ez_um");
-                for (q, e) in rows {
-                    println!(
-                        "{},{},{},{:.4},{:.4},{:.4}",
-                        q[0],
-                        q[1],
-                        q[2],
-                        e[0] * 1e3,
-                        e[1] * 1e3,
-                        e[2] * 1e3
-                    );
-                }
-            }
-            Ok(ExitCode::SUCCESS)
+            let text = read(&points)?;
+            request.check_points(&text).map_err(cli)?;
+            let outcome =
+                procedure::volumetric::eval(&request, &m, &points.display().to_string(), &text);
+            crate::front::print(&outcome, json, |r| {
+                procedure::volumetric::eval_lines(r)
+                    .collect::<Vec<_>>()
+                    .join("\n")
+            })
         }
         VolumetricCmd::Contributions {
             model,
@@ -356,125 +227,55 @@ pub fn run(cmd: VolumetricCmd) -> anyhow::Result<ExitCode> {
             grid,
             json,
         } => {
-            if grid < 2 {
-                bail!("--grid {grid}: at least 2 points per axis");
-            }
+            let request = VolumetricContributionsRequest { grid };
+            request.check().map_err(cli)?;
             let m = load_model(&model)?;
-            std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-            let (c, tmax, trms) = contributions(&m, grid)?;
-            let mut csv = String::from("rank,error,max_um,rms_um\n");
-            for (i, x) in c.iter().enumerate() {
-                csv += &format!("{},{},{:.4},{:.4}\n", i + 1, x.name, x.max_um, x.rms_um);
-            }
-            write(&out.join("contributions.csv"), csv)?;
-            let chart = ContributionChart(&c);
-            write(
-                &out.join("contributions.svg"),
-                plot::render_svg(&chart, 900, 700)?,
-            )?;
-            write(
-                &out.join("contributions.png"),
-                plot::render_png(&chart, 900, 700)?,
-            )?;
-            for plane in [Plane::Xy, Plane::Xz, Plane::Yz] {
-                let map = plane_map(&m, plane, grid)?;
-                let (a, b, _) = plane.axes();
-                let mut csv = format!(
-                    "{}_mm,{}_mm,ex_um,ey_um,ez_um\n",
-                    AXES[a].to_ascii_lowercase(),
-                    AXES[b].to_ascii_lowercase()
-                );
-                for (i, u) in map.u.iter().enumerate() {
-                    for (j, v) in map.v.iter().enumerate() {
-                        let e = map.errors[i][j];
-                        csv += &format!("{u},{v},{:.4},{:.4},{:.4}\n", e[0], e[1], e[2]);
-                    }
-                }
-                write(&out.join(format!("map_{}.csv", plane.name())), csv)?;
-                let name = format!("map_{}", plane.name());
-                write(
-                    &out.join(format!("{name}.svg")),
-                    plot::render_svg(&map, 800, 650)?,
-                )?;
-                write(
-                    &out.join(format!("{name}.png")),
-                    plot::render_png(&map, 800, 650)?,
-                )?;
-            }
-            if json {
-                let list: Vec<_> = c
-                    .iter()
-                    .map(|x| json!({"error": x.name, "max_um": x.max_um, "rms_um": x.rms_um}))
-                    .collect();
-                println!(
-                    "{}",
-                    json!({"out": out, "total_max_um": tmax, "total_rms_um": trms, "contributions": list})
-                );
-            } else {
-                println!(
-                    "total (first order): max {tmax:.2} µm, RMS {trms:.2} µm over a {grid}³ grid"
-                );
-                for (i, x) in c.iter().enumerate() {
-                    println!(
-                        "{:>2}. {:<6} max {:>8.3} µm  RMS {:>8.3} µm",
-                        i + 1,
-                        x.name,
-                        x.max_um,
-                        x.rms_um
-                    );
-                }
-                println!("written to {}", out.display());
-            }
-            Ok(ExitCode::SUCCESS)
+            let mut sink = CliSink::new("", true)
+                .inputs(&[model.as_path()])
+                .into_folder(&out)?;
+            let outcome = procedure::volumetric::contributions(&request, &m, &mut sink);
+            let outcome = located(outcome, "out", &out);
+            crate::front::print(&outcome, json, |r| {
+                let text = procedure::volumetric::contributions_summary(r);
+                format!("{text}written to {}", out.display())
+            })
         }
         VolumetricCmd::SimulateCampaign {
             out,
-            structure: s,
+            structure,
             seed,
             json,
         } => {
-            let s = structure(&s)?;
-            std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-            let machine = world::volumetric::VolumetricMachine::new(s, seed);
-            let mut files = machine.campaign(seed);
-            let plan = world::volumetric::CameraPlan::default_for(machine.travel_mm);
-            files.push(("camera.csv".into(), machine.camera_campaign(&plan, seed).0));
-            for (name, text) in &files {
-                write(&out.join(name), text)?;
-            }
-            let names: Vec<&str> = files.iter().map(|f| f.0.as_str()).collect();
-            if json {
-                println!(
-                    "{}",
-                    json!({"out": out, "structure": s.name(), "seed": seed, "files": names})
-                );
-            } else {
-                println!(
+            let request = VolumetricCampaignRequest { structure, seed };
+            request.check().map_err(cli)?;
+            let mut sink = CliSink::new("", true).into_folder(&out)?;
+            let outcome = procedure::volumetric::simulate_campaign(&request, &mut sink);
+            let outcome = located(outcome, "out", &out);
+            crate::front::print(&outcome, json, |r| {
+                let names: Vec<&str> = r["files"]
+                    .as_array()
+                    .into_iter()
+                    .flatten()
+                    .filter_map(Value::as_str)
+                    .collect();
+                format!(
                     "{} campaign (seed {seed}) written to {}: {}",
-                    s,
+                    r["structure"].as_str().unwrap_or(""),
                     out.display(),
                     names.join(", ")
-                );
-            }
-            Ok(ExitCode::SUCCESS)
+                )
+            })
         }
         VolumetricCmd::ExportIsg { model, out, json } => {
             let m = load_model(&model)?;
-            std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-            write(&out.join("volcomp.csv"), write_isg_csv(&m.file))?;
-            write(
-                &out.join("volcomp.lis"),
-                write_isg_lis(&m.file, "volcomp.csv"),
-            )?;
-            if json {
-                println!(
-                    "{}",
-                    json!({"out": out, "files": ["volcomp.csv", "volcomp.lis"]})
-                );
-            } else {
-                println!("ISG tables written to {}", out.display());
-            }
-            Ok(ExitCode::SUCCESS)
+            let mut sink = CliSink::new("", true)
+                .inputs(&[model.as_path()])
+                .into_folder(&out)?;
+            let outcome = procedure::volumetric::export_isg(&m, &mut sink);
+            let outcome = located(outcome, "out", &out);
+            crate::front::print(&outcome, json, |_| {
+                format!("ISG tables written to {}", out.display())
+            })
         }
     }
 }

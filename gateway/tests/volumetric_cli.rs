@@ -187,5 +187,5 @@ fn a_bad_campaign_file_is_named_with_line_and_column() {
         "--structure",
         "XZFY",
     ]);
-    assert!(String::from_utf8_lossy(&out.stderr).contains("--structure `XZFY`"));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--structure: `XZFY`"));
 }

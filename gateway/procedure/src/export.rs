@@ -99,12 +99,7 @@ impl ExportRequest {
 
     pub fn check(&self) -> Result<(), RequestError> {
         let n = &self.name;
-        if n.is_empty()
-            || n.len() > 255
-            || n == "."
-            || n == ".."
-            || n.contains(['/', '\\', '\0'])
-        {
+        if n.is_empty() || n.len() > 255 || n == "." || n == ".." || n.contains(['/', '\\', '\0']) {
             return Err(RequestError::new(
                 "name",
                 format!("{n:?}: a plain file name of 1 to 255 bytes"),
@@ -132,9 +127,13 @@ impl ExportRequest {
     /// point every `interval_mm` over the map (named when too fine); a LinuxCNC joint is
     /// checked every 0.05 mm of the map and a CSV has a row per node (`map` named when
     /// the map itself is too large).
-    pub fn check_map(&self, model: &MapModel) -> Result<u64, RequestError> {
-        let (lo, hi) = model.extent();
-        let span = |k: usize| (hi[k] - lo[k]).max(0.0);
+    pub fn check_map(&self, map: &ErrorMap) -> Result<u64, RequestError> {
+        let g = &map.grid;
+        let (lo, hi) = ([g.xs.first(), g.ys.first()], [g.xs.last(), g.ys.last()]);
+        let span = |k: usize| match (lo[k], hi[k]) {
+            (Some(a), Some(b)) => (b - a).max(0.0),
+            _ => 0.0,
+        };
         let (field, bytes) = match self.format {
             ExportFormat::Beckhoff => {
                 let points: f64 = (0..2)
@@ -143,10 +142,7 @@ impl ExportRequest {
                 ("interval_mm", points * BECKHOFF_BYTES_PER_POINT as f64)
             }
             ExportFormat::Linuxcnc => ("map", (span(0).max(span(1)) / 0.05 + 2.0) * 8.0),
-            ExportFormat::Csv => {
-                let g = &model.map().grid;
-                ("map", (g.xs.len() * g.ys.len()) as f64 * 100.0)
-            }
+            ExportFormat::Csv => ("map", (g.xs.len() * g.ys.len()) as f64 * 100.0),
         };
         if !(bytes <= MAX_EXPORT_BYTES as f64) {
             return Err(RequestError::new(
@@ -182,10 +178,10 @@ pub fn run(request: &ExportRequest, map: ErrorMap, sink: &mut dyn Sink) -> Outco
     if let Err(e) = request.check() {
         return Outcome::failed(e.to_string());
     }
-    let model = MapModel::new(map);
-    if let Err(e) = request.check_map(&model) {
+    if let Err(e) = request.check_map(&map) {
         return Outcome::failed(e.to_string());
     }
+    let model = MapModel::new(map);
     let names = request.artifact_names();
     let tolerance = request.tolerance_um;
     let mut texts = Vec::new();
@@ -213,8 +209,9 @@ pub fn run(request: &ExportRequest, map: ErrorMap, sink: &mut dyn Sink) -> Outco
                     Ok(t) => t,
                     Err(e) => return Outcome::failed(e.to_string()),
                 };
+                let name = ["x", "y"][axis];
                 tables.push(json!({
-                    "file": file, "axis": ["x", "y"][axis], "points": t.points,
+                    "file": file, "axis": name, "points": t.points,
                     "interpolation_error_um": t.interpolation_error_um,
                     "backlash_not_held_um": t.backlash_lost_um,
                 }));
@@ -359,7 +356,10 @@ mod tests {
         let mut r = ExportRequest::new(ExportFormat::Beckhoff);
         r.tolerance_um = f64::NAN;
         let e = r.check().unwrap_err();
-        assert_eq!(e.for_cli(), "--tolerance-um: must be a number from 0.001 to 1000, got NaN");
+        assert_eq!(
+            e.for_cli(),
+            "--tolerance-um: must be a number from 0.001 to 1000, got NaN"
+        );
         r.tolerance_um = 1.0;
         r.entries = 1000;
         assert_eq!(r.check().unwrap_err().field, "entries");
@@ -369,8 +369,10 @@ mod tests {
         assert_eq!(ExportFormat::parse("fanuc").unwrap_err().flag(), "--format");
         r.name = "t.txt".into();
         r.interval_mm = 0.1;
-        let model = MapModel::new(map(10_000.0));
-        assert_eq!(r.check_map(&model).unwrap_err().field, "interval_mm");
+        assert_eq!(
+            r.check_map(&map(10_000.0)).unwrap_err().field,
+            "interval_mm"
+        );
         // Refused before any table is built.
         let out = run(&r, map(10_000.0), &mut Keep::default());
         assert!(out.error().unwrap().starts_with("interval_mm: "));

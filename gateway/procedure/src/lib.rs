@@ -9,6 +9,7 @@
 //! request) and out (files and a progress bar, or the store and events).
 
 pub mod compensate;
+pub mod cut;
 pub mod export;
 pub mod iso230;
 pub mod layout;

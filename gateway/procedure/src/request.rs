@@ -535,6 +535,86 @@ impl LayoutRequest {
     }
 }
 
+/// A head's place across the material: the material Y of its machine Y 0 and its travel.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HeadReach {
+    pub origin_y_mm: f64,
+    pub reach_y_mm: f64,
+}
+
+fn default_baud() -> u32 {
+    115_200
+}
+fn default_knife_feed() -> f64 {
+    12_000.0
+}
+
+/// A partitioned layout cut on a conveyor cutter (source C): the emulated one, or real
+/// GRBL controllers (one for the conveyor, one per head in lane order).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CutRequest {
+    pub partition: LayoutRequest,
+    /// The conveyor's controller (its X feeds the material); none: the emulated cutter.
+    #[serde(default)]
+    pub conveyor: Option<String>,
+    /// Each head's controller, in lane order (with `conveyor`).
+    #[serde(default)]
+    pub heads: Vec<String>,
+    /// Each head's reach (default: built for the partition).
+    #[serde(default)]
+    pub head_reach: Vec<HeadReach>,
+    #[serde(default = "default_baud")]
+    pub baud: u32,
+    /// Knife feed along the contours, mm/min.
+    #[serde(default = "default_knife_feed")]
+    pub feed_mm_min: f64,
+}
+
+impl CutRequest {
+    pub fn check(&self) -> Result<(), RequestError> {
+        self.partition.check()?;
+        number("feed_mm_min", self.feed_mm_min, 1.0, 100_000.0)?;
+        count("baud", self.baud.into(), 1200, 4_000_000)?;
+        let tools = self.partition.tools as usize;
+        if !self.head_reach.is_empty() && self.head_reach.len() != tools {
+            return Err(RequestError::new(
+                "head_reach",
+                format!("given {} times for {tools} tools", self.head_reach.len()),
+            ));
+        }
+        for (k, h) in self.head_reach.iter().enumerate() {
+            number(
+                &format!("head_reach[{k}].origin_y_mm"),
+                h.origin_y_mm,
+                -1e5,
+                1e5,
+            )?;
+            number(
+                &format!("head_reach[{k}].reach_y_mm"),
+                h.reach_y_mm,
+                1e-3,
+                1e5,
+            )?;
+        }
+        match (&self.conveyor, self.heads.len()) {
+            (None, 0) => Ok(()),
+            (None, _) => Err(RequestError::new(
+                "heads",
+                "heads are given with the conveyor's controller",
+            )),
+            (Some(_), n) if n != tools => Err(RequestError::new(
+                "heads",
+                format!(
+                    "given {n} times for {tools} tools (one controller per head, in lane order)"
+                ),
+            )),
+            (Some(_), _) => Ok(()),
+        }
+    }
+}
+
 fn default_rotary_name() -> String {
     "rotary".into()
 }

@@ -21,7 +21,9 @@ use serde::{Deserialize, Serialize};
 use serde_json::{json, Value};
 use std::fmt::Write;
 use volumetric::ballbar::BallbarChart;
-use volumetric::contributions::{contributions as contributions_over, plane_map, ContributionChart, Plane};
+use volumetric::contributions::{
+    contributions as contributions_over, plane_map, ContributionChart, Plane,
+};
 use volumetric::identify::Campaign;
 use volumetric::Model;
 
@@ -49,7 +51,10 @@ pub fn contributions_bytes(n: u64) -> u128 {
 
 fn structure_of(field: &str, text: &str) -> Result<Structure, RequestError> {
     Structure::parse(text).ok_or_else(|| {
-        RequestError::new(field, format!("`{text}`: expected FXYZ, XFYZ, XYFZ or XYZF"))
+        RequestError::new(
+            field,
+            format!("`{text}`: expected FXYZ, XFYZ, XYFZ or XYZF"),
+        )
     })
 }
 
@@ -204,7 +209,10 @@ pub fn identify(
             };
             let mut svg = artifact(format!("ballbar_{}.svg", b.plane), "image/svg+xml", svg);
             svg.title = Some(format!("Ball bar, {} plane", b.plane));
-            for a in [svg, artifact(format!("ballbar_{}.png", b.plane), "image/png", png)] {
+            for a in [
+                svg,
+                artifact(format!("ballbar_{}.png", b.plane), "image/png", png),
+            ] {
                 if let Err(e) = sink.artifact(a) {
                     return Outcome::failed(e);
                 }
@@ -551,7 +559,8 @@ pub fn contributions(
         .iter()
         .map(|x| json!({"error": x.name, "max_um": x.max_um, "rms_um": x.rms_um}))
         .collect();
-    let result = json!({"grid": grid, "total_max_um": tmax, "total_rms_um": trms, "contributions": list});
+    let result =
+        json!({"grid": grid, "total_max_um": tmax, "total_rms_um": trms, "contributions": list});
     let metrics = crate::metrics_from(&result, &["total_max_um", "total_rms_um"]);
     Outcome::succeeded(result, metrics)
 }
@@ -565,7 +574,12 @@ pub fn contributions_summary(r: &Value) -> String {
         n(&r["total_rms_um"]),
         r["grid"]
     );
-    for (i, x) in r["contributions"].as_array().into_iter().flatten().enumerate() {
+    for (i, x) in r["contributions"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .enumerate()
+    {
         let _ = writeln!(
             t,
             "{:>2}. {:<6} max {:>8.3} µm  RMS {:>8.3} µm",
@@ -646,7 +660,11 @@ pub fn export_isg(model: &Model, sink: &mut dyn Sink) -> Outcome {
     let [csv, lis] = ISG_FILES;
     for a in [
         artifact(csv, "text/csv", write_isg_csv(&model.file).into_bytes()),
-        artifact(lis, "text/plain", write_isg_lis(&model.file, csv).into_bytes()),
+        artifact(
+            lis,
+            "text/plain",
+            write_isg_lis(&model.file, csv).into_bytes(),
+        ),
     ] {
         if let Err(e) = sink.artifact(a) {
             return Outcome::failed(e);
@@ -688,7 +706,9 @@ mod tests {
         assert_eq!(e.field, "grid");
         assert!(e.for_cli().starts_with("--grid: "), "{e}");
         assert!(e.message.contains("at most 219"), "{e}");
-        VolumetricContributionsRequest { grid: 219 }.check().unwrap();
+        VolumetricContributionsRequest { grid: 219 }
+            .check()
+            .unwrap();
         assert_eq!(
             VolumetricContributionsRequest { grid: 1 }
                 .check()
@@ -721,7 +741,10 @@ mod tests {
             plots: false,
         };
         let e = r.check().unwrap_err();
-        assert_eq!(e.for_cli(), "--structure: `XZFY`: expected FXYZ, XFYZ, XYFZ or XYZF");
+        assert_eq!(
+            e.for_cli(),
+            "--structure: `XZFY`: expected FXYZ, XFYZ, XYFZ or XYZF"
+        );
         r.structure = "xyfz".into();
         r.tool_offset_mm[2] = f64::NAN;
         assert_eq!(r.check().unwrap_err().field, "tool_offset_mm[2]");
@@ -775,11 +798,7 @@ mod tests {
         assert_eq!(names[0], MODEL_ARTIFACT);
         assert!(names.contains(&"ballbar_XZ.png"), "{names:?}");
         assert!(identify_summary(&r).contains("ball bar XY"));
-        let model = read_model(
-            "m",
-            std::str::from_utf8(&sink.0[0].bytes).unwrap(),
-        )
-        .unwrap();
+        let model = read_model("m", std::str::from_utf8(&sink.0[0].bytes).unwrap()).unwrap();
         assert_eq!(model.file.tool_offset_mm, [0.0, 0.0, 50.0]);
         let out = eval(
             &VolumetricEvalRequest::default(),
@@ -806,7 +825,11 @@ mod tests {
             files: Vec::new(),
         };
         let out = identify(&request, &mut empty, &mut Discard);
-        assert!(out.error().unwrap().starts_with("none/"), "{:?}", out.error());
+        assert!(
+            out.error().unwrap().starts_with("none/"),
+            "{:?}",
+            out.error()
+        );
     }
 
     #[test]
@@ -821,7 +844,12 @@ mod tests {
         assert_eq!(r["contributions"][0]["error"], "E_XX");
         assert!((r["total_max_um"].as_f64().unwrap() - 10.0).abs() < 1e-9);
         assert_eq!(sink.0.len(), 12);
-        let csv = &sink.0.iter().find(|a| a.name == "map_XY.csv").unwrap().bytes;
+        let csv = &sink
+            .0
+            .iter()
+            .find(|a| a.name == "map_XY.csv")
+            .unwrap()
+            .bytes;
         assert_eq!(csv.iter().filter(|b| **b == b'\n').count(), 26);
         assert!(contributions_summary(&r).contains("over a 5³ grid"));
     }

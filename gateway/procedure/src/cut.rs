@@ -1,0 +1,206 @@
+//! A partitioned layout cut on a conveyor cutter (source C): the plan checked against
+//! every head's reach and the cutting area before anything moves, the conveyor fed stop
+//! by stop and every head's group cut at once, on the emulated cutter (whose stroke log
+//! is an artifact) or on real GRBL controllers.
+
+use crate::request::CutRequest;
+use crate::{Artifact, Outcome, Sink};
+use drivers::grbl::{GrblOptions, StreamOptions};
+use layout::cut::{plan, CutSettings, CutterSpec, HeadSpec, Stop};
+use serde_json::{json, Value};
+use std::time::{Duration, Instant};
+
+fn stop_json(s: &Stop) -> Value {
+    json!({
+        "conveyor_mm": s.conveyor_mm,
+        "jobs": s.jobs.iter().map(|j| json!({
+            "tool": j.tool, "group": j.group, "window": j.window,
+            "contours": j.contours.len(), "cut_length_mm": j.cut_length_mm(),
+        })).collect::<Vec<_>>(),
+    })
+}
+
+/// The stroke log as JSON lines: `{"stroke": ...}` for each stroke, then
+/// `{"feeds": [...], "conveyor_s": .., "machine_time_s": ..}`.
+fn log_lines(log: &world::cutter::CutLog) -> String {
+    let mut text = String::new();
+    for s in &log.strokes {
+        text.push_str(&json!({ "stroke": s }).to_string());
+        text.push('\n');
+    }
+    text.push_str(
+        &json!({"feeds": log.feeds, "conveyor_s": log.conveyor_s, "head_busy": log.head_busy,
+               "machine_time_s": log.machine_time_s()})
+        .to_string(),
+    );
+    text.push('\n');
+    text
+}
+
+/// Partitions the layout (as `layout::partition` does) and cuts it. Progress counts
+/// stops; the emulated cutter's stroke log is the artifact `strokes.jsonl`.
+pub async fn run(request: &CutRequest, sink: &mut dyn Sink) -> Outcome {
+    let p = match crate::layout::partitioned(&request.partition) {
+        Ok(p) => p,
+        Err(e) => return Outcome::failed(e),
+    };
+    let (doc, partition, resolution) = (&p.doc, &p.partition, &p.resolution);
+    let cutter = if request.head_reach.is_empty() {
+        CutterSpec::for_partition(&doc.parts, partition)
+    } else {
+        CutterSpec {
+            window_mm: partition.window_mm,
+            heads: request
+                .head_reach
+                .iter()
+                .map(|h| HeadSpec {
+                    origin_y_mm: h.origin_y_mm,
+                    reach_y_mm: h.reach_y_mm,
+                })
+                .collect(),
+        }
+    };
+    let stops = match plan(&doc.parts, partition, &cutter) {
+        Ok(s) => s,
+        Err(e) => return Outcome::failed(e.to_string()),
+    };
+    let settings = CutSettings {
+        feed_mm_min: request.feed_mm_min,
+        ..CutSettings::default()
+    };
+    let stream = StreamOptions {
+        status_interval: Duration::from_millis(20),
+        ..StreamOptions::default()
+    };
+    let started = Instant::now();
+    let progress = std::cell::RefCell::new(&mut *sink);
+    let on_progress =
+        |done: usize, of: usize| progress.borrow_mut().progress(done as u64, of as u64);
+    let (run, log) = match &request.conveyor {
+        Some(conveyor) => {
+            let opts = GrblOptions::default();
+            let mut links =
+                match devices::open_cutter(conveyor, &request.heads, request.baud, &opts).await {
+                    Ok(l) => l,
+                    Err(e) => {
+                        return Outcome::failed(format!(
+                            "connecting to the cutter's controllers: {e}"
+                        ))
+                    }
+                };
+            let run = runner::cutter::run_cut(
+                &stops,
+                links.conveyor.as_mut(),
+                &mut links.heads,
+                &settings,
+                &stream,
+                on_progress,
+            )
+            .await;
+            (run, None)
+        }
+        None => {
+            let geometry = runner::cutter::emulated_geometry(&cutter, &stops);
+            let mut emulated = match devices::open_emulated_cutter(&geometry).await {
+                Ok(e) => e,
+                Err(e) => return Outcome::failed(format!("the emulated cutter: {e}")),
+            };
+            let stream = StreamOptions {
+                status_interval: Duration::from_millis(2),
+                ..stream
+            };
+            let run = runner::cutter::run_cut(
+                &stops,
+                emulated.conveyor.as_mut(),
+                &mut emulated.heads,
+                &settings,
+                &stream,
+                on_progress,
+            )
+            .await;
+            (run, emulated.log())
+        }
+    };
+    if let Some(log) = &log {
+        let a = Artifact {
+            name: "strokes.jsonl".into(),
+            title: None,
+            media_type: "application/jsonl",
+            bytes: log_lines(log).into_bytes(),
+        };
+        if let Err(e) = sink.artifact(a) {
+            return Outcome::failed(e);
+        }
+    }
+    let run = match run {
+        Ok(r) => r,
+        Err(e) => return Outcome::failed(e.to_string()),
+    };
+    let result = json!({
+        "parts": doc.parts.len(),
+        "groups": partition.groups.iter().filter(|g| !g.parts.is_empty()).count(),
+        "moves": resolution.moves.len(),
+        "cutter": cutter,
+        "emulated": log.is_some(),
+        "stops": stops.iter().map(stop_json).collect::<Vec<_>>(),
+        "heads": run.heads,
+        "strokes": log.as_ref().map(|l| l.strokes.len()),
+        "machine_time_s": log.as_ref().map(|l| l.machine_time_s()),
+        "conveyor_s": log.as_ref().map(|l| l.conveyor_s),
+        "wall_time_s": started.elapsed().as_secs_f64(),
+    });
+    let metrics = crate::metrics_from(&result, &["parts", "groups", "strokes"]);
+    Outcome::succeeded(result, metrics)
+}
+
+/// The cut as text (the CLI's output without `--json`).
+pub fn summary(r: &Value) -> String {
+    use std::fmt::Write;
+    let mut t = String::new();
+    let stops = r["stops"].as_array().map(Vec::as_slice).unwrap_or(&[]);
+    let _ = writeln!(
+        t,
+        "{} parts in {} groups cut at {} conveyor stops{}",
+        r["parts"],
+        r["groups"],
+        stops.len(),
+        if r["emulated"] == true {
+            " on the emulated cutter"
+        } else {
+            ""
+        }
+    );
+    for (i, s) in stops.iter().enumerate() {
+        let groups: Vec<String> = s["jobs"]
+            .as_array()
+            .into_iter()
+            .flatten()
+            .map(|j| format!("head {} G-{}", j["tool"], j["group"]))
+            .collect();
+        let _ = writeln!(
+            t,
+            "  stop {:>3}: conveyor {:>10.3} mm  {}",
+            i + 1,
+            s["conveyor_mm"].as_f64().unwrap_or(f64::NAN),
+            groups.join(", ")
+        );
+    }
+    for (k, h) in r["heads"].as_array().into_iter().flatten().enumerate() {
+        let _ = writeln!(
+            t,
+            "head {k}: {} groups, {} contours, {:.1} mm of knife path",
+            h["groups"],
+            h["contours"],
+            h["cut_length_mm"].as_f64().unwrap_or(f64::NAN)
+        );
+    }
+    if let Some(strokes) = r["strokes"].as_u64() {
+        let _ = writeln!(
+            t,
+            "{strokes} strokes, machine time {:.1} s (conveyor {:.1} s)",
+            r["machine_time_s"].as_f64().unwrap_or(f64::NAN),
+            r["conveyor_s"].as_f64().unwrap_or(f64::NAN)
+        );
+    }
+    t
+}

@@ -1,0 +1,496 @@
+//! A 3-axis G-code program rewritten through a compensation (an error map or a
+//! volumetric model) so every move lands where it was programmed: the program text in,
+//! the rewritten program as an artifact ([`PROGRAM_ARTIFACT`]), the report as the result.
+//! (The 5-axis rewrite for a rotary table is `rotary`'s.)
+
+use crate::request::{number, RequestError};
+use crate::{Artifact, Outcome, Sink};
+use errormap::MapModel;
+use protocol::errormap::ErrorMap;
+use protocol::grbl::response::Response;
+use rewrite::{Compensation, Limits, Options, Pose, Rewriter, N_AXIS};
+use serde::{Deserialize, Serialize};
+use serde_json::{json, Value};
+use std::fmt::Write;
+use std::time::Instant;
+
+/// The rewritten program's artifact.
+pub const PROGRAM_ARTIFACT: &str = "program.nc";
+
+/// The largest program accepted (the bounded reader's limit for a data file).
+pub const MAX_PROGRAM_BYTES: usize = 16 << 20;
+
+/// The largest `$#` reply accepted.
+pub const MAX_OFFSETS_BYTES: usize = 1 << 20;
+
+/// The largest rewritten program: a move is split into at most 2^16 pieces, so a fine
+/// tolerance on a long program could otherwise grow without end; the rewrite stops
+/// (naming the line) when its output passes this.
+pub const MAX_OUTPUT_BYTES: usize = 256 << 20;
+
+/// The largest machine coordinate accepted in `start` and `limits`, mm.
+pub const MAX_COORDINATE_MM: f64 = 1e6;
+
+fn default_tolerance() -> f64 {
+    0.5
+}
+fn default_max_correction() -> f64 {
+    200.0
+}
+
+/// A program rewrite.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RewriteRequest {
+    /// The program's text.
+    pub program: String,
+    /// Largest distance of the executed path from the compensated path, um.
+    #[serde(default = "default_tolerance")]
+    pub tolerance_um: f64,
+    /// Largest correction accepted at any point, um.
+    #[serde(default = "default_max_correction")]
+    pub max_correction_um: f64,
+    /// The controller's reply to `$#` (its `[G54:x,y,z]` ... `[G59:...]` lines).
+    #[serde(default)]
+    pub offsets: Option<String>,
+    /// Machine position when the program starts, `[x, y]` or `[x, y, z]` mm (else the
+    /// first moves must name every compensated axis).
+    #[serde(default)]
+    pub start: Option<Vec<f64>>,
+    /// Soft limits, `[[xmin, xmax], [ymin, ymax]]` and optionally `[zmin, zmax]`,
+    /// machine mm (Z unbounded when left out).
+    #[serde(default)]
+    pub limits: Option<Vec<[f64; 2]>>,
+}
+
+impl RewriteRequest {
+    pub fn new(program: String) -> Self {
+        Self {
+            program,
+            tolerance_um: default_tolerance(),
+            max_correction_um: default_max_correction(),
+            offsets: None,
+            start: None,
+            limits: None,
+        }
+    }
+
+    pub fn check(&self) -> Result<(), RequestError> {
+        self.options().map(|_| ())
+    }
+
+    /// The rewriter's options, every field checked (the field named).
+    pub fn options(&self) -> Result<Options, RequestError> {
+        if self.program.len() > MAX_PROGRAM_BYTES {
+            return Err(RequestError::new(
+                "program",
+                format!(
+                    "{} bytes; at most {MAX_PROGRAM_BYTES} are accepted",
+                    self.program.len()
+                ),
+            ));
+        }
+        // The rewriter's own floor: 0.01 um.
+        number("tolerance_um", self.tolerance_um, 0.01, 1000.0)?;
+        number("max_correction_um", self.max_correction_um, 1e-3, 1e5)?;
+        let start = match &self.start {
+            Some(v) => {
+                if !(2..=N_AXIS).contains(&v.len()) {
+                    return Err(RequestError::new(
+                        "start",
+                        format!("expected X,Y or X,Y,Z in mm, got {} numbers", v.len()),
+                    ));
+                }
+                let mut p = [0.0; N_AXIS];
+                for (k, c) in v.iter().enumerate() {
+                    number(
+                        &format!("start[{k}]"),
+                        *c,
+                        -MAX_COORDINATE_MM,
+                        MAX_COORDINATE_MM,
+                    )?;
+                    p[k] = *c;
+                }
+                Some(p)
+            }
+            None => None,
+        };
+        let limits = match &self.limits {
+            Some(v) => {
+                if !(2..=N_AXIS).contains(&v.len()) {
+                    return Err(RequestError::new(
+                        "limits",
+                        format!(
+                            "expected XMIN:XMAX,YMIN:YMAX[,ZMIN:ZMAX] in mm, got {} ranges",
+                            v.len()
+                        ),
+                    ));
+                }
+                let mut limits = Limits {
+                    min: [f64::NEG_INFINITY; N_AXIS],
+                    max: [f64::INFINITY; N_AXIS],
+                };
+                for (k, [a, b]) in v.iter().enumerate() {
+                    let field = format!("limits[{k}]");
+                    number(&field, *a, -MAX_COORDINATE_MM, MAX_COORDINATE_MM)?;
+                    number(&field, *b, -MAX_COORDINATE_MM, MAX_COORDINATE_MM)?;
+                    if a >= b {
+                        return Err(RequestError::new(
+                            field,
+                            format!("{a}:{b}: the minimum must be below the maximum"),
+                        ));
+                    }
+                    limits.min[k] = *a;
+                    limits.max[k] = *b;
+                }
+                Some(limits)
+            }
+            None => None,
+        };
+        let work_offsets = match &self.offsets {
+            Some(text) => read_offsets(text)?,
+            None => [[0.0; N_AXIS]; 6],
+        };
+        Ok(Options {
+            tolerance_mm: self.tolerance_um / 1000.0,
+            max_correction_mm: self.max_correction_um / 1000.0,
+            limits,
+            start,
+            work_offsets,
+        })
+    }
+}
+
+/// The stored work offsets from a saved `$#` reply (`[G54:x,y,z]` lines); other lines
+/// are ignored, a malformed offset line is an error naming it (field `offsets`).
+pub fn read_offsets(text: &str) -> Result<[Pose; 6], RequestError> {
+    if text.len() > MAX_OFFSETS_BYTES {
+        return Err(RequestError::new(
+            "offsets",
+            format!(
+                "{} bytes; a `$#` reply has at most {MAX_OFFSETS_BYTES}",
+                text.len()
+            ),
+        ));
+    }
+    let mut offsets = [[0.0; N_AXIS]; 6];
+    let mut seen = 0;
+    for (n, line) in text.lines().enumerate() {
+        if let Response::Parameter { name, value } = Response::parse(line.trim()) {
+            let Some(k) = ["G54", "G55", "G56", "G57", "G58", "G59"]
+                .iter()
+                .position(|g| *g == name)
+            else {
+                continue;
+            };
+            let values: Vec<f64> = value
+                .split(',')
+                .map(|v| v.trim().parse::<f64>())
+                .collect::<Result<_, _>>()
+                .ok()
+                .filter(|v: &Vec<f64>| v.len() == N_AXIS && v.iter().all(|x| x.is_finite()))
+                .ok_or_else(|| {
+                    RequestError::new(
+                        "offsets",
+                        format!(
+                            "line {}: `{line}` is not {name} with {N_AXIS} numbers",
+                            n + 1
+                        ),
+                    )
+                })?;
+            offsets[k].copy_from_slice(&values);
+            seen += 1;
+        }
+    }
+    if seen == 0 {
+        return Err(RequestError::new(
+            "offsets",
+            "no [G54:...] line (save the controller's reply to `$#`)",
+        ));
+    }
+    Ok(offsets)
+}
+
+/// The compensation a program is rewritten with.
+pub enum RewriteModel {
+    Map(ErrorMap),
+    /// A volumetric model and how messages name it (a file, a profile).
+    Volumetric {
+        model: volumetric::Model,
+        name: String,
+    },
+}
+
+/// Rewrites the program (`source` names it in messages): the rewritten program goes to
+/// the sink as [`PROGRAM_ARTIFACT`] only when every line was rewritten. The result:
+/// `input` (`source`), `output` (the artifact), `compensation`, `tolerance_um`,
+/// `input_lines`, `output_lines`, `moves_compensated`, `segments_added`,
+/// `largest_correction_um`, `largest_correction_line`, `offsets_given`, `notes` (`line`,
+/// `note`), `elapsed_s`.
+pub fn run(
+    request: &RewriteRequest,
+    model: RewriteModel,
+    source: &str,
+    sink: &mut dyn Sink,
+) -> Outcome {
+    let options = match request.options() {
+        Ok(o) => o,
+        Err(e) => return Outcome::failed(e.to_string()),
+    };
+    let compensation: Box<dyn Compensation> = match model {
+        RewriteModel::Map(map) => Box::new(MapModel::new(map)),
+        RewriteModel::Volumetric { model, name } => {
+            if !model.file.fit {
+                return Outcome::failed(format!(
+                    "{name}: the model is marked unfit for compensation (its residuals exceed the instruments' uncertainty)"
+                ));
+            }
+            Box::new(model)
+        }
+    };
+    let started = Instant::now();
+    let rewritten = rewrite_bounded(
+        &request.program,
+        compensation.as_ref(),
+        options,
+        MAX_OUTPUT_BYTES,
+    );
+    let (out, report) = match rewritten {
+        Ok(r) => r,
+        Err(e) => return Outcome::failed(format!("{source}: {e}")),
+    };
+    let elapsed_s = started.elapsed().as_secs_f64();
+    if let Err(e) = sink.artifact(Artifact {
+        name: PROGRAM_ARTIFACT.into(),
+        title: None,
+        media_type: "text/x-gcode",
+        bytes: out.into_bytes(),
+    }) {
+        return Outcome::failed(e);
+    }
+    let notes: Vec<_> = report
+        .notes
+        .iter()
+        .map(|n| json!({ "line": n.line, "note": n.text }))
+        .collect();
+    let result = json!({
+        "input": source, "output": PROGRAM_ARTIFACT,
+        "compensation": compensation.describe(), "tolerance_um": request.tolerance_um,
+        "input_lines": report.input_lines, "output_lines": report.output_lines,
+        "moves_compensated": report.moves_compensated, "segments_added": report.segments_added,
+        "largest_correction_um": report.largest_correction_um,
+        "largest_correction_line": report.largest_correction_line,
+        "offsets_given": request.offsets.is_some(), "notes": notes, "elapsed_s": elapsed_s,
+    });
+    let metrics = crate::metrics_from(
+        &result,
+        &[
+            "moves_compensated",
+            "segments_added",
+            "largest_correction_um",
+        ],
+    );
+    Outcome::succeeded(result, metrics)
+}
+
+/// `rewrite::rewrite_program`, line by line, stopped when the output passes `cap` bytes
+/// ([`MAX_OUTPUT_BYTES`]).
+fn rewrite_bounded(
+    text: &str,
+    compensation: &dyn Compensation,
+    options: Options,
+    cap: usize,
+) -> Result<(String, rewrite::Report), String> {
+    let mut rewriter = Rewriter::new(compensation, options).map_err(|e| e.to_string())?;
+    let mut out = String::with_capacity(text.len() + text.len() / 4);
+    for (index, (line, ending)) in protocol::nc::split_lines(text).enumerate() {
+        let ending = match ending {
+            protocol::nc::LineEnding::None => "\n",
+            e => e.as_str(),
+        };
+        for piece in rewriter.line(line, index + 1).map_err(|e| e.to_string())? {
+            out.push_str(&piece);
+            out.push_str(ending);
+        }
+        if out.len() > cap {
+            return Err(format!(
+                "line {}: the rewritten program passes {} bytes, the most accepted (a larger tolerance gives fewer pieces)",
+                index + 1,
+                cap
+            ));
+        }
+    }
+    if !text.ends_with(['\n', '\r']) && out.ends_with('\n') {
+        out.pop();
+    }
+    Ok((out, rewriter.into_report()))
+}
+
+/// The report as text (`input` and `output` as the front end left them).
+pub fn summary(r: &Value) -> String {
+    let mut t = String::new();
+    let s = |v: &Value| v.as_str().unwrap_or("").to_string();
+    let _ = writeln!(
+        t,
+        "{} -> {} with {}",
+        s(&r["input"]),
+        s(&r["output"]),
+        s(&r["compensation"])
+    );
+    let _ = writeln!(
+        t,
+        "{} lines in, {} out: {} moves corrected, {} segments added; largest correction {:.2} um (line {}); tolerance {} um; {:.3} s",
+        r["input_lines"],
+        r["output_lines"],
+        r["moves_compensated"],
+        r["segments_added"],
+        r["largest_correction_um"].as_f64().unwrap_or(f64::NAN),
+        r["largest_correction_line"],
+        r["tolerance_um"].as_f64().unwrap_or(f64::NAN),
+        r["elapsed_s"].as_f64().unwrap_or(f64::NAN)
+    );
+    if r["offsets_given"] != true {
+        let _ = writeln!(t, "work offsets: none given (--offsets FILE with the controller's `$#` reply); the program's coordinates are taken as machine coordinates");
+    }
+    for n in r["notes"].as_array().into_iter().flatten() {
+        let _ = writeln!(t, "line {}: {}", n["line"], s(&n["note"]));
+    }
+    t
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use protocol::volumetric::Structure;
+
+    #[derive(Default)]
+    struct Keep(Vec<Artifact>);
+    impl crate::Sink for Keep {
+        fn progress(&mut self, _: u64, _: u64) {}
+        fn measurement(&mut self, _: &Value) -> Result<(), String> {
+            Ok(())
+        }
+        fn artifact(&mut self, a: Artifact) -> Result<(), String> {
+            self.0.push(a);
+            Ok(())
+        }
+    }
+
+    /// 10 um of X error per 100 mm of X.
+    fn model() -> volumetric::Model {
+        let mut m = volumetric::Model::zero(Structure::Xyfz, [500.0, 400.0, 400.0]);
+        m.file.tables[0].errors[1][0] = 0.050;
+        m
+    }
+
+    #[test]
+    fn bounds_are_named() {
+        let mut r = RewriteRequest::new("G0 X1\n".into());
+        r.tolerance_um = f64::NAN;
+        assert_eq!(r.check().unwrap_err().flag(), "--tolerance-um");
+        r.tolerance_um = 0.001;
+        assert_eq!(r.check().unwrap_err().field, "tolerance_um");
+        r.tolerance_um = 0.5;
+        r.max_correction_um = 0.0;
+        assert_eq!(r.check().unwrap_err().field, "max_correction_um");
+        r.max_correction_um = 200.0;
+        r.start = Some(vec![1.0]);
+        assert_eq!(r.check().unwrap_err().field, "start");
+        r.start = Some(vec![1.0, f64::INFINITY]);
+        assert_eq!(
+            r.check().unwrap_err().for_cli().split(':').next(),
+            Some("--start")
+        );
+        r.start = None;
+        r.limits = Some(vec![[0.0, 10.0], [5.0, 5.0]]);
+        assert_eq!(r.check().unwrap_err().field, "limits[1]");
+        r.limits = None;
+        r.offsets = Some("[G54:1,2]\nok\n".into());
+        let e = r.check().unwrap_err();
+        assert_eq!(e.field, "offsets");
+        assert!(e.message.starts_with("line 1: "), "{e}");
+        r.offsets = Some("ok\n".into());
+        assert!(r.check().unwrap_err().message.contains("no [G54:...] line"));
+        r.offsets = Some("[G54:1,2,3]\n[G55:0,0,0]\nok\n".into());
+        assert_eq!(r.options().unwrap().work_offsets[0], [1.0, 2.0, 3.0]);
+        r.program = "G0 X0\n".repeat(MAX_PROGRAM_BYTES / 6 + 1);
+        assert_eq!(r.check().unwrap_err().field, "program");
+    }
+
+    #[test]
+    fn a_program_through_a_volumetric_model() {
+        let mut r = RewriteRequest::new("G21 G90\nG0 X0 Y0 Z0\nG1 X100 F500\n".into());
+        r.start = Some(vec![0.0, 0.0, 0.0]);
+        let mut sink = Keep::default();
+        let m = RewriteModel::Volumetric {
+            model: model(),
+            name: "m.vol.csv".into(),
+        };
+        let out = run(&r, m, "in.nc", &mut sink);
+        assert!(out.is_success(), "{:?}", out.error());
+        let res = out.result.unwrap();
+        assert_eq!(res["input"], "in.nc");
+        assert_eq!(res["input_lines"], 3);
+        assert!(
+            res["largest_correction_um"].as_f64().unwrap() > 9.0,
+            "{res}"
+        );
+        assert_eq!(sink.0.len(), 1);
+        assert_eq!(sink.0[0].name, PROGRAM_ARTIFACT);
+        let text = String::from_utf8(sink.0[0].bytes.clone()).unwrap();
+        assert!(text.starts_with("G21 G90\n"), "{text}");
+        assert!(summary(&res).contains("in.nc -> program.nc with volumetric model"));
+        // An unfit model is refused, nothing produced; a refused line is named.
+        let mut unfit = model();
+        unfit.file.fit = false;
+        let mut sink = Keep::default();
+        let out = run(
+            &r,
+            RewriteModel::Volumetric {
+                model: unfit,
+                name: "m.vol.csv".into(),
+            },
+            "in.nc",
+            &mut sink,
+        );
+        assert!(out
+            .error()
+            .unwrap()
+            .starts_with("m.vol.csv: the model is marked unfit"));
+        assert!(sink.0.is_empty());
+        r.program = "G0 X0 Y0 Z0\nG1 X900 F500\n".into();
+        let out = run(
+            &r,
+            RewriteModel::Volumetric {
+                model: model(),
+                name: "m".into(),
+            },
+            "in.nc",
+            &mut sink,
+        );
+        assert!(
+            out.error().unwrap().starts_with("in.nc: line 2"),
+            "{:?}",
+            out.error()
+        );
+        assert!(sink.0.is_empty());
+    }
+
+    #[test]
+    fn the_output_is_bounded_as_it_grows() {
+        let mut r = RewriteRequest::new("G0 X0 Y0 Z0\nG1 X100 F500\nG1 X0\n".into());
+        r.tolerance_um = 0.01;
+        let options = || r.options().unwrap();
+        // E_XX zig-zags by 5 um every 10 mm: the moves are split at every corner.
+        let mut wavy = model();
+        let x = &mut wavy.file.tables[0];
+        x.positions_mm = (0..=50).map(|k| k as f64 * 10.0).collect();
+        x.errors = (0..=50)
+            .map(|k| [0.005 * (k % 2) as f64, 0.0, 0.0, 0.0, 0.0, 0.0])
+            .collect();
+        let (whole, _) = rewrite_bounded(&r.program, &wavy, options(), usize::MAX).unwrap();
+        assert!(whole.lines().count() > 20, "{}", whole.lines().count());
+        let e = rewrite_bounded(&r.program, &wavy, options(), whole.len() / 2).unwrap_err();
+        assert!(e.starts_with("line 2: the rewritten program passes"), "{e}");
+    }
+}
