@@ -1,17 +1,15 @@
 //! `gateway`: the command line of the compensation gateway.
 
-use anyhow::Context;
 use clap::{Parser, Subcommand};
 use devices::open_devices_async;
 use errormap::scan::ScanSpec;
 use job::Job;
 use procedure::request::CompensateRequest;
 use protocol::Board;
-use serde_json::json;
+use serde_json::{json, Value};
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::time::Instant;
-use vision::localize::{localize, LocalizeParams, LocalizeSettings, Method, PixelAxes};
+use vision::localize::{LocalizeSettings, Method, PixelAxes};
 
 mod export;
 mod front;
@@ -112,6 +110,10 @@ enum Cmd {
         /// The error map (a version file written by `gateway map`).
         #[arg(long)]
         map: Option<PathBuf>,
+        /// With --map: the job of the machine the program is for; the map is refused
+        /// unless it was measured on that machine, controller, board and camera.
+        #[arg(long, requires = "map")]
+        config: Option<PathBuf>,
         /// A volumetric model file (`gateway volumetric identify`): X, Y and Z corrected.
         #[arg(long)]
         volumetric: Option<PathBuf>,
@@ -357,25 +359,8 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             camera,
             targets,
         } => {
-            let mut job = Job::demo();
-            match camera.as_str() {
-                "sim" => {}
-                "gige" => job::demo::over_gige(&mut job)?,
-                other => anyhow::bail!("--camera `{other}`: this build knows sim and gige"),
-            }
-            match stage.as_str() {
-                "sim" => {}
-                "grbl" => job::demo::over_grbl(&mut job)?,
-                "modbus" => match transport.as_str() {
-                    "tcp" => job::demo::over_modbus(&mut job, false)?,
-                    "rtu" => job::demo::over_modbus(&mut job, true)?,
-                    other => anyhow::bail!("--transport `{other}`: expected tcp or rtu"),
-                },
-                "canopen" => job::demo::over_canopen(&mut job)?,
-                other => anyhow::bail!(
-                    "--stage `{other}`: this build knows sim, grbl, modbus and canopen"
-                ),
-            }
+            let job = procedure::demo::demo_job(&stage, &transport, &camera)
+                .map_err(|e| anyhow::anyhow!(e.for_cli()))?;
             let request = CompensateRequest {
                 targets,
                 method: method.as_deref().map(parse_method).transpose()?,
@@ -427,6 +412,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Cmd::Rewrite {
             input,
             map,
+            config: _,
             volumetric,
             rotary: Some(errors),
             machine,
@@ -465,6 +451,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Cmd::Rewrite {
             input,
             map,
+            config,
             volumetric,
             rotary: None,
             machine: _,
@@ -479,6 +466,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             input,
             out,
             map,
+            config,
             volumetric,
             tolerance_um,
             max_correction_um,
@@ -572,41 +560,28 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         } => {
             let board = Board::load(&board)?;
             let img = vision::image_io::load_png(&image)?;
-            let settings = LocalizeSettings {
+            let request = procedure::localize::LocalizeRequest {
+                near: parse_xy(&near)?,
                 method: parse_method(&method)?,
+                um_per_px,
+                pixel_axes: pixel_axes
+                    .parse::<PixelAxes>()
+                    .map_err(|e| anyhow::anyhow!("--pixel-axes `{pixel_axes}`: {e}"))?,
                 hint_tolerance_mm,
                 max_residual_um,
-                min_points,
+                min_points: min_points as u64,
             };
-            let mut p = LocalizeParams::with_settings(parse_xy(&near)?, &settings);
-            p.um_per_px = um_per_px;
-            p.pixel_axes = pixel_axes
-                .parse::<PixelAxes>()
-                .map_err(|e| anyhow::anyhow!("--pixel-axes `{pixel_axes}`: {e}"))?;
-            let t0 = Instant::now();
-            let obs = localize(&img, &board, &p).with_context(|| format!("{}", image.display()))?;
-            let elapsed_ms = t0.elapsed().as_secs_f64() * 1000.0;
-            if json {
-                println!(
-                    "{}",
-                    json!({
-                        "x_mm": obs.x_mm, "y_mm": obs.y_mm, "points": obs.points, "method": obs.method,
-                        "elapsed_ms": elapsed_ms, "residual_rms_um": obs.residual_rms_um,
-                        "um_per_px": obs.um_per_px, "rotation_deg": obs.rotation_deg,
-                        "image": { "path": image.display().to_string(), "width": img.width, "height": img.height, "bit_depth": img.bit_depth() },
-                    })
-                );
-            } else {
-                println!(
-                    "board coordinate at the image centre: X {:.5} mm  Y {:.5} mm",
-                    obs.x_mm, obs.y_mm
-                );
-                println!(
-                    "method {:?}, {} points, residual {:.3} um rms, scale {:.4} um/px, rotation {:.4} deg, {:.3} ms",
-                    obs.method, obs.points, obs.residual_rms_um, obs.um_per_px, obs.rotation_deg, elapsed_ms
-                );
+            request
+                .check_for(&board)
+                .map_err(|e| anyhow::anyhow!(e.for_cli()))?;
+            let source = image.display().to_string();
+            let mut outcome = procedure::localize::run(&request, &img, &board, &source);
+            if let Some(Value::Object(frame)) =
+                outcome.result.as_mut().and_then(|r| r.get_mut("image"))
+            {
+                frame.insert("path".into(), json!(source));
             }
-            Ok(ExitCode::SUCCESS)
+            front::print(&outcome, json, procedure::localize::summary)
         }
     }
 }

@@ -14,6 +14,8 @@ pub struct RewriteArgs {
     pub input: PathBuf,
     pub out: PathBuf,
     pub map: Option<PathBuf>,
+    /// The job of the machine the program is for: the map's identity is checked.
+    pub config: Option<PathBuf>,
     /// A volumetric model file (`gateway volumetric identify`).
     pub volumetric: Option<PathBuf>,
     pub tolerance_um: f64,
@@ -54,7 +56,19 @@ fn parse_limits(s: &str) -> anyhow::Result<Vec<[f64; 2]>> {
 pub fn rewrite(args: RewriteArgs) -> anyhow::Result<ExitCode> {
     let model = match (&args.map, &args.volumetric) {
         (Some(_), Some(_)) => anyhow::bail!("give one compensation: --map or --volumetric"),
-        (Some(path), None) => RewriteModel::Map(ErrorMap::load(path)?),
+        (Some(path), None) => {
+            let map = ErrorMap::load(path)?;
+            if let Some(config) = &args.config {
+                // The one identity check, on the job's devices (opened, asked, closed).
+                let job = job::Job::load(config)?;
+                let here = crate::front::runtime()?
+                    .block_on(procedure::identity_of_job(&job))
+                    .map_err(|e| anyhow::anyhow!(e))?;
+                procedure::check_identity(&map, &here, &path.display().to_string())
+                    .map_err(|e| anyhow::anyhow!(e))?;
+            }
+            RewriteModel::Map(map)
+        }
         (None, Some(path)) => RewriteModel::Volumetric {
             model: crate::volumetric::load_model(path)?,
             name: path.display().to_string(),
@@ -75,6 +89,7 @@ pub fn rewrite(args: RewriteArgs) -> anyhow::Result<ExitCode> {
     let inputs: Vec<&Path> = [
         Some(args.input.as_path()),
         args.map.as_deref(),
+        args.config.as_deref(),
         args.volumetric.as_deref(),
         args.offsets.as_deref(),
     ]

@@ -121,7 +121,7 @@ pub fn run(cmd: RotaryCmd) -> anyhow::Result<ExitCode> {
             let mut sink = CliSink::new("balls", json)
                 .inputs(&[&config])
                 .into_folder(&out)?;
-            let mut shelf = FileShelf { dir: out.clone() };
+            let mut shelf = procedure::rotary::FolderShelf(out.clone());
             // Nothing stops the command's cycle but a failure (Ctrl-C ends the process).
             let rt = tokio::runtime::Builder::new_current_thread()
                 .enable_all()
@@ -164,20 +164,6 @@ pub fn run(cmd: RotaryCmd) -> anyhow::Result<ExitCode> {
             );
             print(&outcome, json, format!("wrote {}", out.display()))
         }
-    }
-}
-
-/// The errors' report as OUT/errors.json (atomically).
-struct FileShelf {
-    dir: PathBuf,
-}
-
-impl procedure::rotary::ErrorsShelf for FileShelf {
-    fn keep(&mut self, _: &str, report: &serde_json::Value) -> Result<String, String> {
-        let path = self.dir.join("errors.json");
-        let text = serde_json::to_string_pretty(report).map_err(|e| e.to_string())?;
-        crate::front::write_atomic(&path, text.as_bytes(), &[]).map_err(|e| format!("{e:#}"))?;
-        Ok(path.display().to_string())
     }
 }
 

@@ -10,10 +10,13 @@
 
 pub mod compensate;
 pub mod cut;
+pub mod demo;
 pub mod export;
 pub mod iso230;
 pub mod layout;
+pub mod localize;
 pub mod map;
+pub mod proxy;
 pub mod request;
 pub mod rewrite;
 pub mod rotary;

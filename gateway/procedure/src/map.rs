@@ -10,14 +10,17 @@
 use crate::request::MapRequest;
 use crate::{Outcome, Sink};
 use devices::Devices;
+use errormap::scan::journal;
 use errormap::scan::{rfc3339, MapBuilder, Sample, ScanPlan};
 use job::Job;
-use protocol::errormap::ErrorMap;
+use protocol::errormap::{next_version_path, ErrorMap};
 use runner::scan::ScanError;
 use runner::JobError;
 use serde_json::{json, Value};
 use std::cell::{Cell, RefCell};
 use std::future::Future;
+use std::io::Write;
+use std::path::{Path, PathBuf};
 use std::time::{Instant, SystemTime};
 
 /// Where a scan's samples are kept as they come, and where a stopped scan's are found.
@@ -167,6 +170,86 @@ pub async fn run(
     obj.insert("wall_time_s".into(), json!(started.elapsed().as_secs_f64()));
     let metrics = crate::metrics_from(&result, &["frames", "uncertainty_um", "version"]);
     Outcome::succeeded(result, metrics)
+}
+
+/// The journal file: a header naming the plan, then one line per sample, flushed as
+/// each comes.
+pub struct FileJournal {
+    path: PathBuf,
+    file: Option<std::fs::File>,
+}
+
+impl FileJournal {
+    pub fn new(path: PathBuf) -> Self {
+        Self { path, file: None }
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+}
+
+impl ScanJournal for FileJournal {
+    fn resume(&mut self, plan: &ScanPlan) -> Result<Vec<(usize, Sample)>, String> {
+        let shown = self.path.display();
+        let samples = if self.path.exists() {
+            let text = protocol::config::read_data_file(&self.path)
+                .map_err(|e| format!("{shown}: {e}"))?;
+            journal::read(plan, &text)
+                .map_err(|e| format!("{shown}: {e} (remove it to start a new scan)"))?
+        } else {
+            std::fs::write(&self.path, journal::header(plan))
+                .map_err(|e| format!("writing {shown}: {e}"))?;
+            Vec::new()
+        };
+        let file = std::fs::OpenOptions::new()
+            .append(true)
+            .open(&self.path)
+            .map_err(|e| format!("opening {shown}: {e}"))?;
+        self.file = Some(file);
+        Ok(samples)
+    }
+
+    fn append(&mut self, index: usize, sample: &Sample) -> Result<(), String> {
+        let file = self.file.as_mut().ok_or("the journal is not open")?;
+        file.write_all(journal::line(index, sample).as_bytes())
+            .and_then(|()| file.flush())
+            .map_err(|e| format!("{}: {e}", self.path.display()))
+    }
+
+    fn close(&mut self) {
+        self.file = None;
+        std::fs::remove_file(&self.path).ok();
+    }
+}
+
+/// Map versions in a folder, `NAME.vN.json`, never overwritten.
+pub struct FolderShelf {
+    dir: PathBuf,
+    next: Option<(u32, PathBuf)>,
+}
+
+impl FolderShelf {
+    pub fn new(dir: &Path) -> Self {
+        Self {
+            dir: dir.to_path_buf(),
+            next: None,
+        }
+    }
+}
+
+impl MapShelf for FolderShelf {
+    fn next_version(&mut self, name: &str) -> Result<u32, String> {
+        let (v, path) = next_version_path(&self.dir, name).map_err(|e| e.to_string())?;
+        self.next = Some((v, path));
+        Ok(v)
+    }
+
+    fn keep(&mut self, _: &str, map: &ErrorMap) -> Result<String, String> {
+        let (_, path) = self.next.take().ok_or("no version was reserved")?;
+        map.save_new(&path).map_err(|e| e.to_string())?;
+        Ok(path.display().to_string())
+    }
 }
 
 /// A journal kept in memory (tests; a front end with nowhere to keep one).

@@ -1,0 +1,271 @@
+//! One frame of the board localized: the board coordinate under the image centre. The
+//! frame and the board come from the front end (the CLI reads them from files); the
+//! request carries the hint and the localizer's settings, each bounded and named.
+
+use crate::request::{count, number, RequestError};
+use crate::Outcome;
+use protocol::{Board, MonoImage};
+use serde::{Deserialize, Serialize};
+use serde_json::{json, Value};
+use std::time::Instant;
+use vision::localize::{localize, LocalizeParams, LocalizeSettings, Method, PixelAxes};
+
+/// The largest board coordinate accepted as a hint, mm.
+pub const MAX_COORDINATE_MM: f64 = 1e5;
+/// The nominal scale's range, um per pixel (a microscope's tenth of a micrometre to a
+/// wide lens's centimetre).
+pub const UM_PER_PX: (f64, f64) = (1e-3, 1e4);
+/// The hint tolerance's range, mm (the board further caps it below half its pitch).
+pub const HINT_TOLERANCE_MM: (f64, f64) = (1e-4, 50.0);
+/// The most identified points a request may ask for.
+pub const MAX_MIN_POINTS: u64 = 1_000_000;
+
+fn default_hint_tolerance() -> f64 {
+    LocalizeSettings::default().hint_tolerance_mm
+}
+fn default_max_residual() -> f64 {
+    LocalizeSettings::default().max_residual_um
+}
+fn default_min_points() -> u64 {
+    LocalizeSettings::default().min_points as u64
+}
+
+/// A localization of one frame.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LocalizeRequest {
+    /// The expected board coordinate at the image centre, mm.
+    pub near: [f64; 2],
+    #[serde(default)]
+    pub method: Method,
+    /// The nominal scale; the measured scale must agree within 10 %.
+    #[serde(default)]
+    pub um_per_px: Option<f64>,
+    /// The board directions of the image +x and +y axes (`+x,-y`: a camera above).
+    #[serde(default)]
+    pub pixel_axes: PixelAxes,
+    /// How far the true position may be from `near`, mm.
+    #[serde(default = "default_hint_tolerance")]
+    pub hint_tolerance_mm: f64,
+    /// Refuse when the fit's RMS residual exceeds this, um.
+    #[serde(default = "default_max_residual")]
+    pub max_residual_um: f64,
+    /// Fewest identified on-board points accepted.
+    #[serde(default = "default_min_points")]
+    pub min_points: u64,
+}
+
+impl LocalizeRequest {
+    /// The defaults ([`LocalizeSettings::default`], a camera above the board, scale
+    /// unknown) with the hint `near`.
+    pub fn new(near: [f64; 2]) -> Self {
+        Self {
+            near,
+            method: Method::default(),
+            um_per_px: None,
+            pixel_axes: PixelAxes::default(),
+            hint_tolerance_mm: default_hint_tolerance(),
+            max_residual_um: default_max_residual(),
+            min_points: default_min_points(),
+        }
+    }
+
+    /// Every bound that holds whatever the board.
+    pub fn check(&self) -> Result<(), RequestError> {
+        for (k, v) in self.near.iter().enumerate() {
+            number(
+                &format!("near[{k}]"),
+                *v,
+                -MAX_COORDINATE_MM,
+                MAX_COORDINATE_MM,
+            )?;
+        }
+        if let Some(u) = self.um_per_px {
+            number("um_per_px", u, UM_PER_PX.0, UM_PER_PX.1)?;
+        }
+        number(
+            "hint_tolerance_mm",
+            self.hint_tolerance_mm,
+            HINT_TOLERANCE_MM.0,
+            HINT_TOLERANCE_MM.1,
+        )?;
+        number(
+            "max_residual_um",
+            self.max_residual_um,
+            1e-3,
+            job::MAX_RESIDUAL_UM,
+        )?;
+        count("min_points", self.min_points, 4, MAX_MIN_POINTS)?;
+        Ok(())
+    }
+
+    /// The bounds the board sets: a hint tolerance below half its pitch (else a dot
+    /// could be mistaken for its neighbour), no more points than it has.
+    pub fn check_for(&self, board: &Board) -> Result<(), RequestError> {
+        self.check()?;
+        let half_pitch = board.pitch_mm / 2.0;
+        if !(self.hint_tolerance_mm < half_pitch) {
+            return Err(RequestError::new(
+                "hint_tolerance_mm",
+                format!(
+                    "must be below half the board pitch ({half_pitch} mm), or dots could be mistaken for their neighbours; got {}",
+                    self.hint_tolerance_mm
+                ),
+            ));
+        }
+        let on_board = u64::from(board.cols) * u64::from(board.rows);
+        if self.min_points > on_board {
+            return Err(RequestError::new(
+                "min_points",
+                format!(
+                    "the board has {on_board} points, fewer than the {} asked for",
+                    self.min_points
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// The localizer's parameters.
+    pub fn params(&self) -> LocalizeParams {
+        let settings = LocalizeSettings {
+            method: self.method,
+            hint_tolerance_mm: self.hint_tolerance_mm,
+            max_residual_um: self.max_residual_um,
+            min_points: self.min_points as usize,
+        };
+        let mut p = LocalizeParams::with_settings(self.near, &settings);
+        p.um_per_px = self.um_per_px;
+        p.pixel_axes = self.pixel_axes;
+        p
+    }
+}
+
+/// Localizes `image` (`source` names it in messages) on `board`. The result: `x_mm`,
+/// `y_mm`, `points`, `method`, `elapsed_ms`, `residual_rms_um`, `um_per_px`,
+/// `rotation_deg` and `image` {`width`, `height`, `bit_depth`} (a front end that read
+/// the frame from a file adds its `path`). A request out of bounds or a refused frame
+/// fails with the reason.
+pub fn run(request: &LocalizeRequest, image: &MonoImage, board: &Board, source: &str) -> Outcome {
+    if let Err(e) = request.check_for(board) {
+        return Outcome::failed(e.to_string());
+    }
+    let t0 = Instant::now();
+    let obs = match localize(image, board, &request.params()) {
+        Ok(o) => o,
+        Err(e) => return Outcome::failed(format!("{source}: {e}")),
+    };
+    let elapsed_ms = t0.elapsed().as_secs_f64() * 1000.0;
+    let result = json!({
+        "x_mm": obs.x_mm, "y_mm": obs.y_mm, "points": obs.points, "method": obs.method,
+        "elapsed_ms": elapsed_ms, "residual_rms_um": obs.residual_rms_um,
+        "um_per_px": obs.um_per_px, "rotation_deg": obs.rotation_deg,
+        "image": { "width": image.width, "height": image.height, "bit_depth": image.bit_depth() },
+    });
+    let metrics = crate::metrics_from(&result, &["x_mm", "y_mm", "points", "residual_rms_um"]);
+    Outcome::succeeded(result, metrics)
+}
+
+/// The localization as text (the CLI's output without `--json`).
+pub fn summary(r: &Value) -> String {
+    let n = |k: &str| r[k].as_f64().unwrap_or(f64::NAN);
+    // The method as the localizer names it (`Fit`, `FourPoint`).
+    let method = r["method"]
+        .as_str()
+        .and_then(|m| m.parse::<Method>().ok())
+        .map(|m| format!("{m:?}"))
+        .unwrap_or_else(|| r["method"].to_string());
+    format!(
+        "board coordinate at the image centre: X {:.5} mm  Y {:.5} mm\n\
+         method {method}, {} points, residual {:.3} um rms, scale {:.4} um/px, rotation {:.4} deg, {:.3} ms\n",
+        n("x_mm"),
+        n("y_mm"),
+        r["points"],
+        n("residual_rms_um"),
+        n("um_per_px"),
+        n("rotation_deg"),
+        n("elapsed_ms")
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn board() -> Board {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        Board::load(&dir.join("../../config/boards/dot-grid-0.5mm.toml")).unwrap()
+    }
+
+    #[test]
+    fn the_defaults_pass() {
+        let r = LocalizeRequest::new([10.0, 20.0]);
+        r.check_for(&board()).unwrap();
+        let p = r.params();
+        assert_eq!(p.hint_mm, [10.0, 20.0]);
+        assert_eq!(p.min_points, LocalizeSettings::default().min_points);
+    }
+
+    #[test]
+    fn nan_and_absurd_values_are_refused_naming_the_field() {
+        let ok = LocalizeRequest::new([10.0, 20.0]);
+        let field = |f: &dyn Fn(&mut LocalizeRequest)| {
+            let mut r = ok.clone();
+            f(&mut r);
+            r.check_for(&board()).unwrap_err().field
+        };
+        assert_eq!(field(&|r| r.near[1] = f64::NAN), "near[1]");
+        assert_eq!(field(&|r| r.near[0] = 1e300), "near[0]");
+        assert_eq!(field(&|r| r.um_per_px = Some(0.0)), "um_per_px");
+        assert_eq!(field(&|r| r.um_per_px = Some(f64::INFINITY)), "um_per_px");
+        assert_eq!(
+            field(&|r| r.hint_tolerance_mm = f64::NAN),
+            "hint_tolerance_mm"
+        );
+        assert_eq!(field(&|r| r.hint_tolerance_mm = 0.0), "hint_tolerance_mm");
+        // Half the 0.5 mm pitch admits two grid offsets.
+        assert_eq!(field(&|r| r.hint_tolerance_mm = 0.25), "hint_tolerance_mm");
+        assert_eq!(field(&|r| r.max_residual_um = -1.0), "max_residual_um");
+        assert_eq!(field(&|r| r.max_residual_um = 1e9), "max_residual_um");
+        assert_eq!(field(&|r| r.min_points = 3), "min_points");
+        assert_eq!(field(&|r| r.min_points = MAX_MIN_POINTS), "min_points");
+        let mut r = ok.clone();
+        r.near[0] = f64::NAN;
+        assert!(r.check().unwrap_err().for_cli().starts_with("--near: "));
+    }
+
+    #[test]
+    fn a_request_reads_from_json_with_its_defaults() {
+        let r: LocalizeRequest = serde_json::from_value(
+            json!({"near": [1.0, 2.0], "method": "four-point", "pixel_axes": "+y,+x"}),
+        )
+        .unwrap();
+        assert_eq!(r.method, Method::FourPoint);
+        assert_eq!(r.pixel_axes.to_string(), "+y,+x");
+        assert_eq!(r.min_points, default_min_points());
+        assert!(
+            serde_json::from_value::<LocalizeRequest>(json!({"near": [1, 2], "x": 1})).is_err()
+        );
+    }
+
+    #[test]
+    fn a_blank_frame_is_refused_naming_the_source() {
+        let image = MonoImage::new(64, 48, protocol::Pixels::Mono8(vec![200; 64 * 48])).unwrap();
+        let o = run(
+            &LocalizeRequest::new([1.0, 1.0]),
+            &image,
+            &board(),
+            "blank.png",
+        );
+        assert!(o.error().unwrap().starts_with("blank.png: "), "{o:?}");
+    }
+
+    #[test]
+    fn the_summary_reads_the_result() {
+        let r = json!({"x_mm": 1.0, "y_mm": 2.0, "points": 9, "method": "four-point",
+            "elapsed_ms": 3.0, "residual_rms_um": 0.1, "um_per_px": 4.0, "rotation_deg": 0.5});
+        let t = summary(&r);
+        assert!(t.starts_with("board coordinate at the image centre: X 1.00000 mm  Y 2.00000 mm\n"));
+        assert!(t.contains("method FourPoint, 9 points"), "{t}");
+    }
+}

@@ -1,0 +1,540 @@
+//! The live pass-through between the operator's G-code sender and a GRBL controller:
+//! a pseudo-terminal that answers the sender as GRBL 1.1 would, every line rewritten on
+//! its way to the controller, with an error map (on the job's GRBL controller, real or
+//! emulated, once the map's identity is checked against the job's devices) or for a
+//! rotary table's location errors (on a grblHAL controller with A and C). Sender
+//! sessions are served one after another; each ends with an account of its lines.
+
+use crate::request::{count, number, RequestError};
+use crate::Outcome;
+use errormap::MapModel;
+use job::{GrblLink, Job, StageSpec};
+use protocol::errormap::ErrorMap;
+use proxy::{open_controller, serve, Ending, FiveAxisRewriter, LineAccount, Proxy, SenderPort};
+use rewrite::{Compensation, Options, Rewriter};
+use rotary::{LocationErrors, MachineConstants};
+use serde::{Deserialize, Serialize};
+use serde_json::{json, Value};
+use std::future::Future;
+use std::path::Path;
+use std::time::Duration;
+
+/// How long to wait for a controller's banner after opening its port (an Arduino resets
+/// when the port opens and needs about two seconds).
+const BANNER_WAIT: Duration = Duration::from_millis(2500);
+
+/// The largest correction a move may get by default with an error map, um.
+pub const MAP_MAX_CORRECTION_UM: f64 = 200.0;
+/// ... and for a rotary table, whose A-axis offsets reach tenths of a millimetre, um.
+pub const ROTARY_MAX_CORRECTION_UM: f64 = 2000.0;
+/// An emulated controller's clock: simulated seconds per wall second, at most.
+pub const MAX_TIME_SCALE: f64 = 1e4;
+
+fn default_tolerance() -> f64 {
+    0.5
+}
+fn default_baud() -> u32 {
+    115_200
+}
+fn default_time_scale() -> String {
+    "1".into()
+}
+
+/// How the pass-through rewrites and runs.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProxyRequest {
+    /// Largest distance of the executed path from the compensated path, um.
+    #[serde(default = "default_tolerance")]
+    pub tolerance_um: f64,
+    /// The largest correction a move may get, um (default [`MAP_MAX_CORRECTION_UM`]
+    /// with a map, [`ROTARY_MAX_CORRECTION_UM`] for a rotary table).
+    #[serde(default)]
+    pub max_correction_um: Option<f64>,
+    /// The rotary table's controller's baud rate (a job's controller has its own).
+    #[serde(default = "default_baud")]
+    pub baud: u32,
+    /// An emulated controller's clock: simulated seconds per wall second, or
+    /// `unconstrained`.
+    #[serde(default = "default_time_scale")]
+    pub time_scale: String,
+    /// Serve one sender session, then end.
+    #[serde(default)]
+    pub once: bool,
+}
+
+impl Default for ProxyRequest {
+    fn default() -> Self {
+        Self {
+            tolerance_um: default_tolerance(),
+            max_correction_um: None,
+            baud: default_baud(),
+            time_scale: default_time_scale(),
+            once: false,
+        }
+    }
+}
+
+impl ProxyRequest {
+    pub fn check(&self) -> Result<(), RequestError> {
+        // The rewriters' own floor: 0.01 um.
+        number("tolerance_um", self.tolerance_um, 0.01, 1000.0)?;
+        if let Some(m) = self.max_correction_um {
+            number("max_correction_um", m, 1e-3, 1e5)?;
+        }
+        count("baud", self.baud.into(), 1200, 4_000_000)?;
+        self.clock()?;
+        Ok(())
+    }
+
+    /// The emulated controller's clock, checked.
+    pub fn clock(&self) -> Result<world::Clock, RequestError> {
+        let clock = self
+            .time_scale
+            .parse::<world::Clock>()
+            .map_err(|e| RequestError::new("time_scale", e.to_string()))?;
+        if let world::Clock::Scaled(k) = clock {
+            number("time_scale", k, 1e-3, MAX_TIME_SCALE)?;
+        }
+        Ok(clock)
+    }
+
+    fn max_correction_mm(&self, default_um: f64) -> f64 {
+        self.max_correction_um.unwrap_or(default_um) / 1000.0
+    }
+}
+
+/// Which inputs a pass-through was given: a job and its error map, or a rotary table's
+/// errors and its controller's port.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Inputs<P> {
+    Map { job: P, map: P },
+    Rotary { errors: P, controller: String },
+}
+
+/// The pass-through the given inputs choose; any other combination is refused.
+pub fn inputs<P>(
+    job: Option<P>,
+    map: Option<P>,
+    rotary: Option<P>,
+    controller: Option<String>,
+) -> Result<Inputs<P>, String> {
+    match (job, map, rotary, controller) {
+        (Some(job), Some(map), None, None) => Ok(Inputs::Map { job, map }),
+        (None, None, Some(errors), Some(controller)) => Ok(Inputs::Rotary { errors, controller }),
+        _ => Err(
+            "give `--config JOB --map MAP` (the error map, the job's GRBL controller) or \
+             `--rotary ERRORS --controller PORT` (the rotary table's errors, a grblHAL \
+             controller with A and C)"
+                .into(),
+        ),
+    }
+}
+
+/// What the pass-through corrects for, read by the front end.
+pub enum Correction {
+    /// An error map, on the job's GRBL controller. `job_source` and `map_source` name
+    /// them in messages.
+    Map {
+        job: Box<Job>,
+        job_source: String,
+        map: Box<ErrorMap>,
+        map_source: String,
+    },
+    /// A rotary table's location errors (`source` names them), on the grblHAL controller
+    /// at `controller`.
+    Rotary {
+        errors: LocationErrors,
+        constants: MachineConstants,
+        source: String,
+        controller: String,
+    },
+}
+
+/// What a front end does while the pass-through runs.
+pub trait ProxyFront {
+    /// The sender's port is ready (before any session): `sender_port`, `controller`,
+    /// `compensation` (and `map`, the same).
+    fn ready(&mut self, hello: &Value) -> Result<(), String>;
+    /// A session ended and another follows: its account (as [`Outcome::result`] is for
+    /// the last one).
+    fn session(&mut self, account: &Value) -> Result<(), String>;
+}
+
+/// Runs the pass-through: checks the request; with a map, checks its identity against
+/// the job's devices and needs the job's stage to be a GRBL controller (an emulated one
+/// is started on the request's clock); opens the controller's port, creates the
+/// sender's pseudo-terminal (with a symlink at `sender_link`), tells the front it is
+/// ready, and serves sender sessions until `stop` (Ctrl-C), the controller is lost, or
+/// (with `once`) after the first. Every session but the last goes to the front as it
+/// ends; the last one's account is the result (a lost controller fails the outcome,
+/// with that account).
+pub async fn run(
+    request: &ProxyRequest,
+    correction: Correction,
+    sender_link: Option<&Path>,
+    front: &mut dyn ProxyFront,
+    stop: impl Future<Output = ()>,
+) -> Outcome {
+    if let Err(e) = request.check() {
+        return Outcome::failed(e.to_string());
+    }
+    let stop = std::pin::pin!(stop);
+    match correction {
+        Correction::Map {
+            job,
+            job_source,
+            map,
+            map_source,
+        } => {
+            // The map must belong to this machine, controller, board certificate and
+            // camera: the one identity check of every procedure, on the job's devices
+            // (opened, asked, closed) before the controller's port is opened.
+            let here = match crate::identity_of_job(&job).await {
+                Ok(h) => h,
+                Err(e) => return Outcome::failed(e),
+            };
+            if let Err(e) = crate::check_identity(&map, &here, &map_source) {
+                return Outcome::failed(e);
+            }
+            let model = MapModel::new(*map);
+            let StageSpec::Grbl { link, baud } = &job.stage else {
+                return Outcome::failed(format!(
+                    "{job_source}: the pass-through needs a GRBL controller (stage kind `grbl`); other controllers take the map as a table (gateway export)"
+                ));
+            };
+            let options = Options {
+                tolerance_mm: request.tolerance_um / 1000.0,
+                max_correction_mm: request.max_correction_mm(MAP_MAX_CORRECTION_UM),
+                ..Options::default()
+            };
+            // Kept until the sessions end: the emulated controller and its machine.
+            let (port, _emulator) = match link {
+                GrblLink::Port(p) => (p.clone(), None),
+                GrblLink::Emulate(machine) => {
+                    let clock = match request.clock() {
+                        Ok(c) => c,
+                        Err(e) => return Outcome::failed(e.to_string()),
+                    };
+                    match devices::spawn_grbl_emulator(&job, machine, clock) {
+                        Ok((emulator, rig)) => (emulator.path().to_string(), Some((emulator, rig))),
+                        Err(e) => return Outcome::failed(e.to_string()),
+                    }
+                }
+            };
+            let served = Served {
+                port: &port,
+                baud: *baud,
+                describe: &model.describe(),
+                sender_link,
+                once: request.once,
+            };
+            sessions(served, front, stop, || {
+                let rewriter = Rewriter::new(&model, options.clone()).map_err(|e| e.to_string())?;
+                Ok(Proxy::new(rewriter, &model))
+            })
+            .await
+        }
+        Correction::Rotary {
+            errors,
+            constants,
+            source,
+            controller,
+        } => {
+            let model = rotary::RotaryMachine::with_errors(constants, errors);
+            let options = rotary::rewrite::RewriteOptions {
+                tolerance_mm: request.tolerance_um / 1000.0,
+                max_correction_mm: request.max_correction_mm(ROTARY_MAX_CORRECTION_UM),
+                ..Default::default()
+            };
+            let served = Served {
+                port: &controller,
+                baud: request.baud,
+                describe: &format!("rotary table errors {source}"),
+                sender_link,
+                once: request.once,
+            };
+            sessions(served, front, stop, || {
+                Ok(Proxy::with_rewriter(Box::new(FiveAxisRewriter::new(
+                    rotary::rewrite::RotaryRewriter::new(&model, options),
+                ))))
+            })
+            .await
+        }
+    }
+}
+
+/// Where and how the sessions are served.
+struct Served<'a> {
+    port: &'a str,
+    baud: u32,
+    describe: &'a str,
+    sender_link: Option<&'a Path>,
+    once: bool,
+}
+
+/// Serves sender sessions one after another (or one with `once`) until `stop` or the
+/// controller is lost, each with a fresh pass-through from `make`.
+async fn sessions<'m>(
+    s: Served<'_>,
+    front: &mut dyn ProxyFront,
+    mut stop: std::pin::Pin<&mut impl Future<Output = ()>>,
+    mut make: impl FnMut() -> Result<Proxy<'m>, String>,
+) -> Outcome {
+    let mut controller = match open_controller(s.port, s.baud, BANNER_WAIT).await {
+        Ok((c, _banner)) => c,
+        Err(e) => return Outcome::failed(e.to_string()),
+    };
+    let mut sender = match SenderPort::create(s.sender_link) {
+        Ok(p) => p,
+        Err(e) => return Outcome::failed(format!("creating the sender's pseudo-terminal: {e}")),
+    };
+    let hello = json!({
+        "sender_port": sender.path(), "controller": s.port,
+        "compensation": s.describe, "map": s.describe,
+    });
+    if let Err(e) = front.ready(&hello) {
+        return Outcome::failed(e);
+    }
+    loop {
+        let mut proxy = match make() {
+            Ok(p) => p,
+            Err(e) => return Outcome::failed(e),
+        };
+        proxy.start();
+        let ending = serve(&mut proxy, &mut sender, &mut controller, stop.as_mut()).await;
+        let (account, lost) = session_json(&proxy, &ending);
+        let metrics = crate::metrics_from(
+            &account,
+            &[
+                "lines_received",
+                "pieces_sent",
+                "starvation_events",
+                "largest_correction_um",
+                "segments_added",
+            ],
+        );
+        if let Some(why) = lost {
+            return Outcome::stopped(
+                false,
+                format!("controller lost: {why}"),
+                Some(account),
+                metrics,
+                true,
+            );
+        }
+        if matches!(ending, Ending::Stopped(_)) || s.once {
+            return Outcome::succeeded(account, metrics);
+        }
+        if let Err(e) = front.session(&account) {
+            return Outcome::failed(e);
+        }
+    }
+}
+
+/// Line numbers as ranges: `1-3, 7`, or `none`.
+fn ranges(lines: &[u64]) -> String {
+    let mut out: Vec<String> = Vec::new();
+    let mut k = 0;
+    while k < lines.len() {
+        let start = lines[k];
+        let mut end = start;
+        while k + 1 < lines.len() && lines[k + 1] == end + 1 {
+            k += 1;
+            end = lines[k];
+        }
+        out.push(if start == end {
+            start.to_string()
+        } else {
+            format!("{start}-{end}")
+        });
+        k += 1;
+    }
+    if out.is_empty() {
+        "none".into()
+    } else {
+        out.join(", ")
+    }
+}
+
+fn account_json(a: &LineAccount) -> Value {
+    json!({
+        "acknowledged": ranges(&a.acknowledged), "refused": ranges(&a.refused),
+        "in_controller": ranges(&a.in_controller), "not_sent": ranges(&a.not_sent),
+    })
+}
+
+/// The `q` quantile of seconds, in ms (0 for none).
+fn quantile_ms(v: &[f64], q: f64) -> f64 {
+    let mut v = v.to_vec();
+    v.sort_by(f64::total_cmp);
+    if v.is_empty() {
+        0.0
+    } else {
+        v[((v.len() - 1) as f64 * q).round() as usize] * 1000.0
+    }
+}
+
+/// A session's account, and why the controller was lost if it was.
+fn session_json(proxy: &Proxy<'_>, ending: &Ending) -> (Value, Option<String>) {
+    let stats = proxy.stats();
+    let (lat, work) = (&stats.latencies_s, &stats.processing_s);
+    let (what, lines, lost) = match ending {
+        Ending::SenderLeft(a) => ("sender left", a, None),
+        Ending::ControllerLost { why, lines } => ("controller lost", lines, Some(why.clone())),
+        Ending::Stopped(a) => ("stopped", a, None),
+    };
+    let (largest, added) = proxy.rewriter().summary();
+    let account = json!({
+        "ending": what, "lines": account_json(lines),
+        "lines_received": stats.lines, "pieces_sent": stats.pieces_sent,
+        "starvation_events": stats.starvation_events,
+        "rewrite_ms": { "median": quantile_ms(work, 0.5), "p99": quantile_ms(work, 0.99) },
+        "first_piece_out_ms": { "median": quantile_ms(lat, 0.5), "p99": quantile_ms(lat, 0.99) },
+        "largest_correction_um": largest, "segments_added": added,
+    });
+    (account, lost)
+}
+
+/// The ready message as text: the sender's port (and `link`, a symlink to it), the
+/// controller and the compensation.
+pub fn ready_summary(hello: &Value, link: Option<&Path>) -> String {
+    let s = |k: &str| hello[k].as_str().unwrap_or("?").to_string();
+    let mut t = format!("sender port: {}\n", s("sender_port"));
+    if let Some(l) = link {
+        t += &format!("link: {}\n", l.display());
+    }
+    t += &format!(
+        "controller: {}; compensation: {}\n",
+        s("controller"),
+        s("compensation")
+    );
+    t
+}
+
+/// A session's account as text (the CLI's output without `--json`).
+pub fn summary(r: &Value) -> String {
+    let n = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
+    let lines = |k: &str| r["lines"][k].as_str().unwrap_or("?").to_string();
+    format!(
+        "session ended ({}): {} lines received, {} pieces sent, {} starvation events\n  \
+         rewrite per line: median {:.3} ms, p99 {:.3} ms; arrival to first piece out: median {:.3} ms, p99 {:.3} ms\n  \
+         acknowledged: {}\n  refused: {}\n  in the controller when it ended: {}\n  never sent: {}\n",
+        r["ending"].as_str().unwrap_or("?"),
+        r["lines_received"],
+        r["pieces_sent"],
+        r["starvation_events"],
+        n(&r["rewrite_ms"]["median"]),
+        n(&r["rewrite_ms"]["p99"]),
+        n(&r["first_piece_out_ms"]["median"]),
+        n(&r["first_piece_out_ms"]["p99"]),
+        lines("acknowledged"),
+        lines("refused"),
+        lines("in_controller"),
+        lines("not_sent"),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_defaults_pass() {
+        let r = ProxyRequest::default();
+        r.check().unwrap();
+        assert_eq!(r.clock().unwrap(), world::Clock::Scaled(1.0));
+        assert_eq!(r.max_correction_mm(MAP_MAX_CORRECTION_UM), 0.2);
+        assert_eq!(r.max_correction_mm(ROTARY_MAX_CORRECTION_UM), 2.0);
+        let r: ProxyRequest =
+            serde_json::from_value(json!({"time_scale": "unconstrained", "once": true})).unwrap();
+        assert_eq!(r.clock().unwrap(), world::Clock::Unconstrained);
+        assert!(serde_json::from_value::<ProxyRequest>(json!({"tolerance": 1})).is_err());
+    }
+
+    #[test]
+    fn nan_and_absurd_values_are_refused_naming_the_field() {
+        let field = |f: &dyn Fn(&mut ProxyRequest)| {
+            let mut r = ProxyRequest::default();
+            f(&mut r);
+            r.check().unwrap_err().field
+        };
+        assert_eq!(field(&|r| r.tolerance_um = f64::NAN), "tolerance_um");
+        assert_eq!(field(&|r| r.tolerance_um = 0.0), "tolerance_um");
+        assert_eq!(field(&|r| r.tolerance_um = 1e9), "tolerance_um");
+        assert_eq!(
+            field(&|r| r.max_correction_um = Some(f64::NAN)),
+            "max_correction_um"
+        );
+        assert_eq!(
+            field(&|r| r.max_correction_um = Some(-5.0)),
+            "max_correction_um"
+        );
+        assert_eq!(
+            field(&|r| r.max_correction_um = Some(f64::INFINITY)),
+            "max_correction_um"
+        );
+        assert_eq!(field(&|r| r.baud = 0), "baud");
+        assert_eq!(field(&|r| r.baud = u32::MAX), "baud");
+        assert_eq!(field(&|r| r.time_scale = "fast".into()), "time_scale");
+        assert_eq!(field(&|r| r.time_scale = "NaN".into()), "time_scale");
+        assert_eq!(field(&|r| r.time_scale = "1e300".into()), "time_scale");
+        let r = ProxyRequest {
+            time_scale: "0".into(),
+            ..ProxyRequest::default()
+        };
+        assert!(r
+            .check()
+            .unwrap_err()
+            .for_cli()
+            .starts_with("--time-scale: "));
+    }
+
+    #[test]
+    fn the_inputs_choose_the_pass_through() {
+        assert_eq!(
+            inputs(Some("job"), Some("map"), None, None),
+            Ok(Inputs::Map {
+                job: "job",
+                map: "map"
+            })
+        );
+        assert_eq!(
+            inputs(None, None, Some("errors"), Some("/dev/ttyACM0".into())),
+            Ok(Inputs::Rotary {
+                errors: "errors",
+                controller: "/dev/ttyACM0".into()
+            })
+        );
+        assert!(inputs(Some("job"), None, None, None).is_err());
+        assert!(inputs(Some("job"), Some("map"), Some("errors"), None).is_err());
+        assert!(inputs::<&str>(None, None, None, Some("port".into())).is_err());
+    }
+
+    #[test]
+    fn line_numbers_read_as_ranges() {
+        assert_eq!(ranges(&[]), "none");
+        assert_eq!(ranges(&[1, 2, 3, 5, 7, 8]), "1-3, 5, 7-8");
+    }
+
+    #[test]
+    fn the_texts_read_the_json() {
+        let hello = json!({"sender_port": "/dev/pts/7", "controller": "/dev/ttyACM0",
+            "compensation": "map m", "map": "map m"});
+        assert_eq!(
+            ready_summary(&hello, Some(Path::new("/tmp/ttyG"))),
+            "sender port: /dev/pts/7\nlink: /tmp/ttyG\ncontroller: /dev/ttyACM0; compensation: map m\n"
+        );
+        let r = json!({"ending": "sender left", "lines": {"acknowledged": "1-3",
+            "refused": "none", "in_controller": "none", "not_sent": "none"},
+            "lines_received": 3, "pieces_sent": 9, "starvation_events": 0,
+            "rewrite_ms": {"median": 0.1, "p99": 0.2},
+            "first_piece_out_ms": {"median": 0.3, "p99": 0.4},
+            "largest_correction_um": 5.0, "segments_added": 6});
+        let t = summary(&r);
+        assert!(t.starts_with(
+            "session ended (sender left): 3 lines received, 9 pieces sent, 0 starvation events\n"
+        ));
+        assert!(t.contains("  acknowledged: 1-3\n  refused: none\n"), "{t}");
+    }
+}
