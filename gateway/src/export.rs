@@ -7,13 +7,24 @@ use serde_json::{json, Value};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+#[derive(clap::Args)]
 pub struct ExportArgs {
+    #[arg(long)]
     pub map: PathBuf,
+    #[arg(long)]
     pub format: String,
+    /// Output file (`_x`/`_y` are added for the per-axis formats).
+    #[arg(long)]
     pub out: PathBuf,
+    #[arg(long, default_value_t = 1.0)]
     pub tolerance_um: f64,
+    /// LinuxCNC entries per joint (2..256).
+    #[arg(long, default_value_t = DEFAULT_ENTRIES)]
     pub entries: usize,
+    /// Beckhoff grid interval, mm.
+    #[arg(long, default_value_t = 1.0)]
     pub interval_mm: f64,
+    #[arg(long)]
     pub json: bool,
 }
 

@@ -2,7 +2,7 @@
 
 use clap::{Parser, Subcommand};
 use devices::open_devices_async;
-use errormap::scan::ScanSpec;
+
 use job::Job;
 use procedure::request::CompensateRequest;
 use protocol::Board;
@@ -79,27 +79,7 @@ enum Cmd {
     /// each axis, every point approached from both sides, `--passes` times. Written as a
     /// new version OUT/NAME.vN.json (never over an older one); a stopped scan resumes
     /// from its journal OUT/NAME.scan.jsonl.
-    Map {
-        #[arg(long)]
-        config: PathBuf,
-        /// Folder of the map versions.
-        #[arg(long)]
-        out: PathBuf,
-        /// Map name (default: the job file's name).
-        #[arg(long)]
-        name: Option<String>,
-        #[arg(long, default_value_t = ScanSpec::default().grid_step_mm)]
-        grid_step_mm: f64,
-        #[arg(long, default_value_t = ScanSpec::default().line_step_mm)]
-        line_step_mm: f64,
-        #[arg(long, default_value_t = ScanSpec::default().passes)]
-        passes: u32,
-        /// Tool point minus camera centre, in machine axes, "X,Y" mm.
-        #[arg(long, default_value = "0,0")]
-        tool_offset_mm: String,
-        #[arg(long)]
-        json: bool,
-    },
+    Map(scan::MapArgs),
     /// Rewrite a G-code program so that every move lands where it was programmed: moves
     /// split against the tolerance, arcs as chords, each point replaced by the command
     /// the error map gives for it. The controller's dialect is GRBL 1.1: what it would
@@ -169,44 +149,7 @@ enum Cmd {
     /// the job's controller) or for a rotary table's location errors (`--rotary ERRORS
     /// --controller PORT`, X Y Z A C on a grblHAL six-axis build). Status reports show
     /// the programmed position. Ctrl-C stops.
-    Proxy {
-        /// The job file (its stage must be a GRBL controller, real or emulated); with
-        /// `--map`.
-        #[arg(long)]
-        config: Option<PathBuf>,
-        #[arg(long)]
-        map: Option<PathBuf>,
-        /// The rotary table's errors (the JSON `gateway rotary measure` or `identify`
-        /// writes); with `--controller`.
-        #[arg(long)]
-        rotary: Option<PathBuf>,
-        /// The machine constants of the rotary table (JSON), default the built-in ones.
-        #[arg(long)]
-        machine: Option<PathBuf>,
-        /// The controller's serial port, with `--rotary`.
-        #[arg(long)]
-        controller: Option<String>,
-        #[arg(long, default_value_t = 115_200)]
-        baud: u32,
-        /// Also create a symlink to the sender's port at this path.
-        #[arg(long)]
-        link: Option<PathBuf>,
-        #[arg(long, default_value_t = 0.5)]
-        tolerance_um: f64,
-        /// The largest correction a move may get (default 200 um with a map, 2000 um for
-        /// a rotary table, whose A-axis offsets reach tenths of a millimetre).
-        #[arg(long)]
-        max_correction_um: Option<f64>,
-        /// An emulated controller's clock: simulated seconds per wall second, or
-        /// `unconstrained`.
-        #[arg(long, default_value = "1")]
-        time_scale: String,
-        /// Serve one sender session and exit.
-        #[arg(long)]
-        once: bool,
-        #[arg(long)]
-        json: bool,
-    },
+    Proxy(proxy::ProxyArgs),
     /// ISO 230-2 positioning test of one axis (A, B, R, E, M), or `evaluate FILE`.
     Iso230(iso230::Iso230Args),
     /// The 21-error volumetric model of a 3-axis machine: identify, eval, contributions,
@@ -219,54 +162,13 @@ enum Cmd {
     /// point (each homing moves the zero by a few um), then move to random points with
     /// the map's command and measure where the camera really is. `--spot-check`: a few
     /// points; exit code 2 when any point is off by more than `--drift-threshold-um` (re-scan).
-    Verify {
-        #[arg(long)]
-        config: PathBuf,
-        #[arg(long)]
-        map: PathBuf,
-        /// Points to check (default 20, or 5 with --spot-check).
-        #[arg(long)]
-        points: Option<usize>,
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-        #[arg(long)]
-        spot_check: bool,
-        #[arg(long, default_value_t = 2.0)]
-        drift_threshold_um: f64,
-        /// Checks in a row, each on fresh points (a periodic spot check; exit code 2
-        /// when any is past the threshold).
-        #[arg(long, default_value_t = 1)]
-        repeat: usize,
-        /// Seconds between two checks of --repeat.
-        #[arg(long, default_value_t = 600.0)]
-        every_s: f64,
-        #[arg(long)]
-        json: bool,
-    },
+    Verify(verify::VerifyArgs),
     /// Write the map as a controller's own compensation table: `linuxcnc` (a COMP_FILE
     /// per joint, nominal/forward/reverse, at most 256 entries), `beckhoff` (a TwinCAT
     /// CNC plane compensation list per axis over X and Y) or `csv` (the model on the
     /// map's grid). Each says what the format cannot hold and refuses a table further
     /// from the map than the tolerance.
-    Export {
-        #[arg(long)]
-        map: PathBuf,
-        #[arg(long)]
-        format: String,
-        /// Output file (`_x`/`_y` are added for the per-axis formats).
-        #[arg(long)]
-        out: PathBuf,
-        #[arg(long, default_value_t = 1.0)]
-        tolerance_um: f64,
-        /// LinuxCNC entries per joint (2..256).
-        #[arg(long, default_value_t = export::DEFAULT_ENTRIES)]
-        entries: usize,
-        /// Beckhoff grid interval, mm.
-        #[arg(long, default_value_t = 1.0)]
-        interval_mm: f64,
-        #[arg(long)]
-        json: bool,
-    },
+    Export(export::ExportArgs),
     /// Localize one image of the board: the board coordinate under the image centre.
     Localize {
         /// PNG file, 8- or 16-bit greyscale.
@@ -304,31 +206,17 @@ fn parse_method(s: &str) -> anyhow::Result<Method> {
         .map_err(|e| anyhow::anyhow!("--method `{s}`: {e}"))
 }
 
-fn parse_xy(s: &str) -> anyhow::Result<[f64; 2]> {
-    let parts: Vec<&str> = s.split(',').map(str::trim).collect();
-    let bad = || anyhow::anyhow!("--near `{s}`: expected two numbers in mm, like 12.5,40");
-    if parts.len() != 2 {
-        return Err(bad());
-    }
-    let x: f64 = parts[0].parse().map_err(|_| bad())?;
-    let y: f64 = parts[1].parse().map_err(|_| bad())?;
-    if !(x.is_finite() && y.is_finite()) {
-        return Err(bad());
-    }
-    Ok([x, y])
-}
-
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let json_mode = match &cli.cmd {
         Cmd::Demo { json, .. }
         | Cmd::Compensate { json, .. }
-        | Cmd::Map { json, .. }
         | Cmd::Rewrite { json, .. }
-        | Cmd::Proxy { json, .. }
-        | Cmd::Verify { json, .. }
-        | Cmd::Export { json, .. }
         | Cmd::Localize { json, .. } => *json,
+        Cmd::Proxy(a) => a.json,
+        Cmd::Verify(a) => a.json,
+        Cmd::Map(a) => a.json,
+        Cmd::Export(a) => a.json,
         Cmd::Rotary { cmd } => cmd.json(),
         Cmd::Iso230(a) => a.json(),
         Cmd::Volumetric { cmd } => cmd.json(),
@@ -340,7 +228,7 @@ fn main() -> ExitCode {
         Err(e) => {
             let msg = format!("{e:#}");
             if json_mode {
-                println!("{}", json!({ "error": msg }));
+                let _ = front::emit(&format!("{}\n", json!({ "error": msg })));
             }
             eprintln!("error: {msg}");
             ExitCode::FAILURE
@@ -380,35 +268,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             };
             compensate(job, request, json)
         }
-        Cmd::Map {
-            config,
-            out,
-            name,
-            grid_step_mm,
-            line_step_mm,
-            passes,
-            tool_offset_mm,
-            json,
-        } => {
-            let job = Job::load(&config)?;
-            let name = name.unwrap_or_else(|| {
-                config
-                    .file_stem()
-                    .map(|s| s.to_string_lossy().into_owned())
-                    .unwrap_or_else(|| "map".into())
-            });
-            let tool_offset_mm = parse_xy(&tool_offset_mm).map_err(|_| {
-                anyhow::anyhow!("--tool-offset-mm `{tool_offset_mm}`: expected X,Y in mm")
-            })?;
-            let request = procedure::request::MapRequest {
-                name,
-                grid_step_mm,
-                line_step_mm,
-                passes,
-                tool_offset_mm,
-            };
-            scan::map(&job, request, &out, json)
-        }
+        Cmd::Map(a) => scan::map(a),
         Cmd::Rewrite {
             input,
             map,
@@ -477,75 +337,11 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         }),
         Cmd::Layout { cmd } => layout::run(cmd),
         Cmd::Serve { config } => serve::serve(&config),
-        Cmd::Proxy {
-            config,
-            map,
-            rotary,
-            machine,
-            controller,
-            baud,
-            link,
-            tolerance_um,
-            max_correction_um,
-            time_scale,
-            once,
-            json,
-        } => proxy::proxy(proxy::ProxyArgs {
-            config,
-            map,
-            rotary,
-            machine,
-            controller,
-            baud,
-            link,
-            tolerance_um,
-            max_correction_um,
-            time_scale,
-            once,
-            json,
-        }),
+        Cmd::Proxy(a) => proxy::proxy(a),
         Cmd::Rotary { cmd } => rotary::run(cmd),
         Cmd::Iso230(a) => iso230::dispatch(a),
-        Cmd::Verify {
-            config,
-            map,
-            points,
-            seed,
-            spot_check,
-            drift_threshold_um,
-            repeat,
-            every_s,
-            json,
-        } => verify::verify(verify::VerifyArgs {
-            config,
-            map,
-            request: procedure::request::VerifyRequest {
-                points: points.map(|n| n as u64),
-                seed,
-                spot_check,
-                drift_threshold_um,
-            },
-            repeat,
-            every_s,
-            json,
-        }),
-        Cmd::Export {
-            map,
-            format,
-            out,
-            tolerance_um,
-            entries,
-            interval_mm,
-            json,
-        } => export::export(export::ExportArgs {
-            map,
-            format,
-            out,
-            tolerance_um,
-            entries,
-            interval_mm,
-            json,
-        }),
+        Cmd::Verify(a) => verify::verify(a),
+        Cmd::Export(a) => export::export(a),
         Cmd::Localize {
             image,
             board,
@@ -561,7 +357,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             let board = Board::load(&board)?;
             let img = vision::image_io::load_png(&image)?;
             let request = procedure::localize::LocalizeRequest {
-                near: parse_xy(&near)?,
+                near: front::parse_xy(&near)?,
                 method: parse_method(&method)?,
                 um_per_px,
                 pixel_axes: pixel_axes

@@ -11,20 +11,43 @@ use serde_json::Value;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+#[derive(clap::Args)]
 pub struct ProxyArgs {
+    /// The job file (its stage must be a GRBL controller, real or emulated); with
+    /// `--map`.
+    #[arg(long)]
     pub config: Option<PathBuf>,
+    #[arg(long)]
     pub map: Option<PathBuf>,
+    /// The rotary table's errors (the JSON `gateway rotary measure` or `identify`
+    /// writes); with `--controller`.
+    #[arg(long)]
     pub rotary: Option<PathBuf>,
+    /// The machine constants of the rotary table (JSON), default the built-in ones.
+    #[arg(long)]
     pub machine: Option<PathBuf>,
+    /// The controller's serial port, with `--rotary`.
+    #[arg(long)]
     pub controller: Option<String>,
+    #[arg(long, default_value_t = 115_200)]
     pub baud: u32,
+    /// Also create a symlink to the sender's port at this path.
+    #[arg(long)]
     pub link: Option<PathBuf>,
+    #[arg(long, default_value_t = 0.5)]
     pub tolerance_um: f64,
+    /// The largest correction a move may get (default 200 um with a map, 2000 um for
+    /// a rotary table, whose A-axis offsets reach tenths of a millimetre).
+    #[arg(long)]
     pub max_correction_um: Option<f64>,
-    /// For an emulated controller: simulated seconds per wall second, or `unconstrained`.
+    /// An emulated controller's clock: simulated seconds per wall second, or
+    /// `unconstrained`.
+    #[arg(long, default_value = "1")]
     pub time_scale: String,
-    /// Serve one sender session, then exit (tests, scripted runs).
+    /// Serve one sender session and exit.
+    #[arg(long)]
     pub once: bool,
+    #[arg(long)]
     pub json: bool,
 }
 

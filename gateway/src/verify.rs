@@ -7,21 +7,40 @@ use protocol::errormap::ErrorMap;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+#[derive(clap::Args)]
 pub struct VerifyArgs {
+    #[arg(long)]
     pub config: PathBuf,
+    #[arg(long)]
     pub map: PathBuf,
-    pub request: VerifyRequest,
-    /// Spot checks in a row (each on fresh random points, each homing and
-    /// re-referencing first), `every_s` seconds apart: a periodic watch for drift.
+    /// Points to check (default 20, or 5 with --spot-check).
+    #[arg(long)]
+    pub points: Option<usize>,
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    #[arg(long)]
+    pub spot_check: bool,
+    #[arg(long, default_value_t = 2.0)]
+    pub drift_threshold_um: f64,
+    /// Checks in a row, each on fresh points (a periodic spot check; exit code 2
+    /// when any is past the threshold).
+    #[arg(long, default_value_t = 1)]
     pub repeat: usize,
+    /// Seconds between two checks of --repeat.
+    #[arg(long, default_value_t = 600.0)]
     pub every_s: f64,
+    #[arg(long)]
     pub json: bool,
 }
 
 pub fn verify(args: VerifyArgs) -> anyhow::Result<ExitCode> {
-    args.request
-        .check()
-        .map_err(|e| anyhow::anyhow!(e.for_cli()))?;
+    let request = VerifyRequest {
+        points: args.points.map(|n| n as u64),
+        seed: args.seed,
+        spot_check: args.spot_check,
+        drift_threshold_um: args.drift_threshold_um,
+    };
+    request.check().map_err(|e| anyhow::anyhow!(e.for_cli()))?;
     anyhow::ensure!(args.repeat >= 1, "--repeat must be at least 1");
     anyhow::ensure!(
         args.every_s.is_finite() && args.every_s >= 0.0,
@@ -45,7 +64,7 @@ pub fn verify(args: VerifyArgs) -> anyhow::Result<ExitCode> {
         }
         let mut sink = crate::front::CliSink::new("points", true);
         let outcome = rt.block_on(procedure::verify::run(
-            &args.request,
+            &request,
             &job,
             &mut devices,
             map.clone(),

@@ -32,8 +32,20 @@ fn another_machines_map_is_refused_naming_what_differs() {
     let out = dir.display().to_string();
     let demo = config("demo.toml");
     let o = gateway(&[
-        "map", "--config", &demo, "--out", &out, "--name", "m", "--grid-step-mm", "50",
-        "--line-step-mm", "25", "--passes", "1", "--json",
+        "map",
+        "--config",
+        &demo,
+        "--out",
+        &out,
+        "--name",
+        "m",
+        "--grid-step-mm",
+        "50",
+        "--line-step-mm",
+        "25",
+        "--passes",
+        "1",
+        "--json",
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let map = dir.join("m.v1.json").display().to_string();
@@ -53,16 +65,31 @@ fn another_machines_map_is_refused_naming_what_differs() {
     // nothing written.
     std::fs::remove_file(&rewritten).unwrap();
     let o = gateway(&[
-        "rewrite", &program, "--map", &map, "--config", &config("grbl-demo.toml"), "--out",
+        "rewrite",
+        &program,
+        "--map",
+        &map,
+        "--config",
+        &config("grbl-demo.toml"),
+        "--out",
         &rewritten,
     ]);
     assert!(!o.status.success());
     let e = String::from_utf8_lossy(&o.stderr);
-    assert!(e.contains("the map was measured on machine") && e.contains("refused"), "{e}");
+    assert!(
+        e.contains("the map was measured on machine") && e.contains("refused"),
+        "{e}"
+    );
     assert!(!Path::new(&rewritten).exists());
 
     // verify refuses it the same way.
-    let o = gateway(&["verify", "--config", &config("grbl-demo.toml"), "--map", &map]);
+    let o = gateway(&[
+        "verify",
+        "--config",
+        &config("grbl-demo.toml"),
+        "--map",
+        &map,
+    ]);
     assert!(!o.status.success());
     let e = String::from_utf8_lossy(&o.stderr);
     assert!(e.contains("the map was measured on machine"), "{e}");
