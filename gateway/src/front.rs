@@ -27,48 +27,12 @@ pub async fn ctrl_c() {
     }
 }
 
-/// Writes `bytes` to `path` atomically (a new file beside it, then a rename), refusing
-/// to write over any of `inputs`.
+/// Writes `bytes` to `path` atomically, never over one of `inputs`
+/// (`protocol::config::write_output`).
 pub fn write_atomic(path: &Path, bytes: &[u8], inputs: &[PathBuf]) -> anyhow::Result<()> {
-    let target = path
-        .canonicalize()
-        .or_else(|_| -> std::io::Result<PathBuf> {
-            let dir = path.parent().filter(|d| !d.as_os_str().is_empty());
-            let dir = dir.unwrap_or(Path::new(".")).canonicalize()?;
-            Ok(dir.join(path.file_name().unwrap_or_default()))
-        })
-        .with_context(|| format!("writing {}", path.display()))?;
-    for input in inputs {
-        if input.canonicalize().is_ok_and(|i| i == target) {
-            anyhow::bail!(
-                "{}: is an input of this command; it is never written over",
-                path.display()
-            );
-        }
-    }
-    let dir = target.parent().unwrap_or(Path::new("."));
-    let stamp = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_nanos())
-        .unwrap_or(0);
-    let tmp = dir.join(format!(
-        ".{}.{}.{stamp}.tmp",
-        target.file_name().unwrap_or_default().to_string_lossy(),
-        std::process::id()
-    ));
-    let result = (|| {
-        let mut f = std::fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, &target)
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result.with_context(|| format!("writing {}", path.display()))
+    let inputs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
+    protocol::config::write_output(path, bytes, &inputs)
+        .with_context(|| format!("writing {}", path.display()))
 }
 
 /// What the CLI does with each measurement as it comes (e.g. rewrite a file).

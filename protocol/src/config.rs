@@ -279,6 +279,58 @@ fn number(v: f64) -> String {
     }
 }
 
+/// Write an output file atomically: the bytes go to a new file beside `path` (created,
+/// never opened over anything), are synced, then renamed over `path`, so a reader sees
+/// the old file or the whole new one, never a part. `inputs` are the files the command
+/// read: `path` naming one of them (directly or through a symlink) is refused, so an
+/// output never replaces its own input.
+pub fn write_output(path: &Path, bytes: &[u8], inputs: &[&Path]) -> std::io::Result<()> {
+    use std::io::{Error, ErrorKind, Write};
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => Path::new(".").to_path_buf(),
+    };
+    let name = path
+        .file_name()
+        .ok_or_else(|| Error::new(ErrorKind::InvalidInput, "the output names no file"))?;
+    // Where the output really goes: an existing file (or symlink) resolved, else its
+    // folder's real path and its name.
+    let target = path
+        .canonicalize()
+        .or_else(|_| dir.canonicalize().map(|d| d.join(name)))?;
+    for input in inputs {
+        if input.canonicalize().is_ok_and(|i| i == target) {
+            return Err(Error::new(
+                ErrorKind::AlreadyExists,
+                "is an input of this command; it is never written over",
+            ));
+        }
+    }
+    let folder = target.parent().unwrap_or(Path::new("."));
+    let stamp = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos())
+        .unwrap_or(0);
+    let tmp = folder.join(format!(
+        ".{}.{}.{stamp}.tmp",
+        name.to_string_lossy(),
+        std::process::id()
+    ));
+    let written = (|| {
+        let mut f = std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        std::fs::rename(&tmp, &target)
+    })();
+    if written.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    written
+}
+
 /// Read a data file as text, bounded: only a regular file (a device such as `/dev/zero`,
 /// a FIFO or a directory is refused before anything is read) of at most
 /// [`MAX_FILE_BYTES`], in UTF-8; a leading byte-order mark is dropped. Every file the
@@ -770,5 +822,37 @@ mod tests {
             d.invalid("t[1].x[1]", "m").location().unwrap().line,
             Some(5)
         );
+    }
+
+    #[test]
+    fn outputs_are_written_whole_and_never_over_an_input() {
+        let dir = std::env::temp_dir().join(format!("write-output-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let input = dir.join("in.nc");
+        std::fs::write(&input, "G0 X1\n").unwrap();
+        let out = dir.join("out.nc");
+        write_output(&out, b"first", &[&input]).unwrap();
+        write_output(&out, b"second", &[&input]).unwrap();
+        assert_eq!(std::fs::read_to_string(&out).unwrap(), "second");
+        // The input itself, by another spelling and through a symlink: refused.
+        let again = dir.join(".").join("in.nc");
+        let e = write_output(&again, b"x", &[&input]).unwrap_err();
+        assert!(e.to_string().contains("never written over"), "{e}");
+        #[cfg(unix)]
+        {
+            let link = dir.join("link.nc");
+            std::os::unix::fs::symlink(&input, &link).unwrap();
+            assert!(write_output(&link, b"x", &[&input]).is_err());
+        }
+        assert_eq!(std::fs::read_to_string(&input).unwrap(), "G0 X1\n");
+        // No temporary file is left behind.
+        let left: Vec<_> = std::fs::read_dir(&dir)
+            .unwrap()
+            .filter_map(|e| e.ok())
+            .filter(|e| e.file_name().to_string_lossy().ends_with(".tmp"))
+            .collect();
+        assert!(left.is_empty());
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -19,22 +19,15 @@ pub trait ErrorsShelf {
     fn keep(&mut self, name: &str, report: &Value) -> Result<String, String>;
 }
 
-/// The errors' report as `errors.json` in a folder (written beside, then renamed).
+/// The errors' report as `errors.json` in a folder, written atomically.
 pub struct FolderShelf(pub std::path::PathBuf);
 
 impl ErrorsShelf for FolderShelf {
     fn keep(&mut self, _: &str, report: &Value) -> Result<String, String> {
         let path = self.0.join("errors.json");
-        let tmp = self
-            .0
-            .join(format!(".errors.json.{}.tmp", std::process::id()));
         let text = serde_json::to_string_pretty(report).map_err(|e| e.to_string())?;
-        std::fs::write(&tmp, text)
-            .and_then(|()| std::fs::rename(&tmp, &path))
-            .map_err(|e| {
-                let _ = std::fs::remove_file(&tmp);
-                format!("writing {}: {e}", path.display())
-            })?;
+        protocol::config::write_output(&path, text.as_bytes(), &[])
+            .map_err(|e| format!("writing {}: {e}", path.display()))?;
         Ok(path.display().to_string())
     }
 }
