@@ -188,3 +188,9 @@ pub fn parse_xy(s: &str) -> anyhow::Result<[f64; 2]> {
     }
     Ok([x, y])
 }
+
+/// `--method fit|four-point`.
+pub fn parse_method(s: &str) -> anyhow::Result<vision::localize::Method> {
+    s.parse()
+        .map_err(|e| anyhow::anyhow!("--method `{s}`: {e}"))
+}

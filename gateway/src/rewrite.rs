@@ -9,20 +9,47 @@ use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-/// What the command line gave.
+#[derive(clap::Args)]
 pub struct RewriteArgs {
+    /// The program to rewrite (never overwritten).
     pub input: PathBuf,
-    pub out: PathBuf,
+    /// The error map (a version file written by `gateway map`).
+    #[arg(long)]
     pub map: Option<PathBuf>,
-    /// The job of the machine the program is for: the map's identity is checked.
+    /// With --map: the job of the machine the program is for; the map is refused
+    /// unless it was measured on that machine, controller, board and camera.
+    #[arg(long, requires = "map")]
     pub config: Option<PathBuf>,
-    /// A volumetric model file (`gateway volumetric identify`).
+    /// A volumetric model file (`gateway volumetric identify`): X, Y and Z corrected.
+    #[arg(long)]
     pub volumetric: Option<PathBuf>,
+    /// The location errors of an A/C tilting table (`gateway rotary identify` or
+    /// `measure`): a 5-axis program (X Y Z A C) rewritten so the tool tip and
+    /// direction land where programmed (the same rewrite as `gateway rotary rewrite`).
+    #[arg(long)]
+    pub rotary: Option<PathBuf>,
+    /// With --rotary: the machine constants (JSON), default the built-in ones.
+    #[arg(long, requires = "rotary")]
+    pub machine: Option<PathBuf>,
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Largest distance of the executed path from the compensated path, um.
+    #[arg(long, default_value_t = 0.5)]
     pub tolerance_um: f64,
+    /// Largest correction accepted at any point, um.
+    #[arg(long, default_value_t = 200.0)]
     pub max_correction_um: f64,
+    /// The controller's `$#` reply saved to a file: its G54..G59 offsets.
+    #[arg(long)]
     pub offsets: Option<PathBuf>,
+    /// Machine position when the program starts, "X,Y[,Z]" mm (else the first
+    /// moves must name every compensated axis).
+    #[arg(long)]
     pub start: Option<String>,
+    /// Soft limits, "XMIN:XMAX,YMIN:YMAX[,ZMIN:ZMAX]" machine mm.
+    #[arg(long)]
     pub limits: Option<String>,
+    #[arg(long)]
     pub json: bool,
 }
 
@@ -54,6 +81,31 @@ fn parse_limits(s: &str) -> anyhow::Result<Vec<[f64; 2]>> {
 }
 
 pub fn rewrite(args: RewriteArgs) -> anyhow::Result<ExitCode> {
+    if let Some(errors) = args.rotary {
+        // The 5-axis rewrite has its own program rules (absolute mm, no arcs); the
+        // 3-axis options do not apply to it.
+        let other = [
+            (args.map.is_some(), "--map"),
+            (args.volumetric.is_some(), "--volumetric"),
+            (args.offsets.is_some(), "--offsets"),
+            (args.start.is_some(), "--start"),
+            (args.limits.is_some(), "--limits"),
+            (args.max_correction_um != 200.0, "--max-correction-um"),
+        ];
+        if let Some((_, flag)) = other.iter().find(|(given, _)| *given) {
+            anyhow::bail!(
+                "--rotary rewrites a 5-axis program on its own; {flag} does not apply to it"
+            );
+        }
+        return crate::rotary::run(crate::rotary::RotaryCmd::Rewrite {
+            input: args.input,
+            errors,
+            out: args.out,
+            machine: args.machine,
+            tolerance_um: args.tolerance_um,
+            json: args.json,
+        });
+    }
     let model = match (&args.map, &args.volumetric) {
         (Some(_), Some(_)) => anyhow::bail!("give one compensation: --map or --volumetric"),
         (Some(path), None) => {
