@@ -4,17 +4,11 @@
 //! the seeded machine behaves the same on both. No wall-time sleeps: the API side waits
 //! on the job's events.
 
-use futures_util::StreamExt;
-use reqwest::{Client, StatusCode};
+use reqwest::StatusCode;
 use serde_json::{json, Value};
-use service::{BoxConfig, Running};
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use tokio_tungstenite::tungstenite::client::IntoClientRequest;
-use tokio_tungstenite::tungstenite::Message;
-
-type Ws =
-    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+use system_tests::service_client::Api;
 
 /// Keys whose values are times or where a product was delivered (the CLI writes files,
 /// the service keeps charts and the shifted layout in the record): they differ.
@@ -70,76 +64,6 @@ fn cli(args: &[&str]) -> Value {
         String::from_utf8_lossy(&o.stderr)
     );
     serde_json::from_slice(&o.stdout).expect("one JSON object")
-}
-
-struct Api {
-    _dir: tempfile::TempDir,
-    running: Running,
-    client: Client,
-    ws: Ws,
-}
-
-impl Api {
-    async fn start() -> Api {
-        let dir = tempfile::tempdir().unwrap();
-        let running = service::start(BoxConfig::demo(dir.path()))
-            .await
-            .expect("service starts");
-        let mut req = format!("ws://{}/api/v1/events", running.local_addr())
-            .into_client_request()
-            .unwrap();
-        req.headers_mut().insert(
-            "Sec-WebSocket-Protocol",
-            format!("gateway.v1, bearer.{}", running.token())
-                .parse()
-                .unwrap(),
-        );
-        let (ws, _) = tokio_tungstenite::connect_async(req).await.expect("ws");
-        Api {
-            _dir: dir,
-            running,
-            client: Client::new(),
-            ws,
-        }
-    }
-
-    async fn post(&self, path: &str, body: Value) -> (StatusCode, Value) {
-        let r = self
-            .client
-            .post(format!("http://{}{path}", self.running.local_addr()))
-            .bearer_auth(self.running.token())
-            .json(&body)
-            .send()
-            .await
-            .unwrap();
-        let status = r.status();
-        (status, r.json().await.unwrap_or(Value::Null))
-    }
-
-    /// Queues a job and waits for its final record.
-    async fn run(&mut self, kind: &str, params: Value) -> Value {
-        let (status, job) = self
-            .post(
-                "/api/v1/machines/demo/jobs",
-                json!({"kind": kind, "params": params}),
-            )
-            .await;
-        assert_eq!(status, StatusCode::ACCEPTED, "{job}");
-        let id = job["id"].clone();
-        loop {
-            let e = match self.ws.next().await.expect("events").expect("event") {
-                Message::Text(t) => serde_json::from_str::<Value>(&t).unwrap(),
-                _ => continue,
-            };
-            let state = e["job"]["state"].as_str().unwrap_or("");
-            if e["type"] == "job"
-                && e["job"]["id"] == id
-                && ["succeeded", "failed", "cancelled"].contains(&state)
-            {
-                return e["job"].clone();
-            }
-        }
-    }
 }
 
 async fn api_result(kind: &str, params: Value) -> Value {

@@ -4,6 +4,7 @@
 pub mod faulty_serial;
 pub mod faulty_tcp;
 pub mod netns;
+pub mod service_client;
 pub mod truth_map;
 
 use std::path::{Path, PathBuf};

@@ -292,18 +292,7 @@ mod tests {
     use super::*;
     use protocol::errormap::{Grid, Identity, Measured, Node, Stat, SCHEMA};
 
-    #[derive(Default)]
-    struct Keep(Vec<Artifact>);
-    impl Sink for Keep {
-        fn progress(&mut self, _: u64, _: u64) {}
-        fn measurement(&mut self, _: &Value) -> Result<(), String> {
-            Ok(())
-        }
-        fn artifact(&mut self, a: Artifact) -> Result<(), String> {
-            self.0.push(a);
-            Ok(())
-        }
-    }
+    use crate::Collect as Keep;
 
     /// A map over `extent_mm` x 0.75 `extent_mm` whose X error grows 0.1 um per mm of
     /// X and whose Y error is a wave along Y (which two entries cannot follow).

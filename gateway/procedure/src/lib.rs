@@ -145,6 +145,22 @@ impl Sink for Discard {
     }
 }
 
+/// A sink that keeps every artifact in memory (tests; a front end that hands them on
+/// itself).
+#[derive(Debug, Default)]
+pub struct Collect(pub Vec<Artifact>);
+
+impl Sink for Collect {
+    fn progress(&mut self, _: u64, _: u64) {}
+    fn measurement(&mut self, _: &Value) -> Result<(), String> {
+        Ok(())
+    }
+    fn artifact(&mut self, artifact: Artifact) -> Result<(), String> {
+        self.0.push(artifact);
+        Ok(())
+    }
+}
+
 /// Who is being measured or compensated: the stage (its name without the port), the
 /// board and its certificate, the camera. A map records this when scanned; whoever
 /// applies a map compares it with [`check_identity`].

@@ -363,18 +363,7 @@ mod tests {
     use super::*;
     use protocol::volumetric::Structure;
 
-    #[derive(Default)]
-    struct Keep(Vec<Artifact>);
-    impl crate::Sink for Keep {
-        fn progress(&mut self, _: u64, _: u64) {}
-        fn measurement(&mut self, _: &Value) -> Result<(), String> {
-            Ok(())
-        }
-        fn artifact(&mut self, a: Artifact) -> Result<(), String> {
-            self.0.push(a);
-            Ok(())
-        }
-    }
+    use crate::Collect as Keep;
 
     /// 10 um of X error per 100 mm of X.
     fn model() -> volumetric::Model {

@@ -678,19 +678,7 @@ mod tests {
     use super::*;
     use crate::Discard;
 
-    /// Keeps every artifact.
-    #[derive(Default)]
-    struct Keep(Vec<Artifact>);
-    impl Sink for Keep {
-        fn progress(&mut self, _: u64, _: u64) {}
-        fn measurement(&mut self, _: &Value) -> Result<(), String> {
-            Ok(())
-        }
-        fn artifact(&mut self, a: Artifact) -> Result<(), String> {
-            self.0.push(a);
-            Ok(())
-        }
-    }
+    use crate::Collect as Keep;
 
     fn zero_model() -> Model {
         let mut m = Model::zero(Structure::Xyfz, [500.0, 400.0, 400.0]);
