@@ -363,6 +363,7 @@ fn empty_object() -> Value {
 #[utoipa::path(post, path = "/api/v1/machines/{machine}/jobs", params(("machine" = String, Path)),
     request_body(content = Object, description = "{\"kind\": \"compensate\", \"params\": {\"targets\": 1}, \"if_idle\": false}"),
     responses((status = 202, description = "JobRecord (queued)"), (status = 404, description = "unknown machine"),
+        (status = 400, description = "invalid_params: the field named by `field` was refused"),
         (status = 409, description = "machine_busy"), (status = 413, description = "body too large"),
         (status = 422, description = "invalid job")))]
 async fn enqueue(
@@ -376,12 +377,17 @@ async fn enqueue(
     // The one check of a request: parsed into its procedure's type, every bound checked,
     // the field named; what is stored is the normalized request (defaults written out).
     let invalid = |e: procedure::RequestError| {
+        // `params` itself, or one of its fields.
+        let field = match e.field.as_str() {
+            "params" => "params".to_string(),
+            f => format!("params.{f}"),
+        };
         ApiError::new(
             StatusCode::BAD_REQUEST,
             "invalid_params",
-            format!("params.{e}"),
+            format!("{field}: {}", e.message),
         )
-        .with_field(format!("params.{}", e.field))
+        .with_field(field)
     };
     let parsed = procedure::Request::parse(&request.kind, &request.params).map_err(|e| {
         if e.field == "kind" {

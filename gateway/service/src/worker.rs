@@ -338,6 +338,9 @@ async fn run_request(
 ) -> procedure::Outcome {
     let request = match request {
         Ok(r) => r,
+        Err(e) if e.field == "params" => {
+            return procedure::Outcome::failed(format!("params: {}", e.message))
+        }
         Err(e) => return procedure::Outcome::failed(format!("params.{e}")),
     };
     if let Request::Rotary(r) = &request {
