@@ -75,6 +75,9 @@ impl Sink for StoreSink {
     }
 }
 
+/// How many of a machine's latest jobs a new scan looks through for a stopped one.
+const RESUME_WINDOW: usize = 1000;
+
 /// A map job's journal: its measurements. A new scan of a profile name resumes the
 /// latest stopped scan of that name on the machine when its plan is the same: the
 /// stopped job's samples are copied into the new job (so it can be resumed in turn).
@@ -90,14 +93,15 @@ pub struct StoreJournal {
 }
 
 impl StoreJournal {
-    /// The latest map job of this name on this machine that did not finish.
+    /// The latest map job of this name on this machine that did not finish (looked for
+    /// among the machine's last `RESUME_WINDOW` jobs).
     fn stopped_scan(&self) -> Result<Option<(JobId, Value)>, String> {
         let store = lock(&self.shared.store);
         let jobs = store
             .jobs(&JobFilter {
                 machine: Some(self.machine.clone()),
                 state: None,
-                limit: None,
+                limit: Some(RESUME_WINDOW),
                 before_id: Some(self.job),
             })
             .map_err(|e| e.to_string())?;
