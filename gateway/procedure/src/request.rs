@@ -665,7 +665,9 @@ fn from_json<T: serde::de::DeserializeOwned>(params: &Value) -> Result<T, Reques
         let named = ["unknown field `", "missing field `"]
             .iter()
             .find_map(|p| message.strip_prefix(p))
-            .and_then(|rest| rest.split('`').next());
+            .and_then(|rest| rest.split('`').next())
+            // A field named by the empty string is shown as the params object's.
+            .filter(|f| !f.is_empty());
         let field = match (path.as_str(), named) {
             (".", Some(f)) => f.to_string(),
             // An unknown field is already the path's last step.
@@ -673,6 +675,12 @@ fn from_json<T: serde::de::DeserializeOwned>(params: &Value) -> Result<T, Reques
             (p, Some(f)) => format!("{p}.{f}"),
             (".", None) => "params".to_string(),
             (p, None) => p.to_string(),
+        };
+        // A key that is the empty string leaves no name: the params object is named.
+        let field = if field.is_empty() || field.ends_with('.') {
+            "params".to_string()
+        } else {
+            field
         };
         RequestError::new(field, message)
     })
@@ -772,6 +780,10 @@ mod tests {
         assert_eq!(e.field, "kind");
         let e = Request::parse("map", &json!([1])).unwrap_err();
         assert_eq!(e.field, "params");
+        // Found by the fuzzer: a key that is the empty string.
+        let e = Request::parse("compensate", &json!({"": 1})).unwrap_err();
+        assert_eq!(e.field, "params");
+        assert!(e.message.contains("unknown field ``"), "{e}");
     }
 
     #[test]
