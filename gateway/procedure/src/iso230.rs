@@ -14,7 +14,7 @@ use protocol::errormap::ErrorMap;
 use runner::iso230::{run_iso230, test_area, Iso230Error, Iso230Spec, AXIS_NAMES};
 use runner::JobError;
 use serde_json::{json, Value};
-use std::cell::Cell;
+use std::cell::{Cell, RefCell};
 use std::future::Future;
 use std::time::Instant;
 
@@ -274,39 +274,30 @@ pub async fn run(
     let cancelled = Cell::new(false);
     let mut taken = 0usize;
     let mut sink_error: Option<String> = None;
-    let run = {
-        let sink = &mut *sink;
-        let (taken, sink_error) = (&mut taken, &mut sink_error);
-        let mut on_measurement = |m: &Measurement| {
-            *taken += 1;
+    // Measurements and progress both go to the one sink, as they come.
+    let shared_sink = RefCell::new(&mut *sink);
+    let run = run_iso230(
+        job,
+        devices,
+        &spec,
+        model.as_ref(),
+        &mut |m: &Measurement| {
+            taken += 1;
             let row = json!({
                 "axis": m.axis, "position_index": m.position_index, "target_mm": m.target_mm,
                 "run": m.run, "direction": m.direction.sign(), "deviation_um": m.deviation_um,
             });
-            if let Err(e) = sink.measurement(&row) {
+            if let Err(e) = shared_sink.borrow_mut().measurement(&row) {
                 sink_error.get_or_insert(e);
             }
-        };
-        // Progress and measurements go to the one sink: progress is kept aside and
-        // handed on between measurements.
-        let progress_seen = Cell::new((0u64, total));
-        let run = run_iso230(
-            job,
-            devices,
-            &spec,
-            model.as_ref(),
-            &mut on_measurement,
-            &mut |done, of| progress_seen.set((done as u64, of as u64)),
-            async {
-                stop.await;
-                cancelled.set(true);
-            },
-        )
-        .await;
-        let (d, t) = progress_seen.get();
-        sink.progress(d, t);
-        run
-    };
+        },
+        &mut |done, of| shared_sink.borrow_mut().progress(done as u64, of as u64),
+        async {
+            stop.await;
+            cancelled.set(true);
+        },
+    )
+    .await;
     let run = match run {
         Ok(r) => r,
         Err(e) => {
