@@ -104,12 +104,12 @@ impl CliSink {
 
 impl Sink for CliSink {
     fn progress(&mut self, done: u64, total: u64) {
+        self.bar.set_position(done);
+        // A new total (the first call, or a resumed scan's start) restarts the estimate.
         if self.bar.length() != Some(total) {
             self.bar.set_length(total);
-            self.bar.set_position(done);
             self.bar.reset_eta();
         }
-        self.bar.set_position(done);
     }
 
     fn measurement(&mut self, measurement: &Value) -> Result<(), String> {

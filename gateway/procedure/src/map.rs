@@ -198,7 +198,7 @@ impl ScanJournal for FileJournal {
             journal::read(plan, &text)
                 .map_err(|e| format!("{shown}: {e} (remove it to start a new scan)"))?
         } else {
-            std::fs::write(&self.path, journal::header(plan))
+            protocol::config::write_output(&self.path, journal::header(plan).as_bytes(), &[])
                 .map_err(|e| format!("writing {shown}: {e}"))?;
             Vec::new()
         };

@@ -134,7 +134,9 @@ fn is_connection_error(e: &std::io::Error) -> bool {
 fn warn_if_few_descriptors(max_connections: usize) {
     #[cfg(target_os = "linux")]
     {
-        let Ok(limits) = std::fs::read_to_string("/proc/self/limits") else {
+        let Ok(limits) =
+            protocol::config::read_data_file(std::path::Path::new("/proc/self/limits"))
+        else {
             return;
         };
         let soft = limits
