@@ -97,8 +97,8 @@ enum Cmd {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let json_mode = match &cli.cmd {
-        Cmd::Demo(a) => a.json,
-        Cmd::Compensate(a) => a.json,
+        Cmd::Demo(a) => a.run.json,
+        Cmd::Compensate(a) => a.run.json,
         Cmd::Rewrite(a) => a.json,
         Cmd::Localize(a) => a.json,
         Cmd::Proxy(a) => a.json,
