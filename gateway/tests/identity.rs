@@ -1,34 +1,14 @@
 //! A map applies only to the machine it was measured on: `gateway rewrite --config` and
 //! `gateway verify` refuse another machine's map naming what differs, before any motion.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+mod common;
 
-fn gateway(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_gateway"))
-        .args(args)
-        .output()
-        .expect("gateway runs")
-}
-
-fn config(name: &str) -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../config/gateway")
-        .join(name)
-        .display()
-        .to_string()
-}
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("identity-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("scratch folder");
-    dir
-}
+use common::{gateway, job_file as config, scratch};
+use std::path::Path;
 
 #[test]
 fn another_machines_map_is_refused_naming_what_differs() {
-    let dir = scratch("rewrite");
+    let dir = scratch("identity", "rewrite");
     let out = dir.display().to_string();
     let demo = config("demo.toml");
     let o = gateway(&[

@@ -6,9 +6,12 @@
 
 use reqwest::StatusCode;
 use serde_json::{json, Value};
-use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::path::PathBuf;
 use system_tests::service_client::Api;
+
+mod common;
+
+use common::{gateway, job_file, workspace};
 
 /// Keys whose values are times or where a product was delivered (the CLI writes files,
 /// the service keeps charts and the shifted layout in the record): they differ.
@@ -31,33 +34,17 @@ fn stripped(mut v: Value) -> Value {
     v
 }
 
-fn workspace() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .unwrap()
-        .to_path_buf()
-}
-
 fn demo_job() -> String {
-    workspace()
-        .join("config/gateway/demo.toml")
-        .display()
-        .to_string()
+    job_file("demo.toml")
 }
 
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("procedures-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("scratch folder");
-    dir
+    common::scratch("procedures", name)
 }
 
 /// The CLI's `--json` object (the command must succeed).
 fn cli(args: &[&str]) -> Value {
-    let o = Command::new(env!("CARGO_BIN_EXE_gateway"))
-        .args(args)
-        .output()
-        .expect("gateway runs");
+    let o = gateway(args);
     assert!(
         o.status.success(),
         "gateway {args:?}: {}",
