@@ -252,25 +252,6 @@ impl MapShelf for FolderShelf {
     }
 }
 
-/// A journal kept in memory (tests; a front end with nowhere to keep one).
-#[derive(Debug, Default)]
-pub struct MemoryJournal {
-    pub samples: Vec<(usize, Sample)>,
-}
-
-impl ScanJournal for MemoryJournal {
-    fn resume(&mut self, _: &ScanPlan) -> Result<Vec<(usize, Sample)>, String> {
-        Ok(self.samples.clone())
-    }
-    fn append(&mut self, index: usize, sample: &Sample) -> Result<(), String> {
-        self.samples.push((index, *sample));
-        Ok(())
-    }
-    fn close(&mut self) {
-        self.samples.clear();
-    }
-}
-
 /// A scan sample from a measurement the map procedure handed to its sink.
 pub fn sample_of(measurement: &Value) -> Option<(usize, Sample)> {
     let index = measurement.get("index")?.as_u64()? as usize;

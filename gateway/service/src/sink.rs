@@ -11,7 +11,6 @@ use protocol::errormap::ErrorMap;
 use serde_json::{json, Map, Value};
 use std::sync::Arc;
 use store::{JobFilter, JobId, JobState, ProfileKind};
-use tracing::warn;
 
 /// One running job's sink.
 pub struct StoreSink {
@@ -232,9 +231,4 @@ impl procedure::rotary::ErrorsShelf for RotaryShelf {
 pub fn profile_map(body: &Value) -> Result<ErrorMap, String> {
     let text = body.get("map").unwrap_or(body).to_string();
     ErrorMap::from_json("error_map profile", &text).map_err(|e| e.to_string())
-}
-
-/// Logs a result the store did not take.
-pub fn warn_unsaved(what: &str, e: impl std::fmt::Display) {
-    warn!(error = %e, "{what} not saved");
 }
