@@ -3,10 +3,17 @@
 //! status polling (`?`) for position and end of motion, real-time bytes for hold,
 //! resume, jog cancel and reset.
 //!
-//! * Connect: `$I` (answered in any state, also in Alarm) must give `[VER:]`; a banner
-//!   arriving meanwhile (boards that reset when the port opens) makes it ask again. Then
-//!   `$$` for steps/mm, rates and travel, and one status report. A silent or foreign
-//!   device fails within `connect_timeout` with what it did send.
+//! * Connect, as the careful senders do: first a greeting. Opening the port often
+//!   resets the board (an Arduino resets on DTR) and a booting GRBL drops what it
+//!   receives, so nothing is sent but `?` (real-time, harmless) until either the
+//!   start-up banner (`Grbl 1.1h ['$' for help]`, `GrblHAL 1.1f [...]`) or a status
+//!   report (a controller already running) arrives; whatever a boot prints before its
+//!   banner is passed over (a first power-up's `error:7` and settings dump, `[MSG:]`
+//!   lines). No greeting within [`greeting_window`] provokes one with a soft reset
+//!   (0x18); none by `connect_timeout` is an error naming what the device did send.
+//!   Then `$I` (answered in any state, also in Alarm) must give `[VER:]`; a banner or
+//!   an `error:7` arriving meanwhile (a boot in progress) makes it ask again after the
+//!   banner. Then `$$` for steps/mm, rates and travel, and one status report.
 //! * Moves: `G21G53G1X..Y..F..` with 4 decimals (GRBL parses floats; the machine
 //!   quantises to its steps), absolute in machine coordinates whatever the modal state.
 //! * Every wait is bounded (`tokio::time` deadlines); alarms come back as
@@ -72,6 +79,16 @@ pub struct GrblStage {
     reported_axes: usize,
 }
 
+/// How often `?` is sent while waiting for a controller to greet.
+const GREETING_POLL: Duration = Duration::from_millis(250);
+
+/// How long to wait for a greeting before provoking one with a soft reset: long enough
+/// for an Arduino's boot loader and GRBL's first power-up (1.5 s), and at most 40 % of
+/// the connect timeout, so the banner after the reset still has time to come.
+pub fn greeting_window(connect_timeout: Duration) -> Duration {
+    (connect_timeout * 2 / 5).min(Duration::from_millis(2500))
+}
+
 fn with_deadline(d: Duration) -> Instant {
     Instant::now() + d
 }
@@ -126,9 +143,18 @@ impl GrblStage {
             after_ms,
         };
         self.link.listen();
-        // $I until [VER:] + ok. A banner means the board (re)booted, maybe when the
-        // port opened (Arduino boards reset on DTR), and may have dropped the $I: ask
-        // again unless its answer follows the banner promptly.
+        if !self.greet(deadline).await? {
+            return Err(timeout(
+                &self.link,
+                "a greeting: no start-up banner and no status report, even after a soft \
+                 reset (0x18)",
+                "a start-up banner `Grbl 1.1...` or a status report `<...>`",
+            ));
+        }
+        // $I until [VER:] + ok. A banner means the board (re)booted and may have dropped
+        // the $I: ask again unless its answer follows the banner promptly. `error:7`
+        // (EEPROM read fail) is never an answer to $I: it is a first power-up's boot
+        // talking, whose banner is still to come.
         self.link.write(&Command::BuildInfo.encode()).await?;
         let mut build = BuildInfo {
             rx_buffer: DEFAULT_RX_BUFFER,
@@ -164,8 +190,14 @@ impl GrblStage {
                 }
                 Response::Ok if have_version => break,
                 Response::Ok => {}
+                Response::Error(7) if !have_version => {
+                    // A boot in progress: its banner will come; ask again then (or
+                    // after a while, should the banner be lost).
+                    resend_at = Some(deadline);
+                }
                 Response::Error(code) => return Err(self.refused("$I", code)),
                 Response::Banner { .. } => {
+                    self.on_banner();
                     have_version = false;
                     resend_at = Some(Instant::now() + Duration::from_millis(300));
                 }
@@ -213,6 +245,56 @@ impl GrblStage {
             self.locked = true;
         }
         Ok(())
+    }
+
+    /// Wait for the controller to greet: `Ok(true)` once its start-up banner or a status
+    /// report has arrived, `Ok(false)` if neither came by `deadline`. Sends only `?`
+    /// (every [`GREETING_POLL`]) and, after [`greeting_window`] without a greeting, one
+    /// soft reset. Everything else a boot prints is passed over (messages and alarms
+    /// are noted).
+    async fn greet(&mut self, deadline: Instant) -> Result<bool, DriverError> {
+        let started = Instant::now();
+        let reset_at = (started + greeting_window(self.opts.connect_timeout)).min(deadline);
+        let mut reset_sent = false;
+        let mut poll_at = started;
+        loop {
+            let now = Instant::now();
+            if now >= deadline {
+                return Ok(false);
+            }
+            if !reset_sent && now >= reset_at {
+                self.link.write(&[Realtime::SoftReset.byte()]).await?;
+                reset_sent = true;
+            } else if !reset_sent && now >= poll_at {
+                self.link.write(&[Realtime::StatusQuery.byte()]).await?;
+                poll_at = now + GREETING_POLL;
+            }
+            let wait_until = match reset_sent {
+                true => deadline,
+                false => poll_at.min(reset_at),
+            };
+            let Some(r) = self.link.next(wait_until).await? else {
+                continue;
+            };
+            match r {
+                Response::Banner { .. } => {
+                    self.on_banner();
+                    return Ok(true);
+                }
+                // A running controller answered `?`. After the reset only its banner
+                // counts (a report then may answer an earlier `?`).
+                Response::Status(s) if !reset_sent => {
+                    if let Some(w) = &s.wco {
+                        self.last_wco = Some(w.clone());
+                    }
+                    return Ok(true);
+                }
+                Response::Message(m) => self.note_message(&m),
+                Response::Alarm(n) => self.note_alarm(n),
+                // A boot's `error:7`, its settings dump, blank lines, noise.
+                _ => {}
+            }
+        }
     }
 
     fn stage_info(&self) -> StageInfo {

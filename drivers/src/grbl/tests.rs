@@ -7,17 +7,63 @@ use tokio::io::{AsyncWriteExt, BufReader};
 
 const SETTINGS: &str = "$0=10\r\n$1=25\r\n$2=0\r\n$3=0\r\n$4=0\r\n$5=0\r\n$6=0\r\n$10=0\r\n$11=0.010\r\n$12=0.002\r\n$13=0\r\n$20=0\r\n$21=0\r\n$22=1\r\n$23=0\r\n$24=25.000\r\n$25=500.000\r\n$26=250\r\n$27=1.000\r\n$30=1000\r\n$31=0\r\n$32=0\r\n$100=250.000\r\n$101=250.000\r\n$102=250.000\r\n$110=500.000\r\n$111=500.000\r\n$112=500.000\r\n$120=10.000\r\n$121=10.000\r\n$122=10.000\r\n$130=200.000\r\n$131=200.000\r\n$132=200.000\r\nok\r\n";
 
+/// How the scripted controller starts when the port opens.
+#[derive(Clone, Copy, PartialEq)]
+enum Boot {
+    /// Prints its banner at once (a board that resets on DTR and boots fast).
+    Banner,
+    /// Running already, says nothing: answers `?` (a board that does not reset).
+    Running,
+    /// A first power-up (an Arduino booting after DTR: its boot loader then GRBL with
+    /// an empty EEPROM): everything received before its banner is lost; once it has
+    /// received its first bytes it prints `error:7`, the settings dump and the banner.
+    FirstPowerUp,
+    /// grblHAL's first power-up: `error:7`, a blank line, warnings, its own banner.
+    GrblHalFirstPowerUp,
+    /// Wedged until a soft reset (0x18): then the banner.
+    NeedsReset,
+}
+
+/// What the scripted controller received: lines, and the real-time bytes apart.
+#[derive(Default)]
+struct Heard {
+    lines: Vec<String>,
+    polls: usize,
+    resets: usize,
+}
+
+const BOOT_GRBL: &str = "error:7\r\n$0=10\r\n$1=25\r\n$2=0\r\n$3=0\r\n$4=0\r\n$5=0\r\n$6=0\r\n$10=1\r\n$11=0.010\r\n$12=0.002\r\n$13=0\r\n$20=0\r\n$21=0\r\n$22=0\r\n$23=0\r\n$24=25.000\r\n$25=500.000\r\n$26=250\r\n$27=1.000\r\n$30=1000\r\n$31=0\r\n$32=0\r\n$100=250.000\r\n$101=250.000\r\n$102=250.000\r\n$110=500.000\r\n$111=500.000\r\n$112=500.000\r\n$120=10.000\r\n$121=10.000\r\n$122=10.000\r\n$130=200.000\r\n$131=200.000\r\n$132=200.000\r\n\r\nGrbl 1.1h ['$' for help]\r\n";
+const BOOT_GRBLHAL: &str = "error:7\r\n\r\n[MSG:Warning: Spindle off]\r\nGrblHAL 1.1f ['$' or '$HELP' for help]\r\n[MSG:'$H'|'$X' to unlock]\r\n";
+
 /// A stock GRBL answering by script: every line it receives and every `?`.
 async fn fake_grbl(
     io: tokio::io::DuplexStream,
     log: std::sync::Arc<std::sync::Mutex<Vec<String>>>,
 ) {
+    scripted_grbl(io, Boot::Banner, log, Default::default()).await
+}
+
+/// The scripted controller, booting as `boot` says.
+async fn scripted_grbl(
+    io: tokio::io::DuplexStream,
+    boot: Boot,
+    log: std::sync::Arc<std::sync::Mutex<Vec<String>>>,
+    heard: std::sync::Arc<std::sync::Mutex<Heard>>,
+) {
     let (r, mut w) = tokio::io::split(io);
     let mut r = BufReader::new(r);
     let mut polls = 0;
-    w.write_all(b"\r\nGrbl 1.1h ['$' for help]\r\n[MSG:'$H'|'$X' to unlock]\r\n")
-        .await
-        .unwrap();
+    // Until it has booted, what it receives is lost.
+    let mut booted = match boot {
+        Boot::Banner => {
+            w.write_all(b"\r\nGrbl 1.1h ['$' for help]\r\n[MSG:'$H'|'$X' to unlock]\r\n")
+                .await
+                .unwrap();
+            true
+        }
+        Boot::Running => true,
+        _ => false,
+    };
     loop {
         let mut buf = Vec::new();
         // Real-time `?` has no line end: read byte-wise up to '\n' or '?'.
@@ -29,6 +75,22 @@ async fn fake_grbl(
                 == 0
             {
                 return;
+            }
+            match b[0] {
+                b'?' => heard.lock().unwrap().polls += 1,
+                0x18 => heard.lock().unwrap().resets += 1,
+                _ => {}
+            }
+            if !booted {
+                let text = match (boot, b[0]) {
+                    (Boot::FirstPowerUp, _) => BOOT_GRBL,
+                    (Boot::GrblHalFirstPowerUp, _) => BOOT_GRBLHAL,
+                    (Boot::NeedsReset, 0x18) => "\r\nGrbl 1.1h ['$' for help]\r\n",
+                    _ => continue,
+                };
+                w.write_all(text.as_bytes()).await.unwrap();
+                booted = true;
+                continue;
             }
             if b[0] == b'?' && buf.is_empty() {
                 polls += 1;
@@ -42,6 +104,12 @@ async fn fake_grbl(
                 w.write_all(s.as_bytes()).await.unwrap();
                 continue;
             }
+            if b[0] == 0x18 {
+                w.write_all(b"\r\nGrbl 1.1h ['$' for help]\r\n")
+                    .await
+                    .unwrap();
+                continue;
+            }
             if b[0] == b'\n' {
                 break;
             }
@@ -49,6 +117,7 @@ async fn fake_grbl(
         }
         let line = String::from_utf8(buf).unwrap();
         log.lock().unwrap().push(line.clone());
+        heard.lock().unwrap().lines.push(line.clone());
         let reply = match line.as_str() {
             "$I" => "[VER:1.1h.20190830:]\r\n[OPT:V,15,128]\r\nok\r\n".to_string(),
             "$$" => SETTINGS.to_string(),
@@ -58,6 +127,98 @@ async fn fake_grbl(
         };
         w.write_all(reply.as_bytes()).await.unwrap();
     }
+}
+
+/// Connect to a scripted controller booting as `boot`: the stage (or the error) and
+/// what the controller received.
+async fn connect_to(
+    boot: Boot,
+    opts: GrblOptions,
+) -> (
+    Result<GrblStage, DriverError>,
+    std::sync::Arc<std::sync::Mutex<Heard>>,
+) {
+    let (a, b) = tokio::io::duplex(4096);
+    let heard = std::sync::Arc::new(std::sync::Mutex::new(Heard::default()));
+    tokio::spawn(scripted_grbl(b, boot, Default::default(), heard.clone()));
+    let g = GrblStage::connect(Box::new(a), "fake".into(), opts).await;
+    (g, heard)
+}
+
+#[tokio::test]
+async fn a_first_power_up_is_waited_for_and_its_boot_lines_passed_over() {
+    let (g, heard) = connect_to(Boot::FirstPowerUp, GrblOptions::default()).await;
+    let g = g.expect("connects after the boot");
+    assert_eq!(g.build_info().version, "1.1h.20190830");
+    assert_eq!(g.info().axis(Axis::X).unwrap().resolution_mm, 0.004);
+    let heard = heard.lock().unwrap();
+    // Nothing but `?` before the banner: no $I lost in the boot, no reset needed.
+    assert_eq!(heard.lines, ["$I", "$$"]);
+    assert_eq!(heard.resets, 0);
+}
+
+#[tokio::test]
+async fn a_grblhal_first_power_up_with_warnings_and_its_own_banner() {
+    let (g, heard) = connect_to(Boot::GrblHalFirstPowerUp, GrblOptions::default()).await;
+    let g = g.expect("connects after the boot");
+    assert_eq!(g.build_info().version, "1.1h.20190830");
+    assert_eq!(heard.lock().unwrap().lines, ["$I", "$$"]);
+    assert_eq!(heard.lock().unwrap().resets, 0);
+}
+
+#[tokio::test]
+async fn a_running_controller_that_says_nothing_is_found_by_a_status_query_without_reset() {
+    let (g, heard) = connect_to(Boot::Running, GrblOptions::default()).await;
+    g.expect("connects");
+    let heard = heard.lock().unwrap();
+    assert_eq!(heard.resets, 0, "a running controller is not reset");
+    assert_eq!(heard.lines, ["$I", "$$"]);
+}
+
+#[tokio::test]
+async fn a_controller_that_does_not_greet_is_reset_once_then_connects() {
+    let (g, heard) = connect_to(Boot::NeedsReset, quick()).await;
+    g.expect("connects after the soft reset");
+    let heard = heard.lock().unwrap();
+    assert_eq!(heard.resets, 1);
+    assert!(heard.polls >= 1);
+    assert_eq!(heard.lines, ["$I", "$$"]);
+}
+
+#[tokio::test]
+async fn a_silent_device_is_a_clear_error_within_the_connect_timeout() {
+    let (a, b) = tokio::io::duplex(4096);
+    let got = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+    let g2 = got.clone();
+    // Reads and keeps everything, answers nothing.
+    tokio::spawn(async move {
+        let mut b = b;
+        let mut buf = [0u8; 64];
+        while let Ok(n) = tokio::io::AsyncReadExt::read(&mut b, &mut buf).await {
+            if n == 0 {
+                return;
+            }
+            g2.lock().unwrap().extend_from_slice(&buf[..n]);
+        }
+    });
+    let e = GrblStage::connect(Box::new(a), "fake".into(), quick())
+        .await
+        .err()
+        .expect("never greets");
+    let m = e.to_string();
+    assert!(
+        matches!(e, DriverError::Timeout { after_ms: 300, .. }),
+        "{m}"
+    );
+    assert!(
+        m.contains("no start-up banner") && m.contains("soft reset"),
+        "{m}"
+    );
+    assert!(m.contains("sent nothing"), "{m}");
+    let got = got.lock().unwrap().clone();
+    // Only real-time bytes: status queries, then one soft reset; never a line.
+    assert!(got.iter().all(|b| *b == b'?' || *b == 0x18), "{got:?}");
+    assert_eq!(got.iter().filter(|b| **b == 0x18).count(), 1, "{got:?}");
 }
 
 #[tokio::test]
@@ -151,7 +312,7 @@ async fn a_device_that_only_says_ok_is_not_said_to_have_sent_nothing() {
     let m = e.to_string();
     assert!(!m.contains("sent nothing"), "{m}");
     assert!(
-        m.contains("answered only `ok` 3 times") && m.contains("never a version report"),
+        m.contains("answered only `ok` ") && m.contains("never a start-up banner"),
         "{m}"
     );
 }
