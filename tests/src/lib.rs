@@ -3,6 +3,7 @@
 
 pub mod faulty_serial;
 pub mod faulty_tcp;
+pub mod firmware;
 pub mod netns;
 pub mod service_client;
 pub mod truth_map;
