@@ -30,6 +30,12 @@ pub const COLUMNS: [&str; 6] = [
     "deviation_um",
 ];
 
+/// The largest target position taken, mm: 100 m, beyond any machine's travel.
+pub const MAX_TARGET_MM: f64 = 100_000.0;
+/// The largest deviation taken, um: 100 mm, beyond anything a positioning test measures
+/// (a figure past it is a unit or transcription error, and would only wreck the charts).
+pub const MAX_DEVIATION_UM: f64 = 100_000.0;
+
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum CsvError {
     #[error("line {line}: {message}")]
@@ -160,19 +166,28 @@ pub fn read(text: &str) -> Result<Vec<Measurement>, CsvError> {
             Ok(v) if v >= 1 => Ok(v),
             _ => Err(bad(k, "is not a whole number from 1 up")),
         };
-        let number = |k: usize| match field(k).parse::<f64>() {
-            Ok(v) if v.is_finite() => Ok(v),
+        let number = |k: usize, limit: f64, why: &'static str| match field(k).parse::<f64>() {
+            Ok(v) if v.is_finite() && v.abs() <= limit => Ok(v),
+            Ok(v) if v.is_finite() => Err(bad(k, why)),
             _ => Err(bad(k, "is not a number")),
         };
         let position_index = index(1)?;
-        let target_mm = number(2)?;
+        let target_mm = number(
+            2,
+            MAX_TARGET_MM,
+            "is outside any machine's travel (at most 100 000 mm from zero)",
+        )?;
         let run = index(3)?;
         let direction = match field(4) {
             "+" => Direction::Up,
             "-" => Direction::Down,
             _ => return Err(bad(4, "is not a direction: expected + or -")),
         };
-        let deviation_um = number(5)?;
+        let deviation_um = number(
+            5,
+            MAX_DEVIATION_UM,
+            "is not a positioning deviation (at most 100 000 um, 100 mm, either way)",
+        )?;
         match &first_axis {
             None => first_axis = Some((axis.clone(), line)),
             Some((a, first_line)) if *a != axis => {

@@ -79,6 +79,10 @@ impl plot::Chart for DeviationChart<'_> {
         if x0 > x1 {
             (x0, x1, y0, y1) = (0.0, 1.0, -1.0, 1.0);
         }
+        // Clamped first: a deviation of 1e308 um made the padding infinite and the tick
+        // code loop.
+        let std::ops::Range { start: x0, end: x1 } = plot::safe_range(x0, x1, 0.0);
+        let std::ops::Range { start: y0, end: y1 } = plot::safe_range(y0, y1, 0.0);
         let xpad = ((x1 - x0) * 0.03).max(0.5);
         let ypad = ((y1 - y0) * 0.1).max(0.5);
         let mut chart = ChartBuilder::on(area)
@@ -86,7 +90,10 @@ impl plot::Chart for DeviationChart<'_> {
             .margin(10)
             .x_label_area_size(40)
             .y_label_area_size(60)
-            .build_cartesian_2d((x0 - xpad)..(x1 + xpad), (y0 - ypad)..(y1 + ypad))?;
+            .build_cartesian_2d(
+                plot::safe_range(x0 - xpad, x1 + xpad, 1.0),
+                plot::safe_range(y0 - ypad, y1 + ypad, 1.0),
+            )?;
         chart
             .configure_mesh()
             .x_desc("target position (mm)")

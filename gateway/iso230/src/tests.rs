@@ -310,6 +310,24 @@ fn csv_errors_name_the_line() {
     );
     let e = err(&with(3, "X,1,0.0000,3,+,NaN"));
     assert!(matches!(e, CsvError::Field { line: 4, .. }), "{e}");
+    // Finite but absurd: refused naming line and column (1e308 looped the chart code).
+    let e = err(&with(3, "X,1,0.0000,3,+,1e308"));
+    assert_eq!(
+        e.to_string(),
+        "line 4, column deviation_um: `1e308` is not a positioning deviation (at most 100 000 um, 100 mm, either way)"
+    );
+    let e = err(&with(3, "X,1,-2e5,3,+,3"));
+    assert!(
+        matches!(
+            e,
+            CsvError::Field {
+                line: 4,
+                column: "target_mm",
+                ..
+            }
+        ),
+        "{e}"
+    );
     let e = err(&with(3, "X,1,0.0000,3,up,3"));
     assert!(matches!(
         e,
@@ -453,6 +471,19 @@ fn charts_and_html_report() {
             },
         ],
     };
+    // An evaluation holding an absurd figure still draws (the axes are clamped): the
+    // chart code looped on a deviation of 1e308 before.
+    let mut wild = five();
+    wild[0].deviation_um = 1e308;
+    let wild = evaluate(&wild).unwrap();
+    let wild_chart = report::DeviationChart {
+        title: "wild".into(),
+        series: vec![report::Series {
+            label: "wild",
+            evaluation: &wild,
+        }],
+    };
+    assert!(plot::render_svg(&wild_chart, 400, 300).is_ok());
     let svg = plot::render_svg(&chart, 800, 500).unwrap();
     assert!(svg.contains("before: mean up (+)") && svg.contains("after: mean down (-)"));
     let png = plot::render_png(&chart, 800, 500).unwrap();

@@ -112,7 +112,10 @@ impl plot::Chart for Picture<'_> {
                 ),
                 (plot::FONT, 14),
             )
-            .build_cartesian_2d(e[0]..e[2], e[1]..e[3])?;
+            .build_cartesian_2d(
+                plot::safe_range(e[0], e[2], 1e-6),
+                plot::safe_range(e[1], e[3], 1e-6),
+            )?;
         chart
             .configure_mesh()
             .disable_mesh()

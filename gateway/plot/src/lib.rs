@@ -80,6 +80,40 @@ fn check_size(width: u32, height: u32) -> Result<(), PlotError> {
     }
 }
 
+/// The largest magnitude a chart's axis may reach: far beyond any physical figure in mm
+/// or um, small enough that the axis arithmetic (tick steps, labels) stays exact.
+pub const MAX_AXIS: f64 = 1e12;
+
+/// An axis range a chart can draw, whatever the data: `lo..hi` with non-finite ends
+/// replaced, both ends clamped to [`MAX_AXIS`] in magnitude, ordered, and at least
+/// `min_span` wide. Every chart builds its axes through here, so a data value such as
+/// 1e308 (or NaN) gives a chart with its point off the scale instead of tick
+/// arithmetic that never ends.
+pub fn safe_range(lo: f64, hi: f64, min_span: f64) -> std::ops::Range<f64> {
+    let clamp = |v: f64, fallback: f64| {
+        if v.is_nan() {
+            fallback
+        } else {
+            v.clamp(-MAX_AXIS, MAX_AXIS)
+        }
+    };
+    let (mut lo, mut hi) = (clamp(lo, 0.0), clamp(hi, 1.0));
+    if lo > hi {
+        std::mem::swap(&mut lo, &mut hi);
+    }
+    let min_span = if min_span.is_finite() && min_span > 0.0 {
+        min_span.min(MAX_AXIS)
+    } else {
+        1e-9
+    };
+    if hi - lo < min_span {
+        let mid = lo / 2.0 + hi / 2.0;
+        lo = mid - min_span / 2.0;
+        hi = mid + min_span / 2.0;
+    }
+    lo..hi
+}
+
 /// The chart as an SVG document.
 pub fn render_svg(chart: &impl Chart, width: u32, height: u32) -> Result<String, PlotError> {
     check_size(width, height)?;
@@ -153,6 +187,43 @@ mod tests {
             .filter(|&(x, y)| img.get_pixel(x, y).0[0] < 128)
             .count();
         assert!(inked > 10, "no text drawn ({inked} dark pixels)");
+    }
+
+    /// Axes from absurd data: a chart's range stays finite, ordered and drawable, and
+    /// drawing a point at 1e308 on it ends (it looped in the tick code before).
+    #[test]
+    fn ranges_from_absurd_data_are_drawable() {
+        for (lo, hi) in [
+            (0.0, 1e308),
+            (-1e308, 1e308),
+            (f64::NAN, 3.0),
+            (f64::NEG_INFINITY, f64::INFINITY),
+            (5.0, 5.0),
+            (2.0, -2.0),
+        ] {
+            let r = safe_range(lo, hi, 1.0);
+            assert!(r.start.is_finite() && r.end.is_finite(), "{lo} {hi}: {r:?}");
+            assert!(r.end - r.start >= 1.0 - 1e-9, "{lo} {hi}: {r:?}");
+            assert!(r.start.abs() <= MAX_AXIS && r.end.abs() <= MAX_AXIS);
+        }
+        struct Far;
+        impl Chart for Far {
+            fn draw<DB: DrawingBackend>(
+                &self,
+                area: &DrawingArea<DB, Shift>,
+            ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+                let y = safe_range(-1.0, 1e308, 1.0);
+                let mut chart = ChartBuilder::on(area)
+                    .x_label_area_size(30)
+                    .y_label_area_size(30)
+                    .build_cartesian_2d(0.0..1.0, y)?;
+                chart.configure_mesh().label_style((FONT, 12)).draw()?;
+                chart.draw_series(LineSeries::new([(0.0, 0.0), (1.0, 1e308)], &BLUE))?;
+                Ok(())
+            }
+        }
+        assert!(render_svg(&Far, 200, 150).unwrap().starts_with("<svg"));
+        assert_eq!(&render_png(&Far, 200, 150).unwrap()[1..4], b"PNG");
     }
 
     #[test]

@@ -13,6 +13,7 @@
 //! from 0 within the sweep; `ball` is 1 (the 26 mm ball) or 2 (the 41 mm ball);
 //! coordinates are machine coordinates in mm. One row per (axis, step, ball).
 
+use crate::identify::MAX_COORDINATE_MM;
 use protocol::text::escape_bytes;
 use serde::Serialize;
 use std::collections::HashMap;
@@ -125,13 +126,21 @@ pub fn parse_centres(text: &str) -> Result<Vec<CentreRow>, CentresError> {
         let step: u32 = fields[1]
             .parse()
             .map_err(|_| bad(2, "is not a step number (0, 1, ...)"))?;
-        let number = |column: usize| -> Result<f64, CentresError> {
-            match fields[column - 1].parse::<f64>() {
-                Ok(v) if v.is_finite() => Ok(v),
-                _ => Err(bad(column, "is not a finite number")),
-            }
+        let number = |column: usize, limit: f64, why: &'static str| match fields[column - 1]
+            .parse::<f64>()
+        {
+            Ok(v) if v.is_finite() && v.abs() <= limit => Ok(v),
+            Ok(v) if v.is_finite() => Err(bad(column, why)),
+            _ => Err(bad(column, "is not a finite number")),
         };
-        let angle_deg = number(3)?;
+        let coordinate = |column: usize| {
+            number(
+                column,
+                MAX_COORDINATE_MM,
+                "is outside any machine (at most 10 000 mm from zero)",
+            )
+        };
+        let angle_deg = number(3, 360.0, "is not an angle of a sweep (-360 to 360 degrees)")?;
         let ball = match fields[3] {
             "1" => 1,
             "2" => 2,
@@ -142,9 +151,9 @@ pub fn parse_centres(text: &str) -> Result<Vec<CentreRow>, CentresError> {
             step,
             angle_deg,
             ball,
-            x_mm: number(5)?,
-            y_mm: number(6)?,
-            z_mm: number(7)?,
+            x_mm: coordinate(5)?,
+            y_mm: coordinate(6)?,
+            z_mm: coordinate(7)?,
         };
         if let Some(first) = seen.insert((axis, step, ball), line) {
             return Err(CentresError::Duplicate {

@@ -86,7 +86,10 @@ impl SweepChart<'_> {
             .margin(8)
             .x_label_area_size(32)
             .y_label_area_size(48)
-            .build_cartesian_2d(lo[0]..hi[0], lo[1]..hi[1])?;
+            .build_cartesian_2d(
+                plot::safe_range(lo[0], hi[0], 1e-6),
+                plot::safe_range(lo[1], hi[1], 1e-6),
+            )?;
         chart
             .configure_mesh()
             .x_desc(names.0)

@@ -28,6 +28,32 @@ pub enum FitError {
     },
 }
 
+/// The largest coordinate a fit takes, mm (10 m): beyond any machine a probe or a CMM
+/// measures on. Points past it (or not finite) are refused before the linear algebra,
+/// whose iterations need not end on such input (a centre of 1e308 looped the SVD).
+pub const MAX_COORDINATE_MM: f64 = 10_000.0;
+
+fn check_points(what: &str, points: &[Vector3<f64>]) -> Result<(), FitError> {
+    for (k, p) in points.iter().enumerate() {
+        if !p
+            .iter()
+            .all(|v| v.is_finite() && v.abs() <= MAX_COORDINATE_MM)
+        {
+            return Err(FitError::Degenerate {
+                what: what.into(),
+                why: format!(
+                    "point {} ({}, {}, {}) is not within {MAX_COORDINATE_MM} mm of the origin on each axis",
+                    k + 1,
+                    p.x,
+                    p.y,
+                    p.z
+                ),
+            });
+        }
+    }
+    Ok(())
+}
+
 /// A least-squares sphere: the centre and radius minimising the sum of squared
 /// distances of the points from the surface (radius free).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -49,6 +75,7 @@ pub fn fit_sphere(what: &str, points: &[Vector3<f64>]) -> Result<SphereFit, FitE
             min: 4,
         });
     }
+    check_points(what, points)?;
     let mean = points.iter().sum::<Vector3<f64>>() / points.len() as f64;
     // |p|² = 2 p·c + (r² - |c|²), points taken about their mean for conditioning.
     let a = DMatrix::from_fn(points.len(), 4, |i, j| {
@@ -219,6 +246,7 @@ pub fn fit_circle(what: &str, points: &[Vector3<f64>]) -> Result<CircleFit, FitE
             min: 4,
         });
     }
+    check_points(what, points)?;
     let mean = points.iter().sum::<Vector3<f64>>() / n_pts as f64;
     let mut scatter = Matrix3::zeros();
     for p in points {

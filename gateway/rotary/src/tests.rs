@@ -459,7 +459,19 @@ fn centres_file_round_trip_and_errors() {
     assert_eq!(r[0].axis, Axis::C);
 
     let h = "axis,step,angle_deg,ball,x_mm,y_mm,z_mm\n";
-    let cases: [(&str, &str); 7] = [
+    let cases: [(&str, &str); 10] = [
+        (
+            "C,0,0,1,1e308,2,3\n",
+            "line 2, column 5 (x_mm): `1e308` is outside any machine (at most 10 000 mm from zero)",
+        ),
+        (
+            "C,0,0,1,1,2,-20000\n",
+            "line 2, column 7 (z_mm): `-20000` is outside any machine",
+        ),
+        (
+            "A,0,1e9,1,1,2,3\n",
+            "line 2, column 3 (angle_deg): `1e9` is not an angle of a sweep",
+        ),
         (
             "axis,step,angle,ball,x,y,z\n",
             "line 1: expected the header",
@@ -490,6 +502,26 @@ fn centres_file_round_trip_and_errors() {
         assert!(err.contains(want), "{text:?}: {err}");
     }
     assert_eq!(parse_centres(h).unwrap_err(), CentresError::Empty);
+}
+
+/// A fit given a point no machine can have (1e308 looped the SVD) refuses it at once,
+/// naming the point; the same with NaN.
+#[test]
+fn fits_refuse_points_outside_any_machine() {
+    let mut pts: Vec<Vector3<f64>> = (0..8)
+        .map(|k| {
+            let t = k as f64 * 0.7;
+            Vector3::new(50.0 * t.cos(), 50.0 * t.sin(), -200.0)
+        })
+        .collect();
+    assert!(fit_circle("ok", &pts).is_ok());
+    for bad in [1e308, -1e300, 1e5, f64::NAN, f64::INFINITY] {
+        pts[2].x = bad;
+        let e = fit_circle("axis C ball 1", &pts).unwrap_err().to_string();
+        assert!(e.contains("axis C ball 1") && e.contains("point 3"), "{e}");
+        let e = fit_sphere("ball 1", &pts).unwrap_err().to_string();
+        assert!(e.contains("point 3"), "{e}");
+    }
 }
 
 #[test]

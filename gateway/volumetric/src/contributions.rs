@@ -84,7 +84,7 @@ impl Chart for ContributionChart<'_> {
             .margin(10)
             .x_label_area_size(40)
             .y_label_area_size(60)
-            .build_cartesian_2d(0.0..top, -0.5..n as f64 - 0.5)?;
+            .build_cartesian_2d(plot::safe_range(0.0, top, 1e-9), -0.5..n as f64 - 0.5)?;
         let names: Vec<&str> = self.0.iter().map(|c| c.name).collect();
         chart
             .configure_mesh()
@@ -236,7 +236,10 @@ impl Chart for PlaneMap {
             .margin(10)
             .x_label_area_size(35)
             .y_label_area_size(45)
-            .build_cartesian_2d(u0..u1, v0..v1)?;
+            .build_cartesian_2d(
+                plot::safe_range(u0, u1, 1e-6),
+                plot::safe_range(v0, v1, 1e-6),
+            )?;
         chart
             .configure_mesh()
             .x_desc(format!("{} mm", names[a]))
