@@ -190,12 +190,13 @@ fn wrong_port_and_foreign_devices_fail_clearly_and_quickly() {
                 "{kind:?}: {msg}"
             );
             assert!(
-                msg.contains("$I") && msg.contains("GRBL"),
+                msg.contains("no start-up banner") && msg.contains("$I") && msg.contains("GRBL"),
                 "{kind:?}: {msg}"
             );
             match kind {
                 Foreign::Silent => assert!(msg.contains("sent nothing"), "{msg}"),
-                Foreign::Echo => assert!(msg.contains("`$I`"), "{msg}"),
+                // Its echo of the greeting's `?` and soft reset, then of the last `$I`.
+                Foreign::Echo => assert!(msg.contains("?\\x18$I`"), "{msg}"),
                 Foreign::Chatter => assert!(msg.contains("Unknown command"), "{msg}"),
             }
         }

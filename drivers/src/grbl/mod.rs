@@ -10,7 +10,8 @@
 //!   report (a controller already running) arrives; whatever a boot prints before its
 //!   banner is passed over (a first power-up's `error:7` and settings dump, `[MSG:]`
 //!   lines). No greeting within [`greeting_window`] provokes one with a soft reset
-//!   (0x18); none by `connect_timeout` is an error naming what the device did send.
+//!   (0x18); still none, a last `$I` is tried; nothing GRBL's by `connect_timeout` is
+//!   an error naming what the device did send.
 //!   Then `$I` (answered in any state, also in Alarm) must give `[VER:]`; a banner or
 //!   an `error:7` arriving meanwhile (a boot in progress) makes it ask again after the
 //!   banner. Then `$$` for steps/mm, rates and travel, and one status report.
@@ -143,14 +144,19 @@ impl GrblStage {
             after_ms,
         };
         self.link.listen();
-        if !self.greet(deadline).await? {
-            return Err(timeout(
-                &self.link,
+        // A device that greeted neither way gets one `$I` in the last fifth of the time:
+        // a GRBL that answers it is taken, anything else is named in the error.
+        let greet_by = Instant::now() + self.opts.connect_timeout * 4 / 5;
+        let greeted = self.greet(greet_by.min(deadline)).await?;
+        let (what, expected) = match greeted {
+            true => ("$I", "a version report `[VER:...]`"),
+            false => (
                 "a greeting: no start-up banner and no status report, even after a soft \
-                 reset (0x18)",
-                "a start-up banner `Grbl 1.1...` or a status report `<...>`",
-            ));
-        }
+                 reset (0x18), nor an answer to `$I`",
+                "a start-up banner `Grbl 1.1...`, a status report `<...>` or a version \
+                 report `[VER:...]`",
+            ),
+        };
         // $I until [VER:] + ok. A banner means the board (re)booted and may have dropped
         // the $I: ask again unless its answer follows the banner promptly. `error:7`
         // (EEPROM read fail) is never an answer to $I: it is a first power-up's boot
@@ -171,7 +177,7 @@ impl GrblStage {
                     self.link.write(&Command::BuildInfo.encode()).await?;
                     continue;
                 }
-                return Err(timeout(&self.link, "$I", "a version report `[VER:...]`"));
+                return Err(timeout(&self.link, what, expected));
             };
             match r {
                 Response::Version { version, .. } => {

@@ -216,9 +216,15 @@ async fn a_silent_device_is_a_clear_error_within_the_connect_timeout() {
     );
     assert!(m.contains("sent nothing"), "{m}");
     let got = got.lock().unwrap().clone();
-    // Only real-time bytes: status queries, then one soft reset; never a line.
-    assert!(got.iter().all(|b| *b == b'?' || *b == 0x18), "{got:?}");
-    assert_eq!(got.iter().filter(|b| **b == 0x18).count(), 1, "{got:?}");
+    // Real-time bytes only (status queries, then one soft reset), and a last `$I`.
+    let (realtime, line) = got.split_at(got.len() - 3);
+    assert!(realtime.iter().all(|b| *b == b'?' || *b == 0x18), "{got:?}");
+    assert_eq!(
+        realtime.iter().filter(|b| **b == 0x18).count(),
+        1,
+        "{got:?}"
+    );
+    assert_eq!(line, b"$I\n");
 }
 
 #[tokio::test]
