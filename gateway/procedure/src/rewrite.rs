@@ -147,9 +147,9 @@ impl RewriteRequest {
             }
             None => None,
         };
-        let work_offsets = match &self.offsets {
-            Some(text) => read_offsets(text)?,
-            None => [[0.0; N_AXIS]; 6],
+        let (work_offsets, g92_offset) = match &self.offsets {
+            Some(text) => read_parameters(text)?,
+            None => ([[0.0; N_AXIS]; 6], [0.0; N_AXIS]),
         };
         Ok(Options {
             tolerance_mm: self.tolerance_um / 1000.0,
@@ -157,6 +157,7 @@ impl RewriteRequest {
             limits,
             start,
             work_offsets,
+            g92_offset,
         })
     }
 }
@@ -164,6 +165,19 @@ impl RewriteRequest {
 /// The stored work offsets from a saved `$#` reply (`[G54:x,y,z]` lines); other lines
 /// are ignored, a malformed offset line is an error naming it (field `offsets`).
 pub fn read_offsets(text: &str) -> Result<[Pose; 6], RequestError> {
+    read_parameters(text).map(|(offsets, _)| offsets)
+}
+
+/// The largest work or G92 offset taken from a `$#` reply, mm (a controller's travel is
+/// far smaller; 1e308 is a corrupted reply, not an offset).
+pub const MAX_OFFSET_MM: f64 = 1e5;
+
+/// A saved `$#` reply: the stored G54..G59 offsets and the G92 offset (`[G92:x,y,z]`,
+/// zero when the reply has no such line), as GRBL applies them: the machine position of
+/// a programmed point is the point plus the active work offset plus G92. A malformed or
+/// repeated offset line, or a value beyond [`MAX_OFFSET_MM`], is an error naming the
+/// line (field `offsets`).
+pub fn read_parameters(text: &str) -> Result<([Pose; 6], Pose), RequestError> {
     if text.len() > MAX_OFFSETS_BYTES {
         return Err(RequestError::new(
             "offsets",
@@ -173,33 +187,50 @@ pub fn read_offsets(text: &str) -> Result<[Pose; 6], RequestError> {
             ),
         ));
     }
-    let mut offsets = [[0.0; N_AXIS]; 6];
+    let mut offsets = [[0.0; N_AXIS]; 7];
     let mut seen = 0;
+    let mut first_line = [0usize; 7];
     for (n, line) in text.lines().enumerate() {
         if let Response::Parameter { name, value } = Response::parse(line.trim()) {
-            let Some(k) = ["G54", "G55", "G56", "G57", "G58", "G59"]
+            let Some(k) = ["G54", "G55", "G56", "G57", "G58", "G59", "G92"]
                 .iter()
                 .position(|g| *g == name)
             else {
                 continue;
             };
+            if first_line[k] != 0 {
+                return Err(RequestError::new(
+                    "offsets",
+                    format!(
+                        "line {}: a second {name} line (the first on line {})",
+                        n + 1,
+                        first_line[k]
+                    ),
+                ));
+            }
+            first_line[k] = n + 1;
             let values: Vec<f64> = value
                 .split(',')
                 .map(|v| v.trim().parse::<f64>())
                 .collect::<Result<_, _>>()
                 .ok()
-                .filter(|v: &Vec<f64>| v.len() == N_AXIS && v.iter().all(|x| x.is_finite()))
+                .filter(|v: &Vec<f64>| {
+                    v.len() == N_AXIS && v.iter().all(|x| x.is_finite() && x.abs() <= MAX_OFFSET_MM)
+                })
                 .ok_or_else(|| {
                     RequestError::new(
                         "offsets",
                         format!(
-                            "line {}: `{line}` is not {name} with {N_AXIS} numbers",
-                            n + 1
+                            "line {}: `{}` is not {name} with {N_AXIS} numbers of at most {MAX_OFFSET_MM} mm",
+                            n + 1,
+                            protocol::text::escape_bytes(line.as_bytes())
                         ),
                     )
                 })?;
             offsets[k].copy_from_slice(&values);
-            seen += 1;
+            if k < 6 {
+                seen += 1;
+            }
         }
     }
     if seen == 0 {
@@ -208,7 +239,9 @@ pub fn read_offsets(text: &str) -> Result<[Pose; 6], RequestError> {
             "no [G54:...] line (save the controller's reply to `$#`)",
         ));
     }
-    Ok(offsets)
+    let mut stored = [[0.0; N_AXIS]; 6];
+    stored.copy_from_slice(&offsets[..6]);
+    Ok((stored, offsets[6]))
 }
 
 /// The compensation a program is rewritten with.
@@ -402,8 +435,47 @@ mod tests {
         assert!(r.check().unwrap_err().message.contains("no [G54:...] line"));
         r.offsets = Some("[G54:1,2,3]\n[G55:0,0,0]\nok\n".into());
         assert_eq!(r.options().unwrap().work_offsets[0], [1.0, 2.0, 3.0]);
+        r.offsets = Some("[G54:1,2,3]\n[G92:1e308,0,0]\nok\n".into());
+        let e = r.check().unwrap_err();
+        assert!(e.message.starts_with("line 2: `[G92:1e308,0,0]`"), "{e}");
+        r.offsets = Some("[G54:1,2,3]\n[G54:1,2,3]\n".into());
+        assert!(r.check().unwrap_err().message.contains("a second G54 line"));
         r.program = "G0 X0\n".repeat(MAX_PROGRAM_BYTES / 6 + 1);
         assert_eq!(r.check().unwrap_err().field, "program");
+    }
+
+    /// The `$#` reply's `[G92:...]` line shifts the program as on the controller: X10
+    /// with G54 X5 and G92 X20 is machine X35, and it is corrected as machine X35 (the
+    /// model's X error is 0.1 um per mm of X), written back in the program's frame.
+    #[test]
+    fn the_g92_offset_of_the_dollar_hash_reply_is_honoured() {
+        let mut r = RewriteRequest::new("G21 G90\nG0 X10 Y0 Z0\n".into());
+        r.offsets = Some(
+            "[G54:5.000,0.000,0.000]\n[G55:0,0,0]\n[G92:20.000,0.000,0.000]\n[TLO:0.000]\nok\n"
+                .into(),
+        );
+        let o = r.options().unwrap();
+        assert_eq!(o.g92_offset, [20.0, 0.0, 0.0]);
+        let run_with = |r: &RewriteRequest| {
+            let mut sink = Keep::default();
+            let out = run(
+                r,
+                RewriteModel::Volumetric {
+                    model: model(),
+                    name: "m".into(),
+                },
+                "in.nc",
+                &mut sink,
+            );
+            assert!(out.is_success(), "{:?}", out.error());
+            String::from_utf8(sink.0[0].bytes.clone()).unwrap()
+        };
+        let with_g92 = run_with(&r);
+        r.offsets = Some("[G54:5.000,0.000,0.000]\nok\n".into());
+        let without = run_with(&r);
+        // The correction at machine X35 (3.5 um) differs from that at X15 (1.5 um).
+        assert!(with_g92.contains("X10.0035 "), "{with_g92}");
+        assert!(without.contains("X10.0015 "), "{without}");
     }
 
     #[test]

@@ -28,6 +28,9 @@ pub struct Options {
     pub start: Option<Pose>,
     /// The controller's stored G54..G59 offsets (`$#`), machine mm.
     pub work_offsets: [Pose; 6],
+    /// The controller's G92 offset (the `[G92:...]` line of `$#`), mm: added to the
+    /// active work offset, as GRBL does, until a G92.1 clears it.
+    pub g92_offset: Pose,
 }
 
 impl Default for Options {
@@ -38,6 +41,7 @@ impl Default for Options {
             limits: None,
             start: None,
             work_offsets: [[0.0; N_AXIS]; 6],
+            g92_offset: [0.0; N_AXIS],
         }
     }
 }
@@ -155,11 +159,21 @@ impl<'a> Rewriter<'a> {
         if !(options.max_correction_mm.is_finite() && options.max_correction_mm > 0.0) {
             return Err(bad("the correction bound must be positive"));
         }
+        if !options
+            .work_offsets
+            .iter()
+            .chain([&options.g92_offset])
+            .flatten()
+            .all(|v| v.is_finite())
+        {
+            return Err(bad("the work offsets must be finite numbers"));
+        }
         let mut interpreter = Interpreter::new();
         for (k, offset) in options.work_offsets.iter().enumerate() {
             interpreter.stored[k] = *offset;
         }
         interpreter.coord_system = options.work_offsets[0];
+        interpreter.coord_offset = options.g92_offset;
         // Arcs become chords within half the tolerance; each chord is split within the
         // other half.
         interpreter.arc_tolerance = options.tolerance_mm / 2.0;
