@@ -1,12 +1,14 @@
 //! Scanning the simulated stage into an error map through the device traits (the same
 //! path as `gateway map`), then checking the map against the truth, and resuming a
-//! stopped scan after a new homing. A small camera window and a coarse plan keep the
-//! debug build fast; `gateway map` on the demo runs the full plan (README figures).
+//! stopped scan after a new homing, from a journal file whose last line the stop tore.
+//! A small camera window and a coarse plan keep the debug build fast; `gateway map` on
+//! the demo runs the full plan (README figures).
 
 use devices::open_devices;
-use errormap::scan::{MapBuilder, Sample, ScanPlan, ScanSpec};
+use errormap::scan::{journal, MapBuilder, Sample, ScanPlan, ScanSpec};
 use errormap::{Direction, MapModel};
 use job::{CameraSpec, Job, StageSpec};
+use procedure::map::{FileJournal, ScanJournal};
 use protocol::errormap::Identity;
 use runner::scan::{run_scan, scan_area, Reference};
 use system_tests::runtime;
@@ -44,12 +46,14 @@ fn id() -> Identity {
     }
 }
 
-/// Scan with fresh devices; `stop_after`: cancel once that many samples are in.
+/// Scan with fresh devices; `stop_after`: cancel once that many samples are in; each
+/// sample goes to `file` when there is one.
 fn scan(
     job: &Job,
     builder: &mut MapBuilder,
     stop_after: Option<usize>,
     extra_homings: usize,
+    mut file: Option<&mut FileJournal>,
 ) -> (
     Result<Reference, runner::scan::ScanError>,
     ScanPlan,
@@ -74,7 +78,10 @@ fn scan(
         &mut devices,
         &plan,
         builder,
-        &mut |i, _: &Sample| {
+        &mut |i, s: &Sample| {
+            if let Some(f) = file.as_mut() {
+                f.append(i, s)?;
+            }
             journal.push(i);
             if Some(journal.len()) == stop_after {
                 tx.send_replace(true);
@@ -92,7 +99,7 @@ fn a_scanned_map_predicts_the_stage_and_a_stopped_scan_resumes_after_homing() {
     let job = small_job();
     // One scan straight through.
     let mut whole = MapBuilder::new();
-    let (r, plan, mut devices) = scan(&job, &mut whole, None, 0);
+    let (r, plan, mut devices) = scan(&job, &mut whole, None, 0, None);
     let reference = r.unwrap();
     let map = whole
         .finish(
@@ -145,17 +152,34 @@ fn a_scanned_map_predicts_the_stage_and_a_stopped_scan_resumes_after_homing() {
         "rms {raw:.2} um -> {left:.2} um with the map"
     );
 
-    // Stopped after 40 samples, then resumed on freshly opened (re-homed) devices: the
-    // same map within the measurement noise.
-    let mut resumed = MapBuilder::new();
-    let (r, _, _) = scan(&job, &mut resumed, Some(40), 0);
+    // Stopped after 40 samples with its journal's last line torn (the process died as it
+    // wrote it), then resumed from the journal on freshly opened (re-homed) devices: the
+    // torn line is cut off and measured again, and the map is the same within the
+    // measurement noise.
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("scan.scan.jsonl");
+    let header = journal::Header::new("demo.toml", id(), &plan);
+    let mut file = FileJournal::new(path.clone());
+    assert!(file.resume(&header, &plan).unwrap().is_empty());
+    let mut stopped = MapBuilder::new();
+    let (r, _, _) = scan(&job, &mut stopped, Some(40), 0, Some(&mut file));
     assert!(
         matches!(r, Err(runner::scan::ScanError::Cancelled)),
         "{r:?}"
     );
-    assert_eq!(resumed.done(), 40);
+    assert_eq!(stopped.done(), 40);
+    drop(file);
+    let text = std::fs::read(&path).unwrap();
+    std::fs::write(&path, &text[..text.len() - 25]).unwrap();
+    let mut file = FileJournal::new(path.clone());
+    let kept = file.resume(&header, &plan).unwrap();
+    assert_eq!(kept.len(), 39);
+    let mut resumed = MapBuilder::new();
+    for (i, s) in &kept {
+        resumed.record(&plan, *i, *s).unwrap();
+    }
     // A different homing error on the second run: the reference frame absorbs it.
-    let (r, plan2, _) = scan(&job, &mut resumed, None, 1);
+    let (r, plan2, _) = scan(&job, &mut resumed, None, 1, Some(&mut file));
     let reference2 = r.unwrap();
     assert_eq!(plan2, plan);
     let moved = (reference2.error_um[0] - reference.error_um[0])
@@ -175,6 +199,12 @@ fn a_scanned_map_predicts_the_stage_and_a_stopped_scan_resumes_after_homing() {
             reference2.command_mm,
         )
         .expect("complete after the resume");
+    // The journal holds every frame once, each line whole.
+    let read = journal::read(&header, &plan, &std::fs::read(&path).unwrap()).unwrap();
+    assert_eq!(
+        (read.samples.len(), read.torn_bytes),
+        (plan.points.len(), 0)
+    );
     let worst = map
         .grid
         .nodes

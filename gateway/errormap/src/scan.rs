@@ -76,6 +76,10 @@ pub enum ScanError {
     BadPasses(u32),
     #[error("measurement #{0} is not in the plan")]
     NotInPlan(usize),
+    #[error("measurement #{index}: {message}")]
+    Impossible { index: usize, message: String },
+    #[error("measurement #{0} again, with other values")]
+    Conflicting(usize),
     #[error("the plan would take {frames:.0} frames; at most {MAX_SCAN_FRAMES} are accepted (a coarser step)")]
     TooManyFrames { frames: f64 },
 }
@@ -203,71 +207,395 @@ pub struct Sample {
     pub yaw_urad: f64,
 }
 
-/// The journal of a scan under way, one line per sample after a header line naming
-/// the plan: `{"plan": "<fingerprint>"}` then `{"i": 17, "ex": 1.2, "ey": -0.4, "yaw": 3.1}`.
-/// A stopped scan resumes from it (only for the same plan); a damaged last line (the
-/// process died while writing it) is ignored, any other damage refused.
+/// The journal of a scan under way: a header line naming what the samples belong to,
+/// then one line per sample, each line a JSON object closed by its own checksum:
+///
+/// ```text
+/// {"journal": "gateway scan journal 2", "job": "demo.toml", "machine": "...", "controller": "...", "board": "...", "certificate_sha256": "...", "camera": "...", "plan": "grid 21x16 ...", "crc": "5f0e2a91"}
+/// {"i": 17, "ex": 1.2, "ey": -0.4, "yaw": 3.1, "crc": "0c4d7a2e"}
+/// ```
+///
+/// `crc` is the CRC-32 (IEEE 802.3, as zlib and PNG) of the line's bytes before
+/// `, "crc"`; a line is whole only when it ends with a newline and its checksum matches.
+/// A stopped scan resumes from the whole lines: the bytes after the last newline (the
+/// process died while writing a line) are a torn tail, cut off before anything more is
+/// appended; any other damage is refused naming the line. A journal resumes only for
+/// the same job, machine, controller, board (and certificate), camera and plan (the
+/// error names the first field that differs); a sample is refused when its index is not
+/// in the plan, when it repeats an index with other values (an identical repeat is
+/// taken once), or when a value is not finite or beyond what a stage can do (an error of
+/// more than [`MAX_ERROR_UM`], a yaw of more than [`MAX_YAW_URAD`]).
 pub mod journal {
     use super::{Sample, ScanPlan};
+    use protocol::errormap::Identity;
+    use std::collections::BTreeMap;
 
-    pub fn header(plan: &ScanPlan) -> String {
-        format!("{{\"plan\": {:?}}}\n", plan.fingerprint())
+    /// The format's name, the header's first field.
+    pub const FORMAT: &str = "gateway scan journal 2";
+    /// The largest error a sample may have, um: a camera error of more than 1 mm relative
+    /// to the reference is a misread board (a pitch off), not a stage's error.
+    pub const MAX_ERROR_UM: f64 = 1000.0;
+    /// The largest yaw a sample may have relative to the reference, urad (0.1 rad).
+    pub const MAX_YAW_URAD: f64 = 100_000.0;
+    /// How the header begins; a file without a whole line that is a prefix of this (or
+    /// begins with it) is a header cut while it was written: nothing was kept yet.
+    const HEAD: &str = "{\"journal\": \"gateway scan journal";
+    const CRC: &str = ", \"crc\": \"";
+
+    /// CRC-32 (IEEE 802.3, reflected, polynomial 0xEDB88320): zlib's, PNG's.
+    pub fn crc32(bytes: &[u8]) -> u32 {
+        const TABLE: [u32; 256] = {
+            let mut t = [0u32; 256];
+            let mut n = 0;
+            while n < 256 {
+                let mut c = n as u32;
+                let mut k = 0;
+                while k < 8 {
+                    c = if c & 1 != 0 {
+                        0xEDB8_8320 ^ (c >> 1)
+                    } else {
+                        c >> 1
+                    };
+                    k += 1;
+                }
+                t[n] = c;
+                n += 1;
+            }
+            t
+        };
+        !bytes.iter().fold(!0u32, |c, &b| {
+            TABLE[((c ^ u32::from(b)) & 0xff) as usize] ^ (c >> 8)
+        })
     }
 
+    /// `body` (a JSON object without its closing brace) closed with its checksum.
+    fn sealed(body: String) -> String {
+        let crc = crc32(body.as_bytes());
+        format!("{body}{CRC}{crc:08x}\"}}\n")
+    }
+
+    /// What a journal belongs to.
+    #[derive(Clone, Debug, PartialEq, Eq)]
+    pub struct Header {
+        /// The job (its file name).
+        pub job: String,
+        pub identity: Identity,
+        /// The plan's fingerprint ([`ScanPlan::fingerprint`]).
+        pub plan: String,
+    }
+
+    impl Header {
+        pub fn new(job: &str, identity: Identity, plan: &ScanPlan) -> Self {
+            Self {
+                job: job.to_string(),
+                identity,
+                plan: plan.fingerprint(),
+            }
+        }
+
+        fn fields(&self) -> [(&'static str, &str); 7] {
+            let i = &self.identity;
+            [
+                ("job", &self.job),
+                ("machine", &i.machine),
+                ("controller", &i.controller),
+                ("board", &i.board),
+                ("certificate_sha256", &i.certificate_sha256),
+                ("camera", &i.camera),
+                ("plan", &self.plan),
+            ]
+        }
+
+        /// The header line, newline included.
+        pub fn line(&self) -> String {
+            let mut body = format!("{{\"journal\": {}", quote(FORMAT));
+            for (k, v) in self.fields() {
+                body.push_str(&format!(", \"{k}\": {}", quote(v)));
+            }
+            sealed(body)
+        }
+    }
+
+    /// The line of one sample, newline included.
     pub fn line(index: usize, s: &Sample) -> String {
-        format!(
-            "{{\"i\": {index}, \"ex\": {:?}, \"ey\": {:?}, \"yaw\": {:?}}}\n",
+        sealed(format!(
+            "{{\"i\": {index}, \"ex\": {:?}, \"ey\": {:?}, \"yaw\": {:?}",
             s.error_um[0], s.error_um[1], s.yaw_urad
-        )
+        ))
     }
 
-    /// The samples of a journal written for `plan`.
-    pub fn read(plan: &ScanPlan, text: &str) -> Result<Vec<(usize, Sample)>, String> {
-        let mut lines = text.lines();
-        let head = lines.next().ok_or("the journal is empty")?;
-        let want = header(plan);
-        if head.trim_end() != want.trim_end() {
+    /// What a journal holds.
+    #[derive(Clone, Debug, PartialEq)]
+    pub struct Journal {
+        /// The samples, in the order they were written (an identical repeat once).
+        pub samples: Vec<(usize, Sample)>,
+        /// The bytes of the whole lines, from the start: what is kept. 0 when not even
+        /// the header is whole (the file holds no sample: it is started anew).
+        pub whole_bytes: usize,
+        /// The bytes after the last whole line (a line cut while it was written), to cut
+        /// off before anything is appended.
+        pub torn_bytes: usize,
+    }
+
+    /// The journal in `bytes`, checked against what this scan is (`want`) and its plan.
+    pub fn read(want: &Header, plan: &ScanPlan, bytes: &[u8]) -> Result<Journal, String> {
+        let whole = bytes.iter().rposition(|&b| b == b'\n').map_or(0, |k| k + 1);
+        let torn_bytes = bytes.len() - whole;
+        if whole == 0 {
+            let n = bytes.len().min(HEAD.len());
+            if bytes[..n] != HEAD.as_bytes()[..n] {
+                return Err(
+                    "it is not a scan journal (its first bytes are not a journal's header)".into(),
+                );
+            }
+            return Ok(Journal {
+                samples: Vec::new(),
+                whole_bytes: 0,
+                torn_bytes,
+            });
+        }
+        let mut lines = bytes[..whole - 1].split(|&b| b == b'\n');
+        let head = lines.next().unwrap_or_default();
+        if head.starts_with(b"{\"plan\": ") {
+            return Err("it was written by an older gateway, without a checksum per line or the machine's identity: it cannot be checked, so it is not resumed".into());
+        }
+        let head = body(head).map_err(|e| format!("line 1 (the header): {e}"))?;
+        let got = parse_header(head).map_err(|e| format!("line 1 (the header): {e}"))?;
+        for ((what, a), (_, b)) in got.fields().into_iter().zip(want.fields()) {
+            if a != b {
+                return Err(format!(
+                    "it is the journal of another scan: its {what} is `{a}`, this scan's is `{b}`"
+                ));
+            }
+        }
+        let mut seen: BTreeMap<usize, (Sample, usize)> = BTreeMap::new();
+        let mut samples = Vec::new();
+        for (k, l) in lines.enumerate() {
+            let n = k + 2;
+            let (index, s) = body(l)
+                .and_then(|b| parse_sample(b, plan))
+                .map_err(|e| format!("line {n}: {e}"))?;
+            match seen.get(&index) {
+                Some((first, _)) if *first == s => {}
+                Some((_, at)) => {
+                    return Err(format!(
+                        "line {n}: sample #{index} again with other values than on line {at}"
+                    ))
+                }
+                None => {
+                    seen.insert(index, (s, n));
+                    samples.push((index, s));
+                }
+            }
+        }
+        Ok(Journal {
+            samples,
+            whole_bytes: whole,
+            torn_bytes,
+        })
+    }
+
+    /// A whole line's text before its checksum field, once the checksum matches.
+    fn body(line: &[u8]) -> Result<&str, String> {
+        let text = std::str::from_utf8(line).map_err(|_| "not UTF-8 text (damaged)")?;
+        let damaged = || format!("`{}` is damaged (no checksum)", shown(text));
+        let at = text.rfind(CRC).ok_or_else(damaged)?;
+        let hex = text[at + CRC.len()..]
+            .strip_suffix("\"}")
+            .filter(|h| h.len() == 8)
+            .ok_or_else(damaged)?;
+        let crc = u32::from_str_radix(hex, 16).map_err(|_| damaged())?;
+        let body = &text[..at];
+        if crc32(body.as_bytes()) != crc {
             return Err(format!(
-                "the journal is of another scan plan ({head}); this one is {}",
-                want.trim_end()
+                "`{}` is damaged (its checksum does not match)",
+                shown(text)
             ));
         }
-        let all: Vec<&str> = lines.collect();
-        let mut out = Vec::new();
-        for (k, l) in all.iter().enumerate() {
-            let parsed = parse(l).filter(|(i, _)| *i < plan.points.len());
-            match parsed {
-                Some(v) => out.push(v),
-                // Only the last line may be cut short.
-                None if k + 1 == all.len() => break,
-                None => return Err(format!("journal line {}: `{l}` is not a sample", k + 2)),
-            }
-        }
-        Ok(out)
+        Ok(body)
     }
 
-    fn parse(l: &str) -> Option<(usize, Sample)> {
-        let l = l.trim().strip_prefix('{')?.strip_suffix('}')?;
-        let mut i = None;
-        let (mut ex, mut ey, mut yaw) = (None, None, None);
-        for part in l.split(',') {
-            let (k, v) = part.split_once(':')?;
-            let v = v.trim();
-            match k.trim().trim_matches('"') {
-                "i" => i = v.parse::<usize>().ok(),
-                "ex" => ex = v.parse::<f64>().ok().filter(|x| x.is_finite()),
-                "ey" => ey = v.parse::<f64>().ok().filter(|x| x.is_finite()),
-                "yaw" => yaw = v.parse::<f64>().ok().filter(|x| x.is_finite()),
-                _ => return None,
+    /// At most 120 characters of a line, for a message.
+    fn shown(text: &str) -> String {
+        match text.char_indices().nth(120) {
+            Some((at, _)) => format!("{}...", &text[..at]),
+            None => text.to_string(),
+        }
+    }
+
+    /// `key: value` pairs of a flat JSON object written by this module (no closing
+    /// brace: the checksum field was taken off); values are strings or numbers.
+    fn pairs(body: &str) -> Result<Vec<(String, Value)>, String> {
+        let mut rest = body
+            .strip_prefix('{')
+            .ok_or("not a journal line (no `{`)")?;
+        let mut out = Vec::new();
+        loop {
+            let (key, after) = string(rest.trim_start())?;
+            let after = after
+                .trim_start()
+                .strip_prefix(':')
+                .ok_or_else(|| format!("no `:` after `{key}`"))?
+                .trim_start();
+            let (value, after) = if after.starts_with('"') {
+                let (s, a) = string(after)?;
+                (Value::Str(s), a)
+            } else {
+                let end = after.find(',').unwrap_or(after.len());
+                (Value::Num(after[..end].trim().to_string()), &after[end..])
+            };
+            out.push((key, value));
+            match after.trim_start().strip_prefix(',') {
+                Some(a) => rest = a,
+                None if after.trim().is_empty() => return Ok(out),
+                None => return Err(format!("`{}` after a value", shown(after))),
             }
         }
-        Some((
-            i?,
+    }
+
+    enum Value {
+        Str(String),
+        Num(String),
+    }
+
+    /// A JSON string as [`quote`] writes it, and what follows it.
+    fn string(s: &str) -> Result<(String, &str), String> {
+        let mut chars = s
+            .strip_prefix('"')
+            .ok_or("a key or text without its `\"`")?
+            .char_indices();
+        let mut out = String::new();
+        while let Some((k, c)) = chars.next() {
+            match c {
+                '"' => return Ok((out, &s[k + 2..])),
+                '\\' => match chars.next().map(|(_, c)| c) {
+                    Some('"') => out.push('"'),
+                    Some('\\') => out.push('\\'),
+                    Some('u') => {
+                        let hex: String = (0..4)
+                            .filter_map(|_| chars.next())
+                            .map(|(_, c)| c)
+                            .collect();
+                        let c = u32::from_str_radix(&hex, 16)
+                            .ok()
+                            .and_then(char::from_u32)
+                            .ok_or("a bad `\\u` escape")?;
+                        out.push(c);
+                    }
+                    _ => return Err("a bad escape in a text".into()),
+                },
+                c => out.push(c),
+            }
+        }
+        Err("a text without its closing `\"`".into())
+    }
+
+    /// `s` as a JSON string: quotes, backslashes and control characters escaped.
+    fn quote(s: &str) -> String {
+        let mut out = String::from('"');
+        for c in s.chars() {
+            match c {
+                '"' => out.push_str("\\\""),
+                '\\' => out.push_str("\\\\"),
+                c if (c as u32) < 0x20 || c == '\u{7f}' => {
+                    out.push_str(&format!("\\u{:04x}", c as u32))
+                }
+                c => out.push(c),
+            }
+        }
+        out.push('"');
+        out
+    }
+
+    fn parse_header(body: &str) -> Result<Header, String> {
+        let pairs = pairs(body)?;
+        let text = |key: &str| -> Result<String, String> {
+            match pairs.iter().find(|(k, _)| k == key) {
+                Some((_, Value::Str(s))) => Ok(s.clone()),
+                Some(_) => Err(format!("`{key}` is not a text")),
+                None => Err(format!("no `{key}`")),
+            }
+        };
+        let format = text("journal")?;
+        if format != FORMAT {
+            return Err(format!("the format `{format}` is not `{FORMAT}`"));
+        }
+        if pairs.len() != 8 {
+            return Err("the header has other fields than a journal's".into());
+        }
+        Ok(Header {
+            job: text("job")?,
+            identity: Identity {
+                machine: text("machine")?,
+                controller: text("controller")?,
+                board: text("board")?,
+                certificate_sha256: text("certificate_sha256")?,
+                camera: text("camera")?,
+            },
+            plan: text("plan")?,
+        })
+    }
+
+    fn parse_sample(body: &str, plan: &ScanPlan) -> Result<(usize, Sample), String> {
+        let pairs = pairs(body)?;
+        let field = |key: &str| -> Result<&str, String> {
+            match pairs.iter().find(|(k, _)| k == key) {
+                Some((_, Value::Num(v))) => Ok(v),
+                Some(_) => Err(format!("`{key}` is not a number")),
+                None => Err(format!("no `{key}` (not a sample)")),
+            }
+        };
+        if pairs.len() != 4 {
+            return Err("a sample has the fields i, ex, ey and yaw only".into());
+        }
+        let index: usize = field("i")?
+            .parse()
+            .map_err(|_| format!("`i` is `{}`, not an index", field("i").unwrap_or("")))?;
+        if index >= plan.points.len() {
+            return Err(format!(
+                "sample #{index} is not in the plan (it has {} points)",
+                plan.points.len()
+            ));
+        }
+        let value = |key: &str, bound: f64, unit: &str| -> Result<f64, String> {
+            let text = field(key)?;
+            let v: f64 = text
+                .parse()
+                .map_err(|_| format!("`{key}` is `{text}`, not a number"))?;
+            if !v.is_finite() || v.abs() > bound {
+                return Err(format!(
+                    "`{key}` is {text} {unit}: impossible (a finite value of at most {bound} {unit} in size)"
+                ));
+            }
+            Ok(v)
+        };
+        Ok((
+            index,
             Sample {
-                error_um: [ex?, ey?],
-                yaw_urad: yaw?,
+                error_um: [
+                    value("ex", MAX_ERROR_UM, "um")?,
+                    value("ey", MAX_ERROR_UM, "um")?,
+                ],
+                yaw_urad: value("yaw", MAX_YAW_URAD, "urad")?,
             },
         ))
+    }
+
+    /// Whether a sample is possible: finite, an error of at most [`MAX_ERROR_UM`] and a
+    /// yaw of at most [`MAX_YAW_URAD`]; the error names the field.
+    pub fn check_sample(s: &Sample) -> Result<(), String> {
+        for (key, v, bound, unit) in [
+            ("ex", s.error_um[0], MAX_ERROR_UM, "um"),
+            ("ey", s.error_um[1], MAX_ERROR_UM, "um"),
+            ("yaw", s.yaw_urad, MAX_YAW_URAD, "urad"),
+        ] {
+            if !v.is_finite() || v.abs() > bound {
+                return Err(format!(
+                    "{key} = {v:?} {unit} is impossible (a finite value of at most {bound} {unit} in size)"
+                ));
+            }
+        }
+        Ok(())
     }
 }
 
@@ -286,7 +614,14 @@ impl MapBuilder {
         if index >= plan.points.len() {
             return Err(ScanError::NotInPlan(index));
         }
-        self.samples.insert(index, s);
+        journal::check_sample(&s).map_err(|message| ScanError::Impossible { index, message })?;
+        // The same measurement twice is taken once; two different ones cannot both be.
+        match self.samples.get(&index) {
+            Some(had) if *had != s => return Err(ScanError::Conflicting(index)),
+            _ => {
+                self.samples.insert(index, s);
+            }
+        }
         Ok(())
     }
 
@@ -443,9 +778,8 @@ mod tests {
         assert_eq!(plan.points[0].command_mm, plan.points[1].command_mm);
     }
 
-    #[test]
-    fn the_journal_round_trips_and_belongs_to_its_plan() {
-        let plan = ScanPlan::new(
+    fn small_plan() -> ScanPlan {
+        ScanPlan::new(
             [0.0, 0.0],
             [10.0, 10.0],
             ScanSpec {
@@ -454,24 +788,229 @@ mod tests {
                 passes: 1,
             },
         )
-        .unwrap();
-        let s = Sample {
-            error_um: [1.25, -0.5],
-            yaw_urad: 3.0,
-        };
-        let text = journal::header(&plan)
-            + &journal::line(3, &s)
-            + &journal::line(4, &s)
-            + "{\"i\": 5, \"ex";
-        assert_eq!(journal::read(&plan, &text).unwrap(), vec![(3, s), (4, s)]);
+        .unwrap()
+    }
+
+    fn identity() -> Identity {
+        Identity {
+            machine: "sim \"XY\" \\ stage\tµ".into(),
+            controller: "sim".into(),
+            board: "b".into(),
+            certificate_sha256: "00ff".into(),
+            camera: "cam".into(),
+        }
+    }
+
+    fn sample(k: usize) -> Sample {
+        Sample {
+            error_um: [k as f64 * 0.37 - 2.0, -(k as f64) / 3.0],
+            yaw_urad: 1e-3 * k as f64,
+        }
+    }
+
+    /// The journal of every point of the small plan.
+    fn whole_journal(header: &journal::Header, plan: &ScanPlan) -> String {
+        let mut text = header.line();
+        for k in 0..plan.points.len() {
+            text.push_str(&journal::line(k, &sample(k)));
+        }
+        text
+    }
+
+    #[test]
+    fn the_checksum_is_crc32() {
+        assert_eq!(journal::crc32(b"123456789"), 0xCBF4_3926);
+        assert_eq!(journal::crc32(b""), 0);
+    }
+
+    #[test]
+    fn the_journal_round_trips_and_belongs_to_its_job_machine_and_plan() {
+        let plan = small_plan();
+        let header = journal::Header::new("job.toml", identity(), &plan);
+        let s = sample(1);
+        let text = header.line() + &journal::line(3, &s) + &journal::line(4, &s);
+        let read = journal::read(&header, &plan, text.as_bytes()).unwrap();
+        assert_eq!(read.samples, vec![(3, s), (4, s)]);
+        assert_eq!((read.whole_bytes, read.torn_bytes), (text.len(), 0));
+        // Every field of the header is checked, naming the first that differs.
         let other = ScanPlan::new([0.0, 0.0], [10.0, 10.0], ScanSpec::default()).unwrap();
-        assert!(journal::read(&other, &text)
-            .unwrap_err()
-            .contains("another scan plan"));
-        let damaged = journal::header(&plan) + "garbage\n" + &journal::line(4, &s);
-        assert!(journal::read(&plan, &damaged)
-            .unwrap_err()
-            .contains("line 2"));
+        let e = journal::read(
+            &journal::Header::new("job.toml", identity(), &other),
+            &other,
+            text.as_bytes(),
+        )
+        .unwrap_err();
+        assert!(e.contains("its plan is"), "{e}");
+        let e = journal::read(
+            &journal::Header::new("other.toml", identity(), &plan),
+            &plan,
+            text.as_bytes(),
+        )
+        .unwrap_err();
+        assert!(
+            e.contains("its job is `job.toml`, this scan's is `other.toml`"),
+            "{e}"
+        );
+        for (what, change) in [
+            (
+                "machine",
+                (|i: &mut Identity| i.machine = "other".into()) as fn(&mut Identity),
+            ),
+            ("controller", |i| i.controller = "other".into()),
+            ("board", |i| i.board = "other".into()),
+            ("certificate_sha256", |i| {
+                i.certificate_sha256 = "other".into()
+            }),
+            ("camera", |i| i.camera = "other".into()),
+        ] {
+            let mut id = identity();
+            change(&mut id);
+            let e = journal::read(
+                &journal::Header::new("job.toml", id, &plan),
+                &plan,
+                text.as_bytes(),
+            )
+            .unwrap_err();
+            assert!(
+                e.contains(&format!("its {what} is `")) && e.contains("this scan's is `other`"),
+                "{e}"
+            );
+        }
+    }
+
+    #[test]
+    fn damage_duplicates_and_impossible_values_are_refused_naming_the_line() {
+        let plan = small_plan();
+        let header = journal::Header::new("job.toml", identity(), &plan);
+        let read = |text: &str| journal::read(&header, &plan, text.as_bytes());
+        let (a, b) = (journal::line(3, &sample(3)), journal::line(4, &sample(4)));
+        // A damaged line before the last is refused.
+        let e = read(&(header.line() + "garbage\n" + &b)).unwrap_err();
+        assert!(e.starts_with("line 2: `garbage` is damaged"), "{e}");
+        let flipped = a.replace("\"ex\": ", "\"ex\": 1");
+        let e = read(&(header.line() + &flipped + &b)).unwrap_err();
+        assert!(
+            e.contains("line 2") && e.contains("checksum does not match"),
+            "{e}"
+        );
+        // A damaged header.
+        let e = read(&(header.line().replace("job.toml", "job.tomm") + &a)).unwrap_err();
+        assert!(
+            e.contains("line 1 (the header)") && e.contains("checksum"),
+            "{e}"
+        );
+        // An identical repeat is taken once; a conflicting one is refused.
+        let r = read(&(header.line() + &a + &b + &a)).unwrap();
+        assert_eq!(r.samples, vec![(3, sample(3)), (4, sample(4))]);
+        let e = read(&(header.line() + &a + &b + &journal::line(3, &sample(5)))).unwrap_err();
+        assert_eq!(
+            e,
+            "line 4: sample #3 again with other values than on line 2"
+        );
+        // Impossible values, each named with its line and field (checksums right).
+        for (s, field) in [
+            (
+                Sample {
+                    error_um: [1e300, 0.0],
+                    yaw_urad: 0.0,
+                },
+                "`ex` is 1e300 um: impossible",
+            ),
+            (
+                Sample {
+                    error_um: [0.0, -1000.5],
+                    yaw_urad: 0.0,
+                },
+                "`ey` is -1000.5 um: impossible",
+            ),
+            (
+                Sample {
+                    error_um: [0.0, f64::NAN],
+                    yaw_urad: 0.0,
+                },
+                "`ey` is NaN um: impossible",
+            ),
+            (
+                Sample {
+                    error_um: [0.0, 0.0],
+                    yaw_urad: f64::INFINITY,
+                },
+                "`yaw` is inf urad: impossible",
+            ),
+            (
+                Sample {
+                    error_um: [0.0, 0.0],
+                    yaw_urad: -2e5,
+                },
+                "`yaw` is -200000.0 urad: impossible",
+            ),
+        ] {
+            let e = read(&(header.line() + &a + &journal::line(7, &s))).unwrap_err();
+            assert!(e.starts_with("line 3: ") && e.contains(field), "{e}");
+        }
+        let e = read(&(header.line() + &journal::line(plan.points.len(), &sample(0)))).unwrap_err();
+        assert!(
+            e.starts_with("line 2: sample #30 is not in the plan"),
+            "{e}"
+        );
+        // A journal of an older gateway (no checksums, no identity).
+        let e = read("{\"plan\": \"grid\"}\n{\"i\": 0, \"ex\": 0.0, \"ey\": 0.0, \"yaw\": 0.0}\n")
+            .unwrap_err();
+        assert!(e.contains("older gateway"), "{e}");
+        // Another file altogether.
+        assert!(read("hello").unwrap_err().contains("not a scan journal"));
+        // The builder refuses what the reader refuses.
+        let mut builder = MapBuilder::new();
+        let e = builder
+            .record(
+                &plan,
+                2,
+                Sample {
+                    error_um: [1e300, 0.0],
+                    yaw_urad: 0.0,
+                },
+            )
+            .unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("measurement #2: ex = 1e300 um is impossible"),
+            "{e}"
+        );
+        builder.record(&plan, 2, sample(2)).unwrap();
+        builder.record(&plan, 2, sample(2)).unwrap();
+        assert_eq!(
+            builder.record(&plan, 2, sample(3)),
+            Err(ScanError::Conflicting(2))
+        );
+    }
+
+    #[test]
+    fn a_journal_cut_at_any_byte_keeps_exactly_its_whole_lines() {
+        let plan = small_plan();
+        let header = journal::Header::new("job.toml", identity(), &plan);
+        let text = whole_journal(&header, &plan);
+        let ends: Vec<usize> = text.match_indices('\n').map(|(k, _)| k + 1).collect();
+        for cut in 0..=text.len() {
+            let r = journal::read(&header, &plan, &text.as_bytes()[..cut])
+                .unwrap_or_else(|e| panic!("cut at {cut}: {e}"));
+            // The whole lines before the cut, and nothing else.
+            let whole = ends
+                .iter()
+                .copied()
+                .filter(|&e| e <= cut)
+                .max()
+                .unwrap_or(0);
+            assert_eq!(
+                (r.whole_bytes, r.torn_bytes),
+                (whole, cut - whole),
+                "cut at {cut}"
+            );
+            let lines = ends.iter().filter(|&&e| e <= cut).count();
+            let want: Vec<_> = (0..lines.saturating_sub(1))
+                .map(|k| (k, sample(k)))
+                .collect();
+            assert_eq!(r.samples, want, "cut at {cut}");
+        }
     }
 
     #[test]

@@ -4,8 +4,8 @@
 //! The journal and the map's home are the front end's: the CLI keeps a journal file
 //! beside the versions, the service keeps the samples as the job's measurements and the
 //! map as an `error_map` profile version. Both resume the same way: a stopped scan's
-//! samples are taken back only for the same plan (its fingerprint), and the map is
-//! written only when every frame is in.
+//! samples are taken back only for the same job, machine, camera, board and plan (the
+//! journal's [`journal::Header`]), and the map is written only when every frame is in.
 
 use crate::request::MapRequest;
 use crate::{Outcome, Sink};
@@ -25,9 +25,14 @@ use std::time::{Instant, SystemTime};
 
 /// Where a scan's samples are kept as they come, and where a stopped scan's are found.
 pub trait ScanJournal {
-    /// The samples a stopped scan of this plan kept (empty for a new scan); an error
-    /// when what is there belongs to another plan or is damaged.
-    fn resume(&mut self, plan: &ScanPlan) -> Result<Vec<(usize, Sample)>, String>;
+    /// The samples a stopped scan of this job, machine and plan (`header`) kept (empty
+    /// for a new scan); an error when what is there belongs to another scan (naming what
+    /// differs) or is damaged.
+    fn resume(
+        &mut self,
+        header: &journal::Header,
+        plan: &ScanPlan,
+    ) -> Result<Vec<(usize, Sample)>, String>;
     /// Keeps one sample (a failure stops the scan with the stage stopped).
     fn append(&mut self, index: usize, sample: &Sample) -> Result<(), String>;
     /// The map is kept: the journal has done its job.
@@ -70,8 +75,9 @@ pub async fn run(
         Err(e) => return Outcome::failed(format!("the scan plan: {e}")),
     };
     let identity = crate::identity(job, devices);
+    let header = journal::Header::new(&job_name(job), identity.clone(), &plan);
     let mut builder = MapBuilder::new();
-    let resumed = match journal.resume(&plan) {
+    let resumed = match journal.resume(&header, &plan) {
         Ok(samples) => {
             for (i, s) in &samples {
                 if let Err(e) = builder.record(&plan, *i, *s) {
@@ -172,8 +178,18 @@ pub async fn run(
     Outcome::succeeded(result, metrics)
 }
 
-/// The journal file: a header naming the plan, then one line per sample, flushed as
-/// each comes.
+/// The job as a journal names it: its file's name (where it is may change between a
+/// stopped scan and its resumption).
+pub fn job_name(job: &Job) -> String {
+    Path::new(&job.source)
+        .file_name()
+        .map_or_else(|| job.source.clone(), |n| n.to_string_lossy().into_owned())
+}
+
+/// The journal file ([`journal`]'s format): a header naming the job, machine and plan,
+/// then one checksummed line per sample, written to the disk as each comes. A resume
+/// cuts a torn last line off (the file is replaced atomically by its whole lines) before
+/// anything is appended.
 pub struct FileJournal {
     path: PathBuf,
     file: Option<std::fs::File>,
@@ -190,17 +206,35 @@ impl FileJournal {
 }
 
 impl ScanJournal for FileJournal {
-    fn resume(&mut self, plan: &ScanPlan) -> Result<Vec<(usize, Sample)>, String> {
+    fn resume(
+        &mut self,
+        header: &journal::Header,
+        plan: &ScanPlan,
+    ) -> Result<Vec<(usize, Sample)>, String> {
         let shown = self.path.display();
-        let samples = if self.path.exists() {
-            let text = protocol::config::read_data_file(&self.path)
-                .map_err(|e| format!("{shown}: {e}"))?;
-            journal::read(plan, &text)
-                .map_err(|e| format!("{shown}: {e} (remove it to start a new scan)"))?
-        } else {
-            protocol::config::write_output(&self.path, journal::header(plan).as_bytes(), &[])
-                .map_err(|e| format!("writing {shown}: {e}"))?;
-            Vec::new()
+        let write = |bytes: &[u8]| {
+            protocol::config::write_output(&self.path, bytes, &[])
+                .map_err(|e| format!("writing {shown}: {e}"))
+        };
+        let samples = match read_journal(&self.path, plan) {
+            Ok(bytes) => {
+                let read = journal::read(header, plan, &bytes)
+                    .map_err(|e| format!("{shown}: {e} (remove it to start a new scan)"))?;
+                if read.whole_bytes == 0 {
+                    // Not even the header was whole: nothing was kept.
+                    write(header.line().as_bytes())?;
+                } else if read.torn_bytes > 0 {
+                    // A line cut while it was written: the whole lines replace the file
+                    // before anything is appended (never a sample glued to a torn one).
+                    write(&bytes[..read.whole_bytes])?;
+                }
+                read.samples
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                write(header.line().as_bytes())?;
+                Vec::new()
+            }
+            Err(e) => return Err(format!("{shown}: {e}")),
         };
         let file = std::fs::OpenOptions::new()
             .append(true)
@@ -212,8 +246,10 @@ impl ScanJournal for FileJournal {
 
     fn append(&mut self, index: usize, sample: &Sample) -> Result<(), String> {
         let file = self.file.as_mut().ok_or("the journal is not open")?;
+        // One write of the whole line, then to the disk: an interruption leaves whole
+        // lines and at most one torn last line.
         file.write_all(journal::line(index, sample).as_bytes())
-            .and_then(|()| file.flush())
+            .and_then(|()| file.sync_data())
             .map_err(|e| format!("{}: {e}", self.path.display()))
     }
 
@@ -221,6 +257,32 @@ impl ScanJournal for FileJournal {
         self.file = None;
         std::fs::remove_file(&self.path).ok();
     }
+}
+
+/// A journal file's bytes, bounded: a regular file only (a FIFO or a device is refused
+/// before it is opened), of at most what a journal of `plan` can hold.
+fn read_journal(path: &Path, plan: &ScanPlan) -> std::io::Result<Vec<u8>> {
+    use std::io::{Error, ErrorKind, Read};
+    // A header of a few hundred bytes, sample lines of about 90.
+    let cap = 64 * 1024 + 256 * plan.points.len() as u64;
+    let not_regular = || Error::new(ErrorKind::InvalidData, "not a regular file");
+    if !std::fs::metadata(path)?.is_file() {
+        return Err(not_regular());
+    }
+    let file = std::fs::File::open(path)?;
+    let meta = file.metadata()?;
+    if !meta.is_file() {
+        return Err(not_regular());
+    }
+    let mut bytes = Vec::with_capacity(meta.len().min(cap) as usize);
+    file.take(cap + 1).read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > cap {
+        return Err(Error::new(
+            ErrorKind::InvalidData,
+            format!("more than the {cap} bytes a journal of this plan can have"),
+        ));
+    }
+    Ok(bytes)
 }
 
 /// Map versions in a folder, `NAME.vN.json`, never overwritten.
@@ -287,4 +349,183 @@ pub fn summary(r: &Value) -> String {
         r["uncertainty_um"].as_f64().unwrap_or(f64::NAN),
         r["wall_time_s"].as_f64().unwrap_or(0.0)
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use errormap::scan::ScanSpec;
+    use protocol::errormap::Identity;
+
+    fn plan() -> ScanPlan {
+        // 2 x 2 grid nodes and lines of 3 points, both sides, 2 passes: 40 frames.
+        let spec = ScanSpec {
+            grid_step_mm: 10.0,
+            line_step_mm: 5.0,
+            passes: 2,
+        };
+        ScanPlan::new([0.0, 0.0], [10.0, 10.0], spec).unwrap()
+    }
+
+    fn header(plan: &ScanPlan) -> journal::Header {
+        let identity = Identity {
+            machine: "sim".into(),
+            controller: "sim".into(),
+            board: "b".into(),
+            certificate_sha256: "00".into(),
+            camera: "cam".into(),
+        };
+        journal::Header::new("job.toml", identity, plan)
+    }
+
+    /// What the camera saw at point `k` (a slope, a backlash, a wobble between passes).
+    fn sample(plan: &ScanPlan, k: usize) -> Sample {
+        let p = plan.points[k];
+        Sample {
+            error_um: [
+                0.1 * p.command_mm[0] + if p.pass == 0 { 0.2 } else { -0.3 },
+                -0.07 * p.command_mm[1] + 0.01 * k as f64,
+            ],
+            yaw_urad: 3.0 - 0.5 * p.pass as f64,
+        }
+    }
+
+    fn map_of(plan: &ScanPlan, samples: &[(usize, Sample)]) -> Option<ErrorMap> {
+        let mut b = MapBuilder::new();
+        for (i, s) in samples {
+            b.record(plan, *i, *s).unwrap();
+        }
+        b.finish(
+            plan,
+            header(plan).identity,
+            1,
+            "t".into(),
+            [0.0; 2],
+            [5.0; 2],
+            [5.0, 5.0],
+        )
+    }
+
+    fn scratch(name: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("map-journal-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    /// Resume from `path` (as a new run would) and measure what is missing: the first
+    /// `through_journal` missing frames are appended to the journal (the others only go
+    /// to the map). The samples the journal kept, and the map.
+    fn resume_and_finish(
+        path: &Path,
+        plan: &ScanPlan,
+        through_journal: usize,
+    ) -> Result<(usize, Option<ErrorMap>), String> {
+        let mut j = FileJournal::new(path.to_path_buf());
+        let kept = j.resume(&header(plan), plan)?;
+        let mut all = kept.clone();
+        let mut appended = 0;
+        for k in 0..plan.points.len() {
+            if !kept.iter().any(|(i, _)| *i == k) {
+                let s = sample(plan, k);
+                if appended < through_journal {
+                    j.append(k, &s)?;
+                    appended += 1;
+                }
+                all.push((k, s));
+            }
+        }
+        Ok((kept.len(), map_of(plan, &all)))
+    }
+
+    #[test]
+    fn a_scan_interrupted_at_any_byte_of_its_journal_resumes_to_the_same_map() {
+        let plan = plan();
+        let dir = scratch("every-byte");
+        let path = dir.join("m.scan.jsonl");
+        // The uninterrupted scan.
+        let (kept, want) = resume_and_finish(&path, &plan, usize::MAX).unwrap();
+        assert_eq!(kept, 0);
+        let want = want.expect("every frame");
+        let whole = std::fs::read(&path).unwrap();
+        let samples = FileJournal::new(path.clone())
+            .resume(&header(&plan), &plan)
+            .unwrap();
+        assert_eq!(map_of(&plan, &samples).as_ref(), Some(&want));
+        let ends: Vec<usize> = (0..whole.len())
+            .filter(|&k| whole[k] == b'\n')
+            .map(|k| k + 1)
+            .collect();
+        // Cut at every byte (0: the file was created and nothing written yet), resumed
+        // and finished: the journal kept exactly its whole lines, the next sample
+        // appended after them is a whole line of its own, and the map is the same.
+        for cut in 0..=whole.len() {
+            std::fs::write(&path, &whole[..cut]).unwrap();
+            let (kept, map) =
+                resume_and_finish(&path, &plan, 1).unwrap_or_else(|e| panic!("cut at {cut}: {e}"));
+            let lines = ends.iter().filter(|&&e| e <= cut).count();
+            assert_eq!(kept, lines.saturating_sub(1), "cut at {cut}");
+            assert_eq!(map.as_ref(), Some(&want), "cut at {cut}");
+            let again = std::fs::read(&path).unwrap();
+            let next = ends[lines.max(1).min(ends.len() - 1)];
+            assert!(
+                again == whole[..next],
+                "cut at {cut}: the resumed journal differs"
+            );
+        }
+        // Cut twice (a resumed scan interrupted again), resumed to the end through the
+        // journal: the same file, byte for byte, and the same map from it.
+        for (a, b) in [(0, 300), (500, 700), (whole.len() / 2, whole.len() - 3)] {
+            std::fs::write(&path, &whole[..a]).unwrap();
+            resume_and_finish(&path, &plan, usize::MAX).unwrap();
+            let text = std::fs::read(&path).unwrap();
+            std::fs::write(&path, &text[..b]).unwrap();
+            resume_and_finish(&path, &plan, usize::MAX).unwrap();
+            assert!(
+                std::fs::read(&path).unwrap() == whole,
+                "cuts at {a} and {b}"
+            );
+            let read = FileJournal::new(path.clone())
+                .resume(&header(&plan), &plan)
+                .unwrap();
+            assert_eq!(map_of(&plan, &read).as_ref(), Some(&want));
+        }
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn a_journal_of_another_scan_is_refused_and_left_alone() {
+        let plan = plan();
+        let dir = scratch("other");
+        let path = dir.join("m.scan.jsonl");
+        let mut j = FileJournal::new(path.clone());
+        j.resume(&header(&plan), &plan).unwrap();
+        j.append(0, &sample(&plan, 0)).unwrap();
+        drop(j);
+        let before = std::fs::read(&path).unwrap();
+        let mut other = header(&plan);
+        other.identity.camera = "another camera".into();
+        let e = FileJournal::new(path.clone())
+            .resume(&other, &plan)
+            .unwrap_err();
+        assert!(
+            e.contains("its camera is `cam`, this scan's is `another camera`")
+                && e.contains("remove it to start a new scan"),
+            "{e}"
+        );
+        assert!(std::fs::read(&path).unwrap() == before);
+        // A FIFO is refused before it is opened (never a hang).
+        let fifo = dir.join("fifo.scan.jsonl");
+        if std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .is_ok_and(|s| s.success())
+        {
+            let e = FileJournal::new(fifo)
+                .resume(&header(&plan), &plan)
+                .unwrap_err();
+            assert!(e.contains("not a regular file"), "{e}");
+        }
+        std::fs::remove_dir_all(&dir).ok();
+    }
 }

@@ -6,7 +6,9 @@
 //! Nothing is corrected during a scan: the stage only goes where the plan says, every
 //! point and approach point is checked against the soft limits before homing, and any
 //! failure stops the stage. Samples go to `on_sample` (the journal) as they come, so a
-//! stopped scan resumes where it ended.
+//! stopped scan resumes where it ended; a sample no stage can have (an error beyond
+//! 1 mm, a value that is not finite: a misread board) stops the scan instead of being
+//! kept.
 
 use crate::{JobError, Orchestrator};
 use compensation::correction::SoftLimits;
@@ -44,6 +46,12 @@ pub enum ScanError {
     },
     #[error("the reference frame: {0}")]
     Reference(JobError),
+    #[error("scan point #{index} ({:.3}, {:.3}) mm: {message}: not a stage's error (a misread board?); the stage was stopped", at[0], at[1])]
+    Impossible {
+        index: usize,
+        at: [f64; 2],
+        message: String,
+    },
     #[error("the scan journal: {0}; the stage was stopped")]
     Journal(String),
     #[error("cancelled by the operator; the stage was told to stop")]
@@ -165,9 +173,15 @@ pub async fn run_scan(
                 ],
                 yaw_urad: (o.rotation_deg - reference.rotation_deg).to_radians() * 1e6,
             };
+            // A value no stage can have (beyond 1 mm, not finite) is never kept: the
+            // journal would refuse it on resume.
             builder
                 .record(plan, index, sample)
-                .map_err(|e| ScanError::Journal(e.to_string()))?;
+                .map_err(|e| ScanError::Impossible {
+                    index,
+                    at: p.command_mm,
+                    message: e.to_string(),
+                })?;
             on_sample(index, &sample).map_err(ScanError::Journal)?;
             progress(builder.done(), total);
         }

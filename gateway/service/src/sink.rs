@@ -4,7 +4,7 @@
 //! profile version.
 
 use crate::state::{lock, Shared};
-use errormap::scan::{Sample, ScanPlan};
+use errormap::scan::{journal, Sample, ScanPlan};
 use procedure::map::{sample_of, MapShelf, ScanJournal};
 use procedure::{Artifact, Sink};
 use protocol::errormap::ErrorMap;
@@ -121,7 +121,11 @@ impl StoreJournal {
 }
 
 impl ScanJournal for StoreJournal {
-    fn resume(&mut self, plan: &ScanPlan) -> Result<Vec<(usize, Sample)>, String> {
+    fn resume(
+        &mut self,
+        _: &journal::Header,
+        plan: &ScanPlan,
+    ) -> Result<Vec<(usize, Sample)>, String> {
         let Some((id, result)) = self.stopped_scan()? else {
             return Ok(Vec::new());
         };
