@@ -200,6 +200,34 @@ pub fn identify(
     )
 }
 
+/// [`rewrite`] from the errors file's text (`errors_source` names it): the errors and
+/// the machine constants it records, which the rewrite uses; `machine` (the operator's
+/// `--machine`) must agree with them unless `force_machine` (errors belong to the
+/// machine they were measured on), and is used alone for a file that records none.
+#[allow(clippy::too_many_arguments)]
+pub fn rewrite_with_errors_file(
+    program: &str,
+    source: &str,
+    errors_text: &str,
+    errors_source: &str,
+    machine: Option<MachineConstants>,
+    force_machine: bool,
+    tolerance_um: f64,
+    sink: &mut dyn Sink,
+) -> Outcome {
+    let errors = match LocationErrors::from_json(errors_text) {
+        Ok(e) => e,
+        Err(e) => return Outcome::failed(format!("{errors_source}: {e}")),
+    };
+    let constants = match MachineConstants::from_errors_json(errors_text)
+        .and_then(|stored| MachineConstants::for_errors(stored, machine, force_machine))
+    {
+        Ok(k) => k,
+        Err(e) => return Outcome::failed(format!("{errors_source}: {e}")),
+    };
+    rewrite(program, source, errors, constants, tolerance_um, sink)
+}
+
 /// A 5-axis program (X Y Z A C, absolute, mm) rewritten for the errors: the program's
 /// text in, the rewritten program as the artifact `program.nc`, the figures as the
 /// result. `tolerance_um` is the largest distance of a piece's middle from the
@@ -373,4 +401,87 @@ pub fn summary(r: &Value) -> String {
         );
     }
     t
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Collect;
+
+    const PROGRAM: &str = "G21 G90 G94\nG0 X0 Y0 Z-150 A0 C0\nG1 X10 Y-20 Z-190 A30 C45 F500\n";
+
+    fn errors_file(machine: Option<MachineConstants>) -> String {
+        let mut v = serde_json::to_value(LocationErrors::paper()).unwrap();
+        if let Some(k) = machine {
+            v["machine"] = serde_json::to_value(k).unwrap();
+        }
+        v.to_string()
+    }
+
+    fn program_of(out: &Outcome, sink: &Collect) -> String {
+        assert!(out.is_success(), "{:?}", out.error());
+        String::from_utf8(sink.0[0].bytes.clone()).unwrap()
+    }
+
+    /// The constants recorded with the errors are the rewrite's (the built-in ones put
+    /// the tool off on another machine); another `--machine` is refused naming the
+    /// difference, unless forced.
+    #[test]
+    fn the_errors_files_machine_constants_are_used() {
+        let other = MachineConstants {
+            ac_offset_z_mm: 80.0,
+            ..MachineConstants::default()
+        };
+        let run = |machine, force| {
+            let mut sink = Collect::default();
+            let out = rewrite_with_errors_file(
+                PROGRAM,
+                "p.nc",
+                &errors_file(Some(other)),
+                "errors.json",
+                machine,
+                force,
+                0.5,
+                &mut sink,
+            );
+            (out, sink)
+        };
+        let (out, sink) = run(None, false);
+        let stored = program_of(&out, &sink);
+        let mut sink = Collect::default();
+        let direct = rewrite(
+            PROGRAM,
+            "p.nc",
+            LocationErrors::paper(),
+            other,
+            0.5,
+            &mut sink,
+        );
+        assert_eq!(stored, program_of(&direct, &sink));
+        let mut sink = Collect::default();
+        let builtin = rewrite(
+            PROGRAM,
+            "p.nc",
+            LocationErrors::paper(),
+            MachineConstants::default(),
+            0.5,
+            &mut sink,
+        );
+        let builtin = program_of(&builtin, &sink);
+        assert_ne!(stored, builtin);
+
+        let (out, sink) = run(Some(MachineConstants::default()), false);
+        let e = out.error().unwrap();
+        assert!(
+            e.starts_with("errors.json: the errors were identified on other machine constants (ac_offset_z_mm 80 in the errors file, 60 given)"),
+            "{e}"
+        );
+        assert!(sink.0.is_empty());
+        let (out, sink) = run(Some(MachineConstants::default()), true);
+        assert_eq!(
+            program_of(&out, &sink),
+            builtin,
+            "forced: the given constants"
+        );
+    }
 }

@@ -31,6 +31,7 @@
 //! (4 decimals in mm, 5 in inches); a 40 mm move across a 5 mm-lead screw error of 2 um
 //! becomes about 40 pieces at T = 0.5 um.
 
+pub mod dialect;
 mod rewriter;
 pub mod split;
 

@@ -4,7 +4,7 @@
 use crate::split::{distance, split};
 use crate::{Approach, Compensation, Pose, AXIS_LETTERS, N_AXIS};
 use protocol::grbl::codes::error_text;
-use protocol::grbl::gcode::{filter_line, Action, FilterError, Interpreter, Motion, Plane, Rate};
+use protocol::grbl::gcode::{filter_line, Action, FilterError, Interpreter, Motion, Rate};
 use protocol::nc::{self, Block, Item, NcError, Word};
 use std::fmt;
 
@@ -245,49 +245,10 @@ impl<'a> Rewriter<'a> {
     /// `[GC:...]`, e.g. `G1 G54 G17 G21 G90 G94 M5 M9 T0 F500 S0`): motion, coordinate
     /// system, plane, units, distance and feed modes, and the feed.
     pub fn sync_modal(&mut self, gc_words: &str) -> Result<(), RewriteError> {
-        let bad = |w: &str| RewriteError {
+        crate::dialect::sync_modal(&mut self.interpreter, gc_words).map_err(|what| RewriteError {
             line: 0,
-            kind: RewriteErrorKind::Options(format!("`{w}` in the $G reply `{gc_words}`")),
-        };
-        let mut modal = self.interpreter.modal;
-        let mut feed = self.interpreter.feed_rate;
-        for w in gc_words.split_whitespace() {
-            // Split after the first character, not the first byte: a corrupted reply
-            // may hold any bytes.
-            let mut chars = w.chars();
-            let letter = chars.next().map(String::from).unwrap_or_default();
-            let (letter, number) = (letter.as_str(), chars.as_str());
-            let value: f64 = number.parse().map_err(|_| bad(w))?;
-            match (letter, number) {
-                ("G", "0") => modal.motion = Motion::Rapid,
-                ("G", "1") => modal.motion = Motion::Linear,
-                ("G", "2") => modal.motion = Motion::ArcCw,
-                ("G", "3") => modal.motion = Motion::ArcCcw,
-                ("G", "80") => modal.motion = Motion::None,
-                ("G", n) if n.starts_with("38.") => {
-                    modal.motion = Motion::Probe(n[3..].parse().map_err(|_| bad(w))?)
-                }
-                ("G", "17") => modal.plane = Plane::XY,
-                ("G", "18") => modal.plane = Plane::ZX,
-                ("G", "19") => modal.plane = Plane::YZ,
-                ("G", "20") => modal.inches = true,
-                ("G", "21") => modal.inches = false,
-                ("G", "90") => modal.incremental = false,
-                ("G", "91") => modal.incremental = true,
-                ("G", "93") => modal.inverse_time = true,
-                ("G", "94") => modal.inverse_time = false,
-                ("G", _) if (54.0..=59.0).contains(&value) && value.fract() == 0.0 => {
-                    modal.coord_select = value as usize - 54;
-                }
-                ("G", _) => {}
-                ("F", _) => feed = value,
-                _ => {}
-            }
-        }
-        self.interpreter.modal = modal;
-        self.interpreter.feed_rate = feed;
-        self.interpreter.coord_system = self.interpreter.stored[modal.coord_select];
-        Ok(())
+            kind: RewriteErrorKind::Options(what),
+        })
     }
 
     /// The position is no longer known (a reset, a lost controller).
@@ -337,18 +298,12 @@ impl<'a> Rewriter<'a> {
         if trimmed.starts_with('$') {
             return Ok(self.system_line(trimmed, line_no));
         }
-        let block = Block::parse(text, line_no)
-            .map_err(|e| self.fail(line_no, RewriteErrorKind::Syntax(e)))?;
-        if block.has_no_words() {
-            return Ok(vec![text.to_string()]);
-        }
-        let filtered =
-            filter_line(text).map_err(|e| self.fail(line_no, RewriteErrorKind::Filter(e)))?;
         let before = self.interpreter.clone();
-        let actions = self
-            .interpreter
-            .execute(&filtered, false)
-            .map_err(|code| self.fail(line_no, RewriteErrorKind::Refused { code }))?;
+        let Some((block, actions)) =
+            crate::dialect::read_line(&mut self.interpreter, text, line_no)?
+        else {
+            return Ok(vec![text.to_string()]);
+        };
         match self.block(&block, &before, &actions, line_no) {
             Ok(lines) => Ok(lines),
             Err(e) => {

@@ -13,7 +13,6 @@
 //! from 0 within the sweep; `ball` is 1 (the 26 mm ball) or 2 (the 41 mm ball);
 //! coordinates are machine coordinates in mm. One row per (axis, step, ball).
 
-use crate::identify::MAX_COORDINATE_MM;
 use protocol::text::escape_bytes;
 use serde::Serialize;
 use std::collections::HashMap;
@@ -46,6 +45,11 @@ pub struct CentreRow {
     pub y_mm: f64,
     pub z_mm: f64,
 }
+
+/// The largest coordinate a fit takes, mm (10 m): beyond any machine a probe or a CMM
+/// measures on. Points past it (or not finite) are refused before the linear algebra,
+/// whose iterations need not end on such input (a centre of 1e308 looped the SVD).
+pub const MAX_COORDINATE_MM: f64 = 10_000.0;
 
 /// The header the file must start with.
 pub const HEADER: &str = "axis,step,angle_deg,ball,x_mm,y_mm,z_mm";

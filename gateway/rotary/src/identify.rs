@@ -2,7 +2,7 @@
 //! (probe points -> centres), circle fits in 3D (centres of one ball over one axis's
 //! sweep), the actual axis lines, and the errors with their standard uncertainty.
 
-use crate::centres::{Axis, CentreRow};
+use crate::centres::{Axis, CentreRow, MAX_COORDINATE_MM};
 use crate::machine::{LocationErrors, MachineConstants, RotaryMachine};
 use nalgebra::{DMatrix, DVector, Matrix3, SymmetricEigen, Vector3};
 use serde::Serialize;
@@ -27,11 +27,6 @@ pub enum FitError {
         limit_um: f64,
     },
 }
-
-/// The largest coordinate a fit takes, mm (10 m): beyond any machine a probe or a CMM
-/// measures on. Points past it (or not finite) are refused before the linear algebra,
-/// whose iterations need not end on such input (a centre of 1e308 looped the SVD).
-pub const MAX_COORDINATE_MM: f64 = 10_000.0;
 
 fn check_points(what: &str, points: &[Vector3<f64>]) -> Result<(), FitError> {
     for (k, p) in points.iter().enumerate() {

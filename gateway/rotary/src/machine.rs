@@ -66,8 +66,74 @@ impl MachineConstants {
             if !v.is_finite() {
                 return Err(format!("machine constant {name} is not a finite number"));
             }
+            if v.abs() > crate::centres::MAX_COORDINATE_MM {
+                return Err(format!(
+                    "machine constant {name} = {v} mm is beyond any machine (at most {} mm)",
+                    crate::centres::MAX_COORDINATE_MM
+                ));
+            }
         }
         Ok(())
+    }
+
+    /// The constants an errors file records (its `machine` object, which `gateway rotary
+    /// identify` and `measure` write): `None` for a file without one (written by hand or
+    /// by an older version). A `machine` object that is not five finite constants is an
+    /// error naming the field.
+    pub fn from_errors_json(text: &str) -> Result<Option<Self>, String> {
+        #[derive(Deserialize)]
+        struct Stored {
+            machine: Option<serde_json::Value>,
+        }
+        let stored: Stored = serde_json::from_str(text).map_err(|e| e.to_string())?;
+        let Some(value) = stored.machine else {
+            return Ok(None);
+        };
+        let k: Self = serde_json::from_value(value).map_err(|e| format!("machine: {e}"))?;
+        k.check().map_err(|e| format!("machine: {e}"))?;
+        Ok(Some(k))
+    }
+
+    /// The constants a rewrite (or the pass-through) uses with errors identified on
+    /// `stored` (from [`Self::from_errors_json`]): errors belong to the machine they were
+    /// measured on, so `given` (the operator's `--machine`) must agree with `stored`
+    /// (within 1 nm) unless `force`; with no `given`, `stored`; with neither, the
+    /// built-in constants. A disagreement is refused naming every constant that
+    /// differs (the built-in constants on another machine put the tool 37.7 um off).
+    pub fn for_errors(
+        stored: Option<Self>,
+        given: Option<Self>,
+        force: bool,
+    ) -> Result<Self, String> {
+        match (stored, given) {
+            (None, None) => Ok(Self::default()),
+            (Some(k), None) | (None, Some(k)) => Ok(k),
+            (Some(s), Some(g)) => {
+                let named = |k: &Self| {
+                    [
+                        ("a_axis_y_mm", k.a_axis_y_mm),
+                        ("a_axis_z_mm", k.a_axis_z_mm),
+                        ("ac_offset_y_mm", k.ac_offset_y_mm),
+                        ("ac_offset_z_mm", k.ac_offset_z_mm),
+                        ("tool_length_mm", k.tool_length_mm),
+                    ]
+                };
+                let differ: Vec<String> = named(&s)
+                    .into_iter()
+                    .zip(named(&g))
+                    .filter(|((_, a), (_, b))| (a - b).abs() > 1e-6)
+                    .map(|((name, a), (_, b))| format!("{name} {a} in the errors file, {b} given"))
+                    .collect();
+                if differ.is_empty() || force {
+                    Ok(g)
+                } else {
+                    Err(format!(
+                        "the errors were identified on other machine constants ({}): errors belong to the machine they were measured on (force the given constants to use them anyway)",
+                        differ.join(", ")
+                    ))
+                }
+            }
+        }
     }
 }
 

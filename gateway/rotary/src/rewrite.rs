@@ -12,13 +12,21 @@
 //! its other words and comments; the axis words are all five written (4 decimals in
 //! mm, 5 in degrees); the extra pieces follow it as `G1` lines.
 //!
+//! Every line is first read as the controller reads it, by the same check the 3-axis
+//! rewrite uses ([`rewrite::dialect`], GRBL's interpreter on six axes X Y Z A B C):
+//! what it would refuse (unknown or repeated words, `X1e308`, a feed motion without a
+//! feed such as `F0` or a G93 block without F, an overlong line) is refused here first,
+//! with GRBL's error code. Inverse-time feed (G93) moves are refused, since the pieces
+//! of a split move would each need their own F.
+//!
 //! Refused, naming the line: inches (G20), incremental moves (G91), arcs (G2/G3),
 //! G53/G28/G30/G92/G38.x (positions this rewrite cannot follow), an axis letter the
 //! table does not have (B U V W), a move before all five axes have been named, and a
 //! command past the axis limits.
 
 use crate::machine::{Axes, RotaryError, RotaryMachine};
-use protocol::nc::{Block, Program};
+use protocol::grbl::gcode::Interpreter;
+use protocol::nc::{self, Block};
 
 /// Rewrite settings.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -155,6 +163,8 @@ pub struct RotaryRewriter<'a> {
     /// non-zero active offset refuses moves.
     coord_select: usize,
     offsets: [[f64; 6]; 6],
+    /// The controller's reading of every line (X Y Z A B C): the shared dialect check.
+    interpreter: Interpreter<6>,
     pub report: RewriteReport,
 }
 
@@ -170,6 +180,7 @@ impl<'a> RotaryRewriter<'a> {
             incremental: false,
             coord_select: 0,
             offsets: [[0.0; 6]; 6],
+            interpreter: Interpreter::<6>::with_axes(),
             report: RewriteReport::default(),
         }
     }
@@ -190,6 +201,7 @@ impl<'a> RotaryRewriter<'a> {
             Some(nominal.c),
         ];
         self.last = Some((nominal, command));
+        self.interpreter.position = [nominal.x, nominal.y, nominal.z, nominal.a, 0.0, nominal.c];
     }
 
     /// The position is no longer known (a reset, a homing, a lost controller).
@@ -205,10 +217,13 @@ impl<'a> RotaryRewriter<'a> {
         self.inches = false;
         self.incremental = false;
         self.coord_select = 0;
+        self.interpreter.reset();
     }
 
     /// The controller's modal words (its `$G` reply, e.g. `G0 G54 G17 G21 G90 G94 ...`).
     pub fn sync_modal(&mut self, words: &str) {
+        // A reply the dialect check cannot read leaves its state as it was.
+        let _ = rewrite::dialect::sync_modal(&mut self.interpreter, words);
         for w in words.split_whitespace() {
             match w {
                 "G0" => self.motion = 0,
@@ -234,6 +249,9 @@ impl<'a> RotaryRewriter<'a> {
             for (slot, v) in o.iter_mut().zip(values) {
                 *slot = *v;
             }
+            self.interpreter.stored[k] = *o;
+            self.interpreter.coord_system =
+                self.interpreter.stored[self.interpreter.modal.coord_select];
         }
     }
 
@@ -245,8 +263,37 @@ impl<'a> RotaryRewriter<'a> {
     }
 
     /// Rewrites one block (line `line`, 1-based): the block with its axis words
-    /// replaced, then the extra pieces. On an error nothing changes.
+    /// replaced, then the extra pieces. The block is first read as the controller reads
+    /// it ([`rewrite::dialect::read_line`]); what it would refuse is refused here. On an
+    /// error nothing changes.
     pub fn block(&mut self, block: Block, line: usize) -> Result<Vec<Block>, RewriteError> {
+        if block.has_no_words() {
+            return Ok(vec![block]);
+        }
+        let before = self.interpreter.clone();
+        let text = block.to_string();
+        let text = text.trim_end_matches(['\r', '\n']);
+        let dialect = rewrite::dialect::read_line(&mut self.interpreter, text, line)
+            .map_err(|e| refuse(line, e.kind.to_string()));
+        let out = dialect.and_then(|_| {
+            let moves = block
+                .words()
+                .any(|w| matches!(w.letter().to_ascii_uppercase(), 'X' | 'Y' | 'Z' | 'A' | 'C'));
+            if moves && self.interpreter.modal.inverse_time {
+                return Err(refuse(
+                    line,
+                    rewrite::RewriteErrorKind::InverseTime.to_string(),
+                ));
+            }
+            self.block_checked(block, line)
+        });
+        if out.is_err() {
+            self.interpreter = before;
+        }
+        out
+    }
+
+    fn block_checked(&mut self, block: Block, line: usize) -> Result<Vec<Block>, RewriteError> {
         let mut known = self.known;
         let mut motion = self.motion;
         let (mut inches, mut incremental, mut coord) =
@@ -415,14 +462,25 @@ pub fn rewrite_program(
     model: &RotaryMachine,
     opts: &RewriteOptions,
 ) -> Result<(String, RewriteReport), RewriteError> {
-    let program = Program::parse(text).map_err(|e| RewriteError::Parse(e.to_string()))?;
-    let lines = program.blocks.len();
     let mut rewriter = RotaryRewriter::new(model, *opts);
-    let mut out = Program { blocks: Vec::new() };
-    for (k, block) in program.blocks.into_iter().enumerate() {
-        out.blocks.extend(rewriter.block(block, k + 1)?);
+    let mut out = String::with_capacity(text.len() + text.len() / 4);
+    let mut lines = 0;
+    for (k, (raw, ending)) in nc::split_lines(text).enumerate() {
+        lines = k + 1;
+        let block = Block::parse(raw, k + 1).map_err(|e| RewriteError::Parse(e.to_string()))?;
+        let ending = match ending {
+            nc::LineEnding::None => "\n",
+            e => e.as_str(),
+        };
+        for b in rewriter.block(block, k + 1)? {
+            out.push_str(b.to_string().trim_end_matches(['\r', '\n']));
+            out.push_str(ending);
+        }
+    }
+    if !text.ends_with(['\n', '\r']) && out.ends_with('\n') {
+        out.pop();
     }
     let mut report = rewriter.report;
     report.lines = lines;
-    Ok((out.to_string(), report))
+    Ok((out, report))
 }

@@ -546,6 +546,61 @@ fn sweep_chart_renders() {
     assert!(svg.contains("C sweep") && svg.contains("A sweep"));
 }
 
+/// The errors file's machine constants are the rewrite's: another `--machine` is
+/// refused naming what differs, unless forced; a file without them takes the given ones
+/// or the built-in ones.
+#[test]
+fn a_rewrite_uses_the_machine_constants_stored_with_the_errors() {
+    let other = MachineConstants {
+        a_axis_z_mm: -340.0,
+        ac_offset_z_mm: 80.0,
+        ..MachineConstants::default()
+    };
+    let mut v = serde_json::to_value(LocationErrors::paper()).unwrap();
+    v["machine"] = serde_json::to_value(other).unwrap();
+    let text = v.to_string();
+    let stored = MachineConstants::from_errors_json(&text).unwrap();
+    assert_eq!(stored, Some(other));
+    assert_eq!(MachineConstants::for_errors(stored, None, false), Ok(other));
+    assert_eq!(
+        MachineConstants::for_errors(stored, Some(other), false),
+        Ok(other)
+    );
+    let e =
+        MachineConstants::for_errors(stored, Some(MachineConstants::default()), false).unwrap_err();
+    assert!(
+        e.contains("a_axis_z_mm -340 in the errors file, -350 given, ac_offset_z_mm 80 in the errors file, 60 given"),
+        "{e}"
+    );
+    assert_eq!(
+        MachineConstants::for_errors(stored, Some(MachineConstants::default()), true),
+        Ok(MachineConstants::default())
+    );
+    assert_eq!(
+        MachineConstants::for_errors(None, None, false),
+        Ok(MachineConstants::default())
+    );
+    // The stored constants matter: the same point commanded through the two differs.
+    let p = Axes::new(10.0, -20.0, -190.0, 30.0, 45.0);
+    let a = RotaryMachine::with_errors(other, LocationErrors::paper())
+        .command_for(&p)
+        .unwrap();
+    let b = RotaryMachine::with_errors(MachineConstants::default(), LocationErrors::paper())
+        .command_for(&p)
+        .unwrap();
+    let off = ((a.x - b.x).powi(2) + (a.y - b.y).powi(2) + (a.z - b.z).powi(2)).sqrt();
+    assert!(off > 5e-4, "{off} mm {a:?} {b:?}");
+    // A file without them; a broken one names the field.
+    let plain = serde_json::to_string(&LocationErrors::paper()).unwrap();
+    assert_eq!(MachineConstants::from_errors_json(&plain), Ok(None));
+    v["machine"]["tool_length_mm"] = serde_json::json!(1e300);
+    let e = MachineConstants::from_errors_json(&v.to_string()).unwrap_err();
+    assert!(
+        e.contains("machine: machine constant tool_length_mm"),
+        "{e}"
+    );
+}
+
 #[test]
 fn errors_json_reads_what_identify_writes_and_refuses_the_rest() {
     let e = LocationErrors::paper();
@@ -633,15 +688,54 @@ fn rewrite_refuses_what_it_cannot_follow_naming_the_line() {
     let real = RotaryMachine::with_errors(MachineConstants::default(), LocationErrors::paper());
     let opts = rewrite::RewriteOptions::default();
     let cases = [
-        ("G0 X0 Y0 Z-150 A0 C0\nG91 G1 X1\n", "line 2: incremental"),
-        ("G0 X0 Y0 Z-150 A0 C0\nG2 X1 Y1 I1\n", "line 2: arcs"),
-        ("G0 X0 Y0 Z-150 A0 C0\nG1 B10\n", "line 2: axis B"),
+        ("G0 X0 Y0 Z-150 A0 C0\nG91 G1 X1 F500\n", "line 2: incremental"),
+        ("G0 X0 Y0 Z-150 A0 C0\nG2 X1 Y1 I1 F500\n", "line 2: arcs"),
+        ("G0 X0 Y0 Z-150 A0 C0\nG1 B10 F500\n", "line 2: axis B"),
         ("G0 X0 Y0 Z-150\n", "line 1: axes AC not known"),
         (
-            "G0 X0 Y0 Z-150 A0 C0\nG1 A120\n",
+            "G0 X0 Y0 Z-150 A0 C0\nG1 A120 F500\n",
             "line 2: axis A: 120.0000 is outside",
         ),
         ("G20\n", "line 1: inches"),
+        // What GRBL refuses, refused as the 3-axis rewrite does (one dialect check).
+        (
+            "G0 X0 Y0 Z-150 A0 C0\nG1 X1 A30\n",
+            "line 2: the controller would refuse this block with error:22",
+        ),
+        (
+            "G0 X0 Y0 Z-150 A0 C0\nG1 X1 A30 F0\n",
+            "line 2: the controller would refuse this block with error:22",
+        ),
+        (
+            "G0 X0 Y0 Z-150 A0 C0\nG0 X1 X2\n",
+            "line 2: the controller would refuse this block with error:25",
+        ),
+        (
+            "G0 X0 Y0 Z-150 A0 C0\nG0 A1 A2\n",
+            "line 2: the controller would refuse this block with error:25",
+        ),
+        (
+            "G0 X0 Y0 Z-150 A0 C0\nG0 X1e308\n",
+            "line 2: the controller would refuse this block with error:2",
+        ),
+        (
+            "G0 X0 Y0 Z-150 A0 C0\nG0 X1 Q7\n",
+            "line 2: the controller would refuse this block with error:20",
+        ),
+        // G93: each block needs its own F (GRBL), and the pieces of a split move
+        // could not keep it.
+        (
+            "G0 X0 Y0 Z-150 A0 C0\nG93 G1 X1 A10\n",
+            "line 2: the controller would refuse this block with error:22",
+        ),
+        (
+            "G0 X0 Y0 Z-150 A0 C0\nG93 G1 X1 A10 F2\n",
+            "line 2: inverse time feed (G93) is not supported",
+        ),
+        (
+            "G0 X0 Y0 Z-150 A0 C0\nG0 X0.0000000000000000000000000000000000000000 Y0.0000000000000000000000000000000000000000 Z-150 A0 C0\n",
+            "line 2: the controller cannot receive this line",
+        ),
     ];
     for (text, want) in cases {
         let err = rewrite::rewrite_program(text, &real, &opts)
