@@ -7,38 +7,10 @@ use procedure::request::CompensateRequest;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-/// The flags of a compensation run, whichever job it is on.
-#[derive(clap::Args)]
-pub struct RunFlags {
-    /// Print one JSON object instead of the table.
-    #[arg(long)]
-    pub json: bool,
-    /// Localization method: fit (default) or four-point (the patent's formula).
-    #[arg(long)]
-    pub method: Option<String>,
-    /// Only the first N targets.
-    #[arg(long)]
-    pub targets: Option<u64>,
-}
-
-impl RunFlags {
-    /// The request the flags describe.
-    fn request(&self) -> anyhow::Result<CompensateRequest> {
-        Ok(CompensateRequest {
-            targets: self.targets,
-            method: self
-                .method
-                .as_deref()
-                .map(crate::front::parse_method)
-                .transpose()?,
-        })
-    }
-}
-
 #[derive(clap::Args)]
 pub struct DemoArgs {
     #[command(flatten)]
-    pub run: RunFlags,
+    pub request: CompensateRequest,
     /// Stage backend: `sim` (in-process) or `grbl` (the GRBL emulator on a real
     /// pseudo-terminal, driven by the GRBL serial driver); `modbus` (the Modbus
     /// drive emulator); `canopen` (CiA 402 drive emulator behind an SLCAN adapter
@@ -60,17 +32,17 @@ pub struct CompensateArgs {
     #[arg(long)]
     pub config: PathBuf,
     #[command(flatten)]
-    pub run: RunFlags,
+    pub request: CompensateRequest,
 }
 
-pub fn demo(a: DemoArgs) -> anyhow::Result<ExitCode> {
+pub fn demo(a: DemoArgs, json: bool) -> anyhow::Result<ExitCode> {
     let job = procedure::demo::demo_job(&a.stage, &a.transport, &a.camera)
         .map_err(|e| anyhow::anyhow!(e.for_cli()))?;
-    run(job, a.run.request()?, a.run.json)
+    run(job, a.request, json)
 }
 
-pub fn compensate(a: CompensateArgs) -> anyhow::Result<ExitCode> {
-    run(Job::load(&a.config)?, a.run.request()?, a.run.json)
+pub fn compensate(a: CompensateArgs, json: bool) -> anyhow::Result<ExitCode> {
+    run(Job::load(&a.config)?, a.request, json)
 }
 
 fn run(job: Job, request: CompensateRequest, json: bool) -> anyhow::Result<ExitCode> {

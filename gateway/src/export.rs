@@ -24,11 +24,9 @@ pub struct ExportArgs {
     /// Beckhoff grid interval, mm.
     #[arg(long, default_value_t = 1.0)]
     pub interval_mm: f64,
-    #[arg(long)]
-    pub json: bool,
 }
 
-pub fn export(args: ExportArgs) -> anyhow::Result<ExitCode> {
+pub fn export(args: ExportArgs, json: bool) -> anyhow::Result<ExitCode> {
     let cli = |e: procedure::RequestError| anyhow::anyhow!(e.for_cli());
     let name = args
         .out
@@ -65,7 +63,7 @@ pub fn export(args: ExportArgs) -> anyhow::Result<ExitCode> {
             }
         }
     }
-    crate::front::print(&outcome, args.json, procedure::export::summary)
+    crate::front::print(&outcome, json, procedure::export::summary)
 }
 
 /// The default number of LinuxCNC entries.

@@ -173,24 +173,3 @@ pub fn print(
         }
     }
 }
-
-/// `X,Y` in mm as two finite numbers (`--near`, `--tool-offset-mm`).
-pub fn parse_xy(s: &str) -> anyhow::Result<[f64; 2]> {
-    let parts: Vec<&str> = s.split(',').map(str::trim).collect();
-    let bad = || anyhow::anyhow!("--near `{s}`: expected two numbers in mm, like 12.5,40");
-    if parts.len() != 2 {
-        return Err(bad());
-    }
-    let x: f64 = parts[0].parse().map_err(|_| bad())?;
-    let y: f64 = parts[1].parse().map_err(|_| bad())?;
-    if !(x.is_finite() && y.is_finite()) {
-        return Err(bad());
-    }
-    Ok([x, y])
-}
-
-/// `--method fit|four-point`.
-pub fn parse_method(s: &str) -> anyhow::Result<vision::localize::Method> {
-    s.parse()
-        .map_err(|e| anyhow::anyhow!("--method `{s}`: {e}"))
-}

@@ -9,7 +9,7 @@ use devices::open_devices_async;
 use iso230::{csv_io, Direction, Measurement};
 use job::Job;
 use procedure::iso230::NamedMap;
-use procedure::request::{CycleName, Iso230Request, TestAxis};
+use procedure::request::Iso230Request;
 use protocol::errormap::ErrorMap;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
@@ -25,7 +25,7 @@ pub fn evaluate_file(
     file: &Path,
     out: Option<&Path>,
     before: Option<&Path>,
-    json_out: bool,
+    json: bool,
 ) -> anyhow::Result<ExitCode> {
     let measurements = read_measurements(file)?;
     let before_measurements = before.map(read_measurements).transpose()?;
@@ -40,7 +40,7 @@ pub fn evaluate_file(
         &file.display().to_string(),
         &mut sink,
     );
-    crate::front::print(&outcome, json_out, procedure::iso230::summary)
+    crate::front::print(&outcome, json, procedure::iso230::summary)
 }
 
 pub struct RunArgs {
@@ -49,7 +49,6 @@ pub struct RunArgs {
     pub out: PathBuf,
     pub before: Option<PathBuf>,
     pub request: Iso230Request,
-    pub json: bool,
 }
 
 /// A measurement as the procedure hands it to the sink, back as a row of the file.
@@ -68,7 +67,7 @@ fn measurement_of(m: &Value) -> Measurement {
     }
 }
 
-pub fn run(args: RunArgs) -> anyhow::Result<ExitCode> {
+pub fn run(args: RunArgs, json: bool) -> anyhow::Result<ExitCode> {
     let request = args.request;
     request.check().map_err(|e| anyhow::anyhow!(e.for_cli()))?;
     let job = Job::load(&args.config)?;
@@ -95,7 +94,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<ExitCode> {
     let csv_path = args.out.join("measurements.csv");
     let csv_inputs: Vec<PathBuf> = inputs.iter().map(|p| p.to_path_buf()).collect();
     let mut taken: Vec<Measurement> = Vec::new();
-    let mut sink = CliSink::new("measurements", args.json)
+    let mut sink = CliSink::new("measurements", json)
         .inputs(&inputs)
         .into_folder(&args.out)?
         .on_measurement(move |m| {
@@ -113,7 +112,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<ExitCode> {
         crate::front::ctrl_c(),
     ));
     sink.finish();
-    crate::front::print(&outcome, args.json, |r| {
+    crate::front::print(&outcome, json, |r| {
         if outcome.is_success() {
             let out = args.out.display();
             format!("{}outputs in {out}", procedure::iso230::summary(r))
@@ -137,46 +136,17 @@ pub struct Iso230Args {
     /// The job (stage, camera, board) to test.
     #[arg(long, required = true)]
     config: Option<PathBuf>,
-    /// The axis to test: x or y.
-    #[arg(long, required = true)]
-    axis: Option<String>,
     /// Test with this error map active (the same test, compensated).
     #[arg(long)]
     map: Option<PathBuf>,
     /// Output folder: measurements.csv, result.json, charts (SVG, PNG), report.html.
     #[arg(long, required = true)]
     out: Option<PathBuf>,
-    /// Target positions (default: the standard's minimum, 5 and 5 per metre).
-    #[arg(long)]
-    positions: Option<usize>,
-    /// Runs in each direction (at least 5).
-    #[arg(long, default_value_t = 5)]
-    runs: usize,
-    /// linear or pilgrim-step.
-    #[arg(long, default_value = "linear")]
-    cycle: String,
-    /// How far beyond the end targets the axis goes before reversing, mm.
-    #[arg(long, default_value_t = 1.0)]
-    overrun_mm: f64,
-    /// The measurement travel's start and end on the axis, machine mm (default: all the
-    /// usable travel).
-    #[arg(long)]
-    from_mm: Option<f64>,
-    #[arg(long)]
-    to_mm: Option<f64>,
-    /// Where the other axis is held, machine mm (default: on the map's dense line along
-    /// the axis, else the middle).
-    #[arg(long)]
-    at_mm: Option<f64>,
-    /// The board certificate's expanded uncertainty (k = 2) of a dot position, um.
-    #[arg(long, default_value_t = 1.0)]
-    certificate_uncertainty_um: f64,
     /// A measurements file of the same test before compensation, overlaid on the charts.
     #[arg(long)]
     before: Option<PathBuf>,
-    /// Print the result JSON instead of text.
-    #[arg(long)]
-    json: bool,
+    #[command(flatten)]
+    pub(crate) request: Option<Iso230Request>,
 }
 
 #[derive(clap::Subcommand)]
@@ -191,64 +161,27 @@ enum Iso230Cmd {
         /// A measurements file of the test before compensation, overlaid on the charts.
         #[arg(long)]
         before: Option<PathBuf>,
-        #[arg(long)]
-        json: bool,
     },
 }
 
-impl Iso230Args {
-    pub fn json(&self) -> bool {
-        match &self.sub {
-            Some(Iso230Cmd::Evaluate { json, .. }) => *json,
-            None => self.json,
-        }
-    }
-}
-
-pub fn dispatch(a: Iso230Args) -> anyhow::Result<ExitCode> {
+pub fn dispatch(a: Iso230Args, json: bool) -> anyhow::Result<ExitCode> {
     match a.sub {
-        Some(Iso230Cmd::Evaluate {
-            file,
-            out,
-            before,
-            json,
-        }) => evaluate_file(&file, out.as_deref(), before.as_deref(), json),
+        Some(Iso230Cmd::Evaluate { file, out, before }) => {
+            evaluate_file(&file, out.as_deref(), before.as_deref(), json)
+        }
         None => {
-            let axis = match a
-                .axis
-                .context("--axis is required")?
-                .to_ascii_lowercase()
-                .as_str()
-            {
-                "x" => TestAxis::X,
-                "y" => TestAxis::Y,
-                other => anyhow::bail!("--axis `{other}`: expected x or y"),
-            };
-            let cycle = match a.cycle.as_str() {
-                "linear" => CycleName::Linear,
-                "pilgrim" | "pilgrim-step" => CycleName::PilgrimStep,
-                other => anyhow::bail!("--cycle `{other}`: expected linear or pilgrim-step"),
-            };
-            let request = Iso230Request {
-                axis,
-                positions: a.positions.map(|n| n as u64),
-                runs: a.runs as u64,
-                cycle,
-                overrun_mm: a.overrun_mm,
-                from_mm: a.from_mm,
-                to_mm: a.to_mm,
-                at_mm: a.at_mm,
-                certificate_uncertainty_um: a.certificate_uncertainty_um,
-                with_map: a.map.is_some(),
-            };
-            run(RunArgs {
-                config: a.config.context("--config is required")?,
-                map: a.map,
-                out: a.out.context("--out is required")?,
-                before: a.before,
-                request,
-                json: a.json,
-            })
+            let mut request = a.request.context("--axis is required")?;
+            request.with_map = a.map.is_some();
+            run(
+                RunArgs {
+                    config: a.config.context("--config is required")?,
+                    map: a.map,
+                    out: a.out.context("--out is required")?,
+                    before: a.before,
+                    request,
+                },
+                json,
+            )
         }
     }
 }

@@ -26,6 +26,10 @@ mod volumetric;
     about = "Camera + calibration board compensation gateway for X-Y stages and CNC machines"
 )]
 struct Cli {
+    /// Print the outcome's result as one JSON object (the object the service stores)
+    /// instead of text; errors as `{"error": ...}`.
+    #[arg(long, global = true)]
+    json: bool,
     #[command(subcommand)]
     cmd: Cmd,
 }
@@ -96,21 +100,7 @@ enum Cmd {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let json_mode = match &cli.cmd {
-        Cmd::Demo(a) => a.run.json,
-        Cmd::Compensate(a) => a.run.json,
-        Cmd::Rewrite(a) => a.json,
-        Cmd::Localize(a) => a.json,
-        Cmd::Proxy(a) => a.json,
-        Cmd::Verify(a) => a.json,
-        Cmd::Map(a) => a.json,
-        Cmd::Export(a) => a.json,
-        Cmd::Rotary { cmd } => cmd.json(),
-        Cmd::Iso230(a) => a.json(),
-        Cmd::Volumetric { cmd } => cmd.json(),
-        Cmd::Layout { cmd } => cmd.json(),
-        Cmd::Serve { .. } => false,
-    };
+    let json_mode = cli.json;
     match run(cli) {
         Ok(code) => code,
         Err(e) => {
@@ -125,19 +115,87 @@ fn main() -> ExitCode {
 }
 
 fn run(cli: Cli) -> anyhow::Result<ExitCode> {
+    let json = cli.json;
     match cli.cmd {
-        Cmd::Volumetric { cmd } => volumetric::run(cmd),
-        Cmd::Demo(a) => compensate::demo(a),
-        Cmd::Compensate(a) => compensate::compensate(a),
-        Cmd::Map(a) => scan::map(a),
-        Cmd::Rewrite(a) => rewrite::rewrite(a),
-        Cmd::Layout { cmd } => layout::run(cmd),
+        Cmd::Volumetric { cmd } => volumetric::run(cmd, json),
+        Cmd::Demo(a) => compensate::demo(a, json),
+        Cmd::Compensate(a) => compensate::compensate(a, json),
+        Cmd::Map(a) => scan::map(a, json),
+        Cmd::Rewrite(a) => rewrite::rewrite(a, json),
+        Cmd::Layout { cmd } => layout::run(cmd, json),
         Cmd::Serve { config } => serve::serve(&config),
-        Cmd::Proxy(a) => proxy::proxy(a),
-        Cmd::Rotary { cmd } => rotary::run(cmd),
-        Cmd::Iso230(a) => iso230::dispatch(a),
-        Cmd::Verify(a) => verify::verify(a),
-        Cmd::Export(a) => export::export(a),
-        Cmd::Localize(a) => localize::localize(a),
+        Cmd::Proxy(a) => proxy::proxy(a, json),
+        Cmd::Rotary { cmd } => rotary::run(cmd, json),
+        Cmd::Iso230(a) => iso230::dispatch(a, json),
+        Cmd::Verify(a) => verify::verify(a, json),
+        Cmd::Export(a) => export::export(a, json),
+        Cmd::Localize(a) => localize::localize(a, json),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use procedure::request::Request;
+    use serde_json::Value;
+
+    fn parse(args: &[&str]) -> Cmd {
+        let mut all = vec!["gateway"];
+        all.extend_from_slice(args);
+        Cli::try_parse_from(all).unwrap().cmd
+    }
+
+    fn api(kind: &str, params: Value) -> Value {
+        Request::parse(kind, &params).unwrap().params()
+    }
+
+    /// The flags are the request's fields: with no flag given, the CLI's request is the
+    /// API's request with no param given (the defaults are declared once).
+    #[test]
+    fn the_command_line_and_the_api_default_every_parameter_alike() {
+        let Cmd::Demo(a) = parse(&["demo"]) else {
+            panic!()
+        };
+        assert_eq!(json!(a.request), api("compensate", json!({})));
+        let Cmd::Map(a) = parse(&["map", "--config", "j", "--out", "o"]) else {
+            panic!()
+        };
+        assert_eq!(json!(a.request), api("map", json!({})));
+        let Cmd::Verify(a) = parse(&["verify", "--config", "j", "--map", "m"]) else {
+            panic!()
+        };
+        assert_eq!(json!(a.request), api("verify", json!({})));
+        let Cmd::Iso230(a) = parse(&["iso230", "--config", "j", "--out", "o", "--axis", "X"])
+        else {
+            panic!()
+        };
+        assert_eq!(json!(a.request), api("iso230", json!({"axis": "x"})));
+        let layout = json!({"layout": "", "format": "json", "tools": 2, "window_mm": 100.0,
+            "gap_mm": 5.0});
+        let flags = [
+            "l.json",
+            "--tools",
+            "2",
+            "--window-mm",
+            "100",
+            "--gap-mm",
+            "5",
+        ];
+        let Cmd::Layout {
+            cmd: layout::LayoutCmd::Cut { request, .. },
+        } = parse(&[&["layout", "cut"][..], &flags].concat())
+        else {
+            panic!()
+        };
+        let cut: procedure::request::CutRequest =
+            serde_json::from_value(json!({ "partition": layout })).unwrap();
+        assert_eq!(request, cut);
+        let Cmd::Localize(a) = parse(&["localize", "f.png", "--board", "b", "--near", "-1,2"])
+        else {
+            panic!()
+        };
+        let api: procedure::localize::LocalizeRequest =
+            serde_json::from_value(json!({"near": [-1.0, 2.0]})).unwrap();
+        assert_eq!(a.request, api);
     }
 }

@@ -47,8 +47,6 @@ pub struct ProxyArgs {
     /// Serve one sender session and exit.
     #[arg(long)]
     pub once: bool,
-    #[arg(long)]
-    pub json: bool,
 }
 
 /// Prints the ready message and each session but the last as they come.
@@ -79,7 +77,7 @@ impl ProxyFront for Printer {
     }
 }
 
-pub fn proxy(args: ProxyArgs) -> anyhow::Result<ExitCode> {
+pub fn proxy(args: ProxyArgs, json: bool) -> anyhow::Result<ExitCode> {
     let request = ProxyRequest {
         tolerance_um: args.tolerance_um,
         max_correction_um: args.max_correction_um,
@@ -110,7 +108,7 @@ pub fn proxy(args: ProxyArgs) -> anyhow::Result<ExitCode> {
         }
     };
     let mut printer = Printer {
-        json: args.json,
+        json,
         link: args.link.clone(),
     };
     let rt = tokio::runtime::Builder::new_current_thread()
@@ -123,5 +121,5 @@ pub fn proxy(args: ProxyArgs) -> anyhow::Result<ExitCode> {
         &mut printer,
         crate::front::ctrl_c(),
     ));
-    crate::front::print(&outcome, args.json, procedure::proxy::summary)
+    crate::front::print(&outcome, json, procedure::proxy::summary)
 }

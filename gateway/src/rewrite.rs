@@ -49,8 +49,6 @@ pub struct RewriteArgs {
     /// Soft limits, "XMIN:XMAX,YMIN:YMAX[,ZMIN:ZMAX]" machine mm.
     #[arg(long)]
     pub limits: Option<String>,
-    #[arg(long)]
-    pub json: bool,
 }
 
 fn read(path: &Path) -> anyhow::Result<String> {
@@ -80,7 +78,7 @@ fn parse_limits(s: &str) -> anyhow::Result<Vec<[f64; 2]>> {
         .collect()
 }
 
-pub fn rewrite(args: RewriteArgs) -> anyhow::Result<ExitCode> {
+pub fn rewrite(args: RewriteArgs, json: bool) -> anyhow::Result<ExitCode> {
     if let Some(errors) = args.rotary {
         // The 5-axis rewrite has its own program rules (absolute mm, no arcs); the
         // 3-axis options do not apply to it.
@@ -97,14 +95,16 @@ pub fn rewrite(args: RewriteArgs) -> anyhow::Result<ExitCode> {
                 "--rotary rewrites a 5-axis program on its own; {flag} does not apply to it"
             );
         }
-        return crate::rotary::run(crate::rotary::RotaryCmd::Rewrite {
-            input: args.input,
-            errors,
-            out: args.out,
-            machine: args.machine,
-            tolerance_um: args.tolerance_um,
-            json: args.json,
-        });
+        return crate::rotary::run(
+            crate::rotary::RotaryCmd::Rewrite {
+                input: args.input,
+                errors,
+                out: args.out,
+                machine: args.machine,
+                tolerance_um: args.tolerance_um,
+            },
+            json,
+        );
     }
     let model = match (&args.map, &args.volumetric) {
         (Some(_), Some(_)) => anyhow::bail!("give one compensation: --map or --volumetric"),
@@ -156,5 +156,5 @@ pub fn rewrite(args: RewriteArgs) -> anyhow::Result<ExitCode> {
     if let Some(r) = outcome.result.as_mut() {
         r["output"] = json!(args.out.display().to_string());
     }
-    crate::front::print(&outcome, args.json, procedure::rewrite::summary)
+    crate::front::print(&outcome, json, procedure::rewrite::summary)
 }

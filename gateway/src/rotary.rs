@@ -27,9 +27,6 @@ pub enum RotaryCmd {
         /// into this folder.
         #[arg(long)]
         plot: Option<PathBuf>,
-        /// Print one JSON object instead of the table.
-        #[arg(long)]
-        json: bool,
     },
     /// Rewrite a 5-axis program (X Y Z A C, absolute, mm) for the identified errors:
     /// every programmed point replaced by the command that puts the tool tip and
@@ -50,8 +47,6 @@ pub enum RotaryCmd {
         /// Largest distance (X Y Z) of a piece's middle from the compensated path, um.
         #[arg(long, default_value_t = 0.5)]
         tolerance_um: f64,
-        #[arg(long)]
-        json: bool,
     },
     /// Run the paper's measurement cycle with the touch probe on the simulated 5-axis
     /// machine (C in 12 steps of 30°, A in 6 steps of 15°, 6 points per ball, each
@@ -66,23 +61,11 @@ pub enum RotaryCmd {
         config: PathBuf,
         #[arg(long)]
         out: PathBuf,
-        #[arg(long)]
-        json: bool,
     },
 }
 
-impl RotaryCmd {
-    pub fn json(&self) -> bool {
-        match self {
-            RotaryCmd::Identify { json, .. }
-            | RotaryCmd::Measure { json, .. }
-            | RotaryCmd::Rewrite { json, .. } => *json,
-        }
-    }
-}
-
-pub fn run(cmd: RotaryCmd) -> anyhow::Result<ExitCode> {
-    let print = |outcome: &procedure::Outcome, json: bool, wrote: String| {
+pub fn run(cmd: RotaryCmd, json: bool) -> anyhow::Result<ExitCode> {
+    let print = |outcome: &procedure::Outcome, wrote: String| {
         crate::front::print(outcome, json, |r| {
             format!("{}{wrote}", procedure::rotary::summary(r))
         })
@@ -92,7 +75,6 @@ pub fn run(cmd: RotaryCmd) -> anyhow::Result<ExitCode> {
             centres,
             machine,
             plot,
-            json,
         } => {
             let constants = load_constants(machine.as_deref())?;
             let text = protocol::config::read_data_file(&centres)
@@ -110,9 +92,9 @@ pub fn run(cmd: RotaryCmd) -> anyhow::Result<ExitCode> {
             let wrote = plot
                 .map(|d| format!("chart: {}", d.join("rotary-sweeps.svg").display()))
                 .unwrap_or_default();
-            print(&outcome, json, wrote)
+            print(&outcome, wrote)
         }
-        RotaryCmd::Measure { config, out, json } => {
+        RotaryCmd::Measure { config, out } => {
             let text = protocol::config::read_data_file(&config)
                 .with_context(|| format!("reading {}", config.display()))?;
             let job = RotaryJob::from_json(&text)
@@ -134,7 +116,7 @@ pub fn run(cmd: RotaryCmd) -> anyhow::Result<ExitCode> {
                 std::future::pending(),
             ));
             sink.finish();
-            print(&outcome, json, format!("wrote {}", out.display()))
+            print(&outcome, format!("wrote {}", out.display()))
         }
         RotaryCmd::Rewrite {
             input,
@@ -142,7 +124,6 @@ pub fn run(cmd: RotaryCmd) -> anyhow::Result<ExitCode> {
             out,
             machine,
             tolerance_um,
-            json,
         } => {
             let constants = load_constants(machine.as_deref())?;
             let e_text = protocol::config::read_data_file(&errors)
@@ -162,7 +143,7 @@ pub fn run(cmd: RotaryCmd) -> anyhow::Result<ExitCode> {
                 tolerance_um,
                 &mut sink,
             );
-            print(&outcome, json, format!("wrote {}", out.display()))
+            print(&outcome, format!("wrote {}", out.display()))
         }
     }
 }

@@ -13,15 +13,8 @@ pub struct VerifyArgs {
     pub config: PathBuf,
     #[arg(long)]
     pub map: PathBuf,
-    /// Points to check (default 20, or 5 with --spot-check).
-    #[arg(long)]
-    pub points: Option<usize>,
-    #[arg(long, default_value_t = 1)]
-    pub seed: u64,
-    #[arg(long)]
-    pub spot_check: bool,
-    #[arg(long, default_value_t = 2.0)]
-    pub drift_threshold_um: f64,
+    #[command(flatten)]
+    pub request: VerifyRequest,
     /// Checks in a row, each on fresh points (a periodic spot check; exit code 2
     /// when any is past the threshold).
     #[arg(long, default_value_t = 1)]
@@ -29,17 +22,10 @@ pub struct VerifyArgs {
     /// Seconds between two checks of --repeat.
     #[arg(long, default_value_t = 600.0)]
     pub every_s: f64,
-    #[arg(long)]
-    pub json: bool,
 }
 
-pub fn verify(args: VerifyArgs) -> anyhow::Result<ExitCode> {
-    let request = VerifyRequest {
-        points: args.points.map(|n| n as u64),
-        seed: args.seed,
-        spot_check: args.spot_check,
-        drift_threshold_um: args.drift_threshold_um,
-    };
+pub fn verify(args: VerifyArgs, json: bool) -> anyhow::Result<ExitCode> {
+    let request = args.request;
     request.check().map_err(|e| anyhow::anyhow!(e.for_cli()))?;
     anyhow::ensure!(args.repeat >= 1, "--repeat must be at least 1");
     anyhow::ensure!(
@@ -59,7 +45,7 @@ pub fn verify(args: VerifyArgs) -> anyhow::Result<ExitCode> {
             let pause = std::time::Duration::from_secs_f64(args.every_s);
             rt.block_on(async { tokio::time::sleep(pause).await });
         }
-        if args.repeat > 1 && !args.json {
+        if args.repeat > 1 && !json {
             println!("check {} of {}:", round + 1, args.repeat);
         }
         let mut sink = crate::front::CliSink::new("points", true);
@@ -72,7 +58,7 @@ pub fn verify(args: VerifyArgs) -> anyhow::Result<ExitCode> {
             round as u64,
             &mut sink,
         ));
-        let code = crate::front::print(&outcome, args.json, procedure::verify::summary)?;
+        let code = crate::front::print(&outcome, json, procedure::verify::summary)?;
         if code != ExitCode::SUCCESS {
             return Ok(code);
         }

@@ -37,8 +37,6 @@ pub enum VolumetricCmd {
         /// Write the ball-bar plots (ballbar_XY.svg/.png, ...) into this directory.
         #[arg(long)]
         plots: Option<PathBuf>,
-        #[arg(long)]
-        json: bool,
     },
     /// The volumetric error at each point of POINTS.csv (`x_mm,y_mm,z_mm`).
     Eval {
@@ -49,8 +47,6 @@ pub enum VolumetricCmd {
         /// Use the first-order closed form instead of the full HTM product.
         #[arg(long)]
         first_order: bool,
-        #[arg(long)]
-        json: bool,
     },
     /// Each error's contribution over the volume (ranked, CSV + SVG) and the error map
     /// of the three middle planes (CSV + SVG), into DIR.
@@ -62,8 +58,6 @@ pub enum VolumetricCmd {
         /// Grid points per axis (2 to 219: the memory the grid needs is bounded).
         #[arg(long, default_value_t = 11)]
         grid: u64,
-        #[arg(long)]
-        json: bool,
     },
     /// Write the emulated machine's measurement campaign into DIR.
     SimulateCampaign {
@@ -73,8 +67,6 @@ pub enum VolumetricCmd {
         structure: String,
         #[arg(long, default_value_t = 1)]
         seed: u64,
-        #[arg(long)]
-        json: bool,
     },
     /// Export the model for the ISG kernel (Beckhoff TF5280) into DIR: volcomp.csv in the
     /// ISG CSV format (blocks `C0Y B0Z A0Z P0X P0Y P0Z`, `X EXX ... ECX`, ..., mm and
@@ -84,21 +76,7 @@ pub enum VolumetricCmd {
         model: PathBuf,
         #[arg(long)]
         out: PathBuf,
-        #[arg(long)]
-        json: bool,
     },
-}
-
-impl VolumetricCmd {
-    pub fn json(&self) -> bool {
-        match self {
-            VolumetricCmd::Identify { json, .. }
-            | VolumetricCmd::Eval { json, .. }
-            | VolumetricCmd::Contributions { json, .. }
-            | VolumetricCmd::SimulateCampaign { json, .. }
-            | VolumetricCmd::ExportIsg { json, .. } => *json,
-        }
-    }
 }
 
 /// `x,y,z` (mm) from a flag; the bounds are the request's.
@@ -151,7 +129,7 @@ impl CampaignFiles for FolderCampaign {
     }
 }
 
-pub fn run(cmd: VolumetricCmd) -> anyhow::Result<ExitCode> {
+pub fn run(cmd: VolumetricCmd, json: bool) -> anyhow::Result<ExitCode> {
     match cmd {
         VolumetricCmd::Identify {
             campaign,
@@ -160,7 +138,6 @@ pub fn run(cmd: VolumetricCmd) -> anyhow::Result<ExitCode> {
             tool_offset_mm,
             work_offset_mm,
             plots,
-            json,
         } => {
             let request = VolumetricIdentifyRequest {
                 structure,
@@ -207,7 +184,6 @@ pub fn run(cmd: VolumetricCmd) -> anyhow::Result<ExitCode> {
             model,
             points,
             first_order,
-            json,
         } => {
             let request = VolumetricEvalRequest { first_order };
             let m = load_model(&model)?;
@@ -221,12 +197,7 @@ pub fn run(cmd: VolumetricCmd) -> anyhow::Result<ExitCode> {
                     .join("\n")
             })
         }
-        VolumetricCmd::Contributions {
-            model,
-            out,
-            grid,
-            json,
-        } => {
+        VolumetricCmd::Contributions { model, out, grid } => {
             let request = VolumetricContributionsRequest { grid };
             request.check().map_err(cli)?;
             let m = load_model(&model)?;
@@ -244,7 +215,6 @@ pub fn run(cmd: VolumetricCmd) -> anyhow::Result<ExitCode> {
             out,
             structure,
             seed,
-            json,
         } => {
             let request = VolumetricCampaignRequest { structure, seed };
             request.check().map_err(cli)?;
@@ -266,7 +236,7 @@ pub fn run(cmd: VolumetricCmd) -> anyhow::Result<ExitCode> {
                 )
             })
         }
-        VolumetricCmd::ExportIsg { model, out, json } => {
+        VolumetricCmd::ExportIsg { model, out } => {
             let m = load_model(&model)?;
             let mut sink = CliSink::new("", true)
                 .inputs(&[model.as_path()])

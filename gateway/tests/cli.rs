@@ -161,7 +161,11 @@ fn localize_refuses_bad_input_with_clear_errors() {
         "--near",
         "thirty",
     ]);
-    assert!(stderr(&out).contains("--near `thirty`"));
+    let err = stderr(&out);
+    assert!(
+        err.contains("--near") && err.contains("`thirty`: expected X,Y in mm"),
+        "{err}"
+    );
     // A hint 0.15 mm from the truth: beyond the 0.1 mm tolerance, so the dots cannot be
     // identified safely. (A hint off by whole pitches cannot be told apart on a plain
     // grid: that is why the tolerance must stay below half the pitch.)

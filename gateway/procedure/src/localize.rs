@@ -32,26 +32,41 @@ fn default_min_points() -> u64 {
 
 /// A localization of one frame.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct LocalizeRequest {
-    /// The expected board coordinate at the image centre, mm.
+    /// The expected board coordinate at the image centre, `X,Y` mm.
+    #[cfg_attr(
+        feature = "cli",
+        arg(long, allow_hyphen_values = true, value_parser = crate::request::xy_mm)
+    )]
     pub near: [f64; 2],
+    /// Localization method: fit or four-point (the patent's formula).
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, default_value = "fit"))]
     pub method: Method,
     /// The nominal scale; the measured scale must agree within 10 %.
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long))]
     pub um_per_px: Option<f64>,
     /// The board directions of the image +x and +y axes (`+x,-y`: a camera above).
     #[serde(default)]
+    #[cfg_attr(
+        feature = "cli",
+        arg(long, default_value = "+x,-y", allow_hyphen_values = true)
+    )]
     pub pixel_axes: PixelAxes,
     /// How far the true position may be from `near`, mm.
     #[serde(default = "default_hint_tolerance")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_hint_tolerance()))]
     pub hint_tolerance_mm: f64,
     /// Refuse when the fit's RMS residual exceeds this, um.
     #[serde(default = "default_max_residual")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_max_residual()))]
     pub max_residual_um: f64,
     /// Fewest identified on-board points accepted.
     #[serde(default = "default_min_points")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_min_points()))]
     pub min_points: u64,
 }
 

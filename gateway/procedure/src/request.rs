@@ -4,7 +4,9 @@
 //! JSON body both become these types; nothing downstream re-reads raw JSON.
 //!
 //! Field names are the JSON names; [`RequestError::flag`] gives the CLI's spelling
-//! (`grid_step_mm` -> `--grid-step-mm`).
+//! (`grid_step_mm` -> `--grid-step-mm`). With the `cli` feature the same types are the
+//! command line's flags (`clap::Args`): each parameter, its help, default and bound is
+//! declared once, here, for both front ends.
 
 use errormap::scan::{ScanSpec, MAX_SCAN_FRAMES};
 use serde::{Deserialize, Serialize};
@@ -45,10 +47,19 @@ pub(crate) fn number(field: &str, v: f64, lo: f64, hi: f64) -> Result<(), Reques
     if !(v.is_finite() && v >= lo && v <= hi) {
         return Err(RequestError::new(
             field,
-            format!("must be a number from {lo} to {hi}, got {v}"),
+            format!("must be a number from {lo} to {hi}, got {}", shown(v)),
         ));
     }
     Ok(())
+}
+
+/// A number as a person reads it: `1e-300`, not three hundred zeros.
+fn shown(v: f64) -> String {
+    if v != 0.0 && v.is_finite() && !(1e-4..1e9).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
 }
 
 /// An integer within `lo..=hi`.
@@ -80,13 +91,17 @@ pub fn check_name(field: &str, name: &str) -> Result<(), RequestError> {
 
 /// A compensation run over the job's targets (all, or the first `targets`).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct CompensateRequest {
     /// Only the first N targets of the job.
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long))]
     pub targets: Option<u64>,
-    /// The localization method (default: the job file's).
+    /// Localization method: fit or four-point (the patent's formula); default: the job
+    /// file's.
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long))]
     pub method: Option<Method>,
 }
 
@@ -114,20 +129,43 @@ fn default_passes() -> u32 {
 
 /// An error-map scan.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct MapRequest {
-    /// The map's name (the profile it becomes a version of; the CLI's file name).
+    /// The map's name (the profile it becomes a version of; the CLI's file name, by
+    /// default the job file's).
     #[serde(default = "default_map_name")]
+    #[cfg_attr(feature = "cli", arg(skip = default_map_name()))]
     pub name: String,
+    /// The grid's step over the travel, mm (at least 0.25: half the board pitch).
     #[serde(default = "default_grid_step")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_grid_step()))]
     pub grid_step_mm: f64,
+    /// The step of the dense lines along each axis, mm (at least 0.05).
     #[serde(default = "default_line_step")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_line_step()))]
     pub line_step_mm: f64,
+    /// Times each point is measured from each side (1 to 10).
     #[serde(default = "default_passes")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_passes()))]
     pub passes: u32,
-    /// Tool point minus camera centre, machine axes, mm.
+    /// Tool point minus camera centre, machine axes, `X,Y` mm.
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, default_value = "0,0", value_parser = xy_mm))]
     pub tool_offset_mm: [f64; 2],
+}
+
+/// `X,Y` in mm (a command-line value).
+#[cfg(feature = "cli")]
+pub fn xy_mm(text: &str) -> Result<[f64; 2], String> {
+    let parts: Vec<&str> = text.split(',').collect();
+    match parts.as_slice() {
+        [x, y] => match (x.trim().parse(), y.trim().parse()) {
+            (Ok(x), Ok(y)) => Ok([x, y]),
+            _ => Err(format!("`{text}`: expected X,Y in mm")),
+        },
+        _ => Err(format!("`{text}`: expected X,Y in mm")),
+    }
 }
 
 impl Default for MapRequest {
@@ -210,17 +248,24 @@ fn default_drift_threshold() -> f64 {
 
 /// A check of the error map with the camera at random points.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct VerifyRequest {
     /// Points to check (default 20, or 5 for a spot check).
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long))]
     pub points: Option<u64>,
+    /// The seed of the random points.
     #[serde(default = "default_seed")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_seed()))]
     pub seed: u64,
     /// A drift check: `rescan` when any point is off by more than the threshold.
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long))]
     pub spot_check: bool,
+    /// The drift that asks for a re-scan, um.
     #[serde(default = "default_drift_threshold")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_drift_threshold()))]
     pub drift_threshold_um: f64,
 }
 
@@ -251,6 +296,7 @@ impl VerifyRequest {
 
 /// The axis an ISO 230-2 test moves.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum TestAxis {
     #[serde(alias = "x")]
     X,
@@ -269,11 +315,13 @@ impl TestAxis {
 
 /// ISO 230-2's test cycle.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum CycleName {
     #[default]
     Linear,
     #[serde(alias = "pilgrim")]
+    #[cfg_attr(feature = "cli", value(alias = "pilgrim"))]
     PilgrimStep,
 }
 
@@ -307,35 +355,52 @@ pub const MAX_ISO230_MEASUREMENTS: u64 = 100_000;
 
 /// An ISO 230-2 positioning test of one axis.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct Iso230Request {
+    /// The axis to test: x or y.
+    #[cfg_attr(feature = "cli", arg(long, value_enum, ignore_case = true))]
     pub axis: TestAxis,
     /// Target positions (default: the standard's minimum, 5 and 5 per metre).
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long))]
     pub positions: Option<u64>,
     /// Runs in each direction (at least 5).
     #[serde(default = "default_runs")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_runs()))]
     pub runs: u64,
+    /// The test cycle: linear or pilgrim-step.
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value_t))]
     pub cycle: CycleName,
     /// How far beyond the end targets the axis goes before reversing, mm.
     #[serde(default = "default_overrun")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_overrun()))]
     pub overrun_mm: f64,
-    /// The measurement travel's start and end on the axis, machine mm (default: the
-    /// usable travel).
+    /// The measurement travel's start on the axis, machine mm (default: the usable
+    /// travel's).
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
     pub from_mm: Option<f64>,
+    /// The measurement travel's end on the axis, machine mm.
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
     pub to_mm: Option<f64>,
     /// Where the other axis is held, machine mm (default: the map's dense line along
     /// the axis, else the middle of the usable travel).
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
     pub at_mm: Option<f64>,
     /// The board certificate's expanded uncertainty (k = 2) of a dot position, um.
     #[serde(default = "default_certificate_uncertainty")]
+    #[cfg_attr(
+        feature = "cli",
+        arg(long, default_value_t = default_certificate_uncertainty())
+    )]
     pub certificate_uncertainty_um: f64,
     /// Test with an error map acting (the CLI's `--map`, the service's active profile).
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub with_map: bool,
 }
 
@@ -398,9 +463,10 @@ impl Iso230Request {
 }
 
 /// A layout file's format.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum LayoutFormat {
+    #[default]
     Json,
     Dxf,
     Svg,
@@ -432,37 +498,57 @@ pub const MAX_LAYOUT_BYTES: usize = 64 << 20;
 
 /// A layout partition (source C).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct LayoutRequest {
-    /// The layout file's text.
+    /// The layout file's text (the CLI reads it from the file it is given).
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub layout: String,
+    /// The layout's format (the CLI's: the file's extension).
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub format: LayoutFormat,
-    /// Number of tools k.
+    /// Number of tools k (equal lanes across the width).
+    #[cfg_attr(feature = "cli", arg(long))]
     pub tools: u64,
-    /// Cutting window length L' along the feed, mm.
+    /// Cutting window length L' along the feed (X), mm.
+    #[cfg_attr(feature = "cli", arg(long))]
     pub window_mm: f64,
     /// Gap between groups, mm.
+    #[cfg_attr(feature = "cli", arg(long))]
     pub gap_mm: f64,
-    /// Material width, mm (default: the layout's own, else its extent across).
+    /// Material width W, mm, edge at Y = 0 (default: the JSON file's width_mm, else the
+    /// layout's extent across).
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long))]
     pub width_mm: Option<f64>,
-    /// Parts of different groups closer than this are overlaps, mm (default: the gap).
+    /// Parts of different groups closer than this after the shifts are overlaps, mm
+    /// (default: the gap). Between 0.001 mm and the gap.
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long))]
     pub clearance_mm: Option<f64>,
-    /// Parts forced into groups, `PART=GROUP` (groups 1-based, `G3` also accepted).
+    /// Force a part into a group, `PART=GROUP` (group ids as printed, 1-based, `G3`
+    /// also accepted); repeatable.
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "PART=GROUP"))]
     pub assign: Vec<String>,
-    /// Move later windows or upper lanes further apart until no overlap is left.
+    /// When moving parts leaves overlaps, move later windows (along X) or upper lanes
+    /// (along Y) further apart than S8's one gap until none is left (reported as
+    /// `widenings`); without it such overlaps are an error.
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long))]
     pub widen: bool,
-    /// Chord tolerance for arcs and splines, mm.
+    /// Chord tolerance for arcs and splines read from the layout, mm.
     #[serde(default = "default_chord_tolerance")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_chord_tolerance()))]
     pub chord_tolerance_mm: f64,
-    /// The shifted layout's format (default: the input's).
+    /// The shifted layout's format (default: the input's; the CLI's: the output's
+    /// extension).
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub out_format: Option<LayoutFormat>,
     /// Also draw the partition, coloured by group: `svg` or `png`.
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub picture: Option<PictureFormat>,
 }
 
@@ -543,6 +629,25 @@ pub struct HeadReach {
     pub reach_y_mm: f64,
 }
 
+/// `ORIGIN:REACH` in mm (the command line's spelling).
+impl std::str::FromStr for HeadReach {
+    type Err = String;
+    fn from_str(text: &str) -> Result<Self, String> {
+        let (origin, reach) = text
+            .split_once(':')
+            .ok_or_else(|| format!("`{text}`: write ORIGIN:REACH in mm"))?;
+        let num = |v: &str, what: &str| {
+            v.trim()
+                .parse::<f64>()
+                .map_err(|_| format!("`{text}`: the {what} is not a number"))
+        };
+        Ok(HeadReach {
+            origin_y_mm: num(origin, "origin")?,
+            reach_y_mm: num(reach, "reach")?,
+        })
+    }
+}
+
 fn default_baud() -> u32 {
     115_200
 }
@@ -553,22 +658,36 @@ fn default_knife_feed() -> f64 {
 /// A partitioned layout cut on a conveyor cutter (source C): the emulated one, or real
 /// GRBL controllers (one for the conveyor, one per head in lane order).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct CutRequest {
+    #[cfg_attr(feature = "cli", command(flatten))]
     pub partition: LayoutRequest,
-    /// The conveyor's controller (its X feeds the material); none: the emulated cutter.
+    /// The conveyor's controller (its X axis feeds the material); with a head's for
+    /// each tool, in lane order. Default: the emulated cutter.
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, requires = "heads"))]
     pub conveyor: Option<String>,
-    /// Each head's controller, in lane order (with `conveyor`).
+    /// A knife head's controller (X along the feed from the cutting area's start, Y
+    /// across from its origin, Z the knife); one per tool, in lane order.
     #[serde(default)]
+    #[cfg_attr(
+        feature = "cli",
+        arg(long = "head", value_name = "PORT", requires = "conveyor")
+    )]
     pub heads: Vec<String>,
-    /// Each head's reach (default: built for the partition).
+    /// Each head's origin (material Y of its machine Y 0) and Y travel, `ORIGIN:REACH`
+    /// in mm, in head order; default: built for the partition.
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "ORIGIN:REACH"))]
     pub head_reach: Vec<HeadReach>,
+    /// The controllers' baud rate.
     #[serde(default = "default_baud")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_baud()))]
     pub baud: u32,
     /// Knife feed along the contours, mm/min.
     #[serde(default = "default_knife_feed")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_knife_feed()))]
     pub feed_mm_min: f64,
 }
 
@@ -766,6 +885,7 @@ mod tests {
         let e = Request::parse("map", &json!({"grid_step_mm": 1e-300})).unwrap_err();
         assert_eq!(e.field, "grid_step_mm");
         assert_eq!(e.flag(), "--grid-step-mm");
+        assert!(e.message.ends_with("got 1e-300"), "{e}");
         let e = Request::parse("map", &json!({"grid_step_mm": "x"})).unwrap_err();
         assert_eq!(e.field, "grid_step_mm");
     }
