@@ -108,3 +108,41 @@ fn a_frame_lost_for_good_stops_the_job_before_any_motion_based_on_it() {
         assert_eq!(report.converged, 0);
     });
 }
+
+/// A lost frame is dropped and the camera triggered again, as Aravis drops a bad buffer
+/// and keeps streaming: a grab fails only when `GRAB_ATTEMPTS` frames in a row are lost
+/// (here every frame is refused, being of another size than declared), and says so;
+/// each lost frame is one trigger and is counted. Frames that arrive whole afterwards
+/// are taken at the first trigger.
+#[test]
+fn a_lost_frame_is_retried_a_bounded_number_of_times_and_counted() {
+    use drivers::gige::GRAB_ATTEMPTS;
+    let rt = runtime();
+    rt.block_on(async {
+        let rig = rig(Some((160, 120)), None);
+        let emu = emulator(&rig, GigeConfig::default()).await;
+        let mut cam = connect(&emu, options()).await;
+        cam.grab().await.unwrap();
+        assert_eq!((emu.frames_sent(), cam.dropped_frames()), (1, 0));
+        rig.lock().unwrap().camera_mut().width = 200;
+        let m = cam.grab().await.unwrap_err().to_string();
+        assert!(
+            m.contains("is 200x120 Mono8 but the camera declared 160x120 Mono8")
+                && m.contains(&format!(
+                    "({GRAB_ATTEMPTS} frames in a row lost; 3 dropped since open)"
+                )),
+            "{m}"
+        );
+        assert_eq!(
+            emu.frames_sent(),
+            1 + GRAB_ATTEMPTS as u64,
+            "one trigger per attempt"
+        );
+        assert_eq!(cam.dropped_frames(), GRAB_ATTEMPTS as u64);
+        rig.lock().unwrap().camera_mut().width = 160;
+        let expected = rig.lock().unwrap().clone().grab().0;
+        assert!(cam.grab().await.unwrap().image == expected);
+        assert_eq!(emu.frames_sent(), 2 + GRAB_ATTEMPTS as u64);
+        assert_eq!(cam.dropped_frames(), GRAB_ATTEMPTS as u64);
+    });
+}

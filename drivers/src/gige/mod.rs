@@ -9,8 +9,12 @@
 //! `grab` fails with that reason. `grab` triggers one frame and reassembles it; missing
 //! packets are asked again (PACKETRESEND) a bounded number of times, then the frame is
 //! refused as incomplete, naming the missing packets; a frame of another size or pixel
-//! format than the camera declared at open is refused too. No frame is ever returned
-//! unless every byte of it arrived.
+//! format than the camera declared at open is refused too. Such a lost frame (or a
+//! trigger with no packet at all, e.g. after a forged leader in the way) is dropped and
+//! the camera triggered again, as Aravis drops a bad buffer and keeps streaming: a grab
+//! fails only after [`GRAB_ATTEMPTS`] lost frames in a row ([`GigeCamera::dropped_frames`]
+//! counts them); a lost link (heartbeat, control channel) fails at once. No frame is
+//! ever returned unless every byte of it arrived.
 
 pub mod client;
 pub mod genicam;
@@ -307,6 +311,8 @@ pub struct GigeCamera {
     /// camera does not report it, any port of that address is taken).
     camera_stream: SocketAddr,
     stray: u64,
+    /// Frames lost and triggered again (see [`GRAB_ATTEMPTS`]).
+    dropped: u64,
 }
 
 impl Drop for GigeCamera {
@@ -562,6 +568,7 @@ impl GigeCamera {
                 rx: vec![0u8; 65536],
                 camera_stream,
                 stray: 0,
+                dropped: 0,
             }
         })
     }
@@ -574,6 +581,12 @@ impl GigeCamera {
     /// Datagrams on the stream socket from anyone but the camera: dropped unread.
     pub fn stray_packets(&self) -> u64 {
         self.stray
+    }
+
+    /// Frames lost (incomplete, refused or never arrived) and triggered again since the
+    /// camera was opened.
+    pub fn dropped_frames(&self) -> u64 {
+        self.dropped
     }
 
     /// Whether a datagram on the stream socket comes from the camera: its address,
@@ -667,24 +680,21 @@ fn is_newer(id: u16, last: Option<u16>) -> bool {
     }
 }
 
-#[async_trait]
-impl Camera for GigeCamera {
-    fn info(&self) -> &CameraInfo {
-        &self.info
-    }
-
-    async fn grab(&mut self) -> Result<Frame, DriverError> {
+impl GigeCamera {
+    /// One trigger and the frame it gives. A [`GrabFail::Frame`] lost only this frame
+    /// (the next trigger gives another); a [`GrabFail::Link`] lost the camera.
+    async fn grab_once(&mut self) -> Result<Frame, GrabFail> {
         if let Some(m) = self
             .heartbeat_error
             .lock()
             .unwrap_or_else(|p| p.into_inner())
             .clone()
         {
-            return Err(DriverError::Timeout {
+            return Err(GrabFail::Link(DriverError::Timeout {
                 device: self.device.clone(),
                 what: m,
                 after_ms: 0,
-            });
+            }));
         }
         // Packets of earlier frames (late resends) must not mix into this one.
         while let Ok((n, from)) = self.stream.try_recv_from(&mut self.rx) {
@@ -755,7 +765,7 @@ impl Camera for GigeCamera {
                         // The camera streams another format than it declared: the
                         // rest of this block is stale from now on.
                         self.last_block = Some(a.block_id);
-                        return Err(self.refused_leader(a.block_id, &p, e));
+                        return Err(GrabFail::Frame(self.refused_leader(a.block_id, &p, e)));
                     }
                     if a.is_complete() {
                         break;
@@ -770,10 +780,10 @@ impl Camera for GigeCamera {
                     // Trailer arrived with holes: ask for them now.
                 }
                 Ok(Err(e)) => {
-                    return Err(DriverError::Transport {
+                    return Err(GrabFail::Link(DriverError::Transport {
                         device: self.device.clone(),
                         message: format!("stream socket: {e}"),
-                    })
+                    }))
                 }
                 Err(_) => {
                     if let Some(m) = self
@@ -782,24 +792,24 @@ impl Camera for GigeCamera {
                         .unwrap_or_else(|p| p.into_inner())
                         .clone()
                     {
-                        return Err(DriverError::Timeout {
+                        return Err(GrabFail::Link(DriverError::Timeout {
                             device: self.device.clone(),
                             what: m,
                             after_ms: 0,
-                        });
+                        }));
                     }
                     let Some(a) = &asm else {
-                        return Err(DriverError::Timeout {
+                        return Err(GrabFail::Frame(DriverError::Timeout {
                             device: self.device.clone(),
                             what: "a frame after TriggerSoftware (no stream packet arrived)".into(),
                             after_ms: self.opts.frame_timeout.as_millis() as u64,
-                        });
+                        }));
                     };
                     if a.is_complete() {
                         break;
                     }
                     if tokio::time::Instant::now() >= deadline {
-                        return Err(self.incomplete(a, "frame timeout"));
+                        return Err(GrabFail::Frame(self.incomplete(a, "frame timeout")));
                     }
                 }
             }
@@ -812,7 +822,7 @@ impl Camera for GigeCamera {
                 };
                 let e = self.incomplete(a, why);
                 self.last_block = Some(a.block_id);
-                return Err(e);
+                return Err(GrabFail::Frame(e));
             }
             rounds += 1;
             let missing = a.missing();
@@ -835,14 +845,14 @@ impl Camera for GigeCamera {
             || leader.height != self.info.height
             || leader.pixel_format != self.pixel_format
         {
-            return Err(DriverError::Protocol {
+            return Err(GrabFail::Frame(DriverError::Protocol {
                 device: self.device.clone(),
                 message: format!(
                     "frame (block {block}) is {}x{} {} but the camera declared {}x{} {} at open; frame refused",
                     leader.width, leader.height, pfnc::name(leader.pixel_format),
                     self.info.width, self.info.height, pfnc::name(self.pixel_format)
                 ),
-            });
+            }));
         }
         let pixels = match leader.pixel_format {
             pfnc::MONO8 => Pixels::Mono8(data),
@@ -853,10 +863,10 @@ impl Camera for GigeCamera {
             ),
         };
         let image = MonoImage::new(leader.width, leader.height, pixels).map_err(|e| {
-            DriverError::Protocol {
+            GrabFail::Frame(DriverError::Protocol {
                 device: self.device.clone(),
                 message: format!("frame (block {block}): {e}"),
-            }
+            })
         })?;
         let (exposure_us, gain_db) = {
             let mut c = self.ctl.lock().await;
@@ -878,6 +888,70 @@ impl Camera for GigeCamera {
         };
         self.sequence += 1;
         Ok(Frame { image, meta })
+    }
+}
+
+/// Why one grab attempt failed.
+enum GrabFail {
+    /// This frame is lost (incomplete, refused, never arrived); the stream goes on.
+    Frame(DriverError),
+    /// The camera or its control channel is lost: no retry helps.
+    Link(DriverError),
+}
+
+impl From<DriverError> for GrabFail {
+    fn from(e: DriverError) -> Self {
+        GrabFail::Link(e)
+    }
+}
+
+/// How many triggers one grab may use: a frame lost (packets lost for good, a leader
+/// refused, a forged datagram in the way, no packet at all) is dropped and the camera
+/// triggered again, as Aravis drops a bad buffer and keeps streaming; only when this
+/// many frames in a row are lost does the grab fail (the job then stops). A lost link
+/// (heartbeat, control channel, socket) fails at once.
+pub const GRAB_ATTEMPTS: u32 = 3;
+
+#[async_trait]
+impl Camera for GigeCamera {
+    fn info(&self) -> &CameraInfo {
+        &self.info
+    }
+
+    async fn grab(&mut self) -> Result<Frame, DriverError> {
+        let mut attempt = 1;
+        loop {
+            match self.grab_once().await {
+                Ok(f) => return Ok(f),
+                Err(GrabFail::Link(e)) => return Err(e),
+                Err(GrabFail::Frame(e)) => {
+                    self.dropped += 1;
+                    if attempt >= GRAB_ATTEMPTS {
+                        let note = format!(
+                            " ({GRAB_ATTEMPTS} frames in a row lost; {} dropped since open)",
+                            self.dropped
+                        );
+                        return Err(match e {
+                            DriverError::Protocol { device, message } => DriverError::Protocol {
+                                device,
+                                message: message + &note,
+                            },
+                            DriverError::Timeout {
+                                device,
+                                what,
+                                after_ms,
+                            } => DriverError::Timeout {
+                                device,
+                                what: what + &note,
+                                after_ms,
+                            },
+                            e => e,
+                        });
+                    }
+                    attempt += 1;
+                }
+            }
+        }
     }
 }
 
