@@ -13,6 +13,7 @@
 //! [`refusal_code`]) in its turn.
 
 use crate::line_rewriter::{CartesianRewriter, LineRewriter};
+use protocol::grbl::gcode::LINE_BUFFER_SIZE;
 use protocol::grbl::realtime::{classify, Realtime, RxByte};
 use protocol::grbl::response::Response;
 use protocol::grbl::status::{MachineState, StatusReport};
@@ -21,6 +22,21 @@ use std::collections::VecDeque;
 
 /// GRBL's serial RX buffer (stock 1.1).
 pub const RX_BUFFER: usize = 128;
+
+/// Bytes of a sender line kept as sent (comments and spaces included). Past this the
+/// line is kept as GRBL itself keeps it (no spaces, no comments, at most
+/// [`LINE_BUFFER_SIZE`] - 1 characters): what a sender can make the gateway hold for
+/// one line is bounded whatever it sends.
+pub const RAW_LINE_KEPT: usize = 4096;
+
+/// Sender lines received and not yet answered beyond which the gateway stops reading
+/// from the sender until the controller catches up (a sender that keeps to GRBL's
+/// 128-byte buffer never has more than 64 lines unanswered).
+pub const MAX_UNANSWERED_LINES: usize = 1024;
+
+/// One-time status report fields of GRBL 1.1 and grblHAL that are not `WCO:`, `Ov:` or
+/// `A:`: grblHAL sends them only when they change (or on a full report).
+const ONE_TIME_FIELDS: [&str; 9] = ["WCS", "Sc", "MPG", "H", "D", "T", "P", "TLR", "In"];
 
 /// The `error:N` a sender gets for a line the gateway refused (GRBL has no code of its
 /// own for these): 33 "motion command target is invalid" for a target the compensation
@@ -54,6 +70,161 @@ struct Slot {
     received_s: f64,
     /// When its first piece went to the controller.
     first_sent_s: Option<f64>,
+}
+
+/// A sender line as it arrives, read as GRBL's `protocol_main_loop` reads it: spaces and
+/// control characters dropped, `(...)` and `;` comments dropped, letters upper-cased,
+/// and the line flagged as overflowing once more than [`LINE_BUFFER_SIZE`] - 1
+/// characters are left (GRBL then answers `error:11` and executes nothing).
+#[derive(Debug, Default)]
+struct SenderLine {
+    /// The bytes as sent, up to [`RAW_LINE_KEPT`].
+    raw: Vec<u8>,
+    raw_len: usize,
+    /// What GRBL keeps of it.
+    kept: Vec<u8>,
+    paren_comment: bool,
+    semicolon_comment: bool,
+    overflow: bool,
+}
+
+/// A sender line complete: its text for the rewriter, or GRBL's answer to it.
+#[derive(Debug)]
+enum Received {
+    Line(String),
+    /// Refused as GRBL would refuse it: code and the gateway's message.
+    Refused(u8, String),
+}
+
+impl SenderLine {
+    fn push(&mut self, c: u8) {
+        self.raw_len += 1;
+        if self.raw.len() < RAW_LINE_KEPT {
+            self.raw.push(c);
+        }
+        if self.paren_comment || self.semicolon_comment || self.overflow {
+            if c == b')' {
+                self.paren_comment = false;
+            }
+        } else if c <= b' ' || c == b'/' {
+            // Whitespace, control characters; block delete is not supported.
+        } else if c == b'(' {
+            self.paren_comment = true;
+        } else if c == b';' {
+            self.semicolon_comment = true;
+        } else if self.kept.len() >= LINE_BUFFER_SIZE - 1 {
+            self.overflow = true;
+        } else {
+            self.kept.push(c.to_ascii_uppercase());
+        }
+    }
+
+    /// The line ended (its number given for messages).
+    fn finish(self, line: u64) -> Received {
+        if self.overflow {
+            return Received::Refused(
+                11,
+                format!(
+                    "line {line}: longer than GRBL's line buffer ({} characters without \
+                     spaces and comments; {} bytes sent); not sent",
+                    LINE_BUFFER_SIZE - 1,
+                    self.raw_len
+                ),
+            );
+        }
+        // GRBL 1.1h leaves `%` (program start and end) unsupported (protocol.c: "TODO:
+        // Install '%' feature"): the parser meets it where a letter must be and answers
+        // error:1 (expected command letter). So does the gateway, without sending it.
+        if self.kept.first() == Some(&b'%') {
+            return Received::Refused(
+                1,
+                format!(
+                    "line {line}: `%` (a program delimiter) is not G-code to GRBL 1.1, \
+                     which answers error:1; not sent"
+                ),
+            );
+        }
+        let bytes = match self.raw_len > self.raw.len() {
+            true => self.kept,
+            false => self.raw,
+        };
+        Received::Line(String::from_utf8_lossy(&bytes).into_owned())
+    }
+}
+
+/// Fields of the controller's status reports that GRBL sends once (after a change, or
+/// every so many reports) and that a report of the gateway's own took: they go into
+/// the next report the sender gets, unless that report carries them itself.
+#[derive(Debug, Default)]
+struct OneTimeFields {
+    wco: Option<Vec<f64>>,
+    /// `Ov:` with the `A:` that came with it (GRBL 1.1 sends `A:` only beside `Ov:`; its
+    /// absence there means every accessory is off).
+    overrides: Option<([u16; 3], Option<String>)>,
+    /// `A:` without `Ov:` (grblHAL, when an accessory changes).
+    accessories: Option<String>,
+    other: Vec<String>,
+}
+
+fn field_key(field: &str) -> &str {
+    field.split(':').next().unwrap_or(field)
+}
+
+impl OneTimeFields {
+    /// A report that does not go to the sender: keep what it alone carried.
+    fn keep(&mut self, r: &StatusReport) {
+        if let Some(w) = &r.wco {
+            self.wco = Some(w.clone());
+        }
+        match (&r.overrides, &r.accessories) {
+            (Some(ov), a) => {
+                self.overrides = Some((*ov, a.clone()));
+                self.accessories = None;
+            }
+            (None, Some(a)) => match &mut self.overrides {
+                Some((_, with_ov)) => *with_ov = Some(a.clone()),
+                None => self.accessories = Some(a.clone()),
+            },
+            (None, None) => {}
+        }
+        for f in &r.other {
+            let key = field_key(f);
+            if ONE_TIME_FIELDS.contains(&key) {
+                self.other.retain(|o| field_key(o) != key);
+                self.other.push(f.clone());
+            }
+        }
+    }
+
+    /// A report going to the sender: add what it lacks of the kept fields; forget them.
+    fn merge_into(&mut self, r: &mut StatusReport) {
+        let kept = std::mem::take(self);
+        if r.wco.is_none() {
+            r.wco = kept.wco;
+        }
+        if r.overrides.is_none() {
+            if let Some((ov, a)) = kept.overrides {
+                r.overrides = Some(ov);
+                if r.accessories.is_none() {
+                    r.accessories = a;
+                }
+            }
+        }
+        if r.accessories.is_none() {
+            r.accessories = kept.accessories;
+        }
+        if r.overrides.is_none() {
+            // `A:` alone (grblHAL): written among the other fields.
+            if let Some(a) = r.accessories.take() {
+                r.other.push(format!("A:{a}"));
+            }
+        }
+        for f in kept.other {
+            if !r.other.iter().any(|o| field_key(o) == field_key(&f)) {
+                r.other.push(f);
+            }
+        }
+    }
 }
 
 /// A piece of a sender line on its way to the controller.
@@ -96,7 +267,7 @@ pub struct ProxyStats {
 pub struct Proxy<'a> {
     rewriter: Box<dyn LineRewriter + 'a>,
     rx_buffer: usize,
-    sender_partial: Vec<u8>,
+    sender_partial: SenderLine,
     controller_partial: Vec<u8>,
     slots: VecDeque<Slot>,
     queue: VecDeque<Piece>,
@@ -114,12 +285,14 @@ pub struct Proxy<'a> {
     lost: bool,
     /// Sender lines held until the position is known again (after a homing, a jog or a
     /// reset the gateway asks the controller with `?` before it rewrites a move).
-    deferred: VecDeque<(String, f64)>,
+    deferred: VecDeque<(Received, f64)>,
     /// A `?` of the gateway's own is on its way.
     position_asked: bool,
     /// The sender sent `?` and has not had its report yet. GRBL reports only when asked,
     /// so the gateway's own polls are answered to it alone.
     sender_asked_status: bool,
+    /// One-time report fields the gateway's own polls took from the sender.
+    one_time: OneTimeFields,
 }
 
 /// Marks a line of the gateway's own (`$#`, `$G`) in the controller's buffer: its
@@ -140,7 +313,7 @@ impl<'a> Proxy<'a> {
         Self {
             rewriter,
             rx_buffer: RX_BUFFER,
-            sender_partial: Vec::new(),
+            sender_partial: SenderLine::default(),
             controller_partial: Vec::new(),
             slots: VecDeque::new(),
             queue: VecDeque::new(),
@@ -157,6 +330,7 @@ impl<'a> Proxy<'a> {
             deferred: VecDeque::new(),
             position_asked: false,
             sender_asked_status: false,
+            one_time: OneTimeFields::default(),
         }
     }
 
@@ -222,6 +396,21 @@ impl<'a> Proxy<'a> {
         self.in_flight.len()
     }
 
+    /// Bytes held for sender lines not yet rewritten: the line being received and the
+    /// lines waiting for the position.
+    pub fn held_bytes(&self) -> usize {
+        let line = self.sender_partial.raw.len() + self.sender_partial.kept.len();
+        let waiting: usize = self
+            .deferred
+            .iter()
+            .map(|(r, _)| match r {
+                Received::Line(t) => t.len(),
+                Received::Refused(_, m) => m.len(),
+            })
+            .sum();
+        line + waiting
+    }
+
     /// Whether lines are waiting to go or waiting for the controller.
     pub fn busy(&self) -> bool {
         !self.slots.is_empty()
@@ -266,9 +455,10 @@ impl<'a> Proxy<'a> {
                     }
                 }
                 RxByte::Buffered(b'\n' | b'\r') => {
-                    let raw = std::mem::take(&mut self.sender_partial);
-                    let text = String::from_utf8_lossy(&raw).into_owned();
-                    self.deferred.push_back((text, now_s));
+                    let line = std::mem::take(&mut self.sender_partial);
+                    // Its number once read: after the ones held before it.
+                    let number = self.next_line + self.deferred.len() as u64;
+                    self.deferred.push_back((line.finish(number), now_s));
                     self.release_deferred();
                 }
                 RxByte::Buffered(b) => self.sender_partial.push(b),
@@ -282,21 +472,29 @@ impl<'a> Proxy<'a> {
     /// Rewrite held lines while the position is known (or the controller lost: they
     /// are refused); else ask the controller once nothing is outstanding.
     fn release_deferred(&mut self) {
-        while let Some((text, at)) = self.deferred.front() {
+        while let Some((received, _)) = self.deferred.front() {
             let needs_position = !self.rewriter.position_known() && !self.lost;
-            if needs_position && !text.trim_start().starts_with('$') && !text.trim().is_empty() {
-                if self.slots.is_empty() && !self.own_line_pending() {
-                    self.ask_position();
+            if let Received::Line(text) = received {
+                if needs_position && !text.trim_start().starts_with('$') && !text.trim().is_empty()
+                {
+                    if self.slots.is_empty() && !self.own_line_pending() {
+                        self.ask_position();
+                    }
+                    return;
                 }
-                return;
             }
-            let (text, at) = (text.clone(), *at);
-            self.deferred.pop_front();
-            self.sender_line(&text, at);
+            let (received, at) = self.deferred.pop_front().expect("front exists");
+            self.sender_line(received, at);
         }
     }
 
-    fn sender_line(&mut self, text: &str, now_s: f64) {
+    /// Whether the gateway takes more bytes from the sender now: not while
+    /// [`MAX_UNANSWERED_LINES`] lines wait for their answers.
+    pub fn accepts_sender_bytes(&self) -> bool {
+        self.slots.len() + self.deferred.len() < MAX_UNANSWERED_LINES
+    }
+
+    fn sender_line(&mut self, received: Received, now_s: f64) {
         let line = self.next_line;
         self.next_line += 1;
         self.stats.lines += 1;
@@ -307,13 +505,24 @@ impl<'a> Proxy<'a> {
             received_s: now_s,
             first_sent_s: None,
         };
+        let text = match received {
+            Received::Line(text) => text,
+            Received::Refused(code, why) => {
+                if !self.lost {
+                    let msg = format!("[MSG:gateway: {why}]\r\n");
+                    self.to_sender.extend_from_slice(msg.as_bytes());
+                }
+                slot.error = Some(if self.lost { 9 } else { code });
+                String::new()
+            }
+        };
         if self.lost {
             slot.error = Some(9);
-        } else if text.trim().is_empty() {
+        } else if slot.error.is_some() || text.trim().is_empty() {
             // GRBL answers an empty line with `ok` (senders use it to sync).
         } else {
             let t0 = std::time::Instant::now();
-            let rewritten = self.rewriter.line(text, line as usize);
+            let rewritten = self.rewriter.line(&text, line as usize);
             self.stats.processing_s.push(t0.elapsed().as_secs_f64());
             match rewritten {
                 Ok(pieces) => {
@@ -412,12 +621,16 @@ impl<'a> Proxy<'a> {
                 // A $G reply the controller would not refuse; a failure leaves defaults.
                 self.rewriter.sync_modal(&words);
             }
+            // Everything else a `$#` prints (`[G59.1:]`..`[G59.3:]`, `[G51:]`, `[T:...]`,
+            // `[TLR:]` of grblHAL, `[HOME:]`, ...): the gateway's own too.
+            Response::Other(ref line) if self.own_line_pending() && line.starts_with('[') => {}
             Response::Status(report) => self.status(report),
             Response::Banner { .. } => {
                 // The controller restarted: its buffer is gone, nothing is resent.
                 self.drop_pending();
                 self.rewriter.controller_reset();
                 self.position_asked = false;
+                self.one_time = OneTimeFields::default();
                 self.pass_on(raw);
             }
             _ => self.pass_on(raw),
@@ -475,9 +688,12 @@ impl<'a> Proxy<'a> {
         }
         // GRBL's decimals for mm reports ($13=0, the default; the gateway's map is in mm).
         if std::mem::take(&mut self.sender_asked_status) {
+            self.one_time.merge_into(&mut report);
             let line = report.to_line(3);
             self.to_sender.extend_from_slice(line.as_bytes());
             self.to_sender.extend_from_slice(b"\r\n");
+        } else {
+            self.one_time.keep(&report);
         }
         self.release_deferred();
     }

@@ -13,7 +13,9 @@ pub mod core;
 pub mod line_rewriter;
 pub mod serve;
 
-pub use crate::core::{refusal_code, LineAccount, Proxy, ProxyStats, RX_BUFFER};
+pub use crate::core::{
+    refusal_code, LineAccount, Proxy, ProxyStats, MAX_UNANSWERED_LINES, RAW_LINE_KEPT, RX_BUFFER,
+};
 pub use line_rewriter::{CartesianRewriter, FiveAxisRewriter, LineRewriter};
 pub use serve::{open_controller, serve, Ending, SenderPort};
 

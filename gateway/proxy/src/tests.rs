@@ -215,3 +215,175 @@ fn idle_while_lines_wait_counts_as_starvation() {
         "one event, not one per report"
     );
 }
+
+/// grblHAL's answers to the gateway's `$#` (six axes), `$G` and `?`.
+const GRBLHAL_START: &[u8] =
+    b"[G54:0.000,0.000,0.000,0.000,0.000,0.000]\r\n[G55:0.000,0.000,0.000,0.000,0.000,0.000]\r\n\
+[G56:0.000,0.000,0.000,0.000,0.000,0.000]\r\n[G57:0.000,0.000,0.000,0.000,0.000,0.000]\r\n\
+[G58:0.000,0.000,0.000,0.000,0.000,0.000]\r\n[G59:0.000,0.000,0.000,0.000,0.000,0.000]\r\n\
+[G59.1:0.000,0.000,0.000,0.000,0.000,0.000]\r\n[G59.2:0.000,0.000,0.000,0.000,0.000,0.000]\r\n\
+[G59.3:0.000,0.000,0.000,0.000,0.000,0.000]\r\n[G28:0.000,0.000,0.000,0.000,0.000,0.000]\r\n\
+[G30:0.000,0.000,0.000,0.000,0.000,0.000]\r\n[G92:0.000,0.000,0.000,0.000,0.000,0.000]\r\n\
+[T:1|0.000,0.000,0.000,0.000,0.000,0.000|0.000|6,0,0|]\r\n[G51:1.000,1.000,1.000]\r\n\
+[TLO:0.000,0.000,0.000,0.000,0.000,0.000]\r\n[TLR:0]\r\n[HOME:0.000,0.000,0.000:0]\r\n\
+[PRB:0.000,0.000,0.000,0.000,0.000,0.000:0]\r\nok\r\n\
+[GC:G0 G54 G17 G21 G90 G94 G40 G49 G98 G50 M5 M9 T0 F0 S0.]\r\nok\r\n\
+<Idle|MPos:10.010,9.990,0.000,0.000,0.000,0.000|Bf:100,1023|FS:0,0|Ov:100,100,100|A:|TLR:0>\r\n";
+
+#[test]
+fn none_of_grblhals_answers_to_the_gateways_own_queries_reach_the_sender() {
+    let comp = Skewed;
+    let rewriter = Rewriter::new(&comp, Options::default()).unwrap();
+    let mut p = Proxy::new(rewriter, &comp);
+    p.start();
+    p.take_to_controller();
+    p.from_controller(GRBLHAL_START, 0.0);
+    assert_eq!(text(p.take_to_sender()), "");
+    assert!(p.rewriter().position_known());
+    // The sender's own `$#` gets every line.
+    p.from_sender(b"$#\n", 1.0);
+    assert_eq!(p.take_to_controller(), b"$#\n");
+    let own = &GRBLHAL_START[..GRBLHAL_START
+        .windows(4)
+        .position(|w| w == b"ok\r\n")
+        .unwrap()
+        + 4];
+    p.from_controller(own, 1.1);
+    assert_eq!(text(p.take_to_sender()), text(own.to_vec()));
+}
+
+#[test]
+fn one_time_report_fields_taken_by_the_gateways_polls_reach_the_sender_once() {
+    let comp = Skewed;
+    let mut p = started(&comp);
+    p.take_to_sender();
+    // The gateway's own poll gets the report right after an override and an offset
+    // change: GRBL prints Ov:, A: and WCO: there and not in the next reports.
+    p.from_controller(
+        b"<Idle|MPos:10.010,9.990,0.000|FS:0,0|WCO:1.000,2.000,0.000|Ov:120,100,100|A:SF>\r\n",
+        1.0,
+    );
+    assert_eq!(text(p.take_to_sender()), "");
+    p.from_sender(b"?", 1.1);
+    p.from_controller(b"<Idle|MPos:10.010,9.990,0.000|FS:0,0>\r\n", 1.2);
+    assert_eq!(
+        text(p.take_to_sender()),
+        "<Idle|MPos:10.000,10.000,0.000|FS:0,0|WCO:1.000,2.000,0.000|Ov:120,100,100|A:SF>\r\n"
+    );
+    // Delivered once: the next report is as GRBL sent it.
+    p.from_sender(b"?", 1.3);
+    p.from_controller(b"<Idle|MPos:10.010,9.990,0.000|FS:0,0>\r\n", 1.4);
+    assert_eq!(
+        text(p.take_to_sender()),
+        "<Idle|MPos:10.000,10.000,0.000|FS:0,0>\r\n"
+    );
+    // A fresher field in the sender's report wins; `Ov:` without `A:` (GRBL: all
+    // accessories off) is not given an older `A:`.
+    p.from_controller(
+        b"<Idle|MPos:10.010,9.990,0.000|FS:0,0|Ov:120,100,100|A:S>\r\n",
+        1.5,
+    );
+    p.from_sender(b"?", 1.6);
+    p.from_controller(
+        b"<Idle|MPos:10.010,9.990,0.000|FS:0,0|Ov:100,100,100>\r\n",
+        1.7,
+    );
+    assert_eq!(
+        text(p.take_to_sender()),
+        "<Idle|MPos:10.000,10.000,0.000|FS:0,0|Ov:100,100,100>\r\n"
+    );
+    // grblHAL: `A:` alone and its change-only fields.
+    p.from_controller(
+        b"<Idle|MPos:10.010,9.990,0.000|FS:0,0|A:M|H:1|TLR:1>\r\n",
+        1.8,
+    );
+    p.from_sender(b"?", 1.9);
+    p.from_controller(b"<Idle|MPos:10.010,9.990,0.000|FS:0,0|H:0>\r\n", 2.0);
+    assert_eq!(
+        text(p.take_to_sender()),
+        "<Idle|MPos:10.000,10.000,0.000|FS:0,0|H:0|A:M|TLR:1>\r\n"
+    );
+}
+
+#[test]
+fn a_line_longer_than_grbls_buffer_is_refused_with_error_11_and_not_held() {
+    let comp = Skewed;
+    let mut p = started(&comp);
+    p.take_to_sender();
+    // 2 MiB without a line end (the bound does not depend on the size), in the pieces
+    // a pty delivers.
+    let chunk = vec![b'X'; 4096];
+    for k in 0..(2 << 20) / chunk.len() {
+        p.from_sender(&chunk, 1.0 + k as f64 * 1e-6);
+        assert!(p.held_bytes() <= RAW_LINE_KEPT + 80, "{}", p.held_bytes());
+    }
+    p.from_sender(b"\nG0 X20 Y20\n", 2.0);
+    let told = text(p.take_to_sender());
+    assert!(
+        told.len() < 300,
+        "no echo of the line: {} bytes",
+        told.len()
+    );
+    assert!(told.contains("longer than GRBL's line buffer"), "{told}");
+    assert!(told.ends_with("error:11\r\n"), "{told}");
+    // Only the next line went to the controller.
+    let sent = text(p.take_to_controller());
+    assert!(
+        sent.starts_with("G0 X20.0100") && !sent.contains("XXX"),
+        "{sent}"
+    );
+    // GRBL counts what is left without spaces and comments: 80 characters overflow,
+    // 79 do not, and a long comment does not count.
+    p.from_controller(b"ok\r\n", 2.1);
+    p.take_to_sender();
+    let long = format!("G4P0{}\n", "0".repeat(76));
+    p.from_sender(long.as_bytes(), 2.2);
+    assert!(p.take_to_controller().is_empty());
+    assert!(text(p.take_to_sender()).ends_with("error:11\r\n"));
+    let just = format!("G4 P0{}\n", "0".repeat(75));
+    p.from_sender(just.as_bytes(), 2.3);
+    assert_eq!(text(p.take_to_controller()), just);
+    p.from_controller(b"ok\r\n", 2.4);
+    assert_eq!(text(p.take_to_sender()), "ok\r\n");
+    let commented = format!("G4 P0 ({})\n", "a comment ".repeat(1000));
+    p.from_sender(commented.as_bytes(), 2.5);
+    assert_eq!(
+        text(p.take_to_controller()),
+        "G4P0\n",
+        "kept as GRBL keeps it"
+    );
+    p.from_controller(b"ok\r\n", 2.6);
+    assert_eq!(text(p.take_to_sender()), "ok\r\n");
+}
+
+#[test]
+fn a_percent_line_is_answered_error_1_as_grbl_does_and_not_sent() {
+    let comp = Skewed;
+    let mut p = started(&comp);
+    p.take_to_sender();
+    p.from_sender(b"%\nG0 X20 Y20\n% end\n", 1.0);
+    let sent = text(p.take_to_controller());
+    assert!(!sent.contains('%'), "{sent}");
+    p.from_controller(b"ok\r\n", 1.1);
+    let told = text(p.take_to_sender());
+    let answers: Vec<&str> = told.lines().filter(|l| !l.starts_with("[MSG:")).collect();
+    assert_eq!(answers, ["error:1", "ok", "error:1"], "{told}");
+    assert_eq!(p.account().refused, vec![1, 3]);
+}
+
+#[test]
+fn a_sender_that_ignores_the_buffer_is_not_read_past_a_bound() {
+    let comp = Skewed;
+    let mut p = started(&comp);
+    let mut k = 0;
+    while p.accepts_sender_bytes() {
+        p.from_sender(format!("G1 X{} Y10 F900\n", 10 + k % 100).as_bytes(), 1.0);
+        k += 1;
+        assert!(k <= MAX_UNANSWERED_LINES, "never stops");
+    }
+    assert_eq!(k, MAX_UNANSWERED_LINES);
+    // Answers from the controller make room again.
+    p.take_to_controller();
+    p.from_controller(b"ok\r\n", 2.0);
+    assert!(p.accepts_sender_bytes());
+}
