@@ -2,8 +2,8 @@
 //! (BaseNode402) over python-can's `slcan` interface, as master of the stand-alone
 //! `emulators canopen` drive over its pseudo-terminal: NMT, heartbeat, SDO reads of the
 //! PDO records and 0x6502, the power state machine, homing, a profile-position move,
-//! a fault with its EMCY and a fault reset. Skips, saying why, when python3 or the
-//! packages are missing (CI installs them).
+//! a fault with its EMCY and a fault reset. Fails, naming the missing peer and the
+//! install step (`tests/install-peers.sh`), when python3 or the packages are missing.
 
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
@@ -12,8 +12,7 @@ use system_tests::{emulators_binary, python_missing, workspace, Kill};
 #[test]
 fn python_canopen_master_runs_our_emulated_cia402_drive_over_slcan() {
     if let Some(why) = python_missing("canopen, can, serial", "canopen python-can pyserial") {
-        eprintln!("SKIPPED: {why}");
-        return;
+        panic!("a peer of this test is missing (install every test peer with tests/install-peers.sh, README: Set-up): {why}");
     }
     let child = Command::new(emulators_binary())
         .args(["canopen", "--time-scale", "unconstrained"])

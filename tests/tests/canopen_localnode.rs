@@ -2,7 +2,8 @@
 //! LocalNode (built from the same EDS) on python-can's `slcan` interface, both plugged
 //! into an emulated bus with two SLCAN adapters on pseudo-terminals. Expedited and
 //! segmented SDO, abort codes from another implementation, heartbeat supervision (and
-//! its loss), EMCY. Skips, saying why, when python3 or the packages are missing.
+//! its loss), EMCY. Fails, naming the missing peer and the install step
+//! (`tests/install-peers.sh`), when python3 or the packages are missing.
 
 mod canopen_common;
 
@@ -21,8 +22,7 @@ use system_tests::{python_missing, Kill};
 #[test]
 fn our_master_talks_to_a_python_canopen_local_node() {
     if let Some(why) = python_missing("canopen, can, serial", "canopen python-can pyserial") {
-        eprintln!("SKIPPED: {why}");
-        return;
+        panic!("a peer of this test is missing (install every test peer with tests/install-peers.sh, README: Set-up): {why}");
     }
     let ws = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     runtime().block_on(async {

@@ -1,7 +1,8 @@
 //! Interoperation with an independent GRBL client: a pyserial script written against
 //! GRBL's public interface (what UGS and CNCjs do at connect, then character-counting
 //! streaming) talks to the stand-alone `emulators grbl` binary over its pseudo-terminal.
-//! Skips, saying why, when python3 or pyserial is missing (CI installs pyserial).
+//! Fails, naming the missing peer and the install step (`tests/install-peers.sh`), when
+//! python3 or pyserial is missing.
 
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
@@ -10,8 +11,7 @@ use system_tests::{emulators_binary, python_missing, workspace, Kill};
 #[test]
 fn pyserial_sender_connects_like_ugs_and_streams_by_character_counting() {
     if let Some(why) = python_missing("serial", "pyserial") {
-        eprintln!("SKIPPED: {why}");
-        return;
+        panic!("a peer of this test is missing (install every test peer with tests/install-peers.sh, README: Set-up): {why}");
     }
     let dir = std::env::temp_dir().join(format!("grbl-interop-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();

@@ -1,8 +1,8 @@
 //! Interoperation with an independent Modbus implementation (pymodbus, from the package
 //! registry): its client drives the stand-alone `emulators modbus` over TCP and over
 //! RTU on the emulator's pseudo-terminal; our driver drives a pymodbus server built
-//! from a drive profile's register map. Skips, saying why, when python3 or pymodbus is
-//! missing (CI installs pymodbus).
+//! from a drive profile's register map. Fails, naming the missing peer and the install
+//! step (`tests/install-peers.sh`), when python3 or pymodbus is missing.
 
 mod modbus_common;
 
@@ -13,13 +13,10 @@ use std::io::{BufRead, BufReader, Read};
 use std::process::{Command, Stdio};
 use system_tests::{emulators_binary, python_missing, workspace, Kill};
 
-fn pymodbus_available() -> bool {
-    match python_missing("pymodbus, serial", "pymodbus pyserial") {
-        Some(why) => {
-            eprintln!("SKIPPED: {why}");
-            false
-        }
-        None => true,
+/// pymodbus is here, or the test fails naming it and the install step.
+fn require_pymodbus() {
+    if let Some(why) = python_missing("pymodbus, serial", "pymodbus pyserial") {
+        panic!("a peer of this test is missing (install every test peer with tests/install-peers.sh, README: Set-up): {why}");
     }
 }
 
@@ -42,9 +39,7 @@ fn run_client(args: &[&str]) -> serde_json::Value {
 
 #[test]
 fn pymodbus_client_drives_the_emulator_over_tcp_and_rtu() {
-    if !pymodbus_available() {
-        return;
-    }
+    require_pymodbus();
     let child = Command::new(emulators_binary())
         .args([
             "modbus",
@@ -93,9 +88,7 @@ fn pymodbus_client_drives_the_emulator_over_tcp_and_rtu() {
 
 #[test]
 fn our_driver_drives_a_pymodbus_server_built_from_the_oriental_profile() {
-    if !pymodbus_available() {
-        return;
-    }
+    require_pymodbus();
     let child = Command::new("python3")
         .arg(workspace().join("tests/interop/modbus_server.py"))
         .args([
