@@ -436,7 +436,12 @@ impl<'a> Proxy<'a> {
     /// Bytes from the sender, at `now_s` (the caller's clock, for latency figures).
     pub fn from_sender(&mut self, bytes: &[u8], now_s: f64) {
         for &b in bytes {
-            match classify(b) {
+            // Most bytes are plain text: only these four below 0x80 are real-time.
+            let kind = match b {
+                b'?' | b'!' | b'~' | 0x18 | 0x80.. => classify(b),
+                _ => RxByte::Buffered(b),
+            };
+            match kind {
                 RxByte::Realtime(rt) => {
                     if self.lost {
                         continue;

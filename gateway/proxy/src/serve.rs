@@ -19,8 +19,9 @@ pub struct SenderPort {
 }
 
 impl SenderPort {
-    /// A new pseudo-terminal; with `link`, a symlink to its slave path there (replacing
-    /// an old one), a stable name to give the sender.
+    /// A new pseudo-terminal; with `link`, a symlink to its slave path there, a stable
+    /// name to give the sender. An old symlink there is replaced (atomically); anything
+    /// else there (a regular file, a folder) is refused and left alone.
     pub fn create(link: Option<&Path>) -> io::Result<SenderPort> {
         let (master, slave) = SerialStream::pair().map_err(|e| io::Error::other(e.to_string()))?;
         let path = slave
@@ -28,10 +29,7 @@ impl SenderPort {
             .ok_or_else(|| io::Error::other("the pseudo-terminal has no slave path"))?;
         drop(slave);
         if let Some(l) = link {
-            if l.symlink_metadata().is_ok() {
-                std::fs::remove_file(l)?;
-            }
-            std::os::unix::fs::symlink(&path, l)?;
+            place_link(&path, l)?;
         }
         Ok(SenderPort {
             master,
@@ -50,10 +48,59 @@ impl SenderPort {
     }
 }
 
+/// A symlink at `link` to `target`: made beside it under a unique name and renamed
+/// over an old symlink; never over anything that is not a symlink.
+fn place_link(target: &str, link: &Path) -> io::Result<()> {
+    if let Ok(m) = link.symlink_metadata() {
+        if !m.file_type().is_symlink() {
+            return Err(io::Error::new(
+                io::ErrorKind::AlreadyExists,
+                format!(
+                    "{} exists and is not a symlink: not replaced (give a new path to --link)",
+                    link.display()
+                ),
+            ));
+        }
+    }
+    let name = link
+        .file_name()
+        .ok_or_else(|| io::Error::other(format!("{}: no file name", link.display())))?;
+    let mut tmp_name = std::ffi::OsString::from(".");
+    tmp_name.push(name);
+    tmp_name.push(format!(".{}.link-tmp", std::process::id()));
+    let tmp = link.with_file_name(tmp_name);
+    let _ = std::fs::remove_file(&tmp);
+    std::os::unix::fs::symlink(target, &tmp)?;
+    // Checked again just before: a file put there meanwhile is not replaced.
+    if link
+        .symlink_metadata()
+        .is_ok_and(|m| !m.file_type().is_symlink())
+    {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(io::Error::new(
+            io::ErrorKind::AlreadyExists,
+            format!(
+                "{} exists and is not a symlink: not replaced",
+                link.display()
+            ),
+        ));
+    }
+    std::fs::rename(&tmp, link).inspect_err(|_| {
+        let _ = std::fs::remove_file(&tmp);
+    })
+}
+
 impl Drop for SenderPort {
+    /// The link goes only if it is still the symlink to this port.
     fn drop(&mut self) {
         if let Some(l) = &self.link {
-            let _ = std::fs::remove_file(l);
+            let ours = l
+                .symlink_metadata()
+                .is_ok_and(|m| m.file_type().is_symlink())
+                && std::fs::read_link(l).is_ok_and(|t| t == Path::new(&self.path));
+            if ours {
+                let _ = std::fs::remove_file(l);
+            }
         }
     }
 }
@@ -107,19 +154,41 @@ const NO_SENDER_RETRY: Duration = Duration::from_millis(20);
 /// way (GRBL's docs suggest at most 5 Hz for senders; the gateway's own is on top).
 const STATUS_POLL: Duration = Duration::from_millis(200);
 
-/// Serve one sender session: until the sender leaves (after it sent something), the
-/// controller is lost, or `stop` fires.
+/// Bytes for the sender kept while it does not read them; past this, what does not fit
+/// is dropped (as a serial line's buffers would), and the controller side goes on.
+pub const SENDER_OUTBOX: usize = 1 << 20;
+
+/// How long the last words to a sender (the controller was lost) may take.
+const LAST_WORDS: Duration = Duration::from_millis(500);
+
+/// Serve one sender session: until the sender leaves (after it opened the port or sent
+/// something), the controller is lost, or `stop` fires.
+///
+/// Nothing a sender does can make it hold without bound: bytes are read from the sender
+/// only while [`Proxy::accepts_sender_bytes`], and what it does not read is kept up to
+/// [`SENDER_OUTBOX`] bytes. A sender that opened the port and closed it without sending
+/// anything ends the session too (seen from the pseudo-terminal: its reads wait while
+/// a sender has it open and fail at once while none has).
 pub async fn serve(
     proxy: &mut Proxy<'_>,
     sender: &mut SenderPort,
     controller: &mut SerialStream,
     stop: impl Future<Output = ()>,
 ) -> Ending {
+    use std::task::Poll;
+    use tokio::io::AsyncRead;
     let started = Instant::now();
     let now = || started.elapsed().as_secs_f64();
     let mut from_sender = [0u8; 4096];
     let mut from_controller = [0u8; 4096];
     let mut heard_sender = false;
+    // A sender has the port open: reads waited and none failed for two poll periods.
+    let mut sender_seen = false;
+    let read_waited = std::cell::Cell::new(false);
+    let mut read_failures = 0u32;
+    let mut quiet_periods = 0u32;
+    let mut outbox: Vec<u8> = Vec::new();
+    let (mut sender_rx, mut sender_tx) = tokio::io::split(&mut sender.master);
     let mut poll = tokio::time::interval(STATUS_POLL);
     poll.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     tokio::pin!(stop);
@@ -128,32 +197,62 @@ pub async fn serve(
         let out = proxy.take_to_controller();
         if !out.is_empty() {
             if let Err(e) = controller.write_all(&out).await {
-                break lost(proxy, sender, format!("writing to the controller: {e}")).await;
+                break lost(
+                    proxy,
+                    &mut sender_tx,
+                    outbox,
+                    format!("writing to the controller: {e}"),
+                )
+                .await;
             }
         }
         let back = proxy.take_to_sender();
-        if !back.is_empty() {
-            // A sender that is not there loses what was meant for it; the controller
-            // side goes on.
-            let _ = sender.master.write_all(&back).await;
-        }
+        let room = SENDER_OUTBOX.saturating_sub(outbox.len());
+        outbox.extend_from_slice(&back[..back.len().min(room)]);
+        let reading = proxy.accepts_sender_bytes();
         tokio::select! {
             biased;
             _ = &mut stop => break Ending::Stopped(proxy.account()),
-            _ = poll.tick() => proxy.poll_status(),
+            _ = poll.tick() => {
+                proxy.poll_status();
+                // Two poll periods in a row in which a read waited and none failed.
+                quiet_periods = match read_waited.take() && read_failures == 0 {
+                    true => quiet_periods + 1,
+                    false => 0,
+                };
+                sender_seen |= quiet_periods >= 2;
+                read_failures = 0;
+            }
             r = controller.read(&mut from_controller) => match r {
-                Ok(0) => break lost(proxy, sender, "the port closed".into()).await,
+                Ok(0) => break lost(proxy, &mut sender_tx, outbox, "the port closed".into()).await,
                 Ok(n) => proxy.from_controller(&from_controller[..n], now()),
-                Err(e) => break lost(proxy, sender, e.to_string()).await,
+                Err(e) => break lost(proxy, &mut sender_tx, outbox, e.to_string()).await,
             },
-            r = sender.master.read(&mut from_sender) => match r {
+            // A sender that is not there loses what was meant for it.
+            r = sender_tx.write(&outbox), if !outbox.is_empty() => match r {
+                Ok(n) if n > 0 => {
+                    outbox.drain(..n);
+                }
+                _ => outbox.clear(),
+            },
+            r = std::future::poll_fn(|cx| {
+                let mut buf = tokio::io::ReadBuf::new(&mut from_sender);
+                match std::pin::Pin::new(&mut sender_rx).poll_read(cx, &mut buf) {
+                    Poll::Pending => {
+                        read_waited.set(true);
+                        Poll::Pending
+                    }
+                    Poll::Ready(r) => Poll::Ready(r.map(|()| buf.filled().len())),
+                }
+            }), if reading => match r {
                 Ok(n) if n > 0 => {
                     heard_sender = true;
                     proxy.from_sender(&from_sender[..n], now());
                 }
                 // No sender has the port open (EIO on the master) or it just closed.
                 _ => {
-                    if heard_sender {
+                    read_failures += 1;
+                    if heard_sender || sender_seen {
                         let lines = proxy.sender_lost();
                         let hold = proxy.take_to_controller();
                         if !hold.is_empty() {
@@ -169,9 +268,14 @@ pub async fn serve(
     ending
 }
 
-async fn lost(proxy: &mut Proxy<'_>, sender: &mut SenderPort, why: String) -> Ending {
+async fn lost(
+    proxy: &mut Proxy<'_>,
+    sender: &mut (impl tokio::io::AsyncWrite + Unpin),
+    mut outbox: Vec<u8>,
+    why: String,
+) -> Ending {
     let lines = proxy.controller_lost(&why);
-    let back = proxy.take_to_sender();
-    let _ = sender.master.write_all(&back).await;
+    outbox.extend_from_slice(&proxy.take_to_sender());
+    let _ = tokio::time::timeout(LAST_WORDS, sender.write_all(&outbox)).await;
     Ending::ControllerLost { why, lines }
 }

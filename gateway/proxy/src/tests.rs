@@ -1,5 +1,6 @@
 use super::*;
 use rewrite::{Approach, Compensation, Options, Pose, Rewriter, N_AXIS};
+use std::path::Path;
 
 /// The tool lands 10 um short in X and 0.1 % long in Y: the command for nominal p is
 /// (p.x + 0.010, p.y / 1.001); known inside 0..300 mm.
@@ -310,10 +311,9 @@ fn a_line_longer_than_grbls_buffer_is_refused_with_error_11_and_not_held() {
     let comp = Skewed;
     let mut p = started(&comp);
     p.take_to_sender();
-    // 2 MiB without a line end (the bound does not depend on the size), in the pieces
-    // a pty delivers.
+    // 50 MiB without a line end, in the pieces a pty delivers.
     let chunk = vec![b'X'; 4096];
-    for k in 0..(2 << 20) / chunk.len() {
+    for k in 0..(50 << 20) / chunk.len() {
         p.from_sender(&chunk, 1.0 + k as f64 * 1e-6);
         assert!(p.held_bytes() <= RAW_LINE_KEPT + 80, "{}", p.held_bytes());
     }
@@ -386,4 +386,33 @@ fn a_sender_that_ignores_the_buffer_is_not_read_past_a_bound() {
     p.take_to_controller();
     p.from_controller(b"ok\r\n", 2.0);
     assert!(p.accepts_sender_bytes());
+}
+
+#[tokio::test]
+async fn the_senders_link_never_replaces_or_deletes_anything_but_its_own_symlink() {
+    let dir = std::env::temp_dir().join(format!("proxy-link-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    // A regular file where the link should go: refused, left as it was.
+    let file = dir.join("program.nc");
+    std::fs::write(&file, "G0 X1\n").unwrap();
+    let e = crate::SenderPort::create(Some(&file))
+        .err()
+        .expect("refused");
+    assert!(e.to_string().contains("not a symlink"), "{e}");
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), "G0 X1\n");
+    // An old symlink is replaced; the link goes with the port...
+    let link = dir.join("ttyGATEWAY");
+    let _ = std::fs::remove_file(&link);
+    std::os::unix::fs::symlink("/dev/null", &link).unwrap();
+    let port = crate::SenderPort::create(Some(&link)).unwrap();
+    assert_eq!(std::fs::read_link(&link).unwrap(), Path::new(port.path()));
+    drop(port);
+    assert!(link.symlink_metadata().is_err());
+    // ... unless something else took its place meanwhile.
+    let port = crate::SenderPort::create(Some(&link)).unwrap();
+    std::fs::remove_file(&link).unwrap();
+    std::fs::write(&link, "mine").unwrap();
+    drop(port);
+    assert_eq!(std::fs::read_to_string(&link).unwrap(), "mine");
+    std::fs::remove_dir_all(&dir).unwrap();
 }
