@@ -379,14 +379,116 @@ fn unit_mm(drawing: &Drawing) -> Result<f64, LayoutError> {
     }
 }
 
-/// The part an INSERT places: its block's closed contours, placed by the INSERT.
-fn insert_part(
+/// The most vertices a DXF layout may expand to (its parts' contours, every INSERT's
+/// copy of its block included): 64 MB of points, far beyond any cutting layout (a marker
+/// of 500 pieces of 1 000 vertices is 500 000). A drawing of 20 000 INSERTs of one
+/// large block grew to 2.5 GB before this bound.
+pub const MAX_VERTICES: usize = 4_000_000;
+
+/// A block's contours at one chord tolerance (in block units): the outer contour and
+/// the holes, and their vertex count.
+type BlockShape = (Vec<Point>, Vec<Vec<Point>>);
+
+fn vertices_of(shape: &BlockShape) -> usize {
+    shape.0.len() + shape.1.iter().map(Vec::len).sum::<usize>()
+}
+
+/// The tolerance key of an INSERT: its block and its scale (the chord tolerance in block
+/// units depends on it).
+fn insert_key(ins: &Insert) -> (String, u64, u64) {
+    (
+        ins.name.clone(),
+        ins.x_scale_factor.abs().to_bits(),
+        ins.y_scale_factor.abs().to_bits(),
+    )
+}
+
+/// Before any INSERT is placed: the vertices all of them expand to, estimated from each
+/// distinct (block, scale) flattened once, times the INSERTs of it; refused naming the
+/// estimate when beyond [`MAX_VERTICES`]. The flattening stops as soon as the estimate
+/// passes the bound, so the work is bounded too. Returns the shapes to place and the
+/// vertices they expand to.
+fn insert_shapes(
+    blocks: &HashMap<&str, &Block>,
+    inserts: &[(&Entity, &Insert)],
+    options: &ReadOptions,
+    unit: f64,
+) -> Result<(HashMap<(String, u64, u64), BlockShape>, usize), LayoutError> {
+    let mut uses: HashMap<(String, u64, u64), (usize, &Entity, &Insert)> = HashMap::new();
+    for (e, ins) in inserts {
+        uses.entry(insert_key(ins)).or_insert((0, e, ins)).0 += 1;
+    }
+    // Most-used first: an explosion is found after flattening few blocks.
+    let mut order: Vec<_> = uses.into_iter().collect();
+    order.sort_by(|a, b| b.1 .0.cmp(&a.1 .0).then_with(|| a.0.cmp(&b.0)));
+    let mut shapes = HashMap::new();
+    let mut estimate = 0usize;
+    for (key, (n, e, ins)) in order {
+        let shape = block_shape(blocks, e, ins, options, unit)?;
+        let each = vertices_of(&shape);
+        estimate = estimate.saturating_add(each.saturating_mul(n));
+        if estimate > MAX_VERTICES {
+            return Err(entity_error(
+                e,
+                format!(
+                    "the drawing's {} INSERTs expand to at least {estimate} vertices (block `{}` of {each} vertices placed {n} times), more than the {MAX_VERTICES} a layout may have",
+                    inserts.len(),
+                    ins.name
+                ),
+            ));
+        }
+        shapes.insert(key, shape);
+    }
+    Ok((shapes, estimate))
+}
+
+/// The part an INSERT places: its block's closed contours (flattened once per block and
+/// scale, [`insert_shapes`]), placed by the INSERT.
+fn place_insert(
+    shape: &BlockShape,
+    block: &Block,
+    e: &Entity,
+    ins: &Insert,
+    unit: f64,
+) -> Result<(Vec<Point>, Vec<Vec<Point>>), LayoutError> {
+    let s = ocs_sign(
+        e,
+        (
+            ins.extrusion_direction.x,
+            ins.extrusion_direction.y,
+            ins.extrusion_direction.z,
+        ),
+    )?;
+    let (sx, sy) = (ins.x_scale_factor, ins.y_scale_factor);
+    let (rot_sin, rot_cos) = ins.rotation.to_radians().sin_cos();
+    let b = [block.base_point.x, block.base_point.y];
+    let place = |p: &Point| {
+        let (x, y) = ((p[0] - b[0]) * sx, (p[1] - b[1]) * sy);
+        let (x, y) = (
+            x * rot_cos - y * rot_sin + ins.location.x,
+            x * rot_sin + y * rot_cos + ins.location.y,
+        );
+        [s * x * unit, y * unit]
+    };
+    Ok((
+        shape.0.iter().map(place).collect(),
+        shape
+            .1
+            .iter()
+            .map(|h| h.iter().map(place).collect())
+            .collect(),
+    ))
+}
+
+/// An INSERT's block flattened at the INSERT's scale: its one outer contour and holes,
+/// in block units.
+fn block_shape(
     blocks: &HashMap<&str, &Block>,
     e: &Entity,
     ins: &Insert,
     options: &ReadOptions,
     unit: f64,
-) -> Result<(Vec<Point>, Vec<Vec<Point>>), LayoutError> {
+) -> Result<BlockShape, LayoutError> {
     let err = |m: String| entity_error(e, m);
     if ins.column_count > 1 || ins.row_count > 1 {
         return Err(err(format!(
@@ -397,7 +499,7 @@ fn insert_part(
     let block = blocks
         .get(ins.name.as_str())
         .ok_or_else(|| err(format!("block `{}` is not defined", ins.name)))?;
-    let s = ocs_sign(
+    ocs_sign(
         e,
         (
             ins.extrusion_direction.x,
@@ -440,23 +542,7 @@ fn insert_part(
         )));
     }
     let (outer, _, holes) = parts.remove(0);
-    let (rot_sin, rot_cos) = ins.rotation.to_radians().sin_cos();
-    let b = [block.base_point.x, block.base_point.y];
-    let place = |p: Point| {
-        let (x, y) = ((p[0] - b[0]) * sx, (p[1] - b[1]) * sy);
-        let (x, y) = (
-            x * rot_cos - y * rot_sin + ins.location.x,
-            x * rot_sin + y * rot_cos + ins.location.y,
-        );
-        [s * x * unit, y * unit]
-    };
-    Ok((
-        outer.into_iter().map(place).collect(),
-        holes
-            .into_iter()
-            .map(|h| h.into_iter().map(place).collect())
-            .collect(),
-    ))
+    Ok((outer, holes))
 }
 
 pub(crate) fn read(
@@ -489,12 +575,23 @@ pub(crate) fn read(
     let mut sources = Vec::new();
     let mut inserts_seen: HashMap<String, usize> = HashMap::new();
     let mut pieces = Vec::new();
+    let inserts: Vec<(&Entity, &Insert)> = entities
+        .iter()
+        .filter(|e| !e.common.is_in_paper_space)
+        .filter_map(|e| match &e.specific {
+            EntityType::Insert(ins) => Some((*e, ins)),
+            _ => None,
+        })
+        .collect();
+    let (shapes, mut vertices) = insert_shapes(&blocks, &inserts, options, unit)?;
     for (i, e) in entities.iter().enumerate() {
         if e.common.is_in_paper_space {
             continue;
         }
         if let EntityType::Insert(ins) = &e.specific {
-            let (outer, holes) = insert_part(&blocks, e, ins, options, unit)?;
+            let shape = &shapes[&insert_key(ins)];
+            let block = blocks[ins.name.as_str()];
+            let (outer, holes) = place_insert(shape, block, e, ins, unit)?;
             let n = inserts_seen.entry(ins.name.clone()).or_insert(0);
             *n += 1;
             let id = if *n == 1 {
@@ -511,6 +608,16 @@ pub(crate) fn read(
             });
             sources.push(vec![i]);
         } else if let Some(p) = pieces_of(e, i, tol)? {
+            // Each piece is bounded (arcs and splines to 200 000 chords); their sum too.
+            vertices = vertices.saturating_add(p.points.len());
+            if vertices > MAX_VERTICES {
+                return Err(entity_error(
+                    e,
+                    format!(
+                        "the drawing's contours reach {vertices} vertices here, more than the {MAX_VERTICES} a layout may have"
+                    ),
+                ));
+            }
             pieces.push(p);
         }
     }

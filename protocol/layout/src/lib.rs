@@ -22,6 +22,7 @@ mod validity;
 pub use flatten::{arc_points, bulge_points, nurbs_points};
 pub use layout::Layout;
 pub use model::{check_part, Format, LayoutError, Part, Point, ReadOptions};
+pub use svg_io::MAX_ATTRIBUTES as MAX_SVG_ATTRIBUTES;
 
 #[cfg(test)]
 mod tests;

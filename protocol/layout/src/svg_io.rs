@@ -257,11 +257,88 @@ fn user_unit(root: &roxmltree::Node) -> f64 {
     }
 }
 
+/// The most attributes one element may have. The XML parser's duplicate check is
+/// quadratic in them (an element of 200 000 attributes took minutes); drawings have a
+/// few dozen.
+pub const MAX_ATTRIBUTES: usize = 1000;
+
+/// Refuses, before parsing, a start tag with more than [`MAX_ATTRIBUTES`] attributes,
+/// naming its line and column: one pass over the text, counting `=` outside quotes
+/// between `<name` and `>` (comments, CDATA, declarations and processing instructions
+/// skipped).
+fn check_attribute_counts(text: &str) -> Result<(), LayoutError> {
+    let b = text.as_bytes();
+    let mut i = 0;
+    while let Some(k) = b[i..].iter().position(|&c| c == b'<') {
+        let start = i + k;
+        let rest = &b[start..];
+        let skip_to = |end: &[u8]| {
+            rest.windows(end.len())
+                .position(|w| w == end)
+                .map(|p| start + p + end.len())
+                .unwrap_or(b.len())
+        };
+        if rest.starts_with(b"<!--") {
+            i = skip_to(b"-->");
+            continue;
+        }
+        if rest.starts_with(b"<![CDATA[") {
+            i = skip_to(b"]]>");
+            continue;
+        }
+        if !rest
+            .get(1)
+            .is_some_and(|c| c.is_ascii_alphabetic() || *c == b'_' || *c == b':')
+        {
+            i = start + 1;
+            continue;
+        }
+        let mut quote = None;
+        let mut attributes = 0usize;
+        let mut j = start + 1;
+        while j < b.len() {
+            let c = b[j];
+            match quote {
+                Some(q) if c == q => quote = None,
+                Some(_) => {}
+                None if c == b'"' || c == b'\'' => quote = Some(c),
+                None if c == b'=' => attributes += 1,
+                None if c == b'>' || c == b'<' => break,
+                None => {}
+            }
+            j += 1;
+        }
+        if attributes > MAX_ATTRIBUTES {
+            let line = b[..start].iter().filter(|&&c| c == b'\n').count() + 1;
+            let column = start
+                - b[..start]
+                    .iter()
+                    .rposition(|&c| c == b'\n')
+                    .map_or(0, |p| p + 1)
+                + 1;
+            let name: String = text[start + 1..]
+                .chars()
+                .take_while(|c| !c.is_whitespace() && *c != '>' && *c != '/')
+                .take(40)
+                .collect();
+            return Err(LayoutError::Syntax {
+                format: "SVG",
+                message: format!(
+                    "line {line}, column {column}: element <{name}> has {attributes} attributes, more than the {MAX_ATTRIBUTES} a drawing's element may have"
+                ),
+            });
+        }
+        i = j.max(start + 1);
+    }
+    Ok(())
+}
+
 pub(crate) fn read(bytes: &[u8], options: &ReadOptions) -> Result<Vec<Part>, LayoutError> {
     let text = std::str::from_utf8(bytes).map_err(|e| LayoutError::Syntax {
         format: "SVG",
         message: format!("not UTF-8: {e}"),
     })?;
+    check_attribute_counts(text)?;
     let doc = roxmltree::Document::parse(text).map_err(|e| LayoutError::Syntax {
         format: "SVG",
         message: e.to_string(),

@@ -396,6 +396,79 @@ fn sample_drawing(units: Units) -> Drawing {
     d
 }
 
+/// 20 000 INSERTs of one large block (a circle of 1 m radius, about 700 chords at
+/// 0.01 mm): the expansion is estimated from the block flattened once and refused before
+/// any copy is made, naming the estimate (the drawing grew to 2.5 GB before); the same
+/// block placed a few times is read, each placement its own part.
+#[test]
+fn a_dxf_whose_inserts_expand_beyond_the_vertex_bound_is_refused_naming_the_estimate() {
+    let drawing = |n: usize| {
+        let mut d = Drawing::new();
+        d.header.version = dxf::enums::AcadVersion::R2000;
+        d.header.default_drawing_units = Units::Millimeters;
+        let mut block = Block {
+            name: "disc".into(),
+            ..Default::default()
+        };
+        block
+            .entities
+            .push(Entity::new(EntityType::Circle(Circle::new(
+                dxf::Point::new(0.0, 0.0, 0.0),
+                1000.0,
+            ))));
+        d.add_block(block);
+        for k in 0..n {
+            let ins = Insert {
+                name: "disc".into(),
+                location: dxf::Point::new(2100.0 * k as f64, 0.0, 0.0),
+                x_scale_factor: 1.0,
+                y_scale_factor: 1.0,
+                ..Default::default()
+            };
+            d.add_entity(Entity::new(EntityType::Insert(ins)));
+        }
+        save(&d)
+    };
+    let e = Layout::read(&drawing(20_000), Format::Dxf, &opts())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("the drawing's 20000 INSERTs expand to at least")
+            && e.contains("vertices (block `disc` of")
+            && e.contains("placed 20000 times), more than the 4000000"),
+        "{e}"
+    );
+    let layout = Layout::read(&drawing(3), Format::Dxf, &opts()).unwrap();
+    assert_eq!(layout.parts.len(), 3);
+    assert!(layout.parts[0].outer.len() > 500);
+}
+
+/// An element of 200 000 attributes (minutes in the XML parser's duplicate check) is
+/// refused at once naming its place; comments and quoted `=` do not count, and an
+/// element with as many as allowed is read.
+#[test]
+fn an_svg_element_with_too_many_attributes_is_refused_before_parsing() {
+    let attrs: String = (0..200_000).map(|i| format!(" a{i}=\"1\"")).collect();
+    let svg = format!(
+        "<svg xmlns=\"http://www.w3.org/2000/svg\">\n<!-- a <b c=1> -->\n  <rect width=\"10\" height=\"10\"{attrs}/></svg>"
+    );
+    let e = Layout::read(svg.as_bytes(), Format::Svg, &opts())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("line 3, column 3: element <rect> has 200002 attributes, more than the 1000"),
+        "{e}"
+    );
+    let attrs: String = (0..svg_io::MAX_ATTRIBUTES - 2)
+        .map(|i| format!(" data-a{i}=\"x=y\""))
+        .collect();
+    let svg = format!(
+        "<svg xmlns=\"http://www.w3.org/2000/svg\"><rect width=\"10\" height=\"10\"{attrs}/></svg>"
+    );
+    let layout = Layout::read(svg.as_bytes(), Format::Svg, &opts()).unwrap();
+    assert_eq!(layout.parts.len(), 1);
+}
+
 #[test]
 fn dxf_reads_polylines_loops_arcs_blocks_and_splines() {
     let bytes = save(&sample_drawing(Units::Millimeters));
