@@ -395,7 +395,9 @@ fn vertices_of(shape: &BlockShape) -> usize {
 
 /// The tolerance key of an INSERT: its block and its scale (the chord tolerance in block
 /// units depends on it).
-fn insert_key(ins: &Insert) -> (String, u64, u64) {
+type InsertKey = (String, u64, u64);
+
+fn insert_key(ins: &Insert) -> InsertKey {
     (
         ins.name.clone(),
         ins.x_scale_factor.abs().to_bits(),
@@ -413,8 +415,8 @@ fn insert_shapes(
     inserts: &[(&Entity, &Insert)],
     options: &ReadOptions,
     unit: f64,
-) -> Result<(HashMap<(String, u64, u64), BlockShape>, usize), LayoutError> {
-    let mut uses: HashMap<(String, u64, u64), (usize, &Entity, &Insert)> = HashMap::new();
+) -> Result<(HashMap<InsertKey, BlockShape>, usize), LayoutError> {
+    let mut uses: HashMap<InsertKey, (usize, &Entity, &Insert)> = HashMap::new();
     for (e, ins) in inserts {
         uses.entry(insert_key(ins)).or_insert((0, e, ins)).0 += 1;
     }
