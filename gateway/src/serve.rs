@@ -11,6 +11,8 @@ pub fn serve(config_path: &Path) -> anyhow::Result<ExitCode> {
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
         )
         .with_writer(std::io::stderr)
+        // Under systemd (or any pipe) plain text: colour codes would litter the journal.
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
     let config = service::BoxConfig::load(config_path)?;
     let rt = tokio::runtime::Builder::new_multi_thread()

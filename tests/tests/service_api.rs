@@ -350,6 +350,7 @@ async fn bad_input_gets_its_error_and_changes_nothing() {
     other.id = "other".into();
     cfg.machines.push(other);
     cfg.service.max_body_bytes = 1024;
+    cfg.service.max_job_body_bytes = 2048;
     let s = service::start(cfg).await.unwrap();
     let c = Client::new();
     s.store()
@@ -492,6 +493,14 @@ async fn bad_input_gets_its_error_and_changes_nothing() {
         let body: Value = r.json().await.unwrap();
         assert_eq!(body["error"], code, "{what}: {body}");
         assert!(!body["message"].as_str().unwrap().is_empty(), "{what}");
+        if code == "body_too_large" {
+            // The limit and where it is set are named.
+            let m = body["message"].as_str().unwrap();
+            assert!(
+                m.contains("2048 bytes") && m.contains("service.max_job_body_bytes"),
+                "{m}"
+            );
+        }
     }
     let (_, jobs) = get(&c, &s, "/api/v1/jobs").await;
     assert_eq!(jobs, json!([]), "a refused request queued a job");
@@ -689,6 +698,12 @@ async fn an_uploaded_error_map_is_drawn_activated_and_used_by_a_job() {
         .await
         .unwrap();
     assert_eq!(heat.status(), StatusCode::OK);
+    // Served sandboxed: opened on its own, an SVG runs nothing in the service's origin.
+    let csp = heat.headers()["content-security-policy"].to_str().unwrap();
+    assert!(
+        csp.contains("sandbox") && csp.contains("default-src 'none'"),
+        "{csp}"
+    );
     let svg = heat.text().await.unwrap();
     assert!(svg.contains("<svg") && svg.contains("Error map stage-map v1"));
     let (status, _) = post(
@@ -945,5 +960,61 @@ async fn a_rotary_job_identifies_the_table_and_becomes_a_profile_version() {
     );
     let (_, jobs) = get(&c, &s, "/api/v1/jobs").await;
     assert_eq!(jobs.as_array().map(Vec::len), Some(0), "{jobs}");
+    s.shutdown().await;
+}
+
+/// Every answer carries the page's security headers; the auth scheme is
+/// case-insensitive; a job's body may carry a layout of apparel size (the 413 that names
+/// its limit: `bad_input_gets_its_error_and_changes_nothing`).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn answers_carry_the_security_headers_and_take_a_layout_sized_job() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = start(dir.path()).await;
+    let c = Client::new();
+    for path in [
+        "/",
+        "/app.js",
+        "/healthz",
+        "/api/v1/machines",
+        "/api/v1/nothing",
+    ] {
+        let r = c
+            .get(url(&s, path))
+            .bearer_auth(s.token())
+            .send()
+            .await
+            .unwrap();
+        let h = r.headers();
+        let csp = h["content-security-policy"].to_str().unwrap();
+        assert!(
+            csp.contains("script-src 'self'") && csp.contains("frame-ancestors 'none'"),
+            "{path}: {csp}"
+        );
+        assert_eq!(h["x-content-type-options"], "nosniff", "{path}");
+        assert_eq!(h["x-frame-options"], "DENY", "{path}");
+    }
+    // `bearer`, `BEARER`: the scheme is case-insensitive (RFC 9110).
+    for scheme in ["bearer", "BEARER", "Bearer"] {
+        let r = c
+            .get(url(&s, "/api/v1/machines"))
+            .header("authorization", format!("{scheme} {}", s.token()))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), StatusCode::OK, "{scheme}");
+    }
+    // A 300 kB layout job is taken (the job route's own limit, 16 MiB by default).
+    let layout = format!("{{\"parts\": [], \"pad\": \"{}\"}}", "x".repeat(300 * 1024));
+    let r = c
+        .post(url(&s, "/api/v1/machines/demo/jobs"))
+        .bearer_auth(s.token())
+        .json(
+            &json!({"kind": "layout", "params": {"layout": layout, "format": "json",
+            "tools": 2, "window_mm": 100.0, "gap_mm": 5.0}}),
+        )
+        .send()
+        .await
+        .unwrap();
+    assert_ne!(r.status(), StatusCode::PAYLOAD_TOO_LARGE);
     s.shutdown().await;
 }

@@ -145,8 +145,11 @@ async fn refuse_query_token(State(shared): State<AppState>, req: Request, next: 
 /// `bearer.<token>` (browsers cannot set headers on a WebSocket).
 fn presented_token(headers: &HeaderMap) -> Option<String> {
     if let Some(v) = headers.get(header::AUTHORIZATION) {
-        let v = v.to_str().ok()?;
-        return v.strip_prefix("Bearer ").map(|t| t.trim().to_string());
+        // RFC 9110: the scheme is case-insensitive (`bearer`, `BEARER`).
+        let (scheme, token) = v.to_str().ok()?.trim().split_once(' ')?;
+        return scheme
+            .eq_ignore_ascii_case("bearer")
+            .then(|| token.trim().to_string());
     }
     let protocols = headers.get(header::SEC_WEBSOCKET_PROTOCOL)?.to_str().ok()?;
     protocols
@@ -199,17 +202,84 @@ async fn require_token(State(shared): State<AppState>, req: Request, next: Next)
     .into_response()
 }
 
-/// The router of the whole service.
 /// The largest profile body accepted (an error map with dense lines is a few hundred kB,
 /// above the service's request limit).
 pub const MAX_PROFILE_BYTES: usize = 16 * 1024 * 1024;
 
-pub fn router(shared: AppState, max_body_bytes: usize, cors_origins: &[String]) -> Router {
+/// The request body limits, per route.
+#[derive(Debug, Clone, Copy)]
+pub struct BodyLimits {
+    /// Every route but the two below (`service.max_body_bytes`).
+    pub default: usize,
+    /// A job's submission, which may carry a layout (`service.max_job_body_bytes`).
+    pub job: usize,
+}
+
+impl BodyLimits {
+    /// The limit of a route and where it is set.
+    fn of(&self, path: &str) -> (usize, &'static str) {
+        if path.starts_with("/api/v1/machines/") && path.ends_with("/jobs") {
+            (self.job, "service.max_job_body_bytes in BOX.toml")
+        } else if path.contains("/profiles/") {
+            (MAX_PROFILE_BYTES, "fixed")
+        } else {
+            (self.default, "service.max_body_bytes in BOX.toml")
+        }
+    }
+}
+
+/// A 413 says which limit was passed and where it is set, whatever refused the body.
+async fn name_the_body_limit(limits: BodyLimits, req: Request, next: Next) -> Response {
+    let path = req.uri().path().to_string();
+    let response = next.run(req).await;
+    if response.status() != StatusCode::PAYLOAD_TOO_LARGE {
+        return response;
+    }
+    let (limit, set_by) = limits.of(&path);
+    ApiError::new(
+        StatusCode::PAYLOAD_TOO_LARGE,
+        "body_too_large",
+        format!("the request body is larger than {limit} bytes, the limit of {path} ({set_by})"),
+    )
+    .into_response()
+}
+
+/// The page's policy: its own scripts, styles and connections only (images also from
+/// `blob:`, the charts it fetches with the token), never framed. An SVG is served
+/// sandboxed: opened on its own it can run nothing in the service's origin.
+const PAGE_POLICY: &str = "default-src 'self'; script-src 'self'; style-src 'self'; \
+    img-src 'self' blob: data:; connect-src 'self'; object-src 'none'; base-uri 'none'; \
+    form-action 'self'; frame-ancestors 'none'";
+const SVG_POLICY: &str = "default-src 'none'; style-src 'unsafe-inline'; sandbox";
+
+async fn security_headers(req: Request, next: Next) -> Response {
+    let mut response = next.run(req).await;
+    let headers = response.headers_mut();
+    let svg = headers
+        .get(header::CONTENT_TYPE)
+        .is_some_and(|v| v.as_bytes().starts_with(b"image/svg+xml"));
+    let policy = if svg { SVG_POLICY } else { PAGE_POLICY };
+    for (name, value) in [
+        (header::CONTENT_SECURITY_POLICY, policy),
+        (header::X_CONTENT_TYPE_OPTIONS, "nosniff"),
+        (header::X_FRAME_OPTIONS, "DENY"),
+        (header::REFERRER_POLICY, "no-referrer"),
+    ] {
+        headers.insert(name, HeaderValue::from_static(value));
+    }
+    response
+}
+
+/// The router of the whole service.
+pub fn router(shared: AppState, limits: BodyLimits, cors_origins: &[String]) -> Router {
     let api = Router::new()
         .route("/api/v1/openapi.json", get(openapi))
         .route("/api/v1/machines", get(machines))
         .route("/api/v1/machines/{machine}", get(machine))
-        .route("/api/v1/machines/{machine}/jobs", post(enqueue))
+        .route(
+            "/api/v1/machines/{machine}/jobs",
+            post(enqueue).layer(DefaultBodyLimit::max(limits.job)),
+        )
         .route("/api/v1/jobs", get(jobs))
         .route("/api/v1/jobs/{id}", get(job))
         .route("/api/v1/jobs/{id}/cancel", post(cancel))
@@ -262,7 +332,11 @@ pub fn router(shared: AppState, max_body_bytes: usize, cors_origins: &[String]) 
             shared.clone(),
             refuse_query_token,
         ))
-        .layer(DefaultBodyLimit::max(max_body_bytes))
+        .layer(DefaultBodyLimit::max(limits.default))
+        .layer(middleware::from_fn(move |req, next| {
+            name_the_body_limit(limits, req, next)
+        }))
+        .layer(middleware::from_fn(security_headers))
         .with_state(shared);
     let origins: Vec<HeaderValue> = cors_origins
         .iter()

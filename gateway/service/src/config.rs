@@ -54,6 +54,8 @@ struct RawService {
     cors_origins: Vec<String>,
     #[serde(default = "default_max_body")]
     max_body_bytes: usize,
+    #[serde(default = "default_max_job_body")]
+    max_job_body_bytes: usize,
     #[serde(default = "default_bad_token_delay_cap_ms")]
     bad_token_delay_cap_ms: u64,
     #[serde(default = "default_header_timeout_s")]
@@ -82,6 +84,11 @@ fn default_listen() -> SocketAddr {
 }
 fn default_max_body() -> usize {
     64 * 1024
+}
+/// A job's body carries a layout file for `layout` jobs: an apparel nest in DXF is a
+/// few megabytes.
+fn default_max_job_body() -> usize {
+    16 * 1024 * 1024
 }
 fn default_bad_token_delay_cap_ms() -> u64 {
     2000
@@ -179,8 +186,11 @@ pub struct ServiceConfig {
     pub token_file: PathBuf,
     /// Origins allowed by CORS; empty = CORS off.
     pub cors_origins: Vec<String>,
-    /// Larger request bodies get 413.
+    /// Larger request bodies get 413 (every route but a job's submission and a
+    /// profile's upload).
     pub max_body_bytes: usize,
+    /// Larger job submissions (`POST /api/v1/machines/{machine}/jobs`) get 413.
+    pub max_job_body_bytes: usize,
     /// Cap of the growing delay before answering a wrong token (ms).
     pub bad_token_delay_cap_ms: u64,
     /// `header_timeout_s` (default 10): a connection must deliver a whole request head
@@ -242,6 +252,17 @@ impl BoxConfig {
                 "must be at least 1".into(),
             ));
         }
+        // Past the largest layout a request may carry, a body would only be refused later.
+        let most = procedure::request::MAX_LAYOUT_BYTES + 1024 * 1024;
+        if !(1..=most).contains(&raw.service.max_job_body_bytes) {
+            return Err(invalid(
+                "service.max_job_body_bytes".into(),
+                format!(
+                    "must be from 1 to {most}, got {}",
+                    raw.service.max_job_body_bytes
+                ),
+            ));
+        }
         let header_timeout = timeout(raw.service.header_timeout_s)
             .map_err(|m| invalid("service.header_timeout_s".into(), m))?;
         let idle_timeout = timeout(raw.service.idle_timeout_s)
@@ -301,6 +322,7 @@ impl BoxConfig {
                 token_file,
                 cors_origins: raw.service.cors_origins,
                 max_body_bytes: raw.service.max_body_bytes,
+                max_job_body_bytes: raw.service.max_job_body_bytes,
                 bad_token_delay_cap_ms: raw.service.bad_token_delay_cap_ms,
                 header_timeout,
                 idle_timeout,
@@ -331,6 +353,7 @@ impl BoxConfig {
                 token_file: data_dir.join("token"),
                 cors_origins: Vec::new(),
                 max_body_bytes: default_max_body(),
+                max_job_body_bytes: default_max_job_body(),
                 bad_token_delay_cap_ms: default_bad_token_delay_cap_ms(),
                 header_timeout: Duration::from_secs_f64(default_header_timeout_s()),
                 idle_timeout: Duration::from_secs_f64(default_idle_timeout_s()),
@@ -385,6 +408,7 @@ mod tests {
         assert_eq!(c.service.header_timeout, Duration::from_secs(10));
         assert_eq!(c.service.idle_timeout, Duration::from_secs(60));
         assert_eq!(c.service.max_connections, 1024);
+        assert_eq!(c.service.max_job_body_bytes, 16 << 20);
     }
 
     #[test]
@@ -415,6 +439,11 @@ mod tests {
             ("max_connections = 65537", "service.max_connections"),
             ("max_connections = -3", "service.max_connections"),
             ("max_connections = \"many\"", "service.max_connections"),
+            ("max_job_body_bytes = 0", "service.max_job_body_bytes"),
+            (
+                "max_job_body_bytes = 1000000000",
+                "service.max_job_body_bytes",
+            ),
         ] {
             let e =
                 BoxConfig::parse(&format!("{base}{line}\n"), "b.toml", Path::new(".")).unwrap_err();

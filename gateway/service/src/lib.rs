@@ -230,7 +230,10 @@ pub async fn start(config: BoxConfig) -> Result<Running, StartError> {
     let addr = listener.local_addr().map_err(io("the listening address"))?;
     let app = api::router(
         shared.clone(),
-        config.service.max_body_bytes,
+        api::BodyLimits {
+            default: config.service.max_body_bytes,
+            job: config.service.max_job_body_bytes,
+        },
         &config.service.cors_origins,
     );
     // Header/idle timeouts and the connection cap: see serve.rs.

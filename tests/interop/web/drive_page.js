@@ -63,6 +63,12 @@ async function main() {
   const page = context.pages()[0] || await context.newPage();
   const pageErrors = [];
   page.on('pageerror', (error) => pageErrors.push(String(error)));
+  // Anything the service's Content-Security-Policy blocked is an error of the page.
+  page.on('console', (message) => {
+    if (message.type() === 'error' && /Content Security Policy/i.test(message.text())) {
+      pageErrors.push('CSP: ' + message.text());
+    }
+  });
   try {
     // Without a token the page asks for one; a wrong one is refused with a message.
     await page.goto(`${base}/`);
