@@ -336,29 +336,236 @@ pub fn write_output(path: &Path, bytes: &[u8], inputs: &[&Path]) -> std::io::Res
 /// [`MAX_FILE_BYTES`], in UTF-8; a leading byte-order mark is dropped. Every file the
 /// loader reads goes through here.
 pub fn read_data_file(path: &Path) -> std::io::Result<String> {
-    use std::io::{Error, ErrorKind, Read};
-    // Checked on the path first: opening a FIFO would block until a writer comes.
+    read_bounded(path, MAX_FILE_BYTES, "a data file")
+}
+
+/// The kinds of file read from outside, each with the most bytes it may have: a file
+/// larger than its kind's cap is the wrong file, refused before it is read.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DataKind {
+    /// A G-code program (read as a stream of lines, [`open_lines`]).
+    Program,
+    /// A layout (JSON, SVG, DXF).
+    Layout,
+    /// A rotary centres file (CSV).
+    Centres,
+    /// A rotary errors file (JSON) or machine constants (JSON).
+    RotaryJson,
+    /// A volumetric model or campaign (CSV).
+    Volumetric,
+    /// An ISO 230-2 measurements file (CSV).
+    Iso230,
+    /// A controller's saved `$#` reply.
+    Parameters,
+    /// A configuration file (TOML, JSON job): jobs, boards, cameras, machines.
+    Config,
+}
+
+impl DataKind {
+    /// The most bytes a file of this kind may have.
+    pub fn max_bytes(self) -> u64 {
+        match self {
+            DataKind::Program => 64 << 20,
+            DataKind::Layout => MAX_FILE_BYTES,
+            DataKind::Centres => 4 << 20,
+            DataKind::RotaryJson => 4 << 20,
+            DataKind::Volumetric => MAX_FILE_BYTES,
+            DataKind::Iso230 => 8 << 20,
+            DataKind::Parameters => 1 << 20,
+            DataKind::Config => MAX_FILE_BYTES,
+        }
+    }
+
+    /// How messages name a file of this kind.
+    pub fn name(self) -> &'static str {
+        match self {
+            DataKind::Program => "program",
+            DataKind::Layout => "layout",
+            DataKind::Centres => "centres file",
+            DataKind::RotaryJson => "rotary errors or machine file",
+            DataKind::Volumetric => "volumetric file",
+            DataKind::Iso230 => "measurements file (ISO 230-2)",
+            DataKind::Parameters => "`$#` reply",
+            DataKind::Config => "configuration file",
+        }
+    }
+}
+
+/// [`read_data_file`] for a file of `kind`: its kind's size cap, and an error that
+/// names the file and its kind (`layout /tmp/x.svg: not a regular file (a FIFO)...`), so
+/// a caller need not add them.
+pub fn read_kind(path: &Path, kind: DataKind) -> std::io::Result<String> {
+    read_bounded(path, kind.max_bytes(), &format!("a {}", kind.name()))
+        .map_err(|e| name_file(path, kind, e))
+}
+
+fn name_file(path: &Path, kind: DataKind, e: std::io::Error) -> std::io::Error {
+    std::io::Error::new(e.kind(), format!("{} {}: {e}", kind.name(), path.display()))
+}
+
+/// The most bytes one line of a program may have in [`open_lines`]: GRBL's line buffer
+/// holds 80, a CAM system's comment lines are longer, nothing real is near 64 KiB.
+pub const MAX_LINE_BYTES: usize = 64 << 10;
+
+/// A file read as a stream of lines: regular files only (refused before opening, as
+/// [`read_kind`] does), at most `kind`'s size cap in all and [`MAX_LINE_BYTES`] per
+/// line, UTF-8. Each item is `(line number from 1, the line without its ending)`; an
+/// error names the file and the line. Memory is one line, whatever the file's size.
+pub fn open_lines(path: &Path, kind: DataKind) -> std::io::Result<Lines> {
+    let file = open_regular(path).map_err(|e| name_file(path, kind, e))?;
+    let len = file.metadata().map_err(|e| name_file(path, kind, e))?.len();
+    if len > kind.max_bytes() {
+        let what = format!("a {}", kind.name());
+        return Err(name_file(path, kind, too_big(len, kind.max_bytes(), &what)));
+    }
+    Ok(Lines {
+        reader: std::io::BufReader::new(file),
+        path: path.to_path_buf(),
+        kind,
+        line: 0,
+        read: 0,
+        done: false,
+    })
+}
+
+/// The lines of a file opened with [`open_lines`].
+pub struct Lines {
+    reader: std::io::BufReader<std::fs::File>,
+    path: PathBuf,
+    kind: DataKind,
+    line: usize,
+    read: u64,
+    done: bool,
+}
+
+impl Iterator for Lines {
+    type Item = std::io::Result<(usize, String)>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        use std::io::{BufRead, Error, ErrorKind};
+        if self.done {
+            return None;
+        }
+        self.line += 1;
+        let mut buf = Vec::new();
+        let fail = |this: &mut Self, message: String| {
+            this.done = true;
+            Some(Err(Error::new(
+                ErrorKind::InvalidData,
+                format!(
+                    "{} {}: line {}: {message}",
+                    this.kind.name(),
+                    this.path.display(),
+                    this.line
+                ),
+            )))
+        };
+        loop {
+            let chunk = match self.reader.fill_buf() {
+                Ok(c) => c,
+                Err(e) if e.kind() == ErrorKind::Interrupted => continue,
+                Err(e) => return fail(self, e.to_string()),
+            };
+            if chunk.is_empty() {
+                break;
+            }
+            let (take, end) = match chunk.iter().position(|&b| b == b'\n') {
+                Some(p) => (p + 1, true),
+                None => (chunk.len(), false),
+            };
+            buf.extend_from_slice(&chunk[..take]);
+            self.reader.consume(take);
+            self.read += take as u64;
+            if self.read > self.kind.max_bytes() {
+                let cap = self.kind.max_bytes();
+                return fail(
+                    self,
+                    format!("the file grew past {} MiB while being read", cap >> 20),
+                );
+            }
+            if buf.len() > MAX_LINE_BYTES + 2 {
+                return fail(
+                    self,
+                    format!(
+                        "longer than the {} KiB a line may have",
+                        MAX_LINE_BYTES >> 10
+                    ),
+                );
+            }
+            if end {
+                break;
+            }
+        }
+        if buf.is_empty() {
+            self.done = true;
+            return None;
+        }
+        if buf.ends_with(b"\n") {
+            buf.pop();
+        }
+        if buf.ends_with(b"\r") {
+            buf.pop();
+        }
+        if buf.len() > MAX_LINE_BYTES {
+            return fail(
+                self,
+                format!(
+                    "longer than the {} KiB a line may have",
+                    MAX_LINE_BYTES >> 10
+                ),
+            );
+        }
+        match String::from_utf8(buf) {
+            Ok(mut s) => {
+                if self.line == 1 && s.starts_with('\u{FEFF}') {
+                    s.drain(..3);
+                }
+                Some(Ok((self.line, s)))
+            }
+            Err(e) => {
+                let at = e.utf8_error().valid_up_to();
+                fail(self, format!("not UTF-8 text (column {})", at + 1))
+            }
+        }
+    }
+}
+
+fn too_big(size: u64, cap: u64, what: &str) -> std::io::Error {
+    let cap_text = if cap >= 1 << 20 {
+        format!("{} MiB", cap >> 20)
+    } else {
+        format!("{} KiB", cap >> 10)
+    };
+    std::io::Error::new(
+        std::io::ErrorKind::InvalidData,
+        format!("the file has {size} bytes, more than the {cap_text} {what} may have"),
+    )
+}
+
+/// Opens a regular file for reading, refusing anything else before opening it (opening
+/// a FIFO would block until a writer comes), and again on the opened file (the path may
+/// have been swapped in between).
+fn open_regular(path: &Path) -> std::io::Result<std::fs::File> {
     check_regular(&std::fs::metadata(path)?)?;
     let file = std::fs::File::open(path)?;
+    check_regular(&file.metadata()?)?;
+    Ok(file)
+}
+
+/// A regular file of at most `cap` bytes as UTF-8 text (a leading byte-order mark
+/// dropped); `what` names the kind in the size message.
+fn read_bounded(path: &Path, cap: u64, what: &str) -> std::io::Result<String> {
+    use std::io::{Error, ErrorKind, Read};
+    let file = open_regular(path)?;
     let meta = file.metadata()?;
-    check_regular(&meta)?;
-    let too_big = |size: u64| {
-        Error::new(
-            ErrorKind::InvalidData,
-            format!(
-                "the file has {size} bytes, more than the {} MiB a data file may have",
-                MAX_FILE_BYTES / (1024 * 1024)
-            ),
-        )
-    };
-    if meta.len() > MAX_FILE_BYTES {
-        return Err(too_big(meta.len()));
+    if meta.len() > cap {
+        return Err(too_big(meta.len(), cap, what));
     }
     let mut bytes = Vec::with_capacity(meta.len() as usize);
-    file.take(MAX_FILE_BYTES + 1).read_to_end(&mut bytes)?;
-    if bytes.len() as u64 > MAX_FILE_BYTES {
+    file.take(cap + 1).read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > cap {
         // It grew while being read (or its size was not known).
-        return Err(too_big(bytes.len() as u64));
+        return Err(too_big(bytes.len() as u64, cap, what));
     }
     let text = String::from_utf8(bytes).map_err(|e| {
         let at = e.utf8_error().valid_up_to();
@@ -732,6 +939,126 @@ mod tests {
         let dir = temp_dir("dir");
         let e = ConfigDoc::read(&dir).unwrap_err().to_string();
         assert!(e.contains("a directory"), "{e}");
+    }
+
+    /// Every kind refuses a FIFO (without waiting for a writer: the check comes before
+    /// the open) and `/dev/zero` (never read), naming the kind and the file; the same
+    /// for the line stream.
+    #[cfg(unix)]
+    #[test]
+    fn every_kind_refuses_a_fifo_and_dev_zero_at_once() {
+        let dir = temp_dir("fifo");
+        let fifo = dir.join("in.fifo");
+        let made = std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap();
+        assert!(made.success());
+        let kinds = [
+            DataKind::Program,
+            DataKind::Layout,
+            DataKind::Centres,
+            DataKind::RotaryJson,
+            DataKind::Volumetric,
+            DataKind::Iso230,
+            DataKind::Parameters,
+            DataKind::Config,
+        ];
+        for kind in kinds {
+            let e = read_kind(&fifo, kind).unwrap_err().to_string();
+            assert!(
+                e.starts_with(&format!(
+                    "{} {}: not a regular file (a FIFO)",
+                    kind.name(),
+                    fifo.display()
+                )),
+                "{e}"
+            );
+            let e = read_kind(Path::new("/dev/zero"), kind)
+                .unwrap_err()
+                .to_string();
+            assert_eq!(
+                e,
+                format!("{} /dev/zero: not a regular file (a character device); a data file must be a regular file", kind.name())
+            );
+            let e = open_lines(&fifo, kind).err().unwrap().to_string();
+            assert!(e.contains("not a regular file (a FIFO)"), "{e}");
+            let e = open_lines(Path::new("/dev/zero"), kind)
+                .err()
+                .unwrap()
+                .to_string();
+            assert!(e.contains("/dev/zero: not a regular file"), "{e}");
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// Each kind has its cap (a sparse file one byte over it is refused unread, the
+    /// message naming the cap, the kind and the file).
+    #[test]
+    fn each_kind_has_its_size_cap() {
+        let dir = temp_dir("caps");
+        let big = dir.join("big.csv");
+        let f = std::fs::File::create(&big).unwrap();
+        f.set_len(DataKind::Centres.max_bytes() + 1).unwrap();
+        let e = read_kind(&big, DataKind::Centres).unwrap_err().to_string();
+        assert_eq!(
+            e,
+            format!(
+                "centres file {}: the file has 4194305 bytes, more than the 4 MiB a centres file may have",
+                big.display()
+            )
+        );
+        assert!(read_kind(&big, DataKind::Layout).is_ok());
+        f.set_len(DataKind::Parameters.max_bytes() + 1).unwrap();
+        let e = read_kind(&big, DataKind::Parameters)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("more than the 1 MiB a `$#` reply may have"),
+            "{e}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A program read as a stream: its lines (any ending, a BOM dropped), a line too
+    /// long or not UTF-8 named by its number, memory one line at a time.
+    #[test]
+    fn programs_are_read_as_a_bounded_stream_of_lines() {
+        let dir = temp_dir("lines");
+        let p = dir.join("p.nc");
+        std::fs::write(&p, "\u{FEFF}G0 X1\r\nG1 Y2 F100\n\nM2").unwrap();
+        let lines: Vec<(usize, String)> = open_lines(&p, DataKind::Program)
+            .unwrap()
+            .collect::<Result<_, _>>()
+            .unwrap();
+        assert_eq!(
+            lines,
+            vec![
+                (1, "G0 X1".to_string()),
+                (2, "G1 Y2 F100".to_string()),
+                (3, String::new()),
+                (4, "M2".to_string())
+            ]
+        );
+        let mut long = "G0 X1\n".to_string();
+        long.push_str(&"X".repeat(MAX_LINE_BYTES + 1));
+        long.push_str("\nG0 X2\n");
+        std::fs::write(&p, &long).unwrap();
+        let got: Vec<_> = open_lines(&p, DataKind::Program).unwrap().collect();
+        assert_eq!(got.len(), 2, "the stream ends at the error");
+        let e = got[1].as_ref().unwrap_err().to_string();
+        assert_eq!(
+            e,
+            format!(
+                "program {}: line 2: longer than the 64 KiB a line may have",
+                p.display()
+            )
+        );
+        std::fs::write(&p, b"G0 X1\nG0 \xff\n").unwrap();
+        let got: Vec<_> = open_lines(&p, DataKind::Program).unwrap().collect();
+        let e = got[1].as_ref().unwrap_err().to_string();
+        assert!(e.ends_with("line 2: not UTF-8 text (column 4)"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
