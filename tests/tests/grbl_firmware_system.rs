@@ -1,0 +1,416 @@
+//! The real controller firmware as the controller (GRBL 1.1h with grbl-sim, grblHAL
+//! with its simulator; `system_tests::firmware`): the driver connecting to a first
+//! power-up (the firmware starts when the port is opened, as an Arduino resets on DTR,
+//! and prints `error:7`, its settings dump and its banner), the rotary job's link on
+//! the six-axis grblHAL, and the pass-through streaming a program to real GRBL, checked
+//! against the firmware's own log of every block it planned (`-b`).
+//!
+//! A firmware or socat that is missing fails the test naming the install step
+//! (`tests/install-peers.sh`); nothing is skipped. The firmwares run in real time:
+//! programs are short, and every wait is for the controller's replies (bounded only so
+//! that a broken test ends).
+
+use drivers::grbl::{GrblOptions, GrblStage};
+use drivers::{Axis, AxisValues, Stage, StageState};
+use protocol::grbl::command::Command;
+use protocol::grbl::response::Response;
+use proxy::{open_controller, serve, Ending, Proxy, SenderPort};
+use rewrite::{Approach, Compensation, Options, Pose, Rewriter, N_AXIS};
+use std::time::Duration;
+use system_tests::firmware::{Firmware, RunningFirmware, INSTALL_STEP};
+use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
+
+/// Start `fw` in a fresh working directory (a first power-up); a missing peer fails
+/// the test naming the install step.
+fn start(fw: Firmware) -> RunningFirmware {
+    fw.start().unwrap_or_else(|e| {
+        assert!(e.contains("install-peers"), "{e} ({INSTALL_STEP})");
+        panic!("{e}")
+    })
+}
+
+/// GRBL 1.1h's default steps per mm on every axis ($100-$102 after a first power-up).
+const STEPS_PER_MM: f64 = 250.0;
+
+/// One planned block of the `-b` log: target in steps, feed, condition.
+#[derive(Debug, Clone, PartialEq)]
+struct Block {
+    steps: [i64; 3],
+    feed: f64,
+}
+
+fn blocks(log: &str) -> Vec<Block> {
+    log.lines()
+        .filter(|l| !l.trim().is_empty())
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').map(str::trim).collect();
+            assert!(f.len() >= 4, "a block line: {l:?}");
+            Block {
+                steps: [0, 1, 2].map(|k| f[k].parse().unwrap_or_else(|_| panic!("{l:?}"))),
+                feed: f[3].parse().unwrap_or_else(|_| panic!("{l:?}")),
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn the_driver_connects_to_grbl_11h_at_its_first_power_up_and_moves_as_planned() {
+    let fw = start(Firmware::Grbl11h);
+    let rt = system_tests::runtime();
+    rt.block_on(async {
+        // Opening the port powers the firmware up: `error:7`, the settings dump and the
+        // banner come first; the `$I` of a driver that did not wait would be lost.
+        let mut g = GrblStage::open(&fw.path(), 115_200, GrblOptions::default())
+            .await
+            .unwrap_or_else(|e| panic!("connects to a first power-up: {e}"));
+        assert!(
+            g.build_info().version.starts_with("1.1h"),
+            "{:?}",
+            g.build_info()
+        );
+        assert_eq!(g.build_info().rx_buffer, 128);
+        assert_eq!(g.axis_count(), 3);
+        let x = g.info().axis(Axis::X).unwrap().clone();
+        assert_eq!(x.resolution_mm, 1.0 / STEPS_PER_MM);
+        // No homing on a first power-up ($22=0): idle, one travel either way.
+        assert_eq!((x.min_mm, x.max_mm), (-200.0, 200.0));
+        assert_eq!(g.status().await.unwrap().state, StageState::Idle);
+        g.move_to(AxisValues::xy(5.0, 3.0), 1000.0).await.unwrap();
+        g.wait_idle().await.unwrap();
+        let p = g.position().await.unwrap();
+        assert_eq!((p.get(Axis::X), p.get(Axis::Y)), (Some(5.0), Some(3.0)));
+    });
+    let planned = blocks(&fw.blocks());
+    assert_eq!(
+        planned,
+        [Block {
+            steps: [1250, 750, 0],
+            feed: 1000.0
+        }],
+        "the firmware planned exactly the move"
+    );
+}
+
+#[test]
+fn the_rotary_jobs_link_on_six_axis_grblhal_at_its_first_power_up() {
+    let rt = system_tests::runtime();
+    // Through the job, as `gateway rotary` opens it.
+    let fw = start(Firmware::GrblHal6);
+    rt.block_on(async {
+        let job = job::rotary::RotaryJob {
+            link: Some(job::rotary::RotaryLink::Grbl(job::rotary::GrblPort {
+                port: fw.path(),
+                baud: 115_200,
+                poll_ms: None,
+            })),
+            ..job::rotary::RotaryJob::default()
+        };
+        match devices::open_rotary(&job).await {
+            Ok(devices::RotaryTable::Linked(t)) => {
+                assert!(t.prober.name().contains("1.1f"), "{}", t.prober.name())
+            }
+            Ok(_) => panic!("not the linked table"),
+            Err(e) => panic!("the rotary link to grblHAL at its first power-up: {e}"),
+        }
+    });
+    drop(fw);
+    // The link itself: axes, `$#`, status.
+    let fw = start(Firmware::GrblHal6);
+    rt.block_on(async {
+        let mut g = GrblStage::open(&fw.path(), 115_200, GrblOptions::default())
+            .await
+            .unwrap_or_else(|e| panic!("connects to a first power-up: {e}"));
+        assert!(
+            g.build_info().version.starts_with("1.1f"),
+            "{:?}",
+            g.build_info()
+        );
+        assert_eq!(g.axis_count(), 6);
+        let axes: Vec<Axis> = g.info().axes.iter().map(|a| a.axis).collect();
+        assert_eq!(axes, [Axis::X, Axis::Y, Axis::Z, Axis::A, Axis::B, Axis::C]);
+        assert_eq!(
+            g.capabilities().rotary_axes,
+            drivers::Capabilities::rotary_among(axes.iter().copied())
+        );
+        let answer = g.command(&Command::ViewParameters).await.unwrap();
+        let names: Vec<String> = answer
+            .iter()
+            .map(|r| match r {
+                Response::Parameter { name, .. } => name.clone(),
+                Response::Other(l) => l.trim_start_matches('[').split(':').next().unwrap().into(),
+                other => format!("{other:?}"),
+            })
+            .collect();
+        for want in [
+            "G54", "G59", "G59.1", "G59.2", "G59.3", "G28", "G30", "G92", "TLO", "PRB",
+        ] {
+            assert!(names.iter().any(|n| n == want), "{want} in {names:?}");
+        }
+        let offsets = answer
+            .iter()
+            .find_map(|r| match r {
+                Response::Parameter { name, value } if name == "G54" => Some(value.clone()),
+                _ => None,
+            })
+            .unwrap();
+        assert_eq!(offsets.split(',').count(), 6, "{offsets}");
+        let s = g.status_report().await.unwrap();
+        assert_eq!(s.position.len(), 6, "{s:?}");
+        assert_eq!(g.status().await.unwrap().state, StageState::Idle);
+        g.move_to(
+            AxisValues::default()
+                .with(Axis::A, 12.5)
+                .with(Axis::C, -30.0),
+            1000.0,
+        )
+        .await
+        .unwrap();
+        g.wait_idle().await.unwrap();
+        let p = g.position().await.unwrap();
+        assert_eq!((p.get(Axis::A), p.get(Axis::C)), (Some(12.5), Some(-30.0)));
+    });
+}
+
+/// The tool lands 10 um short in X and 0.1 % long in Y (as in the proxy's unit tests).
+struct Skewed;
+
+impl Compensation for Skewed {
+    fn describe(&self) -> String {
+        "skewed".into()
+    }
+    fn axes(&self) -> &[usize] {
+        &[0, 1]
+    }
+    fn command_for(&self, p: &Pose, _: &[Approach; N_AXIS]) -> Result<Pose, String> {
+        Ok([p[0] + 0.010, p[1] / 1.001, p[2]])
+    }
+    fn tool_for(&self, c: &Pose, _: &[Approach; N_AXIS]) -> Result<Pose, String> {
+        Ok([c[0] - 0.010, c[1] * 1.001, c[2]])
+    }
+}
+
+/// A short program (real time: about two seconds of motion).
+const PROGRAM: &str = "G21 G90
+G1 F3000
+G1 X10 Y0
+G1 X10 Y10 (a comment)
+G1 X0 Y10
+G0 X5 Y5
+G1 X20.5 Y7.25 F2400
+G1 X20.5 Y0
+%
+G1 X0 Y0
+";
+
+/// What a plain sender got: each line's answer, and everything else it received.
+struct Sent {
+    answers: Vec<String>,
+    other: Vec<String>,
+}
+
+/// Line by line, each line's answer before the next; then `?` until idle.
+async fn send_program(path: std::path::PathBuf, program: &str) -> Sent {
+    use tokio_serial::SerialPortBuilderExt;
+    let port = tokio_serial::new(path.to_string_lossy(), 115_200)
+        .open_native_async()
+        .expect("open the gateway's port");
+    let (read, mut write) = tokio::io::split(port);
+    let mut lines = BufReader::new(read).lines();
+    let mut sent = Sent {
+        answers: Vec::new(),
+        other: Vec::new(),
+    };
+    for line in program.lines() {
+        write
+            .write_all(format!("{line}\n").as_bytes())
+            .await
+            .unwrap();
+        loop {
+            let got = tokio::time::timeout(Duration::from_secs(60), lines.next_line())
+                .await
+                .expect("the gateway answers")
+                .expect("read")
+                .expect("a line");
+            let got = got.trim().to_string();
+            if got == "ok" || got.starts_with("error:") {
+                sent.answers.push(got);
+                break;
+            }
+            sent.other.push(got);
+        }
+    }
+    // Status reports, asked for, until the program has run: the one kind of line that
+    // is not an answer it may get; only the last is kept.
+    loop {
+        write.write_all(b"?").await.unwrap();
+        let got = tokio::time::timeout(Duration::from_secs(60), lines.next_line())
+            .await
+            .expect("a status report")
+            .unwrap()
+            .unwrap();
+        let idle = got.starts_with("<Idle");
+        if !got.starts_with('<') || idle {
+            sent.other.push(got.trim().to_string());
+        }
+        if idle {
+            break;
+        }
+    }
+    sent
+}
+
+/// The pass-through between a plain sender and `fw` (first power-up), with the Skewed
+/// compensation: what the sender got and the session's end.
+fn stream_through_proxy(fw: &RunningFirmware, program: &'static str) -> (Sent, Ending, u64) {
+    let rt = system_tests::runtime();
+    let link = fw.workdir.join("ttyGATEWAY");
+    rt.block_on(async {
+        let (mut controller, banner) =
+            open_controller(&fw.path(), 115_200, Duration::from_secs(10))
+                .await
+                .expect("the controller's port");
+        assert!(banner.contains("error:7"), "a first power-up: {banner}");
+        let comp = Skewed;
+        let rewriter = Rewriter::new(&comp, Options::default()).unwrap();
+        let mut proxy = Proxy::new(rewriter, &comp);
+        proxy.start();
+        let mut sender_port = SenderPort::create(Some(&link)).unwrap();
+        let client = send_program(link.clone(), program);
+        let session = serve(
+            &mut proxy,
+            &mut sender_port,
+            &mut controller,
+            std::future::pending(),
+        );
+        let (ending, sent) = tokio::join!(session, client);
+        (sent, ending, proxy.stats().pieces_sent)
+    })
+}
+
+#[test]
+fn the_pass_through_streams_to_real_grbl_and_the_firmware_plans_the_compensated_program() {
+    let fw = start(Firmware::Grbl11h);
+    let (sent, ending, pieces) = stream_through_proxy(&fw, PROGRAM);
+    assert!(matches!(ending, Ending::SenderLeft(_)), "{ending:?}");
+    // Every line answered as GRBL would: `%` is GRBL 1.1h's error:1; the rest ok.
+    let expected: Vec<&str> = PROGRAM
+        .lines()
+        .map(|l| if l == "%" { "error:1" } else { "ok" })
+        .collect();
+    assert_eq!(sent.answers, expected);
+    // Nothing the sender did not ask for: no boot lines, none of the gateway's `$#`
+    // and `$G` answers; only the gateway's note on `%` and the status report asked for.
+    let (notes, rest): (Vec<&String>, Vec<&String>) = sent
+        .other
+        .iter()
+        .partition(|l| l.starts_with("[MSG:gateway:"));
+    assert_eq!(notes.len(), 1, "{:?}", sent.other);
+    assert_eq!(rest.len(), 1, "{:?}", sent.other);
+    assert!(rest[0].starts_with("<Idle|"), "{:?}", rest);
+    // The firmware's own log: every block the program's compensated target, in order.
+    let planned = blocks(&fw.blocks());
+    let mut nominal = Vec::new();
+    let mut at = [0.0f64; 2];
+    for l in PROGRAM.lines() {
+        let mut moved = false;
+        for w in l.split_whitespace() {
+            if let Some(v) = w.strip_prefix('X') {
+                at[0] = v.parse().unwrap();
+                moved = true;
+            }
+            if let Some(v) = w.strip_prefix('Y') {
+                at[1] = v.parse().unwrap();
+                moved = true;
+            }
+        }
+        if moved {
+            nominal.push(at);
+        }
+    }
+    let steps = |p: [f64; 2]| {
+        let c = Skewed
+            .command_for(&[p[0], p[1], 0.0], &[Approach::Forward; N_AXIS])
+            .unwrap();
+        [
+            (c[0] * STEPS_PER_MM).round() as i64,
+            (c[1] * STEPS_PER_MM).round() as i64,
+            0,
+        ]
+    };
+    // Each program target is where a block ends, in the program's order; every block
+    // lies on the compensated path (a straight line's pieces stay on it).
+    let mut k = 0;
+    for p in &nominal {
+        let want = steps(*p);
+        while k < planned.len() && planned[k].steps != want {
+            k += 1;
+        }
+        assert!(
+            k < planned.len(),
+            "no block ends at {p:?} ({want:?}): {planned:?}"
+        );
+        k += 1;
+    }
+    assert_eq!(
+        planned.last().unwrap().steps,
+        steps(*nominal.last().unwrap()),
+        "the last block is the program's end"
+    );
+    assert!(planned.iter().all(|b| b.steps[2] == 0), "{planned:?}");
+    // Every block on the compensated path (an affine compensation keeps the program's
+    // straight lines straight): within a step of the polyline through the targets.
+    let mut path = vec![[3i64, 0, 0]];
+    path.extend(nominal.iter().map(|p| steps(*p)));
+    let off_path = |b: &Block| {
+        path.windows(2)
+            .map(|w| {
+                let (a, c) = (w[0].map(|v| v as f64), w[1].map(|v| v as f64));
+                let q = b.steps.map(|v| v as f64);
+                let d = [c[0] - a[0], c[1] - a[1]];
+                let len2 = d[0] * d[0] + d[1] * d[1];
+                let t = match len2 {
+                    0.0 => 0.0,
+                    _ => (((q[0] - a[0]) * d[0] + (q[1] - a[1]) * d[1]) / len2).clamp(0.0, 1.0),
+                };
+                ((q[0] - a[0] - t * d[0]).powi(2) + (q[1] - a[1] - t * d[1]).powi(2)).sqrt()
+            })
+            .fold(f64::INFINITY, f64::min)
+    };
+    for b in &planned {
+        assert!(off_path(b) <= 1.0, "{b:?} off the compensated path");
+    }
+    assert!(
+        pieces >= planned.len() as u64,
+        "{pieces} pieces, {planned:?}"
+    );
+    println!(
+        "real GRBL 1.1h through the pass-through: {} program lines, {} pieces, {} planned blocks",
+        PROGRAM.lines().count(),
+        pieces,
+        planned.len()
+    );
+}
+
+#[test]
+fn the_pass_through_on_grblhal_passes_none_of_its_own_answers_to_the_sender() {
+    let fw = start(Firmware::GrblHal3);
+    const SHORT: &str = "G21 G90\nG1 X1 Y1 F1000\n$#\n";
+    let (sent, ending, _) = stream_through_proxy(&fw, SHORT);
+    assert!(matches!(ending, Ending::SenderLeft(_)), "{ending:?}");
+    assert_eq!(sent.answers, ["ok", "ok", "ok"]);
+    // The sender's own `$#`: every line of it (G59.1-G59.3 included); the gateway's
+    // `$#` at start: none.
+    let g59_1 = sent
+        .other
+        .iter()
+        .filter(|l| l.starts_with("[G59.1:"))
+        .count();
+    assert_eq!(g59_1, 1, "{:?}", sent.other);
+    let g54 = sent.other.iter().filter(|l| l.starts_with("[G54:")).count();
+    assert_eq!(g54, 1, "{:?}", sent.other);
+    assert!(
+        sent.other.last().unwrap().starts_with("<Idle|"),
+        "{:?}",
+        sent.other
+    );
+}
