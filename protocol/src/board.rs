@@ -11,11 +11,17 @@
 //! rows = 320                # points along board +y (index j)
 //! origin_mm = [0.0, 0.0]    # board coordinate of point (i=0, j=0)
 //! certified = "plate.csv"   # optional certificate, relative to this file
+//!
+//! [board.code]              # optional: a coded board (docs/coded-board.md)
+//! scheme = "random-two-size"
+//! seed = 28                 # bit(i, j) = top bit of SplitMix64(seed + (j << 32 | i))
+//! dot_diameters_mm = [0.2, 0.3] # a 0 dot, a 1 dot; dot_diameter_mm lies between
 //! ```
 //! The certificate is CSV with a header `i,j,x_mm,y_mm`: the true (measured by a
 //! metrology lab) coordinate of each listed point. Points not listed are taken at their
 //! nominal position, so a board without a certificate is a perfect nominal grid.
 
+use crate::board_code::{BoardCode, CodeSection, MIN_SIZE_RATIO, SCHEME};
 use crate::config::{ConfigDoc, ConfigError, Location, Xy};
 use crate::text::escape_text;
 use serde::{Deserialize, Serialize};
@@ -50,6 +56,8 @@ struct BoardSection {
     origin_mm: Xy,
     #[serde(default)]
     certified: Option<String>,
+    #[serde(default)]
+    code: Option<CodeSection>,
 }
 
 /// A loaded board: geometry plus the true coordinate of every point.
@@ -66,6 +74,8 @@ pub struct Board {
     certified: Vec<[f64; 2]>,
     /// How many points the certificate listed (0 for a nominal board).
     pub certified_points: usize,
+    /// The position code of a coded board (dots of two sizes); None for a plain grid.
+    pub code: Option<BoardCode>,
 }
 
 /// Largest certificate deviation from nominal that is believed, as a fraction of pitch:
@@ -93,6 +103,7 @@ impl Board {
             origin_mm,
             certified: Vec::new(),
             certified_points: 0,
+            code: None,
         };
         b.certified = (0..rows)
             .flat_map(|j| (0..cols).map(move |i| (i, j)))
@@ -143,11 +154,42 @@ impl Board {
             s.rows,
             s.origin_mm.0,
         );
+        if let Some(c) = &s.code {
+            check_code(doc, c, s.pitch_mm, s.dot_diameter_mm)?;
+            board.set_code(c.seed, c.dot_diameters_mm);
+        }
         if let Some(rel) = &s.certified {
             let cert = doc.read_relative("board.certified", rel)?;
             board.apply_certificate(&cert.name, &cert.text)?;
         }
         Ok(board)
+    }
+
+    /// Make this board a coded one (dots of two sizes carrying `seed`'s code).
+    pub fn set_code(&mut self, seed: u64, dot_diameters_mm: [f64; 2]) {
+        self.code = Some(BoardCode::generate(
+            seed,
+            dot_diameters_mm,
+            self.cols,
+            self.rows,
+        ));
+    }
+
+    /// Diameter of dot (i, j), mm: its code size on a coded board.
+    #[inline]
+    pub fn dot_diameter_at(&self, i: i64, j: i64) -> f64 {
+        match &self.code {
+            Some(c) => c.diameter_mm(i, j),
+            None => self.dot_diameter_mm,
+        }
+    }
+
+    /// Largest dot diameter on the board, mm.
+    pub fn max_dot_diameter_mm(&self) -> f64 {
+        match &self.code {
+            Some(c) => c.dot_diameters_mm[0].max(c.dot_diameters_mm[1]),
+            None => self.dot_diameter_mm,
+        }
     }
 
     /// Read a certificate (`i,j,x_mm,y_mm` CSV) into the board; errors name file and line.
@@ -305,6 +347,13 @@ impl Board {
             self.rows,
             self.origin_mm
         ));
+        if let Some(c) = &self.code {
+            // Plain boards hash as before, so their maps stay valid.
+            h.update(format!(
+                "code {SCHEME} seed {} sizes {:?}\n",
+                c.seed, c.dot_diameters_mm
+            ));
+        }
         h.update(self.certificate_csv());
         h.finalize().iter().map(|b| format!("{b:02x}")).collect()
     }
@@ -333,6 +382,56 @@ impl Board {
     }
 }
 
+/// The `[board.code]` section: a known scheme, two sizes that can be told apart, both
+/// inside the pitch, the nominal dot diameter between them.
+fn check_code(
+    doc: &ConfigDoc,
+    c: &CodeSection,
+    pitch_mm: f64,
+    dot_diameter_mm: f64,
+) -> Result<(), ConfigError> {
+    if c.scheme != SCHEME {
+        return Err(doc.invalid(
+            "board.code.scheme",
+            format!(
+                "unknown code scheme `{}`: the only one is `{SCHEME}`",
+                escape_text(&c.scheme)
+            ),
+        ));
+    }
+    let [d0, d1] = c.dot_diameters_mm;
+    let key = "board.code.dot_diameters_mm";
+    if !(d0.is_finite() && d1.is_finite() && d0 > 0.0 && d1 > 0.0) {
+        return Err(doc.invalid(key, "both diameters must be positive numbers of mm"));
+    }
+    if !(d1 >= MIN_SIZE_RATIO * d0) {
+        return Err(doc.invalid(
+            key,
+            format!(
+                "the 1 dot ({d1} mm) must be at least {MIN_SIZE_RATIO} times the 0 dot ({d0} mm) so the sizes can be told apart"
+            ),
+        ));
+    }
+    if !(d1 <= 0.8 * pitch_mm) {
+        return Err(doc.invalid(
+            key,
+            format!(
+                "the 1 dot ({d1} mm) must be at most 0.8 of the pitch ({} mm): neighbours would merge",
+                0.8 * pitch_mm
+            ),
+        ));
+    }
+    if !(d0 < dot_diameter_mm && dot_diameter_mm < d1) {
+        return Err(doc.invalid(
+            "board.dot_diameter_mm",
+            format!(
+                "on a coded board the nominal dot diameter lies between the two code sizes ({d0} and {d1} mm)"
+            ),
+        ));
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -342,6 +441,53 @@ mod tests {
     }
 
     const GOOD: &str = "[board]\npitch_mm = 0.5\ndot_diameter_mm = 0.25\npolarity = \"dark-on-light\"\ncols = 10\nrows = 8\norigin_mm = [1.0, 2.0]\n";
+
+    const CODED: &str = "[board]\npitch_mm = 0.5\ndot_diameter_mm = 0.25\npolarity = \"dark-on-light\"\ncols = 10\nrows = 8\norigin_mm = [1.0, 2.0]\n[board.code]\nscheme = \"random-two-size\"\nseed = 28\ndot_diameters_mm = [0.2, 0.3]\n";
+
+    #[test]
+    fn a_coded_board_loads_and_a_plain_one_keeps_its_fingerprint() {
+        let plain = Board::from_doc(&doc(GOOD)).unwrap();
+        assert!(plain.code.is_none());
+        assert_eq!(plain.dot_diameter_at(3, 3), 0.25);
+        let coded = Board::from_doc(&doc(CODED)).unwrap();
+        let c = coded.code.as_ref().unwrap();
+        assert_eq!(c.seed, 28);
+        for (i, j) in [(0, 0), (3, 4), (9, 7)] {
+            let d = coded.dot_diameter_at(i, j);
+            let want = if crate::board_code::code_bit(28, i as u32, j as u32) {
+                0.3
+            } else {
+                0.2
+            };
+            assert_eq!(d, want);
+        }
+        assert_eq!(coded.max_dot_diameter_mm(), 0.3);
+        assert_ne!(plain.fingerprint_sha256(), coded.fingerprint_sha256());
+        // The plain fingerprint is the one maps recorded before coded boards existed.
+        let again = Board::nominal("", 0.5, 0.25, Polarity::DarkOnLight, 10, 8, [1.0, 2.0]);
+        assert_eq!(plain.fingerprint_sha256(), again.fingerprint_sha256());
+    }
+
+    #[test]
+    fn a_bad_code_section_is_refused_naming_the_key() {
+        for (from, to, key) in [
+            ("\"random-two-size\"", "\"qr\"", "board.code.scheme"),
+            ("[0.2, 0.3]", "[0.2, 0.22]", "board.code.dot_diameters_mm"),
+            ("[0.2, 0.3]", "[0.2, 0.45]", "board.code.dot_diameters_mm"),
+            ("[0.2, 0.3]", "[-0.2, 0.3]", "board.code.dot_diameters_mm"),
+            (
+                "dot_diameter_mm = 0.25",
+                "dot_diameter_mm = 0.35",
+                "board.dot_diameter_mm",
+            ),
+            ("seed = 28", "seed = -1", "board.code.seed"),
+            ("seed = 28", "seed = 28\ncolour = 1", "colour"),
+        ] {
+            let bad = CODED.replace(from, to);
+            let e = Board::from_doc(&doc(&bad)).unwrap_err().to_string();
+            assert!(e.contains(key), "{to}: {e}");
+        }
+    }
 
     #[test]
     fn an_origin_with_a_third_value_is_refused_not_dropped() {

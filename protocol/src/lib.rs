@@ -5,6 +5,7 @@
 //! every data file gets the same error reporting (file, line, key).
 
 pub mod board;
+pub mod board_code;
 pub mod can;
 pub mod canopen;
 pub mod cia402;

