@@ -219,9 +219,11 @@ pub struct Sample {
 /// `, "crc"`; a line is whole only when it ends with a newline and its checksum matches.
 /// A stopped scan resumes from the whole lines: the bytes after the last newline (the
 /// process died while writing a line) are a torn tail, cut off before anything more is
-/// appended; any other damage is refused naming the line. A journal resumes only for
-/// the same job, machine, controller, board (and certificate), camera and plan (the
-/// error names the first field that differs); a sample is refused when its index is not
+/// appended (so is a whole last line whose checksum fails when nothing follows it: the
+/// power went before its blocks were all written); any other damage is refused naming
+/// the line. A journal resumes only for the same job, machine, controller, board (and
+/// certificate), camera and plan (the error names the first field that differs); a
+/// sample is refused when its index is not
 /// in the plan, when it repeats an index with other values (an identical repeat is
 /// taken once), or when a value is not finite or beyond what a stage can do (an error of
 /// more than [`MAX_ERROR_UM`], a yaw of more than [`MAX_YAW_URAD`]).
@@ -332,8 +334,8 @@ pub mod journal {
         /// The bytes of the whole lines, from the start: what is kept. 0 when not even
         /// the header is whole (the file holds no sample: it is started anew).
         pub whole_bytes: usize,
-        /// The bytes after the last whole line (a line cut while it was written), to cut
-        /// off before anything is appended.
+        /// The bytes after the kept lines (a line cut while it was written, or a last
+        /// line whose checksum fails), to cut off before anything is appended.
         pub torn_bytes: usize,
     }
 
@@ -370,11 +372,23 @@ pub mod journal {
         }
         let mut seen: BTreeMap<usize, (Sample, usize)> = BTreeMap::new();
         let mut samples = Vec::new();
-        for (k, l) in lines.enumerate() {
+        let lines: Vec<&[u8]> = lines.collect();
+        let (mut whole, mut torn_bytes) = (whole, torn_bytes);
+        for (k, l) in lines.iter().enumerate() {
             let n = k + 2;
-            let (index, s) = body(l)
-                .and_then(|b| parse_sample(b, plan))
-                .map_err(|e| format!("line {n}: {e}"))?;
+            let b = match body(l) {
+                Ok(b) => b,
+                // The last line, written but not yet on the disk when the power went
+                // (its blocks partly written, its newline there): torn as well, when
+                // nothing follows it. It is measured again; any earlier line is damage.
+                Err(_) if k + 1 == lines.len() && torn_bytes == 0 => {
+                    whole -= l.len() + 1;
+                    torn_bytes = l.len() + 1;
+                    break;
+                }
+                Err(e) => return Err(format!("line {n}: {e}")),
+            };
+            let (index, s) = parse_sample(b, plan).map_err(|e| format!("line {n}: {e}"))?;
             match seen.get(&index) {
                 Some((first, _)) if *first == s => {}
                 Some((_, at)) => {
@@ -889,6 +903,22 @@ mod tests {
         assert!(e.starts_with("line 2: `garbage` is damaged"), "{e}");
         let flipped = a.replace("\"ex\": ", "\"ex\": 1");
         let e = read(&(header.line() + &flipped + &b)).unwrap_err();
+        assert!(
+            e.contains("line 2") && e.contains("checksum does not match"),
+            "{e}"
+        );
+        // A damaged last line (its newline written, its blocks not all) is cut as a torn
+        // one, unless a torn line follows it (it was whole before that one was begun).
+        let text = header.line() + &a + &flipped;
+        let r = read(&text).unwrap();
+        assert_eq!(r.samples, vec![(3, sample(3))]);
+        assert_eq!(
+            (r.whole_bytes, r.torn_bytes),
+            (text.len() - flipped.len(), flipped.len())
+        );
+        let r = read(&(header.line() + &a + &"\0".repeat(40) + "\n")).unwrap();
+        assert_eq!(r.samples, vec![(3, sample(3))]);
+        let e = read(&(header.line() + &flipped + "{\"i\": 4")).unwrap_err();
         assert!(
             e.contains("line 2") && e.contains("checksum does not match"),
             "{e}"
