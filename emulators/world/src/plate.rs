@@ -55,6 +55,47 @@ pub fn manufacture(board: &mut Board, errors: PlateErrors, seed: u64) {
     }
 }
 
+/// Damage `fraction` of the dots of `board` (0..1), drawn from `seed`, in three equal
+/// shares: missing dots, dots merged with a neighbour by a bridge of dot material, and
+/// dirt blobs (0.05 to 0.2 mm) near a dot, on it or beside it.
+pub fn damage(board: &Board, fraction: f64, seed: u64) -> crate::render::Damage {
+    let mut rng = Rng::new(seed);
+    let mut out = crate::render::Damage::default();
+    let pitch = board.pitch_mm;
+    for j in 0..board.rows as i64 {
+        for i in 0..board.cols as i64 {
+            if rng.uniform() >= fraction {
+                continue;
+            }
+            let Some(xy) = board.true_xy(i, j) else {
+                continue;
+            };
+            match rng.next_u64() % 3 {
+                0 => {
+                    out.missing.insert((i, j));
+                }
+                1 => {
+                    // A bridge to the +x or +y neighbour, wide enough to join both.
+                    let (di, dj) = if rng.uniform() < 0.5 { (1, 0) } else { (0, 1) };
+                    let Some(n) = board.true_xy(i + di, j + dj) else {
+                        continue;
+                    };
+                    let mid = [0.5 * (xy[0] + n[0]), 0.5 * (xy[1] + n[1])];
+                    out.blobs.push((mid, 0.7 * pitch));
+                }
+                _ => {
+                    let d = rng.range(0.05, 0.2);
+                    let r = rng.range(0.0, 0.3 * pitch);
+                    let a = rng.range(0.0, std::f64::consts::TAU);
+                    out.blobs
+                        .push(([xy[0] + r * a.cos(), xy[1] + r * a.sin()], d));
+                }
+            }
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

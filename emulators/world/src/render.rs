@@ -69,10 +69,55 @@ pub fn render(
     pose: &CameraPose,
     noise_seed: u64,
 ) -> RenderedFrame {
+    render_damaged(board, cam, pose, noise_seed, &Damage::default())
+}
+
+/// Damage on a board: dots that are missing, and extra blobs of dot material (dirt, or a
+/// bridge that merges two dots), drawn like dots.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Damage {
+    /// Board indices (i, j) of dots not drawn.
+    pub missing: std::collections::HashSet<(i64, i64)>,
+    /// Extra discs: centre on the board (mm) and diameter (mm).
+    pub blobs: Vec<([f64; 2], f64)>,
+}
+
+/// [`render`] of a damaged board (see [`crate::plate::damage`]).
+pub fn render_damaged(
+    board: &Board,
+    cam: &CameraModel,
+    pose: &CameraPose,
+    noise_seed: u64,
+    damage: &Damage,
+) -> RenderedFrame {
     let (w, h) = (cam.width as usize, cam.height as usize);
     let (background, dot) = levels(board, cam);
     let mut buf = vec![background as f32; w * h];
-    let dots = draw_dots(board, cam, pose, &mut buf, (dot - background) as f32);
+    let amplitude = (dot - background) as f32;
+    let mut dots = draw_dots(board, cam, pose, &mut buf, amplitude, &damage.missing);
+    let mm_per_px = cam.um_per_px / 1000.0;
+    let reach = 0.5 * (cam.width as f64).hypot(cam.height as f64) * mm_per_px + 1.0;
+    for (xy, d) in &damage.blobs {
+        if (xy[0] - pose.centre_mm[0]).hypot(xy[1] - pose.centre_mm[1]) > reach {
+            continue;
+        }
+        let c = cam.board_to_pixel(pose, *xy);
+        let r = 0.5 * d / mm_per_px;
+        if r > 0.0 && r.is_finite() {
+            // Dot material: coverage adds up to at most the full dot level.
+            rasterise_disc(c, r, w, h, |x, y, cov| {
+                let v = &mut buf[y * w + x];
+                let full = background as f32 + amplitude;
+                let add = amplitude * cov as f32;
+                *v = if amplitude < 0.0 {
+                    (*v + add).max(full)
+                } else {
+                    (*v + add).min(full)
+                };
+            });
+        }
+    }
+    dots.retain(|d| !damage.missing.contains(&(d.i, d.j)));
     illuminate_and_blur_rows(cam, &mut buf);
     let image = blur_columns_and_quantise(cam, &buf, noise_seed);
     RenderedFrame { image, dots }
@@ -100,6 +145,7 @@ fn draw_dots(
     pose: &CameraPose,
     buf: &mut [f32],
     amplitude: f32,
+    missing: &std::collections::HashSet<(i64, i64)>,
 ) -> Vec<RenderedDot> {
     let (w, h) = (cam.width as usize, cam.height as usize);
     let mut dots = Vec::new();
@@ -108,13 +154,16 @@ fn draw_dots(
     };
     let mm_per_px = cam.um_per_px / 1000.0;
     let k = cam.distortion_k();
-    let radius_px_undistorted = board.dot_diameter_mm / 2.0 / mm_per_px;
+    let mm_to_radius_px = 0.5 / mm_per_px;
     let (wf, hf) = (w as f64, h as f64);
     for j in j_range {
         for i in i_range.clone() {
             let Some(xy) = board.true_xy(i, j) else {
                 continue;
             };
+            if !missing.is_empty() && missing.contains(&(i, j)) {
+                continue;
+            }
             let centre = cam.board_to_pixel(pose, xy);
             // Undistorted radius from the image centre: the board->image map before
             // distortion is a rotation and a scale, so it is the board distance / scale.
@@ -123,7 +172,8 @@ fn draw_dots(
             // r -> r(1 + k r^2) stretches radially by 1 + 3k r^2 and tangentially by
             // 1 + k r^2; a small dot becomes a slight ellipse, modelled as the circle of the
             // mean magnification so its centre stays exact by symmetry.
-            let radius = radius_px_undistorted * (1.0 + 2.0 * k * ru2);
+            // A coded board's dots come in two sizes (protocol::board_code).
+            let radius = board.dot_diameter_at(i, j) * mm_to_radius_px * (1.0 + 2.0 * k * ru2);
             if (-0.5..wf - 0.5).contains(&centre[0]) && (-0.5..hf - 0.5).contains(&centre[1]) {
                 dots.push(RenderedDot {
                     i,
@@ -181,8 +231,9 @@ fn visible_index_range(
     let mm_per_px = cam.um_per_px / 1000.0;
     // Largest dot magnification anywhere in the frame (see `draw_dots`).
     let mag = (1.0 + 2.0 * cam.distortion_k() * max_r2 / (mm_per_px * mm_per_px)).max(1.0);
-    let margin =
-        board.dot_diameter_mm / 2.0 * mag + CERT_MARGIN_OF_PITCH * board.pitch_mm + 2.0 * mm_per_px;
+    let margin = board.max_dot_diameter_mm() / 2.0 * mag
+        + CERT_MARGIN_OF_PITCH * board.pitch_mm
+        + 2.0 * mm_per_px;
     let range = |a: usize, n: u32| {
         let to_index = |v: f64| (v - board.origin_mm[a]) / board.pitch_mm;
         // Clamp in f64 before converting: a pose far off the board gives huge indices.

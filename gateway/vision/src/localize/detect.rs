@@ -71,16 +71,33 @@ pub(crate) fn detect_dots_sized(
     polarity: Polarity,
     dot_px: Option<f64>,
 ) -> Vec<Dot> {
+    detect_dots_two_sizes(img, polarity, dot_px, 1.0)
+}
+
+/// [`detect_dots_sized`] for a board whose dots come in two sizes, the larger
+/// `area_ratio` times the area of the smaller (a coded board): a dot is kept when its
+/// area is like the median dot's, or `area_ratio` times larger or smaller.
+pub(crate) fn detect_dots_two_sizes(
+    img: &MonoImage,
+    polarity: Polarity,
+    dot_px: Option<f64>,
+    area_ratio: f64,
+) -> Vec<Dot> {
+    let area_ratio = if area_ratio.is_finite() && area_ratio >= 1.0 {
+        area_ratio
+    } else {
+        1.0
+    };
     let (w, h) = (img.width as usize, img.height as usize);
     let full = img.max_value() as f64;
     let dark = polarity == Polarity::DarkOnLight;
     match &img.pixels {
         Pixels::Mono8(p) => match View::new(p, w, h) {
-            Some(v) => detect_in(v, dark, dot_px, full),
+            Some(v) => detect_in(v, dark, dot_px, full, area_ratio),
             None => Vec::new(),
         },
         Pixels::Mono16(p) => match View::new(p, w, h) {
-            Some(v) => detect_in(v, dark, dot_px, full),
+            Some(v) => detect_in(v, dark, dot_px, full, area_ratio),
             None => Vec::new(),
         },
     }
@@ -137,7 +154,13 @@ fn block_for(d: f64, s: usize) -> usize {
     ((2.2 * d / s as f64).ceil() as usize).clamp(4, 64)
 }
 
-fn detect_in<T: Px>(v: View<T>, dark: bool, dot_px: Option<f64>, full: f64) -> Vec<Dot> {
+fn detect_in<T: Px>(
+    v: View<T>,
+    dark: bool,
+    dot_px: Option<f64>,
+    full: f64,
+    area_ratio: f64,
+) -> Vec<Dot> {
     let (mut s, mut bs) = match dot_px {
         Some(d) if d.is_finite() && d > 0.0 => (stride_for(d), block_for(d, stride_for(d))),
         // Unknown scale: a first guess that finds dots from ~15 px up cheaply.
@@ -165,8 +188,15 @@ fn detect_in<T: Px>(v: View<T>, dark: bool, dot_px: Option<f64>, full: f64) -> V
         }
         None => {}
     }
-    let blobs = filter_blobs(blobs);
-    refine_all(v, dark, &blobs, s)
+    let blobs = filter_blobs(blobs, area_ratio);
+    refine_all(v, dark, &blobs, s, area_ratio)
+}
+
+/// Is `area` within `lo..=hi` times the median area `med`, or (two dot sizes) within
+/// that band around `med * ratio` or `med / ratio`?
+fn like_median(area: f64, med: f64, lo: f64, hi: f64, ratio: f64) -> bool {
+    let near = |m: f64| area >= lo * m && area <= hi * m;
+    near(med) || (ratio > 1.0 && (near(med * ratio) || near(med / ratio)))
 }
 
 fn median_diameter(blobs: &[Blob]) -> Option<f64> {
@@ -438,7 +468,7 @@ fn fill_missing(thr: &mut [f64], nbx: usize, nby: usize) -> bool {
 }
 
 /// Drop border blobs, merged blobs and blobs unlike the median dot.
-fn filter_blobs(blobs: Vec<Blob>) -> Vec<Blob> {
+fn filter_blobs(blobs: Vec<Blob>, area_ratio: f64) -> Vec<Blob> {
     let mut areas: Vec<f64> = blobs.iter().filter(|b| !b.border).map(|b| b.area).collect();
     let Some(med) = median(&mut areas) else {
         return Vec::new();
@@ -447,8 +477,7 @@ fn filter_blobs(blobs: Vec<Blob>) -> Vec<Blob> {
         .into_iter()
         .filter(|b| {
             !b.border
-                && b.area >= 0.5 * med
-                && b.area <= 1.6 * med
+                && like_median(b.area, med, 0.5, 1.6, area_ratio)
                 // Small blobs are too coarsely sampled for a shape test.
                 && (b.n < 12 || b.elong <= 1.6)
         })
@@ -680,7 +709,13 @@ struct Illum {
     d0: f64,
 }
 
-fn refine_all<T: Px>(v: View<T>, dark: bool, blobs: &[Blob], s: usize) -> Vec<Dot> {
+fn refine_all<T: Px>(
+    v: View<T>,
+    dark: bool,
+    blobs: &[Blob],
+    s: usize,
+    area_ratio: f64,
+) -> Vec<Dot> {
     if blobs.is_empty() {
         return Vec::new();
     }
@@ -895,7 +930,7 @@ fn refine_all<T: Px>(v: View<T>, dark: bool, blobs: &[Blob], s: usize) -> Vec<Do
     // damaged, dirty or two dots.
     let mut areas: Vec<f64> = dots.iter().map(|d| d.area_px).collect();
     if let Some(med) = median(&mut areas) {
-        dots.retain(|d| d.area_px >= 0.7 * med && d.area_px <= 1.4 * med);
+        dots.retain(|d| like_median(d.area_px, med, 0.7, 1.4, area_ratio));
     }
     dots
 }

@@ -6,7 +6,10 @@
 //! 2. Identification (`identify`): lattice basis, integer indices, mapping of lattice
 //!    axes to board axes through the nominal [`PixelAxes`], and the integer offset on the
 //!    board chosen so the implied position lands nearest the hint. Refused when that is
-//!    not unambiguous.
+//!    not unambiguous. On a coded board (`code`) the offset and the orientation are read
+//!    from the dots' sizes instead, with no hint: a hint, when given, is only checked
+//!    against the absolute result, and an orientation other than the nominal pixel axes
+//!    is refused naming the one the code shows.
 //! 3. [`Method::Fit`]: homography + radial distortion fitted to the certified
 //!    coordinates of all identified dots, evaluated at the image centre (`fit`).
 //!    [`Method::FourPoint`]: the patent's formula on the cell around the centre
@@ -18,6 +21,7 @@
 //! Nothing here knows how the frame was made: the simulated camera and renderer are used
 //! only by the tests and the benchmark.
 
+pub mod code;
 pub mod detect;
 mod fit;
 mod four_point;
@@ -220,9 +224,12 @@ pub struct LocalizeParams {
     /// must agree within 10 %, else the frame is refused.
     pub um_per_px: Option<f64>,
     /// Expected board coordinate at the image centre (from the commanded target), mm.
-    pub hint_mm: [f64; 2],
-    /// How far the true position may be from the hint, mm. Must be under half the pitch
-    /// (otherwise two grid offsets fit and the answer is ambiguous by construction).
+    /// Required on a plain dot grid (it picks the grid offset); optional on a coded
+    /// board, where it is only checked against the decoded position.
+    pub hint_mm: Option<[f64; 2]>,
+    /// How far the true position may be from the hint, mm. On a plain grid it must be
+    /// under half the pitch (otherwise two grid offsets fit and the answer is ambiguous
+    /// by construction); on a coded board any positive distance.
     pub hint_tolerance_mm: f64,
     /// Refuse when the fit's RMS residual exceeds this, micrometres.
     pub max_residual_um: f64,
@@ -270,7 +277,7 @@ impl LocalizeParams {
             method: settings.method,
             pixel_axes: PixelAxes::default(),
             um_per_px: None,
-            hint_mm,
+            hint_mm: Some(hint_mm),
             hint_tolerance_mm: settings.hint_tolerance_mm,
             max_residual_um: settings.max_residual_um,
             min_points: settings.min_points,
@@ -296,6 +303,25 @@ pub struct Observation {
     pub rotation_deg: f64,
     /// Identified points the robust fit rejected as outliers.
     pub rejected: usize,
+    /// On a coded board: how the code was read (None on a plain grid).
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    pub code: Option<CodeRead>,
+}
+
+/// How a coded board's code was read in one frame.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CodeRead {
+    /// Dots whose size was read (bits compared with the board).
+    pub bits: usize,
+    /// Of those, dots that disagree with the board at the decoded position (misread,
+    /// dirty or damaged dots, outvoted).
+    pub errors: usize,
+    /// Disagreeing dots at the second-best board position or orientation (the margin
+    /// is `second - errors`; capped at the search cut-off).
+    pub second: usize,
+    /// Board index of the dot nearest the image centre.
+    pub i: i64,
+    pub j: i64,
 }
 
 /// Why a frame was refused. Every message says what was wrong, with the numbers.
@@ -347,6 +373,20 @@ pub enum LocalizeError {
     Degenerate(String),
     #[error("bad localization parameters: {0}")]
     BadParams(String),
+    #[error("the board's code cannot be read: {detail}")]
+    CodeUnreadable { detail: String },
+    #[error("the board's code shows the camera's pixel axes as `{decoded}`, not the configured `{configured}`: the camera is turned or mirrored (fix pixel_axes)")]
+    OrientationMismatch {
+        configured: PixelAxes,
+        decoded: PixelAxes,
+    },
+    #[error("the board's code puts the image centre at ({:.4}, {:.4}) mm, {distance_mm:.4} mm from the hint ({:.4}, {:.4}) mm (tolerance {tolerance_mm} mm)", found_mm[0], found_mm[1], hint_mm[0], hint_mm[1])]
+    HintMismatch {
+        found_mm: [f64; 2],
+        hint_mm: [f64; 2],
+        distance_mm: f64,
+        tolerance_mm: f64,
+    },
 }
 
 fn check_params(board: &Board, p: &LocalizeParams) -> Result<(), LocalizeError> {
@@ -357,11 +397,13 @@ fn check_params(board: &Board, p: &LocalizeParams) -> Result<(), LocalizeError> 
             p.min_points
         ));
     }
-    if !(p.hint_mm[0].is_finite() && p.hint_mm[1].is_finite()) {
-        return bad(format!(
-            "hint ({}, {}) mm is not a finite position",
-            p.hint_mm[0], p.hint_mm[1]
-        ));
+    if let Some(h) = p.hint_mm {
+        if !(h[0].is_finite() && h[1].is_finite()) {
+            return bad(format!(
+                "hint ({}, {}) mm is not a finite position",
+                h[0], h[1]
+            ));
+        }
     }
     if !(p.hint_tolerance_mm.is_finite() && p.hint_tolerance_mm > 0.0) {
         return bad(format!(
@@ -386,9 +428,18 @@ fn check_params(board: &Board, p: &LocalizeParams) -> Result<(), LocalizeError> 
             board.pitch_mm
         ));
     }
+    if board.code.is_some() {
+        return Ok(());
+    }
+    let Some(hint_mm) = p.hint_mm else {
+        return bad(format!(
+            "a plain dot grid (`{}`) gives the position only modulo its {} mm pitch: a hint (the expected position) is needed",
+            board.name, board.pitch_mm
+        ));
+    };
     if p.hint_tolerance_mm >= 0.5 * board.pitch_mm {
         return Err(LocalizeError::Ambiguous {
-            hint_mm: p.hint_mm,
+            hint_mm,
             tolerance_mm: p.hint_tolerance_mm,
             detail: format!(
                 "a tolerance of at least half the pitch ({} mm) admits two grid offsets, so any view is ambiguous by construction; give a hint within less than {} mm",
@@ -409,7 +460,13 @@ pub fn localize(
     check_params(board, p)?;
     let centre = img.centre();
     let dot_px = p.um_per_px.map(|u| board.dot_diameter_mm * 1000.0 / u);
-    let dots = detect::detect_dots_sized(img, board.polarity, dot_px);
+    let dots = match &board.code {
+        Some(c) => {
+            let r = c.dot_diameters_mm[1] / c.dot_diameters_mm[0];
+            detect::detect_dots_two_sizes(img, board.polarity, dot_px, r * r)
+        }
+        None => detect::detect_dots_sized(img, board.polarity, dot_px),
+    };
     if dots.is_empty() {
         return Err(LocalizeError::NoBoard {
             reason: format!(
@@ -495,7 +552,67 @@ pub fn localize(
         ac[0] * ex[0] as f64 + ac[1] * ey[0] as f64,
         ac[0] * ex[1] as f64 + ac[1] * ey[1] as f64,
     ];
-    let ij0 = choose_offset(board, p, off)?;
+    let (ij0, code_read) = match &board.code {
+        None => (choose_offset(board, p, off)?, None),
+        Some(c) => {
+            let mm_per_px = um_lattice / 1000.0;
+            let diam: Vec<Option<f64>> = dots
+                .iter()
+                .zip(&idx)
+                .map(|(d, ab)| {
+                    ab.map(|_| 2.0 * (d.area_px / std::f64::consts::PI).sqrt() * mm_per_px)
+                })
+                .collect();
+            let bits = code::classify(&diam, c.dot_diameters_mm);
+            let obs: Vec<([i64; 2], bool)> = idx
+                .iter()
+                .zip(&bits)
+                .filter_map(|(ab, b)| Some(((*ab)?, (*b)?)))
+                .collect();
+            let d = code::decode(c, &obs).map_err(|e| LocalizeError::CodeUnreadable {
+                detail: match e {
+                    code::DecodeError::TooFewBits { bits } => format!(
+                        "only {bits} dot sizes read, at least {} needed",
+                        code::MIN_BITS
+                    ),
+                    code::DecodeError::NoMatch { bits, best, limit } => format!(
+                        "no board position matches the {bits} dot sizes read: the best disagrees in {best} dots, at most {limit} accepted (dirty or damaged board, or another board's code)"
+                    ),
+                    code::DecodeError::NotAlone {
+                        bits,
+                        best,
+                        second,
+                    } => format!(
+                        "two board positions match the {bits} dot sizes read almost equally ({best} and {second} dots disagree, a margin of {} needed)",
+                        code::MIN_MARGIN
+                    ),
+                },
+            })?;
+            if d.axes != [ex, ey] {
+                let axis = |u: [i64; 2]| match u {
+                    [1, 0] => BoardAxis::PlusX,
+                    [-1, 0] => BoardAxis::MinusX,
+                    [0, 1] => BoardAxis::PlusY,
+                    _ => BoardAxis::MinusY,
+                };
+                return Err(LocalizeError::OrientationMismatch {
+                    configured: p.pixel_axes,
+                    decoded: PixelAxes {
+                        image_x: axis(d.axes[0]),
+                        image_y: axis(d.axes[1]),
+                    },
+                });
+            }
+            let read = CodeRead {
+                bits: d.bits,
+                errors: d.errors,
+                second: d.second,
+                i: d.ij0[0],
+                j: d.ij0[1],
+            };
+            (d.ij0, Some(read))
+        }
+    };
     let board_ij = |ab: [i64; 2]| -> [i64; 2] {
         [
             ij0[0] + ab[0] * ex[0] + ab[1] * ey[0],
@@ -592,6 +709,17 @@ pub fn localize(
             (xy, 4)
         }
     };
+    if let (Some(_), Some(hint_mm)) = (&code_read, p.hint_mm) {
+        let distance_mm = (xy[0] - hint_mm[0]).hypot(xy[1] - hint_mm[1]);
+        if !(distance_mm <= p.hint_tolerance_mm) {
+            return Err(LocalizeError::HintMismatch {
+                found_mm: xy,
+                hint_mm,
+                distance_mm,
+                tolerance_mm: p.hint_tolerance_mm,
+            });
+        }
+    }
     Ok(Observation {
         x_mm: xy[0],
         y_mm: xy[1],
@@ -601,6 +729,7 @@ pub fn localize(
         um_per_px,
         rotation_deg,
         rejected,
+        code: code_read,
     })
 }
 
@@ -613,15 +742,18 @@ fn choose_offset(
     off: [f64; 2],
 ) -> Result<[i64; 2], LocalizeError> {
     let pitch = board.pitch_mm;
+    let hint_mm = p
+        .hint_mm
+        .ok_or_else(|| LocalizeError::BadParams("a plain dot grid needs a hint".to_string()))?;
     // Real-valued index of the hint minus the centre's offset from the reference dot.
     let want = [
-        (p.hint_mm[0] - board.origin_mm[0]) / pitch - off[0],
-        (p.hint_mm[1] - board.origin_mm[1]) / pitch - off[1],
+        (hint_mm[0] - board.origin_mm[0]) / pitch - off[0],
+        (hint_mm[1] - board.origin_mm[1]) / pitch - off[1],
     ];
     if !(want[0].abs() < 1e12 && want[1].abs() < 1e12) {
         return Err(LocalizeError::BadParams(format!(
             "hint ({}, {}) mm is absurdly far from the board",
-            p.hint_mm[0], p.hint_mm[1]
+            hint_mm[0], hint_mm[1]
         )));
     }
     let implied = |ij: [i64; 2]| -> [f64; 2] {
@@ -632,14 +764,14 @@ fn choose_offset(
     };
     let dist = |ij: [i64; 2]| {
         let q = implied(ij);
-        (q[0] - p.hint_mm[0]).hypot(q[1] - p.hint_mm[1])
+        (q[0] - hint_mm[0]).hypot(q[1] - hint_mm[1])
     };
     let best = [want[0].round() as i64, want[1].round() as i64];
     let d1 = dist(best);
     if d1 > p.hint_tolerance_mm {
         let q = implied(best);
         return Err(LocalizeError::Ambiguous {
-            hint_mm: p.hint_mm,
+            hint_mm,
             tolerance_mm: p.hint_tolerance_mm,
             detail: format!(
                 "the nearest grid-consistent position ({:.4}, {:.4}) mm is {:.4} mm from the hint, beyond the tolerance: the stage is further off than expected",
@@ -657,7 +789,7 @@ fn choose_offset(
             if d2 <= p.hint_tolerance_mm {
                 let q = implied(other);
                 return Err(LocalizeError::Ambiguous {
-                    hint_mm: p.hint_mm,
+                    hint_mm,
                     tolerance_mm: p.hint_tolerance_mm,
                     detail: format!(
                         "two grid offsets fit: positions {:.4} mm and {:.4} mm from the hint (second at ({:.4}, {:.4}) mm)",
@@ -720,3 +852,5 @@ fn four_point_at(
 mod testkit;
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_coded;

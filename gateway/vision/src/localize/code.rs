@@ -1,0 +1,316 @@
+//! Decoding a coded board (`protocol::board_code`, `docs/coded-board.md`): which board
+//! dots are in view, read from the dots' sizes alone, with no hint.
+//!
+//! 1. [`classify`]: every indexed dot's diameter is read as a bit (small 0, large 1) by
+//!    two-means clustering seeded with the board's two sizes; a dot in the middle band
+//!    between the two clusters is an erasure (not read), like a missing dot.
+//! 2. [`decode`]: the observed bits, placed at their lattice indices, are compared with
+//!    the board's code at every board position and in all eight orientations of the
+//!    lattice on the board (four turns, mirrored or not): an exhaustive search, bit-packed
+//!    a board row at a time. The best match is accepted only when it has at most
+//!    [`max_errors`] disagreeing dots and every other position and orientation disagrees
+//!    in at least [`MIN_MARGIN`] more: so up to a few misread (dirty, damaged) dots are
+//!    outvoted, and a frame that could be read two ways is refused, never misread.
+//!
+//! The search is exhaustive rather than a table lookup so that the margin is the true
+//! one over the whole board, not a guess from a sampled neighbourhood.
+
+use protocol::board_code::BoardCode;
+
+/// Fewest readable dots a decode accepts (a 6 x 5 window; the default optics show about
+/// 10 x 8).
+pub const MIN_BITS: usize = 30;
+
+/// Fewest extra disagreeing dots of the second-best board position or orientation over
+/// the best, for the best to be accepted.
+pub const MIN_MARGIN: usize = 6;
+
+/// Largest view side, in dots, that is used for decoding (a window around the dot nearest
+/// the image centre): more adds nothing to the margin and costs time.
+pub const MAX_SIDE: i64 = 24;
+
+/// Most disagreeing dots the best match may have: one in eight of the bits read.
+pub fn max_errors(bits: usize) -> usize {
+    bits / 8
+}
+
+/// The eight orientations of the lattice on the board: board direction of lattice
+/// index `a` (image x) and of `b` (image y).
+pub(crate) const ORIENTATIONS: [[[i64; 2]; 2]; 8] = [
+    [[1, 0], [0, -1]],
+    [[1, 0], [0, 1]],
+    [[-1, 0], [0, 1]],
+    [[-1, 0], [0, -1]],
+    [[0, 1], [1, 0]],
+    [[0, 1], [-1, 0]],
+    [[0, -1], [1, 0]],
+    [[0, -1], [-1, 0]],
+];
+
+/// What the code said about a frame.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct Decoded {
+    /// Board direction of lattice index a and of b.
+    pub axes: [[i64; 2]; 2],
+    /// Board index of lattice index (0, 0).
+    pub ij0: [i64; 2],
+    /// Dots read (bits compared).
+    pub bits: usize,
+    /// Read dots that disagree with the board at the accepted position.
+    pub errors: usize,
+    /// Disagreeing dots of the second-best position or orientation (at most the search
+    /// cut-off, `max_errors + MIN_MARGIN`: larger ones are not counted exactly).
+    pub second: usize,
+}
+
+/// Why a frame's code could not be read.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) enum DecodeError {
+    TooFewBits {
+        bits: usize,
+    },
+    NoMatch {
+        bits: usize,
+        best: usize,
+        limit: usize,
+    },
+    NotAlone {
+        bits: usize,
+        best: usize,
+        second: usize,
+    },
+}
+
+/// Read each dot diameter (any unit, None for a dot not on the lattice) as a bit, given
+/// the board's two nominal sizes in the same unit: None for a dot not read.
+pub(crate) fn classify(diameters: &[Option<f64>], sizes: [f64; 2]) -> Vec<Option<bool>> {
+    let known: Vec<f64> = diameters.iter().flatten().copied().collect();
+    let (mut m0, mut m1) = (sizes[0], sizes[1]);
+    // Two-means from the nominal sizes: blur, print and threshold shift both clusters.
+    for _ in 0..8 {
+        let t = 0.5 * (m0 + m1);
+        let (mut s0, mut n0, mut s1, mut n1) = (0.0, 0usize, 0.0, 0usize);
+        for &d in &known {
+            if d < t {
+                s0 += d;
+                n0 += 1;
+            } else {
+                s1 += d;
+                n1 += 1;
+            }
+        }
+        if n0 == 0 || n1 == 0 {
+            break;
+        }
+        (m0, m1) = (s0 / n0 as f64, s1 / n1 as f64);
+    }
+    // Clusters that collapsed or crossed: fall back to the nominal sizes.
+    if !(m1 - m0 > 0.3 * (sizes[1] - sizes[0])) {
+        (m0, m1) = (sizes[0], sizes[1]);
+    }
+    let t = 0.5 * (m0 + m1);
+    let band = 0.2 * (m1 - m0);
+    diameters
+        .iter()
+        .map(|d| {
+            let d = (*d)?;
+            if (d - t).abs() < band {
+                None
+            } else {
+                Some(d > t)
+            }
+        })
+        .collect()
+}
+
+/// The board position and orientation of the observed bits (`(lattice index, bit)`),
+/// or why none is accepted.
+pub(crate) fn decode(code: &BoardCode, obs: &[([i64; 2], bool)]) -> Result<Decoded, DecodeError> {
+    let obs: Vec<([i64; 2], bool)> = obs
+        .iter()
+        .filter(|(ab, _)| ab[0].abs() <= MAX_SIDE / 2 && ab[1].abs() <= MAX_SIDE / 2)
+        .copied()
+        .collect();
+    let bits = obs.len();
+    if bits < MIN_BITS {
+        return Err(DecodeError::TooFewBits { bits });
+    }
+    let limit = max_errors(bits);
+    let cutoff = limit + MIN_MARGIN;
+    // (distance, orientation, board index of the window's corner)
+    let mut best: Option<(usize, usize, [i64; 2])> = None;
+    let mut second = usize::MAX;
+    for (o, axes) in ORIENTATIONS.iter().enumerate() {
+        let q: Vec<([i64; 2], bool)> = obs
+            .iter()
+            .map(|(ab, bit)| {
+                (
+                    [
+                        ab[0] * axes[0][0] + ab[1] * axes[1][0],
+                        ab[0] * axes[0][1] + ab[1] * axes[1][1],
+                    ],
+                    *bit,
+                )
+            })
+            .collect();
+        let lo = [
+            q.iter().map(|p| p.0[0]).min().unwrap_or(0),
+            q.iter().map(|p| p.0[1]).min().unwrap_or(0),
+        ];
+        let hi = [
+            q.iter().map(|p| p.0[0]).max().unwrap_or(0),
+            q.iter().map(|p| p.0[1]).max().unwrap_or(0),
+        ];
+        let (w, h) = ((hi[0] - lo[0] + 1) as u32, (hi[1] - lo[1] + 1) as u32);
+        if w > code.cols() || h > code.rows() || w > 64 {
+            continue;
+        }
+        let mut val = vec![0u64; h as usize];
+        let mut mask = vec![0u64; h as usize];
+        for (p, bit) in &q {
+            let (c, r) = ((p[0] - lo[0]) as u32, (p[1] - lo[1]) as usize);
+            mask[r] |= 1 << c;
+            if *bit {
+                val[r] |= 1 << c;
+            }
+        }
+        // Rows with the most dots first: a wrong position is left soonest.
+        let mut order: Vec<usize> = (0..h as usize).filter(|&r| mask[r] != 0).collect();
+        order.sort_by_key(|&r| std::cmp::Reverse(mask[r].count_ones()));
+        for j0 in 0..=(code.rows() - h) {
+            for i0 in 0..=(code.cols() - w) {
+                let stop = second.min(cutoff + 1);
+                let mut d = 0usize;
+                for &r in &order {
+                    let b = code.bits(i0, j0 + r as u32, w);
+                    d += ((b ^ val[r]) & mask[r]).count_ones() as usize;
+                    if d >= stop {
+                        break;
+                    }
+                }
+                if d >= stop {
+                    continue;
+                }
+                let here = (d, o, [i0 as i64 - lo[0], j0 as i64 - lo[1]]);
+                match best {
+                    Some(b) if d >= b.0 => second = d,
+                    Some(b) => {
+                        second = b.0;
+                        best = Some(here);
+                    }
+                    None => best = Some(here),
+                }
+            }
+        }
+    }
+    let second = second.min(cutoff + 1);
+    let Some((errors, o, ij0)) = best else {
+        return Err(DecodeError::NoMatch {
+            bits,
+            best: cutoff + 1,
+            limit,
+        });
+    };
+    if errors > limit {
+        return Err(DecodeError::NoMatch {
+            bits,
+            best: errors,
+            limit,
+        });
+    }
+    if second < errors + MIN_MARGIN {
+        return Err(DecodeError::NotAlone {
+            bits,
+            best: errors,
+            second,
+        });
+    }
+    Ok(Decoded {
+        axes: ORIENTATIONS[o],
+        ij0,
+        bits,
+        errors,
+        second,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn view(
+        code: &BoardCode,
+        axes: [[i64; 2]; 2],
+        at: [i64; 2],
+        n: [i64; 2],
+    ) -> Vec<([i64; 2], bool)> {
+        let mut obs = Vec::new();
+        for b in -n[1]..=n[1] {
+            for a in -n[0]..=n[0] {
+                let ij = [
+                    at[0] + a * axes[0][0] + b * axes[1][0],
+                    at[1] + a * axes[0][1] + b * axes[1][1],
+                ];
+                if let Some(bit) = code.bit(ij[0], ij[1]) {
+                    obs.push(([a, b], bit));
+                }
+            }
+        }
+        obs
+    }
+
+    #[test]
+    fn every_orientation_is_found_and_named() {
+        let code = BoardCode::generate(28, [0.2, 0.3], 421, 321);
+        for (k, axes) in ORIENTATIONS.iter().enumerate() {
+            let at = [17 + 40 * k as i64, 300 - 30 * k as i64];
+            let d = decode(&code, &view(&code, *axes, at, [4, 3])).unwrap();
+            assert_eq!((d.axes, d.ij0, d.errors), (*axes, at, 0), "{k}");
+            assert_eq!(d.bits, 63);
+            assert!(d.second >= MIN_MARGIN, "{d:?}");
+        }
+    }
+
+    #[test]
+    fn misread_dots_are_outvoted_and_too_many_refused() {
+        let code = BoardCode::generate(28, [0.2, 0.3], 421, 321);
+        let axes = ORIENTATIONS[0];
+        let mut obs = view(&code, axes, [200, 100], [4, 3]);
+        for k in [3, 20, 41] {
+            obs[k].1 = !obs[k].1;
+        }
+        let d = decode(&code, &obs).unwrap();
+        assert_eq!((d.ij0, d.errors), ([200, 100], 3));
+        // A third of the dots flipped: no position is close, refused.
+        for k in (0..obs.len()).step_by(3) {
+            obs[k].1 = !obs[k].1;
+        }
+        assert!(decode(&code, &obs).is_err());
+        // Too small a window is refused before searching.
+        let few = view(&code, axes, [200, 100], [2, 2]);
+        assert_eq!(
+            decode(&code, &few),
+            Err(DecodeError::TooFewBits { bits: 25 })
+        );
+    }
+
+    #[test]
+    fn sizes_are_read_with_a_middle_band_left_unread() {
+        let d = [
+            Some(0.21),
+            Some(0.29),
+            None,
+            Some(0.25),
+            Some(0.19),
+            Some(0.31),
+        ];
+        assert_eq!(
+            classify(&d, [0.2, 0.3]),
+            vec![Some(false), Some(true), None, None, Some(false), Some(true)]
+        );
+        // A blur that grows every dot by 10 % shifts the threshold with it.
+        let grown: Vec<Option<f64>> = d.iter().map(|v| v.map(|x| x * 1.1)).collect();
+        assert_eq!(classify(&grown, [0.2, 0.3])[0], Some(false));
+        assert_eq!(classify(&grown, [0.2, 0.3])[1], Some(true));
+    }
+}
