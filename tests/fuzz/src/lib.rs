@@ -22,6 +22,7 @@ mod layout;
 mod media;
 mod modbus;
 mod nc;
+mod outside;
 mod rewrite;
 mod rotary;
 mod service;
@@ -39,6 +40,7 @@ pub use layout::{layout_cut, layout_dxf, layout_json, layout_svg};
 pub use media::{localize, png_load};
 pub use modbus::modbus_frame;
 pub use nc::nc_program;
+pub use outside::{dollar_hash, gcode_dialect, program_lines, rotary_errors, volumetric_campaign};
 pub use rewrite::{nc_rewrite, proxy_stream};
 pub use rotary::{grbl_probe, rotary_centres, rotary_json, rotary_rewrite};
 pub use service::{api_job_body, box_toml};
@@ -89,6 +91,11 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("rotary_rewrite", rotary_rewrite),
     ("iso230_csv", iso230_csv),
     ("volumetric_model", volumetric_model),
+    ("dollar_hash", dollar_hash),
+    ("volumetric_campaign", volumetric_campaign),
+    ("rotary_errors", rotary_errors),
+    ("program_lines", program_lines),
+    ("gcode_dialect", gcode_dialect),
 ];
 
 /// The fuzz crate's folder (corpora, regressions).
