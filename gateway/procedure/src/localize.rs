@@ -217,7 +217,7 @@ mod tests {
         let r = LocalizeRequest::new([10.0, 20.0]);
         r.check_for(&board()).unwrap();
         let p = r.params();
-        assert_eq!(p.hint_mm, [10.0, 20.0]);
+        assert_eq!(p.hint_mm, Some([10.0, 20.0]));
         assert_eq!(p.min_points, LocalizeSettings::default().min_points);
     }
 
