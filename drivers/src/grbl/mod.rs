@@ -345,6 +345,21 @@ impl GrblStage {
         &self.settings
     }
 
+    /// Change a setting (`$n=value`, written to the controller's EEPROM) and keep what
+    /// the driver derives from the settings (travel limits, resolution, rates) in step.
+    pub async fn set_setting(&mut self, number: u16, value: f64) -> Result<(), DriverError> {
+        if !value.is_finite() {
+            return Err(DriverError::Unsupported {
+                device: self.device(),
+                message: format!("${number}={value}: not a number GRBL can store"),
+            });
+        }
+        self.command(&Command::WriteSetting(number, value)).await?;
+        self.settings.insert(number, value);
+        self.info = self.stage_info();
+        Ok(())
+    }
+
     pub fn build_info(&self) -> &BuildInfo {
         &self.build
     }

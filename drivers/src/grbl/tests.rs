@@ -122,6 +122,7 @@ async fn scripted_grbl(
             "$I" => "[VER:1.1h.20190830:]\r\n[OPT:V,15,128]\r\nok\r\n".to_string(),
             "$$" => SETTINGS.to_string(),
             "$H" => "ok\r\n".to_string(),
+            "$130=400" => "ok\r\n".to_string(),
             l if l.starts_with("G21G53G1") => "ok\r\n".to_string(),
             _ => "error:20\r\n".to_string(),
         };
@@ -348,4 +349,26 @@ async fn binary_garbage_from_a_device_is_shown_escaped_and_cut() {
         "only printable characters: {m}"
     );
     assert!(m.len() < 600, "{} characters: {m}", m.len());
+}
+
+#[tokio::test]
+async fn a_changed_setting_moves_the_limits_with_it() {
+    let (g, heard) = connect_to(Boot::Banner, GrblOptions::default()).await;
+    let mut g = g.unwrap();
+    let x = |g: &GrblStage| {
+        let a = g.info().axis(Axis::X).unwrap();
+        (a.min_mm, a.max_mm)
+    };
+    assert_eq!(x(&g), (-200.0, 0.0));
+    g.set_setting(130, 400.0).await.unwrap();
+    assert_eq!(x(&g), (-400.0, 0.0));
+    assert_eq!(g.settings().max_travel_mm(0), Some(400.0));
+    // Refused by the controller: nothing changes.
+    assert!(g.set_setting(131, 1.0).await.is_err());
+    assert_eq!(g.settings().max_travel_mm(1), Some(200.0));
+    assert!(g.set_setting(130, f64::NAN).await.is_err());
+    assert_eq!(
+        heard.lock().unwrap().lines,
+        ["$I", "$$", "$130=400", "$131=1"]
+    );
 }
