@@ -133,9 +133,37 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
     // The token left the address bar.
     let url = report["url_after_load"].as_str().unwrap();
     assert!(!url.contains(&token) && !url.contains("token="), "{url}");
+    // The map form has a field per param of the API's schema, and shows the API's
+    // refusal of a too-fine grid beside its field (the message the API itself gives).
+    let fields: Vec<&str> = report["form_fields"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|f| f.as_str())
+        .collect();
+    assert_eq!(
+        fields,
+        [
+            "name",
+            "grid_step_mm",
+            "line_step_mm",
+            "passes",
+            "tool_offset_mm"
+        ]
+    );
+    let refused =
+        procedure::request::Request::parse("map", &serde_json::json!({"grid_step_mm": 0.01}))
+            .unwrap_err();
+    assert_eq!(report["field_error"], refused.message.as_str(), "{report}");
     assert_eq!(report["machine_state_before"], "idle");
     assert_eq!(report["machine_state_after"], "idle");
     assert_eq!(report["job_detail_state"], "succeeded");
+    // The finished job reads as the CLI's summary, not as raw JSON.
+    let summary = report["job_summary"].as_str().unwrap();
+    assert!(
+        summary.starts_with("1 targets, 1 converged") && summary.contains("error after"),
+        "{summary}"
+    );
     assert!(report["measurements"].as_u64().unwrap_or(0) > 0, "{report}");
     // Activating the older version and rolling back leaves exactly the newer one active.
     let newer = report["rolled_back_to"].as_u64().unwrap();

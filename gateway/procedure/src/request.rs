@@ -89,19 +89,32 @@ pub fn check_name(field: &str, name: &str) -> Result<(), RequestError> {
     Ok(())
 }
 
+/// The localization methods as the API's schema names them (`vision::localize::Method`
+/// in the request).
+#[derive(utoipa::ToSchema)]
+#[schema(as = MethodName)]
+#[allow(dead_code)]
+#[serde(rename_all = "kebab-case")]
+enum MethodName {
+    Fit,
+    FourPoint,
+}
+
 /// A compensation run over the job's targets (all, or the first `targets`).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct CompensateRequest {
     /// Only the first N targets of the job.
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(long))]
+    #[schema(minimum = 1, maximum = 1000000)]
     pub targets: Option<u64>,
     /// Localization method: fit or four-point (the patent's formula); default: the job
     /// file's.
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(long))]
+    #[schema(value_type = Option<MethodName>, inline)]
     pub method: Option<Method>,
 }
 
@@ -128,7 +141,7 @@ fn default_passes() -> u32 {
 }
 
 /// An error-map scan.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct MapRequest {
@@ -136,22 +149,27 @@ pub struct MapRequest {
     /// default the job file's).
     #[serde(default = "default_map_name")]
     #[cfg_attr(feature = "cli", arg(skip = default_map_name()))]
+    #[schema(default = default_map_name, pattern = "^[A-Za-z0-9_-]{1,64}$")]
     pub name: String,
     /// The grid's step over the travel, mm (at least 0.25: half the board pitch).
     #[serde(default = "default_grid_step")]
     #[cfg_attr(feature = "cli", arg(long, default_value_t = default_grid_step()))]
+    #[schema(default = default_grid_step, minimum = 0.25, maximum = 10000.0)]
     pub grid_step_mm: f64,
     /// The step of the dense lines along each axis, mm (at least 0.05).
     #[serde(default = "default_line_step")]
     #[cfg_attr(feature = "cli", arg(long, default_value_t = default_line_step()))]
+    #[schema(default = default_line_step, minimum = 0.05, maximum = 10000.0)]
     pub line_step_mm: f64,
     /// Times each point is measured from each side (1 to 10).
     #[serde(default = "default_passes")]
     #[cfg_attr(feature = "cli", arg(long, default_value_t = default_passes()))]
+    #[schema(default = default_passes, minimum = 1, maximum = 10)]
     pub passes: u32,
     /// Tool point minus camera centre, machine axes, `X,Y` mm.
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(long, default_value = "0,0", value_parser = xy_mm))]
+    #[schema(default = json!([0.0, 0.0]))]
     pub tool_offset_mm: [f64; 2],
 }
 
@@ -247,17 +265,19 @@ fn default_drift_threshold() -> f64 {
 }
 
 /// A check of the error map with the camera at random points.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct VerifyRequest {
     /// Points to check (default 20, or 5 for a spot check).
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(long))]
+    #[schema(minimum = 1, maximum = 1000)]
     pub points: Option<u64>,
     /// The seed of the random points.
     #[serde(default = "default_seed")]
     #[cfg_attr(feature = "cli", arg(long, default_value_t = default_seed()))]
+    #[schema(default = default_seed)]
     pub seed: u64,
     /// A drift check: `rescan` when any point is off by more than the threshold.
     #[serde(default)]
@@ -266,6 +286,7 @@ pub struct VerifyRequest {
     /// The drift that asks for a re-scan, um.
     #[serde(default = "default_drift_threshold")]
     #[cfg_attr(feature = "cli", arg(long, default_value_t = default_drift_threshold()))]
+    #[schema(default = default_drift_threshold, minimum = 0.001, maximum = 1000.0)]
     pub drift_threshold_um: f64,
 }
 
@@ -295,7 +316,7 @@ impl VerifyRequest {
 }
 
 /// The axis an ISO 230-2 test moves.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum TestAxis {
     #[serde(alias = "x")]
@@ -314,7 +335,7 @@ impl TestAxis {
 }
 
 /// ISO 230-2's test cycle.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, utoipa::ToSchema)]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum CycleName {
@@ -354,42 +375,50 @@ fn default_certificate_uncertainty() -> f64 {
 pub const MAX_ISO230_MEASUREMENTS: u64 = 100_000;
 
 /// An ISO 230-2 positioning test of one axis.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct Iso230Request {
     /// The axis to test: x or y.
     #[cfg_attr(feature = "cli", arg(long, value_enum, ignore_case = true))]
+    #[schema(inline)]
     pub axis: TestAxis,
     /// Target positions (default: the standard's minimum, 5 and 5 per metre).
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(long))]
+    #[schema(minimum = 5, maximum = 10000)]
     pub positions: Option<u64>,
     /// Runs in each direction (at least 5).
     #[serde(default = "default_runs")]
     #[cfg_attr(feature = "cli", arg(long, default_value_t = default_runs()))]
+    #[schema(default = default_runs, minimum = 5, maximum = 1000)]
     pub runs: u64,
     /// The test cycle: linear or pilgrim-step.
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(long, value_enum, default_value_t))]
+    #[schema(inline, default = json!("linear"))]
     pub cycle: CycleName,
     /// How far beyond the end targets the axis goes before reversing, mm.
     #[serde(default = "default_overrun")]
     #[cfg_attr(feature = "cli", arg(long, default_value_t = default_overrun()))]
+    #[schema(default = default_overrun, minimum = 0.0, maximum = 50.0)]
     pub overrun_mm: f64,
     /// The measurement travel's start on the axis, machine mm (default: the usable
     /// travel's).
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
+    #[schema(minimum = -100000.0, maximum = 100000.0)]
     pub from_mm: Option<f64>,
     /// The measurement travel's end on the axis, machine mm.
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
+    #[schema(minimum = -100000.0, maximum = 100000.0)]
     pub to_mm: Option<f64>,
     /// Where the other axis is held, machine mm (default: the map's dense line along
     /// the axis, else the middle of the usable travel).
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
+    #[schema(minimum = -100000.0, maximum = 100000.0)]
     pub at_mm: Option<f64>,
     /// The board certificate's expanded uncertainty (k = 2) of a dot position, um.
     #[serde(default = "default_certificate_uncertainty")]
@@ -397,6 +426,7 @@ pub struct Iso230Request {
         feature = "cli",
         arg(long, default_value_t = default_certificate_uncertainty())
     )]
+    #[schema(default = default_certificate_uncertainty, minimum = 0.0, maximum = 1000.0)]
     pub certificate_uncertainty_um: f64,
     /// Test with an error map acting (the CLI's `--map`, the service's active profile).
     #[serde(default)]
@@ -463,7 +493,7 @@ impl Iso230Request {
 }
 
 /// A layout file's format.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum LayoutFormat {
     #[default]
@@ -497,34 +527,41 @@ fn default_chord_tolerance() -> f64 {
 pub const MAX_LAYOUT_BYTES: usize = 64 << 20;
 
 /// A layout partition (source C).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct LayoutRequest {
     /// The layout file's text (the CLI reads it from the file it is given).
     #[cfg_attr(feature = "cli", arg(skip))]
+    #[schema(format = Binary)]
     pub layout: String,
     /// The layout's format (the CLI's: the file's extension).
     #[cfg_attr(feature = "cli", arg(skip))]
+    #[schema(inline)]
     pub format: LayoutFormat,
     /// Number of tools k (equal lanes across the width).
     #[cfg_attr(feature = "cli", arg(long))]
+    #[schema(minimum = 1, maximum = 64)]
     pub tools: u64,
     /// Cutting window length L' along the feed (X), mm.
     #[cfg_attr(feature = "cli", arg(long))]
+    #[schema(minimum = 0.001, maximum = 100000.0)]
     pub window_mm: f64,
     /// Gap between groups, mm.
     #[cfg_attr(feature = "cli", arg(long))]
+    #[schema(minimum = 0.001, maximum = 1000.0)]
     pub gap_mm: f64,
     /// Material width W, mm, edge at Y = 0 (default: the JSON file's width_mm, else the
     /// layout's extent across).
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(long))]
+    #[schema(minimum = 0.001, maximum = 100000.0)]
     pub width_mm: Option<f64>,
     /// Parts of different groups closer than this after the shifts are overlaps, mm
     /// (default: the gap). Between 0.001 mm and the gap.
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(long))]
+    #[schema(minimum = 0.001)]
     pub clearance_mm: Option<f64>,
     /// Force a part into a group, `PART=GROUP` (group ids as printed, 1-based, `G3`
     /// also accepted); repeatable.
@@ -540,20 +577,23 @@ pub struct LayoutRequest {
     /// Chord tolerance for arcs and splines read from the layout, mm.
     #[serde(default = "default_chord_tolerance")]
     #[cfg_attr(feature = "cli", arg(long, default_value_t = default_chord_tolerance()))]
+    #[schema(default = default_chord_tolerance, minimum = 0.0001, maximum = 10.0)]
     pub chord_tolerance_mm: f64,
     /// The shifted layout's format (default: the input's; the CLI's: the output's
     /// extension).
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(skip))]
+    #[schema(inline)]
     pub out_format: Option<LayoutFormat>,
     /// Also draw the partition, coloured by group: `svg` or `png`.
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(skip))]
+    #[schema(inline)]
     pub picture: Option<PictureFormat>,
 }
 
 /// A picture's format.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum PictureFormat {
     Svg,
@@ -739,11 +779,12 @@ fn default_rotary_name() -> String {
 }
 
 /// A measurement of the A/C table through the machine's rotary link.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct RotaryRequest {
     /// The rotary profile the identified errors become a version of.
     #[serde(default = "default_rotary_name")]
+    #[schema(default = default_rotary_name, pattern = "^[A-Za-z0-9_-]{1,64}$")]
     pub name: String,
 }
 
@@ -875,10 +916,83 @@ impl Request {
     }
 }
 
+/// The JSON schema (OpenAPI 3.1) of each job kind's params, enums inline: the service's
+/// OpenAPI document names them `job.<kind>`, and the page builds its forms from them.
+/// Their bounds are [`Request::check`]'s (a test holds the two together).
+pub fn schemas() -> Vec<(
+    &'static str,
+    utoipa::openapi::RefOr<utoipa::openapi::schema::Schema>,
+)> {
+    use utoipa::PartialSchema;
+    vec![
+        ("compensate", CompensateRequest::schema()),
+        ("map", MapRequest::schema()),
+        ("verify", VerifyRequest::schema()),
+        ("iso230", Iso230Request::schema()),
+        ("layout", LayoutRequest::schema()),
+        ("rotary", RotaryRequest::schema()),
+    ]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use serde_json::json;
+
+    /// The schemas the page builds its forms from say what the checks do: each default
+    /// is serde's, each required field is refused when absent, each bound is accepted and
+    /// just past it refused naming the field.
+    #[test]
+    fn the_schemas_bounds_and_defaults_are_the_checks() {
+        let base = |kind: &str| match kind {
+            "iso230" => json!({"axis": "x"}),
+            "layout" => json!({"layout": "", "format": "json", "tools": 2, "window_mm": 100.0,
+                "gap_mm": 5.0}),
+            _ => json!({}),
+        };
+        let mut bounds = 0;
+        for (kind, schema) in schemas() {
+            let schema = serde_json::to_value(schema).unwrap();
+            let parsed = Request::parse(kind, &base(kind)).unwrap().params();
+            for field in schema["required"].as_array().into_iter().flatten() {
+                let field = field.as_str().unwrap();
+                let mut params = base(kind);
+                params.as_object_mut().unwrap().remove(field);
+                let e = Request::parse(kind, &params).unwrap_err();
+                assert_eq!(e.field, field, "{kind}: {e}");
+            }
+            for (field, p) in schema["properties"].as_object().unwrap() {
+                if let Some(d) = p.get("default") {
+                    assert_eq!(&parsed[field], d, "{kind}.{field}: default");
+                }
+                let types = &p["type"];
+                let integer = types == "integer"
+                    || types
+                        .as_array()
+                        .is_some_and(|t| t.contains(&json!("integer")));
+                for (bound, outward) in [("minimum", -1.0), ("maximum", 1.0)] {
+                    let Some(b) = p.get(bound).and_then(Value::as_f64) else {
+                        continue;
+                    };
+                    let at = |v: f64| {
+                        let mut params = base(kind);
+                        params[field] = if integer { json!(v as i64) } else { json!(v) };
+                        Request::parse(kind, &params)
+                    };
+                    at(b).unwrap_or_else(|e| panic!("{kind}.{field} at its {bound} {b}: {e}"));
+                    let past = if integer {
+                        b + outward
+                    } else {
+                        b + outward * (b.abs() * 1e-9).max(1e-12)
+                    };
+                    let e = at(past).unwrap_err();
+                    assert_eq!(&e.field, field, "{kind}.{field} = {past}: {e}");
+                    bounds += 1;
+                }
+            }
+        }
+        assert!(bounds >= 30, "{bounds} bounds tried");
+    }
 
     #[test]
     fn a_tiny_grid_step_is_refused_naming_the_field() {

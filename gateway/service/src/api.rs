@@ -362,9 +362,21 @@ fn static_file(content_type: &'static str, body: &'static str) -> Response {
     info(title = "gateway service", description = "Machines, job queues, profiles and events of a gateway box."),
     paths(openapi, machines, machine, enqueue, jobs, job, cancel, measurements, charts, chart,
           profiles, add_profile, profile, heatmap, activate, rollback, events),
-    modifiers(&BearerAuth)
+    modifiers(&BearerAuth, &JobParams)
 )]
 pub struct ApiDoc;
+
+/// Each job kind's params as `components.schemas["job.<kind>"]`: the request types the
+/// API checks (`procedure::request::schemas`), from which the page builds its forms.
+struct JobParams;
+impl utoipa::Modify for JobParams {
+    fn modify(&self, openapi: &mut utoipa::openapi::OpenApi) {
+        let components = openapi.components.get_or_insert_with(Default::default);
+        for (kind, schema) in procedure::request::schemas() {
+            components.schemas.insert(format!("job.{kind}"), schema);
+        }
+    }
+}
 
 struct BearerAuth;
 impl utoipa::Modify for BearerAuth {
@@ -568,9 +580,15 @@ async fn job(
     path: Result<Path<JobId>, PathRejection>,
 ) -> ApiResult<Json<Value>> {
     let Path(id) = path?;
-    Ok(Json(
-        serde_json::to_value(job_record(&shared, id)?).unwrap_or(Value::Null),
-    ))
+    let record = job_record(&shared, id)?;
+    // The result as a person reads it: the same summary the CLI prints.
+    let summary = record
+        .result
+        .as_ref()
+        .and_then(|r| procedure::summary(&record.kind, r));
+    let mut v = serde_json::to_value(record).unwrap_or(Value::Null);
+    v["summary"] = json!(summary);
+    Ok(Json(v))
 }
 
 /// Cancel a job: a queued one at once; a running one is stopped by its runner (the

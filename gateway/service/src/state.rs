@@ -98,6 +98,10 @@ impl Shared {
             "id": m.id, "description": m.description, "stage": m.stage, "camera": m.camera,
             "rotary": m.rotary, "state": status.state.as_str(), "state_detail": status.detail,
             "job": job, "queued": queued,
+            // The job kinds this machine runs (a rotary job needs its A/C table).
+            "kinds": procedure::request::KINDS.iter()
+                .filter(|k| **k != "rotary" || m.rotary.is_some())
+                .collect::<Vec<_>>(),
         })
     }
 

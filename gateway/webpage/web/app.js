@@ -1,7 +1,7 @@
 // The service's web page: plain JavaScript, no build step, no outside scripts.
 // It codes against the HTTP API v1 and the /api/v1/events WebSocket (see the service
 // contract in the README). Every element a test looks at has a stable id or data-*
-// attribute: #machines li[data-machine][data-state], #running-job[data-job-id],
+// attribute: #machines li[data-machine][data-state], #running-jobs li[data-job-id][data-machine],
 // #history-rows tr[data-job-id][data-state][data-live-progress] (progress events seen), #job-charts img[data-chart],
 // #profile-rows tr[data-profile][data-version][data-active], #heatmap-image img.
 'use strict';
@@ -18,6 +18,7 @@ const view = {
   reconnectDelayMs: 500,
   objectUrls: [],
   liveProgress: new Map(), // job id -> progress events received (shown as data-live-progress)
+  schemas: {}, // job kind -> its params' JSON schema (the start form)
 };
 
 const $ = (id) => document.getElementById(id);
@@ -93,7 +94,11 @@ function post(path, body) {
 
 function reportError(error) {
   if (error instanceof ApiError && error.message === 'unauthorized') return;
-  $('error').textContent = String(error.message || error);
+  // fetch() rejects with a TypeError when the box cannot be reached (not an API answer).
+  view.networkError = error instanceof TypeError;
+  $('error').textContent = view.networkError
+    ? 'The box cannot be reached (' + error.message + '); reconnecting.'
+    : String(error.message || error);
 }
 
 // An SVG fetched with the token, shown as an <img> (an <img src> cannot send headers).
@@ -130,40 +135,61 @@ function renderMachines() {
     select.replaceChildren(...[...view.machines.keys()].map((id) => el('option', { value: id, text: id })));
     if (view.machines.has(chosen)) select.value = chosen;
   }
+  renderKinds();
   renderRunning();
 }
 
-function runningJob() {
+// Every running job, one per busy machine, each with its progress, an estimate of the
+// time left (from its start and its progress so far) and its cancel button.
+function runningJobs() {
+  const jobs = new Map();
   for (const machine of view.machines.values()) {
-    if (machine.job && machine.job.state === 'running') return machine.job;
+    if (machine.job && machine.job.state === 'running') jobs.set(machine.job.id, machine.job);
   }
-  for (const job of view.jobs.values()) if (job.state === 'running') return job;
-  return null;
+  for (const job of view.jobs.values()) if (job.state === 'running') jobs.set(job.id, job);
+  return [...jobs.values()].sort((a, b) => a.machine.localeCompare(b.machine));
 }
 
 function renderRunning() {
-  const job = runningJob();
-  $('running-none').hidden = !!job;
-  $('running-job').hidden = !job;
-  if (!job) {
-    $('running-job').removeAttribute('data-job-id');
-    return;
-  }
-  $('running-job').setAttribute('data-job-id', job.id);
-  $('running-label').textContent = 'Job ' + job.id + ' (' + job.kind + ') on ' + job.machine;
-  $('running-state').textContent = job.state;
-  $('running-state').setAttribute('data-state', job.state);
-  renderProgress(job.id, job.progress ? job.progress.done : 0, job.progress ? job.progress.total : 0);
+  const jobs = runningJobs();
+  $('running-none').hidden = jobs.length > 0;
+  $('running-jobs').replaceChildren(...jobs.map((job) => {
+    const bar = el('progress', { class: 'running-progress', max: 1, value: 0 });
+    const item = el('li', { class: 'running-job', 'data-job-id': job.id, 'data-machine': job.machine },
+      el('span', { class: 'running-label', text: job.machine + ': job ' + job.id + ' (' + job.kind + ') ' }),
+      el('span', { class: 'state', 'data-state': job.state, text: job.state }), ' ',
+      bar, ' ', el('span', { class: 'running-progress-text', 'aria-live': 'polite' }), ' ',
+      el('button', { type: 'button', class: 'cancel-running', text: 'Cancel',
+        onclick: () => post('/api/v1/jobs/' + job.id + '/cancel').then(upsertAndRender).catch(reportError) }));
+    return item;
+  }));
+  for (const job of jobs) renderProgress(job.id, job.progress ? job.progress.done : 0, job.progress ? job.progress.total : 0);
+}
+
+// `12 s`, `4 min 05 s`, `1 h 02 min`.
+function duration(seconds) {
+  const s = Math.max(0, Math.round(seconds));
+  if (s < 60) return s + ' s';
+  if (s < 3600) return Math.floor(s / 60) + ' min ' + String(s % 60).padStart(2, '0') + ' s';
+  return Math.floor(s / 3600) + ' h ' + String(Math.floor(s / 60) % 60).padStart(2, '0') + ' min';
 }
 
 function renderProgress(jobId, done, total) {
-  if ($('running-job').getAttribute('data-job-id') !== String(jobId)) return;
-  const bar = $('running-progress');
+  const item = document.querySelector('#running-jobs li[data-job-id="' + jobId + '"]');
+  if (!item) return;
+  const bar = item.querySelector('progress');
   bar.max = Math.max(total, 1);
   bar.value = done;
   bar.setAttribute('data-done', done);
   bar.setAttribute('data-total', total);
-  $('running-progress-text').textContent = done + ' / ' + total;
+  const job = view.jobs.get(jobId);
+  const started = job && job.started_at ? Date.parse(job.started_at) : NaN;
+  let text = done + ' / ' + total;
+  if (done > 0 && total > done && Number.isFinite(started)) {
+    const elapsed = (Date.now() - started) / 1000;
+    text += ', about ' + duration(elapsed * (total - done) / done) + ' left';
+  }
+  item.querySelector('.running-progress-text').textContent = text;
 }
 
 // ---- history and one job
@@ -217,12 +243,17 @@ async function showJob(id) {
   section.setAttribute('data-job-id', id);
   section.setAttribute('data-state', job.state);
   $('job-detail-title').textContent = 'Job ' + id + ' (' + job.kind + ', ' + job.state + ')';
-  $('job-summary').textContent = JSON.stringify(
+  // What a person reads first: the summary (the CLI's text) or the error; the whole
+  // record stays one click away.
+  $('job-summary').textContent = job.error ? 'Error: ' + job.error
+    : (job.summary || (job.state === 'running' || job.state === 'queued' ? 'Not finished yet.' : ''));
+  $('job-record').textContent = JSON.stringify(
     { params: job.params, profile: job.profile, error: job.error, result: job.result }, null, 2);
   const images = await Promise.all(charts.map((chart) =>
     svgImage(chart.url, { 'data-chart': chart.name, alt: chart.title, title: chart.title })
       .then((img) => el('figure', {}, img, el('figcaption', { text: chart.title })))));
   $('job-charts').replaceChildren(...images);
+  view.detailMeasurements = measurements;
   renderMeasurements(measurements);
   // Heat maps change when a job made a new profile.
   loadProfiles().catch(reportError);
@@ -238,15 +269,35 @@ function flatten(value, prefix, into) {
   return into;
 }
 
+// The table shows the newest rows (a map has thousands); the CSV has them all.
+const SHOWN_MEASUREMENTS = 200;
+
 function renderMeasurements(raw) {
-  const measurements = raw.map((m) => flatten(m, '', {}));
+  const shown = raw.slice(-SHOWN_MEASUREMENTS).map((m) => flatten(m, '', {}));
   const table = $('job-measurements');
-  const columns = [...new Set(measurements.flatMap((m) => Object.keys(m || {})))];
+  const columns = [...new Set(shown.flatMap((m) => Object.keys(m || {})))];
   table.tHead.replaceChildren(el('tr', {}, ...columns.map((c) => el('th', { scope: 'col', text: c }))));
-  table.tBodies[0].replaceChildren(...measurements.map((m) => el('tr', { class: 'measurement' },
+  table.tBodies[0].replaceChildren(...shown.map((m) => el('tr', { class: 'measurement' },
     ...columns.map((c) => el('td', { text: format(m[c]) })))));
-  $('job-measurement-count').textContent = measurements.length + ' measurements';
-  $('job-measurement-count').setAttribute('data-count', measurements.length);
+  $('job-measurement-count').textContent = raw.length + ' measurements'
+    + (raw.length > shown.length ? ' (the newest ' + shown.length + ' shown; the CSV has all)' : '');
+  $('job-measurement-count').setAttribute('data-count', raw.length);
+  $('measurements-csv').hidden = raw.length === 0;
+}
+
+// Every measurement of the job shown, as CSV (dotted columns for nested values).
+function downloadMeasurements() {
+  const rows = (view.detailMeasurements || []).map((m) => flatten(m, '', {}));
+  const columns = [...new Set(rows.flatMap((m) => Object.keys(m)))];
+  const cell = (v) => {
+    const text = v === undefined || v === null ? '' : typeof v === 'object' ? JSON.stringify(v) : String(v);
+    return /[",\n]/.test(text) ? '"' + text.replace(/"/g, '""') + '"' : text;
+  };
+  const csv = [columns.join(','), ...rows.map((r) => columns.map((c) => cell(r[c])).join(','))].join('\n') + '\n';
+  const link = el('a', { href: URL.createObjectURL(new Blob([csv], { type: 'text/csv' })),
+    download: 'job-' + view.detailJob + '-measurements.csv' });
+  link.click();
+  setTimeout(() => URL.revokeObjectURL(link.href), 0);
 }
 
 function format(value) {
@@ -328,6 +379,11 @@ function connectEvents() {
   view.socket = socket;
   socket.addEventListener('open', () => {
     view.reconnectDelayMs = 500;
+    // A failure to reach the box is over once it answers again.
+    if (view.networkError) {
+      view.networkError = false;
+      $('error').textContent = '';
+    }
     $('connection').textContent = 'Live';
     $('connection').setAttribute('data-state', 'open');
   });
@@ -378,8 +434,10 @@ function handleEvent(message) {
       break;
     }
     case 'measurement':
-      if (view.detailJob === message.job_id) {
-        api('/api/v1/jobs/' + message.job_id + '/measurements').then(renderMeasurements).catch(reportError);
+      // The event carries the measurement: the detail appends it (each is fetched once).
+      if (view.detailJob === message.job_id && view.detailMeasurements) {
+        view.detailMeasurements.push(message.measurement);
+        renderMeasurements(view.detailMeasurements);
       }
       break;
     default:
@@ -389,20 +447,175 @@ function handleEvent(message) {
 
 // ---- start
 
+// The start form is built from the API's own schema of each job kind's params
+// (`components.schemas["job.<kind>"]` of the OpenAPI document): the same types, defaults,
+// ranges and help the API checks. The page checks nothing itself: the API's errors,
+// which name the field, are shown beside it.
+
+async function loadSchemas() {
+  const doc = await api('/api/v1/openapi.json');
+  view.schemas = {};
+  for (const [name, schema] of Object.entries(doc.components.schemas || {})) {
+    if (name.startsWith('job.')) view.schemas[name.slice(4)] = schema;
+  }
+  renderKinds();
+}
+
+function renderKinds() {
+  const machine = view.machines.get($('job-machine').value);
+  const kinds = Object.keys(view.schemas)
+    .filter((k) => !machine || !machine.kinds || machine.kinds.includes(k));
+  const select = $('job-kind');
+  const chosen = select.value;
+  if ([...select.options].map((o) => o.value).join() !== kinds.join()) {
+    select.replaceChildren(...kinds.map((k) => el('option', { value: k, text: k })));
+    if (kinds.includes(chosen)) select.value = chosen;
+    renderForm();
+  }
+}
+
+// One property of an OpenAPI 3.1 schema as the form needs it.
+function fieldSpec(schema) {
+  let inner = schema;
+  let nullable = false;
+  if (schema.oneOf) {
+    const parts = schema.oneOf.filter((p) => p.type !== 'null');
+    nullable = parts.length < schema.oneOf.length;
+    inner = parts[0] || {};
+  }
+  let type = inner.type;
+  if (Array.isArray(type)) {
+    nullable = nullable || type.includes('null');
+    type = type.find((t) => t !== 'null');
+  }
+  return {
+    type, nullable, choices: inner.enum, min: inner.minimum ?? schema.minimum,
+    max: inner.maximum ?? schema.maximum, def: schema.default ?? inner.default,
+    help: schema.description || inner.description || '', format: inner.format,
+    items: inner.items,
+  };
+}
+
+// The unit a field's name carries (`gap_mm`, `drift_threshold_um`, `feed_mm_min`).
+function unitOf(name) {
+  const units = [['_mm_min', 'mm/min'], ['_mm', 'mm'], ['_um', 'µm'], ['_s', 's']];
+  const found = units.find(([suffix]) => name.endsWith(suffix));
+  return found ? found[1] : '';
+}
+
+function fieldInput(name, spec, required) {
+  const id = 'field-' + name;
+  const common = { id, name, 'data-field-input': name, 'aria-describedby': id + '-help ' + id + '-error' };
+  if (spec.type === 'boolean') return el('input', { ...common, type: 'checkbox' });
+  if (spec.choices) {
+    const options = spec.choices.map((c) => el('option', { value: c, text: c }));
+    if (!required) options.unshift(el('option', { value: '', text: spec.def === undefined ? '(default)' : '(default: ' + spec.def + ')' }));
+    const select = el('select', common, ...options);
+    select.value = required ? spec.choices[0] : '';
+    return select;
+  }
+  if (spec.format === 'binary') {
+    // A file's text (a layout): read when chosen; its extension sets the `format` field.
+    const input = el('input', { ...common, type: 'file', accept: '.json,.dxf,.svg' });
+    input.addEventListener('change', () => {
+      const file = input.files[0];
+      const format = document.getElementById('field-format'); // built with the form
+      const ext = file ? file.name.split('.').pop().toLowerCase() : '';
+      if (format && [...format.options].some((o) => o.value === ext)) format.value = ext;
+      $(id + '-help').textContent = file ? file.name + ', ' + (file.size / 1024).toFixed(1) + ' kB' : spec.help;
+    });
+    return input;
+  }
+  if (spec.type === 'array' && spec.items && spec.items.type === 'string') {
+    return el('textarea', { ...common, rows: 2, placeholder: 'one per line' });
+  }
+  if (spec.type === 'array') {
+    return el('input', { ...common, type: 'text', inputmode: 'decimal', placeholder: 'x, y',
+      value: Array.isArray(spec.def) ? spec.def.join(', ') : '' });
+  }
+  if (spec.type === 'integer' || spec.type === 'number') {
+    return el('input', { ...common, type: 'number', step: spec.type === 'integer' ? 1 : 'any',
+      min: spec.min, max: spec.max, value: spec.def, placeholder: spec.nullable ? 'default' : '' });
+  }
+  return el('input', { ...common, type: 'text', value: spec.def, placeholder: spec.nullable ? 'default' : '' });
+}
+
+function renderForm() {
+  const kind = $('job-kind').value;
+  const schema = view.schemas[kind];
+  $('job-kind-help').textContent = schema ? schema.description || '' : '';
+  const required = new Set((schema && schema.required) || []);
+  const rows = Object.entries((schema && schema.properties) || {}).map(([name, prop]) => {
+    const spec = fieldSpec(prop);
+    const unit = unitOf(name);
+    const range = [spec.min !== undefined ? 'from ' + spec.min : '', spec.max !== undefined ? 'to ' + spec.max : '']
+      .filter(Boolean).join(' ');
+    return el('div', { class: 'field', 'data-field': name, 'data-type': spec.type || 'string' },
+      el('label', { for: 'field-' + name, text: name + (unit ? ' (' + unit + ')' : '') + (required.has(name) ? ' *' : '') }),
+      fieldInput(name, spec, required.has(name)),
+      el('small', { id: 'field-' + name + '-help', class: 'help', text: spec.help + (range ? ' [' + range + ']' : '') }),
+      el('span', { id: 'field-' + name + '-error', class: 'field-error', 'data-field-error': name, role: 'alert' }));
+  });
+  $('job-fields').replaceChildren(...rows);
+}
+
+// The params the form describes: an empty field is left out (the API's default).
+async function formParams() {
+  const params = {};
+  for (const row of $('job-fields').querySelectorAll('.field')) {
+    const name = row.dataset.field;
+    const input = row.querySelector('[data-field-input]');
+    if (input.type === 'checkbox') {
+      if (input.checked) params[name] = true;
+    } else if (input.type === 'file') {
+      if (input.files[0]) params[name] = await input.files[0].text();
+    } else if (input.value.trim() !== '') {
+      const text = input.value.trim();
+      const type = row.dataset.type;
+      if (type === 'integer' || type === 'number') params[name] = Number(text);
+      else if (type === 'array' && input.tagName === 'TEXTAREA') params[name] = text.split('\n').map((l) => l.trim()).filter(Boolean);
+      else if (type === 'array') params[name] = text.split(',').map((v) => Number(v.trim()));
+      else params[name] = text;
+    }
+  }
+  return params;
+}
+
+function clearFieldErrors() {
+  for (const span of $('job-fields').querySelectorAll('.field-error')) span.textContent = '';
+  for (const input of $('job-fields').querySelectorAll('[aria-invalid]')) input.removeAttribute('aria-invalid');
+}
+
 async function startJob(event) {
   event.preventDefault();
   $('error').textContent = '';
-  let params;
-  try {
-    params = JSON.parse($('job-params').value || '{}');
-  } catch (error) {
-    $('error').textContent = 'Parameters are not valid JSON: ' + error.message;
+  clearFieldErrors();
+  const machine = $('job-machine').value;
+  const response = await fetch('/api/v1/machines/' + encodeURIComponent(machine) + '/jobs', {
+    method: 'POST',
+    headers: { Authorization: 'Bearer ' + view.token, 'Content-Type': 'application/json' },
+    body: JSON.stringify({ kind: $('job-kind').value, params: await formParams() }),
+  });
+  const body = await response.json().catch(() => ({}));
+  if (response.status === 401) {
+    showLogin('The token was refused; enter a valid one.');
     return;
   }
-  const machine = $('job-machine').value;
-  const job = await post('/api/v1/machines/' + encodeURIComponent(machine) + '/jobs',
-    { kind: $('job-kind').value, params });
-  upsertAndRender(job);
+  if (!response.ok) {
+    // `params.grid_step_mm`, `assign[2]`: the field's row shows the API's message.
+    const field = String(body.field || '').replace(/^params\.?/, '').replace(/\[.*$/, '').split('.')[0];
+    const span = field && $('job-fields').querySelector('[data-field-error="' + CSS.escape(field) + '"]');
+    if (span) {
+      // Beside the field its name is not repeated.
+      const message = String(body.message || body.error);
+      span.textContent = message.startsWith(body.field + ': ') ? message.slice(body.field.length + 2) : message;
+      span.previousElementSibling.previousElementSibling.setAttribute('aria-invalid', 'true');
+    } else {
+      $('error').textContent = (body.error ? body.error + ': ' : '') + (body.message || response.statusText);
+    }
+    return;
+  }
+  upsertAndRender(body);
 }
 
 async function enter(token) {
@@ -412,6 +625,7 @@ async function enter(token) {
   const machines = await api('/api/v1/machines');
   view.machines = new Map(machines.map((m) => [m.id, m]));
   renderMachines();
+  await loadSchemas();
   await loadHistory();
   await loadProfiles();
   connectEvents();
@@ -426,11 +640,10 @@ document.addEventListener('DOMContentLoaded', () => {
     enter(token).catch(reportError);
   });
   $('start-form').addEventListener('submit', (event) => startJob(event).catch(reportError));
-  $('cancel-job').addEventListener('click', () => {
-    const id = $('running-job').getAttribute('data-job-id');
-    if (id) post('/api/v1/jobs/' + id + '/cancel').then(upsertAndRender).catch(reportError);
-  });
   $('profile-machine').addEventListener('change', () => loadProfiles().catch(reportError));
+  $('job-machine').addEventListener('change', renderKinds);
+  $('job-kind').addEventListener('change', renderForm);
+  $('measurements-csv').addEventListener('click', downloadMeasurements);
   // A link with #token= opened on a page already loaded changes only the fragment.
   window.addEventListener('hashchange', () => {
     const fresh = takeToken();

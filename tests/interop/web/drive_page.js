@@ -29,7 +29,10 @@ async function startJob(page) {
     rows.reduce((max, row) => Math.max(max, Number(row.dataset.jobId)), 0));
   await page.selectOption('#job-machine', machine);
   await page.selectOption('#job-kind', kind);
-  await page.fill('#job-params', paramsJson);
+  // The form is built from the API's schema of the kind: one input per param.
+  for (const [name, value] of Object.entries(JSON.parse(paramsJson))) {
+    await page.fill(`#job-fields [data-field-input="${name}"]`, String(value));
+  }
   await page.click('#start-job');
   // The new job is the newest row, with an id above every earlier one.
   const handle = await page.waitForFunction((earlier) => {
@@ -89,6 +92,24 @@ async function main() {
     await machineRow.waitFor({ timeout: UI_TIMEOUT_MS });
     out.machine_state_before = await machineRow.getAttribute('data-state');
 
+    // The start form: built from the API's schema (a field per param, with its range);
+    // a value the API refuses is shown beside its field, with the API's words, and
+    // nothing starts.
+    await page.selectOption('#job-machine', machine);
+    await page.selectOption('#job-kind', 'map');
+    const gridHelp = await page.locator('#field-grid_step_mm-help').textContent();
+    if (!gridHelp.includes('from 0.25')) throw new Error(`map form: grid_step_mm help is "${gridHelp}"`);
+    out.form_fields = await page.$$eval('#job-fields .field', (rows) => rows.map((r) => r.dataset.field));
+    await page.fill('#field-grid_step_mm', '0.01');
+    await page.click('#start-job');
+    const fieldError = page.locator('[data-field-error="grid_step_mm"]:not(:empty)');
+    await fieldError.waitFor({ timeout: UI_TIMEOUT_MS });
+    out.field_error = await fieldError.textContent();
+    if (await page.locator('#history-rows tr[data-job-id]').count() !== 0) {
+      throw new Error('a refused form started a job');
+    }
+    step('field error shown', out.field_error);
+
     const jobId = await startJob(page);
     out.job_id = jobId;
     await page.locator(`#machines li[data-machine="${machine}"][data-state="idle"]`)
@@ -112,6 +133,7 @@ async function main() {
       out.chart = null;
     }
     out.job_detail_state = await page.locator('#job-detail').getAttribute('data-state');
+    out.job_summary = await page.locator('#job-summary').textContent();
     out.measurements = Number(await page.locator('#job-measurement-count').getAttribute('data-count'));
 
     // Profiles: two versions of one error map are needed for activate/rollback; a
