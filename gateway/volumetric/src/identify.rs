@@ -59,7 +59,9 @@ impl Campaign {
         let get = |n: &str| files.iter().find(|f| f.0 == n).map(|f| f.1.as_str());
         let parse = |n: String, cols: &[&str]| -> Result<InstrumentFile, String> {
             let text = get(&n).ok_or_else(|| format!("{n}: missing from the campaign"))?;
-            parse_instrument(text, cols).map_err(|e| format!("{n}: {e}"))
+            let f = parse_instrument(text, cols).map_err(|e| format!("{n}: {e}"))?;
+            check_readings(&n, text)?;
+            Ok(f)
         };
         let axis = |a: usize, laser: bool| -> Result<InstrumentFile, String> {
             let (name, cols) = if laser {
@@ -100,6 +102,40 @@ impl Campaign {
             camera,
         })
     }
+}
+
+/// The largest magnitude a campaign file's number may have, in its column's unit (um,
+/// urad, mm, deg): far beyond any instrument's range. A reading past it (1e308) is a
+/// corrupted file, and would otherwise be fitted into a model written as merely unfit.
+pub const MAX_READING: f64 = 1e6;
+
+/// Refuses a number beyond [`MAX_READING`] in an instrument file's data rows, naming the
+/// file, the line and the column.
+fn check_readings(name: &str, text: &str) -> Result<(), String> {
+    let mut header: Option<Vec<&str>> = None;
+    for (i, raw) in text.lines().enumerate() {
+        let line = raw.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+        let Some(cols) = &header else {
+            header = Some(fields);
+            continue;
+        };
+        for (k, f) in fields.iter().enumerate().skip(1) {
+            if let Ok(v) = f.parse::<f64>() {
+                if !(v.abs() <= MAX_READING) {
+                    return Err(format!(
+                        "{name}: line {}, column {}: `{f}` is beyond any instrument's reading (at most {MAX_READING:e} in the column's unit)",
+                        i + 1,
+                        cols.get(k).copied().unwrap_or("?")
+                    ));
+                }
+            }
+        }
+    }
+    Ok(())
 }
 
 /// The columns (after `run`) of `laser_<axis>.csv`.
@@ -383,6 +419,32 @@ mod tests {
 
     pub(crate) fn campaign_of(files: &[(String, String)]) -> Campaign {
         Campaign::from_files(files).unwrap()
+    }
+
+    /// A reading no instrument gives (1e308) is refused naming file, line and column,
+    /// rather than fitted into a model written as merely unfit.
+    #[test]
+    fn an_absurd_reading_is_refused_naming_file_line_and_column() {
+        let machine = VolumetricMachine::new(Structure::Xyfz, 11);
+        let mut files = machine.campaign(5);
+        let laser = files.iter_mut().find(|f| f.0 == "laser_X.csv").unwrap();
+        let mut lines: Vec<String> = laser.1.lines().map(String::from).collect();
+        let k = lines
+            .iter()
+            .position(|l| l.starts_with("1,") && !l.starts_with("1,0,"))
+            .unwrap();
+        let mut fields: Vec<String> = lines[k].split(',').map(String::from).collect();
+        fields[2] = "1e308".into();
+        lines[k] = fields.join(",");
+        laser.1 = lines.join("\n");
+        let e = Campaign::from_files(&files).unwrap_err();
+        assert_eq!(
+            e,
+            format!(
+                "laser_X.csv: line {}, column E_XX_um: `1e308` is beyond any instrument's reading (at most 1e6 in the column's unit)",
+                k + 1
+            )
+        );
     }
 
     #[test]
