@@ -554,3 +554,64 @@ fn a_lost_controller_alarms_the_sender_and_nothing_is_resent() {
         );
     });
 }
+
+/// The peak resident memory of this process, KiB (`VmHWM`).
+fn peak_kib() -> u64 {
+    std::fs::read_to_string("/proc/self/status")
+        .unwrap()
+        .lines()
+        .find_map(|l| l.strip_prefix("VmHWM:"))
+        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
+        .unwrap()
+}
+
+#[test]
+fn a_hostile_sender_cannot_make_the_gateway_hold_or_echo_a_50_mib_line_and_its_leaving_ends_the_session(
+) {
+    let (job, machine, model) = demo_machine();
+    let link = std::env::temp_dir().join(format!("proxy-huge-{}", std::process::id()));
+    let rt = runtime();
+    let before = peak_kib();
+    rt.block_on(async {
+        let (emulator, _rig) = spawn_grbl_emulator(&job, &machine, Clock::Unconstrained).unwrap();
+        let (mut controller, _) =
+            open_controller(emulator.path(), 115_200, Duration::from_secs(10))
+                .await
+                .unwrap();
+        let mut sender_port = SenderPort::create(Some(&link)).unwrap();
+        let rewriter = Rewriter::new(&model, Options::default()).unwrap();
+        let mut proxy = Proxy::new(rewriter, &model);
+        proxy.start();
+        let mut sender = RawSender::open(&link);
+        let session = serve(
+            &mut proxy,
+            &mut sender_port,
+            &mut controller,
+            std::future::pending(),
+        );
+        let client = async {
+            // 50 MiB of one line, written in 1 MiB pieces (never held whole here either).
+            let piece = "G1X1".repeat(1 << 18);
+            for _ in 0..50 {
+                sender.send(&piece).await;
+            }
+            sender.send("\n$I\n").await;
+            sender.until_answers(2).await;
+            // It leaves: the session ends (`--once` exits).
+            sender.got
+        };
+        let (ending, got) = tokio::join!(session, client);
+        assert!(matches!(ending, Ending::SenderLeft(_)), "{ending:?}");
+        // GRBL's answer to an overlong line, error:11, with the gateway's note; no echo.
+        assert!(got.len() < 1024, "{} bytes back", got.len());
+        let answers: Vec<&str> = got
+            .lines()
+            .filter(|l| *l == "ok" || l.starts_with("error:"))
+            .collect();
+        assert_eq!(answers, ["error:11", "ok"], "{got}");
+        assert!(got.contains("longer than GRBL's line buffer"), "{got}");
+        assert!(got.contains("[VER:"), "the next line went through: {got}");
+    });
+    let grown_mib = (peak_kib().saturating_sub(before)) as f64 / 1024.0;
+    println!("50 MiB line: peak memory grew by {grown_mib:.1} MiB");
+}
