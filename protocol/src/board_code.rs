@@ -23,6 +23,11 @@ pub const SCHEME: &str = "random-two-size";
 /// print tolerance make the two sizes hard to tell apart.
 pub const MIN_SIZE_RATIO: f64 = 1.25;
 
+/// Width and height (dots) of the key window of the lookup index: 20 bits, so a key
+/// names about 135 000 / 2^20 = 0.13 wrong board positions on the default board.
+pub const KEY_W: u32 = 5;
+pub const KEY_H: u32 = 4;
+
 /// SplitMix64 (Steele, Lea, Flood 2014): the mixing function of the code.
 #[inline]
 pub fn splitmix64(x: u64) -> u64 {
@@ -50,6 +55,10 @@ pub struct BoardCode {
     /// Row-major, `words_per_row` words a row; bit k of word w is column 64 w + k. One
     /// spare word a row so [`BoardCode::bits`] can always read two words.
     packed: Vec<u64>,
+    /// Every [`KEY_W`] x [`KEY_H`] window of the board, sorted: `key << 32 | j * cols + i`
+    /// with (i, j) the window's lowest corner and key bit `r * KEY_W + c` the dot
+    /// (i + c, j + r).
+    index: Vec<u64>,
 }
 
 /// The board file's `[board.code]` section.
@@ -74,14 +83,45 @@ impl BoardCode {
                 }
             }
         }
-        Self {
+        let mut code = Self {
             seed,
             dot_diameters_mm,
             cols,
             rows,
             words_per_row,
             packed,
+            index: Vec::new(),
+        };
+        if cols >= KEY_W && rows >= KEY_H {
+            let mut index = Vec::with_capacity(((cols - KEY_W + 1) * (rows - KEY_H + 1)) as usize);
+            for j in 0..=rows - KEY_H {
+                for i in 0..=cols - KEY_W {
+                    let key = code.key_at(i, j);
+                    index.push((key << 32) | (j as u64 * cols as u64 + i as u64));
+                }
+            }
+            index.sort_unstable();
+            code.index = index;
         }
+        code
+    }
+
+    /// The key of the [`KEY_W`] x [`KEY_H`] window whose lowest corner is (i, j).
+    fn key_at(&self, i: u32, j: u32) -> u64 {
+        (0..KEY_H).fold(0, |k, r| k | (self.bits(i, j + r, KEY_W) << (r * KEY_W)))
+    }
+
+    /// Lowest corners (i, j) of every window with this key (see [`KEY_W`]).
+    pub fn lookup(&self, key: u64) -> impl Iterator<Item = [i64; 2]> + '_ {
+        let lo = self.index.partition_point(|&e| (e >> 32) < key);
+        let cols = self.cols as u64;
+        self.index[lo..]
+            .iter()
+            .take_while(move |&&e| e >> 32 == key)
+            .map(move |&e| {
+                let p = e & 0xFFFF_FFFF;
+                [(p % cols) as i64, (p / cols) as i64]
+            })
     }
 
     /// Bit of dot (i, j), None off the board.
@@ -158,6 +198,20 @@ mod tests {
             .map(|i| if code_bit(28, i, 0) { '1' } else { '0' })
             .collect();
         assert_eq!(row0.len(), 8);
+    }
+
+    #[test]
+    fn every_key_window_is_found_where_it_is() {
+        let c = BoardCode::generate(7, [0.2, 0.3], 60, 40);
+        for (i, j) in [(0u32, 0u32), (13, 7), (55, 36)] {
+            let key = (0..KEY_H).fold(0u64, |k, r| {
+                (0..KEY_W).fold(k, |k, col| {
+                    k | (u64::from(code_bit(7, i + col, j + r)) << (r * KEY_W + col))
+                })
+            });
+            let found: Vec<[i64; 2]> = c.lookup(key).collect();
+            assert!(found.contains(&[i as i64, j as i64]), "{i} {j}: {found:?}");
+        }
     }
 
     #[test]

@@ -1,6 +1,8 @@
 //! One frame of the board localized: the board coordinate under the image centre. The
 //! frame and the board come from the front end (the CLI reads them from files); the
-//! request carries the hint and the localizer's settings, each bounded and named.
+//! request carries the hint and the localizer's settings, each bounded and named. On a
+//! coded board (issue 28) the hint is optional and only checked against the position
+//! the board's code gives; a plain dot grid needs it.
 
 use crate::request::{count, number, RequestError};
 use crate::Outcome;
@@ -35,12 +37,14 @@ fn default_min_points() -> u64 {
 #[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct LocalizeRequest {
-    /// The expected board coordinate at the image centre, `X,Y` mm.
+    /// The expected board coordinate at the image centre, `X,Y` mm: required on a plain
+    /// dot grid (it picks the grid offset), only checked on a coded board.
+    #[serde(default)]
     #[cfg_attr(
         feature = "cli",
         arg(long, allow_hyphen_values = true, value_parser = crate::request::xy_mm)
     )]
-    pub near: [f64; 2],
+    pub near: Option<[f64; 2]>,
     /// Localization method: fit or four-point (the patent's formula).
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(long, default_value = "fit"))]
@@ -56,7 +60,8 @@ pub struct LocalizeRequest {
         arg(long, default_value = "+x,-y", allow_hyphen_values = true)
     )]
     pub pixel_axes: PixelAxes,
-    /// How far the true position may be from `near`, mm.
+    /// How far the true position may be from `near`, mm (below half the pitch on a plain
+    /// grid).
     #[serde(default = "default_hint_tolerance")]
     #[cfg_attr(feature = "cli", arg(long, default_value_t = default_hint_tolerance()))]
     pub hint_tolerance_mm: f64,
@@ -75,7 +80,7 @@ impl LocalizeRequest {
     /// unknown) with the hint `near`.
     pub fn new(near: [f64; 2]) -> Self {
         Self {
-            near,
+            near: Some(near),
             method: Method::default(),
             um_per_px: None,
             pixel_axes: PixelAxes::default(),
@@ -87,7 +92,7 @@ impl LocalizeRequest {
 
     /// Every bound that holds whatever the board.
     pub fn check(&self) -> Result<(), RequestError> {
-        for (k, v) in self.near.iter().enumerate() {
+        for (k, v) in self.near.iter().flatten().enumerate() {
             number(
                 &format!("near[{k}]"),
                 *v,
@@ -119,7 +124,16 @@ impl LocalizeRequest {
     pub fn check_for(&self, board: &Board) -> Result<(), RequestError> {
         self.check()?;
         let half_pitch = board.pitch_mm / 2.0;
-        if !(self.hint_tolerance_mm < half_pitch) {
+        if board.code.is_none() && self.near.is_none() {
+            return Err(RequestError::new(
+                "near",
+                format!(
+                    "required on a plain dot grid (`{}`): its frames give the position only modulo the {} mm pitch (a coded board needs no hint)",
+                    board.name, board.pitch_mm
+                ),
+            ));
+        }
+        if board.code.is_none() && !(self.hint_tolerance_mm < half_pitch) {
             return Err(RequestError::new(
                 "hint_tolerance_mm",
                 format!(
@@ -149,7 +163,8 @@ impl LocalizeRequest {
             max_residual_um: self.max_residual_um,
             min_points: self.min_points as usize,
         };
-        let mut p = LocalizeParams::with_settings(self.near, &settings);
+        let mut p = LocalizeParams::with_settings([0.0, 0.0], &settings);
+        p.hint_mm = self.near;
         p.um_per_px = self.um_per_px;
         p.pixel_axes = self.pixel_axes;
         p
@@ -175,6 +190,7 @@ pub fn run(request: &LocalizeRequest, image: &MonoImage, board: &Board, source: 
         "x_mm": obs.x_mm, "y_mm": obs.y_mm, "points": obs.points, "method": obs.method,
         "elapsed_ms": elapsed_ms, "residual_rms_um": obs.residual_rms_um,
         "um_per_px": obs.um_per_px, "rotation_deg": obs.rotation_deg,
+        "code": obs.code,
         "image": { "width": image.width, "height": image.height, "bit_depth": image.bit_depth() },
     });
     let metrics = crate::metrics_from(&result, &["x_mm", "y_mm", "points", "residual_rms_um"]);
@@ -229,8 +245,8 @@ mod tests {
             f(&mut r);
             r.check_for(&board()).unwrap_err().field
         };
-        assert_eq!(field(&|r| r.near[1] = f64::NAN), "near[1]");
-        assert_eq!(field(&|r| r.near[0] = 1e300), "near[0]");
+        assert_eq!(field(&|r| r.near = Some([1.0, f64::NAN])), "near[1]");
+        assert_eq!(field(&|r| r.near = Some([1e300, 1.0])), "near[0]");
         assert_eq!(field(&|r| r.um_per_px = Some(0.0)), "um_per_px");
         assert_eq!(field(&|r| r.um_per_px = Some(f64::INFINITY)), "um_per_px");
         assert_eq!(
@@ -245,8 +261,26 @@ mod tests {
         assert_eq!(field(&|r| r.min_points = 3), "min_points");
         assert_eq!(field(&|r| r.min_points = MAX_MIN_POINTS), "min_points");
         let mut r = ok.clone();
-        r.near[0] = f64::NAN;
+        r.near = Some([f64::NAN, 0.0]);
         assert!(r.check().unwrap_err().for_cli().starts_with("--near: "));
+    }
+
+    #[test]
+    fn near_is_required_on_a_plain_grid_only() {
+        let mut r = LocalizeRequest::new([10.0, 20.0]);
+        r.near = None;
+        let e = r.check_for(&board()).unwrap_err();
+        assert_eq!(e.field, "near");
+        assert!(e.to_string().contains("plain dot grid"), "{e}");
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let coded = Board::load(&dir.join("../../config/boards/coded-0.5mm.toml")).unwrap();
+        r.check_for(&coded).unwrap();
+        assert_eq!(r.params().hint_mm, None);
+        // On a coded board the hint tolerance is not bounded by the pitch.
+        r.hint_tolerance_mm = 2.0;
+        r.check_for(&coded).unwrap();
+        let r: LocalizeRequest = serde_json::from_value(json!({})).unwrap();
+        assert_eq!(r.near, None);
     }
 
     #[test]

@@ -4,16 +4,21 @@
 //! 1. [`classify`]: every indexed dot's diameter is read as a bit (small 0, large 1) by
 //!    two-means clustering seeded with the board's two sizes; a dot in the middle band
 //!    between the two clusters is an erasure (not read), like a missing dot.
-//! 2. [`decode`]: the observed bits, placed at their lattice indices, are compared with
-//!    the board's code at every board position and in all eight orientations of the
-//!    lattice on the board (four turns, mirrored or not): an exhaustive search, bit-packed
-//!    a board row at a time. The best match is accepted only when it has at most
-//!    [`max_errors`] disagreeing dots and every other position and orientation disagrees
-//!    in at least [`MIN_MARGIN`] more: so up to a few misread (dirty, damaged) dots are
-//!    outvoted, and a frame that could be read two ways is refused, never misread.
+//! 2. [`decode`]: in each of the eight orientations of the lattice on the board (four
+//!    turns, mirrored or not), every fully read 5 x 4 window of the view is looked up in
+//!    the board's index (`protocol::board_code::BoardCode::lookup`): each hit is a
+//!    candidate board position, and each candidate is compared with every dot read. The
+//!    best candidate is accepted only when it has at most [`max_errors`] disagreeing dots
+//!    and every other candidate disagrees in at least [`MIN_MARGIN`] more: so a few
+//!    misread (dirty, damaged) dots are outvoted, and a frame that could be read two ways
+//!    is refused, never misread. A position that shares no error-free 5 x 4 window with
+//!    the view is not a candidate: it disagrees with the view in at least one dot in
+//!    every such window, hence far more than the accepted best (the default view holds
+//!    about 30 of them).
 //!
-//! The search is exhaustive rather than a table lookup so that the margin is the true
-//! one over the whole board, not a guess from a sampled neighbourhood.
+//! [`decode_exhaustive`] compares with every board position instead (the same answer,
+//! 50 times slower): the tests check the two agree, so the candidates' margin is the
+//! true one.
 
 use protocol::board_code::BoardCode;
 
@@ -36,7 +41,7 @@ pub fn max_errors(bits: usize) -> usize {
 
 /// The eight orientations of the lattice on the board: board direction of lattice
 /// index `a` (image x) and of `b` (image y).
-pub(crate) const ORIENTATIONS: [[[i64; 2]; 2]; 8] = [
+pub const ORIENTATIONS: [[[i64; 2]; 2]; 8] = [
     [[1, 0], [0, -1]],
     [[1, 0], [0, 1]],
     [[-1, 0], [0, 1]],
@@ -49,7 +54,7 @@ pub(crate) const ORIENTATIONS: [[[i64; 2]; 2]; 8] = [
 
 /// What the code said about a frame.
 #[derive(Clone, Debug, PartialEq)]
-pub(crate) struct Decoded {
+pub struct Decoded {
     /// Board direction of lattice index a and of b.
     pub axes: [[i64; 2]; 2],
     /// Board index of lattice index (0, 0).
@@ -65,7 +70,7 @@ pub(crate) struct Decoded {
 
 /// Why a frame's code could not be read.
 #[derive(Clone, Debug, PartialEq)]
-pub(crate) enum DecodeError {
+pub enum DecodeError {
     TooFewBits {
         bits: usize,
     },
@@ -83,7 +88,7 @@ pub(crate) enum DecodeError {
 
 /// Read each dot diameter (any unit, None for a dot not on the lattice) as a bit, given
 /// the board's two nominal sizes in the same unit: None for a dot not read.
-pub(crate) fn classify(diameters: &[Option<f64>], sizes: [f64; 2]) -> Vec<Option<bool>> {
+pub fn classify(diameters: &[Option<f64>], sizes: [f64; 2]) -> Vec<Option<bool>> {
     let known: Vec<f64> = diameters.iter().flatten().copied().collect();
     let (mut m0, mut m1) = (sizes[0], sizes[1]);
     // Two-means from the nominal sizes: blur, print and threshold shift both clusters.
@@ -124,8 +129,125 @@ pub(crate) fn classify(diameters: &[Option<f64>], sizes: [f64; 2]) -> Vec<Option
 }
 
 /// The board position and orientation of the observed bits (`(lattice index, bit)`),
-/// or why none is accepted.
-pub(crate) fn decode(code: &BoardCode, obs: &[([i64; 2], bool)]) -> Result<Decoded, DecodeError> {
+/// or why none is accepted: candidates from the board's index of 5 x 4 windows.
+pub fn decode(code: &BoardCode, obs: &[([i64; 2], bool)]) -> Result<Decoded, DecodeError> {
+    use protocol::board_code::{KEY_H, KEY_W};
+    let obs: Vec<([i64; 2], bool)> = obs
+        .iter()
+        .filter(|(ab, _)| ab[0].abs() <= MAX_SIDE / 2 && ab[1].abs() <= MAX_SIDE / 2)
+        .copied()
+        .collect();
+    let bits = obs.len();
+    if bits < MIN_BITS {
+        return Err(DecodeError::TooFewBits { bits });
+    }
+    let limit = max_errors(bits);
+    let cutoff = limit + MIN_MARGIN;
+    let side = MAX_SIDE as usize + 1;
+    let mut cands: Vec<(usize, [i64; 2])> = Vec::new();
+    for (o, axes) in ORIENTATIONS.iter().enumerate() {
+        // The view in board-aligned cells: -1 not read, else the bit.
+        let mut grid = vec![-1i8; side * side];
+        let half = MAX_SIDE / 2;
+        for (ab, bit) in &obs {
+            let q = [
+                ab[0] * axes[0][0] + ab[1] * axes[1][0] + half,
+                ab[0] * axes[0][1] + ab[1] * axes[1][1] + half,
+            ];
+            grid[q[1] as usize * side + q[0] as usize] = i8::from(*bit);
+        }
+        let (kw, kh) = (KEY_W as usize, KEY_H as usize);
+        for r0 in 0..=side - kh {
+            'window: for c0 in 0..=side - kw {
+                let mut key = 0u64;
+                for r in 0..kh {
+                    for c in 0..kw {
+                        match grid[(r0 + r) * side + c0 + c] {
+                            -1 => continue 'window,
+                            b => key |= (b as u64) << (r * kw + c),
+                        }
+                    }
+                }
+                for corner in code.lookup(key) {
+                    // Board index of the view's cell (half, half), i.e. lattice (0, 0).
+                    let ij0 = [corner[0] - c0 as i64 + half, corner[1] - r0 as i64 + half];
+                    if !cands.contains(&(o, ij0)) {
+                        cands.push((o, ij0));
+                    }
+                }
+            }
+        }
+    }
+    let mut best: Option<(usize, usize, [i64; 2])> = None;
+    let mut second = cutoff + 1;
+    for (o, ij0) in cands {
+        let axes = ORIENTATIONS[o];
+        let mut d = 0;
+        for (ab, bit) in &obs {
+            let ij = [
+                ij0[0] + ab[0] * axes[0][0] + ab[1] * axes[1][0],
+                ij0[1] + ab[0] * axes[0][1] + ab[1] * axes[1][1],
+            ];
+            if code.bit(ij[0], ij[1]) != Some(*bit) {
+                d += 1;
+            }
+        }
+        match best {
+            Some(b) if d >= b.0 => second = second.min(d),
+            Some(b) => {
+                second = second.min(b.0);
+                best = Some((d, o, ij0));
+            }
+            None => best = Some((d, o, ij0)),
+        }
+    }
+    accept(bits, limit, cutoff, best, second)
+}
+
+fn accept(
+    bits: usize,
+    limit: usize,
+    cutoff: usize,
+    best: Option<(usize, usize, [i64; 2])>,
+    second: usize,
+) -> Result<Decoded, DecodeError> {
+    let second = second.min(cutoff + 1);
+    let Some((errors, o, ij0)) = best else {
+        return Err(DecodeError::NoMatch {
+            bits,
+            best: cutoff + 1,
+            limit,
+        });
+    };
+    if errors > limit {
+        return Err(DecodeError::NoMatch {
+            bits,
+            best: errors,
+            limit,
+        });
+    }
+    if second < errors + MIN_MARGIN {
+        return Err(DecodeError::NotAlone {
+            bits,
+            best: errors,
+            second,
+        });
+    }
+    Ok(Decoded {
+        axes: ORIENTATIONS[o],
+        ij0,
+        bits,
+        errors,
+        second,
+    })
+}
+
+/// [`decode`] by comparing with every board position in every orientation (a bit-packed
+/// search a board row at a time): the reference the index is checked against.
+pub fn decode_exhaustive(
+    code: &BoardCode,
+    obs: &[([i64; 2], bool)],
+) -> Result<Decoded, DecodeError> {
     let obs: Vec<([i64; 2], bool)> = obs
         .iter()
         .filter(|(ab, _)| ab[0].abs() <= MAX_SIDE / 2 && ab[1].abs() <= MAX_SIDE / 2)
@@ -203,35 +325,7 @@ pub(crate) fn decode(code: &BoardCode, obs: &[([i64; 2], bool)]) -> Result<Decod
             }
         }
     }
-    let second = second.min(cutoff + 1);
-    let Some((errors, o, ij0)) = best else {
-        return Err(DecodeError::NoMatch {
-            bits,
-            best: cutoff + 1,
-            limit,
-        });
-    };
-    if errors > limit {
-        return Err(DecodeError::NoMatch {
-            bits,
-            best: errors,
-            limit,
-        });
-    }
-    if second < errors + MIN_MARGIN {
-        return Err(DecodeError::NotAlone {
-            bits,
-            best: errors,
-            second,
-        });
-    }
-    Ok(Decoded {
-        axes: ORIENTATIONS[o],
-        ij0,
-        bits,
-        errors,
-        second,
-    })
+    accept(bits, limit, cutoff, best, second)
 }
 
 #[cfg(test)]
@@ -259,13 +353,27 @@ mod tests {
         obs
     }
 
+    /// The index finds what the exhaustive search finds; its runner-up is never nearer
+    /// than the true one (it may miss near positions that share no clean key window).
+    fn same_answer(index: &Decoded, all: &Decoded) {
+        assert_eq!(
+            (index.axes, index.ij0, index.bits, index.errors),
+            (all.axes, all.ij0, all.bits, all.errors)
+        );
+        assert!(index.second >= all.second, "{index:?} {all:?}");
+    }
+
     #[test]
     fn every_orientation_is_found_and_named() {
         let code = BoardCode::generate(28, [0.2, 0.3], 421, 321);
         for (k, axes) in ORIENTATIONS.iter().enumerate() {
             let at = [17 + 40 * k as i64, 300 - 30 * k as i64];
-            let d = decode(&code, &view(&code, *axes, at, [4, 3])).unwrap();
+            let obs = view(&code, *axes, at, [4, 3]);
+            let d = decode(&code, &obs).unwrap();
             assert_eq!((d.axes, d.ij0, d.errors), (*axes, at, 0), "{k}");
+            if k < 2 {
+                same_answer(&d, &decode_exhaustive(&code, &obs).unwrap());
+            }
             assert_eq!(d.bits, 63);
             assert!(d.second >= MIN_MARGIN, "{d:?}");
         }
@@ -281,6 +389,7 @@ mod tests {
         }
         let d = decode(&code, &obs).unwrap();
         assert_eq!((d.ij0, d.errors), ([200, 100], 3));
+        same_answer(&d, &decode_exhaustive(&code, &obs).unwrap());
         // A third of the dots flipped: no position is close, refused.
         for k in (0..obs.len()).step_by(3) {
             obs[k].1 = !obs[k].1;
