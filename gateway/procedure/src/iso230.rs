@@ -18,6 +18,14 @@ use std::cell::{Cell, RefCell};
 use std::future::Future;
 use std::time::Instant;
 
+/// A measurements file read through the bounded reader ([`DataKind::Iso230`]) and
+/// parsed: errors name the file, and the line and column where the parser fails.
+pub fn read_measurements_file(path: &std::path::Path) -> Result<Vec<Measurement>, String> {
+    let text = protocol::config::read_kind(path, protocol::config::DataKind::Iso230)
+        .map_err(|e| e.to_string())?;
+    csv_io::read(&text).map_err(|e| format!("{}: {e}", path.display()))
+}
+
 /// Still frames at the reference point for the localization's repeatability.
 const STILL_FRAMES: usize = 10;
 

@@ -8,6 +8,12 @@ use layout_io::{Layout, ReadOptions};
 use serde_json::{json, Value};
 use std::time::Instant;
 
+/// A layout file's text for a [`LayoutRequest`], through the bounded reader
+/// ([`protocol::config::DataKind::Layout`]); the error names the file.
+pub fn read_layout_file(path: &std::path::Path) -> Result<String, String> {
+    protocol::config::read_kind(path, protocol::config::DataKind::Layout).map_err(|e| e.to_string())
+}
+
 /// A partitioned layout: what the report and the cut are made from.
 pub struct Partitioned {
     pub doc: Layout,

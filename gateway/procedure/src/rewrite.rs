@@ -20,6 +20,35 @@ pub const PROGRAM_ARTIFACT: &str = "program.nc";
 /// The largest program accepted (the bounded reader's limit for a data file).
 pub const MAX_PROGRAM_BYTES: usize = 16 << 20;
 
+/// A program file's text for a [`RewriteRequest`], read as a bounded stream of lines
+/// ([`protocol::config::open_lines`]: regular files only, refused before opening, at
+/// most [`MAX_PROGRAM_BYTES`] in all and 64 KiB per line; line endings kept). Errors name
+/// the file and the line.
+pub fn read_program(path: &std::path::Path) -> Result<String, String> {
+    let lines = protocol::config::open_lines(path, protocol::config::DataKind::Program)
+        .map_err(|e| e.to_string())?
+        .keep_endings();
+    let mut text = String::new();
+    for line in lines {
+        let (n, l) = line.map_err(|e| e.to_string())?;
+        if text.len() + l.len() > MAX_PROGRAM_BYTES {
+            return Err(format!(
+                "program {}: line {n}: the program passes {} MiB, the most a rewrite takes",
+                path.display(),
+                MAX_PROGRAM_BYTES >> 20
+            ));
+        }
+        text.push_str(&l);
+    }
+    Ok(text)
+}
+
+/// A saved `$#` reply's text, bounded ([`protocol::config::DataKind::Parameters`]).
+pub fn read_offsets_file(path: &std::path::Path) -> Result<String, String> {
+    protocol::config::read_kind(path, protocol::config::DataKind::Parameters)
+        .map_err(|e| e.to_string())
+}
+
 /// The largest `$#` reply accepted.
 pub const MAX_OFFSETS_BYTES: usize = 1 << 20;
 

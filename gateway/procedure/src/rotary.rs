@@ -6,6 +6,7 @@
 use crate::request::RotaryRequest;
 use crate::{Artifact, Outcome, Sink};
 use job::rotary::RotaryJob;
+use protocol::config::DataKind;
 use rotary::{identify as identify_errors, write_centres, CentreRow, Identification};
 use rotary::{LocationErrors, MachineConstants, RotaryMachine};
 use serde_json::{json, Value};
@@ -197,6 +198,71 @@ pub fn identify(
     Outcome::succeeded(
         runner::rotary::identification_json(&id, constants),
         Default::default(),
+    )
+}
+
+/// A rotary input file's text through the bounded reader (regular files only, its
+/// kind's size cap); the error names the kind and the file.
+fn read_input(path: &std::path::Path, kind: DataKind) -> Result<String, String> {
+    protocol::config::read_kind(path, kind).map_err(|e| e.to_string())
+}
+
+/// The centres file at `path` read (bounded, [`DataKind::Centres`]) and parsed: errors
+/// name the file, and the line and column where the parser fails.
+pub fn read_centres_file(path: &std::path::Path) -> Result<Vec<CentreRow>, String> {
+    let text = read_input(path, DataKind::Centres)?;
+    rotary::parse_centres(&text).map_err(|e| format!("{}: {e}", path.display()))
+}
+
+/// An errors file (or machine constants) at `path` as text, bounded
+/// ([`DataKind::RotaryJson`]).
+pub fn read_errors_file(path: &std::path::Path) -> Result<String, String> {
+    read_input(path, DataKind::RotaryJson)
+}
+
+/// The most bytes a rewritten 5-axis program may have (a split move adds at most 2^10
+/// pieces): the rewrite stops, naming the line, when its output passes this.
+pub const MAX_REWRITTEN_BYTES: usize = 256 << 20;
+
+/// `gateway rotary rewrite` from files: the program at `program` read as a bounded
+/// stream of lines ([`protocol::config::open_lines`]: regular files only, 64 KiB per
+/// line) and rewritten line by line, the errors file at `errors` read bounded, its
+/// machine constants used as [`rewrite_with_errors_file`] does. Every error names the
+/// file (and the line).
+pub fn rewrite_files(
+    program: &std::path::Path,
+    errors: &std::path::Path,
+    machine: Option<MachineConstants>,
+    force_machine: bool,
+    tolerance_um: f64,
+    sink: &mut dyn Sink,
+) -> Outcome {
+    let errors_text = match read_errors_file(errors) {
+        Ok(t) => t,
+        Err(e) => return Outcome::failed(e),
+    };
+    let source = program.display().to_string();
+    let errors_source = errors.display().to_string();
+    let lines = match protocol::config::open_lines(program, DataKind::Program) {
+        Ok(l) => l.keep_endings(),
+        Err(e) => return Outcome::failed(e.to_string()),
+    };
+    let mut text = String::new();
+    for line in lines {
+        match line {
+            Ok((_, l)) => text.push_str(&l),
+            Err(e) => return Outcome::failed(e.to_string()),
+        }
+    }
+    rewrite_with_errors_file(
+        &text,
+        &source,
+        &errors_text,
+        &errors_source,
+        machine,
+        force_machine,
+        tolerance_um,
+        sink,
     )
 }
 
@@ -409,6 +475,78 @@ mod tests {
     use crate::Collect;
 
     const PROGRAM: &str = "G21 G90 G94\nG0 X0 Y0 Z-150 A0 C0\nG1 X10 Y-20 Z-190 A30 C45 F500\n";
+
+    /// Every reader of an outside file the procedures offer refuses a FIFO (before
+    /// opening it: no writer ever comes, the test would hang otherwise) and `/dev/zero`
+    /// (never read), naming the file; a real file of each kind is read.
+    #[cfg(unix)]
+    #[test]
+    fn every_reader_refuses_a_fifo_and_dev_zero_naming_the_file() {
+        use std::path::Path;
+        let dir = std::env::temp_dir().join(format!("procedure-readers-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let fifo = dir.join("in.fifo");
+        assert!(std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap()
+            .success());
+        type Reader = fn(&Path) -> Result<(), String>;
+        let readers: [(&str, Reader); 8] = [
+            ("centres file", |p| read_centres_file(p).map(|_| ())),
+            ("rotary errors or machine file", |p| {
+                read_errors_file(p).map(|_| ())
+            }),
+            ("program", |p| crate::rewrite::read_program(p).map(|_| ())),
+            ("`$#` reply", |p| {
+                crate::rewrite::read_offsets_file(p).map(|_| ())
+            }),
+            ("measurements file (ISO 230-2)", |p| {
+                crate::iso230::read_measurements_file(p).map(|_| ())
+            }),
+            ("layout", |p| crate::layout::read_layout_file(p).map(|_| ())),
+            ("volumetric file", |p| {
+                crate::volumetric::read_file(p).map(|_| ())
+            }),
+            ("program", |p| {
+                let out = rewrite_files(p, p, None, false, 0.5, &mut Collect::default());
+                out.error().map_or(Ok(()), |e| Err(e.to_string()))
+            }),
+        ];
+        for (kind, read) in readers {
+            let e = read(&fifo).unwrap_err();
+            assert!(
+                e.contains(&format!("{}: not a regular file (a FIFO)", fifo.display())),
+                "{kind}: {e}"
+            );
+            let e = read(Path::new("/dev/zero")).unwrap_err();
+            assert!(
+                e.contains("/dev/zero: not a regular file (a character device)"),
+                "{kind}: {e}"
+            );
+            let kind_named = e.contains(kind) || kind == "program";
+            assert!(kind_named, "{kind}: {e}");
+        }
+        // A program streamed from a file is rewritten as from its text.
+        let prog = dir.join("p.nc");
+        std::fs::write(&prog, PROGRAM).unwrap();
+        let errs = dir.join("errors.json");
+        std::fs::write(&errs, errors_file(None)).unwrap();
+        let mut sink = Collect::default();
+        let out = rewrite_files(&prog, &errs, None, false, 0.5, &mut sink);
+        let from_file = program_of(&out, &sink);
+        let mut sink = Collect::default();
+        let out = rewrite(
+            PROGRAM,
+            "p.nc",
+            LocationErrors::paper(),
+            MachineConstants::default(),
+            0.5,
+            &mut sink,
+        );
+        assert_eq!(from_file, program_of(&out, &sink));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     fn errors_file(machine: Option<MachineConstants>) -> String {
         let mut v = serde_json::to_value(LocationErrors::paper()).unwrap();

@@ -27,6 +27,13 @@ use volumetric::contributions::{
 use volumetric::identify::Campaign;
 use volumetric::Model;
 
+/// A volumetric model or campaign file's text through the bounded reader
+/// ([`protocol::config::DataKind::Volumetric`]); the error names the file.
+pub fn read_file(path: &std::path::Path) -> Result<String, String> {
+    protocol::config::read_kind(path, protocol::config::DataKind::Volumetric)
+        .map_err(|e| e.to_string())
+}
+
 /// The model file [`identify`] produces.
 pub const MODEL_ARTIFACT: &str = "model.vol.csv";
 
