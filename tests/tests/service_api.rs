@@ -609,6 +609,43 @@ async fn an_iso230_job_keeps_its_figures_and_chart() {
         .unwrap();
     assert_eq!(svg.status(), StatusCode::OK);
     assert!(svg.text().await.unwrap().contains("<svg"));
+    // The charts are files of the job, not part of its record (a 38 kB SVG each).
+    assert!(record["result"].get("charts").is_none(), "{record}");
+    assert!(
+        record.to_string().len() < 20_000,
+        "{} bytes",
+        record.to_string().len()
+    );
+    let (_, files) = get(&c, &s, &format!("/api/v1/jobs/{id}/files")).await;
+    let names: Vec<&str> = files
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|f| f["name"].as_str())
+        .collect();
+    assert!(
+        names.contains(&"deviation_x.svg") && names.contains(&"report.html"),
+        "{files}"
+    );
+    let report = files
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|f| f["name"] == "report.html")
+        .unwrap();
+    let r = c
+        .get(url(&s, report["url"].as_str().unwrap()))
+        .bearer_auth(s.token())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), StatusCode::OK);
+    // Anything but a picture is downloaded, never rendered in the service's origin.
+    assert_eq!(
+        r.headers()["content-disposition"],
+        "attachment; filename=\"report.html\""
+    );
+    assert_eq!(r.bytes().await.unwrap().len() as u64, report["size"]);
 
     // With the map, but no error map is active on this machine.
     let (status, job) = post(

@@ -286,6 +286,8 @@ pub fn router(shared: AppState, limits: BodyLimits, cors_origins: &[String]) -> 
         .route("/api/v1/jobs/{id}/measurements", get(measurements))
         .route("/api/v1/jobs/{id}/charts", get(charts))
         .route("/api/v1/jobs/{id}/charts/{file}", get(chart))
+        .route("/api/v1/jobs/{id}/files", get(files))
+        .route("/api/v1/jobs/{id}/files/{name}", get(file))
         .route("/api/v1/machines/{machine}/profiles", get(profiles))
         .route(
             "/api/v1/machines/{machine}/profiles/{name}",
@@ -361,6 +363,7 @@ fn static_file(content_type: &'static str, body: &'static str) -> Response {
 #[openapi(
     info(title = "gateway service", description = "Machines, job queues, profiles and events of a gateway box."),
     paths(openapi, machines, machine, enqueue, jobs, job, cancel, measurements, charts, chart,
+          files, file,
           profiles, add_profile, profile, heatmap, activate, rollback, events),
     modifiers(&BearerAuth, &JobParams)
 )]
@@ -684,26 +687,28 @@ async fn measurements(
     Ok(Json(Value::Array(list)))
 }
 
-/// Charts saved in a job's result under `charts` (name -> SVG text).
-fn job_charts(record: &store::JobRecord) -> Vec<(String, String, String)> {
-    let Some(charts) = record
+/// A job's charts: the SVG files it wrote with a caption (`name` without `.svg`,
+/// title); a record stored before files were kept has them in its result's `charts`.
+fn job_charts(shared: &Shared, record: &store::JobRecord) -> ApiResult<Vec<(String, String)>> {
+    let files = lock(&shared.store).job_files(record.id)?;
+    let mut charts: Vec<(String, String)> = files
+        .into_iter()
+        .filter(|f| f.media_type == "image/svg+xml")
+        .filter_map(|f| Some((f.name.strip_suffix(".svg")?.to_string(), f.title?)))
+        .collect();
+    if let Some(old) = record
         .result
         .as_ref()
         .and_then(|r| r.get("charts"))
         .and_then(Value::as_object)
-    else {
-        return Vec::new();
-    };
-    charts
-        .iter()
-        .filter_map(|(name, c)| {
-            Some((
-                name.clone(),
-                c.get("title")?.as_str()?.to_string(),
-                c.get("svg")?.as_str()?.to_string(),
-            ))
-        })
-        .collect()
+    {
+        charts.extend(
+            old.iter().filter_map(|(name, c)| {
+                Some((name.clone(), c.get("title")?.as_str()?.to_string()))
+            }),
+        );
+    }
+    Ok(charts)
 }
 
 /// The job's charts: `[{"name", "title", "url"}]`.
@@ -715,9 +720,9 @@ async fn charts(
 ) -> ApiResult<Json<Value>> {
     let Path(id) = path?;
     let record = job_record(&shared, id)?;
-    let list: Vec<Value> = job_charts(&record)
+    let list: Vec<Value> = job_charts(&shared, &record)?
         .into_iter()
-        .map(|(name, title, _)| json!({"name": name, "title": title, "url": format!("/api/v1/jobs/{id}/charts/{name}.svg")}))
+        .map(|(name, title)| json!({"name": name, "title": title, "url": format!("/api/v1/jobs/{id}/charts/{name}.svg")}))
         .collect();
     Ok(Json(Value::Array(list)))
 }
@@ -731,15 +736,69 @@ async fn chart(
 ) -> ApiResult<Response> {
     let Path((id, file)) = path?;
     let record = job_record(&shared, id)?;
-    let name = file.strip_suffix(".svg").unwrap_or("");
-    let svg = job_charts(&record)
-        .into_iter()
-        .find(|(n, _, _)| n == name)
-        .map(|(_, _, svg)| svg)
-        .ok_or_else(|| {
-            ApiError::not_found("unknown_chart", format!("job {id} has no chart {file:?}"))
-        })?;
+    let unknown =
+        || ApiError::not_found("unknown_chart", format!("job {id} has no chart {file:?}"));
+    let name = file.strip_suffix(".svg").ok_or_else(unknown)?;
+    let kept = lock(&shared.store).job_file(id, &file)?;
+    let svg = match kept {
+        Some((media_type, body)) if media_type == "image/svg+xml" => body,
+        _ => record
+            .result
+            .as_ref()
+            .and_then(|r| r.get("charts")?.get(name)?.get("svg")?.as_str())
+            .map(|svg| svg.as_bytes().to_vec())
+            .ok_or_else(unknown)?,
+    };
     Ok(([(header::CONTENT_TYPE, "image/svg+xml")], svg).into_response())
+}
+
+/// The files the job wrote (charts, tables, reports, a layout job's shifted layout):
+/// `[{"name", "title", "media_type", "size", "url"}]`.
+#[utoipa::path(get, path = "/api/v1/jobs/{id}/files", params(("id" = i64, Path)),
+    responses((status = 200, description = "[{name, title, media_type, size, url}]"), (status = 404, description = "unknown job")))]
+async fn files(
+    State(shared): State<AppState>,
+    path: Result<Path<JobId>, PathRejection>,
+) -> ApiResult<Json<Value>> {
+    let Path(id) = path?;
+    job_record(&shared, id)?;
+    let list: Vec<Value> = lock(&shared.store)
+        .job_files(id)?
+        .into_iter()
+        .map(|f| {
+            let url = format!("/api/v1/jobs/{id}/files/{}", f.name);
+            let mut v = serde_json::to_value(f).unwrap_or(Value::Null);
+            v["url"] = json!(url);
+            v
+        })
+        .collect();
+    Ok(Json(Value::Array(list)))
+}
+
+/// One file of a job with its media type: pictures shown, anything else downloaded.
+#[utoipa::path(get, path = "/api/v1/jobs/{id}/files/{name}", params(("id" = i64, Path), ("name" = String, Path)),
+    responses((status = 200, description = "the file"), (status = 404, description = "unknown job or file")))]
+async fn file(
+    State(shared): State<AppState>,
+    path: Result<Path<(JobId, String)>, PathRejection>,
+) -> ApiResult<Response> {
+    let Path((id, name)) = path?;
+    job_record(&shared, id)?;
+    let (media_type, body) = lock(&shared.store).job_file(id, &name)?.ok_or_else(|| {
+        ApiError::not_found("unknown_file", format!("job {id} has no file {name:?}"))
+    })?;
+    let content_type = HeaderValue::from_str(&media_type)
+        .unwrap_or(HeaderValue::from_static("application/octet-stream"));
+    let mut response = ([(header::CONTENT_TYPE, content_type)], body).into_response();
+    if !matches!(media_type.as_str(), "image/svg+xml" | "image/png") {
+        // The name is a plain file name (the store refuses any other).
+        if let Ok(v) = HeaderValue::from_str(&format!("attachment; filename=\"{name}\"")) {
+            response
+                .headers_mut()
+                .insert(header::CONTENT_DISPOSITION, v);
+        }
+    }
+    Ok(response)
 }
 
 /// The machine's profile versions.

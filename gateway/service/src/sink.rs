@@ -1,5 +1,5 @@
 //! What the service does with a procedure's output: measurements and progress into the
-//! store and out as events, charts kept for the job's result; a map scan's journal in
+//! store and out as events, the files it writes kept with the job; a map scan's journal in
 //! the store (a stopped scan's samples are the next scan's start) and its map as a
 //! profile version.
 
@@ -8,7 +8,7 @@ use errormap::scan::{journal, Sample, ScanPlan};
 use procedure::map::{sample_of, MapShelf, ScanJournal};
 use procedure::{Artifact, Sink};
 use protocol::errormap::ErrorMap;
-use serde_json::{json, Map, Value};
+use serde_json::{json, Value};
 use std::sync::Arc;
 use store::{JobFilter, JobId, JobState, ProfileKind};
 
@@ -17,9 +17,7 @@ pub struct StoreSink {
     pub shared: Arc<Shared>,
     pub machine: String,
     pub job: JobId,
-    /// SVG charts by name (`{"title", "svg"}`), for the job's result.
-    pub charts: Map<String, Value>,
-    /// The shifted layout of a layout job (its text), for the job's result.
+    /// The shifted layout of a layout job (its text), also kept in the job's result.
     pub layout: Option<String>,
 }
 
@@ -29,7 +27,6 @@ impl StoreSink {
             shared: shared.clone(),
             machine: machine.to_string(),
             job,
-            charts: Map::new(),
             layout: None,
         }
     }
@@ -51,26 +48,21 @@ impl Sink for StoreSink {
         Ok(())
     }
 
+    /// Every file the procedure writes is kept with the job (charts, tables, reports,
+    /// the shifted layout) and served on its own (`/api/v1/jobs/{id}/files`).
     fn artifact(&mut self, artifact: Artifact) -> Result<(), String> {
-        // The page shows the SVG charts and a layout job's client takes the shifted
-        // layout from the result; other artifacts are the CLI's files.
         if artifact.name.starts_with("layout.") {
             self.layout = Some(String::from_utf8_lossy(&artifact.bytes).into_owned());
-            return Ok(());
         }
-        if artifact.media_type == "image/svg+xml" {
-            if let Some(title) = artifact.title {
-                let name = artifact
-                    .name
-                    .strip_suffix(".svg")
-                    .unwrap_or(&artifact.name)
-                    .to_string();
-                let svg = String::from_utf8_lossy(&artifact.bytes).into_owned();
-                self.charts
-                    .insert(name, json!({"title": title, "svg": svg}));
-            }
-        }
-        Ok(())
+        lock(&self.shared.store)
+            .add_job_file(
+                self.job,
+                &artifact.name,
+                artifact.title.as_deref(),
+                artifact.media_type,
+                &artifact.bytes,
+            )
+            .map_err(|e| e.to_string())
     }
 }
 

@@ -134,13 +134,11 @@ pub async fn run(shared: Arc<Shared>, machine: Arc<Machine>, config: MachineConf
     shared.set_status(&machine, MachineState::Stopped, None, None);
 }
 
-/// The store's outcome of a procedure's, with the charts the sink kept.
+/// The store's outcome of a procedure's, with a layout job's shifted layout (its
+/// clients take it from the result).
 fn to_store(outcome: procedure::Outcome, sink: StoreSink) -> (Outcome, Option<String>) {
     let mut result = outcome.result;
     if let Some(Value::Object(o)) = &mut result {
-        if !sink.charts.is_empty() {
-            o.insert("charts".into(), Value::Object(sink.charts));
-        }
         if let Some(layout) = sink.layout {
             o.insert("layout".into(), Value::String(layout));
         }

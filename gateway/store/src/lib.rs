@@ -161,6 +161,19 @@ pub struct ProfileVersion {
     pub note: Option<String>,
 }
 
+/// A file a job wrote (its body is read on its own: `Store::job_file`).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct JobFile {
+    pub name: String,
+    /// A chart's caption.
+    pub title: Option<String>,
+    pub media_type: String,
+    pub size: u64,
+}
+
+/// The largest file a job may keep (a map's heat map or report is well under 1 MiB).
+pub const MAX_JOB_FILE_BYTES: usize = 32 << 20;
+
 /// One row of metrics waiting to be published to the plant.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct OutboxItem {
@@ -405,6 +418,77 @@ impl Store {
         let row = tx.last_insert_rowid();
         tx.commit()?;
         Ok(row)
+    }
+
+    /// Keeps a file of a running job (a chart, a table, a report), replacing one of the
+    /// same name. The name is a plain file name.
+    pub fn add_job_file(
+        &mut self,
+        id: JobId,
+        name: &str,
+        title: Option<&str>,
+        media_type: &str,
+        body: &[u8],
+    ) -> Result<(), StoreError> {
+        let plain = !name.is_empty()
+            && name.len() <= 128
+            && name
+                .bytes()
+                .all(|b| b.is_ascii_alphanumeric() || b"._-".contains(&b))
+            && !name.starts_with('.');
+        if !plain {
+            return Err(StoreError::InvalidInput {
+                what: "job file name",
+                why: format!("{name:?} is not a plain file name"),
+            });
+        }
+        if body.len() > MAX_JOB_FILE_BYTES {
+            return Err(StoreError::InvalidInput {
+                what: "job file",
+                why: format!(
+                    "{name} is {} bytes; at most {MAX_JOB_FILE_BYTES} are kept",
+                    body.len()
+                ),
+            });
+        }
+        let tx = self.connection.transaction()?;
+        expect_state(&tx, id, JobState::Running, JobState::Running)?;
+        tx.execute(
+            "INSERT OR REPLACE INTO job_files (job_id, name, title, media_type, body) \
+             VALUES (?1, ?2, ?3, ?4, ?5)",
+            params![id, name, title, media_type, body],
+        )?;
+        tx.commit()?;
+        Ok(())
+    }
+
+    /// The files a job wrote, in name order (without their bodies).
+    pub fn job_files(&self, id: JobId) -> Result<Vec<JobFile>, StoreError> {
+        let mut statement = self.connection.prepare(
+            "SELECT name, title, media_type, length(body) FROM job_files \
+             WHERE job_id = ?1 ORDER BY name",
+        )?;
+        let rows = statement.query_map(params![id], |row| {
+            Ok(JobFile {
+                name: row.get(0)?,
+                title: row.get(1)?,
+                media_type: row.get(2)?,
+                size: row.get::<_, i64>(3)? as u64,
+            })
+        })?;
+        Ok(rows.collect::<Result<_, _>>()?)
+    }
+
+    /// One file of a job: its media type and body.
+    pub fn job_file(&self, id: JobId, name: &str) -> Result<Option<(String, Vec<u8>)>, StoreError> {
+        Ok(self
+            .connection
+            .query_row(
+                "SELECT media_type, body FROM job_files WHERE job_id = ?1 AND name = ?2",
+                params![id, name],
+                |row| Ok((row.get(0)?, row.get(1)?)),
+            )
+            .optional()?)
     }
 
     /// running -> succeeded/failed/cancelled, and in the same transaction an outbox row

@@ -73,6 +73,16 @@ const MIGRATIONS: &[&str] = &[
     CREATE INDEX measurements_by_job ON measurements (job_id, id);
     CREATE INDEX activations_by_profile ON profile_activations (machine, name, id);
     CREATE INDEX outbox_pending ON outbox (id) WHERE done_at IS NULL;",
+    // 3: the files a job wrote (charts, tables, reports), served on their own instead of
+    // inside its result.
+    "CREATE TABLE job_files (
+        job_id INTEGER NOT NULL REFERENCES jobs (id),
+        name TEXT NOT NULL,
+        title TEXT,
+        media_type TEXT NOT NULL,
+        body BLOB NOT NULL,
+        PRIMARY KEY (job_id, name)
+    );",
 ];
 
 /// The schema version this program writes (the number of migrations).

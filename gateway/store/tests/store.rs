@@ -607,7 +607,7 @@ fn an_empty_file_is_migrated_and_a_newer_schema_is_refused() {
     std::fs::write(&path, b"").unwrap();
     let store = Store::open(&path).unwrap();
     assert_eq!(store.schema_version(), SCHEMA_VERSION);
-    assert_eq!(SCHEMA_VERSION, 2);
+    assert_eq!(SCHEMA_VERSION, 3);
     drop(store);
     // Reopening does not migrate again.
     assert_eq!(Store::open(&path).unwrap().schema_version(), SCHEMA_VERSION);
@@ -684,4 +684,78 @@ fn the_database_file_uses_wal() {
         .query_row("PRAGMA journal_mode", [], |r| r.get(0))
         .unwrap();
     assert_eq!(mode, "wal");
+}
+
+#[test]
+fn a_job_keeps_its_files_while_it_runs_and_serves_them_after() {
+    let mut store = Store::open_in_memory().unwrap();
+    let id = running_job(&mut store, "m1");
+    store
+        .add_job_file(
+            id,
+            "deviation_x.svg",
+            Some("Deviation X"),
+            "image/svg+xml",
+            b"<svg/>",
+        )
+        .unwrap();
+    store
+        .add_job_file(id, "measurements.csv", None, "text/csv", b"a,b\n")
+        .unwrap();
+    // The same name again replaces the file.
+    store
+        .add_job_file(id, "measurements.csv", None, "text/csv", b"a,b\n1,2\n")
+        .unwrap();
+    for bad in ["", "../x", ".hidden", "a/b.svg", "a b"] {
+        let e = store
+            .add_job_file(id, bad, None, "text/plain", b"x")
+            .unwrap_err();
+        assert!(e.to_string().contains("plain file name"), "{bad:?}: {e}");
+    }
+    let big = vec![0u8; store::MAX_JOB_FILE_BYTES + 1];
+    assert!(store
+        .add_job_file(id, "big.bin", None, "application/octet-stream", &big)
+        .is_err());
+    store
+        .finish(
+            id,
+            Outcome::Succeeded {
+                result: json!({}),
+                metrics: Map::new(),
+            },
+        )
+        .unwrap();
+    // A finished job's files are fixed.
+    let e = store
+        .add_job_file(id, "late.svg", None, "image/svg+xml", b"<svg/>")
+        .unwrap_err();
+    assert!(matches!(e, StoreError::WrongState { .. }), "{e}");
+    let files = store.job_files(id).unwrap();
+    let names: Vec<(&str, u64)> = files.iter().map(|f| (f.name.as_str(), f.size)).collect();
+    assert_eq!(names, [("deviation_x.svg", 6), ("measurements.csv", 8)]);
+    assert_eq!(files[0].title.as_deref(), Some("Deviation X"));
+    assert_eq!(
+        store.job_file(id, "measurements.csv").unwrap(),
+        Some(("text/csv".to_string(), b"a,b\n1,2\n".to_vec()))
+    );
+    assert_eq!(store.job_file(id, "nothing.svg").unwrap(), None);
+}
+
+#[test]
+fn a_version_2_database_gains_the_job_files_table() {
+    let dir = TempDir::new("v2");
+    let path = dir.0.join("v2.sqlite");
+    drop(Store::open(&path).unwrap());
+    {
+        let connection = rusqlite::Connection::open(&path).unwrap();
+        connection
+            .execute_batch("DROP TABLE job_files; PRAGMA user_version = 2;")
+            .unwrap();
+    }
+    let mut store = Store::open(&path).unwrap();
+    assert_eq!(store.schema_version(), 3);
+    let id = running_job(&mut store, "m1");
+    store
+        .add_job_file(id, "a.svg", None, "image/svg+xml", b"<svg/>")
+        .unwrap();
 }

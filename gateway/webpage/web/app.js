@@ -231,9 +231,10 @@ function upsertAndRender(job) {
 
 async function showJob(id) {
   view.detailJob = id;
-  const [job, charts, measurements] = await Promise.all([
+  const [job, charts, files, measurements] = await Promise.all([
     api('/api/v1/jobs/' + id),
     api('/api/v1/jobs/' + id + '/charts'),
+    api('/api/v1/jobs/' + id + '/files'),
     api('/api/v1/jobs/' + id + '/measurements'),
   ]);
   if (view.detailJob !== id) return;
@@ -253,6 +254,12 @@ async function showJob(id) {
     svgImage(chart.url, { 'data-chart': chart.name, alt: chart.title, title: chart.title })
       .then((img) => el('figure', {}, img, el('figcaption', { text: chart.title })))));
   $('job-charts').replaceChildren(...images);
+  // Every file the job wrote (tables, reports, the shifted layout), fetched with the
+  // token and saved under its own name.
+  $('job-files').replaceChildren(...files.map((f) => el('li', { 'data-file': f.name },
+    el('button', { type: 'button', class: 'download-file', text: f.name,
+      onclick: () => downloadFile(f).catch(reportError) }),
+    ' ' + (f.title ? f.title + ', ' : '') + (f.size / 1024).toFixed(1) + ' kB')));
   view.detailMeasurements = measurements;
   renderMeasurements(measurements);
   // Heat maps change when a job made a new profile.
@@ -283,6 +290,14 @@ function renderMeasurements(raw) {
     + (raw.length > shown.length ? ' (the newest ' + shown.length + ' shown; the CSV has all)' : '');
   $('job-measurement-count').setAttribute('data-count', raw.length);
   $('measurements-csv').hidden = raw.length === 0;
+}
+
+async function downloadFile(file) {
+  const response = await fetch(file.url, { headers: { Authorization: 'Bearer ' + view.token } });
+  if (!response.ok) throw new ApiError(file.name + ': ' + response.status + ' ' + response.statusText);
+  const link = el('a', { href: URL.createObjectURL(await response.blob()), download: file.name });
+  link.click();
+  setTimeout(() => URL.revokeObjectURL(link.href), 0);
 }
 
 // Every measurement of the job shown, as CSV (dotted columns for nested values).
