@@ -2,8 +2,9 @@
 //! with its simulator; `system_tests::firmware`): the driver connecting to a first
 //! power-up (the firmware starts when the port is opened, as an Arduino resets on DTR,
 //! and prints `error:7`, its settings dump and its banner), the rotary job's link on
-//! the six-axis grblHAL, and the pass-through streaming a program to real GRBL, checked
-//! against the firmware's own log of every block it planned (`-b`).
+//! the six-axis grblHAL, the pass-through streaming a program to real GRBL, and
+//! `layout cut` on three real GRBL 1.1h controllers (conveyor and two heads), checked
+//! against the firmwares' own logs of every block they planned (`-b`).
 //!
 //! A firmware or socat that is missing fails the test naming the install step
 //! (`tests/install-peers.sh`); nothing is skipped. The firmwares run in real time:
@@ -412,5 +413,173 @@ fn the_pass_through_on_grblhal_passes_none_of_its_own_answers_to_the_sender() {
         sent.other.last().unwrap().starts_with("<Idle|"),
         "{:?}",
         sent.other
+    );
+}
+
+/// GRBL 1.1h to cut with: fresh (a first power-up), connected by the driver, set for a
+/// cutter (rates and acceleration of a cutting table instead of the defaults' 500
+/// mm/min and 10 mm/s^2, 400 mm of travel).
+async fn cutter_controller(fw: &RunningFirmware) -> GrblStage {
+    let opts = GrblOptions {
+        poll_interval: Duration::from_millis(5),
+        // Three simulated controllers on a busy machine answer late at times.
+        command_timeout: Duration::from_secs(10),
+        ..GrblOptions::default()
+    };
+    let mut g = GrblStage::open(&fw.path(), 115_200, opts)
+        .await
+        .unwrap_or_else(|e| panic!("connects to a first power-up: {e}"));
+    for (n, v) in [
+        (110, 20_000.0),
+        (111, 20_000.0),
+        (112, 20_000.0),
+        (120, 2_000.0),
+        (121, 2_000.0),
+        (122, 2_000.0),
+        (130, 400.0),
+        (131, 400.0),
+        (132, 400.0),
+    ] {
+        g.set_setting(n, v).await.unwrap();
+    }
+    g
+}
+
+/// The blocks GRBL plans for `program` from `start` (absolute mm, one target per line
+/// with an axis word): targets in steps, a move of no step planning none.
+fn expected_blocks(program: &str, start: &mut [f64; 3], out: &mut Vec<[i64; 3]>) {
+    for line in program.lines() {
+        let mut moved = false;
+        for w in line.split_whitespace() {
+            let k = match w.as_bytes()[0] {
+                b'X' => 0,
+                b'Y' => 1,
+                b'Z' => 2,
+                _ => continue,
+            };
+            start[k] = w[1..].parse().unwrap();
+            moved = true;
+        }
+        if moved {
+            let steps = start.map(|v| (v * STEPS_PER_MM).round() as i64);
+            if out.last().is_none_or(|l| *l != steps) && (out.len() > 0 || steps != [0; 3]) {
+                out.push(steps);
+            }
+        }
+    }
+}
+
+/// Planned blocks against the expected ones: the same count, each within a step per
+/// axis (GRBL computes in 32-bit floats: a target on a half step may round either way).
+fn same_blocks(who: &str, planned: &[Block], expected: &[[i64; 3]]) {
+    assert_eq!(
+        planned.len(),
+        expected.len(),
+        "{who}: {} blocks planned, {} expected",
+        planned.len(),
+        expected.len()
+    );
+    for (k, (b, e)) in planned.iter().zip(expected).enumerate() {
+        assert!(
+            (0..3).all(|a| (b.steps[a] - e[a]).abs() <= 1),
+            "{who}: block {k} {b:?}, expected {e:?}"
+        );
+    }
+}
+
+#[test]
+fn layout_cut_on_three_real_grbl_controllers_plans_every_stroke_of_the_plan() {
+    use layout::cut::{plan, CutSettings, CutterSpec};
+    use layout_io::{Format, Layout, ReadOptions};
+    let path = system_tests::workspace().join("gateway/layout/data/esicup/trousers.json");
+    let doc = Layout::read(
+        &std::fs::read(path).expect("the trousers layout"),
+        Format::Json,
+        &ReadOptions::default(),
+    )
+    .expect("reads");
+    let w = doc.width_mm.expect("the layout's width");
+    // The parts within its first 80 mm (19 parts, two stops): the firmware runs in
+    // real time (the whole nest takes minutes on three simulated controllers).
+    let mut doc = doc;
+    doc.parts.retain(|p| p.bounds()[2] < 80.0);
+    let params = layout::Params {
+        tools: 2,
+        window_mm: 0.8 * w,
+        gap_mm: w / 80.0,
+        width_mm: Some(w),
+        clearance_mm: None,
+    };
+    let mut partition = layout::partition(&doc.parts, &params).unwrap();
+    layout::resolve_widening(&doc.parts, &mut partition, &[]).unwrap();
+    let cutter = CutterSpec::for_partition(&doc.parts, &partition);
+    let stops = plan(&doc.parts, &partition, &cutter).unwrap();
+    let settings = CutSettings::default();
+    let start = || start(Firmware::Grbl11h);
+    let conveyor_fw = start();
+    let head_fws: Vec<RunningFirmware> = (0..cutter.heads.len()).map(|_| start()).collect();
+    let rt = system_tests::runtime();
+    let run = rt.block_on(async {
+        let mut conveyor = cutter_controller(&conveyor_fw).await;
+        let mut heads: Vec<Box<dyn Stage>> = Vec::new();
+        for fw in &head_fws {
+            heads.push(Box::new(cutter_controller(fw).await));
+        }
+        let stream = drivers::StreamOptions {
+            status_interval: Duration::from_millis(5),
+            ..drivers::StreamOptions::default()
+        };
+        runner::cutter::run_cut(
+            &stops,
+            &mut conveyor,
+            &mut heads,
+            &settings,
+            &stream,
+            |_, _| {},
+        )
+        .await
+        .unwrap_or_else(|e| panic!("{e}"))
+    });
+    assert_eq!(run.stops, stops.len());
+    // The conveyor: one block per stop that moves it, to the stop.
+    let mut at = [0.0; 3];
+    let mut expected = Vec::new();
+    for s in &stops {
+        expected_blocks(&format!("X{:.4}", s.conveyor_mm), &mut at, &mut expected);
+    }
+    same_blocks("conveyor", &blocks(&conveyor_fw.blocks()), &expected);
+    // Each head: its programs at every stop, block for block.
+    let mut strokes = 0;
+    for (t, fw) in head_fws.iter().enumerate() {
+        let mut at = [0.0; 3];
+        let mut expected = Vec::new();
+        for s in &stops {
+            for j in s.jobs.iter().filter(|j| j.tool == t) {
+                expected_blocks(&j.program(&settings), &mut at, &mut expected);
+            }
+        }
+        let planned = blocks(&fw.blocks());
+        same_blocks(&format!("head {t}"), &planned, &expected);
+        // Knife strokes: blocks in the material (Z at the knife's depth) from a point
+        // already there.
+        let down = (settings.knife_down_mm * STEPS_PER_MM).round() as i64;
+        strokes += planned
+            .windows(2)
+            .filter(|w| w[0].steps[2] == down && w[1].steps[2] == down)
+            .count();
+    }
+    // Every edge of every part: one stroke each (a contour's points close it).
+    let edges: usize = doc
+        .parts
+        .iter()
+        .map(|p| p.outer.len() + p.holes.iter().map(Vec::len).sum::<usize>())
+        .sum();
+    assert_eq!(strokes, edges, "knife strokes against the layout's edges");
+    let groups: usize = run.heads.iter().map(|h| h.groups).sum();
+    println!(
+        "trousers on real GRBL 1.1h: {} parts, {} groups, {} stops, {strokes} knife strokes planned",
+        doc.parts.len(),
+        groups,
+        run.stops
     );
 }
