@@ -425,6 +425,7 @@ pub fn open_lines(path: &Path, kind: DataKind) -> std::io::Result<Lines> {
         line: 0,
         read: 0,
         done: false,
+        keep_endings: false,
     })
 }
 
@@ -436,6 +437,16 @@ pub struct Lines {
     line: usize,
     read: u64,
     done: bool,
+    keep_endings: bool,
+}
+
+impl Lines {
+    /// Lines with their endings (`\n`, `\r\n`, none for a last line without one), so
+    /// that joining them gives the file's text back.
+    pub fn keep_endings(mut self) -> Self {
+        self.keep_endings = true;
+        self
+    }
 }
 
 impl Iterator for Lines {
@@ -500,12 +511,13 @@ impl Iterator for Lines {
             self.done = true;
             return None;
         }
-        if buf.ends_with(b"\n") {
-            buf.pop();
+        let mut ending: &[u8] = b"";
+        if buf.ends_with(b"\r\n") {
+            ending = b"\r\n";
+        } else if buf.ends_with(b"\n") {
+            ending = b"\n";
         }
-        if buf.ends_with(b"\r") {
-            buf.pop();
-        }
+        buf.truncate(buf.len() - ending.len());
         if buf.len() > MAX_LINE_BYTES {
             return fail(
                 self,
@@ -519,6 +531,15 @@ impl Iterator for Lines {
             Ok(mut s) => {
                 if self.line == 1 && s.starts_with('\u{FEFF}') {
                     s.drain(..3);
+                }
+                if self.keep_endings {
+                    s.push_str(if ending == b"\r\n" {
+                        "\r\n"
+                    } else if ending.is_empty() {
+                        ""
+                    } else {
+                        "\n"
+                    });
                 }
                 Some(Ok((self.line, s)))
             }
@@ -1040,6 +1061,12 @@ mod tests {
                 (4, "M2".to_string())
             ]
         );
+        let text: String = open_lines(&p, DataKind::Program)
+            .unwrap()
+            .keep_endings()
+            .map(|l| l.unwrap().1)
+            .collect();
+        assert_eq!(text, "G0 X1\r\nG1 Y2 F100\n\nM2");
         let mut long = "G0 X1\n".to_string();
         long.push_str(&"X".repeat(MAX_LINE_BYTES + 1));
         long.push_str("\nG0 X2\n");
