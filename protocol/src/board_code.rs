@@ -55,10 +55,12 @@ pub struct BoardCode {
     /// Row-major, `words_per_row` words a row; bit k of word w is column 64 w + k. One
     /// spare word a row so [`BoardCode::bits`] can always read two words.
     packed: Vec<u64>,
-    /// Every [`KEY_W`] x [`KEY_H`] window of the board, sorted: `key << 32 | j * cols + i`
-    /// with (i, j) the window's lowest corner and key bit `r * KEY_W + c` the dot
-    /// (i + c, j + r).
-    index: Vec<u64>,
+    /// Every [`KEY_W`] x [`KEY_H`] window of the board by key (key bit `r * KEY_W + c` is
+    /// dot (i + c, j + r) of the window whose lowest corner is (i, j)): the corners
+    /// `j * cols + i` of key k are `corners[starts[k]..starts[k + 1]]`. A direct table
+    /// (4 MiB for 20-bit keys) so a lookup is two reads.
+    starts: Vec<u32>,
+    corners: Vec<u32>,
 }
 
 /// The board file's `[board.code]` section.
@@ -90,18 +92,32 @@ impl BoardCode {
             rows,
             words_per_row,
             packed,
-            index: Vec::new(),
+            starts: Vec::new(),
+            corners: Vec::new(),
         };
         if cols >= KEY_W && rows >= KEY_H {
-            let mut index = Vec::with_capacity(((cols - KEY_W + 1) * (rows - KEY_H + 1)) as usize);
+            // Counting sort by key.
+            let keys = 1usize << (KEY_W * KEY_H);
+            let mut starts = vec![0u32; keys + 1];
+            let mut all = Vec::with_capacity(((cols - KEY_W + 1) * (rows - KEY_H + 1)) as usize);
             for j in 0..=rows - KEY_H {
                 for i in 0..=cols - KEY_W {
-                    let key = code.key_at(i, j);
-                    index.push((key << 32) | (j as u64 * cols as u64 + i as u64));
+                    let key = code.key_at(i, j) as usize;
+                    starts[key + 1] += 1;
+                    all.push((key, j * cols + i));
                 }
             }
-            index.sort_unstable();
-            code.index = index;
+            for k in 0..keys {
+                starts[k + 1] += starts[k];
+            }
+            let mut next = starts.clone();
+            let mut corners = vec![0u32; all.len()];
+            for (key, corner) in all {
+                corners[next[key] as usize] = corner;
+                next[key] += 1;
+            }
+            code.starts = starts;
+            code.corners = corners;
         }
         code
     }
@@ -113,15 +129,15 @@ impl BoardCode {
 
     /// Lowest corners (i, j) of every window with this key (see [`KEY_W`]).
     pub fn lookup(&self, key: u64) -> impl Iterator<Item = [i64; 2]> + '_ {
-        let lo = self.index.partition_point(|&e| (e >> 32) < key);
-        let cols = self.cols as u64;
-        self.index[lo..]
+        let k = key as usize;
+        let range = match (self.starts.get(k), self.starts.get(k + 1)) {
+            (Some(&a), Some(&b)) => a as usize..b as usize,
+            _ => 0..0,
+        };
+        let cols = self.cols;
+        self.corners[range]
             .iter()
-            .take_while(move |&&e| e >> 32 == key)
-            .map(move |&e| {
-                let p = e & 0xFFFF_FFFF;
-                [(p % cols) as i64, (p / cols) as i64]
-            })
+            .map(move |&p| [(p % cols) as i64, (p / cols) as i64])
     }
 
     /// Bit of dot (i, j), None off the board.

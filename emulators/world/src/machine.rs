@@ -94,6 +94,44 @@ pub struct AxisConfig {
     pub homing_repeatability_um: f64,
     #[serde(default)]
     pub settle_noise_um: f64,
+    /// A stepper that stalls: full steps lost during chosen moves (issue 28).
+    #[serde(default)]
+    pub stall: Option<StallConfig>,
+}
+
+/// Lost steps of an open-loop stepper axis: during move number `at_move` of this axis
+/// (counted from power-on, 1 = the first move), and then every `every` moves (0: once),
+/// the motor stalls for `full_steps` full steps of `step_mm`; the carriage ends that
+/// much short of where the controller believes it is, and stays offset (the controller
+/// never learns it: its counts are its commands).
+///
+/// ```toml
+/// [axes.x.stall]
+/// full_steps = 80   # 2 mm at 0.025 mm a step (5 mm lead, 200 steps a turn)
+/// step_mm = 0.025
+/// at_move = 12
+/// every = 0
+/// ```
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct StallConfig {
+    pub full_steps: u32,
+    pub step_mm: f64,
+    pub at_move: u64,
+    #[serde(default)]
+    pub every: u64,
+}
+
+impl StallConfig {
+    /// Does move number `n` (1-based) of the axis stall?
+    pub fn stalls_on(&self, n: u64) -> bool {
+        n == self.at_move
+            || (self.every > 0 && n > self.at_move && (n - self.at_move) % self.every == 0)
+    }
+
+    pub fn lost_mm(&self) -> f64 {
+        self.full_steps as f64 * self.step_mm
+    }
 }
 
 fn default_lead_use() -> f64 {
@@ -134,6 +172,11 @@ pub struct MachineSection {
     /// `yaw x (-oy, ox)` more than the camera (Abbe). The trace records the tool.
     #[serde(default, deserialize_with = "protocol::config::two_numbers")]
     pub tool_offset_mm: [f64; 2],
+    /// A machine without homing (issue 28): at power-on the carriage is this far (mm,
+    /// machine axes) from the home switches, and the controller takes wherever it is as
+    /// its zero, already "homed". None: the controller must home first.
+    #[serde(default)]
+    pub power_on_at_mm: Option<[f64; 2]>,
 }
 
 #[derive(Clone, Debug, Deserialize)]
@@ -346,6 +389,10 @@ struct AxisState {
     /// Carriage position along the axis, mm (after lead error, thermal, backlash).
     carriage_mm: f64,
     settle_um: f64,
+    /// Steps lost so far (stalls), mm: the nut is this far from where the counts say.
+    lost_mm: f64,
+    /// Moves of this axis started since power-on (for the stall model).
+    axis_moves: u64,
 }
 
 /// A trapezoidal speed profile along a path of `length` mm (a triangle when the path
@@ -421,6 +468,8 @@ struct AxisMotion {
     elapsed: f64,
     /// The move this profile belongs to: axes of one coordinated move share it.
     group: u64,
+    /// Steps this move loses (signed, mm), applied as it ends.
+    stall_mm: f64,
 }
 
 impl AxisMotion {
@@ -512,14 +561,24 @@ impl SimMachine {
             home_offset_mm: 0.0,
             carriage_mm: 0.0,
             settle_um: 0.0,
+            lost_mm: 0.0,
+            axis_moves: 0,
         };
+        let mut axes = [axis.clone(), axis];
+        let power_on = cfg.machine.power_on_at_mm;
+        if let Some(at) = power_on {
+            for k in 0..2 {
+                axes[k].home_offset_mm = at[k];
+                axes[k].carriage_mm = at[k];
+            }
+        }
         Self {
             cfg,
             rng,
             errors,
-            axes: [axis.clone(), axis],
+            axes,
             motion: [None, None],
-            homed: [false, false],
+            homed: [power_on.is_some(); 2],
             now_s: 0.0,
             homings: 0,
             moves: 0,
@@ -655,6 +714,8 @@ impl SimMachine {
         let st = &mut self.axes[k];
         st.counts = 0;
         st.home_offset_mm = h;
+        // At the switch the lost steps no longer matter: zero is where the switch is.
+        st.lost_mm = 0.0;
         // The switch is reached moving negative, then the axis backs off positive
         // to zero: the nut ends pushing the carriage from the negative side.
         let b = self.axis_cfg(k).backlash_um / 1000.0;
@@ -713,12 +774,14 @@ impl SimMachine {
         let d = path.duration;
         self.moves += 1;
         for k in 0..2 {
+            let stall_mm = self.stall_of(k, to[k] - from[k]);
             self.motion[k] = Some(AxisMotion {
                 from: from[k],
                 to: to[k],
                 path: path.clone(),
                 elapsed: 0.0,
                 group: self.moves,
+                stall_mm,
             });
         }
         Ok(d)
@@ -764,12 +827,14 @@ impl SimMachine {
         let path = PathProfile::new((to - from).abs(), feed, accel);
         let d = path.duration;
         self.moves += 1;
+        let stall_mm = self.stall_of(k, to - from);
         self.motion[k] = Some(AxisMotion {
             from,
             to,
             path,
             elapsed: 0.0,
             group: self.moves,
+            stall_mm,
         });
         Ok(d)
     }
@@ -826,6 +891,11 @@ impl SimMachine {
             let p = m.point_at(m.elapsed);
             self.set_axis_counts_from_mm(k, p);
             if m.elapsed >= m.path.duration {
+                if m.stall_mm != 0.0 {
+                    // The motor stalled during the move: the carriage ends short.
+                    self.axes[k].lost_mm += m.stall_mm;
+                    self.set_axis_counts_from_mm(k, p);
+                }
                 let s = self.axis_cfg(k).settle_noise_um;
                 self.axes[k].settle_um = self.rng.normal() * s;
             } else {
@@ -911,11 +981,32 @@ impl SimMachine {
         }
     }
 
+    /// Steps lost by a move of axis `k` by `delta_mm` (counted as one more move of the
+    /// axis when it moves at all): against the direction of motion, never more than
+    /// the move.
+    fn stall_of(&mut self, k: usize, delta_mm: f64) -> f64 {
+        if delta_mm == 0.0 {
+            return 0.0;
+        }
+        self.axes[k].axis_moves += 1;
+        let n = self.axes[k].axis_moves;
+        match &self.axis_cfg(k).stall {
+            Some(st) if st.stalls_on(n) => -delta_mm.signum() * st.lost_mm().min(delta_mm.abs()),
+            _ => 0.0,
+        }
+    }
+
+    /// Steps lost so far on axis `k`, mm (truth, for tests and reports).
+    pub fn lost_mm(&self, k: usize) -> f64 {
+        self.axes[k].lost_mm
+    }
+
     /// Where the nut really is for a controller count: lead error and thermal growth
     /// measured from the (randomly offset) home position.
     fn nut_mm(&self, k: usize, counts: i64) -> f64 {
         let a = self.axis_cfg(k);
-        let u = counts as f64 / a.counts_per_mm + self.axes[k].home_offset_mm;
+        let u =
+            counts as f64 / a.counts_per_mm + self.axes[k].home_offset_mm + self.axes[k].lost_mm;
         let thermal = match &self.cfg.thermal {
             Some(t) => {
                 t.expansion_per_k
@@ -1116,6 +1207,44 @@ mod tests {
                 "lead error {e} um at {i} mm"
             );
         }
+    }
+
+    #[test]
+    fn a_stalling_stepper_ends_short_and_a_machine_may_start_anywhere() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let mut cfg =
+            MachineConfig::load(&dir.join("../../config/machines/c5-stage.toml")).unwrap();
+        cfg.machine.power_on_at_mm = Some([37.0, 81.0]);
+        cfg.axes.y.stall = Some(StallConfig {
+            full_steps: 80,
+            step_mm: 0.025,
+            at_move: 2,
+            every: 2,
+        });
+        let mut m = SimMachine::new(cfg);
+        // No homing: the controller's zero is where it powered on.
+        assert!(m.is_homed());
+        let p0 = m.camera_pose().centre_mm;
+        assert!(
+            (p0[0] - 42.0).abs() < 0.1 && (p0[1] - 86.0).abs() < 0.1,
+            "{p0:?}"
+        );
+        let moves = |m: &mut SimMachine, to: [f64; 2]| {
+            m.start_move(to, 3000.0).unwrap();
+            m.finish_motion();
+            m.lost_mm(1)
+        };
+        assert_eq!(moves(&mut m, [10.0, 10.0]), 0.0);
+        // The second move of Y stalls 80 steps = 2 mm against its motion (+Y).
+        assert!((moves(&mut m, [10.0, 30.0]) + 2.0).abs() < 1e-12);
+        assert!((moves(&mut m, [10.0, 40.0]) + 2.0).abs() < 1e-12);
+        // ... and every second move after: now moving -Y, it ends 2 mm short the other way.
+        assert!(moves(&mut m, [10.0, 20.0]).abs() < 1e-12);
+        assert_eq!(m.lost_mm(0), 0.0);
+        let pose = m.camera_pose().centre_mm;
+        assert!((pose[1] - (86.0 + 20.0)).abs() < 0.1, "{pose:?}");
+        m.home();
+        assert_eq!(m.lost_mm(1), 0.0);
     }
 
     #[test]

@@ -30,6 +30,9 @@ pub const MIN_BITS: usize = 30;
 /// the best, for the best to be accepted.
 pub const MIN_MARGIN: usize = 6;
 
+/// Most dots not read in a key window that is still looked up (with each value).
+pub const MAX_KEY_HOLES: usize = 2;
+
 /// Largest view side, in dots, that is used for decoding (a window around the dot nearest
 /// the image centre): more adds nothing to the margin and costs time.
 pub const MAX_SIDE: i64 = 24;
@@ -157,22 +160,43 @@ pub fn decode(code: &BoardCode, obs: &[([i64; 2], bool)]) -> Result<Decoded, Dec
             grid[q[1] as usize * side + q[0] as usize] = i8::from(*bit);
         }
         let (kw, kh) = (KEY_W as usize, KEY_H as usize);
-        for r0 in 0..=side - kh {
-            'window: for c0 in 0..=side - kw {
-                let mut key = 0u64;
+        // Placements inside the cells read only.
+        let (mut c_lo, mut c_hi, mut r_lo, mut r_hi) = (side, 0, side, 0);
+        for (k, v) in grid.iter().enumerate() {
+            if *v >= 0 {
+                let (c, r) = (k % side, k / side);
+                (c_lo, c_hi, r_lo, r_hi) = (c_lo.min(c), c_hi.max(c), r_lo.min(r), r_hi.max(r));
+            }
+        }
+        if c_hi + 1 < c_lo + kw || r_hi + 1 < r_lo + kh {
+            continue;
+        }
+        for r0 in r_lo..=r_hi + 1 - kh {
+            'window: for c0 in c_lo..=c_hi + 1 - kw {
+                // A window with up to MAX_KEY_HOLES dots not read is looked up with every
+                // value of them: missing and merged dots must not hide the position.
+                let (mut key, mut holes) = (0u64, Vec::new());
                 for r in 0..kh {
                     for c in 0..kw {
+                        let bit = r * kw + c;
                         match grid[(r0 + r) * side + c0 + c] {
-                            -1 => continue 'window,
-                            b => key |= (b as u64) << (r * kw + c),
+                            -1 if holes.len() == MAX_KEY_HOLES => continue 'window,
+                            -1 => holes.push(bit),
+                            b => key |= (b as u64) << bit,
                         }
                     }
                 }
-                for corner in code.lookup(key) {
-                    // Board index of the view's cell (half, half), i.e. lattice (0, 0).
-                    let ij0 = [corner[0] - c0 as i64 + half, corner[1] - r0 as i64 + half];
-                    if !cands.contains(&(o, ij0)) {
-                        cands.push((o, ij0));
+                for fill in 0..1u64 << holes.len() {
+                    let mut k = key;
+                    for (n, bit) in holes.iter().enumerate() {
+                        k |= ((fill >> n) & 1) << bit;
+                    }
+                    for corner in code.lookup(k) {
+                        // Board index of the view's cell (half, half), i.e. lattice (0, 0).
+                        let ij0 = [corner[0] - c0 as i64 + half, corner[1] - r0 as i64 + half];
+                        if !cands.contains(&(o, ij0)) {
+                            cands.push((o, ij0));
+                        }
                     }
                 }
             }
