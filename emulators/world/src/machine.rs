@@ -126,7 +126,7 @@ impl StallConfig {
     /// Does move number `n` (1-based) of the axis stall?
     pub fn stalls_on(&self, n: u64) -> bool {
         n == self.at_move
-            || (self.every > 0 && n > self.at_move && (n - self.at_move) % self.every == 0)
+            || (self.every > 0 && n > self.at_move && (n - self.at_move).is_multiple_of(self.every))
     }
 
     pub fn lost_mm(&self) -> f64 {
