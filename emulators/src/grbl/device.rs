@@ -34,9 +34,12 @@ use world::{lock, Clock, SharedRig};
 
 /// Build date GRBL 1.1h reports in `[VER:]`.
 pub const BUILD_DATE: &str = "20190830";
-/// Compile-time options this emulated build reports in `[OPT:]`: variable spindle (V),
-/// line numbers (N), homing forces the origin (Z).
+/// Compile-time options the emulated build reports in `[OPT:]` by default: variable
+/// spindle (V), line numbers (N: `Ln:` in status reports), homing forces the origin (Z,
+/// as the emulator's homing does). GRBL 1.1h's default build is [`DEFAULT_BUILD_OPTIONS`].
 pub const BUILD_OPTIONS: &str = "VNZ";
+/// What GRBL 1.1h built with its default config.h reports: variable spindle only.
+pub const DEFAULT_BUILD_OPTIONS: &str = "V";
 
 /// Build-time options of the emulated controller.
 #[derive(Clone, Debug)]
@@ -47,6 +50,9 @@ pub struct GrblConfig {
     /// Stop answering lines after this many responses (fault injection: the pty runner
     /// uses it to make the port disappear at a known point of a stream).
     pub answer_limit: Option<u64>,
+    /// The `[OPT:]` flags ([`BUILD_OPTIONS`]); without `N`, status reports carry no
+    /// `Ln:` field, as on a build without line numbers.
+    pub build_options: &'static str,
 }
 
 impl Default for GrblConfig {
@@ -55,6 +61,7 @@ impl Default for GrblConfig {
             clock: Clock::Unconstrained,
             rx_buffer: 128,
             answer_limit: None,
+            build_options: BUILD_OPTIONS,
         }
     }
 }
@@ -146,6 +153,9 @@ pub struct GrblDevice {
     pending: Option<Pending>,
     planner: VecDeque<Block>,
     running: Option<Running>,
+    /// A feed hold or jog cancel decelerating the axes to a stop (`Hold:1`; a
+    /// cancelled jog stays `Jog` until stopped).
+    decel: Option<Running>,
     /// Remaining simulated seconds of a dwell or homing cycle.
     busy: Option<(f64, BusyKind)>,
     status_requested: bool,
@@ -154,6 +164,10 @@ pub struct GrblDevice {
     overrides: [u16; 3],
     /// Phantom Z axis (the stage has none): step count only.
     z_steps: i64,
+    /// The N-axis machine's motor steps per unit: `$100`.. as built. GRBL counts steps,
+    /// so a later `$100` change keeps the step count (the position in mm changes) and
+    /// moves by the new number of steps per mm.
+    motor_steps: Position,
     startup_lines: [String; 2],
     build_info: String,
     last_wall: Option<f64>,
@@ -214,6 +228,7 @@ impl GrblDevice {
 
     fn build(machine: Machine, cfg: GrblConfig, s: Settings) -> Self {
         let axes = s.axes();
+        let motor_steps = std::array::from_fn(|k| s.steps_per_mm(k).unwrap_or(250.0));
         let mut d = Self {
             machine,
             cfg,
@@ -227,12 +242,14 @@ impl GrblDevice {
             pending: None,
             planner: VecDeque::new(),
             running: None,
+            decel: None,
             busy: None,
             status_requested: false,
             wco_counter: 0,
             ovr_counter: 0,
             overrides: [100, 100, 100],
             z_steps: 0,
+            motor_steps,
             startup_lines: [String::new(), String::new()],
             build_info: String::new(),
             last_wall: None,
@@ -315,6 +332,7 @@ impl GrblDevice {
     /// time passes (motion, dwell, homing, a status report still owed).
     pub fn needs_poll(&self) -> bool {
         self.running.is_some()
+            || self.decel.is_some()
             || !self.planner.is_empty()
             || self.busy.is_some()
             || self.status_requested
@@ -385,6 +403,19 @@ impl GrblDevice {
     /// Run motion and busy periods for `dt` simulated seconds (infinite: to the end).
     fn advance(&mut self, mut dt: f64) {
         loop {
+            if let Some(mut d) = self.decel.take() {
+                let step = dt.min((d.duration - d.elapsed).max(0.0));
+                self.machine_advance(step);
+                d.elapsed += step;
+                dt -= step;
+                if d.elapsed >= d.duration || !self.machine_moving() {
+                    self.machine_finish();
+                    self.decel_done();
+                    continue;
+                }
+                self.decel = Some(d);
+                return;
+            }
             if let Some((left, kind)) = self.busy {
                 // A dwell lets the machine's clock run; a homing cycle already ran
                 // on the machine's clock when it started.
@@ -457,6 +488,7 @@ impl GrblDevice {
             return self.start_axes_block(m.clone(), block);
         }
         let spm = [self.steps_per_mm(0), self.steps_per_mm(1)];
+        let max = self.max_rate_towards(&block.target);
         let duration = {
             let mut r = lock(self.rig());
             let cfg = r.machine().config().clone();
@@ -466,11 +498,6 @@ impl GrblDevice {
                 block.target[0] * spm[0] / cpm[0],
                 block.target[1] * spm[1] / cpm[1],
             ];
-            let max = self
-                .settings
-                .max_rate_mm_min(0)
-                .unwrap_or(500.0)
-                .min(self.settings.max_rate_mm_min(1).unwrap_or(500.0));
             // Jog motions are exempt from the feed and rapid overrides (GRBL 1.1
             // jogging docs); other blocks take the override in force when they start
             // and again whenever it changes (see `set_override`).
@@ -541,8 +568,7 @@ impl GrblDevice {
                 // The step counters: each axis at a whole number of steps.
                 let p = lock_axes(m).position();
                 return std::array::from_fn(|k| {
-                    let spu = self.steps_per_mm(k);
-                    (p[k] * spu).round() / spu
+                    (p[k] * self.motor_steps[k]).round() / self.steps_per_mm(k)
                 });
             }
         };
@@ -606,11 +632,7 @@ impl GrblDevice {
     /// A block on the N-axis machine: a straight move, or a probing move that ends at
     /// the trigger point.
     fn start_axes_block(&mut self, m: SharedAxes, block: Block) -> bool {
-        let axes = self.interp.axes;
-        let max = (0..axes)
-            .filter_map(|k| self.settings.max_rate_mm_min(k))
-            .fold(f64::INFINITY, f64::min);
-        let max = if max.is_finite() { max } else { 500.0 };
+        let max = self.max_rate_towards(&block.target);
         let feed = match (block.rate, block.jog) {
             (Rate::Feed(f), true) => f.min(max),
             (Rate::Rapid, true) => max,
@@ -629,11 +651,15 @@ impl GrblDevice {
                 return false;
             }
         }
+        // The steps GRBL commands, turned into where the motors take the axes.
+        let to: Position =
+            std::array::from_fn(|k| block.target[k] * self.steps_per_mm(k) / self.motor_steps[k]);
+        let feed = self.motor_feed(&m, &to, &block.target, feed);
         let started = {
             let mut g = lock_axes(&m);
             match block.probe {
-                Some((_, toward)) => g.start_probe(block.target, feed.max(1e-3), toward),
-                None => g.start_move(block.target, feed.max(1e-3)),
+                Some((_, toward)) => g.start_probe(to, feed.max(1e-3), toward),
+                None => g.start_move(to, feed.max(1e-3)),
             }
         };
         let duration = match started {
@@ -704,6 +730,7 @@ impl GrblDevice {
     fn blocked(&self) -> bool {
         self.critical
             || self.busy.is_some()
+            || self.decel.is_some()
             || matches!(
                 self.state,
                 State::Hold | State::Door | State::Sleep | State::Homing
@@ -753,7 +780,7 @@ impl GrblDevice {
         if matches!(self.state, State::Alarm | State::Jog) {
             return self.respond(Err(st::SYSTEM_GC_LOCK));
         }
-        match self.interp.execute(&text, false) {
+        match self.run_gcode(&text) {
             Err(code) => self.respond(Err(code)),
             Ok(actions) => {
                 self.pending = Some(Pending {
@@ -769,13 +796,57 @@ impl GrblDevice {
 
     /// Run a startup line or `$N` validation line at once (no planner waits).
     fn execute_gcode_now(&mut self, text: &str) -> Result<(), u8> {
-        let actions = self.interp.execute(text, false)?;
+        let actions = self.run_gcode(text)?;
         for a in actions {
             if let Action::Move { .. } | Action::Probe { .. } = a {
                 self.plan(a);
             }
         }
         Ok(())
+    }
+
+    /// Execute a G-code line (filtered, upper case) as GRBL 1.1h's `gc_execute_line`
+    /// does, where it differs from the shared interpreter:
+    /// * `G10 L2`/`L20` without `P` applies to the active system (GRBL fails only when
+    ///   both `L` and `P` are missing; a missing `P` reads as `P0`), and `G10` with `P`
+    ///   but without `L` is an unsupported `L0` (`error:20`);
+    /// * the tool number is the line's `T` word, 0 when it has none (GRBL copies the
+    ///   block's zeroed value on every line);
+    /// * a spindle or coolant change outside check mode reports `Ov:`/`A:` in the next
+    ///   status report (`sys.report_ovr_counter = 0`).
+    fn run_gcode(&mut self, text: &str) -> Result<Vec<Actions>, u8> {
+        let words = word_letters(text);
+        let g10 = g_words(text).any(|g| g == 10.0);
+        let mut line = std::borrow::Cow::Borrowed(text);
+        if g10 && words.contains(&'L') && !words.contains(&'P') {
+            line = std::borrow::Cow::Owned(format!("{text}P0"));
+        } else if g10 && words.contains(&'P') && !words.contains(&'L') {
+            // GRBL's order: the other errors (no axis words, P out of range) first,
+            // then the unsupported L.
+            let trial = self.interp.clone().execute(&format!("{text}L2"), false);
+            return Err(trial.err().unwrap_or(st::UNSUPPORTED_COMMAND));
+        }
+        let before = (
+            self.interp.modal.spindle,
+            self.interp.modal.flood,
+            self.interp.spindle_speed,
+        );
+        let actions = self.interp.execute(&line, false)?;
+        if !words.contains(&'T') {
+            self.interp.tool = 0;
+        }
+        let after = (
+            self.interp.modal.spindle,
+            self.interp.modal.flood,
+            self.interp.spindle_speed,
+        );
+        let spindle_on = after.0 != protocol::grbl::gcode::Spindle::Off;
+        let changed =
+            before.0 != after.0 || before.1 != after.1 || (spindle_on && before.2 != after.2);
+        if changed && self.state != State::Check {
+            self.ovr_counter = 0;
+        }
+        Ok(actions)
     }
 
     /// Continue the pending line's actions. Returns true when the line is finished
@@ -849,7 +920,14 @@ impl GrblDevice {
                     self.pending = Some(p);
                     return false;
                 }
-                Action::ProgramEnd => self.send("[MSG:Pgm End]"),
+                Action::ProgramEnd => {
+                    if !check {
+                        // GRBL: WCO refresh, spindle and coolant set off (report Ov:).
+                        self.wco_counter = 0;
+                        self.ovr_counter = 0;
+                    }
+                    self.send("[MSG:Pgm End]")
+                }
                 Action::WcoChanged => self.wco_counter = 0,
                 _ => {}
             }
@@ -889,7 +967,10 @@ impl GrblDevice {
         self.planner.push_back(block);
         self.stats.planner_high_water = self.stats.planner_high_water.max(self.planner.len());
         // Auto cycle start.
-        if self.running.is_none() && matches!(self.state, State::Idle | State::Cycle | State::Jog) {
+        if self.running.is_none()
+            && self.decel.is_none()
+            && matches!(self.state, State::Idle | State::Cycle | State::Jog)
+        {
             self.start_block();
         }
     }
@@ -909,6 +990,7 @@ impl GrblDevice {
     fn stop_motion(&mut self) {
         self.machine_stop();
         self.running = None;
+        self.decel = None;
         self.planner.clear();
         self.busy = None;
     }
@@ -938,7 +1020,10 @@ impl GrblDevice {
 
     fn soft_reset(&mut self) {
         self.stats.resets += 1;
+        // GRBL's mc_reset: in a cycle, homing or jog, or with a hold still decelerating
+        // (not once it is complete, `Hold:0`), the position may be lost: ALARM:3.
         let moving = self.running.is_some()
+            || self.decel.is_some()
             || matches!(self.state, State::Cycle | State::Jog | State::Homing);
         if moving && !self.critical {
             let code = if self.state == State::Homing {
@@ -961,6 +1046,8 @@ impl GrblDevice {
         self.ovr_counter = 0;
         self.overrides = [100, 100, 100];
         self.interp.reset();
+        // GRBL's main loop clears the probe position on every reset.
+        self.interp.probe = ([0.0; MAX_AXES], false);
         self.sync_position();
         if !matches!(self.state, State::Alarm | State::Sleep) {
             self.state = State::Idle;
@@ -996,7 +1083,8 @@ impl GrblDevice {
                 }
             }
             Realtime::CycleStart => {
-                if matches!(self.state, State::Hold | State::Door) {
+                // A hold resumes only once complete (Hold:0).
+                if matches!(self.state, State::Hold | State::Door) && self.decel.is_none() {
                     self.state = if self.planner.is_empty() {
                         State::Idle
                     } else {
@@ -1072,24 +1160,159 @@ impl GrblDevice {
         let affected =
             self.state == State::Cycle && self.running.as_ref().is_some_and(|run| !run.block.jog);
         if affected {
-            self.hold_motion();
+            self.running = None;
+            self.machine_stop();
             self.start_block();
         }
     }
 
-    /// Feed hold: the axes stop where they are (the simulated stage has no
-    /// deceleration model); the rest of the block runs again from there on resume.
+    /// Feed hold: the axes decelerate to a stop along the block with its acceleration
+    /// (GRBL: `$120`.. limited by the direction, v^2 / 2a further on); the rest of the
+    /// block runs from there on resume.
     fn hold_motion(&mut self) {
-        if let Some(run) = self.running.take() {
-            self.machine_stop();
-            let _ = run;
+        if self.decel.is_some() {
+            return;
+        }
+        let Some(run) = self.running.take() else {
+            return;
+        };
+        let from = self.mpos_3();
+        let rate = self.current_rate();
+        self.machine_stop();
+        let axes = self.interp.axes;
+        let delta: Vec<f64> = (0..axes).map(|k| run.block.target[k] - from[k]).collect();
+        let left = delta.iter().map(|d| d * d).sum::<f64>().sqrt();
+        if left <= 0.0 || rate <= 0.0 {
+            return;
+        }
+        // The block's acceleration: each axis's limit over its share of the direction.
+        let accel = (0..axes)
+            .filter(|&k| delta[k] != 0.0)
+            .map(|k| {
+                let a = self.settings.get(120 + k as u16).unwrap_or(10.0);
+                a / (delta[k].abs() / left)
+            })
+            .fold(f64::INFINITY, f64::min);
+        let v = rate / 60.0;
+        let dist = (v * v / (2.0 * accel)).min(left);
+        let mut to = from;
+        for k in 0..axes {
+            to[k] = from[k] + delta[k] / left * dist;
+        }
+        // A linear ramp from v to 0 takes as long as the distance at v / 2.
+        if let Some(duration) = self.machine_move(to, rate / 2.0) {
+            self.decel = Some(Running {
+                block: Block {
+                    target: to,
+                    rate: Rate::Feed(rate / 2.0),
+                    line_number: run.block.line_number,
+                    jog: run.block.jog,
+                    probe: None,
+                },
+                elapsed: 0.0,
+                duration,
+            });
+        }
+        if self.cfg.clock == Clock::Unconstrained {
+            self.advance(f64::INFINITY);
         }
     }
 
+    /// Jog cancel: decelerate as a hold does, then drop every jog block (Idle).
     fn jog_cancel(&mut self) {
+        self.hold_motion();
+        if self.decel.is_none() {
+            self.decel_done_jog();
+        }
+    }
+
+    /// The deceleration ended: a hold is complete (`Hold:0`), a cancelled jog Idle.
+    fn decel_done(&mut self) {
+        if self.state == State::Jog {
+            self.decel_done_jog();
+        }
+    }
+
+    fn decel_done_jog(&mut self) {
         self.stop_motion();
         self.sync_position();
         self.state = State::Idle;
+    }
+
+    /// The most a move from here to `target` may run (GRBL's planner:
+    /// `limit_value_by_axis_maximum`, each axis's `$11x` over its share of the
+    /// direction).
+    fn max_rate_towards(&self, target: &Position) -> f64 {
+        let here = self.mpos_3();
+        let axes = self.interp.axes;
+        let delta: Vec<f64> = (0..axes).map(|k| target[k] - here[k]).collect();
+        let len = delta.iter().map(|d| d * d).sum::<f64>().sqrt();
+        let max = (0..axes)
+            .filter(|&k| delta[k] != 0.0)
+            .filter_map(|k| {
+                let m = self.settings.max_rate_mm_min(k)?;
+                Some(m / (delta[k].abs() / len))
+            })
+            .fold(f64::INFINITY, f64::min);
+        if max.is_finite() {
+            max
+        } else {
+            500.0
+        }
+    }
+
+    /// The axes' rate now, in GRBL units per minute (0 at rest).
+    fn current_rate(&self) -> f64 {
+        match &self.machine {
+            Machine::Rig(rig) => lock(rig).machine().speed_mm_min(),
+            Machine::Axes(m) => {
+                let r = lock_axes(m).rate();
+                // Machine units to GRBL units along X (the axes share one scale).
+                r * self.motor_steps[0] / self.steps_per_mm(0)
+            }
+        }
+    }
+
+    /// Start a plain move of the machine to `target` (GRBL coordinates) at `feed`;
+    /// its duration, or None if the machine refused it.
+    fn machine_move(&mut self, target: Position, feed: f64) -> Option<f64> {
+        match &self.machine {
+            Machine::Rig(rig) => {
+                let mut r = lock(rig);
+                let cfg = r.machine().config().clone();
+                let cpm = [cfg.axes.x.counts_per_mm, cfg.axes.y.counts_per_mm];
+                let to = [
+                    target[0] * self.steps_per_mm(0) / cpm[0],
+                    target[1] * self.steps_per_mm(1) / cpm[1],
+                ];
+                r.machine_mut().start_move(to, feed.max(1e-3)).ok()
+            }
+            Machine::Axes(m) => {
+                let to: Position =
+                    std::array::from_fn(|k| target[k] * self.steps_per_mm(k) / self.motor_steps[k]);
+                let feed = self.motor_feed(m, &to, &target, feed);
+                lock_axes(m).start_move(to, feed.max(1e-3)).ok()
+            }
+        }
+    }
+
+    /// A feed in GRBL units per minute as the N-axis machine's rate along the motors'
+    /// path to `to` (the same when `$100`.. are as built).
+    fn motor_feed(&self, m: &SharedAxes, to: &Position, target: &Position, feed: f64) -> f64 {
+        let from = lock_axes(m).position();
+        let here = self.mpos_3();
+        let len = |a: &Position, b: &Position| {
+            (0..MAX_AXES)
+                .map(|k| (a[k] - b[k]).powi(2))
+                .sum::<f64>()
+                .sqrt()
+        };
+        let (lm, lg) = (len(to, &from), len(target, &here));
+        if lm > 0.0 && lg > 0.0 {
+            feed * lm / lg
+        } else {
+            feed
+        }
     }
 
     // ------------------------------------------------------------------ status
@@ -1123,7 +1346,7 @@ impl GrblDevice {
         let state = match self.state {
             State::Idle => MachineState::Idle,
             State::Cycle => MachineState::Run,
-            State::Hold => MachineState::Hold(0),
+            State::Hold => MachineState::Hold(u8::from(self.decel.is_some())),
             State::Jog => MachineState::Jog,
             State::Homing => MachineState::Home,
             State::Alarm => MachineState::Alarm,
@@ -1154,19 +1377,20 @@ impl GrblDevice {
             let blocks = PLANNER_BLOCKS.saturating_sub(self.planner.len()) as u16;
             r.buffer = Some((blocks, (self.cfg.rx_buffer - self.rx.len()) as u16));
         }
-        if let Some(run) = &self.running {
-            r.line_number = run.block.line_number;
-        }
         // GRBL reports the real-time rate of its step generator (`st_get_realtime_rate`),
         // not the programmed feed: lower while accelerating, 0 when nothing moves.
-        let feed = if self.running.is_some() {
-            match &self.machine {
-                Machine::Rig(rig) => lock(rig).machine().speed_mm_min(),
-                Machine::Axes(m) => lock_axes(m).rate(),
-            }
+        let feed = if self.running.is_some() || self.decel.is_some() {
+            self.current_rate()
         } else {
             0.0
         };
+        if self.cfg.build_options.contains('N') {
+            r.line_number = self
+                .running
+                .as_ref()
+                .or(self.decel.as_ref())
+                .and_then(|run| run.block.line_number);
+        }
         let spindle_on = self.interp.modal.spindle != protocol::grbl::gcode::Spindle::Off;
         r.feed = Some(feed * scale);
         r.spindle = Some(if spindle_on {
@@ -1205,7 +1429,19 @@ impl GrblDevice {
                 r.accessories = Some(a);
             }
         }
-        r.to_line(if inches { 4 } else { 3 })
+        let line = r.to_line(if inches { 4 } else { 3 });
+        if !inches {
+            return line;
+        }
+        // GRBL prints rates in inches with one decimal (N_DECIMAL_RATEVALUE_INCH).
+        match line.find("|FS:") {
+            Some(i) => {
+                let rest = &line[i + 4..];
+                let end = rest.find(',').unwrap_or(0);
+                format!("{}|FS:{:.1}{}", &line[..i], feed * scale, &rest[end..])
+            }
+            None => line,
+        }
     }
 
     // ------------------------------------------------------------------ $ commands
@@ -1243,9 +1479,20 @@ impl GrblDevice {
                     return Some(Err(st::INVALID_STATEMENT));
                 }
                 let mut trial = self.interp.clone();
-                let actions = match trial.execute(&line[3..], true) {
-                    Ok(a) => a,
+                let body = &line[3..];
+                let words = word_letters(body);
+                let actions = match trial.execute(body, true) {
+                    // GRBL checks a jog's F word before what the block asks for (a
+                    // `$J=G4P1` is error:22); only the parse comes first.
+                    Err(c) if !words.contains(&'F') && !JOG_PARSE_ERRORS.contains(&c) => {
+                        return Some(Err(st::UNDEFINED_FEED_RATE))
+                    }
                     Err(c) => return Some(Err(c)),
+                    // S and T words are unused in a jog (GRBL: error:36).
+                    Ok(_) if words.contains(&'S') || words.contains(&'T') => {
+                        return Some(Err(st::UNUSED_WORDS))
+                    }
+                    Ok(a) => a,
                 };
                 for a in &actions {
                     if let Action::Move { target, .. } = a {
@@ -1338,10 +1585,13 @@ impl GrblDevice {
                         if rest != "SLP" {
                             return Some(Err(st::INVALID_STATEMENT));
                         }
+                        // GRBL answers the line, then sleeps (its `[MSG:Sleeping]`
+                        // comes from the real-time loop, after the `ok`).
+                        self.respond(Ok(()));
                         self.stop_motion();
                         self.state = State::Sleep;
                         self.send("[MSG:Sleeping]");
-                        ok
+                        None
                     }
                     b'I' => {
                         if b.len() == 2 {
@@ -1349,8 +1599,8 @@ impl GrblDevice {
                                 format!("[VER:{GRBL_VERSION}.{BUILD_DATE}:{}]", self.build_info);
                             self.send(&info);
                             let opt = format!(
-                                "[OPT:{BUILD_OPTIONS},{},{}]",
-                                PLANNER_BLOCKS, self.cfg.rx_buffer
+                                "[OPT:{},{},{}]",
+                                self.cfg.build_options, PLANNER_BLOCKS, self.cfg.rx_buffer
                             );
                             self.send(&opt);
                             ok
@@ -1412,16 +1662,18 @@ impl GrblDevice {
                         };
                         if is_startup {
                             let n = n.trunc() as usize;
-                            if n > 1 {
-                                return Some(Err(st::INVALID_STATEMENT));
-                            }
                             if value.len() > 79 - 3 {
                                 return Some(Err(st::LINE_LENGTH_EXCEEDED));
                             }
                             if let Err(code) = self.execute_gcode_now(value) {
                                 return Some(Err(code));
                             }
-                            self.startup_lines[n] = value.to_string();
+                            // GRBL 1.1h checks no range: `$N2=` and beyond answer `ok`
+                            // and write past its two startup lines in EEPROM (here:
+                            // nowhere).
+                            if let Some(slot) = self.startup_lines.get_mut(n) {
+                                *slot = value.to_string();
+                            }
                             return ok;
                         }
                         let Some(v) = parse_grbl_float(value) else {
@@ -1433,6 +1685,10 @@ impl GrblDevice {
                         match self.settings.write(n as u16, v) {
                             Ok(()) => {
                                 self.interp.arc_tolerance = self.settings.arc_tolerance_mm();
+                                if n as u16 == 13 {
+                                    // GRBL: "Make sure WCO is immediately updated."
+                                    self.wco_counter = 0;
+                                }
                                 ok
                             }
                             Err(code) => Some(Err(code)),
@@ -1534,6 +1790,35 @@ impl GrblDevice {
 enum After {
     Nothing,
     Reset,
+}
+
+/// Errors GRBL finds while parsing a block's words, before its checks of what the
+/// block asks for.
+const JOG_PARSE_ERRORS: [u8; 8] = [
+    st::EXPECTED_COMMAND_LETTER,
+    st::BAD_NUMBER_FORMAT,
+    st::NEGATIVE_VALUE,
+    st::UNSUPPORTED_COMMAND,
+    st::MODAL_GROUP_VIOLATION,
+    st::COMMAND_VALUE_NOT_INTEGER,
+    st::WORD_REPEATED,
+    st::INVALID_LINE_NUMBER,
+];
+
+/// The letters of a filtered G-code line's words.
+fn word_letters(text: &str) -> Vec<char> {
+    text.chars().filter(|c| c.is_ascii_uppercase()).collect()
+}
+
+/// The values of a filtered line's G words (`10`, `38.2`, ...).
+fn g_words(text: &str) -> impl Iterator<Item = f64> + '_ {
+    text.match_indices('G').filter_map(move |(i, _)| {
+        let rest = &text[i + 1..];
+        let end = rest
+            .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+            .unwrap_or(rest.len());
+        rest[..end].parse().ok()
+    })
 }
 
 /// GRBL's `read_float` on a whole string.
@@ -1724,6 +2009,9 @@ mod tests {
         assert!(s.position[0] > 5.0 && s.position[0] < 20.0, "{s:?}");
         h.send(&[0x85]);
         let s = h.status();
+        assert_eq!(s.state, MachineState::Jog, "decelerating");
+        h.pass(1.0);
+        let s = h.status();
         assert_eq!(s.state, MachineState::Idle);
         let stopped = s.position[0];
         h.pass(1.0);
@@ -1732,6 +2020,8 @@ mod tests {
         assert_eq!(h.send(b"G1X150F600\n"), vec![Response::Ok]);
         h.pass(1.0);
         h.send(b"!");
+        assert_eq!(h.status().state, MachineState::Hold(1), "decelerating");
+        h.pass(1.0);
         let held = h.status();
         assert_eq!(held.state, MachineState::Hold(0));
         h.pass(1.0);
@@ -1745,6 +2035,96 @@ mod tests {
         let r = h.send(&[0x18]);
         assert_eq!(r[0], Response::Alarm(3));
         assert!(matches!(r[1], Response::Banner { .. }));
+    }
+
+    struct FreeAxes;
+    impl world::axes::Workpiece for FreeAxes {
+        fn axes(&self) -> usize {
+            3
+        }
+        fn limits(&self, _: usize) -> world::axes::AxisLimits {
+            world::axes::AxisLimits {
+                min: -1000.0,
+                max: 1000.0,
+                max_rate: 1000.0,
+            }
+        }
+        fn probe_contact(
+            &mut self,
+            _: &world::axes::AxesPosition,
+            _: &world::axes::AxesPosition,
+        ) -> Option<world::axes::AxesPosition> {
+            None
+        }
+        fn probe_touching(&self, _: &world::axes::AxesPosition) -> bool {
+            false
+        }
+    }
+
+    fn text(dev: &mut GrblDevice, bytes: &[u8], t: f64) -> String {
+        dev.receive(bytes, t);
+        String::from_utf8(dev.take_output()).unwrap()
+    }
+
+    fn x_of(report: &str) -> f64 {
+        let r = StatusReport::parse(report.lines().last().unwrap()).unwrap();
+        r.position[0]
+    }
+
+    /// GRBL 1.1h decelerates a feed hold and a jog cancel with the block's
+    /// acceleration: v^2 / 2a further on (F1000, $120=100: 1.389 mm), `Hold:1` on the
+    /// way, `Hold:0` at rest; a resume runs the rest of the block.
+    #[test]
+    fn a_feed_hold_and_a_jog_cancel_decelerate_with_the_configured_acceleration() {
+        let m = world::axes::AxesMachine::new(Box::new(FreeAxes)).shared();
+        let mut dev = GrblDevice::with_axes(
+            m,
+            GrblConfig {
+                clock: Clock::Scaled(1.0),
+                ..Default::default()
+            },
+        );
+        dev.power_on(0.0);
+        dev.take_output();
+        for l in ["$100=250\n", "$110=1000\n", "$120=100\n", "G1X20F1000\n"] {
+            assert_eq!(text(&mut dev, l.as_bytes(), 0.0), "ok\r\n");
+        }
+        dev.poll(0.6);
+        let at = text(&mut dev, b"?!", 0.6);
+        assert!(at.starts_with("<Hold:1|"), "{at}");
+        let x0 = x_of(&at);
+        assert!((x0 - 10.0).abs() < 0.01, "{at}");
+        assert_eq!(text(&mut dev, b"~", 0.61), "", "no resume before Hold:0");
+        dev.poll(0.65);
+        let mid = text(&mut dev, b"?", 0.65);
+        assert!(mid.starts_with("<Hold:1|"), "{mid}");
+        dev.poll(2.0);
+        let held = text(&mut dev, b"?", 2.0);
+        assert!(held.starts_with("<Hold:0|"), "{held}");
+        assert!((x_of(&held) - x0 - 1.389).abs() < 0.01, "{held}");
+        text(&mut dev, b"~", 2.0);
+        dev.poll(5.0);
+        let end = text(&mut dev, b"?", 5.0);
+        assert!(end.starts_with("<Idle|MPos:20.000,"), "{end}");
+        // A jog cancelled at speed stops as far on, then Idle; the next jog starts there.
+        assert_eq!(text(&mut dev, b"$J=X0F1000\n", 5.0), "ok\r\n");
+        dev.poll(5.6);
+        let at = text(&mut dev, b"?\x85", 5.6);
+        assert!(at.starts_with("<Jog|"), "{at}");
+        dev.poll(7.0);
+        let stopped = text(&mut dev, b"?", 7.0);
+        assert!(stopped.starts_with("<Idle|"), "{stopped}");
+        assert!(
+            (x_of(&at) - x_of(&stopped) - 1.389).abs() < 0.01,
+            "{stopped}"
+        );
+        assert_eq!(text(&mut dev, b"$J=G91X1F1000\n", 7.0), "ok\r\n");
+        dev.poll(9.0);
+        let after = text(&mut dev, b"?", 9.0);
+        assert!(
+            (x_of(&after) - x_of(&stopped) - 1.0).abs() < 0.005,
+            "{after}"
+        );
     }
 
     /// Homed, then a 150 mm move at F600 (10 mm/s) running for 1 s.
