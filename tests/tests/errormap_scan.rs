@@ -2,7 +2,7 @@
 //! path as `gateway map`), then checking the map against the truth, and resuming a
 //! stopped scan after a new homing, from a journal file whose last line the stop tore.
 //! A small camera window and a coarse plan keep the debug build fast; `gateway map` on
-//! the demo runs the full plan (README figures).
+//! the demo runs the full plan (figures in docs/error-map.md).
 
 use devices::open_devices;
 use errormap::scan::{journal, MapBuilder, Sample, ScanPlan, ScanSpec};

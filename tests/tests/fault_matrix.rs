@@ -6,7 +6,7 @@
 //! target finished before the fault kept in the report). Never a panic or a hang: each
 //! case runs under a bound far above its expected time, and a timeout fails the test.
 //!
-//! What each link tolerates is in the README's reliability section.
+//! What each link tolerates is in docs/reliability.md.
 
 use devices::{open_camera, spawn_grbl_emulator, Devices};
 use drivers::can::BusSpec;

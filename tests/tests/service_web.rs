@@ -4,7 +4,7 @@
 //! fragment, starts a job, sees its live progress over the WebSocket and the finished
 //! job in the history, shows its chart and measurements and the error map's heat map,
 //! activates a profile version and rolls back. Needs `node`, `/usr/bin/chromium` and
-//! playwright-core in tests/interop/web (all installed by .ci/run); without them the test
+//! playwright-core in tests/interop/web (all installed by tests/install-peers.sh); without them the test
 //! fails naming what to install. The screenshot is kept as
 //! `$CARGO_TARGET_DIR/tmp/service_web/page.png` (target/tmp/service_web/page.png by default).
 

@@ -433,3 +433,26 @@ mod export_tables {
         }
     }
 }
+
+/// The heat map says what its colours mean (a scale in µm up to the largest error) and
+/// where each node's error points: one arrow per node with an error, none where there
+/// is none, and the arrow along the error's direction.
+#[test]
+fn the_heat_map_has_its_colour_scale_and_an_arrow_per_node() {
+    let xs = steps(0.0, 100.0, 50.0);
+    let ys = steps(0.0, 50.0, 50.0);
+    // +X error growing along X; none at x = 0.
+    let map = map_of(xs, ys, |x, _, _| (x / 10.0, 0.0, 0.0));
+    let chart = heatmap::HeatMap {
+        map: &map,
+        title: "test".into(),
+    };
+    assert_eq!(chart.error_xy_um(2, 1), (10.0, 0.0));
+    let svg = plot::render_svg(&chart, 900, 600).unwrap();
+    // The scale's ticks run to the largest error, 10 µm.
+    let scale = &svg[svg.find("|e| µm").unwrap()..];
+    assert!(scale.contains("\n10.0\n"), "the scale does not reach 10 µm");
+    // 4 of the 6 nodes have an error: a shaft and a head each.
+    let polylines = svg.matches("stroke=\"#141414\"").count();
+    assert_eq!(polylines, 8, "{polylines} strokes");
+}

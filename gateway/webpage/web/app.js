@@ -1,6 +1,6 @@
 // The service's web page: plain JavaScript, no build step, no outside scripts.
 // It codes against the HTTP API v1 and the /api/v1/events WebSocket (see the service
-// contract in the README). Every element a test looks at has a stable id or data-*
+// contract in docs/service.md). Every element a test looks at has a stable id or data-*
 // attribute: #machines li[data-machine][data-state], #running-jobs li[data-job-id][data-machine],
 // #history-rows tr[data-job-id][data-state][data-live-progress] (progress events seen), #job-charts img[data-chart],
 // #profile-rows tr[data-profile][data-version][data-active], #heatmap-image img.
