@@ -35,19 +35,20 @@ fn on_own_gvcp_port(name: &str, body: impl FnOnce()) {
     on_private_loopback(name, GVCP, body)
 }
 
-fn tool(name: &str) -> bool {
+/// An Aravis tool this test drives; a missing one fails the test naming the install
+/// step (a test never passes without having run).
+fn require_tool(name: &str) {
     let found = Command::new("sh")
         .args(["-c", &format!("command -v {name}")])
         .stdout(Stdio::null())
         .status()
         .map(|s| s.success())
         .unwrap_or(false);
-    if !found {
-        eprintln!(
-            "SKIP: `{name}` is not installed (apt-get install aravis-tools aravis-tools-cli)"
-        );
-    }
-    found
+    assert!(
+        found,
+        "a peer of this test is missing (install every test peer with tests/install-peers.sh, \
+         README: Set-up): `{name}` is not installed (Debian: aravis-tools aravis-tools-cli)"
+    );
 }
 
 async fn emulator_on_3956(rig: &SharedRig) -> GigeCameraServer {
@@ -111,9 +112,7 @@ fn arv_tool_discovers_our_emulator_and_reads_its_features() {
     on_own_gvcp_port(
         "arv_tool_discovers_our_emulator_and_reads_its_features",
         || {
-            if !tool("arv-tool-0.8") {
-                return;
-            }
+            require_tool("arv-tool-0.8");
             let rt = runtime();
             let rig = rig(Some((320, 240)), None);
             let _emu = rt.block_on(emulator_on_3956(&rig));
@@ -153,10 +152,9 @@ fn arv_tool_discovers_our_emulator_and_reads_its_features() {
 
 /// Runs `arv-camera-test-0.8 -n 127.0.0.1` against our emulator until it has streamed 5
 /// frames, stops it with SIGINT and returns its stream statistics.
-fn arv_camera_test(drop_every: Option<u32>) -> Option<(String, impl Fn(&str) -> u64)> {
-    if !tool("arv-camera-test-0.8") || !tool("stdbuf") {
-        return None;
-    }
+fn arv_camera_test(drop_every: Option<u32>) -> (String, impl Fn(&str) -> u64) {
+    require_tool("arv-camera-test-0.8");
+    require_tool("stdbuf");
     let rt = runtime();
     let rig = rig(Some((320, 240)), None);
     let emu = rt.block_on(lossy_emulator_on_3956(&rig, drop_every));
@@ -203,7 +201,7 @@ fn arv_camera_test(drop_every: Option<u32>) -> Option<(String, impl Fn(&str) -> 
             .and_then(|v| v.trim().parse().ok())
             .unwrap_or_else(|| panic!("`{key}` missing in:\n{out}"))
     };
-    Some((text, stat))
+    (text, stat)
 }
 
 #[test]
@@ -211,9 +209,7 @@ fn arv_camera_test_streams_complete_frames_from_our_emulator() {
     on_own_gvcp_port(
         "arv_camera_test_streams_complete_frames_from_our_emulator",
         || {
-            let Some((out, stat)) = arv_camera_test(None) else {
-                return;
-            };
+            let (out, stat) = arv_camera_test(None);
             assert!(stat("n_completed_buffers") >= 3, "{out}");
             assert_eq!(stat("n_failures"), 0, "{out}");
             assert_eq!(stat("n_missing_packets"), 0, "{out}");
@@ -228,9 +224,7 @@ fn aravis_recovers_lost_packets_from_our_emulator_by_packetresend() {
     on_own_gvcp_port(
         "aravis_recovers_lost_packets_from_our_emulator_by_packetresend",
         || {
-            let Some((out, stat)) = arv_camera_test(Some(10)) else {
-                return;
-            };
+            let (out, stat) = arv_camera_test(Some(10));
             assert!(stat("n_completed_buffers") >= 3, "{out}");
             assert_eq!(stat("n_failures"), 0, "{out}");
             assert!(stat("n_resend_requests") > 0, "{out}");
@@ -243,9 +237,7 @@ fn aravis_recovers_lost_packets_from_our_emulator_by_packetresend() {
 #[test]
 fn our_driver_grabs_from_arv_fake_gv_camera() {
     on_own_gvcp_port("our_driver_grabs_from_arv_fake_gv_camera", || {
-        if !tool("arv-fake-gv-camera-0.8") {
-            return;
-        }
+        require_tool("arv-fake-gv-camera-0.8");
         let mut fake = Command::new("arv-fake-gv-camera-0.8")
             .args(["-i", "127.0.0.1"])
             .stdout(Stdio::null())
@@ -330,9 +322,7 @@ fn our_driver_refuses_incomplete_frames_from_a_lossy_arv_fake_gv_camera() {
     on_own_gvcp_port(
         "our_driver_refuses_incomplete_frames_from_a_lossy_arv_fake_gv_camera",
         || {
-            if !tool("arv-fake-gv-camera-0.8") {
-                return;
-            }
+            require_tool("arv-fake-gv-camera-0.8");
             // 10 % of the stream packets lost; the fake camera does not offer PACKETRESEND, so
             // a 512 x 512 frame (180 packets of 1464 bytes) cannot arrive whole (P < 1e-8).
             let mut fake = Command::new("arv-fake-gv-camera-0.8")
@@ -384,9 +374,7 @@ fn our_driver_refuses_incomplete_frames_from_a_lossy_arv_fake_gv_camera() {
 #[test]
 fn arv_tool_reads_our_zipped_genicam_xml() {
     on_own_gvcp_port("arv_tool_reads_our_zipped_genicam_xml", || {
-        if !tool("arv-tool-0.8") {
-            return;
-        }
+        require_tool("arv-tool-0.8");
         let rt = runtime();
         let rig = rig(Some((320, 240)), None);
         let _emu = rt.block_on(emulator_on_3956_with(
