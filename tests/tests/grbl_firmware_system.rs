@@ -369,9 +369,10 @@ fn the_pass_through_streams_to_real_grbl_and_the_firmware_plans_the_compensated_
                 let q = b.steps.map(|v| v as f64);
                 let d = [c[0] - a[0], c[1] - a[1]];
                 let len2 = d[0] * d[0] + d[1] * d[1];
-                let t = match len2 {
-                    0.0 => 0.0,
-                    _ => (((q[0] - a[0]) * d[0] + (q[1] - a[1]) * d[1]) / len2).clamp(0.0, 1.0),
+                let t = if len2 == 0.0 {
+                    0.0
+                } else {
+                    (((q[0] - a[0]) * d[0] + (q[1] - a[1]) * d[1]) / len2).clamp(0.0, 1.0)
                 };
                 ((q[0] - a[0] - t * d[0]).powi(2) + (q[1] - a[1] - t * d[1]).powi(2)).sqrt()
             })
@@ -462,7 +463,7 @@ fn expected_blocks(program: &str, start: &mut [f64; 3], out: &mut Vec<[i64; 3]>)
         }
         if moved {
             let steps = start.map(|v| (v * STEPS_PER_MM).round() as i64);
-            if out.last().is_none_or(|l| *l != steps) && (out.len() > 0 || steps != [0; 3]) {
+            if out.last().is_none_or(|l| *l != steps) && (!out.is_empty() || steps != [0; 3]) {
                 out.push(steps);
             }
         }
@@ -515,9 +516,9 @@ fn layout_cut_on_three_real_grbl_controllers_plans_every_stroke_of_the_plan() {
     let cutter = CutterSpec::for_partition(&doc.parts, &partition);
     let stops = plan(&doc.parts, &partition, &cutter).unwrap();
     let settings = CutSettings::default();
-    let start = || start(Firmware::Grbl11h);
-    let conveyor_fw = start();
-    let head_fws: Vec<RunningFirmware> = (0..cutter.heads.len()).map(|_| start()).collect();
+    let fresh = || start(Firmware::Grbl11h);
+    let conveyor_fw = fresh();
+    let head_fws: Vec<RunningFirmware> = (0..cutter.heads.len()).map(|_| fresh()).collect();
     let rt = system_tests::runtime();
     let run = rt.block_on(async {
         let mut conveyor = cutter_controller(&conveyor_fw).await;
