@@ -3,8 +3,9 @@
 //! the kernel can: `modprobe vcan; ip link add vcan0 type vcan; ip link set vcan0 up`).
 //! Where the kernel has CAN support but the interface is not up, the test fails naming
 //! the set-up step. Only a kernel without CAN support at all (no AF_CAN sockets: many
-//! containers and CI kernels) cannot run it: the test then prints `NOT RUN` with the
-//! kernel's answer and passes, since no install step can help. Opening a missing
+//! containers and CI kernels) cannot run the exchange: the test then checks that opening
+//! the interface fails with the clear `NotAvailable` error naming the missing kernel
+//! support, and says so, since no install step can help. Opening a missing
 //! interface is checked everywhere: it is `NotAvailable` with the reason, never a panic
 //! or a hang.
 
@@ -50,9 +51,23 @@ fn driver_and_emulated_drives_on_a_vcan_interface() {
     let iface = interface();
     if let Some(why) = unavailable(&iface) {
         if why.starts_with("the kernel has no CAN support") {
-            // Nothing to install: this kernel cannot have a CAN interface.
+            // Nothing to install: this kernel cannot have a CAN interface. What runs here
+            // is the backend's answer on such a kernel: a clear error, not a hang.
+            let e = runtime()
+                .block_on(open_bus(&BusSpec::SocketCan {
+                    interface: iface.clone(),
+                }))
+                .err()
+                .expect("a kernel without CAN cannot open a SocketCAN bus");
+            assert!(
+                matches!(&e, DriverError::NotAvailable { reason, .. }
+                    if reason.contains("the kernel has no CAN support")),
+                "{e}"
+            );
             eprintln!(
-                "NOT RUN: the SocketCAN test on {iface} needs a kernel with CAN support: {why}"
+                "this kernel has no CAN support, so the drive exchange over {iface} cannot run \
+                 here (CAN runs over SLCAN on a pseudo-terminal: canopen_driver.rs); checked \
+                 instead: opening {iface} fails with `{e}`"
             );
             return;
         }
