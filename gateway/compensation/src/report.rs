@@ -93,6 +93,9 @@ pub struct Report {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
     pub per_target: Vec<TargetRow>,
+    /// Lost references found on a coded board (lost steps, no homing), in order.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub rereferences: Vec<crate::session::Rereference>,
 }
 
 impl Report {
@@ -157,6 +160,7 @@ impl Report {
             wall_time_s,
             error,
             per_target: rows,
+            rereferences: Vec::new(),
         }
     }
 
@@ -210,6 +214,16 @@ impl Report {
             "\ntargets: {} of {} ({} within tolerance)\n",
             self.targets, self.targets_planned, self.converged
         ));
+        for r in &self.rereferences {
+            s.push_str(&format!(
+                "re-referenced at target #{}: the machine was {:.4} mm, {:.4} mm off (lost steps or no homing, read from the coded board); commands offset by ({:.4}, {:.4}) mm from then on\n",
+                r.target_index,
+                -r.deviation_mm[0],
+                -r.deviation_mm[1],
+                r.offset_mm[0],
+                r.offset_mm[1]
+            ));
+        }
         if self.per_target.iter().any(|r| r.stopped) {
             s.push_str("(x: the job stopped on this target; its measurements so far are shown and left out of the figures below)\n");
         }

@@ -297,6 +297,26 @@ pub struct CompensationSession {
     completed: Vec<TargetOutcome>,
     check: Option<CheckInProgress>,
     orientation: Option<OrientationResult>,
+    /// On a coded board (absolute positions): re-reference the machine when a
+    /// measurement is further off than any correction (lost steps, no homing).
+    rereference: bool,
+    /// Machine coordinate offset found by re-referencing, mm: commands are the targets'
+    /// plus this.
+    offset_mm: [f64; 2],
+    rereferences: Vec<Rereference>,
+}
+
+/// A re-referencing: a measurement on a coded board further from its target than any
+/// correction may move, taken as the machine having lost its reference (lost steps, a
+/// machine that was never homed); the commands of this and every later target shift
+/// by the deviation.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Rereference {
+    pub target_index: usize,
+    /// Observed minus target at the measurement, mm: what the machine had lost.
+    pub deviation_mm: [f64; 2],
+    /// The machine offset from then on (target + offset = command), mm.
+    pub offset_mm: [f64; 2],
 }
 
 impl CompensationSession {
@@ -348,6 +368,9 @@ impl CompensationSession {
             completed: Vec::new(),
             check,
             orientation: None,
+            rereference: false,
+            offset_mm: [0.0, 0.0],
+            rereferences: Vec::new(),
         })
     }
 
@@ -394,6 +417,18 @@ impl CompensationSession {
             }
         }
         self.completed
+    }
+
+    /// On a coded board: take a deviation beyond `max_correction_mm` as a lost reference
+    /// and re-reference (see [`Rereference`]) instead of refusing.
+    pub fn allow_rereference(mut self) -> Self {
+        self.rereference = true;
+        self
+    }
+
+    /// The re-referencings so far.
+    pub fn rereferences(&self) -> &[Rereference] {
+        &self.rereferences
     }
 
     /// The stage is homed and idle.
@@ -510,8 +545,47 @@ impl CompensationSession {
         };
         current.measurements.push(measurement.clone());
         let done = (current.measurements.len() - 1) as u32;
+        let beyond = d.dx_mm.abs().max(d.dy_mm.abs()) > self.policy.max_correction_mm;
+        if self.rereference && beyond && done < self.policy.max_iterations {
+            // Lost steps: the machine is where the code says, not where it believes.
+            let command = [
+                current.positioning.command_mm[0] - d.dx_mm,
+                current.positioning.command_mm[1] - d.dy_mm,
+            ];
+            self.offset_mm = [
+                command[0] - target.command_mm[0],
+                command[1] - target.command_mm[1],
+            ];
+            self.rereferences.push(Rereference {
+                target_index,
+                deviation_mm: [d.dx_mm, d.dy_mm],
+                offset_mm: self.offset_mm,
+            });
+            let positioning =
+                plan_positioning(command, &self.policy, &self.limits).map_err(|source| {
+                    SessionError::Correction {
+                        index: target_index,
+                        target_mm: target.board_mm,
+                        source,
+                    }
+                })?;
+            current.positioning = positioning;
+            self.next = Action::Position {
+                target_index,
+                positioning,
+            };
+            return Ok(Step {
+                measurement,
+                finished: None,
+                next: self.next,
+            });
+        }
+        let nominal = [
+            target.command_mm[0] + self.offset_mm[0],
+            target.command_mm[1] + self.offset_mm[1],
+        ];
         let decision = next_step(
-            target.command_mm,
+            nominal,
             current.positioning.command_mm,
             d,
             previous,
@@ -563,7 +637,11 @@ impl CompensationSession {
             self.next = Action::Finished;
             return Ok(self.next);
         };
-        let positioning = plan_positioning(target.command_mm, &self.policy, &self.limits)
+        let command = [
+            target.command_mm[0] + self.offset_mm[0],
+            target.command_mm[1] + self.offset_mm[1],
+        ];
+        let positioning = plan_positioning(command, &self.policy, &self.limits)
             .map_err(|source| self.correction_error(index, source))?;
         self.current = Some(InProgress {
             index,
@@ -621,7 +699,82 @@ mod tests {
             rotation_deg: 0.0,
             rejected: 0,
             method: Method::Fit,
+            code: None,
         }
+    }
+
+    /// A stage that has lost `lost` mm (the carriage is that far short of the command)
+    /// on a coded board: the session re-references and every target ends on target.
+    fn lost_steps_run(lost: [f64; 2]) -> CompensationSession {
+        let targets = vec![
+            target([50.0, 30.0]),
+            target([120.0, 90.0]),
+            target([60.0, 140.0]),
+        ];
+        let mut s = session(targets.clone()).allow_rereference();
+        let mut action = s.homed().unwrap();
+        let mut seq = 0;
+        let mut command = [0.0, 0.0];
+        // The loss happens during the move to the second target (index 1).
+        let mut lost_now = [0.0, 0.0];
+        loop {
+            action = match action {
+                Action::Position {
+                    target_index,
+                    positioning,
+                } => {
+                    if target_index == 1 {
+                        lost_now = lost;
+                    }
+                    command = positioning.command_mm;
+                    s.positioned().unwrap()
+                }
+                Action::Measure { .. } => {
+                    seq += 1;
+                    // Machine zero at board (5, 5), a 7 um machine error, the loss.
+                    let seen = [
+                        command[0] + 5.0 + 0.007 - lost_now[0],
+                        command[1] + 5.0 - 0.004 - lost_now[1],
+                    ];
+                    s.measured(seen_at(seen[0], seen[1]), seq).unwrap().next
+                }
+                Action::Finished => break,
+                other => panic!("{other:?}"),
+            };
+        }
+        s
+    }
+
+    #[test]
+    fn lost_steps_on_a_coded_board_are_found_and_every_target_ends_on_target() {
+        for lost in [[0.3, 0.0], [0.0, 2.0], [20.0, -20.0]] {
+            let s = lost_steps_run(lost);
+            let r = s.rereferences();
+            assert_eq!(r.len(), 1, "{lost:?}: {r:?}");
+            assert_eq!(r[0].target_index, 1);
+            assert!(
+                (r[0].deviation_mm[0] + lost[0]).abs() < 0.01
+                    && (r[0].deviation_mm[1] + lost[1]).abs() < 0.01,
+                "{r:?}"
+            );
+            let done = s.completed();
+            assert_eq!(done.len(), 3);
+            for o in done {
+                assert!(o.converged, "{lost:?}: {o:?}");
+                assert!(o.last().deviation.magnitude_um() <= 0.5, "{o:?}");
+            }
+        }
+        // Without re-referencing (a plain grid) a 2 mm loss stops the job.
+        let targets = vec![target([50.0, 30.0])];
+        let mut s = session(targets);
+        let Action::Position { positioning, .. } = s.homed().unwrap() else {
+            panic!()
+        };
+        s.positioned().unwrap();
+        let c = positioning.command_mm;
+        assert!(s
+            .measured(seen_at(c[0] + 5.0, c[1] + 5.0 - 2.0), 1)
+            .is_err());
     }
 
     fn target(board: [f64; 2]) -> Target {

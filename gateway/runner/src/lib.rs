@@ -100,6 +100,7 @@ impl From<SessionError> for JobError {
 pub struct JobFailure {
     pub completed: Vec<TargetOutcome>,
     pub orientation: Option<OrientationResult>,
+    pub rereferences: Vec<compensation::session::Rereference>,
     pub error: JobError,
 }
 
@@ -108,6 +109,8 @@ pub struct JobFailure {
 pub struct JobSuccess {
     pub completed: Vec<TargetOutcome>,
     pub orientation: Option<OrientationResult>,
+    /// Lost references found on a coded board, in order.
+    pub rereferences: Vec<compensation::session::Rereference>,
 }
 
 /// Soft limits of X and Y from what a stage reports.
@@ -147,6 +150,7 @@ impl Orchestrator<'_> {
         let nothing_done = |error| JobFailure {
             completed: Vec::new(),
             orientation: None,
+            rereferences: Vec::new(),
             error,
         };
         let limits = self.limits().map_err(nothing_done)?;
@@ -158,6 +162,10 @@ impl Orchestrator<'_> {
             Some(check),
         )
         .map_err(|e| nothing_done(e.into()))?;
+        // A coded board gives absolute positions: lost steps are found and re-referenced.
+        if self.job.board.code.is_some() {
+            session = session.allow_rereference();
+        }
         // Biased: a cancel is seen at the next yield between two actions, every time.
         let result = tokio::select! {
             biased;
@@ -165,10 +173,12 @@ impl Orchestrator<'_> {
             r = self.drive(&mut session, on_event) => r,
         };
         let orientation = session.orientation().copied();
+        let rereferences = session.rereferences().to_vec();
         match result {
             Ok(()) => Ok(JobSuccess {
                 completed: session.into_completed(),
                 orientation,
+                rereferences,
             }),
             Err(error) => {
                 // Leave the machine still and safe, then report.
@@ -176,6 +186,7 @@ impl Orchestrator<'_> {
                 Err(JobFailure {
                     completed: session.into_outcomes(),
                     orientation,
+                    rereferences,
                     error,
                 })
             }
@@ -213,6 +224,10 @@ impl Orchestrator<'_> {
                     let frame = self.camera.grab().await?;
                     let mut params = self.job.localize_params(hint_mm);
                     params.hint_tolerance_mm = hint_tolerance_mm;
+                    if self.job.board.code.is_some() {
+                        // The code gives the absolute position: no hint to check.
+                        params.hint_mm = None;
+                    }
                     let board = &self.job.board;
                     let observation = drivers::blocking(|| localize(&frame.image, board, &params))
                         .map_err(|source| JobError::CheckLocalize { step, source })?;
@@ -225,7 +240,10 @@ impl Orchestrator<'_> {
                     measurement,
                 } => {
                     let frame = self.camera.grab().await?;
-                    let params = self.job.localize_params(hint_mm);
+                    let mut params = self.job.localize_params(hint_mm);
+                    if self.job.board.code.is_some() {
+                        params.hint_mm = None;
+                    }
                     let board = &self.job.board;
                     let observation = drivers::blocking(|| localize(&frame.image, board, &params))
                         .map_err(|source| JobError::Localize {
@@ -356,9 +374,9 @@ pub async fn run_job_events(
         job,
     };
     let result = orch.run_until(&mut on_event, cancel).await;
-    let (outcomes, orientation, error) = match result {
-        Ok(o) => (o.completed, o.orientation, None),
-        Err(f) => (f.completed, f.orientation, Some(f.error)),
+    let (outcomes, orientation, rereferences, error) = match result {
+        Ok(o) => (o.completed, o.orientation, o.rereferences, None),
+        Err(f) => (f.completed, f.orientation, f.rereferences, Some(f.error)),
     };
     // The target the job stopped on (if any) has its truth still in `current`.
     if let Some((_, at)) = current {
@@ -376,5 +394,6 @@ pub async fn run_job_events(
         error.as_ref().map(|e| e.to_string()),
     );
     report.orientation = orientation;
+    report.rereferences = rereferences;
     (report, error)
 }
