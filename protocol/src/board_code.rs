@@ -98,23 +98,25 @@ impl BoardCode {
         if cols >= KEY_W && rows >= KEY_H {
             // Counting sort by key.
             let keys = 1usize << (KEY_W * KEY_H);
+            // Two passes over the keys (counted, then placed): no list of all windows.
             let mut starts = vec![0u32; keys + 1];
-            let mut all = Vec::with_capacity(((cols - KEY_W + 1) * (rows - KEY_H + 1)) as usize);
+            let windows = ((cols - KEY_W + 1) as usize) * ((rows - KEY_H + 1) as usize);
             for j in 0..=rows - KEY_H {
                 for i in 0..=cols - KEY_W {
-                    let key = code.key_at(i, j) as usize;
-                    starts[key + 1] += 1;
-                    all.push((key, j * cols + i));
+                    starts[code.key_at(i, j) as usize + 1] += 1;
                 }
             }
             for k in 0..keys {
                 starts[k + 1] += starts[k];
             }
             let mut next = starts.clone();
-            let mut corners = vec![0u32; all.len()];
-            for (key, corner) in all {
-                corners[next[key] as usize] = corner;
-                next[key] += 1;
+            let mut corners = vec![0u32; windows];
+            for j in 0..=rows - KEY_H {
+                for i in 0..=cols - KEY_W {
+                    let key = code.key_at(i, j) as usize;
+                    corners[next[key] as usize] = j * cols + i;
+                    next[key] += 1;
+                }
             }
             code.starts = starts;
             code.corners = corners;
