@@ -426,6 +426,12 @@ impl CompensationSession {
         self
     }
 
+    /// Start without homing (a coded board: the first frame re-references the machine):
+    /// the session begins where [`CompensationSession::homed`] would have led.
+    pub fn skip_homing(&mut self) -> Result<Action, SessionError> {
+        self.homed()
+    }
+
     /// The re-referencings so far.
     pub fn rereferences(&self) -> &[Rereference] {
         &self.rereferences

@@ -126,6 +126,14 @@ struct RawSetup {
     board_at_machine_zero_mm: Xy,
     #[serde(default = "default_feed")]
     feed_mm_min: f64,
+    /// Home the stage before the job (default). `false` only on a coded board: the
+    /// board gives the absolute position, so the job re-references from its first frame.
+    #[serde(default = "default_home")]
+    home: bool,
+}
+
+fn default_home() -> bool {
+    true
 }
 
 fn default_feed() -> f64 {
@@ -208,6 +216,8 @@ pub struct Job {
     /// target (board mm) - this.
     pub board_at_machine_zero_mm: [f64; 2],
     pub feed_mm_min: f64,
+    /// Home before the job (`[setup] home`, default true; false only on a coded board).
+    pub home: bool,
     pub localize: LocalizeSettings,
     pub policy: CorrectionPolicy,
     /// Targets in board coordinates, mm, in visiting order.
@@ -272,6 +282,12 @@ impl Job {
             }
         }
         let board = Board::from_doc(&doc.read_relative("board.file", &raw.board.file)?)?;
+        if !raw.setup.home && board.code.is_none() {
+            return Err(doc.invalid(
+                "setup.home",
+                "a job may skip homing only on a coded board ([board.code]): a plain dot grid gives the position only modulo its pitch",
+            ));
+        }
         let Xy(board_at_machine_zero_mm) = raw.setup.board_at_machine_zero_mm;
         if !board_at_machine_zero_mm.iter().all(|v| v.is_finite()) {
             return Err(doc.invalid("setup.board_at_machine_zero_mm", "must be finite"));
@@ -350,6 +366,7 @@ impl Job {
             board,
             board_at_machine_zero_mm,
             feed_mm_min: raw.setup.feed_mm_min,
+            home: raw.setup.home,
             localize: raw.localize,
             policy: raw.compensation,
             targets,
@@ -474,6 +491,18 @@ mod tests {
             v.clone().fold(f64::MIN, f64::max) - v.fold(f64::MAX, f64::min)
         };
         assert!(span(0) > 0.9 * tx && span(1) > 0.9 * ty);
+    }
+
+    #[test]
+    fn only_a_job_on_a_coded_board_may_skip_homing() {
+        let doc = ConfigDoc::embedded(DEMO_JOB, EMBEDDED).unwrap();
+        assert!(Job::from_doc(&doc).unwrap().home);
+        let mut doc = doc.clone();
+        doc.text = doc
+            .text
+            .replace("feed_mm_min = 3000.0", "feed_mm_min = 3000.0\nhome = false");
+        let e = Job::from_doc(&doc).unwrap_err().to_string();
+        assert!(e.contains("setup.home") && e.contains("coded board"), "{e}");
     }
 
     #[test]

@@ -165,6 +165,11 @@ impl Orchestrator<'_> {
         // A coded board gives absolute positions: lost steps are found and re-referenced.
         if self.job.board.code.is_some() {
             session = session.allow_rereference();
+            if !self.job.home {
+                // The board says where the machine is: no homing (the job file allows
+                // this only on a coded board).
+                session.skip_homing().map_err(|e| nothing_done(e.into()))?;
+            }
         }
         // Biased: a cancel is seen at the next yield between two actions, every time.
         let result = tokio::select! {
