@@ -743,6 +743,39 @@ async fn an_uploaded_error_map_is_drawn_activated_and_used_by_a_job() {
     );
     let svg = heat.text().await.unwrap();
     assert!(svg.contains("<svg") && svg.contains("Error map stage-map v1"));
+    // A second scan in which one node moved by (3, 4) um: the diff finds it, there.
+    let mut moved = map.clone();
+    let node = &mut moved.grid.nodes[7];
+    for side in [&mut node.forward, &mut node.reverse] {
+        side.ex_um.mean += 3.0;
+        side.ey_um.mean += 4.0;
+    }
+    let moved_body: Value = serde_json::from_str(&moved.to_json()).unwrap();
+    let (status, p) = post(
+        &c,
+        &s,
+        "/api/v1/machines/demo/profiles/stage-map",
+        json!({"kind": "error_map", "body": moved_body}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::CREATED, "{p}");
+    let (status, d) = get(&c, &s, "/api/v1/machines/demo/profiles/stage-map/2/diff").await;
+    assert_eq!(status, StatusCode::OK, "{d}");
+    assert_eq!((d["from"].as_u64(), d["to"].as_u64()), (Some(1), Some(2)));
+    assert!(
+        (d["map"]["max_um"].as_f64().unwrap() - 5.0).abs() < 1e-9,
+        "{d}"
+    );
+    let g = &map.grid;
+    let at = [g.xs[7 % g.xs.len()], g.ys[7 / g.xs.len()]];
+    assert_eq!(d["map"]["max_at_mm"], json!(at), "{d}");
+    assert!(d["summary"].as_str().unwrap().contains("5.00 µm"), "{d}");
+    let (status, _) = get(&c, &s, "/api/v1/machines/demo/profiles/stage-map/1/diff").await;
+    assert_eq!(
+        status,
+        StatusCode::NOT_FOUND,
+        "version 1 has none before it"
+    );
     let (status, _) = post(
         &c,
         &s,

@@ -169,6 +169,21 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
     let newer = report["rolled_back_to"].as_u64().unwrap();
     assert_eq!(report["active_after_rollback"], serde_json::json!([newer]));
     assert_eq!(report["heatmap"]["version"], newer);
+    // Each activation was confirmed by the operator, told which machine it affects.
+    let dialogs = report["dialogs"].as_array().unwrap();
+    assert!(!dialogs.is_empty(), "{report}");
+    for d in dialogs {
+        assert!(d.as_str().unwrap().contains("on machine demo"), "{d}");
+    }
+    // The seeded versions carry only drawings, no map: the page says what the API
+    // answers for them (they cannot be compared node by node).
+    assert!(
+        report["diff"]
+            .as_str()
+            .unwrap()
+            .contains(&format!("-> v{newer}")),
+        "{report}"
+    );
     let png = std::fs::read(&screenshot).expect("the screenshot was written");
     assert!(
         png.starts_with(b"\x89PNG\r\n\x1a\n"),

@@ -34,6 +34,7 @@
 //! Outside the map's extent nothing is extrapolated: every call refuses it.
 
 mod compensation;
+pub mod diff;
 pub mod export;
 pub mod heatmap;
 pub mod scan;

@@ -456,3 +456,36 @@ fn the_heat_map_has_its_colour_scale_and_an_arrow_per_node() {
     let polylines = svg.matches("stroke=\"#141414\"").count();
     assert_eq!(polylines, 8, "{polylines} strokes");
 }
+
+/// Two scans of the same grid: the change is found node by node, at its place; a map of
+/// another camera says so; another grid cannot be compared, and says why.
+#[test]
+fn two_versions_of_a_map_are_compared_node_by_node() {
+    let xs = steps(0.0, 100.0, 50.0);
+    let ys = steps(0.0, 50.0, 25.0);
+    let old = map_of(xs.clone(), ys.clone(), |x, y, _| (x / 10.0, y / 10.0, 0.0));
+    // The same machine with a 3-4-5 um change at (50, 25) only.
+    let mut new = map_of(xs.clone(), ys.clone(), |x, y, _| {
+        let bump = if x == 50.0 && y == 25.0 {
+            (3.0, 4.0)
+        } else {
+            (0.0, 0.0)
+        };
+        (x / 10.0 + bump.0, y / 10.0 + bump.1, 0.0)
+    });
+    let d = diff::compare(&old, &new).unwrap();
+    assert_eq!(d.nodes, 9);
+    assert!((d.max_um - 5.0).abs() < 1e-12, "{d:?}");
+    assert_eq!(d.max_at_mm, [50.0, 25.0]);
+    assert_eq!(d.max_change_um, [3.0, 4.0]);
+    assert!((d.rms_um - (25.0f64 / 9.0).sqrt()).abs() < 1e-12);
+    assert!(d.identity_changed.is_empty());
+    new.identity.camera = "another".into();
+    assert_eq!(
+        diff::compare(&old, &new).unwrap().identity_changed,
+        ["camera"]
+    );
+    let coarser = map_of(xs, steps(0.0, 50.0, 50.0), |_, _, _| (0.0, 0.0, 0.0));
+    let e = diff::compare(&old, &coarser).unwrap_err();
+    assert!(e.contains("the grids differ"), "{e}");
+}

@@ -302,6 +302,10 @@ pub fn router(shared: AppState, limits: BodyLimits, cors_origins: &[String]) -> 
             get(heatmap),
         )
         .route(
+            "/api/v1/machines/{machine}/profiles/{name}/{version}/diff",
+            get(diff),
+        )
+        .route(
             "/api/v1/machines/{machine}/profiles/{name}/{version}/activate",
             post(activate),
         )
@@ -364,7 +368,7 @@ fn static_file(content_type: &'static str, body: &'static str) -> Response {
     info(title = "gateway service", description = "Machines, job queues, profiles and events of a gateway box."),
     paths(openapi, machines, machine, enqueue, jobs, job, cancel, measurements, charts, chart,
           files, file,
-          profiles, add_profile, profile, heatmap, activate, rollback, events),
+          profiles, add_profile, profile, diff, heatmap, activate, rollback, events),
     modifiers(&BearerAuth, &JobParams)
 )]
 pub struct ApiDoc;
@@ -933,6 +937,110 @@ async fn profile(
     let Path((machine, name, version)) = path?;
     let (profile, body) = profile_of(&shared, &machine, &name, version)?;
     Ok(Json(json!({"profile": profile, "body": body})))
+}
+
+/// `?against=N`: the version a diff compares with (default: the one before).
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct DiffQuery {
+    against: Option<u32>,
+}
+
+/// Numbers of a JSON body by their dotted path (`errors.dx_mm`, `centres[3].x`).
+fn numbers(prefix: String, v: &Value, into: &mut Vec<(String, f64)>) {
+    match v {
+        Value::Number(n) => into.extend(n.as_f64().map(|x| (prefix, x))),
+        Value::Object(o) => {
+            for (k, inner) in o {
+                let path = if prefix.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{prefix}.{k}")
+                };
+                numbers(path, inner, into);
+            }
+        }
+        Value::Array(a) => {
+            for (k, inner) in a.iter().enumerate() {
+                numbers(format!("{prefix}[{k}]"), inner, into);
+            }
+        }
+        _ => {}
+    }
+}
+
+/// What changed from one version of a profile to another: an error map node by node
+/// (max and rms of the change, where the largest is, identity fields that differ), any
+/// other profile as its numbers that changed (largest change first, at most 100).
+#[utoipa::path(get, path = "/api/v1/machines/{machine}/profiles/{name}/{version}/diff",
+    params(("machine" = String, Path), ("name" = String, Path), ("version" = u32, Path),
+        ("against" = Option<u32>, Query, description = "the version compared with (default: the one before)")),
+    responses((status = 200, description = "{from, to, kind, ...}"), (status = 404, description = "unknown machine or profile"),
+        (status = 422, description = "not_comparable: grids differ")))]
+async fn diff(
+    State(shared): State<AppState>,
+    path: Result<Path<(String, String, u32)>, PathRejection>,
+    query: Result<Query<DiffQuery>, QueryRejection>,
+) -> ApiResult<Json<Value>> {
+    let Path((machine, name, version)) = path?;
+    let Query(q) = query?;
+    let against = match q.against {
+        Some(v) => v,
+        None if version > 1 => version - 1,
+        None => {
+            return Err(ApiError::not_found(
+                "unknown_profile",
+                format!("{name:?} version 1 has no version before it; give ?against=N"),
+            ))
+        }
+    };
+    let (old_profile, old) = profile_of(&shared, &machine, &name, against)?;
+    let (new_profile, new) = profile_of(&shared, &machine, &name, version)?;
+    let mut answer = json!({"profile": name, "machine": machine, "from": against,
+        "to": version, "kind": new_profile.kind});
+    if old_profile.kind == ProfileKind::ErrorMap && new_profile.kind == ProfileKind::ErrorMap {
+        let as_map = |body: &Value, v: u32| {
+            crate::sink::profile_map(body).map_err(|e| {
+                ApiError::new(
+                    StatusCode::UNPROCESSABLE_ENTITY,
+                    "not_comparable",
+                    format!("version {v}: {e}"),
+                )
+            })
+        };
+        let d = errormap::diff::compare(&as_map(&old, against)?, &as_map(&new, version)?)
+            .map_err(|e| ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, "not_comparable", e))?;
+        answer["summary"] = json!(format!(
+            "v{against} -> v{version}: the errors moved by at most {:.2} µm (rms {:.2} µm over {} nodes), most at X {:.1} Y {:.1} mm{}",
+            d.max_um, d.rms_um, d.nodes, d.max_at_mm[0], d.max_at_mm[1],
+            if d.identity_changed.is_empty() { String::new() }
+            else { format!("; identity changed: {}", d.identity_changed.join(", ")) }
+        ));
+        answer["map"] = json!(d);
+        return Ok(Json(answer));
+    }
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    numbers(String::new(), &old, &mut a);
+    numbers(String::new(), &new, &mut b);
+    let before: std::collections::HashMap<_, _> = a.into_iter().collect();
+    let mut changed: Vec<Value> = b
+        .iter()
+        .filter_map(|(k, v)| {
+            let was = *before.get(k)?;
+            (was != *v).then(|| json!({"field": k, "from": was, "to": v, "change": v - was}))
+        })
+        .collect();
+    changed.sort_by(|x, y| {
+        let m = |v: &Value| v["change"].as_f64().unwrap_or(0.0).abs();
+        m(y).total_cmp(&m(x))
+    });
+    answer["summary"] = json!(format!(
+        "v{against} -> v{version}: {} numbers changed",
+        changed.len()
+    ));
+    changed.truncate(100);
+    answer["changed"] = json!(changed);
+    Ok(Json(answer))
 }
 
 /// The heat map of an error-map profile (SVG), when its body carries one.

@@ -342,7 +342,25 @@ async function loadProfiles() {
     const actions = el('td', {},
       el('button', { type: 'button', class: 'activate', disabled: p.active ? '' : null,
         'aria-label': 'Activate ' + p.name + ' version ' + p.version, text: 'Activate',
-        onclick: () => post(path + '/' + p.version + '/activate').then(loadProfiles).catch(reportError) }));
+        onclick: () => {
+          // The operator confirms what it changes: the machine's next jobs use it.
+          const current = activeByName.get(p.name);
+          const question = 'Activate ' + p.name + ' v' + p.version + ' on machine ' + machine + '?\n'
+            + 'Its next jobs use it' + (current ? ' instead of v' + current.version : '') + '.';
+          if (!window.confirm(question)) return;
+          post(path + '/' + p.version + '/activate').then(loadProfiles).catch(reportError);
+        } }));
+    if (p.version > 1) {
+      actions.append(' ', el('button', { type: 'button', class: 'show-diff', text: 'Changes',
+        'aria-label': 'What changed from ' + p.name + ' version ' + (p.version - 1) + ' to ' + p.version,
+        onclick: () => api(path + '/' + p.version + '/diff')
+          .then((d) => d.summary)
+          .catch((error) => 'v' + (p.version - 1) + ' -> v' + p.version + ': ' + error.message)
+          .then((text) => {
+            $('profile-diff').textContent = text;
+            $('profile-diff').setAttribute('data-version', p.version);
+          }) }));
+    }
     if (p.active) {
       actions.append(' ', el('button', { type: 'button', class: 'rollback',
         'aria-label': 'Roll ' + p.name + ' back to the version active before', text: 'Roll back',

@@ -66,6 +66,9 @@ async function main() {
   const page = context.pages()[0] || await context.newPage();
   const pageErrors = [];
   page.on('pageerror', (error) => pageErrors.push(String(error)));
+  // Activation asks the operator first; the question is kept to check it names the machine.
+  out.dialogs = [];
+  page.on('dialog', (dialog) => { out.dialogs.push(dialog.message()); dialog.accept(); });
   // Anything the service's Content-Security-Policy blocked is an error of the page.
   page.on('console', (message) => {
     if (message.type() === 'error' && /Content Security Policy/i.test(message.text())) {
@@ -153,6 +156,10 @@ async function main() {
     const row = (v) => page.locator(`#profile-rows tr[data-profile="${name}"][data-version="${v}"]`);
     const activeRow = (v) => page.locator(`#profile-rows tr[data-profile="${name}"][data-version="${v}"][data-active="true"]`);
 
+    // What changed from the older version to the newer one.
+    await row(newer).locator('button.show-diff').click();
+    await page.locator(`#profile-diff[data-version="${newer}"]`).waitFor({ timeout: UI_TIMEOUT_MS });
+    out.diff = await page.locator('#profile-diff').textContent();
     await row(newer).locator('button.activate').click();
     await activeRow(newer).waitFor({ timeout: UI_TIMEOUT_MS });
     await row(older).locator('button.activate').click();
