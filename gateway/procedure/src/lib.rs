@@ -20,6 +20,7 @@ pub mod proxy;
 pub mod request;
 pub mod rewrite;
 pub mod rotary;
+mod summary;
 pub mod verify;
 pub mod volumetric;
 
@@ -30,6 +31,7 @@ use serde::Serialize;
 use serde_json::{Map, Value};
 
 pub use request::{Request, RequestError};
+pub use summary::summary;
 
 /// How a procedure ended.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -208,40 +210,4 @@ pub async fn identity_of_job(job: &Job) -> Result<Identity, String> {
         .await
         .map_err(|e| format!("reading the machine's identity: {e}"))?;
     Ok(identity(job, &devices))
-}
-
-/// The text a person reads of a job kind's result: the CLI's summary, shown by the
-/// service's page above the result's numbers.
-pub fn summary(kind: &str, result: &Value) -> Option<String> {
-    Some(match kind {
-        "compensate" => compensate_summary(result),
-        "map" => map::summary(result),
-        "verify" => verify::summary(result),
-        "iso230" => iso230::summary(result),
-        "layout" => layout::summary(result),
-        "rotary" => rotary::summary(result),
-        _ => return None,
-    })
-}
-
-/// A compensation's result in a few lines (the CLI prints its full per-target table).
-fn compensate_summary(r: &Value) -> String {
-    let um = |v: &Value| v.as_f64().map_or("-".to_string(), |x| format!("{x:.3}"));
-    let figures = |key: &str| {
-        let f = &r[key];
-        format!(
-            "mean {} um, rms {} um, max {} um",
-            um(&f["mean"]),
-            um(&f["rms"]),
-            um(&f["max"])
-        )
-    };
-    format!(
-        "{} targets, {} converged; method {}\nerror before compensation: {}\nerror after compensation:  {}\n",
-        r["targets"],
-        r["converged"],
-        r["method"].as_str().unwrap_or("-"),
-        figures("before_um"),
-        figures("after_um"),
-    )
 }
