@@ -100,7 +100,9 @@ pub struct AxisConfig {
 }
 
 /// Lost steps of an open-loop stepper axis: during move number `at_move` of this axis
-/// (counted from power-on, 1 = the first move), and then every `every` moves (0: once),
+/// (counted from power-on, 1 = the first move longer than the loss: a stepper stalls at
+/// speed, not in a correction of a few micrometres), and then every `every` such moves
+/// (0: once),
 /// the motor stalls for `full_steps` full steps of `step_mm`; the carriage ends that
 /// much short of where the controller believes it is, and stays offset (the controller
 /// never learns it: its counts are its commands).
@@ -981,18 +983,21 @@ impl SimMachine {
         }
     }
 
-    /// Steps lost by a move of axis `k` by `delta_mm` (counted as one more move of the
-    /// axis when it moves at all): against the direction of motion, never more than
-    /// the move.
+    /// Steps lost by a move of axis `k` by `delta_mm`: against the direction of motion.
+    /// Moves are counted for [`StallConfig::at_move`] only when longer than the loss.
     fn stall_of(&mut self, k: usize, delta_mm: f64) -> f64 {
-        if delta_mm == 0.0 {
+        let Some(st) = self.axis_cfg(k).stall.clone() else {
+            return 0.0;
+        };
+        // A stepper stalls at speed: only moves longer than the loss count.
+        if delta_mm.abs() <= st.lost_mm() {
             return 0.0;
         }
         self.axes[k].axis_moves += 1;
-        let n = self.axes[k].axis_moves;
-        match &self.axis_cfg(k).stall {
-            Some(st) if st.stalls_on(n) => -delta_mm.signum() * st.lost_mm().min(delta_mm.abs()),
-            _ => 0.0,
+        if st.stalls_on(self.axes[k].axis_moves) {
+            -delta_mm.signum() * st.lost_mm()
+        } else {
+            0.0
         }
     }
 

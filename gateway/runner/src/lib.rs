@@ -402,3 +402,68 @@ pub async fn run_job_events(
     report.rereferences = rereferences;
     (report, error)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use job::StageSpec;
+
+    /// The demo job on the coded board, with a stepper Y axis that loses `lost_mm` once
+    /// in the middle of the job (its third move longer than the loss), on a machine that
+    /// powered on anywhere (no homing).
+    fn coded_job(lost_mm: f64) -> Job {
+        let mut job = Job::demo();
+        // The coded board of config/boards/coded-0.5mm.toml (the same grid, seed 28).
+        job.board.set_code(28, [0.2, 0.3]);
+        job.home = false;
+        // Inside the travel by more than the largest loss: the controller's own soft
+        // limits still bound the re-referenced commands.
+        job.targets = vec![
+            [30.0, 30.0],
+            [90.0, 110.0],
+            [150.0, 40.0],
+            [60.0, 120.0],
+            [120.0, 35.0],
+            [170.0, 100.0],
+        ];
+        let StageSpec::Sim { machine } = &mut job.stage else {
+            panic!("the demo is simulated")
+        };
+        machine.machine.power_on_at_mm = Some([3.2, -1.7]);
+        machine.axes.y.stall = Some(world::machine::StallConfig {
+            full_steps: (lost_mm / 0.025).round() as u32,
+            step_mm: 0.025,
+            at_move: 3,
+            every: 0,
+        });
+        job
+    }
+
+    #[test]
+    fn a_coded_board_job_ends_on_target_after_lost_steps_without_homing() {
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        for lost in [0.3, 2.0, 20.0] {
+            let job = coded_job(lost);
+            let mut devices = devices::open_devices(&job).unwrap();
+            let report = rt.block_on(run_job(&job, &mut devices, &mut |_, _| {}));
+            assert!(report.error.is_none(), "{lost} mm: {}", report.to_text());
+            assert_eq!(report.converged, 6, "{}", report.to_text());
+            let after = report.after_um.as_ref().unwrap();
+            assert!(after.max <= 0.5, "{lost} mm: {}", report.to_text());
+            // The power-on offset (no homing) and the loss are both found.
+            assert!(report.rereferences.len() >= 2, "{}", report.to_text());
+            assert!(
+                report
+                    .rereferences
+                    .iter()
+                    .any(|r| (r.deviation_mm[1].abs() - lost).abs() < 0.05),
+                "{lost} mm: {:?}",
+                report.rereferences
+            );
+            assert!(report.to_text().contains("re-referenced"));
+        }
+    }
+}
