@@ -190,9 +190,13 @@ pub fn run(request: &LocalizeRequest, image: &MonoImage, board: &Board, source: 
         "x_mm": obs.x_mm, "y_mm": obs.y_mm, "points": obs.points, "method": obs.method,
         "elapsed_ms": elapsed_ms, "residual_rms_um": obs.residual_rms_um,
         "um_per_px": obs.um_per_px, "rotation_deg": obs.rotation_deg,
-        "code": obs.code,
         "image": { "width": image.width, "height": image.height, "bit_depth": image.bit_depth() },
     });
+    let mut result = result;
+    if let (Some(code), Value::Object(map)) = (&obs.code, &mut result) {
+        // A coded board: how its code was read (plain grids keep their result as before).
+        map.insert("code".into(), json!(code));
+    }
     let metrics = crate::metrics_from(&result, &["x_mm", "y_mm", "points", "residual_rms_um"]);
     Outcome::succeeded(result, metrics)
 }
