@@ -5,6 +5,7 @@ use clap::{Parser, Subcommand};
 use serde_json::json;
 use std::process::ExitCode;
 
+mod board;
 mod compensate;
 mod export;
 mod front;
@@ -96,6 +97,12 @@ enum Cmd {
     Export(export::ExportArgs),
     /// Localize one image of the board: the board coordinate under the image centre.
     Localize(localize::LocalizeArgs),
+    /// Calibration boards: `make` writes a board's artwork (DXF, SVG at 1:1) and its
+    /// certificate template.
+    Board {
+        #[command(subcommand)]
+        cmd: board::BoardCmd,
+    },
 }
 
 fn main() -> ExitCode {
@@ -130,6 +137,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Cmd::Verify(a) => verify::verify(a, json),
         Cmd::Export(a) => export::export(a, json),
         Cmd::Localize(a) => localize::localize(a, json),
+        Cmd::Board { cmd } => board::run(cmd, json),
     }
 }
 
