@@ -224,7 +224,10 @@ fn main() {
     let mut t_plain = Vec::new();
     let mut t_coded = Vec::new();
     for k in 0..runs {
-        let truth = [10.0 + (3.1 * k as f64) % 190.0, 10.0 + (2.3 * k as f64) % 140.0];
+        let truth = [
+            10.0 + (3.1 * k as f64) % 190.0,
+            10.0 + (2.3 * k as f64) % 140.0,
+        ];
         let pose = CameraPose {
             centre_mm: truth,
             rotation_rad: 0.0,
