@@ -422,8 +422,16 @@ mod tests {
         assert_eq!(run(&mut i, "N99999999G0"), Err(e::INVALID_LINE_NUMBER));
         assert_eq!(run(&mut i, "T300"), Err(e::MAX_VALUE_EXCEEDED));
         assert_eq!(run(&mut i, "G10L2P9X1"), Err(e::UNSUPPORTED_COORD_SYS));
-        assert_eq!(run(&mut i, "G10L2X1"), Err(e::VALUE_WORD_MISSING));
+        assert_eq!(run(&mut i, "G10X1"), Err(e::VALUE_WORD_MISSING));
+        assert_eq!(run(&mut i, "G10P1X1"), Err(e::UNSUPPORTED_COMMAND));
         assert_eq!(i, Interpreter::new(), "refused blocks change nothing");
+        // GRBL 1.1h: without P, G10 L2 sets the active system (G54 here).
+        run(&mut i, "G10L2X1").unwrap();
+        assert_eq!(i, {
+            let mut g54 = Interpreter::new();
+            run(&mut g54, "G10L2P1X1").unwrap();
+            g54
+        });
     }
 
     #[test]

@@ -169,8 +169,11 @@ impl<const N: usize> Interpreter<N> {
         if !v.has_axis_words() {
             return Err(GcodeError::NoAxisWords);
         }
-        let (Some(p), Some(l)) = (v.p.take(), v.l.take()) else {
-            return Err(GcodeError::ValueWordMissing);
+        // As GRBL 1.1h's gcode.c: only both missing is an error; a missing P is 0 (the
+        // active system), a missing L is 0 (not 2 or 20: unsupported).
+        let (p, l) = match (v.p.take(), v.l.take()) {
+            (None, None) => return Err(GcodeError::ValueWordMissing),
+            (p, l) => (p.unwrap_or(0.0), l.unwrap_or(0.0)),
         };
         let p = p.trunc() as usize;
         if p > 6 {
@@ -336,14 +339,19 @@ impl<const N: usize> Interpreter<N> {
 
 /// A jog may only hold units, distance mode and G53, and must have F.
 fn check_jog(block: &BlockWords) -> Result<(), GcodeError> {
+    // GRBL 1.1h checks the jog's feed first (`$J=G4 P1` is error:22, not 16).
+    if block.values.f.is_none() {
+        return Err(GcodeError::UndefinedFeedRate);
+    }
     let allowed = (1 << group::DISTANCE) | (1 << group::UNITS) | (1 << group::NON_MODAL);
     if block.groups & !allowed != 0
         || !matches!(block.non_modal, NonModal::None | NonModal::AbsoluteOverride)
     {
         return Err(GcodeError::InvalidJogCommand);
     }
-    if block.values.f.is_none() {
-        return Err(GcodeError::UndefinedFeedRate);
+    // A spindle speed or a tool in a jog is a word no command uses.
+    if block.values.s.is_some() || block.values.t.is_some() {
+        return Err(GcodeError::UnusedWords);
     }
     Ok(())
 }

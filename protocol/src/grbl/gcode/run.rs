@@ -53,9 +53,8 @@ impl<const N: usize> Interpreter<N> {
         if !plan.block.modal.inverse_time {
             self.feed_rate = plan.feed;
         }
-        if let Some(t) = v.t {
-            self.tool = t as u8;
-        }
+        // GRBL 1.1h sets the tool from every block: a block without T selects tool 0.
+        self.tool = v.t.map_or(0, |t| t as u8);
     }
 
     /// New spindle state, a new speed while the spindle runs, or new coolant: wait for
