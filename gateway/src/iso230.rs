@@ -16,9 +16,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 fn read_measurements(path: &Path) -> anyhow::Result<Vec<Measurement>> {
-    let text = protocol::config::read_data_file(path)
-        .with_context(|| format!("reading {}", path.display()))?;
-    csv_io::read(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    procedure::iso230::read_measurements_file(path).map_err(anyhow::Error::msg)
 }
 
 pub fn evaluate_file(

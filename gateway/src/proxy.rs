@@ -3,7 +3,6 @@
 //! procedure is `procedure::proxy`; here the flags become its request, the files are
 //! read, and what it reports is printed as it comes.
 
-use anyhow::Context;
 use job::Job;
 use procedure::proxy::{Correction, Inputs, ProxyFront, ProxyRequest};
 use protocol::errormap::ErrorMap;
@@ -96,12 +95,19 @@ pub fn proxy(args: ProxyArgs, json: bool) -> anyhow::Result<ExitCode> {
             map_source: map.display().to_string(),
         },
         Inputs::Rotary { errors, controller } => {
-            let text = protocol::config::read_data_file(&errors)
-                .with_context(|| format!("reading {}", errors.display()))?;
+            let text = procedure::rotary::read_errors_file(&errors).map_err(anyhow::Error::msg)?;
+            let at = |e: String| anyhow::anyhow!("{}: {e}", errors.display());
+            // The constants recorded with the errors; a --machine that differs is refused.
+            let given = args
+                .machine
+                .as_deref()
+                .map(|p| crate::rotary::load_constants(Some(p)))
+                .transpose()?;
+            let stored = rotary::MachineConstants::from_errors_json(&text).map_err(at)?;
             Correction::Rotary {
-                errors: rotary::LocationErrors::from_json(&text)
-                    .map_err(|e| anyhow::anyhow!("{}: {e}", errors.display()))?,
-                constants: crate::rotary::load_constants(args.machine.as_deref())?,
+                errors: rotary::LocationErrors::from_json(&text).map_err(|e| at(e.to_string()))?,
+                constants: rotary::MachineConstants::for_errors(stored, given, false)
+                    .map_err(at)?,
                 source: errors.display().to_string(),
                 controller,
             }

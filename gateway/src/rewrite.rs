@@ -2,7 +2,6 @@
 //! the `$#` reply read through the bounded reader, the rewritten program written
 //! atomically to `--out` (never over an input).
 
-use anyhow::Context;
 use procedure::rewrite::{RewriteModel, RewriteRequest, PROGRAM_ARTIFACT};
 use protocol::errormap::ErrorMap;
 use serde_json::json;
@@ -28,9 +27,13 @@ pub struct RewriteArgs {
     /// direction land where programmed (the same rewrite as `gateway rotary rewrite`).
     #[arg(long)]
     pub rotary: Option<PathBuf>,
-    /// With --rotary: the machine constants (JSON), default the built-in ones.
+    /// With --rotary: the machine constants (JSON); default: those recorded in the
+    /// errors file.
     #[arg(long, requires = "rotary")]
     pub machine: Option<PathBuf>,
+    /// With --machine: use it even where it differs from the recorded constants.
+    #[arg(long, requires = "machine")]
+    pub force_machine: bool,
     #[arg(long)]
     pub out: PathBuf,
     /// Largest distance of the executed path from the compensated path, um.
@@ -51,8 +54,13 @@ pub struct RewriteArgs {
     pub limits: Option<String>,
 }
 
+/// The program through the bounded line reader (64 KiB a line).
 fn read(path: &Path) -> anyhow::Result<String> {
-    protocol::config::read_data_file(path).with_context(|| format!("reading {}", path.display()))
+    procedure::rewrite::read_program(path).map_err(anyhow::Error::msg)
+}
+
+fn read_offsets(path: &Path) -> anyhow::Result<String> {
+    procedure::rewrite::read_offsets_file(path).map_err(anyhow::Error::msg)
 }
 
 /// `X,Y[,Z]` (mm) as numbers; the count and the bounds are the request's.
@@ -101,6 +109,7 @@ pub fn rewrite(args: RewriteArgs, json: bool) -> anyhow::Result<ExitCode> {
                 errors,
                 out: args.out,
                 machine: args.machine,
+                force_machine: args.force_machine,
                 tolerance_um: args.tolerance_um,
             },
             json,
@@ -133,7 +142,7 @@ pub fn rewrite(args: RewriteArgs, json: bool) -> anyhow::Result<ExitCode> {
         program: read(&args.input)?,
         tolerance_um: args.tolerance_um,
         max_correction_um: args.max_correction_um,
-        offsets: args.offsets.as_deref().map(read).transpose()?,
+        offsets: args.offsets.as_deref().map(read_offsets).transpose()?,
         start: args.start.as_deref().map(parse_pose).transpose()?,
         limits: args.limits.as_deref().map(parse_limits).transpose()?,
     };

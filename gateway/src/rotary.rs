@@ -3,10 +3,10 @@
 //! 5-axis machine.
 
 use crate::front::CliSink;
-use anyhow::Context;
 use clap::Subcommand;
 use job::rotary::RotaryJob;
-use rotary::{LocationErrors, MachineConstants};
+use protocol::config::DataKind;
+use rotary::MachineConstants;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -41,9 +41,14 @@ pub enum RotaryCmd {
         errors: PathBuf,
         #[arg(long)]
         out: PathBuf,
-        /// The machine constants (JSON), default the built-in ones.
+        /// The machine constants (JSON); default: those recorded in the errors file
+        /// (else the built-in ones). Refused where they differ from the recorded ones.
         #[arg(long)]
         machine: Option<PathBuf>,
+        /// Use --machine even where it differs from the constants recorded in the
+        /// errors file.
+        #[arg(long, requires = "machine")]
+        force_machine: bool,
         /// Largest distance (X Y Z) of a piece's middle from the compensated path, um.
         #[arg(long, default_value_t = 0.5)]
         tolerance_um: f64,
@@ -77,8 +82,7 @@ pub fn run(cmd: RotaryCmd, json: bool) -> anyhow::Result<ExitCode> {
             plot,
         } => {
             let constants = load_constants(machine.as_deref())?;
-            let text = protocol::config::read_data_file(&centres)
-                .with_context(|| format!("reading {}", centres.display()))?;
+            let text = protocol::config::read_kind(&centres, DataKind::Centres)?;
             let mut sink = CliSink::new("", true).inputs(&[&centres]);
             if let Some(dir) = &plot {
                 sink = sink.into_folder(dir)?;
@@ -95,8 +99,7 @@ pub fn run(cmd: RotaryCmd, json: bool) -> anyhow::Result<ExitCode> {
             print(&outcome, wrote)
         }
         RotaryCmd::Measure { config, out } => {
-            let text = protocol::config::read_data_file(&config)
-                .with_context(|| format!("reading {}", config.display()))?;
+            let text = protocol::config::read_kind(&config, DataKind::RotaryJson)?;
             let job = RotaryJob::from_json(&text)
                 .map_err(|e| anyhow::anyhow!("{}: {e}", config.display()))?;
             let request = procedure::request::RotaryRequest::default();
@@ -123,23 +126,23 @@ pub fn run(cmd: RotaryCmd, json: bool) -> anyhow::Result<ExitCode> {
             errors,
             out,
             machine,
+            force_machine,
             tolerance_um,
         } => {
-            let constants = load_constants(machine.as_deref())?;
-            let e_text = protocol::config::read_data_file(&errors)
-                .with_context(|| format!("reading {}", errors.display()))?;
-            let e = LocationErrors::from_json(&e_text)
-                .map_err(|err| anyhow::anyhow!("{}: {err}", errors.display()))?;
-            let text = protocol::config::read_data_file(&input)
-                .with_context(|| format!("reading {}", input.display()))?;
+            let given = machine
+                .as_deref()
+                .map(|p| load_constants(Some(p)))
+                .transpose()?;
             let mut sink = CliSink::new("", true)
                 .inputs(&[&input, &errors])
                 .artifact_to("program.nc", out.clone());
-            let outcome = procedure::rotary::rewrite(
-                &text,
-                &input.display().to_string(),
-                e,
-                constants,
+            // The program as a bounded stream of lines; the constants those recorded
+            // with the errors unless --machine (differing only with --force-machine).
+            let outcome = procedure::rotary::rewrite_files(
+                &input,
+                &errors,
+                given,
+                force_machine,
                 tolerance_um,
                 &mut sink,
             );
@@ -153,8 +156,7 @@ pub fn load_constants(path: Option<&Path>) -> anyhow::Result<MachineConstants> {
     let Some(path) = path else {
         return Ok(MachineConstants::default());
     };
-    let text = protocol::config::read_data_file(path)
-        .with_context(|| format!("reading {}", path.display()))?;
+    let text = procedure::rotary::read_errors_file(path).map_err(anyhow::Error::msg)?;
     let de = &mut serde_json::Deserializer::from_str(&text);
     let k: MachineConstants = serde_path_to_error::deserialize(de)
         .map_err(|e| anyhow::anyhow!("{}: {} (at {})", path.display(), e.inner(), e.path()))?;

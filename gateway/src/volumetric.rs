@@ -3,7 +3,6 @@
 //! reader, artifacts written by the CLI's sink, results printed.
 
 use crate::front::CliSink;
-use anyhow::Context;
 use clap::Subcommand;
 use procedure::volumetric::{
     CampaignFiles, VolumetricCampaignRequest, VolumetricContributionsRequest,
@@ -91,7 +90,7 @@ fn parse_xyz(flag: &str, text: &str) -> anyhow::Result<[f64; 3]> {
 }
 
 fn read(path: &Path) -> anyhow::Result<String> {
-    protocol::config::read_data_file(path).with_context(|| format!("reading {}", path.display()))
+    procedure::volumetric::read_file(path).map_err(anyhow::Error::msg)
 }
 
 /// Reads and checks a model file (through the bounded reader).
