@@ -22,17 +22,10 @@ pub enum VolumetricCmd {
     Identify {
         #[arg(long)]
         campaign: PathBuf,
-        /// FXYZ, XFYZ, XYFZ or XYZF.
-        #[arg(long)]
-        structure: String,
         #[arg(long)]
         out: PathBuf,
-        /// The tool point in the last tool carriage's frame, `x,y,z` mm (tool length).
-        #[arg(long, default_value = "0,0,0")]
-        tool_offset_mm: String,
-        /// The workpiece reference point in the last workpiece carriage's frame, mm.
-        #[arg(long, default_value = "0,0,0")]
-        work_offset_mm: String,
+        #[command(flatten)]
+        request: VolumetricIdentifyRequest,
         /// Write the ball-bar plots (ballbar_XY.svg/.png, ...) into this directory.
         #[arg(long)]
         plots: Option<PathBuf>,
@@ -43,9 +36,8 @@ pub enum VolumetricCmd {
         model: PathBuf,
         #[arg(long)]
         points: PathBuf,
-        /// Use the first-order closed form instead of the full HTM product.
-        #[arg(long)]
-        first_order: bool,
+        #[command(flatten)]
+        request: VolumetricEvalRequest,
     },
     /// Each error's contribution over the volume (ranked, CSV + SVG) and the error map
     /// of the three middle planes (CSV + SVG), into DIR.
@@ -54,18 +46,15 @@ pub enum VolumetricCmd {
         model: PathBuf,
         #[arg(long)]
         out: PathBuf,
-        /// Grid points per axis (2 to 219: the memory the grid needs is bounded).
-        #[arg(long, default_value_t = 11)]
-        grid: u64,
+        #[command(flatten)]
+        request: VolumetricContributionsRequest,
     },
     /// Write the emulated machine's measurement campaign into DIR.
     SimulateCampaign {
         #[arg(long)]
         out: PathBuf,
-        #[arg(long, default_value = "XYFZ")]
-        structure: String,
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
+        #[command(flatten)]
+        request: VolumetricCampaignRequest,
     },
     /// Export the model for the ISG kernel (Beckhoff TF5280) into DIR: volcomp.csv in the
     /// ISG CSV format (blocks `C0Y B0Z A0Z P0X P0Y P0Z`, `X EXX ... ECX`, ..., mm and
@@ -76,17 +65,6 @@ pub enum VolumetricCmd {
         #[arg(long)]
         out: PathBuf,
     },
-}
-
-/// `x,y,z` (mm) from a flag; the bounds are the request's.
-fn parse_xyz(flag: &str, text: &str) -> anyhow::Result<[f64; 3]> {
-    let v: Vec<f64> = text
-        .split(',')
-        .map(|p| p.trim().parse::<f64>())
-        .collect::<Result<_, _>>()
-        .map_err(|_| anyhow::anyhow!("{flag} `{text}`: expected x,y,z in mm"))?;
-    v.try_into()
-        .map_err(|_| anyhow::anyhow!("{flag} `{text}`: expected three numbers x,y,z in mm"))
 }
 
 fn read(path: &Path) -> anyhow::Result<String> {
@@ -132,18 +110,11 @@ pub fn run(cmd: VolumetricCmd, json: bool) -> anyhow::Result<ExitCode> {
     match cmd {
         VolumetricCmd::Identify {
             campaign,
-            structure,
             out,
-            tool_offset_mm,
-            work_offset_mm,
+            mut request,
             plots,
         } => {
-            let request = VolumetricIdentifyRequest {
-                structure,
-                tool_offset_mm: parse_xyz("--tool-offset-mm", &tool_offset_mm)?,
-                work_offset_mm: parse_xyz("--work-offset-mm", &work_offset_mm)?,
-                plots: plots.is_some(),
-            };
+            request.plots = plots.is_some();
             request.check().map_err(cli)?;
             let inputs: Vec<PathBuf> = CAMPAIGN_FILES.iter().map(|n| campaign.join(n)).collect();
             let inputs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
@@ -182,9 +153,8 @@ pub fn run(cmd: VolumetricCmd, json: bool) -> anyhow::Result<ExitCode> {
         VolumetricCmd::Eval {
             model,
             points,
-            first_order,
+            request,
         } => {
-            let request = VolumetricEvalRequest { first_order };
             let m = load_model(&model)?;
             let text = read(&points)?;
             request.check_points(&text).map_err(cli)?;
@@ -196,8 +166,11 @@ pub fn run(cmd: VolumetricCmd, json: bool) -> anyhow::Result<ExitCode> {
                     .join("\n")
             })
         }
-        VolumetricCmd::Contributions { model, out, grid } => {
-            let request = VolumetricContributionsRequest { grid };
+        VolumetricCmd::Contributions {
+            model,
+            out,
+            request,
+        } => {
             request.check().map_err(cli)?;
             let m = load_model(&model)?;
             let mut sink = CliSink::new("", true)
@@ -210,12 +183,7 @@ pub fn run(cmd: VolumetricCmd, json: bool) -> anyhow::Result<ExitCode> {
                 format!("{text}written to {}", out.display())
             })
         }
-        VolumetricCmd::SimulateCampaign {
-            out,
-            structure,
-            seed,
-        } => {
-            let request = VolumetricCampaignRequest { structure, seed };
+        VolumetricCmd::SimulateCampaign { out, request } => {
             request.check().map_err(cli)?;
             let mut sink = CliSink::new("", true).into_folder(&out)?;
             let outcome = procedure::volumetric::simulate_campaign(&request, &mut sink);
@@ -228,8 +196,9 @@ pub fn run(cmd: VolumetricCmd, json: bool) -> anyhow::Result<ExitCode> {
                     .filter_map(Value::as_str)
                     .collect();
                 format!(
-                    "{} campaign (seed {seed}) written to {}: {}",
+                    "{} campaign (seed {}) written to {}: {}",
                     r["structure"].as_str().unwrap_or(""),
+                    request.seed,
                     out.display(),
                     names.join(", ")
                 )

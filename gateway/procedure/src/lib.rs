@@ -8,6 +8,7 @@
 //! signal is a future. The CLI and the service only translate in (flags or JSON to a
 //! request) and out (files and a progress bar, or the store and events).
 
+pub mod board;
 pub mod compensate;
 pub mod cut;
 pub mod demo;

@@ -74,19 +74,37 @@ fn offsets(field: &str, v: &[f64; 3]) -> Result<(), RequestError> {
 
 /// Identify the model from a campaign.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct VolumetricIdentifyRequest {
-    /// FXYZ, XFYZ, XYFZ or XYZF.
+    /// The machine's structure: FXYZ, XFYZ, XYFZ or XYZF.
+    #[cfg_attr(feature = "cli", arg(long))]
     pub structure: String,
-    /// The tool point in the last tool carriage's frame, mm (the tool length).
+    /// The tool point in the last tool carriage's frame, `x,y,z` mm (the tool length).
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, default_value = "0,0,0", value_parser = xyz_mm, allow_hyphen_values = true))]
     pub tool_offset_mm: [f64; 3],
-    /// The workpiece reference point in the last workpiece carriage's frame, mm.
+    /// The workpiece reference point in the last workpiece carriage's frame, `x,y,z` mm.
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, default_value = "0,0,0", value_parser = xyz_mm, allow_hyphen_values = true))]
     pub work_offset_mm: [f64; 3],
-    /// Also draw the ball-bar circles (`ballbar_XY.svg`/`.png`, ...).
+    /// Also draw the ball-bar circles (`ballbar_XY.svg`/`.png`, ...); the CLI's: with
+    /// `--plots DIR`.
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub plots: bool,
+}
+
+/// `x,y,z` in mm (a command-line value).
+#[cfg(feature = "cli")]
+pub fn xyz_mm(text: &str) -> Result<[f64; 3], String> {
+    let v: Vec<f64> = text
+        .split(',')
+        .map(|p| p.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("`{text}`: expected x,y,z in mm"))?;
+    v.try_into()
+        .map_err(|_| format!("`{text}`: expected three numbers x,y,z in mm"))
 }
 
 impl VolumetricIdentifyRequest {
@@ -353,10 +371,12 @@ pub fn read_model(name: &str, text: &str) -> Result<Model, String> {
 
 /// The volumetric error at each point of a points file (`x_mm,y_mm,z_mm`).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct VolumetricEvalRequest {
-    /// The first-order closed form instead of the full HTM product.
+    /// Use the first-order closed form instead of the full HTM product.
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long))]
     pub first_order: bool,
 }
 
@@ -447,10 +467,12 @@ fn default_grid() -> u64 {
 
 /// Each error's contribution over the volume and the error maps of the middle planes.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct VolumetricContributionsRequest {
-    /// Grid points per axis.
+    /// Grid points per axis (from 2; the memory the grid needs is bounded).
     #[serde(default = "default_grid")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_grid()))]
     pub grid: u64,
 }
 
@@ -608,11 +630,16 @@ fn default_campaign_seed() -> u64 {
 
 /// The emulated machine's measurement campaign.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct VolumetricCampaignRequest {
+    /// The emulated machine's structure: FXYZ, XFYZ, XYFZ or XYZF.
     #[serde(default = "default_campaign_structure")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_campaign_structure()))]
     pub structure: String,
+    /// The seed of the emulated machine's errors and the instruments' noise.
     #[serde(default = "default_campaign_seed")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_campaign_seed()))]
     pub seed: u64,
 }
 

@@ -66,6 +66,16 @@ function reply(res, status, body, type) {
   res.end(type ? body : JSON.stringify(body));
 }
 
+const openapi = { openapi: '3.1.0', components: { schemas: {
+  'job.map': { type: 'object', description: 'An error-map scan.', additionalProperties: false, properties: {
+    name: { type: 'string', default: 'map', description: "The map's name." },
+    grid_step_mm: { type: 'number', default: 10, minimum: 0.25, maximum: 10000, description: "The grid's step, mm." },
+    line_step_mm: { type: 'number', default: 1, minimum: 0.05, maximum: 10000, description: 'The dense lines\' step, mm.' },
+    passes: { type: 'integer', default: 2, minimum: 1, maximum: 10, description: 'Times each point is measured.' },
+    tool_offset_mm: { type: 'array', items: { type: 'number' }, default: [0, 0], description: 'Tool minus camera, mm.' },
+  } },
+} } };
+
 const svg = (label) => `<svg xmlns="http://www.w3.org/2000/svg" width="200" height="100"><rect width="200" height="100" fill="#fc8"/><text x="10" y="50">${label}</text></svg>`;
 
 const server = http.createServer((req, res) => {
@@ -81,9 +91,17 @@ const server = http.createServer((req, res) => {
     const p = url.pathname;
     let m;
     if (p === '/api/v1/machines') return reply(res, 200, [machine]);
+    // The contract's job params as the service's OpenAPI document gives them (a subset:
+    // the map kind's, with the same bounds; the page builds its form from it).
+    if (p === '/api/v1/openapi.json') return reply(res, 200, openapi);
     if (p === '/api/v1/jobs') return reply(res, 200, [...jobs.values()].reverse());
     if (req.method === 'POST' && p === '/api/v1/machines/demo/jobs') {
       const request = JSON.parse(body);
+      const grid = (request.params || {}).grid_step_mm;
+      if (grid !== undefined && !(grid >= 0.25 && grid <= 10000)) {
+        return reply(res, 400, { error: 'invalid_params', field: 'params.grid_step_mm',
+          message: `params.grid_step_mm: must be a number from 0.25 to 10000, got ${grid}` });
+      }
       const job = { id: nextId++, machine: 'demo', kind: request.kind, params: request.params, state: 'queued',
         created_at: now(), started_at: null, finished_at: null, progress: null, profile: null, error: null, result: null };
       jobs.set(job.id, job); measurements.set(job.id, []);
@@ -95,6 +113,15 @@ const server = http.createServer((req, res) => {
     if ((m = p.match(/^\/api\/v1\/jobs\/(\d+)\/measurements$/))) return reply(res, 200, measurements.get(Number(m[1])));
     if ((m = p.match(/^\/api\/v1\/jobs\/(\d+)\/charts$/))) {
       return reply(res, 200, [{ name: 'deviation', title: 'Deviation', url: `/api/v1/jobs/${m[1]}/charts/deviation.svg` }]);
+    }
+    if ((m = p.match(/^\/api\/v1\/jobs\/(\d+)\/files$/))) {
+      return reply(res, 200, [{ name: 'deviation.svg', title: 'Deviation', media_type: 'image/svg+xml', size: 180,
+        url: `/api/v1/jobs/${m[1]}/files/deviation.svg` }]);
+    }
+    if ((m = p.match(/^\/api\/v1\/machines\/demo\/profiles\/xy\/(\d+)\/diff$/))) {
+      const v = Number(m[1]);
+      return reply(res, 200, { profile: 'xy', machine: 'demo', from: v - 1, to: v, kind: 'error_map',
+        summary: `v${v - 1} -> v${v}: the errors moved by at most 0.50 µm (stub)` });
     }
     if (p.endsWith('.svg')) return reply(res, 200, svg(p), 'image/svg+xml');
     if (p === '/api/v1/machines/demo/profiles') return reply(res, 200, profiles.map(profileView));

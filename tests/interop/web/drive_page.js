@@ -112,6 +112,7 @@ async function main() {
       throw new Error('a refused form started a job');
     }
     step('field error shown', out.field_error);
+    await page.fill('#field-grid_step_mm', ''); // back to the API's default
 
     const jobId = await startJob(page);
     out.job_id = jobId;
