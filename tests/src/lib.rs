@@ -29,15 +29,18 @@ pub fn emulators_binary() -> PathBuf {
         .expect("tests run from target/<profile>/deps")
         .to_path_buf();
     let bin = dir.join("emulators");
-    if !bin.exists() {
+    // Built once per test process, always: `cargo test` does not rebuild another
+    // package's binary, and a stale one tests old emulator code (a no-op when fresh).
+    static BUILT: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    let built = BUILT.get_or_init(|| {
         let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-        let status = Command::new(cargo)
+        Command::new(cargo)
             .args(["build", "-p", "emulators", "--bin", "emulators"])
             .current_dir(workspace())
             .status()
-            .expect("cargo build");
-        assert!(status.success(), "building the emulators binary failed");
-    }
+            .is_ok_and(|s| s.success())
+    });
+    assert!(*built, "building the emulators binary failed");
     bin
 }
 
