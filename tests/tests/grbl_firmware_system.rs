@@ -54,6 +54,15 @@ fn blocks(log: &str) -> Vec<Block> {
         .collect()
 }
 
+/// The driver's defaults with room for a simulated controller on a busy machine (the
+/// whole suite runs beside it): it answers late at times, never wrongly.
+fn patient() -> GrblOptions {
+    GrblOptions {
+        command_timeout: Duration::from_secs(15),
+        ..GrblOptions::default()
+    }
+}
+
 #[test]
 fn the_driver_connects_to_grbl_11h_at_its_first_power_up_and_moves_as_planned() {
     let fw = start(Firmware::Grbl11h);
@@ -61,7 +70,7 @@ fn the_driver_connects_to_grbl_11h_at_its_first_power_up_and_moves_as_planned() 
     rt.block_on(async {
         // Opening the port powers the firmware up: `error:7`, the settings dump and the
         // banner come first; the `$I` of a driver that did not wait would be lost.
-        let mut g = GrblStage::open(&fw.path(), 115_200, GrblOptions::default())
+        let mut g = GrblStage::open(&fw.path(), 115_200, patient())
             .await
             .unwrap_or_else(|e| panic!("connects to a first power-up: {e}"));
         assert!(
@@ -118,7 +127,7 @@ fn the_rotary_jobs_link_on_six_axis_grblhal_at_its_first_power_up() {
     // The link itself: axes, `$#`, status.
     let fw = start(Firmware::GrblHal6);
     rt.block_on(async {
-        let mut g = GrblStage::open(&fw.path(), 115_200, GrblOptions::default())
+        let mut g = GrblStage::open(&fw.path(), 115_200, patient())
             .await
             .unwrap_or_else(|e| panic!("connects to a first power-up: {e}"));
         assert!(

@@ -76,6 +76,8 @@ pub struct GrblStage {
     locked: bool,
     /// Last absolute target sent, exactly (GRBL reports positions to 1 um only).
     commanded: Option<[f64; 3]>,
+    /// A motion line was answered `ok` (queued) and not yet waited for.
+    motion_queued: bool,
     /// Position fields of the status reports (3 on GRBL 1.1, up to 6 on grblHAL).
     reported_axes: usize,
 }
@@ -125,6 +127,7 @@ impl GrblStage {
             needs_reset: false,
             locked: false,
             commanded: None,
+            motion_queued: false,
             reported_axes: 3,
         };
         s.handshake().await?;
@@ -415,6 +418,7 @@ impl GrblStage {
     fn on_banner(&mut self) {
         self.needs_reset = false;
         self.commanded = None;
+        self.motion_queued = false;
         self.last_wco = None;
     }
 
@@ -625,6 +629,7 @@ impl GrblStage {
         }
         w = w.word('F', feed_mm_min, 0);
         self.commanded = None;
+        self.motion_queued = false;
         self.command(&Command::Jog(w.to_string())).await.map(|_| ())
     }
 
@@ -656,6 +661,7 @@ impl GrblStage {
                     self.link = Link::new(io, self.link.device.clone());
                     self.needs_reset = false;
                     self.commanded = None;
+                    self.motion_queued = false;
                     self.last_wco = None;
                     return self.handshake().await;
                 }
@@ -753,6 +759,7 @@ impl Stage for GrblStage {
             .command_with(&Command::Gcode(w.to_string()), self.opts.motion_timeout)
             .await?;
         self.commanded = None;
+        self.motion_queued = false;
         let report = info
             .iter()
             .find_map(|r| match r {
@@ -790,6 +797,7 @@ impl Stage for GrblStage {
         self.locked = false;
         self.last_alarm = None;
         self.commanded = None;
+        self.motion_queued = false;
         Ok(())
     }
 
@@ -805,6 +813,7 @@ impl Stage for GrblStage {
         }
         w = w.word('F', feed_mm_min, 0);
         self.command(&Command::Gcode(w.to_string())).await?;
+        self.motion_queued = true;
         let mut c = self.commanded.unwrap_or([f64::NAN; 3]);
         for (a, v) in target.iter() {
             if a.index() < 3 {
@@ -855,6 +864,14 @@ impl Stage for GrblStage {
 
     /// Poll `?` until Idle with an empty planner; an alarm is an error.
     async fn wait_idle(&mut self) -> Result<(), DriverError> {
+        if std::mem::take(&mut self.motion_queued) {
+            // A motion line's `ok` means queued, not started: real GRBL 1.1h may still
+            // report Idle before its planner starts the block, and without `Bf:` in the
+            // reports ($10) that Idle looks final. A dwell is answered only once every
+            // queued motion has ended (GRBL synchronizes the planner for G4).
+            self.command_with(&Command::Gcode("G4P0".into()), self.opts.motion_timeout)
+                .await?;
+        }
         let deadline = with_deadline(self.opts.motion_timeout);
         loop {
             let s = self.status_report().await?;

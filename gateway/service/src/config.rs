@@ -153,8 +153,9 @@ impl RotarySource {
         match self {
             RotarySource::BuiltinDemo => Ok(job::rotary::RotaryJob::default()),
             RotarySource::File(path) => {
-                let text = std::fs::read_to_string(path)
-                    .map_err(|e| format!("{}: {e}", path.display()))?;
+                let text =
+                    protocol::config::read_kind(path, protocol::config::DataKind::RotaryJson)
+                        .map_err(|e| e.to_string())?;
                 job::rotary::RotaryJob::from_json(&text)
                     .map_err(|e| format!("{}: {e}", path.display()))
             }
@@ -218,7 +219,8 @@ pub struct BoxConfig {
 
 impl BoxConfig {
     pub fn load(path: &Path) -> Result<BoxConfig, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+        // The bounded reader: regular files only (a FIFO never blocks the start).
+        let text = protocol::config::read_data_file(path).map_err(|source| ConfigError::Read {
             path: path.display().to_string(),
             source,
         })?;

@@ -15,8 +15,32 @@ pub enum ImageFileError {
     Write { path: String, message: String },
 }
 
+/// The largest image file read (a 64 MP 16-bit frame is 128 MB raw; PNG compresses).
+pub const MAX_IMAGE_BYTES: u64 = 256 << 20;
+
 pub fn load_png(path: &Path) -> Result<MonoImage, ImageFileError> {
     let p = path.display().to_string();
+    // Only a regular file, checked before opening: a FIFO would block the open, a
+    // device such as /dev/zero would be read without end.
+    let refuse = |why: String| ImageFileError::Open {
+        path: p.clone(),
+        cause: std::io::Error::new(std::io::ErrorKind::InvalidInput, why),
+    };
+    let meta = std::fs::metadata(path).map_err(|cause| ImageFileError::Open {
+        path: p.clone(),
+        cause,
+    })?;
+    if !meta.is_file() {
+        return Err(refuse(
+            "not a regular file (a FIFO, a device or a folder)".into(),
+        ));
+    }
+    if meta.len() > MAX_IMAGE_BYTES {
+        return Err(refuse(format!(
+            "{} bytes; an image file is at most {MAX_IMAGE_BYTES}",
+            meta.len()
+        )));
+    }
     let reader = image::ImageReader::open(path)
         .map_err(|cause| ImageFileError::Open {
             path: p.clone(),
@@ -67,5 +91,29 @@ pub fn save_png(img: &MonoImage, path: &Path) -> Result<(), ImageFileError> {
         .expect("MonoImage sizes are checked")
         .save(path)
         .map_err(err),
+    }
+}
+
+#[cfg(test)]
+mod bounded_tests {
+    use super::*;
+
+    /// A FIFO or a device is refused before it is opened: the call returns at once.
+    #[test]
+    fn a_fifo_and_a_device_are_refused_without_blocking() {
+        let dir = std::env::temp_dir().join(format!("vision-fifo-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let fifo = dir.join("frame.png");
+        let _ = std::fs::remove_file(&fifo);
+        let made = std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap();
+        assert!(made.success());
+        for path in [fifo.as_path(), Path::new("/dev/zero")] {
+            let e = load_png(path).unwrap_err().to_string();
+            assert!(e.contains("not a regular file"), "{e}");
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }
