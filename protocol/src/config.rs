@@ -573,10 +573,11 @@ fn open_regular(path: &Path) -> std::io::Result<std::fs::File> {
     Ok(file)
 }
 
-/// A regular file of at most `cap` bytes as UTF-8 text (a leading byte-order mark
-/// dropped); `what` names the kind in the size message.
-fn read_bounded(path: &Path, cap: u64, what: &str) -> std::io::Result<String> {
-    use std::io::{Error, ErrorKind, Read};
+/// A regular file of at most `cap` bytes (refused before opening otherwise, see
+/// [`open_regular`]); `what` names the kind in the size message. For files that are
+/// not text (journals with their checksums); text goes through [`read_kind`].
+pub fn read_bytes_bounded(path: &Path, cap: u64, what: &str) -> std::io::Result<Vec<u8>> {
+    use std::io::Read;
     let file = open_regular(path)?;
     let meta = file.metadata()?;
     if meta.len() > cap {
@@ -588,6 +589,14 @@ fn read_bounded(path: &Path, cap: u64, what: &str) -> std::io::Result<String> {
         // It grew while being read (or its size was not known).
         return Err(too_big(bytes.len() as u64, cap, what));
     }
+    Ok(bytes)
+}
+
+/// A regular file of at most `cap` bytes as UTF-8 text (a leading byte-order mark
+/// dropped); `what` names the kind in the size message.
+fn read_bounded(path: &Path, cap: u64, what: &str) -> std::io::Result<String> {
+    use std::io::{Error, ErrorKind};
+    let bytes = read_bytes_bounded(path, cap, what)?;
     let text = String::from_utf8(bytes).map_err(|e| {
         let at = e.utf8_error().valid_up_to();
         let line = e.as_bytes()[..at].iter().filter(|&&b| b == b'\n').count() + 1;

@@ -259,30 +259,11 @@ impl ScanJournal for FileJournal {
     }
 }
 
-/// A journal file's bytes, bounded: a regular file only (a FIFO or a device is refused
-/// before it is opened), of at most what a journal of `plan` can hold.
+/// A journal file's bytes through the bounded reader, of at most what a journal of
+/// `plan` can hold (a header of a few hundred bytes, sample lines of about 90).
 fn read_journal(path: &Path, plan: &ScanPlan) -> std::io::Result<Vec<u8>> {
-    use std::io::{Error, ErrorKind, Read};
-    // A header of a few hundred bytes, sample lines of about 90.
     let cap = 64 * 1024 + 256 * plan.points.len() as u64;
-    let not_regular = || Error::new(ErrorKind::InvalidData, "not a regular file");
-    if !std::fs::metadata(path)?.is_file() {
-        return Err(not_regular());
-    }
-    let file = std::fs::File::open(path)?;
-    let meta = file.metadata()?;
-    if !meta.is_file() {
-        return Err(not_regular());
-    }
-    let mut bytes = Vec::with_capacity(meta.len().min(cap) as usize);
-    file.take(cap + 1).read_to_end(&mut bytes)?;
-    if bytes.len() as u64 > cap {
-        return Err(Error::new(
-            ErrorKind::InvalidData,
-            format!("more than the {cap} bytes a journal of this plan can have"),
-        ));
-    }
-    Ok(bytes)
+    protocol::config::read_bytes_bounded(path, cap, "a scan journal of this plan")
 }
 
 /// Map versions in a folder, `NAME.vN.json`, never overwritten.

@@ -20,37 +20,17 @@ pub const MAX_IMAGE_BYTES: u64 = 256 << 20;
 
 pub fn load_png(path: &Path) -> Result<MonoImage, ImageFileError> {
     let p = path.display().to_string();
-    // Only a regular file, checked before opening: a FIFO would block the open, a
-    // device such as /dev/zero would be read without end.
-    let refuse = |why: String| ImageFileError::Open {
-        path: p.clone(),
-        cause: std::io::Error::new(std::io::ErrorKind::InvalidInput, why),
-    };
-    let meta = std::fs::metadata(path).map_err(|cause| ImageFileError::Open {
+    // Through the bounded reader: a FIFO is refused before it is opened (never a
+    // hang), a device such as /dev/zero is not read without end.
+    let open = |cause| ImageFileError::Open {
         path: p.clone(),
         cause,
-    })?;
-    if !meta.is_file() {
-        return Err(refuse(
-            "not a regular file (a FIFO, a device or a folder)".into(),
-        ));
-    }
-    if meta.len() > MAX_IMAGE_BYTES {
-        return Err(refuse(format!(
-            "{} bytes; an image file is at most {MAX_IMAGE_BYTES}",
-            meta.len()
-        )));
-    }
-    let reader = image::ImageReader::open(path)
-        .map_err(|cause| ImageFileError::Open {
-            path: p.clone(),
-            cause,
-        })?
+    };
+    let bytes = protocol::config::read_bytes_bounded(path, MAX_IMAGE_BYTES, "an image file")
+        .map_err(open)?;
+    let reader = image::ImageReader::new(std::io::Cursor::new(bytes))
         .with_guessed_format()
-        .map_err(|cause| ImageFileError::Open {
-            path: p.clone(),
-            cause,
-        })?;
+        .map_err(open)?;
     let img = reader.decode().map_err(|e| ImageFileError::Decode {
         path: p.clone(),
         message: e.to_string(),
