@@ -164,6 +164,55 @@ fn jog_is_cancelled_and_hold_resume_and_stop_keep_position() {
     });
 }
 
+/// Ctrl-C during homing (the job's cancel drops the homing future after `$H` went out):
+/// `stop` ends the cycle with a reset, the controller reports the homing reset alarm
+/// and stays locked, and the driver homes again afterwards.
+#[test]
+fn stop_during_homing_resets_and_homing_again_works() {
+    let rt = runtime();
+    rt.block_on(async {
+        let rig = rig();
+        // Real time: the homing cycle takes seconds, so it is still running when the
+        // cancel comes right after `$H` was written.
+        let emu = emulator(&rig, Clock::Scaled(1.0), None, None);
+        let mut g = connect(emu.path()).await;
+        // Away from the switches, so that the cycle has a way to go.
+        g.unlock().await.unwrap();
+        g.move_to(AxisValues::xy(40.0, 30.0), 6000.0).await.unwrap();
+        g.wait_idle().await.unwrap();
+        let homings = rig.lock().unwrap().machine().homings();
+        {
+            let home = g.home();
+            tokio::pin!(home);
+            // The cancel comes once the controller has started the cycle.
+            let started = async {
+                for _ in 0..10_000 {
+                    if rig.lock().unwrap().machine().homings() > homings {
+                        return;
+                    }
+                    tokio::time::sleep(Duration::from_millis(1)).await; // pacing only
+                }
+                panic!("the controller never started homing");
+            };
+            tokio::select! {
+                r = &mut home => panic!("homing ended before the cancel: {r:?}"),
+                () = started => {}
+            }
+        }
+        // GRBL answers no status report during a homing cycle: stop resets at once.
+        g.stop().await.unwrap();
+        let after = g.status().await.unwrap();
+        match &after.state {
+            StageState::Alarm(m) => assert!(m.contains("ALARM:6"), "{m}"),
+            other => panic!("after a stop during homing: {other:?}"),
+        }
+        // Locked until homed: a move is refused by the controller, not executed.
+        assert!(g.move_to(AxisValues::xy(1.0, 1.0), 1000.0).await.is_err());
+        g.home().await.unwrap();
+        assert_eq!(g.status().await.unwrap().state, StageState::Idle);
+    });
+}
+
 #[test]
 fn wrong_port_and_foreign_devices_fail_clearly_and_quickly() {
     let rt = runtime();

@@ -80,6 +80,9 @@ pub struct GrblStage {
     motion_queued: bool,
     /// Position fields of the status reports (3 on GRBL 1.1, up to 6 on grblHAL).
     reported_axes: usize,
+    /// `$H` was sent and its `ok` not read: GRBL answers no `?` during the cycle, so
+    /// a stop must not ask first (the caller dropped the wait, e.g. on Ctrl-C).
+    homing: bool,
 }
 
 /// How often `?` is sent while waiting for a controller to greet.
@@ -128,6 +131,7 @@ impl GrblStage {
             locked: false,
             commanded: None,
             motion_queued: false,
+            homing: false,
             reported_axes: 3,
         };
         s.handshake().await?;
@@ -417,6 +421,7 @@ impl GrblStage {
     /// A banner arrived: GRBL reset (by us, by a button, or by the port's DTR line).
     fn on_banner(&mut self) {
         self.needs_reset = false;
+        self.homing = false;
         self.commanded = None;
         self.motion_queued = false;
         self.last_wco = None;
@@ -792,8 +797,12 @@ impl Stage for GrblStage {
         if self.needs_reset {
             self.soft_reset().await?;
         }
-        self.command_with(&Command::Home, self.opts.motion_timeout)
-            .await?;
+        self.homing = true;
+        let homed = self
+            .command_with(&Command::Home, self.opts.motion_timeout)
+            .await;
+        self.homing = false;
+        homed?;
         self.locked = false;
         self.last_alarm = None;
         self.commanded = None;
@@ -917,12 +926,15 @@ impl Stage for GrblStage {
     /// Stop now: a jog is cancelled; a running program is held (decelerating, position
     /// kept) and then GRBL is reset to flush what was queued.
     async fn stop(&mut self) -> Result<(), DriverError> {
-        if self.needs_reset {
+        // A homing cycle answers no `?` and ignores a feed hold: only a reset ends it
+        // (GRBL answers `ALARM:6`, homing reset, and stays locked until homed again).
+        if self.needs_reset || self.homing {
             return self.soft_reset().await;
         }
         let s = self.status_report().await?;
         match s.state {
             MachineState::Jog => self.jog_cancel().await,
+            MachineState::Home => self.soft_reset().await,
             MachineState::Run | MachineState::Hold(_) => {
                 self.feed_hold().await?;
                 let deadline = with_deadline(self.opts.motion_timeout);
