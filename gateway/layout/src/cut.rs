@@ -386,6 +386,7 @@ mod tests {
             gap_mm: 5.0,
             clearance_mm: 5.0,
             window_mm: 300.0,
+            windows_mm: vec![0.0, 300.0],
             tools: 2,
         }
     }

@@ -10,22 +10,31 @@
 //! - **S2** the material width W is cut into k equal lanes, lane 0 at the smallest Y; a
 //!   part goes to the tool whose lane holds its box centre Yc:
 //!   `tool = floor((Yc - y0) / (W / k))` (Yc on the far edge counts in the last lane).
-//! - **S3-S7** if that tool has a current group, L is the length along X of the rectangle
-//!   bounding the group's parts and this one; if L < L' the part joins the group (S5),
-//!   otherwise (or when the tool has no group yet) a new group with a new window opens
-//!   for that tool (S6) and takes the part (S7). Groups are numbered 1, 2, ... in the
-//!   order they open (G-1, G-2, ...); a group's window index is how many groups its tool
-//!   opened before it (the source's Fig. 4: G-1 and G-3 of tool O-1 in windows F-1 and
-//!   F-2, G-2 and G-4 of tool O-2 in the same two windows).
+//! - **S3-S7** the cutting windows span the whole width and are shared by every tool
+//!   (the source's Fig. 4: G-1 and G-3 of tool O-1 and G-2 and G-4 of tool O-2 in the
+//!   same two windows F-1 and F-2); window `w` starts at X `windows_mm[w]`, the Xmin of
+//!   the part that opened it, and is L' long. If the part's tool has a group in the
+//!   current (last opened) window, L is the length along X of the rectangle H bounding
+//!   the window's start, the group's parts and this part (for the tool that opened the
+//!   window, the source's rectangle of the group's parts); if L < L' the part joins the
+//!   group (S5). Otherwise (S6-S7) the tool opens a new group: in the current window if
+//!   it has none there and the part fits it (`Xmax - start < L'`), else in a new window
+//!   F-i+1 starting at the part's Xmin. Groups are numbered 1, 2, ... in the order they
+//!   open (G-1, G-2, ...). Parts come in increasing Xmin, so a part's window never
+//!   comes before that of a part taken earlier.
 //! - **S8** every part of a group moves by the group's common shift
 //!   `DX = window x gap`, `DY = tool x gap`: the first group none, a same-window group of
 //!   the next lane DY only, the next window of the same lane DX only, the diagonal both.
+//!   Windows grow with Xmin and lanes with Yc, so two parts whose boxes are at least the
+//!   gap apart stay at least the gap apart (a part lying wholly before another along X
+//!   or Y never moves further than it that way); parts whose boxes overlap can come
+//!   closer along slanted edges, which the overlap detection then finds.
 //!
 //! Worked example (gap 5 mm, 2 tools, W = 100 mm, L' = 300 mm): a part with box
-//! x 0..100, y 10..40 (Yc = 25, lane 0) opens G-1 (tool 0, window 0, shift (0, 0)); a
-//! part x 50..150, y 60..90 (Yc = 75, lane 1) opens G-2 (tool 1, window 0, shift
-//! (0, 5)); a part x 120..380, y 0..45 in lane 0 would make G-1 380 mm long (>= 300), so
-//! it opens G-3 (tool 0, window 1, shift (5, 0)).
+//! x 0..100, y 10..40 (Yc = 25, lane 0) opens G-1 and window 0 at X 0 (tool 0, shift
+//! (0, 0)); a part x 50..150, y 60..90 (Yc = 75, lane 1) opens G-2 in window 0 (tool 1,
+//! shift (0, 5)); a part x 120..380, y 0..45 in lane 0 would make G-1 380 mm long
+//! (>= 300), so it opens window 1 at X 120 and G-3 (tool 0, shift (5, 0)).
 //!
 //! Then [`resolve`] finds every pair of parts of different groups whose shifted contours
 //! intersect or come closer than the gap, and moves parts to neighbouring groups until
@@ -74,7 +83,7 @@ pub struct Group {
     pub id: usize,
     /// Tool and lane index, 0 at the smallest Y.
     pub tool: usize,
-    /// Window index of the group within its tool, 0 first.
+    /// Window index, shared by every tool (window 0 first along X).
     pub window: usize,
     pub dx_mm: f64,
     pub dy_mm: f64,
@@ -134,6 +143,9 @@ pub struct Partition {
     /// Distance below which parts of different groups overlap (see [`Params`]).
     pub clearance_mm: f64,
     pub window_mm: f64,
+    /// Where each window starts along X, before any shift (window `w` spans
+    /// `windows_mm[w] .. windows_mm[w] + window_mm` across the whole width).
+    pub windows_mm: Vec<f64>,
     pub tools: usize,
 }
 
@@ -159,6 +171,30 @@ impl Partition {
         let at = parts.partition_point(|&q| q < p);
         parts.insert(at, p);
         self.group_of[p] = g;
+    }
+
+    /// Whether group `g` with part `extra` still fits its window: the rectangle bounding
+    /// the window's start and the group's parts (unshifted) shorter than L' (S5's
+    /// `L < L'`); otherwise why not.
+    pub(crate) fn fits_window(
+        &self,
+        boxes: &[[f64; 4]],
+        g: usize,
+        extra: Option<usize>,
+    ) -> Result<(), String> {
+        let ext = self.extent_with(boxes, g, extra);
+        let w = self.groups[g].window;
+        let start = self.windows_mm.get(w).copied().unwrap_or(ext[0]);
+        let from = ext[0].min(start);
+        if ext[1] - from >= self.window_mm {
+            return Err(format!(
+                "the group with window {w}'s start would span X {from:.3}..{:.3} mm, {:.3} mm: not shorter than the window ({:.3} mm)",
+                ext[1],
+                ext[1] - from,
+                self.window_mm
+            ));
+        }
+        Ok(())
     }
 
     /// X extent `[xmin, xmax]` of group `g`'s unshifted parts plus part `extra`.
@@ -256,29 +292,47 @@ pub fn partition(parts: &[Part], params: &Params) -> Result<Partition, Partition
 
     let mut groups: Vec<Group> = Vec::new();
     let mut group_of = vec![0usize; parts.len()];
-    // Per tool: its current group (index into `groups`), the group's [xmin, xmax], and
-    // how many groups it opened.
-    let mut current: Vec<Option<(usize, [f64; 2])>> = vec![None; k];
-    let mut opened = vec![0usize; k];
+    // The windows, shared by every tool and spanning the whole width: window w starts at
+    // X `windows[w]` (the Xmin of the part that opened it) and is L' long. Per tool: its
+    // current group (index into `groups`) and that group's window.
+    let mut windows: Vec<f64> = Vec::new();
+    let mut current: Vec<Option<(usize, usize)>> = vec![None; k];
+    // Per group: the largest Xmax of its parts.
+    let mut group_end: Vec<f64> = Vec::new();
     for &i in &order {
         let b = boxes[i];
         // S2: the lane holding the box centre Yc.
         let yc = (b[1] + b[3]) / 2.0;
         let tool = (((yc - y0) / lane).floor().max(0.0) as usize).min(k - 1);
-        // S3-S5: join the tool's current group while the bounding length stays below L'.
-        if let Some((g, ext)) = &mut current[tool] {
-            let l = ext[1].max(b[2]) - ext[0].min(b[0]);
-            if l < params.window_mm {
-                ext[0] = ext[0].min(b[0]);
-                ext[1] = ext[1].max(b[2]);
-                groups[*g].parts.push(i);
-                group_of[i] = *g;
+        // The window being cut: the last one opened (parts come in increasing Xmin, so
+        // it starts at or before this part).
+        let last = windows.len().checked_sub(1);
+        // S3-S5: the tool's group in the current window takes the part while the
+        // rectangle H of the window's start, the group's parts and this one stays
+        // shorter than L' (`L < L'`; for the tool that opened the window, H is the
+        // source's rectangle of the group's parts).
+        if let (Some((g, w)), Some(last)) = (current[tool], last) {
+            if w == last && group_end[g].max(b[2]) - windows[w] < params.window_mm {
+                group_end[g] = group_end[g].max(b[2]);
+                groups[g].parts.push(i);
+                group_of[i] = g;
                 continue;
             }
         }
-        // S6-S7: a new group and window for this tool.
-        let window = opened[tool];
-        opened[tool] += 1;
+        // S6-S7: a new group for this tool, in the current window if the tool has no
+        // group there yet and the part fits it, otherwise in a new window starting at
+        // the part (F-i+1, shifted forward along X).
+        let window = match (last, current[tool]) {
+            (Some(last), c)
+                if c.is_none_or(|(_, w)| w < last) && b[2] - windows[last] < params.window_mm =>
+            {
+                last
+            }
+            _ => {
+                windows.push(b[0]);
+                windows.len() - 1
+            }
+        };
         let g = groups.len();
         groups.push(Group {
             id: g + 1,
@@ -289,8 +343,9 @@ pub fn partition(parts: &[Part], params: &Params) -> Result<Partition, Partition
             dy_mm: tool as f64 * params.gap_mm,
             parts: vec![i],
         });
+        group_end.push(b[2]);
         group_of[i] = g;
-        current[tool] = Some((g, [b[0], b[2]]));
+        current[tool] = Some((g, window));
     }
     for g in &mut groups {
         g.parts.sort_unstable();
@@ -303,13 +358,14 @@ pub fn partition(parts: &[Part], params: &Params) -> Result<Partition, Partition
         gap_mm: params.gap_mm,
         clearance_mm: params.clearance_mm.unwrap_or(params.gap_mm),
         window_mm: params.window_mm,
+        windows_mm: windows,
         tools: k,
     })
 }
 
 /// Applies the operator's forced assignments `(part id, group id)`: each part joins the
 /// group (and its shift). Refused when the part or group does not exist, or when the
-/// group would no longer fit its window (L >= L').
+/// group would no longer lie in its window (see `fits_window`).
 pub fn assign(
     parts: &[Part],
     partition: &mut Partition,
@@ -337,14 +393,7 @@ pub fn assign(
                     partition.groups.len()
                 ))
             })?;
-        let ext = partition.extent_with(&boxes, g, Some(p));
-        if ext[1] - ext[0] >= partition.window_mm {
-            return Err(err(format!(
-                "the group would be {:.3} mm long, not shorter than the window ({:.3} mm)",
-                ext[1] - ext[0],
-                partition.window_mm
-            )));
-        }
+        partition.fits_window(&boxes, g, Some(p)).map_err(err)?;
         partition.reassign(p, g);
         pinned.push(p);
     }

@@ -464,10 +464,7 @@ fn overlaps_if_moved(
     p: usize,
     g: usize,
 ) -> Option<Vec<usize>> {
-    let ext = partition.extent_with(bounds, g, Some(p));
-    if ext[1] - ext[0] >= partition.window_mm {
-        return None;
-    }
+    partition.fits_window(bounds, g, Some(p)).ok()?;
     let grp = &partition.groups[g];
     let moved = placed.polygons[p].translate(grp.dx_mm, grp.dy_mm);
     let b = bounds[p];
