@@ -35,6 +35,8 @@ pub struct Figures {
     pub gap_every_part: Material,
     pub added_length_partitioned_mm: f64,
     pub added_length_every_part_mm: f64,
+    /// Width the partition adds to the nest as given (its lanes' DY), mm.
+    pub added_width_partitioned_mm: f64,
     /// Added length of the partition / added length of a gap around every part (None
     /// when the latter is 0: a single part along every line).
     pub added_length_fraction: Option<f64>,
@@ -117,6 +119,7 @@ pub fn figures(parts: &[Part], partition: &Partition) -> Figures {
         gap_every_part: every,
         added_length_partitioned_mm: added,
         added_length_every_part_mm: add_every,
+        added_width_partitioned_mm: partitioned.width_mm - no_gap.width_mm,
         added_length_fraction: (add_every > 0.0).then(|| added / add_every),
         crossings_along_x: nx,
         crossings_along_y: ny,

@@ -119,6 +119,15 @@ pub enum PartitionError {
         ymax: f64,
         w: f64,
     },
+    #[error("{count} part(s) do not fit the {material:.3} mm material (Y {y0:.3}..{y1:.3} mm) after the shifts, the partitioned layout needs {needed:.3} mm: {list} (--material-width-mm states the material's width)", y1 = y0 + material)]
+    OutsideMaterial {
+        count: usize,
+        material: f64,
+        y0: f64,
+        needed: f64,
+        /// Each part that does not fit: its id, group and Y extent after the shifts.
+        list: String,
+    },
     #[error("--assign {part}={group}: {message}")]
     Assign {
         part: String,
@@ -360,6 +369,75 @@ pub fn partition(parts: &[Part], params: &Params) -> Result<Partition, Partition
         window_mm: params.window_mm,
         windows_mm: windows,
         tools: k,
+    })
+}
+
+/// The material a partition is written on: its width and the partitioned layout's.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct MaterialFit {
+    /// The material's width, mm, from the lanes' lower edge `y0_mm`.
+    pub material_width_mm: f64,
+    /// The partitioned layout's width across, mm: at least W, and as far as the shifted
+    /// parts reach from `y0_mm`.
+    pub partitioned_width_mm: f64,
+}
+
+/// Checks that every shifted part lies on the material (Y from the lanes' lower edge to
+/// that plus `material_width_mm`; None: the partition's width W); a part that does not
+/// is named with its group and where it reaches.
+pub fn fit_material(
+    parts: &[Part],
+    partition: &Partition,
+    material_width_mm: Option<f64>,
+) -> Result<MaterialFit, PartitionError> {
+    let material = material_width_mm.unwrap_or(partition.width_mm);
+    if !(material > 0.0) || !material.is_finite() {
+        return Err(PartitionError::Params(
+            "--material-width-mm must be a positive length".into(),
+        ));
+    }
+    let y0 = partition.y0_mm;
+    let offsets = partition.offsets();
+    let mut top = y0 + partition.width_mm;
+    let mut outside = Vec::new();
+    for (i, (part, d)) in parts.iter().zip(&offsets).enumerate() {
+        let b = part.bounds();
+        let (lo, hi) = (b[1] + d[1], b[3] + d[1]);
+        top = top.max(hi);
+        // A nanometre of slack: a part on the edge fits.
+        if lo < y0 - 1e-6 || hi > y0 + material + 1e-6 {
+            outside.push((i, lo, hi));
+        }
+    }
+    if outside.is_empty() {
+        return Ok(MaterialFit {
+            material_width_mm: material,
+            partitioned_width_mm: top - y0,
+        });
+    }
+    let shown: Vec<String> = outside
+        .iter()
+        .take(20)
+        .map(|&(i, lo, hi)| {
+            let g = &partition.groups[partition.group_of[i]];
+            format!(
+                "`{}` (group {}, DY {:.3}) at Y {lo:.3}..{hi:.3}",
+                parts[i].id, g.id, g.dy_mm
+            )
+        })
+        .collect();
+    let more = outside.len().saturating_sub(shown.len());
+    Err(PartitionError::OutsideMaterial {
+        count: outside.len(),
+        material,
+        y0,
+        needed: top - y0,
+        list: shown.join("; ")
+            + &if more > 0 {
+                format!("; and {more} more")
+            } else {
+                String::new()
+            },
     })
 }
 
