@@ -1,5 +1,5 @@
 //! A board's artwork for the lab that makes it (DXF and SVG at 1:1, millimetres, board
-//! +y up) and the certificate template the metrology lab fills in (`i,j,x_mm,y_mm`,
+//! +y up), a PDF for a test print at 1:1 on an office printer, and the certificate template the metrology lab fills in (`i,j,x_mm,y_mm`,
 //! nominal positions to be replaced by the measured ones). Coded boards
 //! (docs/coded-board.md) get each dot at its code size.
 
@@ -8,26 +8,35 @@ use protocol::Board;
 use serde_json::{json, Map, Value};
 use std::fmt::Write as _;
 
-/// `gateway board make`: the three files handed to the sink as artifacts named after
-/// the board file (`NAME.svg`, `NAME.dxf`, `NAME.certificate-template.csv`).
+/// `gateway board make`: the four files handed to the sink as artifacts named after
+/// the board file (`NAME.svg`, `NAME.dxf`, `NAME.pdf`, `NAME.certificate-template.csv`).
 pub fn make(board: &Board, name: &str, sink: &mut dyn Sink) -> Outcome {
     let files = [
-        (format!("{name}.svg"), "image/svg+xml", svg(board)),
-        (format!("{name}.dxf"), "image/vnd.dxf", dxf(board)),
+        (
+            format!("{name}.svg"),
+            "image/svg+xml",
+            svg(board).into_bytes(),
+        ),
+        (
+            format!("{name}.dxf"),
+            "image/vnd.dxf",
+            dxf(board).into_bytes(),
+        ),
+        (format!("{name}.pdf"), "application/pdf", pdf(board)),
         (
             format!("{name}.certificate-template.csv"),
             "text/csv",
-            template(board),
+            template(board).into_bytes(),
         ),
     ];
     let mut names = Vec::new();
-    for (file, media_type, text) in files {
+    for (file, media_type, bytes) in files {
         names.push(file.clone());
         let artifact = Artifact {
             name: file,
             title: None,
             media_type,
-            bytes: text.into_bytes(),
+            bytes,
         };
         if let Err(e) = sink.artifact(artifact) {
             return Outcome::failed(e);
@@ -114,6 +123,96 @@ pub fn dxf(board: &Board) -> String {
     s
 }
 
+/// Millimetres to PDF points.
+const PT_PER_MM: f32 = 72.0 / 25.4;
+/// Height of the caption strip under the artwork, mm.
+const CAPTION_MM: f64 = 8.0;
+
+/// A test print: one page the size of the artwork (plus a caption), dots at 1:1 in mm
+/// (the content is drawn in mm through one scale transform, so each coordinate keeps
+/// f32's precision, 0.01 um at 200 mm), Deflate-compressed. Printed at "actual size"
+/// it checks the optics and the code before a lab makes the glass.
+pub fn pdf(board: &Board) -> Vec<u8> {
+    use pdf_writer::{Content, Filter, Finish, Name, Pdf, Rect, Ref, Str};
+    let (lo, hi) = frame(board);
+    let (w, h) = (hi[0] - lo[0], hi[1] - lo[1] + CAPTION_MM);
+    let (catalog, tree, page, content_id, font) = (
+        Ref::new(1),
+        Ref::new(2),
+        Ref::new(3),
+        Ref::new(4),
+        Ref::new(5),
+    );
+    let font_name = Name(b"F1");
+    let (fg, bg) = match board.polarity {
+        protocol::Polarity::DarkOnLight => (0.0, 1.0),
+        protocol::Polarity::BrightOnDark => (1.0, 0.0),
+    };
+    let mut c = Content::new();
+    c.save_state();
+    c.transform([PT_PER_MM, 0.0, 0.0, PT_PER_MM, 0.0, 0.0]);
+    // The board's background (a bright-on-dark board prints its dark field).
+    c.set_fill_gray(bg);
+    c.rect(0.0, CAPTION_MM as f32, w as f32, (hi[1] - lo[1]) as f32);
+    c.fill_nonzero();
+    c.set_fill_gray(fg);
+    // A circle as four cubic Beziers (0.027 % radial error).
+    const K: f32 = 0.552_284_8;
+    for (centre, d) in dots(board) {
+        let x = (centre[0] - lo[0]) as f32;
+        let y = (centre[1] - lo[1] + CAPTION_MM) as f32;
+        let r = (d / 2.0) as f32;
+        let k = K * r;
+        c.move_to(x + r, y);
+        c.cubic_to(x + r, y + k, x + k, y + r, x, y + r);
+        c.cubic_to(x - k, y + r, x - r, y + k, x - r, y);
+        c.cubic_to(x - r, y - k, x - k, y - r, x, y - r);
+        c.cubic_to(x + k, y - r, x + r, y - k, x + r, y);
+        c.close_path();
+    }
+    c.fill_nonzero();
+    c.restore_state();
+    let caption = format!(
+        "{}: {} x {} dots, pitch {} mm{} - print at actual size (100 %), then measure the pitch",
+        board.name,
+        board.cols,
+        board.rows,
+        board.pitch_mm,
+        if board.code.is_some() { ", coded" } else { "" }
+    );
+    c.set_fill_gray(0.0);
+    c.begin_text();
+    c.set_font(font_name, 9.0);
+    c.next_line(3.0 * PT_PER_MM, 3.0 * PT_PER_MM);
+    // The base-14 fonts read single bytes: anything outside ASCII becomes '?'.
+    let ascii: Vec<u8> = caption
+        .chars()
+        .map(|ch| if ch.is_ascii() { ch as u8 } else { b'?' })
+        .collect();
+    c.show(Str(&ascii));
+    c.end_text();
+    let raw = c.finish();
+    let packed = miniz_oxide::deflate::compress_to_vec_zlib(&raw, 6);
+
+    let mut pdf = Pdf::new();
+    pdf.catalog(catalog).pages(tree);
+    pdf.pages(tree).kids([page]).count(1);
+    let mut p = pdf.page(page);
+    p.media_box(Rect::new(
+        0.0,
+        0.0,
+        w as f32 * PT_PER_MM,
+        h as f32 * PT_PER_MM,
+    ));
+    p.parent(tree);
+    p.contents(content_id);
+    p.resources().fonts().pair(font_name, font);
+    p.finish();
+    pdf.type1_font(font).base_font(Name(b"Helvetica"));
+    pdf.stream(content_id, &packed).filter(Filter::FlateDecode);
+    pdf.finish()
+}
+
 /// The certificate template the metrology lab fills in (`i,j,x_mm,y_mm`).
 pub fn template(board: &Board) -> String {
     let mut s = format!(
@@ -132,6 +231,29 @@ pub fn template(board: &Board) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The page size (points) and the content's operator lines, read back by hand:
+    /// the MediaBox, the one Flate stream inflated.
+    fn read_pdf(pdf: &[u8]) -> ([f64; 2], Vec<String>) {
+        let text = String::from_utf8_lossy(pdf);
+        let mb = text.split("/MediaBox [").nth(1).expect("a MediaBox");
+        let v: Vec<f64> = mb
+            .split(']')
+            .next()
+            .unwrap()
+            .split_whitespace()
+            .map(|x| x.parse().unwrap())
+            .collect();
+        let start = pdf.windows(7).position(|w| w == b"stream\n").unwrap() + 7;
+        let end = pdf.windows(10).position(|w| w == b"\nendstream").unwrap();
+        let raw = miniz_oxide::inflate::decompress_to_vec_zlib(&pdf[start..end]).unwrap();
+        let ops = String::from_utf8(raw)
+            .unwrap()
+            .lines()
+            .map(str::to_string)
+            .collect();
+        ([v[2] - v[0], v[3] - v[1]], ops)
+    }
 
     #[test]
     fn artwork_has_every_dot_at_its_code_size_and_the_template_reads_back() {
@@ -171,6 +293,40 @@ mod tests {
         };
         assert_eq!(text("coded.svg").matches("<circle").count(), dots);
         assert_eq!(text("coded.dxf").matches("\nCIRCLE\n").count(), dots);
+        let pdf = &sink.0.iter().find(|a| a.name == "coded.pdf").unwrap().bytes;
+        let (page_pt, ops) = read_pdf(pdf);
+        // The page: the artwork and a pitch of margin each side, plus the caption.
+        let (lo, hi) = board.extent();
+        let m = board.pitch_mm;
+        let expect = [
+            (hi[0] - lo[0] + 2.0 * m) * 72.0 / 25.4,
+            (hi[1] - lo[1] + 2.0 * m + CAPTION_MM) * 72.0 / 25.4,
+        ];
+        assert!(
+            (page_pt[0] - expect[0]).abs() < 0.01,
+            "{page_pt:?} {expect:?}"
+        );
+        assert!(
+            (page_pt[1] - expect[1]).abs() < 0.01,
+            "{page_pt:?} {expect:?}"
+        );
+        // One closed path of four curves per dot.
+        assert_eq!(ops.iter().filter(|l| l.ends_with(" m")).count(), dots);
+        assert_eq!(ops.iter().filter(|l| l.ends_with(" c")).count(), 4 * dots);
+        // The first dot, (0, 0), starts at its right edge, in mm from the page's corner.
+        let first = ops.iter().find(|l| l.ends_with(" m")).unwrap();
+        let xy: Vec<f64> = first
+            .split(' ')
+            .take(2)
+            .map(|v| v.parse().unwrap())
+            .collect();
+        let c = board.nominal_xy(0, 0);
+        let r = board.dot_diameter_at(0, 0) / 2.0;
+        assert!((xy[0] - (c[0] - (lo[0] - m) + r)).abs() < 1e-4, "{first}");
+        assert!(
+            (xy[1] - (c[1] - (lo[1] - m) + CAPTION_MM)).abs() < 1e-4,
+            "{first}"
+        );
         // Two dot sizes on a coded board.
         let radii: std::collections::BTreeSet<String> = text("coded.svg")
             .split(" r=\"")
