@@ -14,10 +14,25 @@
 //!    is cut in halves until, at the quarter points and the middle of every piece, the
 //!    straight line between the commands stays within the tolerance of the command the
 //!    model gives for the nominal point there ([`split`]); rapids (G0) are not split,
-//!    only their end is corrected; arcs become chords within half the tolerance and each
-//!    chord is split within the other half;
-//! 3. checks every command against the correction bound and the soft limits;
-//! 4. writes the block back with only the axis words changed (comments, line numbers,
+//!    only their end is corrected (their path is not controlled, as on any CNC); arcs
+//!    become chords within half the tolerance and each chord is split within the other
+//!    half;
+//! 3. follows each axis's *command* along the move, not only its programmed direction:
+//!    where the command of any axis turns back (a reversal, or the correction of an axis
+//!    the program leaves still creeping up and then back), the move is cut there, the
+//!    axis first takes up its backlash on the spot (the model's command for the other
+//!    side at the same point), and the rest of the move is commanded for that side
+//!    ([`split::turns`]). A retreat smaller than half the tolerance is not followed (the
+//!    map's own noise; the axis stays at most that far in its backlash), and what is left
+//!    of it is carried into the next moves, so a creep spread over many short moves is
+//!    seen. Bound: at most one turn per axis per sample (a quarter of the model's feature
+//!    length), and at most (the travel of the axis's correction back and forth along the
+//!    move) / (T / 2) turns per axis;
+//! 4. moves the values of G92 and G10 L20 by the correction at the present point (the
+//!    controller takes its corrected position for the present point), so the offset set
+//!    is the one the program meant;
+//! 5. checks every command against the correction bound and the soft limits;
+//! 6. writes the block back with only the axis words changed (comments, line numbers,
 //!    feeds, spindle words and spacing kept), the extra pieces as `G1` lines after it.
 //!
 //! Positions: the rewriter knows an axis's position once an absolute move (G90 or G53)
@@ -32,6 +47,7 @@
 //! becomes about 40 pieces at T = 0.5 um.
 
 pub mod dialect;
+pub mod programs;
 mod rewriter;
 pub mod split;
 

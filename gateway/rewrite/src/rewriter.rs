@@ -1,7 +1,7 @@
 //! The block-by-block rewriter, usable on a whole file ([`rewrite_program`]) or line by
 //! line as a sender streams them ([`Rewriter::line`], the live pass-through).
 
-use crate::split::{distance, split};
+use crate::split::{distance, lerp, split, turns, MAX_SAMPLES, REVERSAL_SHARE};
 use crate::{Approach, Compensation, Pose, AXIS_LETTERS, N_AXIS};
 use protocol::grbl::codes::error_text;
 use protocol::grbl::gcode::{filter_line, Action, FilterError, Interpreter, Motion, Rate};
@@ -62,6 +62,10 @@ pub struct Report {
     pub moves_compensated: usize,
     /// Lines added by splitting moves and turning arcs into chords.
     pub segments_added: usize,
+    /// Of those, the pieces that take up an axis's backlash on the spot where its
+    /// command turns back (at a reversal, or where a correction stops creeping one way
+    /// and creeps the other).
+    pub backlash_takeups: usize,
     /// Largest |command - nominal| over the compensated axes, um.
     pub largest_correction_um: f64,
     /// Line of that largest correction.
@@ -131,6 +135,9 @@ pub struct Rewriter<'a> {
     /// The last command written per axis, machine mm (as rounded in the output).
     command: Pose,
     approach: [Approach; N_AXIS],
+    /// How far each axis's command has come back from the furthest point on its side
+    /// without a turn (below the threshold), mm: see [`crate::split::turns`].
+    retreat: Pose,
     compensated: [bool; N_AXIS],
     /// The model's feature length, asked once.
     feature_mm: f64,
@@ -190,6 +197,7 @@ impl<'a> Rewriter<'a> {
             known: [false; N_AXIS],
             command: [0.0; N_AXIS],
             approach: [Approach::Forward; N_AXIS],
+            retreat: [0.0; N_AXIS],
             compensated,
             feature_mm: compensation.feature_length_mm(),
             report: Report::default(),
@@ -206,6 +214,7 @@ impl<'a> Rewriter<'a> {
         self.interpreter.position = p;
         self.command = p;
         self.known = [true; N_AXIS];
+        self.retreat = [0.0; N_AXIS];
     }
 
     /// The machine's command is `command` and the tool's nominal position `nominal`
@@ -214,6 +223,7 @@ impl<'a> Rewriter<'a> {
         self.interpreter.position = nominal;
         self.command = command;
         self.known = [true; N_AXIS];
+        self.retreat = [0.0; N_AXIS];
     }
 
     /// The controller's stored G54..G59 offsets (from its `$#` reply), machine mm.
@@ -260,6 +270,18 @@ impl<'a> Rewriter<'a> {
     pub fn controller_reset(&mut self) {
         self.interpreter.reset();
         self.forget_position();
+    }
+
+    /// Comment lines to put at the top of a rewritten program (a file; the live
+    /// pass-through has no top): what the rewrite holds and what it does not.
+    pub fn header(&self) -> Vec<String> {
+        vec![
+            format!(
+                "(compensated by the gateway: feed moves within {} um of the programmed path)",
+                self.options.tolerance_mm * 1000.0
+            ),
+            "(rapids G0 are corrected at their end only: their path is not controlled)".into(),
+        ]
     }
 
     pub fn report(&self) -> &Report {
@@ -369,6 +391,11 @@ impl<'a> Rewriter<'a> {
             || moves.iter().any(|(t, _)| {
                 (0..N_AXIS).any(|i| self.compensated[i] && t[i] != before.position[i])
             });
+        let sets_offset = (g(92.0) || (g(10.0) && block.word('L').map(Word::value) == Some(20.0)))
+            && named.iter().any(|&i| self.compensated[i]);
+        if sets_offset {
+            return self.offset_block(block, before, &named, line_no);
+        }
         if moves.is_empty() || !touches_compensated {
             // Nothing the model changes: the block goes as written.
             for (target, _) in &moves {
@@ -423,92 +450,121 @@ impl<'a> Rewriter<'a> {
         let mut from = before.position;
         let mut from_command = self.command;
         let mut approach = self.approach;
+        let mut retreat = self.retreat;
+        let mut takeups = 0;
         let mut first_unknown = !start_known;
+        let comp = self.compensation;
+        let compensated = self.compensated;
+        let threshold = REVERSAL_SHARE * self.options.tolerance_mm;
+        let model = |e: String| RewriteError {
+            line: line_no,
+            kind: RewriteErrorKind::Model(e),
+        };
         for (target, rate) in &moves {
-            let previous = approach;
-            for i in 0..N_AXIS {
-                if target[i] > from[i] {
-                    approach[i] = Approach::Forward;
-                } else if target[i] < from[i] {
-                    approach[i] = Approach::Reverse;
-                }
-            }
             let rapid = matches!(rate, Rate::Rapid);
-            // An axis the program does not move still gets corrections that creep (the
-            // squareness correction of X changes along a Y move). What the machine sees
-            // is the command's direction: creeping back opens the backlash, so such an
-            // axis takes the side its command moves to.
-            if !first_unknown {
-                let comp = self.compensation;
-                let end = comp
-                    .command_near(target, &approach, &from_command)
-                    .map_err(|e| self.fail(line_no, RewriteErrorKind::Model(e)))?;
+            if first_unknown {
+                // Only the end is corrected; each moved axis arrives from the side it
+                // moved from (as far as the interpreter knows).
                 for i in 0..N_AXIS {
-                    if self.compensated[i] && target[i] == from[i] {
-                        let creep = end[i] - from_command[i];
-                        if creep > 1e-7 {
-                            approach[i] = Approach::Forward;
-                        } else if creep < -1e-7 {
-                            approach[i] = Approach::Reverse;
-                        }
+                    if target[i] > from[i] {
+                        approach[i] = Approach::Forward;
+                    } else if target[i] < from[i] {
+                        approach[i] = Approach::Reverse;
                     }
                 }
+                retreat = [0.0; N_AXIS];
+                let c = command_on(comp, &compensated, &approach, target, target).map_err(model)?;
+                if !rapid {
+                    self.note(
+                        line_no,
+                        "the start of this move is not known: only its end is corrected",
+                    );
+                }
+                self.check_correction(target, &c, line_no)?;
+                self.check_limits(&c, line_no)?;
+                pieces.push((*target, c, rapid));
+                first_unknown = false;
+                from = *target;
+                from_command = c;
+                continue;
             }
-            let reverses = (0..N_AXIS).any(|i| self.compensated[i] && approach[i] != previous[i]);
-            let comp = self.compensation;
-            let compensated = self.compensated;
-            let mut command = |p: &Pose, guess: &Pose| -> Result<Pose, String> {
-                let c = comp.command_near(p, &approach, guess)?;
-                let mut out = *p;
+            // Where each axis's command turns back along the move (a moving axis at a
+            // reversal, one the program leaves still as its correction creeps up and
+            // back): from there on the axis arrives from the other side. A rapid's path
+            // is not controlled: only its end, on the side each axis's command last
+            // moved to.
+            let samples = if rapid { 1 } else { MAX_SAMPLES };
+            let turns = turns(
+                &from,
+                &from_command,
+                target,
+                &approach,
+                &retreat,
+                &compensated,
+                threshold,
+                self.feature_mm,
+                samples,
+                &mut |p: &Pose, g: &Pose| command_on(comp, &compensated, &approach, p, g),
+            )
+            .map_err(model)?;
+            retreat = turns.retreat;
+            if rapid {
+                approach = turns.runs.last().map_or(approach, |r| r.1);
+                let mut guess = *target;
                 for i in 0..N_AXIS {
-                    if compensated[i] {
-                        out[i] = c[i];
+                    guess[i] += from_command[i] - from[i];
+                }
+                let c = command_on(comp, &compensated, &approach, target, &guess).map_err(model)?;
+                self.check_correction(target, &c, line_no)?;
+                self.check_limits(&c, line_no)?;
+                pieces.push((*target, c, true));
+                from = *target;
+                from_command = c;
+                continue;
+            }
+            for (j, (t, sides)) in turns.runs.iter().enumerate() {
+                let t_end = turns.runs.get(j + 1).map_or(1.0, |r| r.0);
+                let at = |t: f64| {
+                    if t == 0.0 {
+                        from
+                    } else if t == 1.0 {
+                        *target
+                    } else {
+                        lerp(&from, target, t)
+                    }
+                };
+                let (pa, pb) = (at(*t), at(t_end));
+                if *sides != approach {
+                    // An axis turns here: it first takes up its backlash on the spot (the
+                    // model's command for the new side at the same point), so the slack
+                    // is not taken up while the other axes already move (the tool would
+                    // leave the path by the backlash).
+                    let c =
+                        command_on(comp, &compensated, sides, &pa, &from_command).map_err(model)?;
+                    approach = *sides;
+                    if c != from_command {
+                        self.check_correction(&pa, &c, line_no)?;
+                        self.check_limits(&c, line_no)?;
+                        pieces.push((pa, c, false));
+                        from_command = c;
+                        takeups += 1;
                     }
                 }
-                Ok(out)
-            };
-            // An axis that reverses first takes up its backlash on the spot: a piece to
-            // the start point's command for the new direction, so the slack is not taken
-            // up while the other axis already moves (the tool would leave the path by
-            // the backlash).
-            if reverses && !rapid && !first_unknown {
-                let c = command(&from, &from_command)
-                    .map_err(|e| self.fail(line_no, RewriteErrorKind::Model(e)))?;
-                if c != from_command {
-                    self.check_correction(&from, &c, line_no)?;
-                    self.check_limits(&c, line_no)?;
-                    pieces.push((from, c, false));
-                    from_command = c;
-                }
-            }
-            let segment = if rapid || first_unknown {
-                vec![(*target, command(target, target))]
-                    .into_iter()
-                    .map(|(p, c)| c.map(|c| (p, c)))
-                    .collect::<Result<Vec<_>, _>>()
-            } else {
-                split(
-                    &from,
+                let segment = split(
+                    &pa,
                     &from_command,
-                    target,
+                    &pb,
                     tolerance,
                     self.feature_mm,
-                    &mut command,
+                    &mut |p: &Pose, g: &Pose| command_on(comp, &compensated, &approach, p, g),
                 )
-            }
-            .map_err(|e| self.fail(line_no, RewriteErrorKind::Model(e)))?;
-            if first_unknown && !rapid {
-                self.note(
-                    line_no,
-                    "the start of this move is not known: only its end is corrected",
-                );
-            }
-            first_unknown = false;
-            for (p, c) in segment {
-                self.check_correction(&p, &c, line_no)?;
-                self.check_limits(&c, line_no)?;
-                pieces.push((p, c, rapid));
-                from_command = c;
+                .map_err(model)?;
+                for (p, c) in segment {
+                    self.check_correction(&p, &c, line_no)?;
+                    self.check_limits(&c, line_no)?;
+                    pieces.push((p, c, false));
+                    from_command = c;
+                }
             }
             from = *target;
         }
@@ -522,9 +578,56 @@ impl<'a> Rewriter<'a> {
         )?;
         self.known = known_after;
         self.approach = approach;
+        self.retreat = retreat;
         self.report.moves_compensated += 1;
+        self.report.backlash_takeups += takeups;
         self.report.segments_added += lines.len() - 1;
         Ok(lines)
+    }
+
+    /// G92 or G10 L20: the present point gets the given coordinates. The controller
+    /// takes its own position, the corrected command, for the present point, so each
+    /// compensated axis's value is moved by the correction there: the offset it sets is
+    /// the one the program meant (else every later point would be off by the correction
+    /// where the offset was set).
+    fn offset_block(
+        &mut self,
+        block: &Block,
+        before: &Interpreter,
+        named: &[usize],
+        line_no: usize,
+    ) -> Result<Vec<String>, RewriteError> {
+        let modal = self.interpreter.modal;
+        let unit = if modal.inches { 25.4 } else { 1.0 };
+        let decimals = if modal.inches { 5 } else { 4 };
+        let mut edited = block.clone();
+        let axes: Vec<usize> = named
+            .iter()
+            .copied()
+            .filter(|&i| self.compensated[i])
+            .collect();
+        for i in axes {
+            if !self.known[i] {
+                self.note(
+                    line_no,
+                    format!(
+                        "the {} position is not known here: the offset is set as written, off by the correction at the present point",
+                        AXIS_LETTERS[i]
+                    ),
+                );
+                continue;
+            }
+            let Some(w) = block.word(AXIS_LETTERS[i]) else {
+                continue;
+            };
+            let value = w.value() + (self.command[i] - before.position[i]) / unit;
+            edited
+                .set_word(AXIS_LETTERS[i], round_to(value, decimals), decimals)
+                .map_err(|e| self.fail(line_no, RewriteErrorKind::Model(e.to_string())))?;
+        }
+        let line = edited.to_string();
+        filter_line(&line).map_err(|e| self.fail(line_no, RewriteErrorKind::Filter(e)))?;
+        Ok(vec![line])
     }
 
     fn command_passthrough(&mut self, target: &Pose) {
@@ -681,6 +784,25 @@ impl<'a> Rewriter<'a> {
         }
         Ok(())
     }
+}
+
+/// The model's command for `p` with each axis arriving from `sides`, from a first guess;
+/// the axes the model does not compensate as programmed.
+fn command_on(
+    comp: &dyn Compensation,
+    compensated: &[bool; N_AXIS],
+    sides: &[Approach; N_AXIS],
+    p: &Pose,
+    guess: &Pose,
+) -> Result<Pose, String> {
+    let c = comp.command_near(p, sides, guess)?;
+    let mut out = *p;
+    for i in 0..N_AXIS {
+        if compensated[i] {
+            out[i] = c[i];
+        }
+    }
+    Ok(out)
 }
 
 fn round_to(v: f64, decimals: usize) -> f64 {
