@@ -3,7 +3,7 @@
 
 use crate::request::{LayoutFormat, LayoutRequest, PictureFormat};
 use crate::{Artifact, Outcome, Sink};
-use layout::{Params, Partition, Resolution};
+use layout::{MaterialFit, Params, Partition, Resolution};
 use layout_io::{Layout, ReadOptions};
 use serde_json::{json, Value};
 use std::time::Instant;
@@ -19,6 +19,8 @@ pub struct Partitioned {
     pub doc: Layout,
     pub partition: Partition,
     pub resolution: Resolution,
+    /// The material's width and the partitioned layout's.
+    pub material: MaterialFit,
     /// The partition's time, ms.
     pub elapsed_ms: f64,
 }
@@ -49,13 +51,15 @@ pub fn partitioned(request: &LayoutRequest) -> Result<Partitioned, String> {
         } else {
             layout::resolve(&doc.parts, &mut partition, &pinned)?
         };
-        Ok::<_, layout::PartitionError>((partition, resolution))
+        let material = layout::fit_material(&doc.parts, &partition, request.material_width_mm)?;
+        Ok::<_, layout::PartitionError>((partition, resolution, material))
     })();
-    let (partition, resolution) = outcome.map_err(|e| e.to_string())?;
+    let (partition, resolution, material) = outcome.map_err(|e| e.to_string())?;
     Ok(Partitioned {
         doc,
         partition,
         resolution,
+        material,
         elapsed_ms: t0.elapsed().as_secs_f64() * 1e3,
     })
 }
@@ -66,6 +70,14 @@ pub fn report(p: &Partitioned) -> Value {
         .unwrap_or(Value::Null);
     if let Some(o) = v.as_object_mut() {
         o.insert("partition_ms".into(), json!(p.elapsed_ms));
+        o.insert(
+            "material_width_mm".into(),
+            json!(p.material.material_width_mm),
+        );
+        o.insert(
+            "partitioned_width_mm".into(),
+            json!(p.material.partitioned_width_mm),
+        );
     }
     v
 }
@@ -79,11 +91,13 @@ pub fn partition(request: &LayoutRequest, sink: &mut dyn Sink) -> Outcome {
         Err(e) => return Outcome::failed(e),
     };
     let out_format = request.out_format.unwrap_or(request.format);
-    let shifted = match p
-        .doc
-        .translated(&p.partition.offsets())
-        .and_then(|l| l.write(out_format.format()))
-    {
+    let shifted = match p.doc.translated(&p.partition.offsets()).and_then(|mut l| {
+        // The written width is the partitioned layout's, from Y 0 (the JSON's frame).
+        if p.partition.y0_mm >= 0.0 {
+            l.width_mm = Some(p.partition.y0_mm + p.material.partitioned_width_mm);
+        }
+        l.write(out_format.format())
+    }) {
         Ok(bytes) => bytes,
         Err(e) => return Outcome::failed(format!("writing the shifted layout: {e}")),
     };
@@ -203,6 +217,13 @@ pub fn summary(r: &Value) -> String {
     row(&mut t, "no gap", &f["no_gap"]);
     row(&mut t, "partitioned", &f["partitioned"]);
     row(&mut t, "gap every part", &f["gap_every_part"]);
+    let _ = writeln!(
+        t,
+        "material {:.3} mm wide; the partition adds {:.3} mm across (width {:.3} mm)",
+        n(&r["material_width_mm"]),
+        n(&f["added_width_partitioned_mm"]),
+        n(&r["partitioned_width_mm"])
+    );
     let _ =
         match f["added_length_fraction"].as_f64() {
             Some(frac) => writeln!(t,
@@ -218,4 +239,64 @@ pub fn summary(r: &Value) -> String {
             ),
         };
     t
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{Collect, End};
+
+    /// Two lanes of 50 mm on 100 mm material, a part of lane 1 touching the top edge:
+    /// S8 moves lane 1 up by the gap.
+    fn request(material: Option<f64>) -> LayoutRequest {
+        let layout = json!({"units": "mm", "width_mm": 100.0, "parts": [
+            {"id": "a", "contours": [[[0, 0], [40, 0], [40, 40], [0, 40]]]},
+            {"id": "b", "contours": [[[10, 60], [50, 60], [50, 100], [10, 100]]]},
+        ]});
+        LayoutRequest {
+            layout: layout.to_string(),
+            format: LayoutFormat::Json,
+            tools: 2,
+            window_mm: 100.0,
+            gap_mm: 5.0,
+            width_mm: None,
+            material_width_mm: material,
+            clearance_mm: None,
+            assign: vec![],
+            widen: false,
+            chord_tolerance_mm: 0.01,
+            out_format: None,
+            picture: None,
+        }
+    }
+
+    #[test]
+    fn a_part_pushed_off_the_material_is_refused_by_name() {
+        let out = partition(&request(None), &mut Collect::default());
+        let End::Failed { error } = out.end else {
+            panic!("{:?}", out.end)
+        };
+        assert!(
+            error.contains("1 part(s) do not fit the 100.000 mm material")
+                && error.contains("`b` (group 2, DY 5.000) at Y 65.000..105.000")
+                && error.contains("needs 105.000 mm"),
+            "{error}"
+        );
+    }
+
+    #[test]
+    fn the_written_width_is_the_partitioned_width_and_the_report_says_what_was_added() {
+        let mut sink = Collect::default();
+        let out = partition(&request(Some(110.0)), &mut sink);
+        assert!(matches!(out.end, End::Succeeded), "{:?}", out.end);
+        let r = out.result.unwrap();
+        assert_eq!(r["material_width_mm"], json!(110.0));
+        assert_eq!(r["partitioned_width_mm"], json!(105.0));
+        assert_eq!(r["figures"]["added_width_partitioned_mm"], json!(5.0));
+        let written: Value = serde_json::from_slice(&sink.0[0].bytes).unwrap();
+        assert_eq!(written["width_mm"], json!(105.0));
+        assert!(summary(&r).contains("adds 5.000 mm across (width 105.000 mm)"));
+        let e = request(Some(0.0)).check().unwrap_err();
+        assert_eq!(e.field, "material_width_mm");
+    }
 }

@@ -557,6 +557,13 @@ pub struct LayoutRequest {
     #[cfg_attr(feature = "cli", arg(long))]
     #[schema(minimum = 0.001, maximum = 100000.0)]
     pub width_mm: Option<f64>,
+    /// Width of the material the partitioned layout is written on, mm, from the lanes'
+    /// lower edge (default: the layout's width W). A part that the shifts take past it
+    /// refuses the run, named.
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long))]
+    #[schema(minimum = 0.001, maximum = 100000.0)]
+    pub material_width_mm: Option<f64>,
     /// Parts of different groups closer than this after the shifts are overlaps, mm
     /// (default: the gap). Between 0.001 mm and the gap.
     #[serde(default)]
@@ -616,6 +623,9 @@ impl LayoutRequest {
         number("gap_mm", self.gap_mm, 1e-3, 1e3)?;
         if let Some(w) = self.width_mm {
             number("width_mm", w, 1e-3, 1e5)?;
+        }
+        if let Some(m) = self.material_width_mm {
+            number("material_width_mm", m, 1e-3, 1e5)?;
         }
         if let Some(c) = self.clearance_mm {
             number("clearance_mm", c, 1e-3, self.gap_mm)?;
@@ -1044,6 +1054,7 @@ mod tests {
             window_mm: 100.0,
             gap_mm: 5.0,
             width_mm: None,
+            material_width_mm: None,
             clearance_mm: None,
             assign: vec!["a=2".into(), "b".into()],
             widen: false,
