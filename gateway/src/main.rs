@@ -13,6 +13,7 @@ mod iso230;
 mod layout;
 mod localize;
 mod proxy;
+mod reference;
 mod rewrite;
 mod rotary;
 mod scan;
@@ -89,6 +90,10 @@ enum Cmd {
     /// the map's command and measure where the camera really is. `--spot-check`: a few
     /// points; exit code 2 when any point is off by more than `--drift-threshold-um` (re-scan).
     Verify(verify::VerifyArgs),
+    /// After every homing: home (when the job homes), one frame at the map's reference
+    /// point, and the machine zero's shift recorded beside the map as its current
+    /// reference (MAP.reference.json), which rewrite, proxy and verify --spot-check apply.
+    Reference(reference::ReferenceArgs),
     /// Write the map as a controller's own compensation table: `linuxcnc` (a COMP_FILE
     /// per joint, nominal/forward/reverse, at most 256 entries), `beckhoff` (a TwinCAT
     /// CNC plane compensation list per axis over X and Y) or `csv` (the model on the
@@ -135,6 +140,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Cmd::Rotary { cmd } => rotary::run(cmd, json),
         Cmd::Iso230(a) => iso230::dispatch(a, json),
         Cmd::Verify(a) => verify::verify(a, json),
+        Cmd::Reference(a) => reference::reference(a, json),
         Cmd::Export(a) => export::export(a, json),
         Cmd::Localize(a) => localize::localize(a, json),
         Cmd::Board { cmd } => board::run(cmd, json),
@@ -173,6 +179,11 @@ mod tests {
             panic!()
         };
         assert_eq!(json!(a.request), api("verify", json!({})));
+        let Cmd::Reference(a) = parse(&["reference", "--config", "j", "--map", "m"]) else {
+            panic!()
+        };
+        let from_api = procedure::request::ReferenceRequest::parse(&json!({})).unwrap();
+        assert_eq!(a.request, from_api);
         let Cmd::Iso230(a) = parse(&["iso230", "--config", "j", "--out", "o", "--axis", "X"])
         else {
             panic!()

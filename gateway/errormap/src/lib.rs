@@ -37,6 +37,7 @@ mod compensation;
 pub mod diff;
 pub mod export;
 pub mod heatmap;
+pub mod reference;
 pub mod scan;
 
 use protocol::errormap::{ErrorMap, Measured, Node};

@@ -18,6 +18,7 @@ pub mod layout;
 pub mod localize;
 pub mod map;
 pub mod proxy;
+pub mod reference;
 pub mod request;
 pub mod rewrite;
 pub mod rotary;

@@ -1081,3 +1081,79 @@ mod tests {
         assert_eq!(r.cycle, CycleName::PilgrimStep);
     }
 }
+
+fn default_max_shift() -> f64 {
+    errormap::reference::MAX_SHIFT_UM
+}
+
+/// A reference after homing: home (when the job homes), one frame at the map's reference
+/// point, the machine zero's shift recorded as the map's current reference. Not a job
+/// kind of [`Request`] yet: the service wires it (`procedure::reference::run`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+#[serde(deny_unknown_fields)]
+pub struct ReferenceRequest {
+    /// The largest machine-zero shift accepted, um (homing moves it by a few um; more
+    /// means the camera is on another board point, the board or the camera moved).
+    #[serde(default = "default_max_shift")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_max_shift()))]
+    #[schema(default = default_max_shift, minimum = 0.1, maximum = 500.0)]
+    pub max_shift_um: f64,
+}
+
+impl Default for ReferenceRequest {
+    fn default() -> Self {
+        Self {
+            max_shift_um: default_max_shift(),
+        }
+    }
+}
+
+impl ReferenceRequest {
+    pub fn check(&self) -> Result<(), RequestError> {
+        number(
+            "max_shift_um",
+            self.max_shift_um,
+            0.1,
+            errormap::reference::MAX_SHIFT_UM,
+        )
+    }
+
+    /// Parses and checks the API's params object.
+    pub fn parse(params: &Value) -> Result<Self, RequestError> {
+        if !params.is_object() {
+            return Err(RequestError::new("params", "must be a JSON object"));
+        }
+        let r: Self = from_json(params)?;
+        r.check()?;
+        Ok(r)
+    }
+}
+
+#[cfg(test)]
+mod reference_request_tests {
+    use super::*;
+    use serde_json::json;
+
+    #[test]
+    fn the_reference_request_defaults_and_bounds_are_its_schema() {
+        use utoipa::PartialSchema;
+        let schema = serde_json::to_value(ReferenceRequest::schema()).unwrap();
+        let p = &schema["properties"]["max_shift_um"];
+        let r = ReferenceRequest::parse(&json!({})).unwrap();
+        assert_eq!(json!(r.max_shift_um), p["default"]);
+        for (bound, outward) in [("minimum", -1e-9), ("maximum", 1e-9)] {
+            let b = p[bound].as_f64().unwrap();
+            ReferenceRequest::parse(&json!({ "max_shift_um": b })).unwrap();
+            let e = ReferenceRequest::parse(&json!({ "max_shift_um": b + outward * b.max(1.0) }))
+                .unwrap_err();
+            assert_eq!(e.field, "max_shift_um");
+        }
+        let e = ReferenceRequest::parse(&json!({"max_shift": 3})).unwrap_err();
+        assert_eq!(e.field, "max_shift");
+        assert_eq!(
+            ReferenceRequest::parse(&json!([])).unwrap_err().field,
+            "params"
+        );
+    }
+}

@@ -10,7 +10,7 @@
 //! few points; its mean residual is the drift since the scan.
 
 use crate::scan::approach_point;
-use crate::{JobError, Orchestrator};
+use crate::JobError;
 use devices::Devices;
 use drivers::AxisValues;
 use errormap::{Approach, Direction, MapModel};
@@ -119,21 +119,17 @@ pub async fn run_verify(
         crate::soft_limits(stage.info()).map_err(|e| (VerifyError::Reference(e), vec![]))?;
     let a = job.policy.approach_mm;
     let z = job.board_at_machine_zero_mm;
-    // Homing, the orientation check and the reference frame: a compensation job of one
-    // target (the map's reference point) and no correction.
-    let reference_mm = model.map().reference_mm;
-    let mut one = job.clone();
-    one.targets = vec![[reference_mm[0] + z[0], reference_mm[1] + z[1]]];
-    one.policy.max_iterations = 0;
-    let outcome = Orchestrator {
-        stage: &mut *stage,
-        camera: &mut *camera,
-        job: &one,
-    }
-    .run(&mut |_| {})
+    // Homing, the orientation check and the reference frame (shared with `gateway
+    // reference`).
+    let reference_um = crate::reference::measure_reference(
+        job,
+        &mut *stage,
+        &mut *camera,
+        model.map().reference_mm,
+    )
     .await
-    .map_err(|f| (VerifyError::Reference(f.error), vec![]))?;
-    let reference_um = outcome.completed[0].first().deviation.um();
+    .map_err(|e| (VerifyError::Reference(e), vec![]))?
+    .seen_um;
     let model = model
         .clone()
         .rereferenced(reference_um)

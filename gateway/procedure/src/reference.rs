@@ -1,0 +1,279 @@
+//! The reference after homing: home (when the job homes), one frame at the map's
+//! reference point, and the machine zero's shift recorded as the map's current
+//! reference (an [`errormap::reference::MapReference`], kept beside the map as
+//! `MAP.reference.json` by the CLI). `rewrite`, `proxy` and `verify --spot-check` apply
+//! it ([`choose`], [`apply`]) and say which one they use and how old it is.
+
+use crate::request::ReferenceRequest;
+use crate::{Artifact, Outcome, Sink};
+use devices::Devices;
+use errormap::reference::{Circumstances, MapReference};
+use errormap::MapModel;
+use job::Job;
+use protocol::errormap::ErrorMap;
+use runner::JobError;
+use serde_json::{json, Value};
+use std::path::{Path, PathBuf};
+use std::time::SystemTime;
+
+/// The record's artifact (the CLI writes it to [`reference_path`]).
+pub const REFERENCE_ARTIFACT: &str = "reference.json";
+
+/// The most bytes a reference record may have (it has a few hundred).
+pub const MAX_RECORD_BYTES: u64 = 64 << 10;
+
+/// Where a map's current reference is kept: beside it, `NAME.vN.reference.json` for
+/// `NAME.vN.json`.
+pub fn reference_path(map: &Path) -> PathBuf {
+    let name = map
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let stem = name.strip_suffix(".json").unwrap_or(&name);
+    map.with_file_name(format!("{stem}.reference.json"))
+}
+
+/// A record's text parsed and checked; `what` names it in errors.
+pub fn parse_record(text: &str, what: &str) -> Result<MapReference, String> {
+    let r: MapReference =
+        serde_json::from_str(text).map_err(|e| format!("{what}: not a reference record: {e}"))?;
+    r.check().map_err(|e| format!("{what}: {e}"))?;
+    Ok(r)
+}
+
+/// The record at `path` through the bounded reader, or None when there is none.
+pub fn read_record(path: &Path) -> Result<Option<MapReference>, String> {
+    if !path.exists() {
+        return Ok(None);
+    }
+    let what = format!("reference {}", path.display());
+    let bytes = protocol::config::read_bytes_bounded(path, MAX_RECORD_BYTES, "a reference record")
+        .map_err(|e| format!("{what}: {e}"))?;
+    let text = String::from_utf8(bytes).map_err(|_| format!("{what}: not UTF-8 text"))?;
+    parse_record(&text, &what).map(Some)
+}
+
+/// The record as written (pretty JSON, a newline at the end).
+pub fn record_json(r: &MapReference) -> String {
+    let mut t = serde_json::to_string_pretty(r).expect("a reference serializes");
+    t.push('\n');
+    t
+}
+
+/// Seconds since 1970 now, and the same as RFC 3339.
+fn now() -> (u64, String) {
+    let t = SystemTime::now();
+    let s = t
+        .duration_since(SystemTime::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    (s, errormap::scan::rfc3339(t))
+}
+
+/// Which reference a program is compensated with.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Choice {
+    /// The map's current reference.
+    Recorded(MapReference),
+    /// None is recorded: the map applies as scanned (a warning says what that costs).
+    NoneRecorded,
+    /// The operator asked for none (`--no-reference`).
+    NotWanted,
+}
+
+/// The choice from what the front end found: `no_reference` (the operator's flag) wins;
+/// else the record if there is one.
+pub fn choose(record: Option<MapReference>, no_reference: bool) -> Choice {
+    match (record, no_reference) {
+        (_, true) => Choice::NotWanted,
+        (Some(r), false) => Choice::Recorded(r),
+        (None, false) => Choice::NoneRecorded,
+    }
+}
+
+/// What applying a choice gave: the model, one line saying which reference and how old
+/// (for a program's header, a log, a sender), a warning when there is none, and the
+/// record's fields for a result.
+pub struct Applied {
+    pub model: MapModel,
+    pub describe: String,
+    pub warning: Option<String>,
+    pub json: Value,
+}
+
+/// The map's model under `choice` (a record of another map refused).
+pub fn apply(map: ErrorMap, choice: &Choice) -> Result<Applied, String> {
+    let model = MapModel::new(map);
+    let (now_s, _) = now();
+    Ok(match choice {
+        Choice::Recorded(r) => Applied {
+            model: r.apply(model).map_err(|e| e.to_string())?,
+            describe: r.describe(now_s),
+            warning: None,
+            json: json!({
+                "measured_at": r.measured_at, "age_s": r.age_s(now_s),
+                "reference_count": r.reference_count, "shift_um": r.shift_um,
+                "homing_count": r.homing_count, "temperature_c": r.temperature_c,
+            }),
+        },
+        Choice::NoneRecorded => Applied {
+            model,
+            describe: "no reference recorded: the map applies as scanned".into(),
+            warning: Some(
+                "no reference is recorded for this map: it applies as scanned, and each \
+                 homing since the scan moved the machine's zero by a few um (run `gateway \
+                 reference` after every homing; --no-reference silences this)"
+                    .into(),
+            ),
+            json: Value::Null,
+        },
+        Choice::NotWanted => Applied {
+            model,
+            describe: "no reference (--no-reference): the map applies as scanned".into(),
+            warning: None,
+            json: Value::Null,
+        },
+    })
+}
+
+/// Runs the reference: refused before any motion when the map was measured on another
+/// machine, controller, board or camera (`what` names the map). `previous` is the
+/// record it replaces (its count goes on, the drift since it is reported). The record
+/// goes to the sink as [`REFERENCE_ARTIFACT`] only when the shift is sane. The result:
+/// `seen_um`, `shift_um`, `drift_since_previous_um`, `reference_mm`, `measured_at`,
+/// `reference_count`, `homing_count`, `temperature_c`, `machine_time_s` (simulated
+/// machines), `record`.
+pub async fn run(
+    request: &ReferenceRequest,
+    job: &Job,
+    devices: &mut Devices,
+    map: &ErrorMap,
+    what: &str,
+    previous: Option<&MapReference>,
+    sink: &mut dyn Sink,
+) -> Outcome {
+    if let Err(e) = request.check() {
+        return Outcome::failed(e.to_string());
+    }
+    if let Err(e) = crate::check_identity(map, &crate::identity(job, devices), what) {
+        return Outcome::failed(e);
+    }
+    // A record of another map is not continued (nor an error here: it is replaced).
+    let previous = previous.filter(|p| p.check_map(map).is_ok());
+    // On a plain dot grid the frame gives the position only modulo the pitch: a shift of
+    // half a pitch is another lattice point.
+    let bound_um = match job.board.code {
+        Some(_) => request.max_shift_um,
+        None => request.max_shift_um.min(job.board.pitch_mm * 500.0),
+    };
+    let t0 = crate::machine_time_s(devices);
+    sink.progress(0, 1);
+    let stage = devices.stage.as_mut();
+    let camera = devices.camera.as_mut();
+    let frame =
+        match runner::reference::measure_reference(job, stage, camera, map.reference_mm).await {
+            Ok(f) => f,
+            Err(e) => {
+                let lost = matches!(e, JobError::Driver(_));
+                let error = format!("the reference frame: {e}");
+                return Outcome::stopped(false, error, None, Default::default(), lost);
+            }
+        };
+    sink.progress(1, 1);
+    let machine_time_s = t0.zip(crate::machine_time_s(devices)).map(|(a, b)| b - a);
+    let (now_s, now_text) = now();
+    let record = match MapReference::new(
+        map,
+        frame.seen_um,
+        bound_um,
+        Circumstances {
+            measured_at: now_text,
+            measured_unix_s: now_s,
+            // No controller this gateway drives reports its homings, nor a temperature.
+            homing_count: None,
+            temperature_c: None,
+            previous_count: previous.map_or(0, |p| p.reference_count),
+        },
+    ) {
+        Ok(r) => r,
+        Err(e) => return Outcome::failed(format!("{what}: {e}")),
+    };
+    let drift = previous.map(|p| p.drift_um(frame.seen_um));
+    let result = json!({
+        "seen_um": record.seen_um, "shift_um": record.shift_um,
+        "drift_since_previous_um": drift,
+        "previous_measured_at": previous.map(|p| p.measured_at.clone()),
+        "reference_mm": record.reference_mm, "measured_at": record.measured_at,
+        "reference_count": record.reference_count, "homing_count": record.homing_count,
+        "temperature_c": record.temperature_c, "machine_time_s": machine_time_s,
+        "record": record,
+    });
+    if let Err(e) = sink.artifact(Artifact {
+        name: REFERENCE_ARTIFACT.into(),
+        title: None,
+        media_type: "application/json",
+        bytes: record_json(&record).into_bytes(),
+    }) {
+        return Outcome::failed(format!("recording the reference: {e}"));
+    }
+    let mut metrics = crate::metrics_from(&result, &["reference_count", "machine_time_s"]);
+    metrics.insert("shift_x_um".into(), json!(record.shift_um[0]));
+    metrics.insert("shift_y_um".into(), json!(record.shift_um[1]));
+    Outcome::succeeded(result, metrics)
+}
+
+/// The result as text (the CLI's output without `--json`).
+pub fn summary(r: &Value) -> String {
+    let f = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
+    let mut t = format!(
+        "reference #{} at ({:.3}, {:.3}) mm, {}: the camera sees ({:+.2}, {:+.2}) um; \
+         the machine's zero moved by ({:+.2}, {:+.2}) um since the scan\n",
+        r["reference_count"],
+        f(&r["reference_mm"][0]),
+        f(&r["reference_mm"][1]),
+        r["measured_at"].as_str().unwrap_or("?"),
+        f(&r["seen_um"][0]),
+        f(&r["seen_um"][1]),
+        f(&r["shift_um"][0]),
+        f(&r["shift_um"][1]),
+    );
+    if let Some(d) = r["drift_since_previous_um"].as_array() {
+        t += &format!(
+            "since the previous reference ({}): ({:+.2}, {:+.2}) um\n",
+            r["previous_measured_at"].as_str().unwrap_or("?"),
+            f(&d[0]),
+            f(&d[1])
+        );
+    }
+    if let Some(s) = r["machine_time_s"].as_f64() {
+        t += &format!("machine time {s:.1} s\n");
+    }
+    if let Some(p) = r["written_to"].as_str() {
+        t += &format!("recorded in {p}: rewrite, proxy and verify --spot-check use it\n");
+    }
+    t
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_record_sits_beside_its_map() {
+        assert_eq!(
+            reference_path(Path::new("maps/demo.v2.json")),
+            Path::new("maps/demo.v2.reference.json")
+        );
+        assert_eq!(
+            reference_path(Path::new("m")),
+            Path::new("m.reference.json")
+        );
+    }
+
+    #[test]
+    fn the_choice_follows_the_flag_then_the_record() {
+        assert_eq!(choose(None, false), Choice::NoneRecorded);
+        assert_eq!(choose(None, true), Choice::NotWanted);
+        let e = parse_record("{}", "r").unwrap_err();
+        assert!(e.starts_with("r: not a reference record"), "{e}");
+    }
+}
