@@ -58,6 +58,62 @@ fn demo_job_compensates_a_c5_stage_to_within_a_micrometre() {
 /// several micrometres, and the bias jumps where the image centre crosses from one grid
 /// cell to the next (the demo's first target sits on a dot), so the loop can even fail
 /// to settle, which the divergence check then stops. The fit method has neither problem.
+/// The shipped stepper demo (config/gateway/stepper-{coded,plain}.toml): a Y stepper
+/// that stalls one board pitch (0.5 mm) on its 3rd long move and every 2nd after, on a
+/// machine that powered on away from its switches. On the coded board every target
+/// ends on target and each loss is named; on the plain grid the same job reports
+/// every target within tolerance while the tool is a pitch or more off: the reason
+/// for the coded board (docs/coded-board.md).
+#[test]
+fn a_stepper_that_loses_a_pitch_is_caught_by_the_coded_board_and_fools_the_plain_grid() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/gateway");
+    let run = |name: &str| {
+        let job = Job::load(&dir.join(name)).unwrap();
+        let mut devices = open_devices(&job).unwrap();
+        block_on(run_job(&job, &mut devices, &mut |_, _| {}))
+    };
+
+    let coded = run("stepper-coded.toml");
+    assert!(coded.error.is_none(), "{}", coded.to_text());
+    assert_eq!(
+        coded.converged,
+        coded.targets_planned,
+        "{}",
+        coded.to_text()
+    );
+    assert!(coded.after_um.unwrap().max <= 0.5, "{}", coded.to_text());
+    // The power-on offset and at least two stalls, each a pitch along Y.
+    let stalls = coded
+        .rereferences
+        .iter()
+        .filter(|r| (r.deviation_mm[1].abs() - 0.5).abs() < 0.05)
+        .count();
+    assert!(stalls >= 2, "{:?}", coded.rereferences);
+    assert!(
+        coded.rereferences.len() > stalls,
+        "{:?}",
+        coded.rereferences
+    );
+
+    let plain = run("stepper-plain.toml");
+    // The plain grid believes every target is on target...
+    assert!(plain.error.is_none(), "{}", plain.to_text());
+    assert_eq!(
+        plain.converged,
+        plain.targets_planned,
+        "{}",
+        plain.to_text()
+    );
+    assert!(
+        plain.estimate_after_um.unwrap().max <= 0.5,
+        "{}",
+        plain.to_text()
+    );
+    // ...while the tool is a whole pitch (or two) off.
+    assert!(plain.after_um.unwrap().max >= 499.0, "{}", plain.to_text());
+    assert!(plain.rereferences.is_empty());
+}
+
 #[test]
 fn four_point_method_is_exact_when_aligned_and_biased_when_rotated() {
     let run = |rotation_deg: f64| {
