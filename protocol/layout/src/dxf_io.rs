@@ -748,7 +748,8 @@ fn save(drawing: &Drawing) -> Result<Vec<u8>, LayoutError> {
         format: "DXF",
         message: e.to_string(),
     })?;
-    Ok(out)
+    // Unique handles and one block record each (see `dxf_tidy`).
+    Ok(crate::dxf_tidy::tidy(out))
 }
 
 /// A new drawing: one block per part, inserted at the origin (see the module's notes).

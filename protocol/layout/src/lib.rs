@@ -12,6 +12,7 @@
 //! coordinates changed; other combinations write the parts' flattened contours.
 
 mod dxf_io;
+mod dxf_tidy;
 mod flatten;
 mod json_io;
 mod layout;

@@ -627,3 +627,73 @@ fn format_from_extension() {
     assert_eq!(Format::from_path("a.json"), Some(Format::Json));
     assert_eq!(Format::from_path("a.txt"), None);
 }
+
+/// The handles (codes 5 and 105) of a DXF text, the BLOCK_RECORD names, `$HANDSEED`.
+fn dxf_handles(bytes: &[u8]) -> (Vec<u64>, Vec<String>, u64) {
+    let text = String::from_utf8_lossy(bytes);
+    let lines: Vec<&str> = text.lines().map(str::trim).collect();
+    let pairs: Vec<(&str, &str)> = lines.chunks(2).map(|c| (c[0], c[1])).collect();
+    let mut handles = Vec::new();
+    let mut records = Vec::new();
+    let mut seed = 0;
+    for (i, (c, v)) in pairs.iter().enumerate() {
+        if (*c == "5" || *c == "105") && (i == 0 || pairs[i - 1] != ("9", "$HANDSEED")) {
+            handles.push(u64::from_str_radix(v, 16).unwrap());
+        }
+        if *c == "0" && *v == "BLOCK_RECORD" {
+            let name = pairs[i + 1..].iter().find(|p| p.0 == "2").unwrap().1;
+            records.push(name.to_ascii_uppercase());
+        }
+        if *c == "9" && *v == "$HANDSEED" {
+            seed = u64::from_str_radix(pairs[i + 1].1, 16).unwrap();
+        }
+    }
+    (handles, records, seed)
+}
+
+fn assert_tidy(bytes: &[u8], what: &str) {
+    let (handles, records, seed) = dxf_handles(bytes);
+    let unique: std::collections::HashSet<u64> = handles.iter().copied().collect();
+    assert_eq!(unique.len(), handles.len(), "{what}: a handle repeats");
+    let names: std::collections::HashSet<&String> = records.iter().collect();
+    assert_eq!(
+        names.len(),
+        records.len(),
+        "{what}: block records {records:?}"
+    );
+    assert!(records.contains(&"*MODEL_SPACE".to_string()), "{what}");
+    assert!(
+        handles.iter().all(|&h| h < seed),
+        "{what}: $HANDSEED {seed:X}"
+    );
+}
+
+/// Written DXF has one handle per object (a BLOCK and its ENDBLK had one between them)
+/// and one block record per block, also when a drawing is read and written back twice
+/// (each write added the blocks' records again); the header's unit and version stay.
+#[test]
+fn written_dxf_has_unique_handles_and_one_block_record_each() {
+    let json = Layout::from_parts(
+        vec![square("a", 0.0, 0.0, 10.0), square("b", 20.0, 0.0, 5.0)],
+        None,
+    )
+    .unwrap();
+    let fresh = json.write(Format::Dxf).unwrap();
+    assert_tidy(&fresh, "parts written as DXF");
+    let mut bytes = save(&sample_drawing(Units::Centimeters));
+    for round in 0..2 {
+        let l = Layout::read(&bytes, Format::Dxf, &opts()).unwrap();
+        let n = l.parts.len();
+        bytes = l
+            .translated(&vec![[1.0, 2.0]; n])
+            .unwrap()
+            .write(Format::Dxf)
+            .unwrap();
+        assert_tidy(&bytes, &format!("read and written back, round {round}"));
+        let d = Drawing::load(&mut std::io::Cursor::new(&bytes)).unwrap();
+        assert_eq!(d.header.default_drawing_units, Units::Centimeters);
+        assert_eq!(d.header.version, dxf::enums::AcadVersion::R2000);
+    }
+    let back = Layout::read(&fresh, Format::Dxf, &opts()).unwrap();
+    assert_eq!(back.parts[1].bounds(), [20.0, 0.0, 25.0, 5.0]);
+}
