@@ -49,7 +49,7 @@ pub(crate) fn tidy(bytes: Vec<u8>) -> Vec<u8> {
     if lines.last().is_some_and(|l| l.is_empty()) {
         lines.pop();
     }
-    if lines.len() % 2 != 0 {
+    if !lines.len().is_multiple_of(2) {
         return bytes;
     }
     let pairs: Vec<(&[u8], &[u8])> = lines
