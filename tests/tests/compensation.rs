@@ -114,6 +114,32 @@ fn a_stepper_that_loses_a_pitch_is_caught_by_the_coded_board_and_fools_the_plain
     assert!(plain.rereferences.is_empty());
 }
 
+/// On a coded board the first frame's code tells the camera's orientation: a job whose
+/// `pixel_axes` says another one (a camera mounted mirrored) stops at that frame, naming
+/// the setting, before any corrective move.
+#[test]
+fn a_coded_board_reads_a_mirrored_camera_from_the_first_frame() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/gateway");
+    let rig_job = Job::load(&dir.join("stepper-coded.toml")).unwrap();
+    let mut job = rig_job.clone();
+    job.pixel_axes = "+x,+y".parse().unwrap();
+    let (result, moves) = run_recorded_on(&rig_job, &job, None);
+    let e = result.unwrap_err();
+    let msg = e.to_string();
+    assert!(
+        msg.contains("orientation check") && msg.contains("code shows"),
+        "{msg}"
+    );
+    assert!(
+        msg.contains("pixel_axes") && msg.contains("mirrored"),
+        "{msg}"
+    );
+    // Only the approach to the first target and the target itself (the session's
+    // plan, 0.05 mm short along both axes): nothing was corrected on a wrong frame.
+    assert_eq!(moves.len(), 2, "{moves:?}");
+    assert!((moves[1][0] - moves[0][0] - 0.05).abs() < 1e-9, "{moves:?}");
+}
+
 #[test]
 fn four_point_method_is_exact_when_aligned_and_biased_when_rotated() {
     let run = |rotation_deg: f64| {

@@ -1,0 +1,281 @@
+#!/usr/bin/env python3
+"""The bad-input sweep (issue 25): crafted inputs for every file the gateway reads from
+outside, each run through the real command line, each outcome classified.
+
+For every surface (an outside file and the command that reads it) the sweep starts
+from a valid seed (the fuzz corpora and the shipped configuration), derives crafted
+inputs from it (special files, empty, truncated, garbage, bad UTF-8, every kind of
+impossible number at several places, huge lines, deep nesting, size-cap files) and
+runs the command on each with a time limit. Each outcome is one of:
+
+  clear error   exit 1 or 2, a message on stderr naming the file, a line, a column
+                or a field (what a user needs to find the fault)
+  vague error   exit 1 or 2, the message names none of these
+  accepted      exit 0 (listed in the report for review: a truncated CSV cut at a line
+                end, say, is still a valid file; a non-finite number accepted is not)
+  panic         exit 101 or "panicked" on stderr
+  hang          still running at the time limit (killed)
+
+and the peak memory (max RSS of the child, from wait4). Benign variants (CRLF line
+ends, a byte-order mark) are expected to be accepted and are counted apart.
+
+Usage: python3 tests/sweep/bad_inputs.py [--gateway target/debug/gateway]
+           [--timeout 20] [--report sweep-report.md]
+Prints the per-surface table (markdown) and writes every input's outcome to the
+report. Exit status 1 when any panic or hang was seen.
+"""
+
+import argparse
+import os
+import random
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+CORPUS = os.path.join(ROOT, "tests", "fuzz", "corpus")
+CONFIG = os.path.join(ROOT, "config")
+
+
+def corpus(*p):
+    return os.path.join(CORPUS, *p)
+
+
+# --- the surfaces ---------------------------------------------------------------------
+# name, seed file, file suffix, command (list; {in} the crafted file, {out} a fresh
+# folder), numeric mutations (whether numbers in the seed are meaningful to mutate).
+PROGRAM = corpus("nc_rewrite", "lines_and_arcs.nc")
+MAP = corpus("error_map_json", "small_map.json")
+ERRORS = corpus("rotary_errors", "measured.json")
+PROGRAM5 = corpus("rotary_rewrite", "program.nc")
+
+SURFACES = [
+    ("error map (rewrite --map)", MAP, ".json",
+     ["rewrite", PROGRAM, "--map", "{in}", "--out", "{out}/p.nc"]),
+    ("error map (export)", MAP, ".json",
+     ["export", "--map", "{in}", "--format", "csv", "--out", "{out}/t.csv"]),
+    ("G-code program (rewrite)", PROGRAM, ".nc",
+     ["rewrite", "{in}", "--map", MAP, "--out", "{out}/p.nc"]),
+    ("$# reply (rewrite --offsets)", corpus("dollar_hash", "grbl_reply.txt"), ".txt",
+     ["rewrite", PROGRAM, "--map", MAP, "--offsets", "{in}", "--out", "{out}/p.nc"]),
+    ("ISO 230-2 measurements", corpus("iso230_csv", "five_positions.csv"), ".csv",
+     ["iso230", "evaluate", "{in}"]),
+    ("rotary centres", corpus("rotary_centres", "paper.csv"), ".csv",
+     ["rotary", "identify", "--centres", "{in}"]),
+    ("rotary errors (rotary rewrite)", ERRORS, ".json",
+     ["rotary", "rewrite", PROGRAM5, "--errors", "{in}", "--out", "{out}/p.nc"]),
+    ("5-axis program (rotary rewrite)", PROGRAM5, ".nc",
+     ["rotary", "rewrite", "{in}", "--errors", ERRORS, "--out", "{out}/p.nc"]),
+    ("volumetric model", corpus("volumetric_model", "xyfz_identified.vol.csv"), ".csv",
+     ["volumetric", "eval", "--model", "{in}", "--points", "{points}"]),
+    ("layout JSON", corpus("layout_json", "trousers.json"), ".json",
+     ["layout", "partition", "{in}", "--tools", "2", "--window-mm", "100",
+      "--gap-mm", "2", "--out", "{out}/l.json"]),
+    ("layout DXF", corpus("layout_dxf", "loops.dxf"), ".dxf",
+     ["layout", "partition", "{in}", "--tools", "2", "--window-mm", "100",
+      "--gap-mm", "2", "--out", "{out}/l.json"]),
+    ("layout SVG", corpus("layout_svg", "shapes.svg"), ".svg",
+     ["layout", "partition", "{in}", "--tools", "2", "--window-mm", "100",
+      "--gap-mm", "2", "--out", "{out}/l.json"]),
+    ("board file", os.path.join(CONFIG, "boards", "coded-0.5mm.toml"), ".toml",
+     ["board", "make", "{in}", "-o", "{out}/art"]),
+    ("board image (localize)", corpus("png_load", "mono8.png"), ".png",
+     ["localize", "--board", os.path.join(CONFIG, "boards", "dot-grid-0.5mm.toml"),
+      "--near", "10,10", "{in}"]),
+]
+
+NUMBER = re.compile(rb"(?<![A-Za-z_])-?\d+\.?\d*(?:[eE][-+]?\d+)?")
+BAD_NUMBERS = [b"NaN", b"inf", b"-inf", b"1e308", b"-1e308", b"1e100", b"4e-320",
+               b"99999999999999999999999"]
+
+
+def variants(seed: bytes, suffix: str, rng: random.Random):
+    """(name, kind, bytes | special) for one seed. kind: 'bad' or 'benign'."""
+    out = []
+    out.append(("empty file", "bad", b""))
+    for frac in (0.5, 0.9):
+        out.append((f"cut at {int(frac * 100)} %", "bad", seed[: int(len(seed) * frac)]))
+    out.append(("cut mid-line (last 7 bytes gone)", "bad", seed[:-7]))
+    out.append(("random bytes", "bad", bytes(rng.getrandbits(8) for _ in range(4096))))
+    mid = len(seed) // 2
+    out.append(("bytes not UTF-8 inside", "bad", seed[:mid] + b"\xff\xfe\xc3\x28" + seed[mid:]))
+    out.append(("NUL bytes inside", "bad", seed[:mid] + b"\x00" * 16 + seed[mid:]))
+    out.append(("one 8 MiB line appended", "bad", seed + b"9" * (8 << 20) + b"\n"))
+    out.append(("the file 50 times", "bad", seed * 50))
+    out.append(("CRLF line ends", "benign", seed.replace(b"\r\n", b"\n").replace(b"\n", b"\r\n")))
+    out.append(("byte-order mark", "benign", b"\xef\xbb\xbf" + seed))
+    if suffix in (".json",):
+        out.append(("JSON nested 100 000 deep", "bad", b"[" * 100_000 + b"]" * 100_000))
+        out.append(("JSON of another type", "bad", b'"a string"'))
+    numbers = list(NUMBER.finditer(seed))
+    if numbers:
+        picks = sorted(set(rng.randrange(len(numbers)) for _ in range(4)) | {0, len(numbers) - 1})
+        for bad in BAD_NUMBERS:
+            for k in picks:
+                m = numbers[k]
+                out.append((f"number #{k} -> {bad.decode()}", "bad",
+                            seed[: m.start()] + bad + seed[m.end():]))
+        everything = NUMBER.sub(lambda m: b"1e308", seed)
+        out.append(("every number 1e308", "bad", everything))
+    return out
+
+
+SPECIAL = [
+    ("a FIFO", "fifo"),
+    ("/dev/zero", "/dev/zero"),
+    ("a directory", "dir"),
+    ("a symbolic link to /dev/zero", "link"),
+    ("no such file", "missing"),
+    ("over the size cap (sparse, 4 GiB)", "sparse"),
+]
+
+
+def materialise(tmp, name, suffix, what):
+    path = os.path.join(tmp, "input" + suffix)
+    for p in (path,):
+        if os.path.islink(p) or os.path.isfile(p):
+            os.unlink(p)
+        elif os.path.isdir(p):
+            shutil.rmtree(p)
+        elif os.path.exists(p):
+            os.unlink(p)
+    if isinstance(what, bytes):
+        with open(path, "wb") as f:
+            f.write(what)
+    elif what == "fifo":
+        os.mkfifo(path)
+    elif what == "/dev/zero":
+        return "/dev/zero"
+    elif what == "dir":
+        os.mkdir(path)
+    elif what == "link":
+        os.symlink("/dev/zero", path)
+    elif what == "missing":
+        pass
+    elif what == "sparse":
+        with open(path, "wb") as f:
+            f.truncate(4 << 30)
+    return path
+
+
+def run(gateway, args, timeout):
+    """(outcome, exit, stderr, peak KiB, seconds)."""
+    t0 = time.monotonic()
+    p = subprocess.Popen([gateway] + args, stdout=subprocess.DEVNULL,
+                         stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
+                         start_new_session=True)
+    deadline = t0 + timeout
+    hung = False
+    while True:
+        pid, status, usage = os.wait4(p.pid, os.WNOHANG)
+        if pid:
+            break
+        if time.monotonic() > deadline:
+            hung = True
+            os.killpg(p.pid, signal.SIGKILL)
+            pid, status, usage = os.wait4(p.pid, 0)
+            break
+        time.sleep(0.02)  # polling a child process, not waiting on the gateway's work
+    err = p.stderr.read().decode("utf-8", "replace")
+    p.returncode = 0
+    secs = time.monotonic() - t0
+    code = os.waitstatus_to_exitcode(status)
+    if hung:
+        return "hang", code, err, usage.ru_maxrss, secs
+    if code == 101 or "panicked" in err:
+        return "panic", code, err, usage.ru_maxrss, secs
+    if code < 0:
+        return "panic", code, err, usage.ru_maxrss, secs  # killed by a signal (abort)
+    if code == 0:
+        return "accepted", code, err, usage.ru_maxrss, secs
+    return "error", code, err, usage.ru_maxrss, secs
+
+
+def is_clear(err, path):
+    base = os.path.basename(path)
+    return bool(
+        base in err
+        or re.search(r"\bline \d+", err)
+        or re.search(r"\bcolumn\b", err)
+        or re.search(r"`[A-Za-z_.\[\]0-9]+`", err)
+        or "/dev/zero" in err
+    )
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--gateway", default=os.path.join(ROOT, "target", "debug", "gateway"))
+    ap.add_argument("--timeout", type=float, default=20.0)
+    ap.add_argument("--report", default="sweep-report.md")
+    ap.add_argument("--only", default="", help="run surfaces whose name contains this")
+    a = ap.parse_args()
+    if not os.access(a.gateway, os.X_OK):
+        sys.exit(f"no gateway binary at {a.gateway}: build it (cargo build -p gateway)")
+    rng = random.Random(25)
+    rows, details = [], []
+    tmp = tempfile.mkdtemp(prefix="sweep-")
+    points = os.path.join(tmp, "points.csv")
+    with open(points, "w") as f:
+        f.write("x_mm,y_mm,z_mm\n0,0,0\n100,50,-20\n")
+    try:
+        for name, seed_path, suffix, cmd in SURFACES:
+            if a.only and a.only not in name:
+                continue
+            seed = open(seed_path, "rb").read()
+            cases = [(n, "bad", w) for n, w in SPECIAL] + variants(seed, suffix, rng)
+            tally = {"clear error": 0, "vague error": 0, "accepted": 0, "panic": 0,
+                     "hang": 0, "benign accepted": 0, "benign refused": 0}
+            peak = 0
+            for case, kind, what in cases:
+                out = os.path.join(tmp, "out")
+                shutil.rmtree(out, ignore_errors=True)
+                os.mkdir(out)
+                path = materialise(tmp, case, suffix, what)
+                args = [x.replace("{in}", path).replace("{out}", out).replace("{points}", points)
+                        for x in cmd]
+                outcome, code, err, kib, secs = run(a.gateway, args, a.timeout)
+                peak = max(peak, kib)
+                if kind == "benign":
+                    label = "benign accepted" if outcome == "accepted" else (
+                        outcome if outcome in ("panic", "hang") else "benign refused")
+                elif outcome == "error":
+                    label = "clear error" if is_clear(err, path) else "vague error"
+                else:
+                    label = outcome
+                tally[label] += 1
+                first = err.strip().splitlines()[-1][:200] if err.strip() else ""
+                first = "".join(c if c.isprintable() else "?" for c in first)
+                details.append(f"| {name} | {case} | {label} | {code} | {kib // 1024} | "
+                               f"{secs:.2f} | {first.replace('|', '/')} |")
+            rows.append((name, len(cases), tally, peak))
+            print(f"{name}: {len(cases)} inputs, {tally}, peak {peak // 1024} MiB", file=sys.stderr)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    table = ["| surface | inputs | clear errors | vague errors | accepted (review) | "
+             "panics | hangs | benign accepted / refused | peak memory |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    total = {"n": 0, "panic": 0, "hang": 0}
+    for name, n, t, peak in rows:
+        table.append(f"| {name} | {n} | {t['clear error']} | {t['vague error']} | "
+                     f"{t['accepted']} | {t['panic']} | {t['hang']} | "
+                     f"{t['benign accepted']} / {t['benign refused']} | {peak // 1024} MiB |")
+        total["n"] += n
+        total["panic"] += t["panic"]
+        total["hang"] += t["hang"]
+    print("\n".join(table))
+    with open(a.report + ".tmp", "w") as f:
+        f.write("# Bad-input sweep\n\n" + "\n".join(table) + "\n\n")
+        f.write("| surface | input | outcome | exit | peak MiB | s | last line of stderr |\n")
+        f.write("|---|---|---|---|---|---|---|\n" + "\n".join(details) + "\n")
+    os.replace(a.report + ".tmp", a.report)
+    print(f"{total['n']} inputs; {total['panic']} panics, {total['hang']} hangs; "
+          f"every outcome in {a.report}", file=sys.stderr)
+    sys.exit(1 if total["panic"] or total["hang"] else 0)
+
+
+if __name__ == "__main__":
+    main()
