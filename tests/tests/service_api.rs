@@ -1088,3 +1088,138 @@ async fn answers_carry_the_security_headers_and_take_a_layout_sized_job() {
     assert_ne!(r.status(), StatusCode::PAYLOAD_TOO_LARGE);
     s.shutdown().await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_queued_job_is_moved_and_the_queue_runs_in_its_new_order() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = start(dir.path()).await;
+    let c = Client::new();
+    let mut ws = events(&s).await;
+    let enqueue = |params: Value| {
+        let (c, s) = (&c, &s);
+        async move {
+            let (status, job) = post(
+                c,
+                s,
+                "/api/v1/machines/demo/jobs",
+                json!({"kind": "compensate", "params": params}),
+            )
+            .await;
+            assert_eq!(status, StatusCode::ACCEPTED, "{job}");
+            job["id"].as_i64().unwrap()
+        }
+    };
+    // A long job holds the machine while three short ones wait behind it.
+    let long = enqueue(json!({})).await;
+    until(&mut ws, |e| job_in(e, &json!(long), "running")).await;
+    let (a, b, d) = (
+        enqueue(json!({"targets": 1})).await,
+        enqueue(json!({"targets": 1})).await,
+        enqueue(json!({"targets": 1})).await,
+    );
+    let queue_ids = |v: &Value| -> Vec<i64> {
+        v.as_array()
+            .unwrap()
+            .iter()
+            .map(|j| j["id"].as_i64().unwrap())
+            .collect()
+    };
+    // To the front by position, then one to the end with `before: null`.
+    let (status, r) = post(
+        &c,
+        &s,
+        &format!("/api/v1/jobs/{d}/move"),
+        json!({"position": 0}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK, "{r}");
+    assert_eq!(r["machine"], "demo");
+    assert_eq!(queue_ids(&r["queue"]), [d, a, b]);
+    let (status, r) = post(
+        &c,
+        &s,
+        &format!("/api/v1/jobs/{a}/move"),
+        json!({"before": null}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK, "{r}");
+    assert_eq!(queue_ids(&r["queue"]), [d, b, a]);
+    let (status, r) = post(
+        &c,
+        &s,
+        &format!("/api/v1/jobs/{a}/move"),
+        json!({"before": b}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK, "{r}");
+    assert_eq!(queue_ids(&r["queue"]), [d, a, b]);
+    // The queue route, the machine's record and its event say the same.
+    let (_, q) = get(&c, &s, "/api/v1/machines/demo/queue").await;
+    assert_eq!(queue_ids(&q), [d, a, b]);
+    let (_, m) = get(&c, &s, "/api/v1/machines/demo").await;
+    assert_eq!(queue_ids(&m["queue"]), [d, a, b]);
+    assert_eq!(m["queued"], 3);
+    let seen = until(&mut ws, |e| {
+        e["type"] == "machine"
+            && e["machine"]["queue"]
+                .as_array()
+                .is_some_and(|q| q.len() == 3 && q[0]["id"] == d && q[1]["id"] == a)
+    })
+    .await;
+    assert!(!seen.is_empty());
+    // Refusals name their field; nothing moves.
+    for (body, field) in [
+        (json!({}), "before"),
+        (json!({"position": 3}), "position"),
+        (json!({"position": -1}), "position"),
+        (json!({"before": long}), "before"),
+        (json!({"before": "x"}), "before"),
+        (json!({"before": a, "position": 0}), "position"),
+        (json!({"after": a}), "after"),
+    ] {
+        let (status, e) = post(&c, &s, &format!("/api/v1/jobs/{b}/move"), body.clone()).await;
+        assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{body}: {e}");
+        assert_eq!(e["error"], "invalid_body", "{body}: {e}");
+        assert_eq!(e["field"], field, "{body}: {e}");
+        assert!(
+            e["message"]
+                .as_str()
+                .unwrap()
+                .starts_with(&format!("{field}: ")),
+            "{e}"
+        );
+    }
+    let (status, e) = post(
+        &c,
+        &s,
+        &format!("/api/v1/jobs/{long}/move"),
+        json!({"position": 0}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::CONFLICT, "{e}");
+    assert_eq!(e["error"], "not_queued");
+    let (status, e) = post(&c, &s, "/api/v1/jobs/9999/move", json!({"position": 0})).await;
+    assert_eq!(status, StatusCode::NOT_FOUND, "{e}");
+    assert_eq!(e["error"], "unknown_job");
+    let (_, q) = get(&c, &s, "/api/v1/machines/demo/queue").await;
+    assert_eq!(queue_ids(&q), [d, a, b]);
+    // The worker follows the new order: after the long job, `d` runs first, then `a`.
+    let (status, r) = post(&c, &s, &format!("/api/v1/jobs/{b}/cancel"), json!({})).await;
+    assert_eq!(
+        (status, r["state"].as_str()),
+        (StatusCode::OK, Some("cancelled"))
+    );
+    let (status, r) = post(&c, &s, &format!("/api/v1/jobs/{long}/cancel"), json!({})).await;
+    assert_eq!(
+        (status, r["state"].as_str()),
+        (StatusCode::OK, Some("cancelled"))
+    );
+    let started: Vec<i64> = until(&mut ws, |e| job_in(e, &json!(a), "succeeded"))
+        .await
+        .iter()
+        .filter(|e| e["type"] == "job" && e["job"]["state"] == "running")
+        .map(|e| e["job"]["id"].as_i64().unwrap())
+        .collect();
+    assert_eq!(started, [d, a]);
+    s.shutdown().await;
+}

@@ -113,6 +113,10 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
         screenshot.display().to_string(),
         profile_dir.display().to_string(),
         CHARTS.into(),
+        serde_json::json!({
+            "queue": {"kind": "compensate", "long": {"targets": null}, "short": {"targets": 1}},
+        })
+        .to_string(),
     ];
     let output = tokio::task::spawn_blocking(move || Command::new("node").args(&args).output())
         .await
@@ -184,6 +188,22 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
             .contains(&format!("-> v{newer}")),
         "{report}"
     );
+    // The machine's queue: Down, Up and Cancel reordered it as the page showed, and the
+    // worker ran what was left in that order once the long job was cancelled.
+    let queue = &report["queue"];
+    let ids = |v: &serde_json::Value| -> Vec<u64> {
+        v.as_array()
+            .unwrap_or_else(|| panic!("{report}"))
+            .iter()
+            .map(|i| i.as_u64().unwrap())
+            .collect()
+    };
+    let [a, b, c] = ids(&queue["queued"])[..] else {
+        panic!("three queued jobs: {queue}")
+    };
+    assert_eq!(ids(&queue["after_moves"]), [b, c, a], "{queue}");
+    assert_eq!(ids(&queue["after_cancel"]), [b, c], "{queue}");
+    assert_eq!(ids(&queue["run_order"]), [b, c], "{queue}");
     let png = std::fs::read(&screenshot).expect("the screenshot was written");
     assert!(
         png.starts_with(b"\x89PNG\r\n\x1a\n"),

@@ -283,6 +283,8 @@ pub fn router(shared: AppState, limits: BodyLimits, cors_origins: &[String]) -> 
         .route("/api/v1/jobs", get(jobs))
         .route("/api/v1/jobs/{id}", get(job))
         .route("/api/v1/jobs/{id}/cancel", post(cancel))
+        .route("/api/v1/jobs/{id}/move", post(move_job))
+        .route("/api/v1/machines/{machine}/queue", get(queue))
         .route("/api/v1/jobs/{id}/measurements", get(measurements))
         .route("/api/v1/jobs/{id}/charts", get(charts))
         .route("/api/v1/jobs/{id}/charts/{file}", get(chart))
@@ -366,7 +368,7 @@ fn static_file(content_type: &'static str, body: &'static str) -> Response {
 #[derive(OpenApi)]
 #[openapi(
     info(title = "gateway service", description = "Machines, job queues, profiles and events of a gateway box."),
-    paths(openapi, machines, machine, enqueue, jobs, job, cancel, measurements, charts, chart,
+    paths(openapi, machines, machine, enqueue, queue, jobs, job, cancel, move_job, measurements, charts, chart,
           files, file,
           profiles, add_profile, profile, diff, heatmap, activate, rollback, events),
     modifiers(&BearerAuth, &JobParams)
@@ -676,6 +678,130 @@ async fn cancel(
     Ok(Json(
         serde_json::to_value(job_record(&shared, id)?).unwrap_or(Value::Null),
     ))
+}
+
+/// A machine's queued jobs in the order they will run (the first runs next).
+#[utoipa::path(get, path = "/api/v1/machines/{machine}/queue", params(("machine" = String, Path)),
+    responses((status = 200, description = "[JobRecord] in run order"), (status = 404, description = "unknown_machine")))]
+async fn queue(
+    State(shared): State<AppState>,
+    path: Result<Path<String>, PathRejection>,
+) -> ApiResult<Json<Value>> {
+    let Path(id) = path?;
+    let m = find_machine(&shared, &id)?;
+    let list = lock(&shared.store).queued(&m.id)?;
+    Ok(Json(serde_json::to_value(list).unwrap_or(Value::Null)))
+}
+
+/// Where `POST /api/v1/jobs/{id}/move` puts the job, read from `{"before": id | null}`
+/// or `{"position": n}` (exactly one), each wrong field named.
+fn queue_place(body: &Value) -> ApiResult<store::QueuePlace> {
+    let invalid = |field: &str, message: String| {
+        ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "invalid_body",
+            format!("{field}: {message}"),
+        )
+        .with_field(field.to_string())
+    };
+    let object = body.as_object().ok_or_else(|| {
+        invalid(
+            "body",
+            "an object: {\"before\": job id or null} or {\"position\": n}".into(),
+        )
+    })?;
+    if let Some(key) = object
+        .keys()
+        .find(|k| !["before", "position"].contains(&k.as_str()))
+    {
+        return Err(invalid(
+            key,
+            "unknown field; give `before` or `position`".into(),
+        ));
+    }
+    match (object.get("before"), object.get("position")) {
+        (Some(_), Some(_)) => Err(invalid("position", "give `before` or `position`, not both".into())),
+        (None, None) => Err(invalid("before", "missing: give `before` (a queued job's id, or null for last) or `position` (0 runs next)".into())),
+        (Some(Value::Null), None) => Ok(store::QueuePlace::Before(None)),
+        (Some(v), None) => v
+            .as_i64()
+            .map(|id| store::QueuePlace::Before(Some(id)))
+            .ok_or_else(|| invalid("before", format!("a job id or null, got {v}"))),
+        (None, Some(v)) => v
+            .as_u64()
+            .and_then(|p| usize::try_from(p).ok())
+            .map(store::QueuePlace::Position)
+            .ok_or_else(|| invalid("position", format!("an integer from 0, got {v}"))),
+    }
+}
+
+/// Move a queued job in its machine's queue: before another queued job of the same
+/// machine (`{"before": id}`, `null`: last) or to an index (`{"position": 0}` runs
+/// next). Answers the machine's queue in its new order.
+#[utoipa::path(post, path = "/api/v1/jobs/{id}/move", params(("id" = i64, Path)),
+    request_body(content = Object, description = "{\"before\": 12} | {\"before\": null} | {\"position\": 0}"),
+    responses((status = 200, description = "{machine, queue: [JobRecord]} in run order"),
+        (status = 404, description = "unknown_job"),
+        (status = 409, description = "not_queued: the job is running or finished"),
+        (status = 422, description = "invalid_body: `field` names what is wrong (`before` not queued on this machine, `position` past the queue)")))]
+async fn move_job(
+    State(shared): State<AppState>,
+    path: Result<Path<JobId>, PathRejection>,
+    body: Result<Json<Value>, JsonRejection>,
+) -> ApiResult<Json<Value>> {
+    let Path(id) = path?;
+    let Json(body) = body?;
+    let record = job_record(&shared, id)?;
+    let place = queue_place(&body)?;
+    let not_queued = |state: JobState| {
+        ApiError::new(
+            StatusCode::CONFLICT,
+            "not_queued",
+            format!("job {id} is {state}; only a queued job can be moved"),
+        )
+    };
+    if record.state != JobState::Queued {
+        return Err(not_queued(record.state));
+    }
+    let moved = {
+        let mut store = lock(&shared.store);
+        if let store::QueuePlace::Position(p) = place {
+            let len = store.queued(&record.machine)?.len();
+            if p >= len {
+                return Err(ApiError::new(
+                    StatusCode::UNPROCESSABLE_ENTITY,
+                    "invalid_body",
+                    format!(
+                        "position: machine {:?} has {len} queued job(s): 0 to {}",
+                        record.machine,
+                        len.saturating_sub(1)
+                    ),
+                )
+                .with_field("position".into()));
+            }
+        }
+        store.move_queued(id, place)
+    };
+    let queue = match moved {
+        Ok(queue) => queue,
+        Err(StoreError::WrongState { state, .. }) => return Err(not_queued(state)),
+        Err(StoreError::InvalidInput {
+            what: "before",
+            why,
+        }) => {
+            return Err(ApiError::new(
+                StatusCode::UNPROCESSABLE_ENTITY,
+                "invalid_body",
+                format!("before: {why}"),
+            )
+            .with_field("before".into()))
+        }
+        Err(e) => return Err(e.into()),
+    };
+    if let Some(m) = shared.machine(&record.machine) {
+        shared.emit_machine(m);
+    }
+    Ok(Json(json!({"machine": record.machine, "queue": queue})))
 }
 
 /// The job's measurements, in the order taken.

@@ -79,6 +79,9 @@ pub fn lock(store: &Mutex<Store>) -> std::sync::MutexGuard<'_, Store> {
     store.lock().unwrap_or_else(|p| p.into_inner())
 }
 
+/// How many of a machine's queued jobs its `Machine` object lists (`queue`).
+pub const QUEUE_SHOWN: usize = 100;
+
 impl Shared {
     pub fn machine(&self, id: &str) -> Option<&Arc<Machine>> {
         self.machines.iter().find(|m| m.id == id)
@@ -93,11 +96,17 @@ impl Shared {
             .and_then(|id| store.job(id).ok().flatten())
             .map(|j| serde_json::to_value(j).unwrap_or(Value::Null))
             .unwrap_or(Value::Null);
-        let queued = store.queued(&m.id).map(|q| q.len()).unwrap_or(0);
+        let queue = store.queued(&m.id).unwrap_or_default();
+        // The queue in run order, its first jobs (the page's queue with up/down/cancel).
+        let shown: Vec<Value> = queue
+            .iter()
+            .take(QUEUE_SHOWN)
+            .map(|j| json!({"id": j.id, "kind": j.kind, "created_at": j.created_at}))
+            .collect();
         json!({
             "id": m.id, "description": m.description, "stage": m.stage, "camera": m.camera,
             "rotary": m.rotary, "state": status.state.as_str(), "state_detail": status.detail,
-            "job": job, "queued": queued,
+            "job": job, "queued": queue.len(), "queue": shown,
             // The job kinds this machine runs (a rotary job needs its A/C table).
             "kinds": procedure::request::KINDS.iter()
                 .filter(|k| **k != "rotary" || m.rotary.is_some())

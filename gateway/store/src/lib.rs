@@ -269,6 +269,18 @@ pub struct Store {
     schema_version: u32,
 }
 
+/// The order a machine's queue runs in.
+const QUEUE_ORDER: &str = "ORDER BY COALESCE(j.queue_pos, j.id), j.id";
+
+/// Where `Store::move_queued` puts a job in its machine's queue.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum QueuePlace {
+    /// Before that queued job of the same machine; `None`: last.
+    Before(Option<JobId>),
+    /// At this index of the queue (0: next to run); past the end: last.
+    Position(usize),
+}
+
 /// SQL expression for "now" as RFC 3339 UTC with milliseconds.
 const NOW: &str = "strftime('%Y-%m-%dT%H:%M:%fZ','now')";
 
@@ -575,16 +587,78 @@ impl Store {
         )
     }
 
-    /// The queued jobs of a machine, oldest first (the order they run in).
+    /// The queued jobs of a machine in the order they run in: oldest first, unless an
+    /// operator moved one (`move_queued`).
     pub fn queued(&self, machine: &str) -> Result<Vec<JobRecord>, StoreError> {
         query_jobs(
             &self.connection,
             &format!(
                 "SELECT {JOB_COLUMNS} FROM jobs j LEFT JOIN results r ON r.job_id = j.id \
-                 WHERE j.machine = ?1 AND j.state = 'queued' ORDER BY j.id"
+                 WHERE j.machine = ?1 AND j.state = 'queued' {QUEUE_ORDER}"
             ),
             params![machine],
         )
+    }
+
+    /// Moves a queued job to another place in its machine's queue; returns the queue in
+    /// its new order. Refused for a job that is not queued (`WrongState`) and for a
+    /// `Before` job that is not queued on the same machine (`InvalidInput` naming it).
+    pub fn move_queued(
+        &mut self,
+        id: JobId,
+        place: QueuePlace,
+    ) -> Result<Vec<JobRecord>, StoreError> {
+        let tx = self.connection.transaction()?;
+        let machine = expect_state(&tx, id, JobState::Queued, JobState::Queued)?;
+        // The queue's keys in run order; the moved job takes a new place and the keys
+        // are handed out again in the new order (no key above the largest id, so a job
+        // queued later still goes to the end).
+        let queue: Vec<(JobId, i64)> = {
+            let mut statement = tx.prepare(&format!(
+                "SELECT j.id, COALESCE(j.queue_pos, j.id) FROM jobs j \
+                 WHERE j.machine = ?1 AND j.state = 'queued' {QUEUE_ORDER}"
+            ))?;
+            let rows =
+                statement.query_map(params![machine], |row| Ok((row.get(0)?, row.get(1)?)))?;
+            rows.collect::<Result<_, _>>()?
+        };
+        let mut keys: Vec<i64> = queue.iter().map(|(_, key)| *key).collect();
+        keys.sort_unstable();
+        let mut order: Vec<JobId> = queue
+            .iter()
+            .map(|(job, _)| *job)
+            .filter(|j| *j != id)
+            .collect();
+        let at = match place {
+            QueuePlace::Position(p) => p.min(order.len()),
+            QueuePlace::Before(None) => order.len(),
+            QueuePlace::Before(Some(before)) => order
+                .iter()
+                .position(|j| *j == before)
+                .ok_or_else(|| StoreError::InvalidInput {
+                    what: "before",
+                    why: format!(
+                        "job {before} is not queued on machine {machine} (or is the job moved)"
+                    ),
+                })?,
+        };
+        order.insert(at, id);
+        for (job, key) in order.iter().zip(&keys) {
+            tx.execute(
+                "UPDATE jobs SET queue_pos = ?2 WHERE id = ?1",
+                params![job, key],
+            )?;
+        }
+        let jobs = query_jobs(
+            &tx,
+            &format!(
+                "SELECT {JOB_COLUMNS} FROM jobs j LEFT JOIN results r ON r.job_id = j.id \
+                 WHERE j.machine = ?1 AND j.state = 'queued' {QUEUE_ORDER}"
+            ),
+            params![machine],
+        )?;
+        tx.commit()?;
+        Ok(jobs)
     }
 
     /// A job's measurements in the order they were added.

@@ -83,6 +83,10 @@ const MIGRATIONS: &[&str] = &[
         body BLOB NOT NULL,
         PRIMARY KEY (job_id, name)
     );",
+    // 4: a queued job's place in its machine's queue, when an operator moved it; a job
+    // never moved runs in its id's place (`COALESCE(queue_pos, id)`), so older stores keep
+    // their order.
+    "ALTER TABLE jobs ADD COLUMN queue_pos INTEGER;",
 ];
 
 /// The schema version this program writes (the number of migrations).

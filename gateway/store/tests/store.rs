@@ -5,7 +5,8 @@ use std::path::PathBuf;
 
 use serde_json::{json, Map, Value};
 use store::{
-    JobFilter, JobState, Outcome, ProfileKind, ProfileRef, Store, StoreError, SCHEMA_VERSION,
+    JobFilter, JobState, Outcome, ProfileKind, ProfileRef, QueuePlace, Store, StoreError,
+    SCHEMA_VERSION,
 };
 
 /// A fresh directory under the system temp dir, removed on drop.
@@ -607,7 +608,7 @@ fn an_empty_file_is_migrated_and_a_newer_schema_is_refused() {
     std::fs::write(&path, b"").unwrap();
     let store = Store::open(&path).unwrap();
     assert_eq!(store.schema_version(), SCHEMA_VERSION);
-    assert_eq!(SCHEMA_VERSION, 3);
+    assert_eq!(SCHEMA_VERSION, 4);
     drop(store);
     // Reopening does not migrate again.
     assert_eq!(Store::open(&path).unwrap().schema_version(), SCHEMA_VERSION);
@@ -749,13 +750,88 @@ fn a_version_2_database_gains_the_job_files_table() {
     {
         let connection = rusqlite::Connection::open(&path).unwrap();
         connection
-            .execute_batch("DROP TABLE job_files; PRAGMA user_version = 2;")
+            .execute_batch(
+                "DROP TABLE job_files; ALTER TABLE jobs DROP COLUMN queue_pos; \
+                 PRAGMA user_version = 2;",
+            )
             .unwrap();
     }
     let mut store = Store::open(&path).unwrap();
-    assert_eq!(store.schema_version(), 3);
+    assert_eq!(store.schema_version(), SCHEMA_VERSION);
     let id = running_job(&mut store, "m1");
     store
         .add_job_file(id, "a.svg", None, "image/svg+xml", b"<svg/>")
         .unwrap();
+}
+
+fn queue_ids(store: &Store, machine: &str) -> Vec<i64> {
+    store
+        .queued(machine)
+        .unwrap()
+        .iter()
+        .map(|j| j.id)
+        .collect()
+}
+
+#[test]
+fn a_queued_job_moves_in_its_machines_queue_and_later_jobs_still_go_last() {
+    let mut store = Store::open_in_memory().unwrap();
+    let ids: Vec<i64> = (0..4)
+        .map(|_| store.enqueue("m1", "verify", &json!({})).unwrap().id)
+        .collect();
+    let other = store.enqueue("m2", "verify", &json!({})).unwrap().id;
+    let [a, b, c, d] = ids[..] else { panic!() };
+    // d first, then before b, then last; each answer is the new queue.
+    let moved = store.move_queued(d, QueuePlace::Position(0)).unwrap();
+    assert_eq!(moved.iter().map(|j| j.id).collect::<Vec<_>>(), [d, a, b, c]);
+    store.move_queued(c, QueuePlace::Before(Some(a))).unwrap();
+    assert_eq!(queue_ids(&store, "m1"), [d, c, a, b]);
+    store.move_queued(d, QueuePlace::Before(None)).unwrap();
+    assert_eq!(queue_ids(&store, "m1"), [c, a, b, d]);
+    store.move_queued(a, QueuePlace::Position(99)).unwrap();
+    assert_eq!(queue_ids(&store, "m1"), [c, b, d, a]);
+    // A job queued later goes to the end; the worker takes the queue's first.
+    let e = store.enqueue("m1", "verify", &json!({})).unwrap().id;
+    assert_eq!(queue_ids(&store, "m1"), [c, b, d, a, e]);
+    // Another machine's queue is untouched, and its job is no place to move to.
+    assert_eq!(queue_ids(&store, "m2"), [other]);
+    let error = store
+        .move_queued(b, QueuePlace::Before(Some(other)))
+        .unwrap_err();
+    assert!(
+        matches!(error, StoreError::InvalidInput { what: "before", .. }),
+        "{error}"
+    );
+    // Only a queued job moves.
+    store.start(c, None).unwrap();
+    let error = store.move_queued(c, QueuePlace::Position(0)).unwrap_err();
+    assert!(matches!(error, StoreError::WrongState { .. }), "{error}");
+    assert_eq!(queue_ids(&store, "m1"), [b, d, a, e]);
+    assert!(matches!(
+        store.move_queued(9999, QueuePlace::Position(0)),
+        Err(StoreError::UnknownJob(9999))
+    ));
+}
+
+#[test]
+fn a_version_3_database_keeps_its_queue_order_after_the_migration() {
+    let dir = TempDir::new("v3");
+    let path = dir.0.join("v3.sqlite");
+    let ids: Vec<i64> = {
+        let mut store = Store::open(&path).unwrap();
+        (0..3)
+            .map(|_| store.enqueue("m1", "verify", &json!({})).unwrap().id)
+            .collect()
+    };
+    {
+        let connection = rusqlite::Connection::open(&path).unwrap();
+        connection
+            .execute_batch("ALTER TABLE jobs DROP COLUMN queue_pos; PRAGMA user_version = 3;")
+            .unwrap();
+    }
+    let mut store = Store::open(&path).unwrap();
+    assert_eq!(store.schema_version(), SCHEMA_VERSION);
+    assert_eq!(queue_ids(&store, "m1"), ids);
+    store.move_queued(ids[2], QueuePlace::Position(0)).unwrap();
+    assert_eq!(queue_ids(&store, "m1"), [ids[2], ids[0], ids[1]]);
 }

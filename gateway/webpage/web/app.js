@@ -2,6 +2,8 @@
 // It codes against the HTTP API v1 and the /api/v1/events WebSocket (see the service
 // contract in docs/service.md). Every element a test looks at has a stable id or data-*
 // attribute: #machines li[data-machine][data-state], #running-jobs li[data-job-id][data-machine],
+// #machines ol.machine-queue[data-machine] li.queued-job[data-job-id][data-position] (button.queue-up,
+// .queue-down, .queue-cancel),
 // #history-rows tr[data-job-id][data-state][data-live-progress] (progress events seen), #job-charts img[data-chart],
 // #profile-rows tr[data-profile][data-version][data-active], #heatmap-image img.
 'use strict';
@@ -128,7 +130,8 @@ function renderMachines() {
       el('span', { class: 'machine-queued', 'data-queued': machine.queued, text: ' queued: ' + machine.queued }),
       el('div', { class: 'machine-description', text: machine.description || '' }),
       el('div', { class: 'machine-links', text: 'stage ' + machine.stage + ', camera ' + machine.camera
-        + (machine.rotary ? ', A/C table ' + machine.rotary : '') })));
+        + (machine.rotary ? ', A/C table ' + machine.rotary : '') }),
+      renderQueue(machine)));
   }
   for (const select of [$('job-machine'), $('profile-machine')]) {
     const chosen = select.value;
@@ -137,6 +140,28 @@ function renderMachines() {
   }
   renderKinds();
   renderRunning();
+}
+
+// A machine's queue in run order (the first runs next), each job with Up, Down and
+// Cancel; the machine's event after a move or a cancel redraws it.
+function renderQueue(machine) {
+  const queue = machine.queue || [];
+  const list = el('ol', { class: 'machine-queue', 'data-machine': machine.id, 'aria-label': 'Queue of ' + machine.id });
+  queue.forEach((job, index) => {
+    const move = (position) => post('/api/v1/jobs/' + job.id + '/move', { position }).catch(reportError);
+    list.append(el('li', { class: 'queued-job', 'data-job-id': job.id, 'data-position': index },
+      el('span', { class: 'queued-label', text: 'job ' + job.id + ' (' + job.kind + ') ' }),
+      el('button', { type: 'button', class: 'queue-up', text: 'Up', disabled: index === 0 ? '' : null,
+        'aria-label': 'Run job ' + job.id + ' earlier', onclick: () => move(index - 1) }), ' ',
+      el('button', { type: 'button', class: 'queue-down', text: 'Down', disabled: index === queue.length - 1 ? '' : null,
+        'aria-label': 'Run job ' + job.id + ' later', onclick: () => move(index + 1) }), ' ',
+      el('button', { type: 'button', class: 'queue-cancel', text: 'Cancel', 'aria-label': 'Cancel job ' + job.id,
+        onclick: () => post('/api/v1/jobs/' + job.id + '/cancel').then(upsertAndRender).catch(reportError) })));
+  });
+  if (machine.queued > queue.length) {
+    list.append(el('li', { class: 'queue-more', text: (machine.queued - queue.length) + ' more queued' }));
+  }
+  return list;
 }
 
 // Every running job, one per busy machine, each with its progress, an estimate of the
@@ -194,7 +219,14 @@ function renderProgress(jobId, done, total) {
 
 // ---- history and one job
 
+// A job's states only move forward; an event that arrives late (the `queued` answer of
+// a job the worker had already started) never takes a job back.
+const STATE_RANK = { queued: 0, running: 1 };
+const rank = (state) => STATE_RANK[state] ?? 2;
+
 function upsertJob(job) {
+  const known = view.jobs.get(job.id);
+  if (known && rank(known.state) > rank(job.state)) return;
   view.jobs.set(job.id, job);
   const machine = view.machines.get(job.machine);
   if (machine && machine.job && machine.job.id === job.id) machine.job = job;

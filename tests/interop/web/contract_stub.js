@@ -15,7 +15,7 @@ const [port, token] = [Number(process.argv[2] || 8099), process.argv[3] || 'stub
 const web = path.join(__dirname, '..', '..', '..', 'gateway', 'webpage', 'web');
 const now = () => new Date().toISOString();
 const machine = { id: 'demo', description: 'stub machine', stage: 'sim', camera: 'sim', state: 'idle',
-  state_detail: null, job: null, queued: 0 };
+  state_detail: null, job: null, queued: 0, queue: [] };
 const jobs = new Map();
 const measurements = new Map();
 const profiles = [];

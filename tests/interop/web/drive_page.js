@@ -14,7 +14,10 @@
 const path = require('path');
 const { chromium } = require(path.join(__dirname, 'node_modules', 'playwright-core'));
 
-const [base, token, machine, kind, paramsJson, screenshot, userDataDir, chartsArg] = process.argv.slice(2);
+const [base, token, machine, kind, paramsJson, screenshot, userDataDir, chartsArg, walksArg] = process.argv.slice(2);
+// WALKS (optional JSON): {"queue": {"long": PARAMS, "short": PARAMS, "kind": KIND}} walks a
+// machine's queue (up, down, cancel) while a long job runs.
+const walks = walksArg ? JSON.parse(walksArg) : {};
 const chartsRequired = (chartsArg || 'required') === 'required';
 const JOB_TIMEOUT_MS = 180000;
 const UI_TIMEOUT_MS = 20000;
@@ -53,6 +56,76 @@ async function startJob(page) {
   step('finished', state);
   if (state !== 'succeeded') throw new Error(`job ${id} ended ${state}`);
   return id;
+}
+
+// Fills the start form (every param of `params`; a param given as null is emptied, the
+// API's default) and submits it; returns the id of the queued job (the newest row).
+async function submitForm(page, formKind, params) {
+  const before = await page.$$eval('#history-rows tr[data-job-id]', (rows) =>
+    rows.reduce((max, row) => Math.max(max, Number(row.dataset.jobId)), 0));
+  await page.selectOption('#job-machine', machine);
+  await page.selectOption('#job-kind', formKind);
+  for (const [name, value] of Object.entries(params)) {
+    await page.fill(`#job-fields [data-field-input="${name}"]`, value === null ? '' : String(value));
+  }
+  await page.click('#start-job');
+  const handle = await page.waitForFunction((earlier) => {
+    const row = document.querySelector('#history-rows tr[data-job-id]');
+    return row && Number(row.dataset.jobId) > earlier ? Number(row.dataset.jobId) : null;
+  }, before, { timeout: UI_TIMEOUT_MS });
+  return handle.jsonValue();
+}
+
+// The machine's queue as the page shows it, in run order.
+function queueOrder(page) {
+  return page.$$eval(`#machines ol.machine-queue[data-machine="${machine}"] li.queued-job`,
+    (items) => items.map((li) => Number(li.dataset.jobId)));
+}
+
+async function waitQueue(page, ids) {
+  await page.waitForFunction(([m, want]) => {
+    const got = [...document.querySelectorAll(`#machines ol.machine-queue[data-machine="${m}"] li.queued-job`)]
+      .map((li) => Number(li.dataset.jobId));
+    return got.join() === want.join();
+  }, [machine, ids], { timeout: UI_TIMEOUT_MS });
+}
+
+// A long job runs; three short ones wait. Down, Up and Cancel in the machine's queue
+// reorder it; the running job is cancelled and the rest run in the queue's order.
+async function queueWalk(page, spec) {
+  const result = {};
+  const queueItem = (id) => page.locator(`#machines li.queued-job[data-job-id="${id}"]`);
+  const long = await submitForm(page, spec.kind, spec.long);
+  await page.locator(`#running-jobs li[data-job-id="${long}"]`).waitFor({ timeout: JOB_TIMEOUT_MS });
+  const short = [];
+  for (let i = 0; i < 3; i++) short.push(await submitForm(page, spec.kind, spec.short));
+  await waitQueue(page, short);
+  result.queued = await queueOrder(page);
+  const [a, b, c] = short;
+  await queueItem(a).locator('button.queue-down').click();
+  await waitQueue(page, [b, a, c]);
+  await queueItem(c).locator('button.queue-up').click();
+  await waitQueue(page, [b, c, a]);
+  result.after_moves = await queueOrder(page);
+  await queueItem(a).locator('button.queue-cancel').click();
+  await waitQueue(page, [b, c]);
+  await page.locator(`#history-rows tr[data-job-id="${a}"][data-state="cancelled"]`).waitFor({ timeout: UI_TIMEOUT_MS });
+  result.after_cancel = await queueOrder(page);
+  await page.locator(`#running-jobs li[data-job-id="${long}"] button.cancel-running`).click();
+  await page.locator(`#history-rows tr[data-job-id="${long}"][data-state="cancelled"]`).waitFor({ timeout: JOB_TIMEOUT_MS });
+  for (const id of [b, c]) {
+    await page.locator(`#history-rows tr[data-job-id="${id}"][data-state="succeeded"]`).waitFor({ timeout: JOB_TIMEOUT_MS });
+  }
+  await waitQueue(page, []);
+  // The order they ran in, from their records.
+  const started = await page.evaluate(async ([ids, t]) => Promise.all(ids.map((id) =>
+    fetch('/api/v1/jobs/' + id, { headers: { Authorization: 'Bearer ' + t } })
+      .then((r) => r.json()).then((j) => ({ id, started_at: j.started_at })))), [[b, c], token]);
+  result.run_order = started.sort((x, y) => x.started_at.localeCompare(y.started_at)).map((j) => j.id);
+  result.expected_run_order = [b, c];
+  result.long = long;
+  step('queue walked', result);
+  return result;
 }
 
 async function main() {
@@ -179,6 +252,8 @@ async function main() {
       return img && img.complete && img.naturalWidth > 0;
     }, null, { timeout: UI_TIMEOUT_MS });
     out.heatmap = { profile: name, version: newer };
+
+    if (walks.queue) out.queue = await queueWalk(page, walks.queue);
 
     out.page_errors = pageErrors;
     out.error_text = await page.locator('#error').textContent();
