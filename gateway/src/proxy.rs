@@ -46,6 +46,10 @@ pub struct ProxyArgs {
     /// Serve one sender session and exit.
     #[arg(long)]
     pub once: bool,
+    /// With --map: apply the map as scanned, without its recorded reference
+    /// (MAP.reference.json, written by `gateway reference` after a homing).
+    #[arg(long, requires = "map")]
+    pub no_reference: bool,
 }
 
 /// Prints the ready message and each session but the last as they come.
@@ -88,12 +92,22 @@ pub fn proxy(args: ProxyArgs, json: bool) -> anyhow::Result<ExitCode> {
     let inputs = procedure::proxy::inputs(args.config, args.map, args.rotary, args.controller)
         .map_err(|e| anyhow::anyhow!(e))?;
     let correction = match inputs {
-        Inputs::Map { job, map } => Correction::Map {
-            job: Box::new(Job::load(&job)?),
-            job_source: job.display().to_string(),
-            map: Box::new(ErrorMap::load(&map)?),
-            map_source: map.display().to_string(),
-        },
+        Inputs::Map { job, map } => {
+            let record = match args.no_reference {
+                true => None,
+                false => {
+                    procedure::reference::read_record(&procedure::reference::reference_path(&map))
+                        .map_err(anyhow::Error::msg)?
+                }
+            };
+            Correction::Map {
+                job: Box::new(Job::load(&job)?),
+                job_source: job.display().to_string(),
+                map: Box::new(ErrorMap::load(&map)?),
+                map_source: map.display().to_string(),
+                reference: procedure::reference::choose(record, args.no_reference),
+            }
+        }
         Inputs::Rotary { errors, controller } => {
             let text = procedure::rotary::read_errors_file(&errors).map_err(anyhow::Error::msg)?;
             let at = |e: String| anyhow::anyhow!("{}: {e}", errors.display());

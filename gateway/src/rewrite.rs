@@ -36,6 +36,10 @@ pub struct RewriteArgs {
     pub force_machine: bool,
     #[arg(long)]
     pub out: PathBuf,
+    /// With --map: apply the map as scanned, without its recorded reference
+    /// (MAP.reference.json, written by `gateway reference` after a homing).
+    #[arg(long, requires = "map")]
+    pub no_reference: bool,
     /// Largest distance of the executed path from the compensated path, um.
     #[arg(long, default_value_t = 0.5)]
     pub tolerance_um: f64,
@@ -128,7 +132,19 @@ pub fn rewrite(args: RewriteArgs, json: bool) -> anyhow::Result<ExitCode> {
                 procedure::check_identity(&map, &here, &path.display().to_string())
                     .map_err(|e| anyhow::anyhow!(e))?;
             }
-            RewriteModel::Map(map)
+            // The map's current reference, if recorded (a damaged or foreign one is an
+            // error: the operator runs `gateway reference` or says --no-reference).
+            let record = match args.no_reference {
+                true => None,
+                false => {
+                    procedure::reference::read_record(&procedure::reference::reference_path(path))
+                        .map_err(anyhow::Error::msg)?
+                }
+            };
+            RewriteModel::ReferencedMap {
+                map,
+                reference: procedure::reference::choose(record, args.no_reference),
+            }
         }
         (None, Some(path)) => RewriteModel::Volumetric {
             model: crate::volumetric::load_model(path)?,

@@ -140,6 +140,9 @@ pub enum Correction {
         job_source: String,
         map: Box<ErrorMap>,
         map_source: String,
+        /// The map's current reference, none recorded, or none wanted
+        /// ([`crate::reference::choose`]).
+        reference: crate::reference::Choice,
     },
     /// A rotary table's location errors (`source` names them), on the grblHAL controller
     /// at `controller`.
@@ -186,6 +189,7 @@ pub async fn run(
             job_source,
             map,
             map_source,
+            reference,
         } => {
             // The map must belong to this machine, controller, board certificate and
             // camera: the one identity check of every procedure, on the job's devices
@@ -197,7 +201,11 @@ pub async fn run(
             if let Err(e) = crate::check_identity(&map, &here, &map_source) {
                 return Outcome::failed(e);
             }
-            let model = MapModel::new(*map);
+            let applied = match crate::reference::apply(*map, &reference) {
+                Ok(a) => a,
+                Err(e) => return Outcome::failed(format!("{map_source}: {e}")),
+            };
+            let model: MapModel = applied.model;
             let StageSpec::Grbl { link, baud } = &job.stage else {
                 return Outcome::failed(format!(
                     "{job_source}: the pass-through needs a GRBL controller (stage kind `grbl`); other controllers take the map as a table (gateway export)"
@@ -226,6 +234,7 @@ pub async fn run(
                 port: &port,
                 baud: *baud,
                 describe: &model.describe(),
+                reference: Some((&applied.describe, applied.warning.as_deref())),
                 sender_link,
                 once: request.once,
             };
@@ -251,6 +260,7 @@ pub async fn run(
                 port: &controller,
                 baud: request.baud,
                 describe: &format!("rotary table errors {source}"),
+                reference: None,
                 sender_link,
                 once: request.once,
             };
@@ -269,6 +279,8 @@ struct Served<'a> {
     port: &'a str,
     baud: u32,
     describe: &'a str,
+    /// With a map: which reference it runs with, and a warning when none is recorded.
+    reference: Option<(&'a str, Option<&'a str>)>,
     sender_link: Option<&'a Path>,
     once: bool,
 }
@@ -292,6 +304,7 @@ async fn sessions<'m>(
     let hello = json!({
         "sender_port": sender.path(), "controller": s.port,
         "compensation": s.describe, "map": s.describe,
+        "reference": s.reference.map(|r| r.0), "reference_warning": s.reference.and_then(|r| r.1),
     });
     if let Err(e) = front.ready(&hello) {
         return Outcome::failed(e);
@@ -302,6 +315,9 @@ async fn sessions<'m>(
             Err(e) => return Outcome::failed(e),
         };
         proxy.start();
+        if let Some((reference, _)) = s.reference {
+            proxy.greet(&format!("map {reference}"));
+        }
         let ending = serve(&mut proxy, &mut sender, &mut controller, stop.as_mut()).await;
         let (account, lost) = session_json(&proxy, &ending);
         let metrics = crate::metrics_from(
@@ -409,6 +425,12 @@ pub fn ready_summary(hello: &Value, link: Option<&Path>) -> String {
         s("controller"),
         s("compensation")
     );
+    if let Some(r) = hello["reference"].as_str() {
+        t += &format!("map {r}\n");
+    }
+    if let Some(w) = hello["reference_warning"].as_str() {
+        t += &format!("warning: {w}\n");
+    }
     t
 }
 

@@ -275,7 +275,14 @@ pub fn read_parameters(text: &str) -> Result<([Pose; 6], Pose), RequestError> {
 
 /// The compensation a program is rewritten with.
 pub enum RewriteModel {
+    /// An error map as scanned (no reference, no header line).
     Map(ErrorMap),
+    /// An error map under its current reference ([`crate::reference::choose`]): the
+    /// program's first line is a `;` comment saying which reference and how old it is.
+    ReferencedMap {
+        map: ErrorMap,
+        reference: crate::reference::Choice,
+    },
     /// A volumetric model and how messages name it (a file, a profile).
     Volumetric {
         model: volumetric::Model,
@@ -299,8 +306,22 @@ pub fn run(
         Ok(o) => o,
         Err(e) => return Outcome::failed(e.to_string()),
     };
+    let mut header = None;
+    let mut reference = Value::Null;
     let compensation: Box<dyn Compensation> = match model {
         RewriteModel::Map(map) => Box::new(MapModel::new(map)),
+        RewriteModel::ReferencedMap { map, reference: r } => {
+            let applied = match crate::reference::apply(map, &r) {
+                Ok(a) => a,
+                Err(e) => return Outcome::failed(e),
+            };
+            header = Some(format!("; gateway: {}", applied.describe));
+            reference = json!({
+                "describe": applied.describe, "warning": applied.warning,
+                "record": applied.json,
+            });
+            Box::new(applied.model)
+        }
         RewriteModel::Volumetric { model, name } => {
             if !model.file.fit {
                 return Outcome::failed(format!(
@@ -317,10 +338,19 @@ pub fn run(
         options,
         MAX_OUTPUT_BYTES,
     );
-    let (out, report) = match rewritten {
+    let (mut out, report) = match rewritten {
         Ok(r) => r,
         Err(e) => return Outcome::failed(format!("{source}: {e}")),
     };
+    if let Some(h) = header {
+        // The reference the program was compensated for, ahead of its first line.
+        let ending = if request.program.contains("\r\n") {
+            "\r\n"
+        } else {
+            "\n"
+        };
+        out.insert_str(0, &format!("{h}{ending}"));
+    }
     let elapsed_s = started.elapsed().as_secs_f64();
     if let Err(e) = sink.artifact(Artifact {
         name: PROGRAM_ARTIFACT.into(),
@@ -343,6 +373,7 @@ pub fn run(
         "largest_correction_um": report.largest_correction_um,
         "largest_correction_line": report.largest_correction_line,
         "offsets_given": request.offsets.is_some(), "notes": notes, "elapsed_s": elapsed_s,
+        "reference": reference,
     });
     let metrics = crate::metrics_from(
         &result,
@@ -411,6 +442,12 @@ pub fn summary(r: &Value) -> String {
         r["tolerance_um"].as_f64().unwrap_or(f64::NAN),
         r["elapsed_s"].as_f64().unwrap_or(f64::NAN)
     );
+    if let Some(d) = r["reference"]["describe"].as_str() {
+        let _ = writeln!(t, "map {d}");
+    }
+    if let Some(w) = r["reference"]["warning"].as_str() {
+        let _ = writeln!(t, "warning: {w}");
+    }
     if r["offsets_given"] != true {
         let _ = writeln!(t, "work offsets: none given (--offsets FILE with the controller's `$#` reply); the program's coordinates are taken as machine coordinates");
     }

@@ -293,6 +293,9 @@ pub struct Proxy<'a> {
     sender_asked_status: bool,
     /// One-time report fields the gateway's own polls took from the sender.
     one_time: OneTimeFields,
+    /// A `[MSG:gateway: ...]` for the sender before the answer to its first G-code line
+    /// (which compensation and reference the program runs with).
+    greeting: Option<String>,
 }
 
 /// Marks a line of the gateway's own (`$#`, `$G`) in the controller's buffer: its
@@ -331,7 +334,24 @@ impl<'a> Proxy<'a> {
             position_asked: false,
             sender_asked_status: false,
             one_time: OneTimeFields::default(),
+            greeting: None,
         }
+    }
+
+    /// Tell the sender `text` (as `[MSG:gateway: text]`) ahead of its first G-code line's
+    /// answer: not at connect, where a strict sender reads `$I` or `$$` listings, but
+    /// where GRBL's own feedback messages may come. `]` and line breaks are replaced.
+    pub fn greet(&mut self, text: &str) {
+        let clean: String = text
+            .chars()
+            .map(|c| match c {
+                ']' => ')',
+                '[' => '(',
+                c if c.is_control() => ' ',
+                c => c,
+            })
+            .collect();
+        self.greeting = Some(clean);
     }
 
     /// What to send the controller first: its offsets (`$#`), its modal state (`$G`)
@@ -526,6 +546,12 @@ impl<'a> Proxy<'a> {
         } else if slot.error.is_some() || text.trim().is_empty() {
             // GRBL answers an empty line with `ok` (senders use it to sync).
         } else {
+            if !text.trim_start().starts_with('$') {
+                if let Some(g) = self.greeting.take() {
+                    let msg = format!("[MSG:gateway: {g}]\r\n");
+                    self.to_sender.extend_from_slice(msg.as_bytes());
+                }
+            }
             let t0 = std::time::Instant::now();
             let rewritten = self.rewriter.line(&text, line as usize);
             self.stats.processing_s.push(t0.elapsed().as_secs_f64());

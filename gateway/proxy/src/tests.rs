@@ -416,3 +416,24 @@ async fn the_senders_link_never_replaces_or_deletes_anything_but_its_own_symlink
     assert_eq!(std::fs::read_to_string(&link).unwrap(), "mine");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn the_greeting_comes_before_the_first_g_code_lines_answer_and_once() {
+    let comp = Skewed;
+    let mut p = started(&comp);
+    p.take_to_sender();
+    p.greet("map v1, reference #2 [3 min old]\nx");
+    // A `$` line's answer (a listing a strict sender parses) gets no message.
+    p.from_sender(b"$I\n", 1.0);
+    p.take_to_controller();
+    p.from_controller(b"[VER:1.1h.20190825:]\r\nok\r\n", 1.1);
+    assert_eq!(text(p.take_to_sender()), "[VER:1.1h.20190825:]\r\nok\r\n");
+    p.from_sender(b"G0 X1 Y1\nG0 X2 Y2\n", 1.2);
+    assert_eq!(
+        text(p.take_to_sender()),
+        "[MSG:gateway: map v1, reference #2 (3 min old) x]\r\n"
+    );
+    p.take_to_controller();
+    p.from_controller(b"ok\r\nok\r\n", 1.3);
+    assert_eq!(text(p.take_to_sender()), "ok\r\nok\r\n");
+}
