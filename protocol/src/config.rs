@@ -359,6 +359,8 @@ pub enum DataKind {
     Parameters,
     /// A configuration file (TOML, JSON job): jobs, boards, cameras, machines.
     Config,
+    /// An error map (JSON).
+    ErrorMap,
 }
 
 impl DataKind {
@@ -373,6 +375,7 @@ impl DataKind {
             DataKind::Iso230 => 8 << 20,
             DataKind::Parameters => 1 << 20,
             DataKind::Config => MAX_FILE_BYTES,
+            DataKind::ErrorMap => crate::errormap::MAX_FILE_BYTES,
         }
     }
 
@@ -387,6 +390,7 @@ impl DataKind {
             DataKind::Iso230 => "measurements file (ISO 230-2)",
             DataKind::Parameters => "`$#` reply",
             DataKind::Config => "configuration file",
+            DataKind::ErrorMap => "error map",
         }
     }
 }

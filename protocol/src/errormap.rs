@@ -139,6 +139,9 @@ pub enum ErrorMapError {
         #[source]
         source: std::io::Error,
     },
+    /// The bounded reader's error, which names the file and its kind.
+    #[error("{0}")]
+    Read(std::io::Error),
     #[error("{path}: not an error map: {message}")]
     Format { path: String, message: String },
     #[error("{path}: {message}")]
@@ -149,11 +152,16 @@ impl ErrorMap {
     /// Parse and check a map; `path` names it in errors.
     pub fn from_json(path: &str, text: &str) -> Result<Self, ErrorMapError> {
         let de = &mut serde_json::Deserializer::from_str(text);
-        let map: ErrorMap =
-            serde_path_to_error::deserialize(de).map_err(|e| ErrorMapError::Format {
-                path: path.to_string(),
-                message: format!("at `{}`: {}", e.path(), e.inner()),
-            })?;
+        let format = |message| ErrorMapError::Format {
+            path: path.to_string(),
+            message,
+        };
+        let map: ErrorMap = serde_path_to_error::deserialize(&mut *de)
+            .map_err(|e| format(format!("at `{}`: {}", e.path(), e.inner())))?;
+        // One map per file: anything after it (a second map pasted in, a torn copy) is
+        // refused, not ignored.
+        de.end()
+            .map_err(|e| format(format!("after the map: {e}")))?;
         map.check().map_err(|message| ErrorMapError::Invalid {
             path: path.to_string(),
             message,
@@ -161,21 +169,12 @@ impl ErrorMap {
         Ok(map)
     }
 
+    /// Read through the one bounded reader (a regular file of at most
+    /// [`MAX_FILE_BYTES`], UTF-8, a byte-order mark dropped).
     pub fn load(path: &Path) -> Result<Self, ErrorMapError> {
-        let name = path.display().to_string();
-        let io = |source| ErrorMapError::Io {
-            path: name.clone(),
-            source,
-        };
-        let meta = std::fs::metadata(path).map_err(io)?;
-        if !meta.is_file() || meta.len() > MAX_FILE_BYTES {
-            return Err(ErrorMapError::Invalid {
-                path: name,
-                message: format!("not a regular file of at most {} MiB", MAX_FILE_BYTES >> 20),
-            });
-        }
-        let text = std::fs::read_to_string(path).map_err(io)?;
-        Self::from_json(&name, &text)
+        let text = crate::config::read_kind(path, crate::config::DataKind::ErrorMap)
+            .map_err(ErrorMapError::Read)?;
+        Self::from_json(&path.display().to_string(), &text)
     }
 
     pub fn to_json(&self) -> String {
@@ -208,10 +207,12 @@ impl ErrorMap {
             ));
         }
         let finite = |what: &str, v: f64| {
-            if v.is_finite() {
+            if v.is_finite() && v.abs() <= MAX_COORDINATE_MM {
                 Ok(())
             } else {
-                Err(format!("{what} is not a finite number"))
+                Err(format!(
+                    "{what} is {v}: not a position on a machine (at most {MAX_COORDINATE_MM} mm from zero)"
+                ))
             }
         };
         for (k, v) in self
@@ -223,8 +224,12 @@ impl ErrorMap {
         {
             finite(&format!("set-up value #{k}"), *v)?;
         }
-        if !(self.uncertainty_um.is_finite() && self.uncertainty_um >= 0.0) {
-            return Err("uncertainty_um must be a non-negative number".into());
+        if !(self.uncertainty_um.is_finite() && (0.0..=MAX_ERROR_UM).contains(&self.uncertainty_um))
+        {
+            return Err(format!(
+                "uncertainty_um is {}: must be 0..{MAX_ERROR_UM} um",
+                self.uncertainty_um
+            ));
         }
         check_axis("grid.xs", &self.grid.xs)?;
         check_axis("grid.ys", &self.grid.ys)?;
@@ -281,9 +286,22 @@ impl ErrorMap {
     }
 }
 
+/// The largest coordinate a map may hold, mm: beyond any machine this gateway serves.
+pub const MAX_COORDINATE_MM: f64 = 10_000.0;
+/// The largest error (and dispersion) a map node may hold, um: no stage the gateway
+/// compensates is 10 mm off (corrections are bounded far below); more is a corrupt file.
+pub const MAX_ERROR_UM: f64 = 10_000.0;
+/// The largest yaw a map node may hold, urad (0.1 rad, 5.7 degrees).
+pub const MAX_YAW_URAD: f64 = 100_000.0;
+
 fn check_axis(what: &str, v: &[f64]) -> Result<(), String> {
-    if v.iter().any(|x| !x.is_finite()) {
-        return Err(format!("{what} holds a value that is not a finite number"));
+    if let Some(x) = v
+        .iter()
+        .find(|x| !(x.is_finite() && x.abs() <= MAX_COORDINATE_MM))
+    {
+        return Err(format!(
+            "{what} holds {x}: not a position on a machine (at most {MAX_COORDINATE_MM} mm from zero)"
+        ));
     }
     if v.windows(2).any(|w| w[1] <= w[0]) {
         return Err(format!("{what} must increase strictly"));
@@ -293,11 +311,18 @@ fn check_axis(what: &str, v: &[f64]) -> Result<(), String> {
 
 fn check_nodes(what: &str, nodes: &[Node]) -> Result<(), String> {
     for (k, n) in nodes.iter().enumerate() {
-        for m in [&n.forward, &n.reverse] {
-            for s in [&m.ex_um, &m.ey_um, &m.yaw_urad] {
-                if !(s.mean.is_finite() && s.sd.is_finite() && s.sd >= 0.0) || s.n == 0 {
+        for (dir, m) in [("forward", &n.forward), ("reverse", &n.reverse)] {
+            for (field, s, bound) in [
+                ("ex_um", &m.ex_um, MAX_ERROR_UM),
+                ("ey_um", &m.ey_um, MAX_ERROR_UM),
+                ("yaw_urad", &m.yaw_urad, MAX_YAW_URAD),
+            ] {
+                let inside = |v: f64| v.is_finite() && v.abs() <= bound;
+                if !(inside(s.mean) && inside(s.sd) && s.sd >= 0.0) || s.n == 0 {
                     return Err(format!(
-                        "{what}[{k}]: a mean or dispersion is not a finite number, or no measurement"
+                        "{what}[{k}].{dir}.{field}: mean {} sd {} n {}: a mean or dispersion \
+                         beyond {bound} (or not a number), or no measurement",
+                        s.mean, s.sd, s.n
                     ));
                 }
             }
@@ -387,6 +412,41 @@ mod tests {
         assert!((s.sd - 1.0).abs() < 1e-12);
         assert_eq!(Stat::of(&[4.0]).unwrap().sd, 0.0);
         assert!(Stat::of(&[]).is_none());
+    }
+
+    #[test]
+    fn a_second_map_or_anything_after_the_map_is_refused() {
+        let text = small_map().to_json();
+        assert!(ErrorMap::from_json("m.json", &text).is_ok());
+        for tail in ["\n999999\n", "x", "{}"] {
+            let e = ErrorMap::from_json("m.json", &format!("{text}{tail}")).unwrap_err();
+            assert!(e.to_string().contains("after the map"), "{e}");
+        }
+        let twice = ErrorMap::from_json("m.json", &text.repeat(2)).unwrap_err();
+        assert!(twice.to_string().contains("after the map"), "{twice}");
+    }
+
+    #[test]
+    fn numbers_beyond_any_machine_are_refused_naming_the_field() {
+        let mut m = small_map();
+        m.grid.nodes[2].reverse.yaw_urad.mean = 1e308;
+        let e = ErrorMap::from_json("m.json", &m.to_json()).unwrap_err();
+        assert!(
+            e.to_string().contains("grid.nodes[2].reverse.yaw_urad"),
+            "{e}"
+        );
+        let mut m = small_map();
+        m.grid.nodes[1].forward.ex_um.sd = 2e4;
+        let e = ErrorMap::from_json("m.json", &m.to_json()).unwrap_err();
+        assert!(e.to_string().contains("grid.nodes[1].forward.ex_um"), "{e}");
+        let mut m = small_map();
+        m.uncertainty_um = 1e100;
+        let e = ErrorMap::from_json("m.json", &m.to_json()).unwrap_err();
+        assert!(e.to_string().contains("uncertainty_um"), "{e}");
+        let mut m = small_map();
+        m.grid.xs[1] = 1e9;
+        let e = ErrorMap::from_json("m.json", &m.to_json()).unwrap_err();
+        assert!(e.to_string().contains("grid.xs"), "{e}");
     }
 
     #[test]
