@@ -82,7 +82,7 @@ fi
 # the independent Sparkplug B plant (tests/interop/sparkplug/plant.py); pymodbus: the
 # independent Modbus client and server (tests/interop/modbus_*.py); canopen over
 # python-can's slcan: the independent CANopen master and node (tests/interop/canopen_*.py).
-want_py="pyserial numpy paho-mqtt==2.1.0 grpcio-tools==1.85.1 pymodbus==3.16.1 canopen==2.4.1 python-can==4.6.1"
+want_py="pyserial numpy paho-mqtt==2.1.0 grpcio-tools==1.85.1 pymodbus==3.16.1 canopen==2.4.1 python-can==4.6.1 ezdxf==1.4.5 svgelements==1.9.6"
 # Only what is missing or at another version than the one tested.
 py_missing=$(python3 - $want_py <<'EOF'
 import importlib.metadata as m, sys

@@ -45,6 +45,8 @@ pub(crate) struct DxfSource {
     unit_mm: f64,
     parts: Vec<Vec<usize>>,
     offsets: Vec<Point>,
+    /// What the crate does not write back (see `dxf_tidy`).
+    mlines: crate::dxf_tidy::MlineElements,
 }
 
 fn handle(e: &Entity) -> String {
@@ -663,6 +665,7 @@ pub(crate) fn read(
             unit_mm: unit,
             parts: sources,
             offsets: vec![[0.0, 0.0]; n],
+            mlines: crate::dxf_tidy::mline_elements(bytes),
         },
     ))
 }
@@ -738,18 +741,21 @@ impl DxfSource {
                 translate_entity(e, *d);
             }
         }
-        save(&drawing)
+        save(&drawing, &self.mlines)
     }
 }
 
-fn save(drawing: &Drawing) -> Result<Vec<u8>, LayoutError> {
+fn save(
+    drawing: &Drawing,
+    mlines: &crate::dxf_tidy::MlineElements,
+) -> Result<Vec<u8>, LayoutError> {
     let mut out = Vec::new();
     drawing.save(&mut out).map_err(|e| LayoutError::Write {
         format: "DXF",
         message: e.to_string(),
     })?;
     // Unique handles and one block record each (see `dxf_tidy`).
-    Ok(crate::dxf_tidy::tidy(out))
+    Ok(crate::dxf_tidy::tidy(out, mlines))
 }
 
 /// A new drawing: one block per part, inserted at the origin (see the module's notes).
@@ -793,5 +799,5 @@ pub(crate) fn write_parts(parts: &[Part]) -> Result<Vec<u8>, LayoutError> {
         };
         drawing.add_entity(e);
     }
-    save(&drawing)
+    save(&drawing, &Default::default())
 }
