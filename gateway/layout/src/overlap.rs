@@ -35,6 +35,11 @@ pub struct Move {
     pub to_group: usize,
     /// The part it was too close to (None for an operator's `--assign`).
     pub because_of: Option<usize>,
+    /// Why: the distance to that part before the move, mm, and how many parts of other
+    /// groups the moved part was too close to before and after it.
+    pub distance_mm: f64,
+    pub overlaps_before: usize,
+    pub overlaps_after: usize,
 }
 
 /// What [`resolve`] did.
@@ -58,6 +63,10 @@ pub struct Widening {
     pub from: usize,
     pub extra_mm: f64,
 }
+
+/// How many times one part may move (it never goes back to a group it left, and has at
+/// most eight neighbouring groups, so this is never reached; a bound all the same).
+const MAX_MOVES_PER_PART: usize = 8;
 
 /// How many widening rounds before giving up (each round widens by at least an eighth
 /// of the clearance; a layout a kilometre long needs far fewer).
@@ -242,11 +251,14 @@ pub fn resolve_widening(
 /// until none is left, keeping S8's shifts (the patent leaves this to the operator);
 /// an overlap no move resolves is an error naming every pair left.
 ///
-/// A candidate move takes one part of an overlapping pair into a neighbouring group:
-/// part b into a's group, part a into b's group, then b into each other group next to
-/// its own (tool and window each within one), then a likewise. A candidate is allowed
-/// when (1) the part is not pinned by `--assign` and (2) the target group still fits its
-/// window (L < L') with the part. The parts of one group share one shift, so a part
+/// A candidate move takes one part of an overlapping pair into a neighbouring group
+/// (tool and window each within one of its own): part b into a's group and part a into
+/// b's group when the two groups are neighbours, then b into each other group next to
+/// its own, then a likewise. A candidate is allowed when (1) the part is not pinned by
+/// `--assign`, (2) the part never was in that group (a part never goes back to a group it
+/// left, and moves at most [`MAX_MOVES_PER_PART`] times) and (3) the target group still
+/// fits its window with the part (`Partition::fits_window`). Each move is reported with
+/// why: the partner, their distance, and the part's overlaps before and after. The parts of one group share one shift, so a part
 /// joining a group sits beside its new group mates exactly as in the given layout: no
 /// new contact inside the group is possible. Its score is the number of overlaps
 /// the part has after the move minus before (a part taken into its partner's group is
@@ -277,8 +289,17 @@ fn resolve_with(
     let mut moves = Vec::new();
     let mut widenings: Vec<Widening> = Vec::new();
     let mut rounds = 0;
+    // Per part: the groups it left (it never goes back to one).
+    let mut left_groups: Vec<Vec<usize>> = vec![Vec::new(); parts.len()];
     loop {
-        let left = move_parts(partition, &bounds, pinned, parts, &mut moves);
+        let left = move_parts(
+            partition,
+            &bounds,
+            pinned,
+            parts,
+            &mut moves,
+            &mut left_groups,
+        );
         if left.is_empty() {
             return Ok(Resolution {
                 found,
@@ -363,6 +384,7 @@ fn move_parts(
     pinned: &[usize],
     parts: &[Part],
     moves: &mut Vec<Move>,
+    left_groups: &mut [Vec<usize>],
 ) -> Vec<Overlap> {
     let gap = partition.clearance_mm;
     let mut placed = Placed::new(parts, partition);
@@ -377,7 +399,16 @@ fn move_parts(
     'search: while !current.is_empty() {
         for &(a, b) in &current {
             let (ga, gb) = (partition.group_of[a], partition.group_of[b]);
-            let mut candidates = vec![(b, ga), (a, gb)];
+            // The partner's group first, when it is a neighbour (tool and window each
+            // within one), then the other neighbours.
+            let adjacent = |g: usize, h: usize| {
+                let (x, y) = (&partition.groups[g], &partition.groups[h]);
+                x.tool.abs_diff(y.tool) <= 1 && x.window.abs_diff(y.window) <= 1
+            };
+            let mut candidates = Vec::new();
+            if adjacent(ga, gb) {
+                candidates.extend([(b, ga), (a, gb)]);
+            }
             candidates.extend(
                 neighbours(partition, gb)
                     .into_iter()
@@ -392,7 +423,12 @@ fn move_parts(
             );
             let mut best: Option<(i64, usize, usize, Vec<usize>)> = None;
             for (p, g) in candidates {
-                if pinned.contains(&p) {
+                // Pinned parts stay; a part never goes back to a group it left, and
+                // moves a bounded number of times.
+                if pinned.contains(&p)
+                    || left_groups[p].contains(&g)
+                    || left_groups[p].len() >= MAX_MOVES_PER_PART
+                {
                     continue;
                 }
                 let Some(after) = cache
@@ -411,6 +447,12 @@ fn move_parts(
             if let Some((_, p, g, after)) = best {
                 let from = partition.group_of[p];
                 let other = if p == a { b } else { a };
+                let distance_mm = placed
+                    .distance_below(p, other, f64::INFINITY)
+                    .unwrap_or(0.0);
+                let overlaps_before = current.iter().filter(|&&(x, y)| x == p || y == p).count();
+                let overlaps_after = after.len();
+                left_groups[p].push(from);
                 let old_box = placed.boxes[p];
                 partition.reassign(p, g);
                 placed.place(
@@ -443,6 +485,9 @@ fn move_parts(
                     from_group: partition.groups[from].id,
                     to_group: partition.groups[g].id,
                     because_of: Some(other),
+                    distance_mm,
+                    overlaps_before,
+                    overlaps_after,
                 });
                 continue 'search;
             }

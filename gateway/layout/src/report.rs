@@ -41,6 +41,11 @@ pub struct MoveReport {
     pub from_group: usize,
     pub to_group: usize,
     pub because_of: Option<String>,
+    /// Distance to `because_of` before the move, mm.
+    pub distance_mm: f64,
+    /// Parts of other groups the moved part was too close to, before and after.
+    pub overlaps_before: usize,
+    pub overlaps_after: usize,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -84,6 +89,9 @@ pub fn report(parts: &[Part], partition: &Partition, resolution: &Resolution) ->
                 from_group: m.from_group,
                 to_group: m.to_group,
                 because_of: m.because_of.map(id),
+                distance_mm: m.distance_mm,
+                overlaps_before: m.overlaps_before,
+                overlaps_after: m.overlaps_after,
             })
             .collect(),
         overlaps_found: resolution

@@ -205,7 +205,10 @@ fn an_overlap_after_s8_is_found_and_resolved_by_a_neighbouring_group() {
             part: 2,
             from_group: 3,
             to_group: 4,
-            because_of: Some(1)
+            because_of: Some(1),
+            distance_mm: 2.0,
+            overlaps_before: 1,
+            overlaps_after: 0,
         }]
     );
     assert_eq!(p.offsets()[2], [5.0, 5.0]);
@@ -688,4 +691,45 @@ fn s8_can_bring_slanted_neighbours_closer_and_detection_reports_them() {
     let found = detect(&parts, &p);
     assert_eq!(found.len(), 1);
     assert!((found[0].distance_mm - (5.0 - 5.0 / std::f64::consts::SQRT_2)).abs() < 1e-6);
+}
+
+/// Resolution converges: every move goes to a neighbouring group (tool and window each
+/// within one), lowers the moved part's overlaps, and never takes a part back to a group
+/// it left; on dense star nests (parts touching) with moves only and with widening.
+#[test]
+fn resolution_moves_only_to_neighbours_never_back_and_always_lowers_overlaps() {
+    let mut total = 0;
+    for seed in 1..6u64 {
+        let parts = random_layout(150, seed);
+        for (tools, window, gap) in [(2, 60.0, 2.0), (3, 45.0, 4.0)] {
+            for widen in [false, true] {
+                let mut p = partition(&parts, &params(tools, window, gap, None)).unwrap();
+                let before = p.clone();
+                let r = if widen {
+                    resolve_widening(&parts, &mut p, &[])
+                } else {
+                    resolve(&parts, &mut p, &[])
+                };
+                let Ok(r) = r else { continue };
+                let group = |id: usize| &before.groups[id - 1];
+                let mut left: Vec<(usize, usize)> = Vec::new();
+                for m in &r.moves {
+                    let (f, t) = (group(m.from_group), group(m.to_group));
+                    assert!(
+                        f.tool.abs_diff(t.tool) <= 1 && f.window.abs_diff(t.window) <= 1,
+                        "seed {seed}: {m:?}"
+                    );
+                    assert!(m.overlaps_after < m.overlaps_before, "{m:?}");
+                    assert!(m.distance_mm < p.clearance_mm, "{m:?}");
+                    assert!(!left.contains(&(m.part, m.to_group)), "back: {m:?}");
+                    left.push((m.part, m.from_group));
+                }
+                total += r.moves.len();
+                if widen {
+                    assert!(detect_exhaustive(&parts, &p).is_empty());
+                }
+            }
+        }
+    }
+    assert!(total > 0, "no move was tried");
 }

@@ -188,11 +188,14 @@ pub fn summary(r: &Value) -> String {
     for m in r["moves"].as_array().into_iter().flatten() {
         let _ = writeln!(
             t,
-            "  moved `{}` from group {} to group {} (too close to `{}`)",
+            "  moved `{}` from group {} to group {} (too close to `{}`: {:.3} mm; its overlaps {} -> {})",
             m["part"].as_str().unwrap_or(""),
             m["from_group"],
             m["to_group"],
-            m["because_of"].as_str().unwrap_or("-")
+            m["because_of"].as_str().unwrap_or("-"),
+            n(&m["distance_mm"]),
+            m["overlaps_before"],
+            m["overlaps_after"]
         );
     }
     for w in r["widenings"].as_array().into_iter().flatten() {
