@@ -78,6 +78,28 @@ fn missing_tools(web_dir: &Path) -> Option<String> {
     None
 }
 
+/// Every job kind the demo machine runs, with the quickest params its schema allows, in
+/// an order that works: the map becomes the machine's active `error_map`, which verify
+/// uses. `chart`: the kind draws one. Each entry is started from the page's form.
+fn kind_jobs() -> serde_json::Value {
+    let layout = serde_json::json!({"units": "mm", "width_mm": 40, "parts": [
+        {"id": "a", "contours": [[[0, 5], [10, 5], [10, 15], [0, 15]]]},
+        {"id": "b", "contours": [[[12, 5], [22, 5], [22, 15], [12, 15]]]},
+        {"id": "c", "contours": [[[24, 5], [34, 5], [34, 15], [24, 15]]]},
+    ]})
+    .to_string();
+    serde_json::json!([
+        {"kind": "compensate", "params": {"targets": 1}, "chart": false},
+        {"kind": "iso230", "params": {"axis": "X", "positions": 5, "runs": 5}, "chart": true},
+        {"kind": "map", "params": {"name": "error_map", "grid_step_mm": 50, "line_step_mm": 25, "passes": 1},
+            "chart": false, "activate": "error_map"},
+        {"kind": "verify", "params": {"points": 2, "seed": 3}, "chart": false},
+        {"kind": "layout", "params": {"layout": {"name": "three.json", "text": layout},
+            "tools": 2, "window_mm": 25, "gap_mm": 2, "picture": "svg"}, "chart": true},
+        {"kind": "rotary", "params": {}, "chart": true},
+    ])
+}
+
 fn fresh_dir(path: PathBuf) -> PathBuf {
     let _ = std::fs::remove_dir_all(&path);
     std::fs::create_dir_all(&path).expect("a temp dir under the target dir");
@@ -115,6 +137,7 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
         CHARTS.into(),
         serde_json::json!({
             "queue": {"kind": "compensate", "long": {"targets": null}, "short": {"targets": 1}},
+            "kinds": {"screenshots": artefacts.display().to_string(), "jobs": kind_jobs()},
         })
         .to_string(),
     ];
@@ -204,6 +227,30 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
     assert_eq!(ids(&queue["after_moves"]), [b, c, a], "{queue}");
     assert_eq!(ids(&queue["after_cancel"]), [b, c], "{queue}");
     assert_eq!(ids(&queue["run_order"]), [b, c], "{queue}");
+    // Every job kind the machine runs, started from its form, succeeded and shows its
+    // numbers as a table (and its chart when it draws one), the raw JSON collapsed.
+    let kinds = report["kinds"]
+        .as_array()
+        .unwrap_or_else(|| panic!("{report}"));
+    let walked: Vec<&str> = kinds.iter().map(|k| k["kind"].as_str().unwrap()).collect();
+    assert_eq!(walked, procedure::request::KINDS, "{report}");
+    for (k, want) in kinds.iter().zip(kind_jobs().as_array().unwrap()) {
+        assert_eq!(k["state"], "succeeded", "{k}");
+        let table = match k["kind"].as_str().unwrap() {
+            "iso230" => "iso230-figures",
+            "verify" => "verify-before-after",
+            "compensate" => "compensate-before-after",
+            _ => "figures",
+        };
+        assert_eq!(k["table"], table, "{k}");
+        assert!(k["table_rows"].as_u64().unwrap() > 0, "{k}");
+        if want["chart"] == true {
+            assert!(!k["charts"].as_array().unwrap().is_empty(), "{k}");
+        }
+        assert_eq!(k["raw_collapsed"], true, "{k}");
+        let shot = std::fs::read(k["screenshot"].as_str().unwrap()).expect("a screenshot per kind");
+        assert!(shot.starts_with(b"\x89PNG\r\n\x1a\n"), "{k}");
+    }
     let png = std::fs::read(&screenshot).expect("the screenshot was written");
     assert!(
         png.starts_with(b"\x89PNG\r\n\x1a\n"),

@@ -5,6 +5,7 @@
 // #machines ol.machine-queue[data-machine] li.queued-job[data-job-id][data-position] (button.queue-up,
 // .queue-down, .queue-cancel),
 // #history-rows tr[data-job-id][data-state][data-live-progress] (progress events seen), #job-charts img[data-chart],
+// #job-result table[data-result] (iso230-figures, verify-before-after, compensate-before-after, figures),
 // #profile-rows tr[data-profile][data-version][data-active], #heatmap-image img.
 'use strict';
 
@@ -280,6 +281,7 @@ async function showJob(id) {
   // record stays one click away.
   $('job-summary').textContent = job.error ? 'Error: ' + job.error
     : (job.summary || (job.state === 'running' || job.state === 'queued' ? 'Not finished yet.' : ''));
+  renderResult(job);
   $('job-record').textContent = JSON.stringify(
     { params: job.params, profile: job.profile, error: job.error, result: job.result }, null, 2);
   const images = await Promise.all(charts.map((chart) =>
@@ -296,6 +298,87 @@ async function showJob(id) {
   renderMeasurements(measurements);
   // Heat maps change when a job made a new profile.
   loadProfiles().catch(reportError);
+}
+
+// ---- a finished job's numbers as tables (its charts are the job's SVG files)
+
+const num = (v, digits) => (typeof v === 'number' && Number.isFinite(v) ? v.toFixed(digits ?? 3) : '');
+
+function table(attributes, head, rows) {
+  return el('table', attributes,
+    el('thead', {}, el('tr', {}, ...head.map((h) => el('th', { scope: 'col', text: h })))),
+    el('tbody', {}, ...rows.map(([rowAttributes, cells]) =>
+      el('tr', rowAttributes, ...cells.map((c, i) => el(i === 0 ? 'th' : 'td', i === 0 ? { scope: 'row', text: c } : { text: c }))))));
+}
+
+// ISO 230-2 figures, one row per run (before, and this one): the standard's names.
+const ISO_FIGURES = [['A_um', 'A'], ['A_up_um', 'A↑'], ['A_down_um', 'A↓'], ['B_um', 'B'],
+  ['mean_reversal_um', 'mean reversal'], ['R_um', 'R'], ['R_up_um', 'R↑'], ['R_down_um', 'R↓'],
+  ['E_um', 'E'], ['E_up_um', 'E↑'], ['E_down_um', 'E↓'], ['M_um', 'M']];
+
+function iso230Table(r) {
+  const runs = [];
+  if (r.before) runs.push(['before', r.before]);
+  runs.push([r.before && !r.cycle ? 'after' : (typeof r.map === 'string' ? 'with the map' : 'measured'), r]);
+  return table({ class: 'result-table', 'data-result': 'iso230-figures' },
+    ['axis ' + (r.axis || '?') + ' (µm)', ...ISO_FIGURES.map(([, label]) => label)],
+    runs.map(([label, f]) => [{ 'data-run': label }, [label, ...ISO_FIGURES.map(([key]) => num(f[key]))]]));
+}
+
+// Verify: each check point without and with the map (before / after), and the figures.
+function verifyTable(r) {
+  const length = (v) => (Array.isArray(v) ? Math.hypot(v[0], v[1]) : NaN);
+  const rows = (r.points || []).map((p, i) => [{ 'data-point': i },
+    [num(p.x_mm, 2) + ', ' + num(p.y_mm, 2), num(p.uncompensated_um && p.uncompensated_um[0], 2),
+      num(p.uncompensated_um && p.uncompensated_um[1], 2), num(length(p.uncompensated_um), 2),
+      num(p.residual_um && p.residual_um[0], 2), num(p.residual_um && p.residual_um[1], 2), num(length(p.residual_um), 2)]]);
+  const u = r.uncompensated_um || {};
+  const e = r.residual_um || {};
+  rows.push([{ 'data-point': 'max' }, ['max', '', '', num(u.max, 2), '', '', num(e.max, 2)]]);
+  rows.push([{ 'data-point': 'rms' }, ['rms', '', '', num(u.rms, 2), '', '', num(e.rms, 2)]]);
+  return table({ class: 'result-table', 'data-result': 'verify-before-after' },
+    ['point (mm)', 'without map dx (µm)', 'dy', '|e|', 'with map dx (µm)', 'dy', '|e|'], rows);
+}
+
+function compensateTable(r) {
+  const row = (key, label) => [{ 'data-run': label }, [label, num((r[key] || {}).mean), num((r[key] || {}).rms), num((r[key] || {}).max)]];
+  return table({ class: 'result-table', 'data-result': 'compensate-before-after' },
+    ['error (µm)', 'mean', 'rms', 'max'], [row('before_um', 'before'), row('after_um', 'after')]);
+}
+
+// Any other kind: its numbers, one level deep (`errors.dx_mm`), as name / value rows.
+function figuresTable(r) {
+  const rows = [];
+  const add = (key, v) => {
+    if (typeof v === 'number' || typeof v === 'boolean' || (typeof v === 'string' && v.length <= 80)) {
+      rows.push([{ 'data-figure': key }, [key, typeof v === 'number' ? num(v, 4) : String(v)]]);
+    }
+  };
+  for (const [key, v] of Object.entries(r || {})) {
+    if (v && typeof v === 'object' && !Array.isArray(v)) {
+      for (const [inner, w] of Object.entries(v)) add(key + '.' + inner, w);
+    } else {
+      add(key, v);
+    }
+    if (rows.length >= 60) break;
+  }
+  return table({ class: 'result-table', 'data-result': 'figures' }, ['figure', 'value'], rows);
+}
+
+const RESULT_TABLES = { iso230: iso230Table, verify: verifyTable, compensate: compensateTable };
+
+function renderResult(job) {
+  const box = $('job-result');
+  if (!job.result || typeof job.result !== 'object') {
+    box.replaceChildren();
+    return;
+  }
+  try {
+    box.replaceChildren((RESULT_TABLES[job.kind] || figuresTable)(job.result));
+  } catch (error) {
+    // A result of an unexpected shape still shows its numbers.
+    box.replaceChildren(figuresTable(job.result));
+  }
 }
 
 // Nested measurement objects become dotted columns: {"deviation": {"dx_mm": 1}} -> deviation.dx_mm.

@@ -16,7 +16,8 @@ const { chromium } = require(path.join(__dirname, 'node_modules', 'playwright-co
 
 const [base, token, machine, kind, paramsJson, screenshot, userDataDir, chartsArg, walksArg] = process.argv.slice(2);
 // WALKS (optional JSON): {"queue": {"long": PARAMS, "short": PARAMS, "kind": KIND}} walks a
-// machine's queue (up, down, cancel) while a long job runs.
+// machine's queue (up, down, cancel) while a long job runs; {"kinds": ...} starts every
+// job kind from its form (kindsWalk).
 const walks = walksArg ? JSON.parse(walksArg) : {};
 const chartsRequired = (chartsArg || 'required') === 'required';
 const JOB_TIMEOUT_MS = 180000;
@@ -66,7 +67,13 @@ async function submitForm(page, formKind, params) {
   await page.selectOption('#job-machine', machine);
   await page.selectOption('#job-kind', formKind);
   for (const [name, value] of Object.entries(params)) {
-    await page.fill(`#job-fields [data-field-input="${name}"]`, value === null ? '' : String(value));
+    const input = page.locator(`#job-fields [data-field-input="${name}"]`);
+    const [tag, type] = await input.evaluate((e) => [e.tagName, e.type]);
+    if (tag === 'SELECT') await input.selectOption(String(value));
+    else if (type === 'checkbox') await input.setChecked(Boolean(value));
+    else if (type === 'file') {
+      await input.setInputFiles({ name: value.name, mimeType: 'text/plain', buffer: Buffer.from(value.text) });
+    } else await input.fill(value === null ? '' : String(value));
   }
   await page.click('#start-job');
   const handle = await page.waitForFunction((earlier) => {
@@ -126,6 +133,57 @@ async function queueWalk(page, spec) {
   result.long = long;
   step('queue walked', result);
   return result;
+}
+
+// Every job kind started from its form: the job succeeds, its detail shows its result
+// table and (when the kind draws one) its chart, and a screenshot is kept per kind.
+// spec: {"screenshots": DIR, "jobs": [{"kind", "params", "chart": bool, "activate": NAME}]}
+async function kindsWalk(page, spec) {
+  const results = [];
+  for (const job of spec.jobs) {
+    const id = await submitForm(page, job.kind, job.params);
+    const row = page.locator(`#history-rows tr[data-job-id="${id}"]`);
+    await row.and(page.locator('[data-state="succeeded"], [data-state="failed"], [data-state="cancelled"]'))
+      .waitFor({ timeout: JOB_TIMEOUT_MS });
+    const state = await row.getAttribute('data-state');
+    const seen = { kind: job.kind, id, state };
+    results.push(seen);
+    if (state !== 'succeeded') {
+      await page.click(`button.show-job[data-job-id="${id}"]`);
+      await page.locator(`#job-detail[data-job-id="${id}"]`).waitFor({ timeout: UI_TIMEOUT_MS });
+      seen.summary = await page.locator('#job-summary').textContent();
+      throw new Error(`${job.kind} job ${id} ended ${state}: ${seen.summary}`);
+    }
+    await page.click(`button.show-job[data-job-id="${id}"]`);
+    await page.locator(`#job-detail[data-job-id="${id}"][data-state="succeeded"]`).waitFor({ timeout: UI_TIMEOUT_MS });
+    await page.locator('#job-result table[data-result]').waitFor({ timeout: UI_TIMEOUT_MS });
+    seen.table = await page.locator('#job-result table[data-result]').getAttribute('data-result');
+    seen.table_rows = await page.locator('#job-result table[data-result] tbody tr').count();
+    if (job.chart) {
+      await page.waitForFunction(() => {
+        const imgs = [...document.querySelectorAll('#job-charts img[data-chart]')];
+        return imgs.length > 0 && imgs.every((img) => img.complete && img.naturalWidth > 0);
+      }, null, { timeout: UI_TIMEOUT_MS });
+    }
+    seen.charts = await page.$$eval('#job-charts img[data-chart]', (imgs) => imgs.map((i) => i.dataset.chart));
+    seen.raw_collapsed = await page.$eval('#job-raw', (d) => !d.open);
+    seen.summary = await page.locator('#job-summary').textContent();
+    seen.screenshot = path.join(spec.screenshots, `job-${job.kind}.png`);
+    await page.screenshot({ path: seen.screenshot, fullPage: true });
+    if (job.activate) {
+      // The map the next jobs use: its newest version, activated as an operator would.
+      await page.selectOption('#profile-machine', machine);
+      const rows = page.locator(`#profile-rows tr[data-profile="${job.activate}"]`);
+      await rows.first().waitFor({ timeout: UI_TIMEOUT_MS });
+      const version = Math.max(...await rows.evaluateAll((r) => r.map((x) => Number(x.dataset.version))));
+      await page.locator(`#profile-rows tr[data-profile="${job.activate}"][data-version="${version}"] button.activate`).click();
+      await page.locator(`#profile-rows tr[data-profile="${job.activate}"][data-version="${version}"][data-active="true"]`)
+        .waitFor({ timeout: UI_TIMEOUT_MS });
+      seen.activated = version;
+    }
+    step('kind walked', { kind: job.kind, id });
+  }
+  return results;
 }
 
 async function main() {
@@ -254,6 +312,7 @@ async function main() {
     out.heatmap = { profile: name, version: newer };
 
     if (walks.queue) out.queue = await queueWalk(page, walks.queue);
+    if (walks.kinds) out.kinds = await kindsWalk(page, walks.kinds);
 
     out.page_errors = pageErrors;
     out.error_text = await page.locator('#error').textContent();
