@@ -1,11 +1,18 @@
-//! Speed and material figures of the partition on public nesting layouts and on a
-//! generated 10 000-part layout. Run with
-//! `cargo run --release -p layout --example layout_bench` (one thread; figures in README).
+//! Speed and material figures of the partition on public nesting layouts and on
+//! generated 10 000-part layouts. Run with
+//! `cargo run --release -p layout --example layout_bench` (one thread; figures in
+//! docs/layout.md and docs/performance.md).
 //!
-//! Layouts: the best known solutions of the ESICUP instances shirts (99 parts), trousers
-//! (64) and swim (48) published by sparrow (data/esicup/README.md), in the instances'
-//! own units read as mm. Parameters per layout, from its strip width W: 2 tools,
-//! window L' = 0.8 W, gap W / 80, clearance the gap and half the gap.
+//! Layouts: every `data/esicup/*.json`, the best known solutions of ESICUP and Gardeyn
+//! instances published by sparrow (data/esicup/README.md), in the instances' own units
+//! read as mm. Parameters per layout, from its strip width W: 2 tools (1 where a part is
+//! wider than W / 2), window L' = 0.8 W (1.1 times the longest part where that is
+//! longer), gap W / 80, clearance the gap and half the gap. The first argument is the
+//! number of runs each median is taken over (51).
+//!
+//! Generated: 10 000 star-shaped parts on a 20 mm grid (`generated`), touching their
+//! neighbours (`dense`), and the same spread so that every two parts are at least the
+//! gap apart (`spaced`): S8 must add no pair closer than the gap to those.
 
 use std::time::Instant;
 
@@ -14,11 +21,22 @@ use layout::{
 };
 use layout_io::{Format, Layout, Part, ReadOptions};
 
-const LAYOUTS: [(&str, &str); 3] = [
-    ("shirts", include_str!("../data/esicup/shirts.json")),
-    ("trousers", include_str!("../data/esicup/trousers.json")),
-    ("swim", include_str!("../data/esicup/swim.json")),
-];
+/// Every layout of data/esicup, by name.
+fn layouts() -> Vec<(String, String)> {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/esicup");
+    let mut out: Vec<(String, String)> = std::fs::read_dir(&dir)
+        .expect("data/esicup")
+        .filter_map(|e| {
+            let path = e.ok()?.path();
+            (path.extension()? == "json").then(|| {
+                let name = path.file_stem().unwrap().to_string_lossy().into_owned();
+                (name, std::fs::read_to_string(&path).expect("layout"))
+            })
+        })
+        .collect();
+    out.sort();
+    out
+}
 
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
@@ -80,8 +98,9 @@ fn run(parts: &[Part], params: &Params, runs: usize, widen: bool) -> Run {
     }
 }
 
-/// Star-shaped parts on a jittered 20 mm grid, touching or interlocking their neighbours.
-fn generated(n: usize, seed: u64) -> Vec<Part> {
+/// Star-shaped parts (radius 6 to 10 mm) on a grid of `pitch` mm: at 20 mm they touch
+/// or nearly touch their neighbours, at 22.5 mm every two are at least 2.5 mm apart.
+fn generated(n: usize, seed: u64, pitch: f64) -> Vec<Part> {
     let mut state = seed;
     let mut next = || {
         state = state
@@ -93,8 +112,8 @@ fn generated(n: usize, seed: u64) -> Vec<Part> {
     (0..n)
         .map(|i| {
             let (cx, cy) = (
-                (i / rows) as f64 * 20.0 + 10.0,
-                (i % rows) as f64 * 20.0 + 10.0,
+                (i / rows) as f64 * pitch + 10.0,
+                (i % rows) as f64 * pitch + 10.0,
             );
             let k = 5 + (next() * 6.0) as usize;
             let outer = (0..k)
@@ -116,22 +135,53 @@ fn generated(n: usize, seed: u64) -> Vec<Part> {
 }
 
 fn main() {
-    println!("| layout | parts | W | L' | gap | clearance | overlaps after S8 | resolution | left (exhaustive) | time ms (median) | detection ms | L no gap | L S8 | L resolved | L gap every part | added / every part | indexed = exhaustive |");
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
-    for (name, text) in LAYOUTS {
-        let doc =
-            Layout::read(text.as_bytes(), Format::Json, &ReadOptions::default()).expect("layout");
+    let runs: usize = std::env::args()
+        .nth(1)
+        .and_then(|a| a.parse().ok())
+        .unwrap_or(51);
+    println!("| layout | parts | tools | W | L' | gap | clearance | overlaps after S8 | resolution | left (exhaustive) | time ms (median) | detection ms | L no gap | L S8 | L resolved | L gap every part | added / every part | indexed = exhaustive |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    for (name, text) in layouts() {
+        let doc = match Layout::read(text.as_bytes(), Format::Json, &ReadOptions::default()) {
+            Ok(d) => d,
+            Err(e) => {
+                println!("| {name} | refused: {e} |");
+                continue;
+            }
+        };
         let w = doc.width_mm.expect("width");
+        // Two tools, or one where a part is wider than half the strip.
+        let widest = doc
+            .parts
+            .iter()
+            .map(|p| p.bounds()[3] - p.bounds()[1])
+            .fold(0.0, f64::max);
+        let tools = if widest <= w / 2.0 { 2 } else { 1 };
+        // L' = 0.8 W, or 1.1 times the longest part where that is longer.
+        let longest = doc
+            .parts
+            .iter()
+            .map(|p| p.bounds()[2] - p.bounds()[0])
+            .fold(0.0, f64::max);
+        let window = (0.8 * w).max(1.1 * longest);
         for clearance in [1.0, 0.5] {
             let params = Params {
-                tools: 2,
-                window_mm: 0.8 * w,
+                tools,
+                window_mm: window,
                 gap_mm: w / 80.0,
                 width_mm: Some(w),
                 clearance_mm: Some(w / 80.0 * clearance),
             };
             for widen in [false, true] {
-                let r = run(&doc.parts, &params, 51, widen);
+                let Ok(_) = partition(&doc.parts, &params) else {
+                    println!(
+                        "| {name} | {} | {w} | refused: {} |",
+                        doc.parts.len(),
+                        partition(&doc.parts, &params).unwrap_err()
+                    );
+                    break;
+                };
+                let r = run(&doc.parts, &params, runs, widen);
                 let t = Instant::now();
                 let found = detect(&doc.parts, &r.s8);
                 let detect_ms = t.elapsed().as_secs_f64() * 1e3;
@@ -140,7 +190,7 @@ fn main() {
                 let f8 = figures(&doc.parts, &r.s8);
                 let f = figures(&doc.parts, &r.resolved);
                 println!(
-                "| {name}{} | {} | {w} | {:.1} | {:.3} | {:.3} | {} | {} | {left} | {:.3} | {detect_ms:.3} | {:.2} | {:.2} | {:.2} | {:.2} | {:.1} % | {same} |",
+                "| {name}{} | {} | {tools} | {w} | {:.1} | {:.3} | {:.3} | {} | {} | {left} | {:.3} | {detect_ms:.3} | {:.2} | {:.2} | {:.2} | {:.2} | {:.1} % | {same} |",
                 if widen { " --widen" } else { "" },
                 doc.parts.len(),
                 params.window_mm,
@@ -158,35 +208,65 @@ fn main() {
             }
         }
     }
-    let parts = generated(10_000, 7);
-    let params = Params {
-        tools: 4,
-        window_mm: 300.0,
-        gap_mm: 2.0,
-        width_mm: Some(1000.0),
-        clearance_mm: None,
-    };
-    let r = run(&parts, &params, 5, false);
-    let (ms, s8) = (r.ms, &r.s8);
-    let f = figures(&parts, &r.resolved);
-    let t = Instant::now();
-    let found = detect(&parts, s8);
-    let detect_ms = t.elapsed().as_secs_f64() * 1e3;
-    println!(
-        "\ngenerated: {} parts, 4 tools, L' 300 mm, gap 2 mm: partition + resolution {ms:.1} ms (median of 5), detection alone {detect_ms:.1} ms, {} overlaps after S8, {}; length {:.1} -> {:.1} mm (gap every part {:.1} mm, {:.1} %)",
-        parts.len(),
-        found.len(),
-        r.outcome,
-        f.no_gap.length_mm,
-        f.partitioned.length_mm,
-        f.gap_every_part.length_mm,
-        f.added_length_fraction.unwrap_or(f64::NAN) * 100.0
-    );
-    let t = Instant::now();
-    let same = found == detect_exhaustive(&parts, s8);
-    println!(
-        "exhaustive pairwise check on the generated layout: identical = {same} ({:.0} ms); pairs left after the resolution: {}",
-        t.elapsed().as_secs_f64() * 1e3,
-        detect_exhaustive(&parts, &r.resolved).len()
-    );
+    for (what, pitch, widen) in [
+        ("dense", 20.0, false),
+        ("dense", 20.0, true),
+        ("spaced 2.5 mm", 22.5, false),
+    ] {
+        let parts = generated(10_000, 7, pitch);
+        let params = Params {
+            tools: 4,
+            window_mm: 300.0,
+            gap_mm: 2.0,
+            width_mm: Some(50.0 * pitch),
+            clearance_mm: None,
+        };
+        let r = run(&parts, &params, 5, widen);
+        let (ms, s8) = (r.ms, &r.s8);
+        let f = figures(&parts, &r.resolved);
+        let t = Instant::now();
+        let found = detect(&parts, s8);
+        let detect_ms = t.elapsed().as_secs_f64() * 1e3;
+        // Pairs closer than the gap before S8 (every part its own group: each pair).
+        let mut alone = s8.clone();
+        alone.groups = (0..parts.len())
+            .map(|i| layout::Group {
+                id: i + 1,
+                tool: 0,
+                window: 0,
+                dx_mm: 0.0,
+                dy_mm: 0.0,
+                parts: vec![i],
+            })
+            .collect();
+        alone.group_of = (0..parts.len()).collect();
+        let before = detect(&parts, &alone);
+        let close_before: std::collections::HashSet<(usize, usize)> =
+            before.iter().map(|o| (o.a, o.b)).collect();
+        let new = found
+            .iter()
+            .filter(|o| !close_before.contains(&(o.a, o.b)))
+            .count();
+        println!(
+            "\ngenerated {what}: {} parts, 4 tools, L' 300 mm, gap 2 mm{}: partition + resolution {ms:.1} ms (median of 5), detection alone {detect_ms:.1} ms; {} pairs closer than the gap before S8, {} after S8 of which {new} new; {}; length {:.1} -> {:.1} mm (gap every part {:.1} mm, {:.1} %)",
+            parts.len(),
+            if widen { ", --widen" } else { "" },
+            before.len(),
+            found.len(),
+            r.outcome,
+            f.no_gap.length_mm,
+            f.partitioned.length_mm,
+            f.gap_every_part.length_mm,
+            f.added_length_fraction.unwrap_or(f64::NAN) * 100.0
+        );
+        if !widen {
+            let t = Instant::now();
+            let same = found == detect_exhaustive(&parts, s8);
+            println!(
+                "exhaustive pairwise check: identical = {same} ({:.0} ms); pairs left after the resolution: {}",
+                t.elapsed().as_secs_f64() * 1e3,
+                detect_exhaustive(&parts, &r.resolved).len()
+            );
+        }
+    }
 }
