@@ -22,6 +22,10 @@ pub struct VerifyArgs {
     /// Seconds between two checks of --repeat.
     #[arg(long, default_value_t = 600.0)]
     pub every_s: f64,
+    /// With --spot-check: home and re-reference instead of using the map's recorded
+    /// reference (MAP.reference.json).
+    #[arg(long)]
+    pub no_reference: bool,
 }
 
 pub fn verify(args: VerifyArgs, json: bool) -> anyhow::Result<ExitCode> {
@@ -35,6 +39,19 @@ pub fn verify(args: VerifyArgs, json: bool) -> anyhow::Result<ExitCode> {
     );
     let job = Job::load(&args.config)?;
     let map = ErrorMap::load(&args.map)?;
+    // A spot check uses the map's current reference (as rewrite and proxy do).
+    let reference = match request.spot_check && !args.no_reference {
+        true => procedure::reference::read_record(&procedure::reference::reference_path(&args.map))
+            .map_err(anyhow::Error::msg)?,
+        false => None,
+    };
+    if request.spot_check && !args.no_reference && reference.is_none() {
+        eprintln!(
+            "warning: no reference is recorded for {}: the spot check homes and re-references \
+             (run `gateway reference` after every homing)",
+            args.map.display()
+        );
+    }
     let rt = crate::front::runtime()?;
     let mut devices = rt.block_on(open_devices_async(&job))?;
     let what = args.map.display().to_string();
@@ -49,13 +66,14 @@ pub fn verify(args: VerifyArgs, json: bool) -> anyhow::Result<ExitCode> {
             println!("check {} of {}:", round + 1, args.repeat);
         }
         let mut sink = crate::front::CliSink::new("points", true);
-        let outcome = rt.block_on(procedure::verify::run(
+        let outcome = rt.block_on(procedure::verify::run_with_reference(
             &request,
             &job,
             &mut devices,
             map.clone(),
             &what,
             round as u64,
+            reference.as_ref(),
             &mut sink,
         ));
         let code = crate::front::print(&outcome, json, procedure::verify::summary)?;

@@ -257,6 +257,35 @@ fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_prog
         let record = refer::read_record(&record_path).unwrap().expect("recorded");
         let machine_time_s = r["machine_time_s"].as_f64().unwrap();
         let shift = record.shift_um;
+
+        // A spot check right after: the recorded reference applies, no homing; the zero
+        // has not drifted since, and the map holds.
+        let spot = procedure::verify::run_with_reference(
+            &procedure::request::VerifyRequest {
+                spot_check: true,
+                ..Default::default()
+            },
+            &job,
+            &mut devices,
+            map.clone(),
+            &kept,
+            0,
+            Some(&record),
+            &mut procedure::Discard,
+        )
+        .await;
+        assert!(spot.is_success(), "{:?}", spot.error());
+        let spot = spot.result.unwrap();
+        let drift = &spot["drift_since_reference_um"];
+        let drift = drift[0].as_f64().unwrap().hypot(drift[1].as_f64().unwrap());
+        let spot_max = spot["residual_um"]["max"].as_f64().unwrap();
+        eprintln!(
+            "spot check on the recorded reference: drift since it {drift:.2} um, residual max \
+             {spot_max:.2} um"
+        );
+        assert!(drift < 0.5, "{spot}");
+        assert!(spot_max < 1.5, "{spot}");
+        assert_eq!(spot["rescan"], false);
         drop(devices);
 
         // 3. The same program through the pass-through: with the map as scanned, then

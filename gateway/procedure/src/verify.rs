@@ -4,10 +4,11 @@
 use crate::request::VerifyRequest;
 use crate::{Outcome, Sink};
 use devices::Devices;
+use errormap::reference::MapReference;
 use errormap::{Approach, MapModel};
 use job::Job;
 use protocol::errormap::ErrorMap;
-use runner::verify::{check_points, max_rms, run_verify, CheckedPoint, VerifyError};
+use runner::verify::{check_points, max_rms, run_verify_with, CheckedPoint, VerifyError};
 use runner::JobError;
 use serde_json::{json, Value};
 
@@ -35,8 +36,33 @@ pub async fn run(
     round: u64,
     sink: &mut dyn Sink,
 ) -> Outcome {
+    run_with_reference(request, job, devices, map, what, round, None, sink).await
+}
+
+/// [`run`] with the map's current reference (`gateway reference`'s record): a spot check
+/// then does not home; it applies the recorded reference, as `rewrite` and `proxy` do,
+/// and reports the zero's drift since it (`drift_since_reference_um`, with the record's
+/// `recorded_reference`: when, how old, the shift). A record of another map is refused.
+/// A full verification (not a spot check) homes and re-references as [`run`] does.
+#[allow(clippy::too_many_arguments)]
+pub async fn run_with_reference(
+    request: &VerifyRequest,
+    job: &Job,
+    devices: &mut Devices,
+    map: ErrorMap,
+    what: &str,
+    round: u64,
+    reference: Option<&MapReference>,
+    sink: &mut dyn Sink,
+) -> Outcome {
     if let Err(e) = crate::check_identity(&map, &crate::identity(job, devices), what) {
         return Outcome::failed(e);
+    }
+    let reference = reference.filter(|_| request.spot_check);
+    if let Some(r) = reference {
+        if let Err(e) = r.check_map(&map) {
+            return Outcome::failed(format!("{what}: {e}"));
+        }
     }
     let model = MapModel::new(map);
     let points = check_points(
@@ -45,7 +71,9 @@ pub async fn run(
         request.seed.wrapping_add(round),
     );
     sink.progress(0, points.len() as u64);
-    let (reference, checked, error) = match run_verify(job, devices, &model, &points).await {
+    let recorded = reference.map(|r| r.seen_um);
+    let verified = run_verify_with(job, devices, &model, &points, recorded).await;
+    let (seen, checked, error) = match verified {
         Ok(v) => (Some(v.reference_um), v.points, None),
         Err((e, so_far)) => (None, so_far, Some(e)),
     };
@@ -63,10 +91,23 @@ pub async fn run(
     ];
     // The map no longer holds where any point is off by more than the threshold.
     let rescan = request.spot_check && res_max > request.drift_threshold_um;
+    let now_s = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    let recorded_reference = reference.map(|r| {
+        json!({
+            "measured_at": r.measured_at, "age_s": r.age_s(now_s),
+            "reference_count": r.reference_count, "shift_um": r.shift_um,
+            "describe": r.describe(now_s),
+        })
+    });
+    let drift_since_reference = reference.zip(seen).map(|(r, s)| r.drift_um(s));
     let result = json!({
         "round": round + 1,
         "points": checked.iter().map(point_json).collect::<Vec<_>>(),
-        "reference_um": reference,
+        "reference_um": seen,
+        "recorded_reference": recorded_reference,
+        "drift_since_reference_um": drift_since_reference,
         "residual_um": {"max": res_max, "rms": res_rms},
         "uncompensated_um": {"max": unc_max, "rms": unc_rms},
         "drift_um": drift, "spot_check": request.spot_check,
@@ -87,7 +128,11 @@ pub async fn run(
                     ..
                 } | VerifyError::Reference(JobError::Driver(_))
             );
-            let error = format!("{e}; {} points checked before it", checked.len());
+            let mut error = format!("{e}; {} points checked before it", checked.len());
+            if reference.is_some() && matches!(e, VerifyError::Reference(_)) {
+                error += " (a spot check with a recorded reference does not home: home and run \
+                          `gateway reference` first, or give --no-reference)";
+            }
             Outcome::stopped(false, error, Some(result), metrics, lost)
         }
     }
@@ -98,7 +143,18 @@ pub fn summary(r: &Value) -> String {
     use std::fmt::Write;
     let mut t = String::new();
     let f = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
-    if let Some(reference) = r["reference_um"].as_array() {
+    if let Some(d) = r["drift_since_reference_um"].as_array() {
+        let _ = writeln!(
+            t,
+            "the map's {}; since it the zero drifted by ({:+.2}, {:+.2}) um (|{:.2}| um)",
+            r["recorded_reference"]["describe"]
+                .as_str()
+                .unwrap_or("reference"),
+            f(&d[0]),
+            f(&d[1]),
+            f(&d[0]).hypot(f(&d[1]))
+        );
+    } else if let Some(reference) = r["reference_um"].as_array() {
         let _ = writeln!(
             t,
             "after homing the camera is ({:+.2}, {:+.2}) um off at the map's reference point: the map is shifted by it",

@@ -49,3 +49,64 @@ pub async fn measure_reference(
         seen_um: first.deviation.um(),
     })
 }
+
+/// The camera's error at `reference_mm` now, without homing or the orientation check
+/// (the machine homed and checked already): approached from below on both axes by the
+/// job's approach distance, as the scan and [`measure_reference`] do, the commanded
+/// point as the hint (none on a coded board). For a drift check against a recorded
+/// reference; every point is checked against the soft limits before anything moves.
+pub async fn measure_at_reference(
+    job: &Job,
+    stage: &mut dyn Stage,
+    camera: &mut dyn Camera,
+    reference_mm: [f64; 2],
+) -> Result<ReferenceFrame, JobError> {
+    let limits = crate::soft_limits(stage.info())?;
+    let a = job.policy.approach_mm.max(0.0);
+    let approach = [reference_mm[0] - a, reference_mm[1] - a];
+    let z = job.board_at_machine_zero_mm;
+    let target = [reference_mm[0] + z[0], reference_mm[1] + z[1]];
+    for (what, at) in [
+        ("the approach point", approach),
+        ("the command", reference_mm),
+    ] {
+        limits
+            .check(what, at)
+            .map_err(|source| JobError::Correction {
+                index: 0,
+                target_mm: target,
+                source,
+            })?;
+    }
+    let step = async {
+        for at in [approach, reference_mm] {
+            stage
+                .move_to(drivers::AxisValues::xy(at[0], at[1]), job.feed_mm_min)
+                .await?;
+            stage.wait_idle().await?;
+        }
+        camera.grab().await
+    };
+    let frame = match step.await {
+        Ok(f) => f,
+        Err(e) => {
+            let _ = stage.stop().await;
+            return Err(e.into());
+        }
+    };
+    let mut params = job.localize_params(target);
+    if job.board.code.is_some() {
+        params.hint_mm = None;
+    }
+    let o = drivers::blocking(|| vision::localize::localize(&frame.image, &job.board, &params))
+        .map_err(|source| JobError::Localize {
+            index: 0,
+            target_mm: target,
+            measurement: 0,
+            source,
+        })?;
+    Ok(ReferenceFrame {
+        command_mm: reference_mm,
+        seen_um: [(o.x_mm - target[0]) * 1000.0, (o.y_mm - target[1]) * 1000.0],
+    })
+}

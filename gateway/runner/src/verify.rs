@@ -113,6 +113,21 @@ pub async fn run_verify(
     model: &MapModel,
     points: &[([f64; 2], Direction)],
 ) -> Result<Verification, (VerifyError, Vec<CheckedPoint>)> {
+    run_verify_with(job, devices, model, points, None).await
+}
+
+/// [`run_verify`], or with `recorded` (the camera's error at the reference point when
+/// the map's current reference was taken, um): no homing, the map shifted by the
+/// recorded reference (as `rewrite` and `proxy` apply it), and the frame at the
+/// reference point measured only to say how far the zero drifted since
+/// ([`Verification::reference_um`] is then that frame's error).
+pub async fn run_verify_with(
+    job: &Job,
+    devices: &mut Devices,
+    model: &MapModel,
+    points: &[([f64; 2], Direction)],
+    recorded: Option<[f64; 2]>,
+) -> Result<Verification, (VerifyError, Vec<CheckedPoint>)> {
     let stage = devices.stage.as_mut();
     let camera = devices.camera.as_mut();
     let limits =
@@ -121,18 +136,22 @@ pub async fn run_verify(
     let z = job.board_at_machine_zero_mm;
     // Homing, the orientation check and the reference frame (shared with `gateway
     // reference`).
-    let reference_um = crate::reference::measure_reference(
-        job,
-        &mut *stage,
-        &mut *camera,
-        model.map().reference_mm,
-    )
-    .await
-    .map_err(|e| (VerifyError::Reference(e), vec![]))?
-    .seen_um;
+    let reference_mm = model.map().reference_mm;
+    let frame = match recorded {
+        None => {
+            crate::reference::measure_reference(job, &mut *stage, &mut *camera, reference_mm).await
+        }
+        Some(_) => {
+            crate::reference::measure_at_reference(job, &mut *stage, &mut *camera, reference_mm)
+                .await
+        }
+    };
+    let reference_um = frame
+        .map_err(|e| (VerifyError::Reference(e), vec![]))?
+        .seen_um;
     let model = model
         .clone()
-        .rereferenced(reference_um)
+        .rereferenced(recorded.unwrap_or(reference_um))
         .map_err(|e| (VerifyError::Map(e), vec![]))?;
     // Every command and approach point inside the limits before anything else moves.
     let mut commands = Vec::with_capacity(points.len());
