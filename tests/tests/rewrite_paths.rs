@@ -240,7 +240,10 @@ fn run_program(machine: &MachineConfig, model: &dyn Compensation, program: &Prog
                         .clamp(0.0, 1.0)
                 };
                 let p = progress + f * length;
-                let lo = cum.partition_point(|&c| c < p - 0.5).saturating_sub(1);
+                let lo = cum
+                    .partition_point(|&c| c < p - 0.5)
+                    .saturating_sub(1)
+                    .min(path.len() - 2);
                 let hi = cum
                     .partition_point(|&c| c <= p + 0.5)
                     .clamp(lo + 1, path.len() - 1);
@@ -275,6 +278,8 @@ fn spec(seed: u64, items: usize) -> ProgramSpec {
         hi: [190.0, 140.0, -2.0],
         items,
         seed,
+        // `NO_G92=1`: programs without G92 (the rewriter before G92 was corrected).
+        g92: std::env::var_os("NO_G92").is_none(),
     }
 }
 

@@ -16,6 +16,8 @@ pub struct ProgramSpec {
     /// Moves (and mode changes) to generate.
     pub items: usize,
     pub seed: u64,
+    /// Whether G92 and G92.1 are among the items.
+    pub g92: bool,
 }
 
 /// A generated program.
@@ -168,7 +170,7 @@ pub fn random_program(spec: &ProgramSpec) -> Program {
         } else if u < 0.09 {
             s.cs = (rng.uniform() * 6.0) as usize % 6;
             s.line(&format!("G{}", 54 + s.cs));
-        } else if u < 0.11 {
+        } else if u < 0.11 && spec.g92 {
             // G92: the present point gets these coordinates.
             let unit = s.unit();
             let mut words = String::new();
@@ -178,7 +180,7 @@ pub fn random_program(spec: &ProgramSpec) -> Program {
                 let _ = write!(words, "{letter}{:.*}", s.decimals(), v);
             }
             s.line(&format!("G92 {words}"));
-        } else if u < 0.12 {
+        } else if u < 0.12 && spec.g92 {
             s.g92 = [0.0; N_AXIS];
             s.line("G92.1");
         } else if u < 0.17 {

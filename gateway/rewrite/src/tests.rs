@@ -670,6 +670,7 @@ fn random_programs_stay_on_the_path_on_a_machine_with_backlash_and_creep() {
             hi: [180.0, 130.0, -5.0],
             items: 60,
             seed,
+            g92: true,
         });
         let (w, rms, report) = lash_path_deviation(&program.text, &Lash, program.work_offsets);
         assert!(
