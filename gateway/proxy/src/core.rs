@@ -70,6 +70,55 @@ struct Slot {
     received_s: f64,
     /// When its first piece went to the controller.
     first_sent_s: Option<f64>,
+    /// The line is a homing (`$H`): its `ok` means the machine's zero moved.
+    homing: bool,
+}
+
+/// The `error:N` a motion line gets while the map's reference is stale after a homing
+/// and none could be measured: 9, GRBL's "G-code locked out during alarm or jog state"
+/// (the motion is locked out until the zero is known again; `$` commands still pass).
+pub const UNREFERENCED_CODE: u8 = 9;
+
+/// Measures the reference after a homing and applies it: given the camera's error at
+/// the reference point (um), it shifts the compensation and records the reference;
+/// returns a line saying what it did (for the sender), or why it could not.
+pub type ReferenceHook<'a> = Box<dyn FnMut([f64; 2]) -> Result<String, String> + 'a>;
+
+/// What the pass-through does after the sender's homing (`$H`), which moves the
+/// machine's zero by a few um and so makes the map's reference stale.
+pub enum AfterHoming<'a> {
+    /// Nothing (a compensation that does not depend on the zero: the default).
+    Pass,
+    /// Re-reference with the camera before the next line: tell the sender, move to the
+    /// reference point (machine mm, `G53`, approached from below by `approach_mm`), have
+    /// the I/O loop measure a frame ([`Proxy::frame_due`], [`Proxy::frame_measured`]),
+    /// apply it through `hook`, return to where the homing left the machine, then
+    /// release the next line. A failure locks motion out as `Refuse` does.
+    Reference {
+        reference_mm: [f64; 2],
+        approach_mm: f64,
+        hook: ReferenceHook<'a>,
+    },
+    /// No camera: motion lines are refused ([`UNREFERENCED_CODE`], with a message) until
+    /// a reference is recorded ([`Proxy::referenced`]).
+    Refuse,
+}
+
+/// Where a re-reference after homing stands.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Referencing {
+    /// Nothing to do: lines flow.
+    Idle,
+    /// Homed: waiting for the controller's position at rest (where to return to).
+    AwaitPosition,
+    /// The gateway's moves to the reference point are on their way.
+    Moving { back_mm: [f64; 2] },
+    /// At the reference point: the I/O loop measures a frame.
+    FrameDue { back_mm: [f64; 2] },
+    /// Returning to where the homing left the machine.
+    Returning,
+    /// The zero is not known: motion is refused.
+    Locked,
 }
 
 /// A sender line as it arrives, read as GRBL's `protocol_main_loop` reads it: spaces and
@@ -296,7 +345,16 @@ pub struct Proxy<'a> {
     /// A `[MSG:gateway: ...]` for the sender before the answer to its first G-code line
     /// (which compensation and reference the program runs with).
     greeting: Option<String>,
+    after_homing: AfterHoming<'a>,
+    referencing: Referencing,
+    /// The gateway's own lines of a re-reference in the controller's buffer.
+    reference_lines: usize,
+    /// The controller's modal words from its last `$G` reply.
+    modal: Option<String>,
 }
+
+/// Marks a line of a re-reference in the controller's buffer (the gateway's own).
+const OWN_REFERENCE: u64 = u64::MAX;
 
 /// Marks a line of the gateway's own (`$#`, `$G`) in the controller's buffer: its
 /// answer and what comes before it are the gateway's, not the sender's.
@@ -335,7 +393,161 @@ impl<'a> Proxy<'a> {
             sender_asked_status: false,
             one_time: OneTimeFields::default(),
             greeting: None,
+            after_homing: AfterHoming::Pass,
+            referencing: Referencing::Idle,
+            reference_lines: 0,
+            modal: None,
         }
+    }
+
+    /// What to do after the sender's homing ([`AfterHoming`]; default `Pass`).
+    pub fn after_homing(&mut self, what: AfterHoming<'a>) {
+        self.after_homing = what;
+    }
+
+    /// Whether the I/O loop is to measure the reference frame now (the stage is at rest
+    /// at the reference point); it answers with [`Self::frame_measured`].
+    pub fn frame_due(&self) -> bool {
+        matches!(self.referencing, Referencing::FrameDue { .. })
+    }
+
+    /// The reference frame's result (the camera's error at the reference point, um):
+    /// applied through the hook, then the machine returns and the lines go on; an error
+    /// locks motion out.
+    pub fn frame_measured(&mut self, seen_um: Result<[f64; 2], String>) {
+        let Referencing::FrameDue { back_mm } = self.referencing else {
+            return;
+        };
+        let applied = match (&mut self.after_homing, seen_um) {
+            (AfterHoming::Reference { hook, .. }, Ok(seen)) => hook(seen),
+            (_, Err(e)) => Err(e),
+            _ => Err("no reference to take".into()),
+        };
+        match applied {
+            Ok(what) => {
+                self.message(&format!("referenced: {what}"));
+                let mut lines = vec![self.machine_move(back_mm)];
+                // The gateway's G0 left the motion mode at G0: the sender's comes back.
+                if let Some(m) = self.modal_motion() {
+                    lines.push(m);
+                }
+                lines.push("G4P0".to_string());
+                self.own_lines(&lines);
+                self.referencing = Referencing::Returning;
+            }
+            Err(e) => {
+                self.message(&format!(
+                    "the reference after homing failed: {e}; motion is refused until the \
+                     machine is referenced (home again, or run gateway reference)"
+                ));
+                self.referencing = Referencing::Locked;
+                self.release_deferred();
+            }
+        }
+    }
+
+    /// A reference was recorded by other means: motion is allowed again.
+    pub fn referenced(&mut self, what: &str) {
+        if self.referencing == Referencing::Locked {
+            self.message(&format!("referenced: {what}"));
+            self.referencing = Referencing::Idle;
+            self.release_deferred();
+        }
+    }
+
+    fn message(&mut self, text: &str) {
+        let clean: String = text
+            .chars()
+            .map(|c| match c {
+                ']' => ')',
+                '[' => '(',
+                c if c.is_control() => ' ',
+                c => c,
+            })
+            .collect();
+        self.to_sender
+            .extend_from_slice(format!("[MSG:gateway: {clean}]\r\n").as_bytes());
+    }
+
+    /// A rapid to machine point `p` (mm) in the controller's current units (G53 is in
+    /// the units in force; a `$G` reply of G20 means inches).
+    fn machine_move(&self, p: [f64; 2]) -> String {
+        let inches = self
+            .modal
+            .as_deref()
+            .is_some_and(|m| m.split_whitespace().any(|w| w == "G20"));
+        match inches {
+            true => format!("G53G0X{:.5}Y{:.5}", p[0] / 25.4, p[1] / 25.4),
+            false => format!("G53G0X{:.4}Y{:.4}", p[0], p[1]),
+        }
+    }
+
+    /// The motion mode word to restore after the gateway's own G0 moves: `G1` or `G80`
+    /// (an arc mode cannot be set without its axis words; G0 needs nothing).
+    fn modal_motion(&self) -> Option<String> {
+        let m = self.modal.as_deref()?;
+        m.split_whitespace()
+            .find(|w| *w == "G1" || *w == "G80")
+            .map(str::to_string)
+    }
+
+    /// Lines of the gateway's own for a re-reference, straight into the controller's
+    /// buffer (a few short lines, sent when nothing else is in it).
+    fn own_lines(&mut self, lines: &[String]) {
+        for l in lines {
+            self.to_controller.extend_from_slice(l.as_bytes());
+            self.to_controller.push(b'\n');
+            self.in_flight.push_back((l.len() + 1, OWN_REFERENCE));
+            self.in_flight_bytes += l.len() + 1;
+            self.reference_lines += 1;
+        }
+    }
+
+    /// The sender's homing was acknowledged: the zero moved.
+    fn homed(&mut self) {
+        match self.after_homing {
+            AfterHoming::Pass => {}
+            AfterHoming::Refuse => {
+                self.message(
+                    "homed: the machine's zero moved and no camera is there to re-reference \
+                     the map; motion is refused (error:9) until a reference is recorded \
+                     (gateway reference)",
+                );
+                self.referencing = Referencing::Locked;
+            }
+            AfterHoming::Reference { reference_mm, .. } => {
+                self.message(&format!(
+                    "homed: the machine's zero moved; measuring the map's reference point \
+                     (X{:.3} Y{:.3}) with the camera before the next line",
+                    reference_mm[0], reference_mm[1]
+                ));
+                self.referencing = Referencing::AwaitPosition;
+                self.rewriter.forget_position();
+                self.ask_position();
+            }
+        }
+    }
+
+    /// The controller is at rest at `machine` (mm) after a homing: to the reference
+    /// point, the last stretch from below on both axes, then a dwell (answered once the
+    /// moves have ended).
+    fn go_reference(&mut self, machine: [f64; 2]) {
+        let AfterHoming::Reference {
+            reference_mm,
+            approach_mm,
+            ..
+        } = self.after_homing
+        else {
+            return;
+        };
+        let a = approach_mm.max(0.0);
+        let lines = vec![
+            self.machine_move([reference_mm[0] - a, reference_mm[1] - a]),
+            self.machine_move(reference_mm),
+            "G4P0".to_string(),
+        ];
+        self.own_lines(&lines);
+        self.referencing = Referencing::Moving { back_mm: machine };
     }
 
     /// Tell the sender `text` (as `[MSG:gateway: text]`) ahead of its first G-code line's
@@ -497,6 +709,9 @@ impl<'a> Proxy<'a> {
     /// Rewrite held lines while the position is known (or the controller lost: they
     /// are refused); else ask the controller once nothing is outstanding.
     fn release_deferred(&mut self) {
+        if !matches!(self.referencing, Referencing::Idle | Referencing::Locked) {
+            return;
+        }
         while let Some((received, _)) = self.deferred.front() {
             let needs_position = !self.rewriter.position_known() && !self.lost;
             if let Received::Line(text) = received {
@@ -529,6 +744,7 @@ impl<'a> Proxy<'a> {
             error: None,
             received_s: now_s,
             first_sent_s: None,
+            homing: false,
         };
         let text = match received {
             Received::Line(text) => text,
@@ -541,10 +757,18 @@ impl<'a> Proxy<'a> {
                 String::new()
             }
         };
+        let command = text.trim_start();
+        let system = command.starts_with('$');
         if self.lost {
             slot.error = Some(9);
         } else if slot.error.is_some() || text.trim().is_empty() {
             // GRBL answers an empty line with `ok` (senders use it to sync).
+        } else if self.referencing == Referencing::Locked && !system {
+            self.message(&format!(
+                "line {line}: the machine was homed and the map is not referenced again: \
+                 motion is refused until it is (gateway reference); not sent"
+            ));
+            slot.error = Some(UNREFERENCED_CODE);
         } else {
             if !text.trim_start().starts_with('$') {
                 if let Some(g) = self.greeting.take() {
@@ -555,6 +779,7 @@ impl<'a> Proxy<'a> {
             let t0 = std::time::Instant::now();
             let rewritten = self.rewriter.line(&text, line as usize);
             self.stats.processing_s.push(t0.elapsed().as_secs_f64());
+            slot.homing = system && command.to_ascii_uppercase().starts_with("$H");
             match rewritten {
                 Ok(pieces) => {
                     for p in pieces {
@@ -636,6 +861,10 @@ impl<'a> Proxy<'a> {
                     self.release_deferred();
                     return;
                 }
+                if line == OWN_REFERENCE {
+                    self.reference_line_answered(Response::parse(raw));
+                    return;
+                }
                 if let Some(s) = self.slots.iter_mut().find(|s| s.line == line) {
                     s.outstanding -= 1;
                     if let Response::Error(code) = Response::parse(raw) {
@@ -651,6 +880,7 @@ impl<'a> Proxy<'a> {
             Response::ParserState(words) if self.own_line_pending() => {
                 // A $G reply the controller would not refuse; a failure leaves defaults.
                 self.rewriter.sync_modal(&words);
+                self.modal = Some(words);
             }
             // Everything else a `$#` prints (`[G59.1:]`..`[G59.3:]`, `[G51:]`, `[T:...]`,
             // `[TLR:]` of grblHAL, `[HOME:]`, ...): the gateway's own too.
@@ -668,6 +898,34 @@ impl<'a> Proxy<'a> {
         }
     }
 
+    /// One of a re-reference's own lines answered: at the end of the moves the frame is
+    /// due; at the end of the return the lines go on; an error locks motion out.
+    fn reference_line_answered(&mut self, answer: Response) {
+        self.reference_lines = self.reference_lines.saturating_sub(1);
+        if let Response::Error(code) = answer {
+            self.message(&format!(
+                "the reference after homing failed: the controller answered error:{code} to \
+                 the gateway's move; motion is refused until the machine is referenced"
+            ));
+            self.referencing = Referencing::Locked;
+        }
+        if self.reference_lines > 0 {
+            return;
+        }
+        match self.referencing {
+            Referencing::Moving { back_mm } => {
+                self.referencing = Referencing::FrameDue { back_mm };
+            }
+            Referencing::Returning => {
+                self.referencing = Referencing::Idle;
+                // The position is learnt again before the next move.
+                self.rewriter.forget_position();
+                self.release_deferred();
+            }
+            _ => self.release_deferred(),
+        }
+    }
+
     /// Answer, in order, every line whose pieces are all answered.
     fn answer_ready(&mut self) {
         while let Some(s) = self.slots.front() {
@@ -680,6 +938,9 @@ impl<'a> Proxy<'a> {
                 None => {
                     self.to_sender.extend_from_slice(b"ok\r\n");
                     self.account.acknowledged.push(s.line);
+                    if s.homing {
+                        self.homed();
+                    }
                 }
                 Some(code) => {
                     self.to_sender
@@ -705,6 +966,18 @@ impl<'a> Proxy<'a> {
         }
         self.starving = idle && waiting;
         let machine = report.machine_position(self.last_wco.as_deref());
+        if self.referencing == Referencing::AwaitPosition
+            && report.state == MachineState::Idle
+            && self.in_flight.is_empty()
+        {
+            if let Some(m) = machine.as_ref().filter(|m| m.len() >= 2) {
+                self.go_reference([m[0], m[1]]);
+            }
+        }
+        if self.referencing == Referencing::AwaitPosition {
+            // Not at rest yet (or lines of the sender's `$` commands on their way).
+            self.ask_position();
+        }
         if let Some(command) = machine {
             // At rest with nothing owed, the reported position is where the next move
             // starts (in Alarm too: GRBL then refuses moves itself, with error:9).
@@ -762,6 +1035,11 @@ impl<'a> Proxy<'a> {
         self.queue.clear();
         self.in_flight.clear();
         self.in_flight_bytes = 0;
+        self.reference_lines = 0;
+        if self.referencing != Referencing::Idle {
+            // A reset in the middle of a re-reference: the zero is not known.
+            self.referencing = Referencing::Locked;
+        }
         for (_, _) in self.deferred.drain(..) {
             let line = self.next_line;
             self.next_line += 1;

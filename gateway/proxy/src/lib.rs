@@ -14,10 +14,11 @@ pub mod line_rewriter;
 pub mod serve;
 
 pub use crate::core::{
-    refusal_code, LineAccount, Proxy, ProxyStats, MAX_UNANSWERED_LINES, RAW_LINE_KEPT, RX_BUFFER,
+    refusal_code, AfterHoming, LineAccount, Proxy, ProxyStats, ReferenceHook, MAX_UNANSWERED_LINES,
+    RAW_LINE_KEPT, RX_BUFFER, UNREFERENCED_CODE,
 };
 pub use line_rewriter::{CartesianRewriter, FiveAxisRewriter, LineRewriter};
-pub use serve::{open_controller, serve, Ending, SenderPort};
+pub use serve::{open_controller, serve, serve_with_camera, Ending, ReferenceFrames, SenderPort};
 
 #[cfg(test)]
 mod tests;

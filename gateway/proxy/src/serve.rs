@@ -190,6 +190,26 @@ pub async fn serve(
     controller: &mut SerialStream,
     stop: impl Future<Output = ()>,
 ) -> Ending {
+    serve_with_camera(proxy, sender, controller, stop, None).await
+}
+
+/// Measures the reference frame after a homing: the camera's error at the map's
+/// reference point, um (the stage is at rest there).
+pub trait ReferenceFrames {
+    fn measure(&mut self)
+        -> std::pin::Pin<Box<dyn Future<Output = Result<[f64; 2], String>> + '_>>;
+}
+
+/// [`serve`], with `frames` measuring the reference frame when the pass-through asks
+/// for it after the sender's homing ([`Proxy::frame_due`]; without `frames` the
+/// measurement fails and motion is refused until the machine is referenced).
+pub async fn serve_with_camera(
+    proxy: &mut Proxy<'_>,
+    sender: &mut SenderPort,
+    controller: &mut SerialStream,
+    stop: impl Future<Output = ()>,
+    mut frames: Option<&mut dyn ReferenceFrames>,
+) -> Ending {
     use std::task::Poll;
     use tokio::io::AsyncRead;
     let started = Instant::now();
@@ -208,6 +228,15 @@ pub async fn serve(
     poll.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     tokio::pin!(stop);
     let ending = loop {
+        if proxy.frame_due() {
+            // The stage is at rest at the reference point: one frame (the sender waits
+            // for its next answer meanwhile, as it would for a slow controller).
+            let seen = match frames.as_mut() {
+                Some(f) => f.measure().await,
+                None => Err("no camera to measure the reference with".into()),
+            };
+            proxy.frame_measured(seen);
+        }
         // Whatever the last step produced goes out first.
         let out = proxy.take_to_controller();
         if !out.is_empty() {

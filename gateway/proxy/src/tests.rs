@@ -437,3 +437,84 @@ fn the_greeting_comes_before_the_first_g_code_lines_answer_and_once() {
     p.from_controller(b"ok\r\nok\r\n", 1.3);
     assert_eq!(text(p.take_to_sender()), "ok\r\nok\r\n");
 }
+
+#[test]
+fn after_the_senders_homing_the_gateway_references_before_the_next_line() {
+    let comp = Skewed;
+    let seen = std::cell::RefCell::new(Vec::new());
+    let mut p = started(&comp);
+    p.take_to_sender();
+    p.after_homing(AfterHoming::Reference {
+        reference_mm: [100.0, 80.0],
+        approach_mm: 0.05,
+        hook: Box::new(|s| {
+            seen.borrow_mut().push(s);
+            Ok("zero moved (+6.70, -8.29) um".into())
+        }),
+    });
+    p.from_sender(b"$H\nG1 X20 Y10 F600\n", 1.0);
+    assert_eq!(text(p.take_to_controller()), "$H\n");
+    p.from_controller(b"ok\r\n", 2.0);
+    let told = text(p.take_to_sender());
+    assert!(told.starts_with("ok\r\n[MSG:gateway: homed: "), "{told}");
+    // Where the homing left the machine, then to the reference point from below.
+    assert_eq!(text(p.take_to_controller()), "?");
+    p.from_controller(b"<Idle|MPos:10.010,9.990,0.000|FS:0,0>\r\n", 2.1);
+    assert_eq!(
+        text(p.take_to_controller()),
+        "G53G0X99.9500Y79.9500\nG53G0X100.0000Y80.0000\nG4P0\n"
+    );
+    assert!(!p.frame_due());
+    p.from_controller(b"ok\r\nok\r\n", 2.2);
+    assert!(!p.frame_due());
+    p.from_controller(b"ok\r\n", 2.3);
+    assert!(p.frame_due(), "at rest at the reference point");
+    // The sender's next line waits meanwhile.
+    assert!(p.take_to_controller().is_empty());
+    p.frame_measured(Ok([6.7, -8.29]));
+    assert_eq!(*seen.borrow(), vec![[6.7, -8.29]]);
+    let told = text(p.take_to_sender());
+    assert!(
+        told.contains("[MSG:gateway: referenced: zero moved"),
+        "{told}"
+    );
+    // Back, the sender's motion mode (G1 from its $G at the start was G0: none), dwell.
+    assert_eq!(text(p.take_to_controller()), "G53G0X10.0100Y9.9900\nG4P0\n");
+    p.from_controller(b"ok\r\nok\r\n", 2.4);
+    // The position is learnt again, then the line goes.
+    assert_eq!(text(p.take_to_controller()), "?");
+    p.from_controller(b"<Idle|MPos:10.010,9.990,0.000|FS:0,0>\r\n", 2.5);
+    let sent = text(p.take_to_controller());
+    assert!(sent.starts_with("G1 X20.0100 Y9.9900 F600"), "{sent}");
+}
+
+#[test]
+fn without_a_camera_motion_after_homing_is_refused_until_referenced() {
+    let comp = Skewed;
+    let mut p = started(&comp);
+    p.take_to_sender();
+    p.after_homing(AfterHoming::Refuse);
+    p.from_sender(b"$H\n", 1.0);
+    p.take_to_controller();
+    p.from_controller(b"ok\r\n", 2.0);
+    let told = text(p.take_to_sender());
+    assert!(told.contains("motion is refused (error:9)"), "{told}");
+    p.from_sender(b"G0 X1 Y1\n$G\n", 2.1);
+    // The move waits for the position, then is refused; `$G` goes through.
+    let out = text(p.take_to_controller());
+    if out == "?" {
+        p.from_controller(b"<Idle|MPos:10.010,9.990,0.000|FS:0,0>\r\n", 2.2);
+    }
+    let told = text(p.take_to_sender());
+    assert!(
+        told.contains("not referenced again") && told.ends_with("error:9\r\n"),
+        "{told}"
+    );
+    assert_eq!(text(p.take_to_controller()), "$G\n");
+    p.from_controller(b"[GC:G0 G54 G17 G21 G90 G94 M5 M9 T0 F0 S0]\r\nok\r\n", 2.3);
+    assert!(text(p.take_to_sender()).ends_with("ok\r\n"));
+    p.referenced("reference #3");
+    p.from_sender(b"G0 X1 Y1\n", 2.4);
+    let sent = text(p.take_to_controller());
+    assert!(sent.starts_with("G0 X1.0100"), "{sent}");
+}
