@@ -196,6 +196,33 @@ fn number(line: usize, (col, text): (usize, &str), what: &str) -> Result<f64, Vo
     Ok(v)
 }
 
+/// The largest position or offset a model may hold, mm: beyond any machine.
+pub const MAX_POSITION_MM: f64 = 10_000.0;
+/// The largest translational error a model may hold, mm: a machine 10 mm off is not
+/// compensated, it is repaired; more is a corrupt file.
+pub const MAX_TRANSLATION_MM: f64 = 10.0;
+/// The largest angular error or squareness a model may hold, rad (5.7 degrees).
+pub const MAX_ANGLE_RAD: f64 = 0.1;
+
+/// `value` (in the model's mm or rad) inside +/-`limit`, else an error at the field.
+fn within(
+    line: usize,
+    (col, text): (usize, &str),
+    value: f64,
+    limit: f64,
+    what: &str,
+    unit: &str,
+) -> Result<(), VolFileError> {
+    if value.abs() <= limit {
+        return Ok(());
+    }
+    Err(err(
+        line,
+        col,
+        format!("{what}: `{text}` is {value} {unit}, beyond any machine (at most {limit} {unit})"),
+    ))
+}
+
 fn expect_len(line: usize, f: &[(usize, &str)], n: usize, what: &str) -> Result<(), VolFileError> {
     if f.len() != n {
         let col = f.last().map(|x| x.0).unwrap_or(1);
@@ -266,6 +293,15 @@ pub fn parse_model(text: &str) -> Result<VolumetricFile, VolFileError> {
                     v[k] = number(ln, f[k], if k == 0 { "position" } else { "error" })?;
                 }
                 let pos = v[0] * ls;
+                within(ln, f[0], pos, MAX_POSITION_MM, "position", "mm")?;
+                for k in 1..7 {
+                    let (value, limit, unit) = if k < 4 {
+                        (v[k] * ls, MAX_TRANSLATION_MM, "mm")
+                    } else {
+                        (v[k] * as_, MAX_ANGLE_RAD, "rad")
+                    };
+                    within(ln, f[k], value, limit, "error", unit)?;
+                }
                 let t = tables[a].as_mut().expect("current table exists");
                 if let Some(&prev) = t.positions_mm.last() {
                     if pos == prev {
@@ -328,6 +364,7 @@ pub fn parse_model(text: &str) -> Result<VolumetricFile, VolFileError> {
                 let mut o = [0.0; 3];
                 for k in 0..3 {
                     o[k] = number(ln, f[k + 1], key)? * ls;
+                    within(ln, f[k + 1], o[k], MAX_POSITION_MM, key, "mm")?;
                 }
                 if key.eq_ignore_ascii_case("tool_offset") {
                     tool = Some(o);
@@ -350,6 +387,7 @@ pub fn parse_model(text: &str) -> Result<VolumetricFile, VolFileError> {
                         ));
                     }
                     s[k] = number(ln, f[2 + 2 * k], SQUARENESS[k])? * as_;
+                    within(ln, f[2 + 2 * k], s[k], MAX_ANGLE_RAD, SQUARENESS[k], "rad")?;
                 }
                 squareness = Some(s);
             }
@@ -815,6 +853,27 @@ mod tests {
         assert!((m.tables[0].errors[1][4] + 8e-6).abs() < 1e-18);
         let again = parse_model(&write_model(&m)).unwrap();
         assert_eq!(again, m);
+    }
+
+    #[test]
+    fn values_beyond_any_machine_are_refused_at_their_field() {
+        // In the file's units (um, urad): an error of 20 mm, an angle of 0.2 rad, a
+        // position 20 m out, a squareness of 1 rad.
+        for (from, to, at) in [
+            ("500000,25,-3", "500000,20000000,-3", "line 10, column 8"),
+            (
+                "400000,1,2,3,4,5,6\nZ",
+                "400000,1,2,3,200000,5,6\nZ",
+                "line 13",
+            ),
+            ("500000,25", "20000000,25", "line 10, column 1"),
+            ("E_C0Y,20,", "E_C0Y,1000000,", "line 6"),
+        ] {
+            let s = sample().replace(from, to);
+            assert_ne!(s, sample(), "{from}");
+            let e = parse_model(&s).unwrap_err().to_string();
+            assert!(e.contains(at) && e.contains("beyond any machine"), "{e}");
+        }
     }
 
     #[test]

@@ -48,10 +48,15 @@ def corpus(*p):
 # --- the surfaces ---------------------------------------------------------------------
 # name, seed file, file suffix, command (list; {in} the crafted file, {out} a fresh
 # folder), numeric mutations (whether numbers in the seed are meaningful to mutate).
-PROGRAM = corpus("nc_rewrite", "lines_and_arcs.nc")
 MAP = corpus("error_map_json", "small_map.json")
 ERRORS = corpus("rotary_errors", "measured.json")
 PROGRAM5 = corpus("rotary_rewrite", "program.nc")
+BOARD = os.path.join(CONFIG, "boards", "dot-grid-0.5mm.toml")
+# Made in the sweep's folder (see `seeds`): a program inside the small map, points
+# inside the volumetric model's travel, a frame of the 0.5 mm dot grid.
+PROGRAM = "{tmp}/program.nc"
+LAYOUT = ["layout", "partition", "{in}", "--tools", "1", "--window-mm", "200",
+          "--gap-mm", "0.5", "--clearance-mm", "0.001", "--out", "{out}/l.json"]
 
 SURFACES = [
     ("error map (rewrite --map)", MAP, ".json",
@@ -71,22 +76,51 @@ SURFACES = [
     ("5-axis program (rotary rewrite)", PROGRAM5, ".nc",
      ["rotary", "rewrite", "{in}", "--errors", ERRORS, "--out", "{out}/p.nc"]),
     ("volumetric model", corpus("volumetric_model", "xyfz_identified.vol.csv"), ".csv",
-     ["volumetric", "eval", "--model", "{in}", "--points", "{points}"]),
-    ("layout JSON", corpus("layout_json", "trousers.json"), ".json",
-     ["layout", "partition", "{in}", "--tools", "2", "--window-mm", "100",
-      "--gap-mm", "2", "--out", "{out}/l.json"]),
-    ("layout DXF", corpus("layout_dxf", "loops.dxf"), ".dxf",
-     ["layout", "partition", "{in}", "--tools", "2", "--window-mm", "100",
-      "--gap-mm", "2", "--out", "{out}/l.json"]),
-    ("layout SVG", corpus("layout_svg", "shapes.svg"), ".svg",
-     ["layout", "partition", "{in}", "--tools", "2", "--window-mm", "100",
-      "--gap-mm", "2", "--out", "{out}/l.json"]),
+     ["volumetric", "eval", "--model", "{in}", "--points", "{tmp}/points.csv"]),
+    ("layout JSON", corpus("layout_json", "trousers.json"), ".json", LAYOUT),
+    ("layout DXF", corpus("layout_dxf", "loops.dxf"), ".dxf", LAYOUT),
+    ("layout SVG", corpus("layout_svg", "shapes.svg"), ".svg", LAYOUT),
     ("board file", os.path.join(CONFIG, "boards", "coded-0.5mm.toml"), ".toml",
      ["board", "make", "{in}", "-o", "{out}/art"]),
-    ("board image (localize)", corpus("png_load", "mono8.png"), ".png",
-     ["localize", "--board", os.path.join(CONFIG, "boards", "dot-grid-0.5mm.toml"),
-      "--near", "10,10", "{in}"]),
+    ("board image (localize)", "{tmp}/frame.png", ".png",
+     ["localize", "--board", BOARD, "--near", "10,10", "--um-per-px", "4", "{in}"]),
 ]
+
+
+def png_grey(width, height, pixel):
+    """An 8-bit greyscale PNG (zlib and the PNG chunk layout, nothing else needed)."""
+    import struct
+    import zlib
+    raw = b"".join(b"\0" + bytes(pixel(x, y) for x in range(width)) for y in range(height))
+
+    def chunk(kind, data):
+        return (struct.pack(">I", len(data)) + kind + data
+                + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF))
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(raw, 6)) + chunk(b"IEND", b""))
+
+
+def seeds(tmp):
+    """The seeds made for the sweep (each checked to be accepted before it is mutated)."""
+    with open(os.path.join(tmp, "program.nc"), "w") as f:
+        # Inside the map (0..100 x 0..50 mm) also with the seed's `$#` offsets
+        # (G92 X+20, G55 Y-5.5).
+        f.write("G21 G90\nG0 X10 Y10\nG1 X60 Y40 F1000\nG1 X20 Y10\n"
+                "G2 X30 Y10 I5 J0\nG1 X70 Y30\nG0 X10 Y10\nM2\n")
+    with open(os.path.join(tmp, "points.csv"), "w") as f:
+        f.write("x_mm,y_mm,z_mm\n100,100,100\n250,200,150\n")
+    # The dot grid (0.5 mm pitch, 0.25 mm dots, dark on light) at 4 um/px, a dot at the
+    # image centre; 640 x 480 px shows 5 x 4 dots.
+    pitch, r = 125.0, 31.25
+
+    def pixel(x, y):
+        dx = (x - 320 + pitch / 2) % pitch - pitch / 2
+        dy = (y - 240 + pitch / 2) % pitch - pitch / 2
+        d = (dx * dx + dy * dy) ** 0.5
+        return 30 if d < r - 0.5 else 220 if d > r + 0.5 else int(30 + 190 * (d - r + 0.5))
+    with open(os.path.join(tmp, "frame.png"), "wb") as f:
+        f.write(png_grey(640, 480, pixel))
+
 
 NUMBER = re.compile(rb"(?<![A-Za-z_])-?\d+\.?\d*(?:[eE][-+]?\d+)?")
 BAD_NUMBERS = [b"NaN", b"inf", b"-inf", b"1e308", b"-1e308", b"1e100", b"4e-320",
@@ -106,12 +140,18 @@ def variants(seed: bytes, suffix: str, rng: random.Random):
     out.append(("NUL bytes inside", "bad", seed[:mid] + b"\x00" * 16 + seed[mid:]))
     out.append(("one 8 MiB line appended", "bad", seed + b"9" * (8 << 20) + b"\n"))
     out.append(("the file 50 times", "bad", seed * 50))
+    if suffix == ".png":
+        return out + png_variants(seed)
     out.append(("CRLF line ends", "benign", seed.replace(b"\r\n", b"\n").replace(b"\n", b"\r\n")))
     out.append(("byte-order mark", "benign", b"\xef\xbb\xbf" + seed))
     if suffix in (".json",):
         out.append(("JSON nested 100 000 deep", "bad", b"[" * 100_000 + b"]" * 100_000))
         out.append(("JSON of another type", "bad", b'"a string"'))
-    numbers = list(NUMBER.finditer(seed))
+    # Numbers in comments (`#` to the line's end) and in URLs are not data.
+    def is_data(m):
+        line = seed[seed.rfind(b"\n", 0, m.start()) + 1: m.start()]
+        return b"#" not in line and b"http" not in line.split(b" ")[-1]
+    numbers = [m for m in NUMBER.finditer(seed) if is_data(m)]
     if numbers:
         picks = sorted(set(rng.randrange(len(numbers)) for _ in range(4)) | {0, len(numbers) - 1})
         for bad in BAD_NUMBERS:
@@ -121,6 +161,22 @@ def variants(seed: bytes, suffix: str, rng: random.Random):
                             seed[: m.start()] + bad + seed[m.end():]))
         everything = NUMBER.sub(lambda m: b"1e308", seed)
         out.append(("every number 1e308", "bad", everything))
+    return out
+
+
+def png_variants(seed):
+    """A PNG's header claiming a huge image, and a chunk's checksum broken."""
+    import struct
+    import zlib
+    out = []
+    for w, h in ((100_000, 100_000), (1 << 31, 1), (0, 480)):
+        ihdr = b"IHDR" + struct.pack(">IIBBBBB", w, h, 8, 0, 0, 0, 0)
+        head = seed[:8] + struct.pack(">I", 13) + ihdr + struct.pack(">I", zlib.crc32(ihdr) & 0xFFFFFFFF)
+        out.append((f"header claims {w} x {h} px", "bad", head + seed[33:]))
+    broken = bytearray(seed)
+    broken[29] ^= 0xFF
+    out.append(("IHDR checksum broken", "bad", bytes(broken)))
+    out.append(("16-bit RGBA header", "bad", seed[:24] + bytes([16, 6]) + seed[26:]))
     return out
 
 
@@ -218,14 +274,25 @@ def main():
     rng = random.Random(25)
     rows, details = [], []
     tmp = tempfile.mkdtemp(prefix="sweep-")
-    points = os.path.join(tmp, "points.csv")
-    with open(points, "w") as f:
-        f.write("x_mm,y_mm,z_mm\n0,0,0\n100,50,-20\n")
+    seeds(tmp)
+    # A board file names its certificate beside it.
+    shutil.copy(os.path.join(CONFIG, "boards", "coded-0.5mm.certified.csv"), tmp)
     try:
         for name, seed_path, suffix, cmd in SURFACES:
             if a.only and a.only not in name:
                 continue
+            seed_path = seed_path.replace("{tmp}", tmp)
             seed = open(seed_path, "rb").read()
+            cmd = [x.replace("{tmp}", tmp) for x in cmd]
+            # The seed itself must be accepted, else every variant fails for its reason.
+            out = os.path.join(tmp, "out")
+            shutil.rmtree(out, ignore_errors=True)
+            os.mkdir(out)
+            path = materialise(tmp, "seed", suffix, seed)
+            outcome, _, err, _, _ = run(a.gateway, [x.replace("{in}", path).replace("{out}", out)
+                                                    for x in cmd], a.timeout)
+            if outcome != "accepted":
+                sys.exit(f"{name}: the seed {seed_path} is refused: {err.strip()[-300:]}")
             cases = [(n, "bad", w) for n, w in SPECIAL] + variants(seed, suffix, rng)
             tally = {"clear error": 0, "vague error": 0, "accepted": 0, "panic": 0,
                      "hang": 0, "benign accepted": 0, "benign refused": 0}
@@ -235,8 +302,7 @@ def main():
                 shutil.rmtree(out, ignore_errors=True)
                 os.mkdir(out)
                 path = materialise(tmp, case, suffix, what)
-                args = [x.replace("{in}", path).replace("{out}", out).replace("{points}", points)
-                        for x in cmd]
+                args = [x.replace("{in}", path).replace("{out}", out) for x in cmd]
                 outcome, code, err, kib, secs = run(a.gateway, args, a.timeout)
                 peak = max(peak, kib)
                 if kind == "benign":
