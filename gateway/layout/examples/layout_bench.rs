@@ -8,7 +8,8 @@
 //! read as mm. Parameters per layout, from its strip width W: 2 tools (1 where a part is
 //! wider than W / 2), window L' = 0.8 W (1.1 times the longest part where that is
 //! longer), gap W / 80, clearance the gap and half the gap. The first argument is the
-//! number of runs each median is taken over (51).
+//! number of runs each median is taken over (51); a second, a name prefix: only those
+//! layouts (`layout_bench 51 gardeyn7`).
 //!
 //! Generated: 10 000 star-shaped parts on a 20 mm grid (`generated`), touching their
 //! neighbours (`dense`), and the same spread so that every two parts are at least the
@@ -141,7 +142,12 @@ fn main() {
         .unwrap_or(51);
     println!("| layout | parts | tools | W | L' | gap | clearance | overlaps after S8 | resolution | left (exhaustive) | time ms (median) | detection ms | L no gap | L S8 | L resolved | L gap every part | added / every part | indexed = exhaustive |");
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    // The second argument, if any: only the layouts whose name starts with it.
+    let only = std::env::args().nth(2);
     for (name, text) in layouts() {
+        if only.as_ref().is_some_and(|o| !name.starts_with(o.as_str())) {
+            continue;
+        }
         let doc = match Layout::read(text.as_bytes(), Format::Json, &ReadOptions::default()) {
             Ok(d) => d,
             Err(e) => {
@@ -207,6 +213,9 @@ fn main() {
             );
             }
         }
+    }
+    if only.is_some() {
+        return;
     }
     for (what, pitch, widen) in [
         ("dense", 20.0, false),

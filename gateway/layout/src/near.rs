@@ -28,11 +28,16 @@ fn edges_near(p: &Polygon<f64>, other: [f64; 4], limit: f64) -> Vec<Segment> {
                 s[0][0].max(s[1][0]),
                 s[0][1].max(s[1][1]),
             ];
-            box_gap(b, other) < limit
+            // Squared (no square root per edge).
+            let dx = (b[0] - other[2]).max(other[0] - b[2]).max(0.0);
+            let dy = (b[1] - other[3]).max(other[1] - b[3]).max(0.0);
+            dx * dx + dy * dy < limit * limit
         })
         .collect()
 }
 
+/// The squared distance from point `p` to segment `s` (squares: no square root in the
+/// inner loop, one at the end).
 fn point_segment(p: [f64; 2], s: Segment) -> f64 {
     let (dx, dy) = (s[1][0] - s[0][0], s[1][1] - s[0][1]);
     let len2 = dx * dx + dy * dy;
@@ -41,14 +46,15 @@ fn point_segment(p: [f64; 2], s: Segment) -> f64 {
     } else {
         0.0
     };
-    (p[0] - s[0][0] - t * dx).hypot(p[1] - s[0][1] - t * dy)
+    let (ex, ey) = (p[0] - s[0][0] - t * dx, p[1] - s[0][1] - t * dy);
+    ex * ex + ey * ey
 }
 
 fn cross(o: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
     (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
 }
 
-/// Distance between two segments: 0 when they cross, else the least of the four
+/// Squared distance between two segments: 0 when they cross, else the least of the four
 /// endpoint-to-segment distances.
 fn segment_segment(a: Segment, b: Segment) -> f64 {
     let (d1, d2) = (cross(a[0], a[1], b[0]), cross(a[0], a[1], b[1]));
@@ -85,16 +91,41 @@ pub(crate) fn distance_below(
     }
     let ea = edges_near(a, bb, limit);
     let eb = edges_near(b, ab, limit);
-    let mut best = f64::INFINITY;
-    for s in &ea {
-        for t in &eb {
-            best = best.min(segment_segment(*s, *t));
-            if best == 0.0 {
-                return Some(0.0);
+    let boxes = |e: &[Segment]| -> Vec<[f64; 4]> {
+        e.iter()
+            .map(|s| {
+                [
+                    s[0][0].min(s[1][0]),
+                    s[0][1].min(s[1][1]),
+                    s[0][0].max(s[1][0]),
+                    s[0][1].max(s[1][1]),
+                ]
+            })
+            .collect()
+    };
+    let (ba, bb) = (boxes(&ea), boxes(&eb));
+    // Squared distances; a pair of edges whose boxes are already as far apart as the
+    // best so far cannot improve it.
+    let mut best = limit * limit;
+    let mut found = false;
+    for (s, sb) in ea.iter().zip(&ba) {
+        for (t, tb) in eb.iter().zip(&bb) {
+            let dx = (sb[0] - tb[2]).max(tb[0] - sb[2]).max(0.0);
+            let dy = (sb[1] - tb[3]).max(tb[1] - sb[3]).max(0.0);
+            if dx * dx + dy * dy >= best {
+                continue;
+            }
+            let d = segment_segment(*s, *t);
+            if d < best {
+                best = d;
+                found = true;
+                if d == 0.0 {
+                    return Some(0.0);
+                }
             }
         }
     }
-    (best < limit).then_some(best)
+    found.then(|| best.sqrt())
 }
 
 #[cfg(test)]
