@@ -201,8 +201,8 @@ pub fn read_offsets(text: &str) -> Result<[Pose; 6], RequestError> {
 /// far smaller; 1e308 is a corrupted reply, not an offset).
 pub const MAX_OFFSET_MM: f64 = 1e5;
 
-/// A saved `$#` reply: the stored G54..G59 offsets and the G92 offset (`[G92:x,y,z]`,
-/// zero when the reply has no such line), as GRBL applies them: the machine position of
+/// A saved `$#` reply: the stored G54..G59 offsets and the G92 offset (`[G92:x,y,z]`;
+/// a reply without any of these seven lines is refused as cut), as GRBL applies them: the machine position of
 /// a programmed point is the point plus the active work offset plus G92. A malformed or
 /// repeated offset line, or a value beyond [`MAX_OFFSET_MM`], is an error naming the
 /// line (field `offsets`).
@@ -266,6 +266,23 @@ pub fn read_parameters(text: &str) -> Result<([Pose; 6], Pose), RequestError> {
         return Err(RequestError::new(
             "offsets",
             "no [G54:...] line (save the controller's reply to `$#`)",
+        ));
+    }
+    // GRBL and grblHAL answer `$#` with every work system and G92: a reply without one
+    // is cut or damaged, and reading the missing offset as zero would move the tool.
+    let names = ["G54", "G55", "G56", "G57", "G58", "G59", "G92"];
+    let missing: Vec<&str> = (0..7)
+        .filter(|&k| first_line[k] == 0)
+        .map(|k| names[k])
+        .collect();
+    if !missing.is_empty() {
+        return Err(RequestError::new(
+            "offsets",
+            format!(
+                "the `$#` reply has no {} line{}: it is cut or damaged (save the whole reply)",
+                missing.join(", "),
+                if missing.len() > 1 { "s" } else { "" }
+            ),
         ));
     }
     let mut stored = [[0.0; N_AXIS]; 6];
@@ -500,6 +517,13 @@ mod tests {
         r.offsets = Some("ok\n".into());
         assert!(r.check().unwrap_err().message.contains("no [G54:...] line"));
         r.offsets = Some("[G54:1,2,3]\n[G55:0,0,0]\nok\n".into());
+        let e = r.check().unwrap_err();
+        assert!(
+            e.message.contains("no G56, G57, G58, G59, G92 lines"),
+            "{e}"
+        );
+        let full = "[G55:0,0,0]\n[G56:0,0,0]\n[G57:0,0,0]\n[G58:0,0,0]\n[G59:0,0,0]\n";
+        r.offsets = Some(format!("[G54:1,2,3]\n{full}[G92:0,0,0]\nok\n"));
         assert_eq!(r.options().unwrap().work_offsets[0], [1.0, 2.0, 3.0]);
         r.offsets = Some("[G54:1,2,3]\n[G92:1e308,0,0]\nok\n".into());
         let e = r.check().unwrap_err();
@@ -517,7 +541,8 @@ mod tests {
     fn the_g92_offset_of_the_dollar_hash_reply_is_honoured() {
         let mut r = RewriteRequest::new("G21 G90\nG0 X10 Y0 Z0\n".into());
         r.offsets = Some(
-            "[G54:5.000,0.000,0.000]\n[G55:0,0,0]\n[G92:20.000,0.000,0.000]\n[TLO:0.000]\nok\n"
+            "[G54:5.000,0.000,0.000]\n[G55:0,0,0]\n[G56:0,0,0]\n[G57:0,0,0]\n[G58:0,0,0]\n\
+             [G59:0,0,0]\n[G92:20.000,0.000,0.000]\n[TLO:0.000]\nok\n"
                 .into(),
         );
         let o = r.options().unwrap();
@@ -537,7 +562,7 @@ mod tests {
             String::from_utf8(sink.0[0].bytes.clone()).unwrap()
         };
         let with_g92 = run_with(&r);
-        r.offsets = Some("[G54:5.000,0.000,0.000]\nok\n".into());
+        r.offsets = r.offsets.map(|o| o.replace("[G92:20.000", "[G92:0.000"));
         let without = run_with(&r);
         // The correction at machine X35 (3.5 um) differs from that at X15 (1.5 um).
         assert!(with_g92.contains("X10.0035 "), "{with_g92}");
