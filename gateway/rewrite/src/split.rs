@@ -134,7 +134,8 @@ pub struct Turns {
 /// The controller moves each axis's nut with its command; when an axis's command turns
 /// back, the nut must cross the backlash before the carriage follows, so the model's
 /// command for the other side applies from there on. The move is sampled every quarter
-/// of the model's feature length (at least at its middle; at most [`MAX_SAMPLES`]),
+/// of the model's feature length (at its ends only on a move shorter than that, where a
+/// turn inside is taken at the next move's start; at most [`MAX_SAMPLES`]),
 /// each axis's command is followed with the sides the move starts with, and a turn is
 /// taken where the command has come back by more than `threshold` from its furthest
 /// point on its side: the new stretch starts at that furthest point. A retreat within
@@ -160,7 +161,7 @@ pub fn turns<E>(
     let length = distance(p0, p1);
     let wanted = (4.0 * length / feature).ceil();
     let n = if wanted.is_finite() {
-        (wanted as usize).clamp(2, MAX_SAMPLES)
+        (wanted as usize).clamp(1, MAX_SAMPLES)
     } else {
         2
     }
@@ -181,7 +182,8 @@ pub fn turns<E>(
                 guess[i] = previous[i] + p[i] - q[i];
             }
         }
-        let c = command(&p, &guess)?;
+        // The start's command is the one the machine was given there.
+        let c = if k == 0 { *c0 } else { command(&p, &guess)? };
         values.push(c);
     }
     // Per axis: its turns (sample index of the furthest point, new side).
