@@ -7,8 +7,8 @@ use std::process::ExitCode;
 
 #[derive(clap::Subcommand)]
 pub enum BoardCmd {
-    /// Write the board's artwork (SVG and DXF at 1:1, mm) and the certificate template
-    /// (CSV) into OUT, named after the board file.
+    /// Write the board's artwork (SVG and DXF at 1:1, mm, a PDF test print) and the
+    /// certificate template (CSV) into OUT, named after the board file.
     Make {
         /// The board file (TOML).
         board: PathBuf,

@@ -102,8 +102,8 @@ enum Cmd {
     Export(export::ExportArgs),
     /// Localize one image of the board: the board coordinate under the image centre.
     Localize(localize::LocalizeArgs),
-    /// Calibration boards: `make` writes a board's artwork (DXF, SVG at 1:1) and its
-    /// certificate template.
+    /// Calibration boards: `make` writes a board's artwork (DXF, SVG at 1:1, a PDF test
+    /// print) and its certificate template.
     Board {
         #[command(subcommand)]
         cmd: board::BoardCmd,
