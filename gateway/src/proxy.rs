@@ -56,6 +56,8 @@ pub struct ProxyArgs {
 struct Printer {
     json: bool,
     link: Option<PathBuf>,
+    /// Where the map's current reference is kept (beside the map).
+    record_to: Option<PathBuf>,
 }
 
 impl Printer {
@@ -78,6 +80,26 @@ impl ProxyFront for Printer {
     fn session(&mut self, account: &Value) -> Result<(), String> {
         self.show(account, procedure::proxy::summary)
     }
+
+    fn reference(&mut self, record: &errormap::reference::MapReference) -> Result<(), String> {
+        let Some(path) = &self.record_to else {
+            return Ok(());
+        };
+        let text = procedure::reference::record_json(record);
+        protocol::config::write_output(path, text.as_bytes(), &[])
+            .map_err(|e| format!("recording the reference in {}: {e}", path.display()))?;
+        let v = serde_json::json!({"reference_recorded": path.display().to_string(),
+            "reference_count": record.reference_count, "shift_um": record.shift_um});
+        self.show(&v, |_| {
+            format!(
+                "after the sender's homing: reference #{} recorded in {}, machine zero shift ({:+.2}, {:+.2}) um\n",
+                record.reference_count,
+                path.display(),
+                record.shift_um[0],
+                record.shift_um[1]
+            )
+        })
+    }
 }
 
 pub fn proxy(args: ProxyArgs, json: bool) -> anyhow::Result<ExitCode> {
@@ -91,6 +113,10 @@ pub fn proxy(args: ProxyArgs, json: bool) -> anyhow::Result<ExitCode> {
     request.check().map_err(|e| anyhow::anyhow!(e.for_cli()))?;
     let inputs = procedure::proxy::inputs(args.config, args.map, args.rotary, args.controller)
         .map_err(|e| anyhow::anyhow!(e))?;
+    let record_to = match &inputs {
+        Inputs::Map { map, .. } => Some(procedure::reference::reference_path(map)),
+        Inputs::Rotary { .. } => None,
+    };
     let correction = match inputs {
         Inputs::Map { job, map } => {
             let record = match args.no_reference {
@@ -130,6 +156,7 @@ pub fn proxy(args: ProxyArgs, json: bool) -> anyhow::Result<ExitCode> {
     let mut printer = Printer {
         json,
         link: args.link.clone(),
+        record_to,
     };
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()

@@ -173,6 +173,36 @@ async fn stream(
     )
 }
 
+/// A sender of our own that homes first (`$H`), then sends the program line by line,
+/// each after the previous one's answer; everything it got back.
+async fn home_then_send(link: &Path) -> String {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    use tokio_serial::SerialPortBuilderExt;
+    let mut port = tokio_serial::new(link.to_string_lossy(), 115_200)
+        .open_native_async()
+        .expect("open the gateway's port");
+    let mut got = String::new();
+    let mut buf = [0u8; 1024];
+    let lines = std::iter::once("$H").chain(PROGRAM.lines());
+    for line in lines {
+        let answers = |s: &str| {
+            s.lines()
+                .filter(|l| *l == "ok" || l.starts_with("error:"))
+                .count()
+        };
+        let before = answers(&got);
+        port.write_all(format!("{line}\n").as_bytes())
+            .await
+            .unwrap();
+        while answers(&got) == before {
+            let k = port.read(&mut buf).await.unwrap();
+            assert!(k > 0, "the gateway closed the port");
+            got.push_str(&String::from_utf8_lossy(&buf[..k]).replace('\r', ""));
+        }
+    }
+    got
+}
+
 /// The true tool path from its arrival at (20, 20) against the program, mm.
 fn path_deviation(rows: &[world::machine::TraceRow]) -> f64 {
     let start = rows
@@ -319,5 +349,67 @@ fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_prog
             "the reference must matter: {unreferenced:.3} um without, {referenced:.3} um with"
         );
         assert!(referenced < 2.5, "{referenced:.3} um with the reference");
+
+        // 4. The sender homes (the zero moves again): the pass-through re-references by
+        // itself with the camera before the next line, and the program stays on its path.
+        let shared = procedure::proxy::SharedMap::new(
+            refer::apply(map.clone(), &Choice::Recorded(record.clone()))
+                .unwrap()
+                .model,
+        );
+        let seen = std::cell::Cell::new(None);
+        let homings = lock(&rig).machine().homings();
+        lock(&rig).machine_mut().start_trace();
+        let (mut controller, _) = open_controller(&port, 115_200, Duration::from_secs(10))
+            .await
+            .unwrap();
+        let link = dir.path().join("ttyHOMING");
+        let mut sender_port = SenderPort::create(Some(&link)).unwrap();
+        let mut proxy = Proxy::new(Rewriter::new(&shared, Options::default()).unwrap(), &shared);
+        proxy.after_homing(proxy::AfterHoming::Reference {
+            reference_mm: map.reference_mm,
+            approach_mm: job.policy.approach_mm,
+            hook: Box::new(|s| {
+                shared.rereference(s)?;
+                seen.set(Some(s));
+                Ok(format!("seen ({:+.2}, {:+.2}) um", s[0], s[1]))
+            }),
+        });
+        proxy.start();
+        let mut frames = procedure::proxy::CameraFrames {
+            camera: Box::new(drivers::sim::SimCamera::new(rig.clone())),
+            job: &job,
+            reference_mm: map.reference_mm,
+        };
+        let session = proxy::serve_with_camera(
+            &mut proxy,
+            &mut sender_port,
+            &mut controller,
+            std::future::pending(),
+            Some(&mut frames),
+        );
+        let (ending, got) = tokio::join!(session, home_then_send(&link));
+        assert!(matches!(ending, Ending::SenderLeft(_)), "{ending:?}");
+        let rows = lock(&rig).machine_mut().take_trace();
+        assert!(lock(&rig).machine().homings() > homings, "the sender homed");
+        assert!(got.contains("[MSG:gateway: homed:"), "{got}");
+        assert!(got.contains("[MSG:gateway: referenced: seen"), "{got}");
+        assert!(!got.contains("error:"), "{got}");
+        let seen = seen.get().expect("the reference frame was measured");
+        // The camera was over the reference point, and the tool came back before the
+        // program's first move.
+        let r = map.reference_mm;
+        assert!(
+            rows.iter()
+                .any(|row| (row.cmd_mm[0] - r[0]).hypot(row.cmd_mm[1] - r[1]) < 0.02),
+            "the stage went to the reference point"
+        );
+        let after_homing = path_deviation(&rows) * 1000.0;
+        eprintln!(
+            "after the sender's $H the pass-through re-referenced by itself (camera saw \
+             ({:+.2}, {:+.2}) um): true path within {after_homing:.3} um of the program",
+            seen[0], seen[1]
+        );
+        assert!(after_homing < 2.5, "{after_homing:.3} um after the homing");
     });
 }

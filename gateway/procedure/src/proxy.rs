@@ -7,16 +7,22 @@
 
 use crate::request::{count, number, RequestError};
 use crate::Outcome;
+use errormap::reference::{Circumstances, MapReference};
 use errormap::MapModel;
 use job::{GrblLink, Job, StageSpec};
 use protocol::errormap::ErrorMap;
-use proxy::{open_controller, serve, Ending, FiveAxisRewriter, LineAccount, Proxy, SenderPort};
-use rewrite::{Compensation, Options, Rewriter};
+use proxy::{
+    open_controller, serve_with_camera, AfterHoming, Ending, FiveAxisRewriter, LineAccount, Proxy,
+    ReferenceFrames, SenderPort,
+};
+use rewrite::{Approach, Compensation, Options, Pose, Rewriter, N_AXIS};
 use rotary::{LocationErrors, MachineConstants};
 use serde::{Deserialize, Serialize};
 use serde_json::{json, Value};
+use std::cell::{Cell, RefCell};
 use std::future::Future;
 use std::path::Path;
+use std::sync::RwLock;
 use std::time::Duration;
 
 /// How long to wait for a controller's banner after opening its port (an Arduino resets
@@ -162,6 +168,94 @@ pub trait ProxyFront {
     /// A session ended and another follows: its account (as [`Outcome::result`] is for
     /// the last one).
     fn session(&mut self, account: &Value) -> Result<(), String>;
+    /// The pass-through re-referenced the map after the sender's homing: keep the record
+    /// as the map's current reference (the CLI writes it beside the map).
+    fn reference(&mut self, record: &MapReference) -> Result<(), String> {
+        let _ = record;
+        Ok(())
+    }
+}
+
+/// An error map whose reference the pass-through changes after a homing, while the
+/// rewriter holds it.
+pub struct SharedMap {
+    model: RwLock<MapModel>,
+    axes: Vec<usize>,
+}
+
+impl SharedMap {
+    pub fn new(model: MapModel) -> Self {
+        let axes = model.axes().to_vec();
+        Self {
+            model: RwLock::new(model),
+            axes,
+        }
+    }
+
+    pub fn read(&self) -> std::sync::RwLockReadGuard<'_, MapModel> {
+        self.model.read().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Shifted by what the camera saw at the reference point now.
+    pub fn rereference(&self, seen_um: [f64; 2]) -> Result<(), String> {
+        let mut m = self.model.write().unwrap_or_else(|e| e.into_inner());
+        *m = m.clone().rereferenced(seen_um).map_err(|e| e.to_string())?;
+        Ok(())
+    }
+}
+
+impl Compensation for SharedMap {
+    fn describe(&self) -> String {
+        Compensation::describe(&*self.read())
+    }
+    fn axes(&self) -> &[usize] {
+        &self.axes
+    }
+    fn feature_length_mm(&self) -> f64 {
+        Compensation::feature_length_mm(&*self.read())
+    }
+    fn command_for(&self, nominal: &Pose, approach: &[Approach; N_AXIS]) -> Result<Pose, String> {
+        Compensation::command_for(&*self.read(), nominal, approach)
+    }
+    fn command_near(
+        &self,
+        nominal: &Pose,
+        approach: &[Approach; N_AXIS],
+        guess: &Pose,
+    ) -> Result<Pose, String> {
+        Compensation::command_near(&*self.read(), nominal, approach, guess)
+    }
+    fn tool_for(&self, command: &Pose, approach: &[Approach; N_AXIS]) -> Result<Pose, String> {
+        Compensation::tool_for(&*self.read(), command, approach)
+    }
+}
+
+/// The job's camera measuring the reference frame for the pass-through.
+pub struct CameraFrames<'a> {
+    pub camera: Box<dyn drivers::Camera>,
+    pub job: &'a Job,
+    /// The map's reference point, machine mm.
+    pub reference_mm: [f64; 2],
+}
+
+impl ReferenceFrames for CameraFrames<'_> {
+    fn measure(
+        &mut self,
+    ) -> std::pin::Pin<Box<dyn Future<Output = Result<[f64; 2], String>> + '_>> {
+        Box::pin(async move {
+            let z = self.job.board_at_machine_zero_mm;
+            let target = [self.reference_mm[0] + z[0], self.reference_mm[1] + z[1]];
+            let frame = self.camera.grab().await.map_err(|e| e.to_string())?;
+            let mut params = self.job.localize_params(target);
+            if self.job.board.code.is_some() {
+                params.hint_mm = None;
+            }
+            let board = &self.job.board;
+            let o = drivers::blocking(|| vision::localize::localize(&frame.image, board, &params))
+                .map_err(|e| format!("localizing the reference frame: {e}"))?;
+            Ok([(o.x_mm - target[0]) * 1000.0, (o.y_mm - target[1]) * 1000.0])
+        })
+    }
 }
 
 /// Runs the pass-through: checks the request; with a map, checks its identity against
@@ -205,7 +299,17 @@ pub async fn run(
                 Ok(a) => a,
                 Err(e) => return Outcome::failed(format!("{map_source}: {e}")),
             };
-            let model: MapModel = applied.model;
+            let shared = SharedMap::new(applied.model);
+            let map_copy = shared.read().map().clone();
+            let bound_um = match job.board.code {
+                Some(_) => errormap::reference::MAX_SHIFT_UM,
+                None => errormap::reference::MAX_SHIFT_UM.min(job.board.pitch_mm * 500.0),
+            };
+            let count = Cell::new(match &reference {
+                crate::reference::Choice::Recorded(r) => r.reference_count,
+                _ => 0,
+            });
+            let current = RefCell::new(applied.describe.clone());
             let StageSpec::Grbl { link, baud } = &job.stage else {
                 return Outcome::failed(format!(
                     "{job_source}: the pass-through needs a GRBL controller (stage kind `grbl`); other controllers take the map as a table (gateway export)"
@@ -217,7 +321,7 @@ pub async fn run(
                 ..Options::default()
             };
             // Kept until the sessions end: the emulated controller and its machine.
-            let (port, _emulator) = match link {
+            let (port, emulator) = match link {
                 GrblLink::Port(p) => (p.clone(), None),
                 GrblLink::Emulate(machine) => {
                     let clock = match request.clock() {
@@ -230,19 +334,89 @@ pub async fn run(
                     }
                 }
             };
+            // The job's camera re-references the map after the sender's homing; without
+            // one, motion after a homing is refused until a reference is recorded.
+            let wanted = reference != crate::reference::Choice::NotWanted;
+            let camera = match wanted {
+                true => devices::open_camera(&job.camera, emulator.as_ref().map(|(_, rig)| rig))
+                    .await
+                    .map_err(|e| e.to_string()),
+                false => Err("--no-reference".into()),
+            };
+            let (mut frames, camera_note) = match camera {
+                Ok(camera) => (
+                    Some(CameraFrames {
+                        camera,
+                        job: &job,
+                        reference_mm: map_copy.reference_mm,
+                    }),
+                    None,
+                ),
+                Err(e) => (None, Some(e)),
+            };
+            let after_homing_note = match (&camera_note, wanted) {
+                (_, false) => None,
+                (None, true) => Some("after the sender's homing the gateway re-references the map with the camera".to_string()),
+                (Some(e), true) => Some(format!(
+                    "no camera ({e}): after the sender's homing, motion is refused (error:9) until a reference is recorded"
+                )),
+            };
             let served = Served {
                 port: &port,
                 baud: *baud,
-                describe: &model.describe(),
+                describe: &shared.describe(),
                 reference: Some((&applied.describe, applied.warning.as_deref())),
+                after_homing: after_homing_note.as_deref(),
                 sender_link,
                 once: request.once,
             };
-            sessions(served, front, stop, || {
-                let rewriter = Rewriter::new(&model, options.clone()).map_err(|e| e.to_string())?;
-                Ok(Proxy::new(rewriter, &model))
-            })
-            .await
+            let front = RefCell::new(front);
+            let have_camera = frames.is_some();
+            let make = || {
+                let rewriter =
+                    Rewriter::new(&shared, options.clone()).map_err(|e| e.to_string())?;
+                let mut proxy = Proxy::new(rewriter, &shared);
+                proxy.greet(&format!("map {}", current.borrow()));
+                proxy.after_homing(match (wanted, have_camera) {
+                    (false, _) => AfterHoming::Pass,
+                    (true, false) => AfterHoming::Refuse,
+                    (true, true) => AfterHoming::Reference {
+                        reference_mm: map_copy.reference_mm,
+                        approach_mm: job.policy.approach_mm,
+                        hook: Box::new(|seen| {
+                            let (now_s, now_text) = {
+                                let t = std::time::SystemTime::now();
+                                let s = t
+                                    .duration_since(std::time::UNIX_EPOCH)
+                                    .map_or(0, |d| d.as_secs());
+                                (s, errormap::scan::rfc3339(t))
+                            };
+                            let record = MapReference::new(
+                                &map_copy,
+                                seen,
+                                bound_um,
+                                Circumstances {
+                                    measured_at: now_text,
+                                    measured_unix_s: now_s,
+                                    homing_count: None,
+                                    temperature_c: None,
+                                    previous_count: count.get(),
+                                },
+                            )
+                            .map_err(|e| e.to_string())?;
+                            shared.rereference(seen)?;
+                            count.set(record.reference_count);
+                            let describe = record.describe(now_s);
+                            *current.borrow_mut() = describe.clone();
+                            front.borrow_mut().reference(&record)?;
+                            Ok(describe)
+                        }),
+                    },
+                });
+                Ok(proxy)
+            };
+            let frames = frames.as_mut().map(|f| f as &mut dyn ReferenceFrames);
+            sessions(served, &front, stop, make, frames).await
         }
         Correction::Rotary {
             errors,
@@ -261,15 +435,17 @@ pub async fn run(
                 baud: request.baud,
                 describe: &format!("rotary table errors {source}"),
                 reference: None,
+                after_homing: None,
                 sender_link,
                 once: request.once,
             };
-            sessions(served, front, stop, || {
+            let front = RefCell::new(front);
+            let make = || {
                 Ok(Proxy::with_rewriter(Box::new(FiveAxisRewriter::new(
                     rotary::rewrite::RotaryRewriter::new(&model, options),
                 ))))
-            })
-            .await
+            };
+            sessions(served, &front, stop, make, None).await
         }
     }
 }
@@ -281,6 +457,8 @@ struct Served<'a> {
     describe: &'a str,
     /// With a map: which reference it runs with, and a warning when none is recorded.
     reference: Option<(&'a str, Option<&'a str>)>,
+    /// What happens after the sender's homing, when it matters.
+    after_homing: Option<&'a str>,
     sender_link: Option<&'a Path>,
     once: bool,
 }
@@ -289,9 +467,10 @@ struct Served<'a> {
 /// controller is lost, each with a fresh pass-through from `make`.
 async fn sessions<'m>(
     s: Served<'_>,
-    front: &mut dyn ProxyFront,
+    front: &RefCell<&mut dyn ProxyFront>,
     mut stop: std::pin::Pin<&mut impl Future<Output = ()>>,
     mut make: impl FnMut() -> Result<Proxy<'m>, String>,
+    mut frames: Option<&mut dyn ReferenceFrames>,
 ) -> Outcome {
     let mut controller = match open_controller(s.port, s.baud, BANNER_WAIT).await {
         Ok((c, _banner)) => c,
@@ -305,8 +484,9 @@ async fn sessions<'m>(
         "sender_port": sender.path(), "controller": s.port,
         "compensation": s.describe, "map": s.describe,
         "reference": s.reference.map(|r| r.0), "reference_warning": s.reference.and_then(|r| r.1),
+        "after_homing": s.after_homing,
     });
-    if let Err(e) = front.ready(&hello) {
+    if let Err(e) = front.borrow_mut().ready(&hello) {
         return Outcome::failed(e);
     }
     loop {
@@ -315,10 +495,20 @@ async fn sessions<'m>(
             Err(e) => return Outcome::failed(e),
         };
         proxy.start();
-        if let Some((reference, _)) = s.reference {
-            proxy.greet(&format!("map {reference}"));
-        }
-        let ending = serve(&mut proxy, &mut sender, &mut controller, stop.as_mut()).await;
+        // A reborrow for this session (`as_deref_mut` would keep the trait object's
+        // own lifetime, which the next iteration cannot borrow again).
+        #[allow(clippy::option_as_ref_deref)]
+        let frames_now = frames
+            .as_mut()
+            .map(|f| -> &mut dyn ReferenceFrames { &mut **f });
+        let ending = serve_with_camera(
+            &mut proxy,
+            &mut sender,
+            &mut controller,
+            stop.as_mut(),
+            frames_now,
+        )
+        .await;
         let (account, lost) = session_json(&proxy, &ending);
         let metrics = crate::metrics_from(
             &account,
@@ -342,7 +532,7 @@ async fn sessions<'m>(
         if matches!(ending, Ending::Stopped(_)) || s.once {
             return Outcome::succeeded(account, metrics);
         }
-        if let Err(e) = front.session(&account) {
+        if let Err(e) = front.borrow_mut().session(&account) {
             return Outcome::failed(e);
         }
     }
@@ -430,6 +620,9 @@ pub fn ready_summary(hello: &Value, link: Option<&Path>) -> String {
     }
     if let Some(w) = hello["reference_warning"].as_str() {
         t += &format!("warning: {w}\n");
+    }
+    if let Some(a) = hello["after_homing"].as_str() {
+        t += &format!("{a}\n");
     }
     t
 }
