@@ -83,10 +83,13 @@ pub(crate) fn distance_below(
         return None;
     }
     // One inside the other (outside its holes) with no edges near: distance 0.
-    let inside = |p: &Polygon<f64>, q: &Polygon<f64>| {
-        p.exterior().0.first().is_some_and(|c| q.intersects(c))
+    // (A point outside the other's box is outside it: the ring test is skipped.)
+    let inside = |p: &Polygon<f64>, q: &Polygon<f64>, qb: [f64; 4]| {
+        p.exterior().0.first().is_some_and(|c| {
+            c.x >= qb[0] && c.x <= qb[2] && c.y >= qb[1] && c.y <= qb[3] && q.intersects(c)
+        })
     };
-    if inside(a, b) || inside(b, a) {
+    if inside(a, b, bb) || inside(b, a, ab) {
         return Some(0.0);
     }
     let ea = edges_near(a, bb, limit);
