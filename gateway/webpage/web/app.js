@@ -259,16 +259,19 @@ function upsertAndRender(job) {
   upsertJob(job);
   renderHistory();
   renderRunning();
-  if (view.detailJob === job.id) showJob(job.id).catch(reportError);
+  if (view.detailJob === job.id) showJob(job.id, true).catch(reportError);
 }
 
-async function showJob(id) {
+// `again`: the job shown changed state; its measurements, fetched once and appended from
+// their events since, are not fetched again.
+async function showJob(id, again) {
+  const known = again && view.detailJob === id && view.detailMeasurements;
   view.detailJob = id;
   const [job, charts, files, measurements] = await Promise.all([
     api('/api/v1/jobs/' + id),
     api('/api/v1/jobs/' + id + '/charts'),
     api('/api/v1/jobs/' + id + '/files'),
-    api('/api/v1/jobs/' + id + '/measurements'),
+    known ? null : api('/api/v1/jobs/' + id + '/measurements'),
   ]);
   if (view.detailJob !== id) return;
   releaseImages();
@@ -294,8 +297,8 @@ async function showJob(id) {
     el('button', { type: 'button', class: 'download-file', text: f.name,
       onclick: () => downloadFile(f).catch(reportError) }),
     ' ' + (f.title ? f.title + ', ' : '') + (f.size / 1024).toFixed(1) + ' kB')));
-  view.detailMeasurements = measurements;
-  renderMeasurements(measurements);
+  if (measurements) view.detailMeasurements = measurements;
+  renderMeasurements(view.detailMeasurements);
   // Heat maps change when a job made a new profile.
   loadProfiles().catch(reportError);
 }
@@ -394,17 +397,38 @@ function flatten(value, prefix, into) {
 // The table shows the newest rows (a map has thousands); the CSV has them all.
 const SHOWN_MEASUREMENTS = 200;
 
+function countMeasurements(raw, shown) {
+  $('job-measurement-count').textContent = raw.length + ' measurements'
+    + (raw.length > shown ? ' (the newest ' + shown + ' shown; the CSV has all)' : '');
+  $('job-measurement-count').setAttribute('data-count', raw.length);
+  $('measurements-csv').hidden = raw.length === 0;
+}
+
+// One measurement arrived: its row is added and the oldest shown dropped (the table is
+// redrawn only when the new one brings a column the table lacks).
+function appendMeasurement(raw) {
+  const table = $('job-measurements');
+  const columns = table.dataset.columns ? JSON.parse(table.dataset.columns) : null;
+  const row = flatten(raw[raw.length - 1], '', {});
+  if (!columns || Object.keys(row).some((c) => !columns.includes(c))) {
+    renderMeasurements(raw);
+    return;
+  }
+  const body = table.tBodies[0];
+  body.append(el('tr', { class: 'measurement' }, ...columns.map((c) => el('td', { text: format(row[c]) }))));
+  while (body.rows.length > SHOWN_MEASUREMENTS) body.deleteRow(0);
+  countMeasurements(raw, body.rows.length);
+}
+
 function renderMeasurements(raw) {
   const shown = raw.slice(-SHOWN_MEASUREMENTS).map((m) => flatten(m, '', {}));
   const table = $('job-measurements');
   const columns = [...new Set(shown.flatMap((m) => Object.keys(m || {})))];
+  table.dataset.columns = JSON.stringify(columns);
   table.tHead.replaceChildren(el('tr', {}, ...columns.map((c) => el('th', { scope: 'col', text: c }))));
   table.tBodies[0].replaceChildren(...shown.map((m) => el('tr', { class: 'measurement' },
     ...columns.map((c) => el('td', { text: format(m[c]) })))));
-  $('job-measurement-count').textContent = raw.length + ' measurements'
-    + (raw.length > shown.length ? ' (the newest ' + shown.length + ' shown; the CSV has all)' : '');
-  $('job-measurement-count').setAttribute('data-count', raw.length);
-  $('measurements-csv').hidden = raw.length === 0;
+  countMeasurements(raw, shown.length);
 }
 
 async function downloadFile(file) {
@@ -585,7 +609,7 @@ function handleEvent(message) {
       // The event carries the measurement: the detail appends it (each is fetched once).
       if (view.detailJob === message.job_id && view.detailMeasurements) {
         view.detailMeasurements.push(message.measurement);
-        renderMeasurements(view.detailMeasurements);
+        appendMeasurement(view.detailMeasurements);
       }
       break;
     default:

@@ -1,0 +1,83 @@
+//! The web page's figures in headless Chromium (issue 30), printed, not asserted:
+//! `cargo run --release -p service --example page_bench [jobs] [grid_step_mm] [line_step_mm]`
+//! (defaults 1000, 4, 3: about 4 200 frames). The demo service starts in-process with `jobs` finished jobs
+//! in its history; tests/interop/web/bench_page.js (node, playwright-core, /usr/bin/chromium
+//! as for the browser test) then
+//! 1. loads the page five times: from navigation to the machines, the history and the
+//!    live connection shown;
+//! 2. starts a map job (its frames are its measurements, thousands at a fine grid), shows
+//!    it, and times each measurement event the page appends (its handler and the layout
+//!    after it), counting the page's fetches of the measurements.
+
+use serde_json::json;
+use std::process::Command;
+
+fn seed(data_dir: &std::path::Path, jobs: usize) {
+    let mut store = store::Store::open(&data_dir.join("gateway.sqlite")).expect("the store");
+    let result = json!({"targets": 1, "converged": 1, "method": "fit",
+        "before_um": {"mean": 12.7, "rms": 12.7, "max": 12.7},
+        "after_um": {"mean": 0.33, "rms": 0.33, "max": 0.33}});
+    for _ in 0..jobs {
+        let job = store
+            .enqueue("demo", "compensate", &json!({"targets": 1, "method": null}))
+            .unwrap();
+        store.start(job.id, None).unwrap();
+        store
+            .add_measurement(job.id, &json!({"target_index": 0, "deviation_um": 0.3}))
+            .unwrap();
+        store
+            .finish(
+                job.id,
+                store::Outcome::Succeeded {
+                    result: result.clone(),
+                    metrics: Default::default(),
+                },
+            )
+            .unwrap();
+    }
+}
+
+#[tokio::main(flavor = "multi_thread", worker_threads = 2)]
+async fn main() {
+    let arg = |n: usize, default: f64| {
+        std::env::args()
+            .nth(n)
+            .and_then(|a| a.parse().ok())
+            .unwrap_or(default)
+    };
+    let (jobs, grid, line) = (arg(1, 1000.0) as usize, arg(2, 4.0), arg(3, 3.0));
+    let dir = tempfile::tempdir().unwrap();
+    let started = std::time::Instant::now();
+    seed(dir.path(), jobs);
+    println!(
+        "history: {jobs} finished jobs stored in {:.1} s",
+        started.elapsed().as_secs_f64()
+    );
+    let s = service::start(service::BoxConfig::demo(dir.path()))
+        .await
+        .unwrap();
+    let base = format!("http://{}", s.local_addr());
+    let script = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../tests/interop/web/bench_page.js"
+    );
+    let profile = dir.path().join("chromium-profile");
+    let params = json!({"name": "bench", "grid_step_mm": grid, "line_step_mm": line, "passes": 1})
+        .to_string();
+    let token = s.token().to_string();
+    let output = tokio::task::spawn_blocking(move || {
+        Command::new("node")
+            .arg(script)
+            .arg(base)
+            .arg(token)
+            .arg(params)
+            .arg(profile)
+            .output()
+    })
+    .await
+    .unwrap()
+    .expect("node runs (tests/install-peers.sh installs it, chromium and playwright-core)");
+    print!("{}", String::from_utf8_lossy(&output.stdout));
+    eprint!("{}", String::from_utf8_lossy(&output.stderr));
+    s.shutdown().await;
+}
