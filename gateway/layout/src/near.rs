@@ -15,13 +15,14 @@ fn box_gap(a: [f64; 4], b: [f64; 4]) -> f64 {
     dx.hypot(dy)
 }
 
-/// Every ring's edges of `p` whose box comes within `limit` of box `other`.
-fn edges_near(p: &Polygon<f64>, other: [f64; 4], limit: f64) -> Vec<Segment> {
-    std::iter::once(p.exterior())
-        .chain(p.interiors())
-        .flat_map(|ring| ring.lines())
-        .map(|l| [[l.start.x, l.start.y], [l.end.x, l.end.y]])
-        .filter(|s| {
+/// Every ring's edges of `p` whose box comes within `limit` of box `other`, each with
+/// its box.
+fn edges_near(p: &Polygon<f64>, other: [f64; 4], limit: f64) -> Vec<(Segment, [f64; 4])> {
+    let limit2 = limit * limit;
+    let mut out = Vec::new();
+    for ring in std::iter::once(p.exterior()).chain(p.interiors()) {
+        for w in ring.0.windows(2) {
+            let s = [[w[0].x, w[0].y], [w[1].x, w[1].y]];
             let b = [
                 s[0][0].min(s[1][0]),
                 s[0][1].min(s[1][1]),
@@ -31,9 +32,12 @@ fn edges_near(p: &Polygon<f64>, other: [f64; 4], limit: f64) -> Vec<Segment> {
             // Squared (no square root per edge).
             let dx = (b[0] - other[2]).max(other[0] - b[2]).max(0.0);
             let dy = (b[1] - other[3]).max(other[1] - b[3]).max(0.0);
-            dx * dx + dy * dy < limit * limit
-        })
-        .collect()
+            if dx * dx + dy * dy < limit2 {
+                out.push((s, b));
+            }
+        }
+    }
+    out
 }
 
 /// The squared distance from point `p` to segment `s` (squares: no square root in the
@@ -94,25 +98,12 @@ pub(crate) fn distance_below(
     }
     let ea = edges_near(a, bb, limit);
     let eb = edges_near(b, ab, limit);
-    let boxes = |e: &[Segment]| -> Vec<[f64; 4]> {
-        e.iter()
-            .map(|s| {
-                [
-                    s[0][0].min(s[1][0]),
-                    s[0][1].min(s[1][1]),
-                    s[0][0].max(s[1][0]),
-                    s[0][1].max(s[1][1]),
-                ]
-            })
-            .collect()
-    };
-    let (ba, bb) = (boxes(&ea), boxes(&eb));
     // Squared distances; a pair of edges whose boxes are already as far apart as the
     // best so far cannot improve it.
     let mut best = limit * limit;
     let mut found = false;
-    for (s, sb) in ea.iter().zip(&ba) {
-        for (t, tb) in eb.iter().zip(&bb) {
+    for (s, sb) in &ea {
+        for (t, tb) in &eb {
             let dx = (sb[0] - tb[2]).max(tb[0] - sb[2]).max(0.0);
             let dy = (sb[1] - tb[3]).max(tb[1] - sb[3]).max(0.0);
             if dx * dx + dy * dy >= best {

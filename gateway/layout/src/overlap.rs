@@ -75,8 +75,9 @@ const MAX_WIDENING_ROUNDS: usize = 10_000;
 type Entry = GeomWithData<Rectangle<[f64; 2]>, usize>;
 
 /// The parts' shifted polygons, their boxes, and an R*-tree of the boxes.
-struct Placed {
-    polygons: Vec<Polygon<f64>>,
+struct Placed<'a> {
+    /// The parts' polygons as given (made once per resolution, not once per round).
+    polygons: std::borrow::Cow<'a, [Polygon<f64>]>,
     shifted: Vec<Polygon<f64>>,
     boxes: Vec<[f64; 4]>,
     tree: RTree<Entry>,
@@ -86,9 +87,17 @@ fn rect(b: [f64; 4]) -> Rectangle<[f64; 2]> {
     Rectangle::from_corners([b[0], b[1]], [b[2], b[3]])
 }
 
-impl Placed {
-    fn new(parts: &[Part], partition: &Partition) -> Placed {
+impl<'a> Placed<'a> {
+    fn new(parts: &[Part], partition: &Partition) -> Placed<'static> {
         let polygons: Vec<Polygon<f64>> = parts.iter().map(Part::polygon).collect();
+        Placed::with_polygons(parts, partition, std::borrow::Cow::Owned(polygons))
+    }
+
+    fn with_polygons(
+        parts: &[Part],
+        partition: &Partition,
+        polygons: std::borrow::Cow<'a, [Polygon<f64>]>,
+    ) -> Placed<'a> {
         let offsets = partition.offsets();
         let shifted: Vec<Polygon<f64>> = polygons
             .iter()
@@ -289,6 +298,7 @@ fn resolve_with(
     let mut moves = Vec::new();
     let mut widenings: Vec<Widening> = Vec::new();
     let mut rounds = 0;
+    let polygons: Vec<Polygon<f64>> = parts.iter().map(Part::polygon).collect();
     // Per part: the groups it left (it never goes back to one).
     let mut left_groups: Vec<Vec<usize>> = vec![Vec::new(); parts.len()];
     loop {
@@ -299,6 +309,7 @@ fn resolve_with(
             parts,
             &mut moves,
             &mut left_groups,
+            &polygons,
         );
         if left.is_empty() {
             return Ok(Resolution {
@@ -385,9 +396,10 @@ fn move_parts(
     parts: &[Part],
     moves: &mut Vec<Move>,
     left_groups: &mut [Vec<usize>],
+    polygons: &[Polygon<f64>],
 ) -> Vec<Overlap> {
     let gap = partition.clearance_mm;
-    let mut placed = Placed::new(parts, partition);
+    let mut placed = Placed::with_polygons(parts, partition, std::borrow::Cow::Borrowed(polygons));
     let mut current: std::collections::BTreeSet<(usize, usize)> = detect_placed(partition, &placed)
         .iter()
         .map(|o| (o.a, o.b))
