@@ -233,7 +233,12 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
         .as_array()
         .unwrap_or_else(|| panic!("{report}"));
     let walked: Vec<&str> = kinds.iter().map(|k| k["kind"].as_str().unwrap()).collect();
-    assert_eq!(walked, procedure::request::KINDS, "{report}");
+    assert_eq!(
+        walked,
+        procedure::request::KINDS,
+        "every job kind is started from its form: a new kind needs its quickest params in \
+         kind_jobs() (and its result table in the page, or it shows its numbers by name)"
+    );
     for (k, want) in kinds.iter().zip(kind_jobs().as_array().unwrap()) {
         assert_eq!(k["state"], "succeeded", "{k}");
         let table = match k["kind"].as_str().unwrap() {
