@@ -190,18 +190,39 @@ fn overlap(
 }
 
 fn detect_placed(partition: &Partition, placed: &Placed) -> Vec<Overlap> {
+    detect_remembering(partition, placed, &mut Apart::new())
+}
+
+/// Pairs of parts found not close, with the translation of the second relative to the
+/// first they were measured at: the same polygons at the same relative translation are
+/// as far apart again, so a widening round measures only the pairs whose groups' shifts
+/// changed relative to each other.
+type Apart = std::collections::HashMap<(usize, usize), [f64; 2]>;
+
+/// [`detect_placed`], skipping the pairs `apart` holds at their relative translation and
+/// adding those it finds apart.
+fn detect_remembering(partition: &Partition, placed: &Placed, apart: &mut Apart) -> Vec<Overlap> {
     let gap = partition.clearance_mm;
+    let offsets = partition.offsets();
     let mut out = Vec::new();
     for a in 0..placed.boxes.len() {
         let mut near: Vec<usize> = placed
             .near(placed.boxes[a], gap)
-            .filter(|&b| b > a)
+            .filter(|&b| b > a && partition.group_of[a] != partition.group_of[b])
             .collect();
         near.sort_unstable();
-        out.extend(
-            near.into_iter()
-                .filter_map(|b| overlap(partition, placed, a, b, gap)),
-        );
+        for b in near {
+            let rel = [offsets[b][0] - offsets[a][0], offsets[b][1] - offsets[a][1]];
+            if apart.get(&(a, b)) == Some(&rel) {
+                continue;
+            }
+            match overlap(partition, placed, a, b, gap) {
+                Some(o) => out.push(o),
+                None => {
+                    apart.insert((a, b), rel);
+                }
+            }
+        }
     }
     out
 }
@@ -298,19 +319,13 @@ fn resolve_with(
     let mut moves = Vec::new();
     let mut widenings: Vec<Widening> = Vec::new();
     let mut rounds = 0;
-    let polygons: Vec<Polygon<f64>> = parts.iter().map(Part::polygon).collect();
-    // Per part: the groups it left (it never goes back to one).
-    let mut left_groups: Vec<Vec<usize>> = vec![Vec::new(); parts.len()];
+    let mut memory = Memory {
+        left_groups: vec![Vec::new(); parts.len()],
+        polygons: parts.iter().map(Part::polygon).collect(),
+        apart: Apart::new(),
+    };
     loop {
-        let left = move_parts(
-            partition,
-            &bounds,
-            pinned,
-            parts,
-            &mut moves,
-            &mut left_groups,
-            &polygons,
-        );
+        let left = move_parts(partition, &bounds, pinned, parts, &mut moves, &mut memory);
         if left.is_empty() {
             return Ok(Resolution {
                 found,
@@ -388,6 +403,14 @@ fn widen_once(partition: &mut Partition, left: &[Overlap], widenings: &mut Vec<W
     widenings.sort_by(|a, b| (a.between, a.from).cmp(&(b.between, b.from)));
 }
 
+/// What one resolution keeps from round to round: per part the groups it left (it never
+/// goes back to one), the parts' polygons, and the pairs found apart.
+struct Memory {
+    left_groups: Vec<Vec<usize>>,
+    polygons: Vec<Polygon<f64>>,
+    apart: Apart,
+}
+
 /// Moves parts as [`resolve`] describes; returns the overlaps no move reduces.
 fn move_parts(
     partition: &mut Partition,
@@ -395,15 +418,21 @@ fn move_parts(
     pinned: &[usize],
     parts: &[Part],
     moves: &mut Vec<Move>,
-    left_groups: &mut [Vec<usize>],
-    polygons: &[Polygon<f64>],
+    memory: &mut Memory,
 ) -> Vec<Overlap> {
+    let Memory {
+        left_groups,
+        polygons,
+        apart,
+    } = memory;
     let gap = partition.clearance_mm;
-    let mut placed = Placed::with_polygons(parts, partition, std::borrow::Cow::Borrowed(polygons));
-    let mut current: std::collections::BTreeSet<(usize, usize)> = detect_placed(partition, &placed)
-        .iter()
-        .map(|o| (o.a, o.b))
-        .collect();
+    let mut placed =
+        Placed::with_polygons(parts, partition, std::borrow::Cow::Borrowed(&polygons[..]));
+    let mut current: std::collections::BTreeSet<(usize, usize)> =
+        detect_remembering(partition, &placed, apart)
+            .iter()
+            .map(|o| (o.a, o.b))
+            .collect();
     // Where each candidate (part, group) would leave the part, kept while no move can
     // change it.
     let mut cache: std::collections::HashMap<(usize, usize), Option<Vec<usize>>> =
