@@ -375,7 +375,8 @@ impl DataKind {
             DataKind::Iso230 => 8 << 20,
             DataKind::Parameters => 1 << 20,
             DataKind::Config => MAX_FILE_BYTES,
-            DataKind::ErrorMap => crate::errormap::MAX_FILE_BYTES,
+            // A dense 200 x 200 grid with lines is under 10 MB.
+            DataKind::ErrorMap => 64 << 20,
         }
     }
 

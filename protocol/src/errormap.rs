@@ -27,9 +27,6 @@ use std::path::{Path, PathBuf};
 /// The schema this module reads and writes.
 pub const SCHEMA: &str = "xy-gateway/error-map/1";
 
-/// The largest file accepted, bytes (a dense 200 x 200 grid with lines is under 10 MB).
-pub const MAX_FILE_BYTES: u64 = 64 << 20;
-
 /// Mean and sample dispersion of repeated measurements of one quantity.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Stat {
@@ -170,7 +167,7 @@ impl ErrorMap {
     }
 
     /// Read through the one bounded reader (a regular file of at most
-    /// [`MAX_FILE_BYTES`], UTF-8, a byte-order mark dropped).
+    /// `DataKind::ErrorMap`'s cap, UTF-8, a byte-order mark dropped).
     pub fn load(path: &Path) -> Result<Self, ErrorMapError> {
         let text = crate::config::read_kind(path, crate::config::DataKind::ErrorMap)
             .map_err(ErrorMapError::Read)?;
