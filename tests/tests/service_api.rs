@@ -592,6 +592,22 @@ async fn an_iso230_job_keeps_its_figures_and_chart() {
     assert_eq!(live, 50);
     let (_, kept) = get(&c, &s, &format!("/api/v1/jobs/{id}/measurements")).await;
     assert_eq!(kept.as_array().unwrap().len(), 50);
+    // Each event's `row` rises, and a fetch names the row of its newest measurement:
+    // a page appends only the events after its fetch.
+    let rows: Vec<i64> = seen
+        .iter()
+        .filter(|e| e["type"] == "measurement" && e["job_id"] == id)
+        .map(|e| e["row"].as_i64().expect("a measurement event's row"))
+        .collect();
+    assert!(rows.windows(2).all(|w| w[0] < w[1]), "{rows:?}");
+    let r = c
+        .get(url(&s, &format!("/api/v1/jobs/{id}/measurements")))
+        .bearer_auth(s.token())
+        .send()
+        .await
+        .unwrap();
+    let last = r.headers()["x-last-measurement-row"].to_str().unwrap();
+    assert_eq!(last.parse::<i64>().unwrap(), *rows.last().unwrap());
     assert!(kept[0]["deviation_um"].as_f64().unwrap().is_finite());
     let (_, record) = get(&c, &s, &format!("/api/v1/jobs/{id}")).await;
     assert_eq!(record["result"]["standard"], "ISO 230-2");

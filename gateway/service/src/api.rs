@@ -804,17 +804,28 @@ async fn move_job(
     Ok(Json(json!({"machine": record.machine, "queue": queue})))
 }
 
-/// The job's measurements, in the order taken.
+/// The job's measurements, in the order taken; the header `X-Last-Measurement-Row` is
+/// the `row` of the newest one's event (a client appends only events after it).
 #[utoipa::path(get, path = "/api/v1/jobs/{id}/measurements", params(("id" = i64, Path)),
-    responses((status = 200, description = "[object]"), (status = 404, description = "unknown job")))]
+    responses((status = 200, description = "[object]; header X-Last-Measurement-Row"), (status = 404, description = "unknown job")))]
 async fn measurements(
     State(shared): State<AppState>,
     path: Result<Path<JobId>, PathRejection>,
-) -> ApiResult<Json<Value>> {
+) -> ApiResult<Response> {
     let Path(id) = path?;
     job_record(&shared, id)?;
-    let list = lock(&shared.store).measurements(id)?;
-    Ok(Json(Value::Array(list)))
+    // One hold of the lock: the list and its last row are the same snapshot.
+    let (list, last) = {
+        let store = lock(&shared.store);
+        (store.measurements(id)?, store.last_measurement_row(id)?)
+    };
+    let mut response = Json(Value::Array(list)).into_response();
+    if let Some(last) = last {
+        response
+            .headers_mut()
+            .insert("x-last-measurement-row", HeaderValue::from(last));
+    }
+    Ok(response)
 }
 
 /// A job's charts: the SVG files it wrote with a caption (`name` without `.svg`,

@@ -41,10 +41,12 @@ impl Sink for StoreSink {
     }
 
     fn measurement(&mut self, measurement: &Value) -> Result<(), String> {
-        lock(&self.shared.store)
+        let row = lock(&self.shared.store)
             .add_measurement(self.job, measurement)
             .map_err(|e| e.to_string())?;
-        self.shared.emit(json!({"type": "measurement", "job_id": self.job, "machine": self.machine, "measurement": measurement}));
+        // `row` orders it against a fetch of the measurements (their
+        // `X-Last-Measurement-Row`): a page appends only the events after its fetch.
+        self.shared.emit(json!({"type": "measurement", "job_id": self.job, "machine": self.machine, "row": row, "measurement": measurement}));
         Ok(())
     }
 

@@ -671,6 +671,16 @@ impl Store {
         rows.map(|body| Ok(serde_json::from_str(&body?)?)).collect()
     }
 
+    /// The row id of a job's newest measurement (the `row` of its event), if it has one.
+    pub fn last_measurement_row(&self, id: JobId) -> Result<Option<i64>, StoreError> {
+        job_exists(&self.connection, id)?;
+        Ok(self.connection.query_row(
+            "SELECT MAX(id) FROM measurements WHERE job_id = ?1",
+            params![id],
+            |row| row.get(0),
+        )?)
+    }
+
     /// Adds a new version (previous + 1, starting at 1) of a profile, not active.
     pub fn add_profile(
         &mut self,

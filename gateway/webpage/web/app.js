@@ -267,11 +267,17 @@ function upsertAndRender(job) {
 async function showJob(id, again) {
   const known = again && view.detailJob === id && view.detailMeasurements;
   view.detailJob = id;
+  if (!known) {
+    // Measurement events that arrive while the list is fetched wait here; those after
+    // the fetch's last row are appended to it.
+    view.detailMeasurements = null;
+    view.pendingMeasurements = [];
+  }
   const [job, charts, files, measurements] = await Promise.all([
     api('/api/v1/jobs/' + id),
     api('/api/v1/jobs/' + id + '/charts'),
     api('/api/v1/jobs/' + id + '/files'),
-    known ? null : api('/api/v1/jobs/' + id + '/measurements'),
+    known ? null : fetchMeasurements(id),
   ]);
   if (view.detailJob !== id) return;
   releaseImages();
@@ -297,7 +303,11 @@ async function showJob(id, again) {
     el('button', { type: 'button', class: 'download-file', text: f.name,
       onclick: () => downloadFile(f).catch(reportError) }),
     ' ' + (f.title ? f.title + ', ' : '') + (f.size / 1024).toFixed(1) + ' kB')));
-  if (measurements) view.detailMeasurements = measurements;
+  if (measurements) {
+    const pending = (view.pendingMeasurements || []).filter((e) => e.job_id === id && !(e.row <= measurements.last));
+    view.detailMeasurements = measurements.list.concat(pending.map((e) => e.measurement));
+    view.pendingMeasurements = null;
+  }
   renderMeasurements(view.detailMeasurements);
   // Heat maps change when a job made a new profile.
   loadProfiles().catch(reportError);
@@ -429,6 +439,15 @@ function renderMeasurements(raw) {
   table.tBodies[0].replaceChildren(...shown.map((m) => el('tr', { class: 'measurement' },
     ...columns.map((c) => el('td', { text: format(m[c]) })))));
   countMeasurements(raw, shown.length);
+}
+
+// A job's measurements and the row of the newest (`X-Last-Measurement-Row`).
+async function fetchMeasurements(id) {
+  const response = await fetch('/api/v1/jobs/' + id + '/measurements',
+    { headers: { Authorization: 'Bearer ' + view.token } });
+  if (!response.ok) throw new ApiError('measurements of job ' + id + ': ' + response.status + ' ' + response.statusText);
+  const last = response.headers.get('X-Last-Measurement-Row');
+  return { list: await response.json(), last: last === null ? 0 : Number(last) };
 }
 
 async function downloadFile(file) {
@@ -610,6 +629,8 @@ function handleEvent(message) {
       if (view.detailJob === message.job_id && view.detailMeasurements) {
         view.detailMeasurements.push(message.measurement);
         appendMeasurement(view.detailMeasurements);
+      } else if (view.detailJob === message.job_id && view.pendingMeasurements) {
+        view.pendingMeasurements.push(message);
       }
       break;
     default:
