@@ -21,7 +21,7 @@ use procedure::reference::{self as refer, Choice};
 use procedure::request::{MapRequest, ReferenceRequest};
 use protocol::errormap::ErrorMap;
 use protocol::grbl::gcode::{filter_line, Action, Interpreter};
-use proxy::{open_controller, serve, Ending, Proxy, SenderPort};
+use proxy::{open_controller, Ending, Proxy, SenderPort};
 use rewrite::{Options, Rewriter};
 use std::path::Path;
 use std::time::Duration;
@@ -88,6 +88,9 @@ fn worst_distance(points: impl Iterator<Item = [f64; 2]>, path: &[[f64; 2]]) -> 
                 |best, x| if x.1 < best.1 { x } else { best },
             );
         at = k;
+        if d > worst && std::env::var_os("RETROFIT_DEBUG").is_some() {
+            eprintln!("worst so far {:.3} um at {q:?}, segment {k}", d * 1e3);
+        }
         worst = worst.max(d);
     }
     worst
@@ -132,13 +135,19 @@ async fn open(port: &str, rig: &SharedRig) -> Devices {
 
 /// One session of the pyserial sender through the pass-through with `model`; the trace
 /// of the true tool point and the sender's report.
+/// With `rereference`, the pass-through re-references with the camera after the
+/// sender's homing (as `gateway proxy` does); the count of those comes back too.
+#[allow(clippy::too_many_arguments)]
 async fn stream(
     port: &str,
     rig: &SharedRig,
-    model: &errormap::MapModel,
+    job: &Job,
+    model: errormap::MapModel,
+    rereference: bool,
     greeting: &str,
     dir: &Path,
-) -> (Vec<world::machine::TraceRow>, serde_json::Value) {
+    sender: impl FnOnce(&Path, &Path) -> std::process::Command,
+) -> (Vec<world::machine::TraceRow>, serde_json::Value, usize) {
     let program = dir.join("prog.nc");
     std::fs::write(&program, PROGRAM).unwrap();
     let link = dir.join("ttyGATEWAY");
@@ -147,18 +156,39 @@ async fn stream(
         .await
         .unwrap();
     let mut sender_port = SenderPort::create(Some(&link)).unwrap();
-    let mut command = system_tests::grbl_sender(&link, &program);
+    let mut command = sender(&link, &program);
     let client = tokio::task::spawn_blocking(move || command.output().expect("run the sender"));
-    let mut proxy = Proxy::new(Rewriter::new(model, Options::default()).unwrap(), model);
+    let reference_mm = model.map().reference_mm;
+    let shared = procedure::proxy::SharedMap::new(model);
+    let rereferenced = std::cell::Cell::new(0);
+    let mut proxy = Proxy::new(Rewriter::new(&shared, Options::default()).unwrap(), &shared);
     proxy.start();
     proxy.greet(greeting);
-    let ending = serve(
+    if rereference {
+        proxy.after_homing(proxy::AfterHoming::Reference {
+            reference_mm,
+            approach_mm: job.policy.approach_mm,
+            hook: Box::new(|s| {
+                shared.rereference(s)?;
+                rereferenced.set(rereferenced.get() + 1);
+                Ok(format!("seen ({:+.2}, {:+.2}) um", s[0], s[1]))
+            }),
+        });
+    }
+    let mut frames = procedure::proxy::CameraFrames {
+        camera: Box::new(drivers::sim::SimCamera::new(rig.clone())),
+        job,
+        reference_mm,
+    };
+    let ending = proxy::serve_with_camera(
         &mut proxy,
         &mut sender_port,
         &mut controller,
         std::future::pending(),
+        Some(&mut frames),
     )
     .await;
+    drop(proxy);
     let sender = client.await.unwrap();
     let Ending::SenderLeft(account) = &ending else {
         panic!("{ending:?}")
@@ -170,6 +200,7 @@ async fn stream(
     (
         lock(rig).machine_mut().take_trace(),
         system_tests::sender_json(&sender),
+        rereferenced.get(),
     )
 }
 
@@ -201,6 +232,25 @@ async fn home_then_send(link: &Path) -> String {
         }
     }
     got
+}
+
+/// Where CNCjs is installed (`.ci/run` puts it in tests/interop/cncjs; CNCJS_DIR
+/// overrides), or why its session skips.
+fn cncjs_dir() -> Result<std::path::PathBuf, String> {
+    let dir = std::env::var_os("CNCJS_DIR")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| system_tests::workspace().join("tests/interop/cncjs"));
+    if std::process::Command::new("node")
+        .arg("--version")
+        .output()
+        .is_err()
+    {
+        return Err("node is not available".into());
+    }
+    if !dir.join("node_modules/cncjs/package.json").exists() {
+        return Err(format!("CNCjs is not installed in {}", dir.display()));
+    }
+    Ok(dir)
 }
 
 /// The true tool path from its arrival at (20, 20) against the program, mm.
@@ -323,8 +373,17 @@ fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_prog
         let mut worst = Vec::new();
         for choice in [Choice::NotWanted, Choice::Recorded(record.clone())] {
             let applied = refer::apply(map.clone(), &choice).unwrap();
-            let (rows, sender) =
-                stream(&port, &rig, &applied.model, &applied.describe, dir.path()).await;
+            let (rows, sender, _) = stream(
+                &port,
+                &rig,
+                &job,
+                applied.model,
+                false,
+                &applied.describe,
+                dir.path(),
+                system_tests::grbl_sender,
+            )
+            .await;
             assert_eq!(sender["errors"].as_array().unwrap().len(), 0, "{sender}");
             worst.push(path_deviation(&rows));
         }
@@ -349,6 +408,43 @@ fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_prog
             "the reference must matter: {unreferenced:.3} um without, {referenced:.3} um with"
         );
         assert!(referenced < 2.5, "{referenced:.3} um with the reference");
+
+        // CNCjs as the sender (headless, through its socket.io API), when it is
+        // installed: it homes first, so the pass-through re-references by itself.
+        match cncjs_dir() {
+            Err(why) => eprintln!("CNCjs session SKIPPED: {why}"),
+            Ok(cncjs) => {
+                let applied = refer::apply(map.clone(), &Choice::Recorded(record.clone())).unwrap();
+                let (rows, v, rereferenced) = stream(
+                    &port,
+                    &rig,
+                    &job,
+                    applied.model,
+                    true,
+                    &applied.describe,
+                    dir.path(),
+                    move |link, program| {
+                        let mut c = std::process::Command::new("node");
+                        c.arg(system_tests::workspace().join("tests/interop/cncjs_sender.js"))
+                            .arg(&cncjs)
+                            .arg(link)
+                            .arg(program);
+                        c
+                    },
+                )
+                .await;
+                assert_eq!(v["errors"].as_array().unwrap().len(), 0, "{v}");
+                assert_eq!(v["alarms"].as_array().unwrap().len(), 0, "{v}");
+                // CNCjs homes before it streams: the pass-through re-referenced.
+                assert_eq!(rereferenced, 1, "{v}");
+                let with_cncjs = path_deviation(&rows) * 1000.0;
+                eprintln!(
+                    "CNCjs (it homes first) through the pass-through, which re-referenced by \
+                     itself: true path within {with_cncjs:.3} um of the program"
+                );
+                assert!(with_cncjs < 2.5, "{with_cncjs:.3} um with CNCjs");
+            }
+        }
 
         // 4. The sender homes (the zero moves again): the pass-through re-references by
         // itself with the camera before the next line, and the program stays on its path.
