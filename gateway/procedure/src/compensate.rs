@@ -53,6 +53,13 @@ pub async fn run_with_report(
             }
         }
         Event::TargetDone { outcome, of } => sink.progress((outcome.index + 1) as u64, *of as u64),
+        Event::Frame(seen) => {
+            // A live view's frame: one that cannot be made is skipped, nothing depends
+            // on it.
+            if let Ok(thumb) = crate::frame::thumbnail(seen) {
+                sink.frame(&thumb);
+            }
+        }
         Event::Homed => {}
     };
     let (report, error) = runner::run_job_events(&job, devices, &mut on_event, async {

@@ -13,6 +13,7 @@ pub mod compensate;
 pub mod cut;
 pub mod demo;
 pub mod export;
+pub mod frame;
 pub mod iso230;
 pub mod layout;
 pub mod localize;
@@ -133,6 +134,20 @@ pub trait Sink {
     fn measurement(&mut self, measurement: &Value) -> Result<(), String>;
     /// A product of the procedure; an error fails it naming the artifact.
     fn artifact(&mut self, artifact: Artifact) -> Result<(), String>;
+    /// A localized camera frame for a live view (a few a second at most; the runner
+    /// skips the others). Kept or dropped at will: nothing depends on it.
+    fn frame(&mut self, _frame: &FrameThumb) {}
+}
+
+/// A live view's frame ([`frame::thumbnail`]): an 8-bit grey PNG at most
+/// [`frame::THUMB_MAX_WIDTH`] wide and its overlay (detected dots and the measured point
+/// in the thumbnail's pixels).
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameThumb {
+    pub png: Vec<u8>,
+    pub width: u32,
+    pub height: u32,
+    pub overlay: Value,
 }
 
 /// A sink that keeps nothing (tests, `--json` without files).

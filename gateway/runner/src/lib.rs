@@ -23,8 +23,9 @@ use compensation::session::{
 use devices::Devices;
 use drivers::{Axis, AxisValues, Camera, DriverError, Stage, StageInfo};
 use job::Job;
+use protocol::MonoImage;
 use std::time::Instant;
-use vision::localize::{localize, LocalizeError};
+use vision::localize::{detect_dots, localize, LocalizeError};
 
 /// Progress notifications; the runner's own report uses `Measured` to read the simulated
 /// truth at the moment of each measurement.
@@ -39,6 +40,70 @@ pub enum Event<'a> {
         outcome: &'a TargetOutcome,
         of: usize,
     },
+    /// A localized frame with what was found in it, for a live view: at most one per
+    /// [`FRAME_EVERY`] of wall time (the first always), the others skipped, never waited
+    /// for.
+    Frame(FrameSeen<'a>),
+}
+
+/// The least wall time between two [`Event::Frame`]s; the frames between are skipped.
+pub const FRAME_EVERY: std::time::Duration = std::time::Duration::from_millis(250);
+
+/// One localized frame: the image, the dot centres detected in it and the measured
+/// point (the board coordinate under the image centre).
+#[derive(Debug, Clone, Copy)]
+pub struct FrameSeen<'a> {
+    pub image: &'a MonoImage,
+    /// The camera's frame counter.
+    pub sequence: u64,
+    /// Detected dot centres, pixels (x right, y down).
+    pub dots_px: &'a [[f64; 2]],
+    /// Board coordinate at the image centre, mm.
+    pub centre_mm: [f64; 2],
+    /// The target being measured (None during the orientation check).
+    pub target_mm: Option<[f64; 2]>,
+    pub target_index: Option<usize>,
+}
+
+/// Whether a frame is due for the live view (`last`: when the previous one went),
+/// updating `last` when it is.
+fn frame_due(last: &mut Option<Instant>) -> bool {
+    let now = Instant::now();
+    match last {
+        Some(t) if now.duration_since(*t) < FRAME_EVERY => false,
+        _ => {
+            *last = Some(now);
+            true
+        }
+    }
+}
+
+/// Hands a localized frame to `on_event` when one is due: the dots are detected again
+/// (only for the frames shown, a few ms each) since the localizer keeps its own.
+fn send_frame(
+    on_event: &mut dyn FnMut(Event),
+    last: &mut Option<Instant>,
+    image: &MonoImage,
+    sequence: u64,
+    polarity: protocol::Polarity,
+    centre_mm: [f64; 2],
+    target: Option<(usize, [f64; 2])>,
+) {
+    if !frame_due(last) {
+        return;
+    }
+    let dots: Vec<[f64; 2]> = detect_dots(image, polarity)
+        .iter()
+        .map(|d| [d.x, d.y])
+        .collect();
+    on_event(Event::Frame(FrameSeen {
+        image,
+        sequence,
+        dots_px: &dots,
+        centre_mm,
+        target_mm: target.map(|t| t.1),
+        target_index: target.map(|t| t.0),
+    }));
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -205,6 +270,7 @@ impl Orchestrator<'_> {
         on_event: &mut dyn FnMut(Event),
     ) -> Result<(), JobError> {
         let of = self.job.targets.len();
+        let mut last_frame: Option<Instant> = None;
         let mut action = session.next_action();
         loop {
             // Between two device actions: let a cancel (Ctrl-C) be seen even when the
@@ -237,6 +303,15 @@ impl Orchestrator<'_> {
                     let board = &self.job.board;
                     let observation = drivers::blocking(|| localize(&frame.image, board, &params))
                         .map_err(|source| JobError::CheckLocalize { step, source })?;
+                    send_frame(
+                        on_event,
+                        &mut last_frame,
+                        &frame.image,
+                        frame.meta.sequence,
+                        board.polarity,
+                        [observation.x_mm, observation.y_mm],
+                        None,
+                    );
                     session.checked([observation.x_mm, observation.y_mm])?
                 }
                 Action::Measure {
@@ -258,6 +333,15 @@ impl Orchestrator<'_> {
                             measurement,
                             source,
                         })?;
+                    send_frame(
+                        on_event,
+                        &mut last_frame,
+                        &frame.image,
+                        frame.meta.sequence,
+                        board.polarity,
+                        [observation.x_mm, observation.y_mm],
+                        Some((target_index, target_mm)),
+                    );
                     let step = match session.measured(observation, frame.meta.sequence) {
                         Ok(step) => step,
                         Err(e) => {
@@ -370,7 +454,7 @@ pub async fn run_job_events(
             truth.push(current.take().map(|(_, at)| at));
             events(&e);
         }
-        Event::Homed => events(&e),
+        Event::Homed | Event::Frame(_) => events(&e),
     };
     let stage_name = devices.stage.info().name.clone();
     let camera_name = devices.camera.info().model.clone();
