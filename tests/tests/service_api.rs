@@ -1239,3 +1239,95 @@ async fn a_queued_job_is_moved_and_the_queue_runs_in_its_new_order() {
     assert_eq!(started, [d, a]);
     s.shutdown().await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_compensate_job_shows_its_last_frame_with_the_dots() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = start(dir.path()).await;
+    let c = Client::new();
+    // None before any job: the API's error shape.
+    let (status, body) = get(&c, &s, "/api/v1/machines/demo/frame").await;
+    assert_eq!(status, StatusCode::NOT_FOUND);
+    assert_eq!(body["error"], "no_frame", "{body}");
+    let (status, body) = get(&c, &s, "/api/v1/machines/demo/frame.json").await;
+    assert_eq!(status, StatusCode::NOT_FOUND);
+    assert_eq!(body["error"], "no_frame", "{body}");
+    let (status, body) = get(&c, &s, "/api/v1/machines/nope/frame").await;
+    assert_eq!(
+        (status, body["error"].clone()),
+        (StatusCode::NOT_FOUND, json!("unknown_machine"))
+    );
+
+    let mut ws = events(&s).await;
+    let (status, job) = post(
+        &c,
+        &s,
+        "/api/v1/machines/demo/jobs",
+        json!({"kind": "compensate", "params": {"targets": 1}}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::ACCEPTED, "{job}");
+    let id = job["id"].clone();
+    let seen = until(&mut ws, |e| job_in(e, &id, "succeeded")).await;
+    // The event says a frame is there, without its bytes.
+    let frames: Vec<&Value> = seen.iter().filter(|e| e["type"] == "frame").collect();
+    assert!(!frames.is_empty(), "no frame event");
+    for f in &frames {
+        assert_eq!(f["machine"], "demo");
+        assert_eq!(f["job_id"], id);
+        assert!(f.get("png").is_none() && f.to_string().len() < 300, "{f}");
+    }
+
+    let r = c
+        .get(url(&s, "/api/v1/machines/demo/frame"))
+        .bearer_auth(s.token())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), StatusCode::OK);
+    assert_eq!(r.headers()["content-type"], "image/png");
+    let png = r.bytes().await.unwrap();
+    assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
+    assert_eq!(&png[12..16], b"IHDR");
+    let be = |b: &[u8]| u32::from_be_bytes([b[0], b[1], b[2], b[3]]);
+    let (w, h) = (be(&png[16..20]), be(&png[20..24]));
+    // 8-bit grey.
+    assert_eq!((png[24], png[25]), (8, 0));
+
+    let (status, f) = get(&c, &s, "/api/v1/machines/demo/frame.json").await;
+    assert_eq!(status, StatusCode::OK, "{f}");
+    assert_eq!(f["job_id"], id);
+    assert!(f["at"].as_str().unwrap().ends_with('Z'), "{f}");
+    let o = &f["overlay"];
+    assert_eq!(
+        (o["width"].as_u64(), o["height"].as_u64()),
+        (Some(w.into()), Some(h.into()))
+    );
+    assert!((100..=320).contains(&w), "{w}x{h}");
+    assert_eq!(
+        o["source_width"].as_u64().unwrap() / o["factor"].as_u64().unwrap(),
+        u64::from(w)
+    );
+    let dots = o["dots"].as_array().unwrap();
+    assert!(dots.len() >= 12, "{} dots", dots.len());
+    for d in dots {
+        let (x, y) = (d[0].as_f64().unwrap(), d[1].as_f64().unwrap());
+        assert!(
+            (-0.5..w as f64).contains(&x) && (-0.5..h as f64).contains(&y),
+            "{d}"
+        );
+    }
+    // The measured point: the image centre and its board coordinate near the target.
+    let c_px = &o["centre_px"];
+    assert!(
+        (c_px[0].as_f64().unwrap() - (w as f64 - 1.0) / 2.0).abs() < 1.0,
+        "{c_px}"
+    );
+    let dev = o["deviation_um"].as_array().unwrap();
+    assert!(dev[0].as_f64().unwrap().abs() < 2000.0, "{dev:?}");
+    assert!(
+        o["centre_mm"][0].is_number() && o["target_mm"][0].is_number(),
+        "{o}"
+    );
+    s.shutdown().await;
+}

@@ -285,6 +285,8 @@ pub fn router(shared: AppState, limits: BodyLimits, cors_origins: &[String]) -> 
         .route("/api/v1/jobs/{id}/cancel", post(cancel))
         .route("/api/v1/jobs/{id}/move", post(move_job))
         .route("/api/v1/machines/{machine}/queue", get(queue))
+        .route("/api/v1/machines/{machine}/frame", get(frame_png))
+        .route("/api/v1/machines/{machine}/frame.json", get(frame_json))
         .route("/api/v1/jobs/{id}/measurements", get(measurements))
         .route("/api/v1/jobs/{id}/charts", get(charts))
         .route("/api/v1/jobs/{id}/charts/{file}", get(chart))
@@ -368,7 +370,7 @@ fn static_file(content_type: &'static str, body: &'static str) -> Response {
 #[derive(OpenApi)]
 #[openapi(
     info(title = "gateway service", description = "Machines, job queues, profiles and events of a gateway box."),
-    paths(openapi, machines, machine, enqueue, queue, jobs, job, cancel, move_job, measurements, charts, chart,
+    paths(openapi, machines, machine, enqueue, queue, frame_png, frame_json, jobs, job, cancel, move_job, measurements, charts, chart,
           files, file,
           profiles, add_profile, profile, diff, heatmap, activate, rollback, events),
     modifiers(&BearerAuth, &JobParams)
@@ -691,6 +693,56 @@ async fn queue(
     let m = find_machine(&shared, &id)?;
     let list = lock(&shared.store).queued(&m.id)?;
     Ok(Json(serde_json::to_value(list).unwrap_or(Value::Null)))
+}
+
+/// The machine's last frame (memory only), or 404 `no_frame`.
+fn last_frame(shared: &Shared, id: &str) -> ApiResult<Arc<crate::state::LastFrame>> {
+    let m = find_machine(shared, id)?;
+    let frame = m.frame.lock().unwrap_or_else(|p| p.into_inner()).clone();
+    frame.ok_or_else(|| {
+        ApiError::not_found(
+            "no_frame",
+            format!("machine {id:?} has shown no camera frame since the service started"),
+        )
+    })
+}
+
+/// The camera's last frame a job took on this machine: an 8-bit grey PNG at most 320
+/// pixels wide (`frame.json` is its overlay).
+#[utoipa::path(get, path = "/api/v1/machines/{machine}/frame", params(("machine" = String, Path)),
+    responses((status = 200, description = "image/png", content_type = "image/png"),
+        (status = 404, description = "unknown_machine, no_frame")))]
+async fn frame_png(
+    State(shared): State<AppState>,
+    path: Result<Path<String>, PathRejection>,
+) -> ApiResult<Response> {
+    let Path(id) = path?;
+    let f = last_frame(&shared, &id)?;
+    Ok((
+        [
+            (header::CONTENT_TYPE, "image/png"),
+            (header::CACHE_CONTROL, "no-store"),
+        ],
+        f.png.clone(),
+    )
+        .into_response())
+}
+
+/// The last frame's overlay: `job_id`, `at`, and `overlay` (`width`, `height`, `dots`
+/// in the thumbnail's pixels, `centre_px`, the measured point `centre_mm`, `target_mm`,
+/// `deviation_um`, `sequence`).
+#[utoipa::path(get, path = "/api/v1/machines/{machine}/frame.json", params(("machine" = String, Path)),
+    responses((status = 200, description = "{job_id, at, overlay}"),
+        (status = 404, description = "unknown_machine, no_frame")))]
+async fn frame_json(
+    State(shared): State<AppState>,
+    path: Result<Path<String>, PathRejection>,
+) -> ApiResult<Json<Value>> {
+    let Path(id) = path?;
+    let f = last_frame(&shared, &id)?;
+    Ok(Json(
+        json!({"machine": id, "job_id": f.job, "at": f.at, "overlay": f.overlay}),
+    ))
 }
 
 /// Where `POST /api/v1/jobs/{id}/move` puts the job, read from `{"before": id | null}`

@@ -190,6 +190,7 @@ pub async fn start(config: BoxConfig) -> Result<Running, StartError> {
             wake: tokio::sync::Notify::new(),
             cancel: Mutex::new(None),
             scan_area: Mutex::new(None),
+            frame: Mutex::new(None),
         }));
     }
     let (stop, shutdown) = watch::channel(false);

@@ -3,10 +3,10 @@
 //! the store (a stopped scan's samples are the next scan's start) and its map as a
 //! profile version.
 
-use crate::state::{lock, Shared};
+use crate::state::{lock, now_rfc3339, LastFrame, Shared};
 use errormap::scan::{journal, Sample, ScanPlan};
 use procedure::map::{sample_of, MapShelf, ScanJournal};
-use procedure::{Artifact, Sink};
+use procedure::{Artifact, FrameThumb, Sink};
 use protocol::errormap::ErrorMap;
 use serde_json::{json, Value};
 use std::sync::Arc;
@@ -48,6 +48,23 @@ impl Sink for StoreSink {
         // `X-Last-Measurement-Row`): a page appends only the events after its fetch.
         self.shared.emit(json!({"type": "measurement", "job_id": self.job, "machine": self.machine, "row": row, "measurement": measurement}));
         Ok(())
+    }
+
+    /// The machine's last frame, in memory only (`/api/v1/machines/{machine}/frame`);
+    /// the event says a new one is there, without the image.
+    fn frame(&mut self, frame: &FrameThumb) {
+        let Some(m) = self.shared.machine(&self.machine) else {
+            return;
+        };
+        let last = Arc::new(LastFrame {
+            png: frame.png.clone(),
+            overlay: frame.overlay.clone(),
+            job: self.job,
+            at: now_rfc3339(),
+        });
+        let at = last.at.clone();
+        *m.frame.lock().unwrap_or_else(|p| p.into_inner()) = Some(last);
+        self.shared.emit(json!({"type": "frame", "job_id": self.job, "machine": self.machine, "at": at, "sequence": frame.overlay.get("sequence")}));
     }
 
     /// Every file the procedure writes is kept with the job (charts, tables, reports,

@@ -55,6 +55,43 @@ pub struct Machine {
     /// The area a map scan covers (machine mm), known once the devices are open: a map
     /// request whose frames would exceed the bound is refused when queued.
     pub scan_area: Mutex<Option<([f64; 2], [f64; 2])>>,
+    /// The camera's last frame a job showed (memory only; none after a restart).
+    pub frame: Mutex<Option<Arc<LastFrame>>>,
+}
+
+/// A machine's last camera frame: the thumbnail and its overlay, with when and by which
+/// job it was taken.
+pub struct LastFrame {
+    pub png: Vec<u8>,
+    pub overlay: serde_json::Value,
+    pub job: JobId,
+    /// RFC 3339 UTC with milliseconds, as the store's timestamps.
+    pub at: String,
+}
+
+/// Now as RFC 3339 UTC with milliseconds: `2026-11-23T03:20:01.123Z`.
+pub fn now_rfc3339() -> String {
+    let d = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap_or_default();
+    let (secs, ms) = (d.as_secs() as i64, d.subsec_millis());
+    let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
+    // Civil date from days since 1970-01-01 (Howard Hinnant's algorithm).
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    format!(
+        "{year:04}-{month:02}-{day:02}T{:02}:{:02}:{:02}.{ms:03}Z",
+        rem / 3600,
+        rem / 60 % 60,
+        rem % 60
+    )
 }
 
 pub struct Shared {
