@@ -160,6 +160,13 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
     // The token left the address bar.
     let url = report["url_after_load"].as_str().unwrap();
     assert!(!url.contains(&token) && !url.contains("token="), "{url}");
+    // The camera's last frame of the job: the thumbnail loaded (at most 320 px wide) with
+    // the detected dots and the measured point drawn over it.
+    let frame = &report["frame"];
+    let width = frame["width"].as_u64().unwrap_or(0);
+    assert!((1..=320).contains(&width), "{frame}");
+    assert!(frame["dots"].as_u64().unwrap_or(0) >= 12, "{frame}");
+    assert_eq!(frame["centre"], true, "{frame}");
     // The map form has a field per param of the API's schema, and shows the API's
     // refusal of a too-fine grid beside its field (the message the API itself gives).
     let fields: Vec<&str> = report["form_fields"]

@@ -6,7 +6,9 @@
 // .queue-down, .queue-cancel),
 // #history-rows tr[data-job-id][data-state][data-live-progress] (progress events seen), #job-charts img[data-chart],
 // #job-result table[data-result] (iso230-figures, verify-before-after, compensate-before-after, figures),
-// #profile-rows tr[data-profile][data-version][data-active], #heatmap-image img.
+// #profile-rows tr[data-profile][data-version][data-active], #heatmap-image img,
+// #machines li[data-machine] figure.live-frame[data-machine][data-job-id][data-dots] (img.frame-image,
+// svg.frame-overlay circle.frame-dot, .frame-centre).
 'use strict';
 
 const TOKEN_KEY = 'gateway.token';
@@ -22,6 +24,8 @@ const view = {
   objectUrls: [],
   liveProgress: new Map(), // job id -> progress events received (shown as data-live-progress)
   schemas: {}, // job kind -> its params' JSON schema (the start form)
+  frames: new Map(), // machine id -> { url (blob: of the PNG), data (frame.json) }
+  frameFetch: new Map(), // machine id -> 'busy' | 'again' (one fetch in flight; one more after it)
 };
 
 const $ = (id) => document.getElementById(id);
@@ -132,7 +136,8 @@ function renderMachines() {
       el('div', { class: 'machine-description', text: machine.description || '' }),
       el('div', { class: 'machine-links', text: 'stage ' + machine.stage + ', camera ' + machine.camera
         + (machine.rotary ? ', A/C table ' + machine.rotary : '') }),
-      renderQueue(machine)));
+      renderQueue(machine),
+      view.frames.has(machine.id) ? frameFigure(machine.id) : ''));
   }
   for (const select of [$('job-machine'), $('profile-machine')]) {
     const chosen = select.value;
@@ -141,6 +146,82 @@ function renderMachines() {
   }
   renderKinds();
   renderRunning();
+}
+
+// ---- the camera's last frame per machine: the service's thumbnail with the detected
+// dots and the measured point drawn over it (an SVG in the thumbnail's pixels)
+
+function frameFigure(machineId) {
+  const { url, data } = view.frames.get(machineId);
+  const o = data.overlay;
+  const figure = $('frame-template').content.firstElementChild.cloneNode(true);
+  figure.setAttribute('data-machine', machineId);
+  figure.setAttribute('data-job-id', data.job_id);
+  figure.setAttribute('data-dots', o.dots.length);
+  const img = figure.querySelector('img');
+  img.src = url;
+  img.width = o.width;
+  img.height = o.height;
+  img.alt = 'camera frame of ' + machineId;
+  const svg = figure.querySelector('svg');
+  // Pixel centres at integers: pixel i spans i - 0.5 .. i + 0.5.
+  svg.setAttribute('viewBox', '-0.5 -0.5 ' + o.width + ' ' + o.height);
+  const shape = (tag, attributes) => {
+    const node = document.createElementNS(svg.namespaceURI, tag);
+    for (const [key, value] of Object.entries(attributes)) node.setAttribute(key, value);
+    svg.append(node);
+  };
+  for (const [x, y] of o.dots) shape('circle', { class: 'frame-dot', cx: x, cy: y, r: 2.5 });
+  if (o.centre_px) {
+    const [cx, cy] = o.centre_px;
+    shape('line', { class: 'frame-centre', x1: cx - 8, y1: cy, x2: cx + 8, y2: cy });
+    shape('line', { class: 'frame-centre', x1: cx, y1: cy - 8, x2: cx, y2: cy + 8 });
+    shape('circle', { class: 'frame-centre', cx, cy, r: 3 });
+  }
+  const fixed = (v) => Number(v).toFixed(3);
+  let caption = 'job ' + data.job_id + ', ' + o.dots.length + ' dots';
+  if (o.centre_mm) caption += ', measured (' + fixed(o.centre_mm[0]) + ', ' + fixed(o.centre_mm[1]) + ') mm';
+  if (o.deviation_um) caption += ', off target (' + o.deviation_um[0].toFixed(1) + ', ' + o.deviation_um[1].toFixed(1) + ') µm';
+  caption += ', ' + (data.at || '').replace('T', ' ').replace('Z', ' UTC');
+  figure.querySelector('figcaption').textContent = caption;
+  return figure;
+}
+
+function showFrame(machineId) {
+  const item = document.querySelector('#machines li[data-machine="' + machineId + '"]');
+  if (!item) return;
+  const figure = frameFigure(machineId);
+  const old = item.querySelector('figure.live-frame');
+  if (old) old.replaceWith(figure);
+  else item.append(figure);
+}
+
+// At most one fetch in flight per machine: a frame event during it asks for one more
+// after it (the newest then), the ones between are dropped.
+async function loadFrame(machineId) {
+  if (view.frameFetch.has(machineId)) {
+    view.frameFetch.set(machineId, 'again');
+    return;
+  }
+  view.frameFetch.set(machineId, 'busy');
+  try {
+    const base = '/api/v1/machines/' + encodeURIComponent(machineId) + '/frame';
+    const data = await api(base + '.json');
+    const response = await fetch(base, { headers: { Authorization: 'Bearer ' + view.token } });
+    if (!response.ok) throw new ApiError(response.status + ' ' + response.statusText);
+    const url = URL.createObjectURL(await response.blob());
+    const previous = view.frames.get(machineId);
+    view.frames.set(machineId, { url, data });
+    showFrame(machineId);
+    if (previous) URL.revokeObjectURL(previous.url);
+  } catch (error) {
+    // No frame yet is not an error of the page.
+    if (!(error instanceof ApiError && error.message.startsWith('no_frame'))) reportError(error);
+  } finally {
+    const again = view.frameFetch.get(machineId) === 'again';
+    view.frameFetch.delete(machineId);
+    if (again) loadFrame(machineId);
+  }
 }
 
 // A machine's queue in run order (the first runs next), each job with Up, Down and
@@ -599,6 +680,7 @@ function handleEvent(message) {
       view.machines = new Map(message.machines.map((m) => [m.id, m]));
       for (const m of message.machines) if (m.job) upsertJob(m.job);
       renderMachines();
+      for (const m of message.machines) if (m.state === 'busy') loadFrame(m.id);
       renderHistory();
       loadProfiles().catch(reportError);
       break;
@@ -632,6 +714,10 @@ function handleEvent(message) {
       } else if (view.detailJob === message.job_id && view.pendingMeasurements) {
         view.pendingMeasurements.push(message);
       }
+      break;
+    case 'frame':
+      // Only that a new frame is there: fetched (the newest) when none is in flight.
+      loadFrame(message.machine);
       break;
     default:
       break; // newer servers may send more types

@@ -10,6 +10,7 @@ const http = require('http');
 const fs = require('fs');
 const path = require('path');
 const crypto = require('crypto');
+const zlib = require('zlib');
 
 const [port, token] = [Number(process.argv[2] || 8099), process.argv[3] || 'stub-token'];
 const web = path.join(__dirname, '..', '..', '..', 'gateway', 'webpage', 'web');
@@ -33,6 +34,46 @@ function send(socket, object) {
 }
 const broadcast = (object) => sockets.forEach((s) => send(s, object));
 
+// The camera's last frame: a made-up 64 x 48 8-bit grey PNG with a 4 x 3 grid of dark
+// dots, and its overlay (as the service's frame.json).
+let frame = null;
+function crc32(bytes) {
+  let c = ~0;
+  for (const b of bytes) {
+    c ^= b;
+    for (let k = 0; k < 8; k++) c = (c >>> 1) ^ (0xedb88320 & -(c & 1));
+  }
+  return ~c >>> 0;
+}
+function chunk(type, data) {
+  const head = Buffer.alloc(8);
+  head.writeUInt32BE(data.length, 0);
+  head.write(type, 4, 'ascii');
+  const crc = Buffer.alloc(4);
+  crc.writeUInt32BE(crc32(Buffer.concat([head.subarray(4), data])), 0);
+  return Buffer.concat([head, data, crc]);
+}
+function makeFrame(jobId, step) {
+  const [w, h] = [64, 48];
+  const dots = [];
+  for (let j = 0; j < 3; j++) for (let i = 0; i < 4; i++) dots.push([8 + 16 * i + step % 3, 8 + 16 * j]);
+  const raw = Buffer.alloc((w + 1) * h, 200);
+  for (let y = 0; y < h; y++) {
+    raw[y * (w + 1)] = 0; // filter: none
+    for (let x = 0; x < w; x++) {
+      if (dots.some(([dx, dy]) => (x - dx) ** 2 + (y - dy) ** 2 <= 9)) raw[y * (w + 1) + 1 + x] = 30;
+    }
+  }
+  const ihdr = Buffer.alloc(13);
+  ihdr.writeUInt32BE(w, 0); ihdr.writeUInt32BE(h, 4); ihdr[8] = 8; ihdr[9] = 0;
+  const png = Buffer.concat([Buffer.from([0x89, 0x50, 0x4e, 0x47, 0x0d, 0x0a, 0x1a, 0x0a]), chunk('IHDR', ihdr),
+    chunk('IDAT', zlib.deflateSync(raw)), chunk('IEND', Buffer.alloc(0))]);
+  const overlay = { width: w, height: h, source_width: w * 4, source_height: h * 4, factor: 4, dots,
+    centre_px: [31.5, 23.5], centre_mm: [step * 10 + 0.001, 5], target_mm: [step * 10, 5], target_index: 0,
+    deviation_um: [1, 0], sequence: step };
+  return { png, json: { machine: 'demo', job_id: jobId, at: now(), overlay } };
+}
+
 function profileView(p) {
   const active = activations.length > 0 && activations[activations.length - 1] === p.version;
   return { machine: 'demo', name: 'xy', kind: 'error_map', version: p.version, active,
@@ -51,6 +92,8 @@ function runJob(job) {
     job.progress = { done: step, total: 5 };
     broadcast({ type: 'progress', job_id: job.id, machine: 'demo', done: step, total: 5 });
     broadcast({ type: 'measurement', job_id: job.id, machine: 'demo', measurement: m });
+    frame = makeFrame(job.id, step);
+    broadcast({ type: 'frame', job_id: job.id, machine: 'demo', at: frame.json.at, sequence: step });
     if (step === 5) {
       clearInterval(timer);
       job.state = 'succeeded'; job.finished_at = now(); job.result = { max_um: 3 };
@@ -94,6 +137,10 @@ const server = http.createServer((req, res) => {
     // The contract's job params as the service's OpenAPI document gives them (a subset:
     // the map kind's, with the same bounds; the page builds its form from it).
     if (p === '/api/v1/openapi.json') return reply(res, 200, openapi);
+    if (p === '/api/v1/machines/demo/frame' || p === '/api/v1/machines/demo/frame.json') {
+      if (!frame) return reply(res, 404, { error: 'no_frame', message: 'machine "demo" has shown no camera frame' });
+      return p.endsWith('.json') ? reply(res, 200, frame.json) : reply(res, 200, frame.png, 'image/png');
+    }
     if (p === '/api/v1/jobs') return reply(res, 200, [...jobs.values()].reverse());
     if (req.method === 'POST' && p === '/api/v1/machines/demo/jobs') {
       const request = JSON.parse(body);

@@ -247,6 +247,22 @@ async function main() {
 
     const jobId = await startJob(page);
     out.job_id = jobId;
+    // The camera's last frame: the thumbnail loaded, the detected dots and the measured
+    // point drawn over it (the job localized frames; the figure stays after it ends).
+    const frameSel = `#machines li[data-machine="${machine}"] figure.live-frame[data-job-id="${jobId}"]`;
+    await page.waitForFunction((sel) => {
+      const img = document.querySelector(sel + ' img.frame-image');
+      return img && img.complete && img.naturalWidth > 0
+        && document.querySelectorAll(sel + ' svg.frame-overlay circle.frame-dot').length > 0;
+    }, frameSel, { timeout: UI_TIMEOUT_MS });
+    out.frame = await page.$eval(frameSel, (f) => ({
+      width: f.querySelector('img').naturalWidth,
+      height: f.querySelector('img').naturalHeight,
+      dots: f.querySelectorAll('svg.frame-overlay circle.frame-dot').length,
+      centre: f.querySelectorAll('svg.frame-overlay .frame-centre').length > 0,
+      caption: f.querySelector('figcaption').textContent,
+    }));
+    step('frame shown', out.frame);
     await page.locator(`#machines li[data-machine="${machine}"][data-state="idle"]`)
       .waitFor({ timeout: UI_TIMEOUT_MS });
     out.machine_state_after = 'idle';
