@@ -63,7 +63,8 @@ fn format_of(path: &Path) -> anyhow::Result<Format> {
 /// The request with the layout file read (through the bounded reader) and checked.
 fn with_layout(mut request: LayoutRequest, input: &Path) -> anyhow::Result<LayoutRequest> {
     request.format = LayoutFormat::of(format_of(input)?);
-    request.layout = procedure::layout::read_layout_file(input).map_err(anyhow::Error::msg)?;
+    request.layout =
+        procedure::layout::load_layout_file(input, &request).map_err(anyhow::Error::msg)?;
     request.check().map_err(|e| anyhow::anyhow!(e.for_cli()))?;
     Ok(request)
 }

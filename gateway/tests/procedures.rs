@@ -165,6 +165,9 @@ async fn layout_through_the_cli_and_the_api_gives_one_outcome() {
         "--gap-mm",
         "2",
         "--widen",
+        // The 40 mm strip's parts end 4 mm wider after the shifts.
+        "--material-width-mm",
+        "50",
         "--out",
         out.to_str().unwrap(),
         "--json",
@@ -172,7 +175,7 @@ async fn layout_through_the_cli_and_the_api_gives_one_outcome() {
     let text = std::fs::read_to_string(&input).unwrap();
     let from_api = api_result(
         "layout",
-        json!({"layout": text, "format": "json", "tools": 2, "window_mm": 20.0, "gap_mm": 2.0, "widen": true}),
+        json!({"layout": text, "format": "json", "tools": 2, "window_mm": 20.0, "gap_mm": 2.0, "widen": true, "material_width_mm": 50.0}),
     )
     .await;
     assert!(out.is_file());

@@ -14,6 +14,20 @@ pub fn read_layout_file(path: &std::path::Path) -> Result<String, String> {
     protocol::config::read_kind(path, protocol::config::DataKind::Layout).map_err(|e| e.to_string())
 }
 
+/// [`read_layout_file`] and the request's layout read as `format` with the request's
+/// chord tolerance, so that a file that is not a layout is refused naming the file (the
+/// procedure, which has only the text, names it "layout").
+pub fn load_layout_file(path: &std::path::Path, request: &LayoutRequest) -> Result<String, String> {
+    let text = read_layout_file(path)?;
+    let options = ReadOptions {
+        chord_tolerance_mm: request.chord_tolerance_mm,
+        ..ReadOptions::default()
+    };
+    Layout::read(text.as_bytes(), request.format.format(), &options)
+        .map_err(|e| format!("layout {}: {e}", path.display()))?;
+    Ok(text)
+}
+
 /// A partitioned layout: what the report and the cut are made from.
 pub struct Partitioned {
     pub doc: Layout,

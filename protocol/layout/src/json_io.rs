@@ -54,8 +54,11 @@ pub(crate) fn read(bytes: &[u8]) -> Result<(Vec<Part>, Option<f64>), LayoutError
         }
     }
     if let Some(w) = doc.width_mm {
-        if !(w > 0.0) || !w.is_finite() {
-            return Err(syntax(format!("width_mm {w} must be a positive number")));
+        if !(w > 0.0 && w <= crate::model::MAX_COORDINATE_MM) {
+            return Err(syntax(format!(
+                "width_mm {w} must be a positive number of at most {} mm",
+                crate::model::MAX_COORDINATE_MM
+            )));
         }
     }
     let mut parts = Vec::with_capacity(doc.parts.len());

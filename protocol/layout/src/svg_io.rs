@@ -230,16 +230,42 @@ fn number(node: &roxmltree::Node, name: &str) -> Result<f64, String> {
     Ok(len.number)
 }
 
-/// The user unit in mm (see the module's documentation).
-fn user_unit(root: &roxmltree::Node) -> f64 {
-    let (Some(w), Some(vb)) = (root.attribute("width"), root.attribute("viewBox")) else {
-        return 1.0;
+/// The user unit in mm (see the module's documentation). A `width` or `viewBox` that
+/// is there but not readable is refused: guessing 1 mm a unit would cut the parts at
+/// another scale.
+fn user_unit(root: &roxmltree::Node, doc: &roxmltree::Document) -> Result<f64, LayoutError> {
+    let width = match root.attribute("width") {
+        Some(w) => Some(
+            svgtypes::Length::from_str(w)
+                .ok()
+                .filter(|l| l.number.is_finite() && l.number > 0.0)
+                .ok_or_else(|| {
+                    syntax(root, doc, format!("width `{w}` is not a positive length"))
+                })?,
+        ),
+        None => None,
     };
-    let (Ok(w), Ok(vb)) = (
-        svgtypes::Length::from_str(w),
-        svgtypes::ViewBox::from_str(vb),
-    ) else {
-        return 1.0;
+    let view_box = match root.attribute("viewBox") {
+        Some(v) => Some(
+            svgtypes::ViewBox::from_str(v)
+                .ok()
+                .filter(|b| {
+                    [b.x, b.y, b.w, b.h].iter().all(|n| n.is_finite()) && b.w > 0.0 && b.h > 0.0
+                })
+                .ok_or_else(|| {
+                    syntax(
+                        root,
+                        doc,
+                        format!(
+                            "viewBox `{v}` is not four numbers with a positive width and height"
+                        ),
+                    )
+                })?,
+        ),
+        None => None,
+    };
+    let (Some(w), Some(vb)) = (width, view_box) else {
+        return Ok(1.0);
     };
     use svgtypes::LengthUnit as U;
     let mm = match w.unit {
@@ -248,13 +274,9 @@ fn user_unit(root: &roxmltree::Node) -> f64 {
         U::In => 25.4,
         U::Pt => 25.4 / 72.0,
         U::Pc => 25.4 / 6.0,
-        _ => return 1.0,
+        _ => return Ok(1.0),
     };
-    if vb.w > 0.0 {
-        w.number * mm / vb.w
-    } else {
-        1.0
-    }
+    Ok(w.number * mm / vb.w)
 }
 
 /// The most attributes one element may have. The XML parser's duplicate check is
@@ -350,7 +372,7 @@ pub(crate) fn read(bytes: &[u8], options: &ReadOptions) -> Result<Vec<Part>, Lay
             message: "the root element is not <svg>".into(),
         });
     }
-    let unit = user_unit(&root);
+    let unit = user_unit(&root, &doc)?;
     let root_ctm = Transform::new(unit, 0.0, 0.0, unit, 0.0, 0.0);
     let mut parts = Vec::new();
     let mut count = 0usize;

@@ -697,3 +697,42 @@ fn written_dxf_has_unique_handles_and_one_block_record_each() {
     let back = Layout::read(&fresh, Format::Dxf, &opts()).unwrap();
     assert_eq!(back.parts[1].bounds(), [20.0, 0.0, 25.0, 5.0]);
 }
+
+#[test]
+fn an_unreadable_scale_or_material_width_is_refused_not_guessed() {
+    let svg = |w: &str, vb: &str| {
+        format!(
+            r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="100mm" viewBox="{vb}">
+  <rect id="r" x="10" y="10" width="20" height="20"/>
+</svg>"#
+        )
+    };
+    for (w, vb, bad) in [
+        ("200mm", "NaN 0 200 100", "viewBox `NaN 0 200 100`"),
+        ("200mm", "0 0 0 100", "viewBox `0 0 0 100`"),
+        ("200mm", "0 0 200", "viewBox `0 0 200`"),
+        ("inf mm", "0 0 200 100", "width `inf mm`"),
+        ("-5mm", "0 0 200 100", "width `-5mm`"),
+    ] {
+        let e = Layout::read(svg(w, vb).as_bytes(), Format::Svg, &opts())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(bad) && e.contains("line 1"), "{e}");
+    }
+    // Half a millimetre a unit, read as such.
+    let half = Layout::read(
+        svg("100mm", "0 0 200 100").as_bytes(),
+        Format::Svg,
+        &opts(),
+    )
+    .unwrap();
+    let b = half.parts[0].bounds();
+    assert!((b[2] - b[0] - 10.0).abs() < 1e-9, "{b:?}");
+    for w in ["1e308", "0", "-3", "2e6"] {
+        let json = format!(r#"{{"units":"mm","width_mm":{w},"parts":[]}}"#);
+        let e = Layout::read(json.as_bytes(), Format::Json, &opts())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("width_mm"), "{w}: {e}");
+    }
+}
