@@ -926,6 +926,15 @@ async fn a_map_job_becomes_a_profile_version() {
     assert_eq!(list[0]["kind"], "error_map");
     assert_eq!(list[0]["active"], false);
     assert_eq!(list[0]["source_job"], id);
+    // The scan shows its frames too: the machine's last one is this job's, with its dots
+    // and the plan point it measured.
+    assert!(seen
+        .iter()
+        .any(|e| e["type"] == "frame" && e["job_id"] == id));
+    let (status, f) = get(&c, &s, "/api/v1/machines/demo/frame.json").await;
+    assert_eq!(status, StatusCode::OK, "{f}");
+    assert_eq!(f["job_id"], id);
+    assert!(f["overlay"]["dots"].as_array().unwrap().len() >= 12, "{f}");
     let heat = c
         .get(url(&s, "/api/v1/machines/demo/profiles/scan/1/heatmap.svg"))
         .bearer_auth(s.token())

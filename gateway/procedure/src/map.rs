@@ -98,7 +98,7 @@ pub async fn run(
     let cancelled = Cell::new(false);
     // Measurements and progress both go to the one sink.
     let shared_sink = RefCell::new(&mut *sink);
-    let run = runner::scan::run_scan(
+    let run = runner::scan::run_scan_frames(
         job,
         devices,
         &plan,
@@ -108,6 +108,12 @@ pub async fn run(
             shared_sink.borrow_mut().measurement(&json!({"index": i, "ex_um": s.error_um[0], "ey_um": s.error_um[1], "yaw_urad": s.yaw_urad}))
         },
         &mut |done, of| shared_sink.borrow_mut().progress(done as u64, of as u64),
+        // A live view's frame: one that cannot be made is skipped.
+        &mut |seen| {
+            if let Ok(thumb) = crate::frame::thumbnail(seen) {
+                shared_sink.borrow_mut().frame(&thumb);
+            }
+        },
         async {
             stop.await;
             cancelled.set(true);

@@ -10,7 +10,7 @@
 //! 1 mm, a value that is not finite: a misread board) stops the scan instead of being
 //! kept.
 
-use crate::{JobError, Orchestrator};
+use crate::{Event, FrameSeen, JobError, Orchestrator};
 use compensation::correction::SoftLimits;
 use devices::Devices;
 use drivers::AxisValues;
@@ -95,6 +95,38 @@ pub async fn run_scan(
     progress: &mut dyn FnMut(usize, usize),
     cancel: impl std::future::Future<Output = ()>,
 ) -> Result<Reference, ScanError> {
+    run_scan_frames(
+        job,
+        devices,
+        plan,
+        builder,
+        on_sample,
+        progress,
+        &mut |_| {},
+        cancel,
+    )
+    .await
+}
+
+/// [`run_scan`], with the localized frames for a live view handed to `on_frame` (the
+/// reference frames and the scan's, at most one per [`crate::FRAME_EVERY`] of wall time,
+/// the others skipped); `target_index` is the plan point's index.
+#[allow(clippy::too_many_arguments)]
+pub async fn run_scan_frames(
+    job: &Job,
+    devices: &mut Devices,
+    plan: &ScanPlan,
+    builder: &mut MapBuilder,
+    on_sample: &mut dyn FnMut(usize, &Sample) -> Result<(), String>,
+    progress: &mut dyn FnMut(usize, usize),
+    on_frame: &mut dyn FnMut(&FrameSeen),
+    cancel: impl std::future::Future<Output = ()>,
+) -> Result<Reference, ScanError> {
+    let mut on_event = |e: Event| {
+        if let Event::Frame(f) = e {
+            on_frame(&f);
+        }
+    };
     let stage = devices.stage.as_mut();
     let camera = devices.camera.as_mut();
     // Every point and its approach inside the limits before anything moves.
@@ -124,9 +156,10 @@ pub async fn run_scan(
         camera: &mut *camera,
         job: &one,
     }
-    .run(&mut |_| {})
+    .run(&mut on_event)
     .await
     .map_err(|f| ScanError::Reference(f.error))?;
+    let mut last_frame = None;
     let first = outcome.completed[0].first().clone();
     let reference = Reference {
         command_mm: reference_mm,
@@ -166,6 +199,15 @@ pub async fn run_scan(
                     })
                 },
             )?;
+            crate::send_frame(
+                &mut on_event,
+                &mut last_frame,
+                &frame.image,
+                frame.meta.sequence,
+                job.board.polarity,
+                [o.x_mm, o.y_mm],
+                Some((index, hint)),
+            );
             let sample = Sample {
                 error_um: [
                     (o.x_mm - hint[0]) * 1000.0 - reference.error_um[0],
