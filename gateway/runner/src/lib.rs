@@ -67,14 +67,34 @@ pub struct FrameSeen<'a> {
 
 /// Whether a frame is due for the live view (`last`: when the previous one went),
 /// updating `last` when it is.
-fn frame_due(last: &mut Option<Instant>) -> bool {
-    let now = Instant::now();
+fn frame_due(last: &mut Option<Instant>, now: Instant) -> bool {
     match last {
         Some(t) if now.duration_since(*t) < FRAME_EVERY => false,
         _ => {
             *last = Some(now);
             true
         }
+    }
+}
+
+#[cfg(test)]
+mod frame_tests {
+    use super::*;
+    use std::time::Duration;
+
+    #[test]
+    fn one_frame_per_interval_the_first_at_once_the_others_skipped() {
+        let t0 = Instant::now();
+        let mut last = None;
+        let ms = |n| t0 + Duration::from_millis(n);
+        let due: Vec<bool> = [0, 1, 100, 249, 250, 260, 499, 500, 2000]
+            .into_iter()
+            .map(|n| frame_due(&mut last, ms(n)))
+            .collect();
+        assert_eq!(
+            due,
+            [true, false, false, false, true, false, false, true, true]
+        );
     }
 }
 
@@ -89,7 +109,7 @@ fn send_frame(
     centre_mm: [f64; 2],
     target: Option<(usize, [f64; 2])>,
 ) {
-    if !frame_due(last) {
+    if !frame_due(last, Instant::now()) {
         return;
     }
     let dots: Vec<[f64; 2]> = detect_dots(image, polarity)

@@ -74,7 +74,11 @@ pub fn now_rfc3339() -> String {
     let d = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .unwrap_or_default();
-    let (secs, ms) = (d.as_secs() as i64, d.subsec_millis());
+    rfc3339(d.as_secs() as i64, d.subsec_millis())
+}
+
+/// Seconds since 1970 and milliseconds as RFC 3339 UTC.
+fn rfc3339(secs: i64, ms: u32) -> String {
     let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
     // Civil date from days since 1970-01-01 (Howard Hinnant's algorithm).
     let z = days + 719_468;
@@ -216,5 +220,18 @@ impl Shared {
         }
         self.emit_machine(m);
         self.publish_states();
+    }
+}
+
+#[cfg(test)]
+mod time_tests {
+    use super::rfc3339;
+
+    #[test]
+    fn unix_seconds_as_rfc3339() {
+        assert_eq!(rfc3339(0, 0), "1970-01-01T00:00:00.000Z");
+        assert_eq!(rfc3339(951_782_400, 5), "2000-02-29T00:00:00.005Z");
+        assert_eq!(rfc3339(1_795_403_001, 123), "2026-11-23T03:03:21.123Z");
+        assert_eq!(rfc3339(4_102_444_799, 999), "2099-12-31T23:59:59.999Z");
     }
 }
