@@ -258,6 +258,8 @@ def is_clear(err, path):
         or re.search(r"\bline \d+", err)
         or re.search(r"\bcolumn\b", err)
         or re.search(r"`[A-Za-z_.\[\]0-9]+`", err)
+        or re.search(r"error: --[a-z-]+: ", err)
+        or re.search(r"\.(csv|toml|json):\d+", err)
         or "/dev/zero" in err
     )
 

@@ -97,6 +97,7 @@ fn kind_jobs() -> serde_json::Value {
         {"kind": "layout", "params": {"layout": {"name": "three.json", "text": layout},
             "tools": 2, "window_mm": 25, "gap_mm": 2, "picture": "svg"}, "chart": true},
         {"kind": "rotary", "params": {}, "chart": true},
+        {"kind": "reference", "params": {}, "chart": false},
     ])
 }
 

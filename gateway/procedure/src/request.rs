@@ -821,10 +821,19 @@ pub enum Request {
     Iso230(Iso230Request),
     Layout(LayoutRequest),
     Rotary(RotaryRequest),
+    Reference(ReferenceRequest),
 }
 
 /// The kinds [`Request::parse`] knows.
-pub const KINDS: &[&str] = &["compensate", "iso230", "map", "verify", "layout", "rotary"];
+pub const KINDS: &[&str] = &[
+    "compensate",
+    "iso230",
+    "map",
+    "verify",
+    "layout",
+    "rotary",
+    "reference",
+];
 
 fn from_json<T: serde::de::DeserializeOwned>(params: &Value) -> Result<T, RequestError> {
     serde_path_to_error::deserialize(params).map_err(|e| {
@@ -870,6 +879,7 @@ impl Request {
             "iso230" => Request::Iso230(from_json(params)?),
             "layout" => Request::Layout(from_json(params)?),
             "rotary" => Request::Rotary(from_json(params)?),
+            "reference" => Request::Reference(from_json(params)?),
             other => {
                 return Err(RequestError::new(
                     "kind",
@@ -892,6 +902,7 @@ impl Request {
             Request::Iso230(r) => r.check(),
             Request::Layout(r) => r.check(),
             Request::Rotary(r) => r.check(),
+            Request::Reference(r) => r.check(),
         }
     }
 
@@ -905,6 +916,7 @@ impl Request {
             Request::Iso230(r) => serde_json::to_value(r),
             Request::Layout(r) => serde_json::to_value(r),
             Request::Rotary(r) => serde_json::to_value(r),
+            Request::Reference(r) => serde_json::to_value(r),
         };
         v.unwrap_or(Value::Null)
     }
@@ -917,12 +929,14 @@ impl Request {
             Request::Iso230(_) => "iso230",
             Request::Layout(_) => "layout",
             Request::Rotary(_) => "rotary",
+            Request::Reference(_) => "reference",
         }
     }
 
     /// Whether the request uses the machine's active error map.
     pub fn uses_map(&self) -> bool {
-        matches!(self, Request::Verify(_)) || matches!(self, Request::Iso230(r) if r.with_map)
+        matches!(self, Request::Verify(_) | Request::Reference(_))
+            || matches!(self, Request::Iso230(r) if r.with_map)
     }
 }
 
@@ -941,6 +955,7 @@ pub fn schemas() -> Vec<(
         ("iso230", Iso230Request::schema()),
         ("layout", LayoutRequest::schema()),
         ("rotary", RotaryRequest::schema()),
+        ("reference", ReferenceRequest::schema()),
     ]
 }
 

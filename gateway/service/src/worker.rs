@@ -373,10 +373,10 @@ async fn run_request(
         (true, None) => {
             return procedure::Outcome::failed(format!(
                 "{}: machine {} has no active error_map profile; activate one first",
-                if request.kind() == "verify" {
-                    "verify"
-                } else {
+                if request.kind() == "iso230" {
                     "params.with_map"
+                } else {
+                    request.kind()
                 },
                 machine.id
             ))
@@ -415,6 +415,11 @@ async fn run_request(
             procedure::verify::run(r, &job, devices, m.map, &m.name, 0, sink).await
         }
         Request::Iso230(r) => procedure::iso230::run(r, &job, devices, map, None, sink, stop).await,
+        // The record (result `record`, artifact `reference.json`) is kept with the job.
+        Request::Reference(r) => {
+            let m = map.expect("resolved above");
+            procedure::reference::run(r, &job, devices, &m.map, &m.name, None, sink).await
+        }
         Request::Layout(_) | Request::Rotary(_) => unreachable!("handled above"),
     };
     outcome
