@@ -720,12 +720,7 @@ fn an_unreadable_scale_or_material_width_is_refused_not_guessed() {
         assert!(e.contains(bad) && e.contains("line 1"), "{e}");
     }
     // Half a millimetre a unit, read as such.
-    let half = Layout::read(
-        svg("100mm", "0 0 200 100").as_bytes(),
-        Format::Svg,
-        &opts(),
-    )
-    .unwrap();
+    let half = Layout::read(svg("100mm", "0 0 200 100").as_bytes(), Format::Svg, &opts()).unwrap();
     let b = half.parts[0].bounds();
     assert!((b[2] - b[0] - 10.0).abs() < 1e-9, "{b:?}");
     for w in ["1e308", "0", "-3", "2e6"] {
