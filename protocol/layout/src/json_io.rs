@@ -48,6 +48,9 @@ pub(crate) fn read(bytes: &[u8]) -> Result<(Vec<Part>, Option<f64>), LayoutError
         let path = e.path().to_string();
         syntax(format!("at `{path}`: {}", e.into_inner()))
     })?;
+    // One layout per file: a second document pasted in is refused, not ignored.
+    de.end()
+        .map_err(|e| syntax(format!("after the layout: {e}")))?;
     if let Some(u) = &doc.units {
         if u != "mm" {
             return Err(syntax(format!("units `{u}`: only \"mm\" is accepted")));

@@ -731,3 +731,14 @@ fn an_unreadable_scale_or_material_width_is_refused_not_guessed() {
         assert!(e.contains("width_mm"), "{w}: {e}");
     }
 }
+
+#[test]
+fn a_second_json_layout_after_the_first_is_refused() {
+    let one = br#"{"units":"mm","parts":[{"id":"a","contours":[[[0,0],[10,0],[10,10]]]}]}"#;
+    assert!(Layout::read(one, Format::Json, &opts()).is_ok());
+    let two = [&one[..], b"\n", &one[..]].concat();
+    let e = Layout::read(&two, Format::Json, &opts())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("after the layout"), "{e}");
+}
