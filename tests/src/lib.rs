@@ -5,6 +5,7 @@ pub mod faulty_serial;
 pub mod faulty_tcp;
 pub mod firmware;
 pub mod netns;
+pub mod program_path;
 pub mod service_client;
 pub mod truth_map;
 
@@ -148,17 +149,38 @@ pub fn sender_json(out: &std::process::Output) -> serde_json::Value {
 
 /// Why an interoperation test cannot run here: python3 missing, or `modules` (a Python
 /// import list such as `"canopen, can, serial"`) not importable; `packages` is what to
-/// `pip install`. None when the peer can run. Callers print the reason and skip.
+/// `pip install`. None when the peer can run. Callers fail with the reason, which names
+/// the install step (a test never passes without its peer).
 pub fn python_missing(modules: &str, packages: &str) -> Option<String> {
     match Command::new("python3")
         .args(["-c", &format!("import {modules}")])
         .output()
     {
-        Err(e) => Some(format!("python3 is not available ({e})")),
+        Err(e) => Some(format!(
+            "python3 is not available ({e}): run tests/install-peers.sh"
+        )),
         Ok(o) if !o.status.success() => Some(format!(
-            "{packages} not installed (python3 -m pip install {packages}): {}",
+            "{packages} not installed (run tests/install-peers.sh, or python3 -m pip install {packages}): {}",
             String::from_utf8_lossy(&o.stderr).trim()
         )),
         Ok(_) => None,
     }
+}
+
+/// Where CNCjs is installed (tests/install-peers.sh puts it in tests/interop/cncjs;
+/// CNCJS_DIR overrides), or why it cannot run, naming the install step.
+pub fn cncjs_dir() -> Result<std::path::PathBuf, String> {
+    let dir = std::env::var_os("CNCJS_DIR")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| workspace().join("tests/interop/cncjs"));
+    if Command::new("node").arg("--version").output().is_err() {
+        return Err("node is not available: run tests/install-peers.sh".into());
+    }
+    if !dir.join("node_modules/cncjs/package.json").exists() {
+        return Err(format!(
+            "CNCjs is not installed in {}: run tests/install-peers.sh",
+            dir.display()
+        ));
+    }
+    Ok(dir)
 }

@@ -9,11 +9,11 @@ use devices::spawn_grbl_emulator;
 use errormap::MapModel;
 use job::{Job, StageSpec};
 use protocol::errormap::Identity;
-use protocol::grbl::gcode::{filter_line, Action, Interpreter};
 use proxy::{open_controller, serve, Ending, Proxy, SenderPort};
 use rewrite::{Options, Rewriter};
 use std::process::Command;
 use std::time::Duration;
+use system_tests::program_path::{programmed_path, worst_distance};
 use system_tests::truth_map::map_from_truth;
 use system_tests::{python_missing, runtime, workspace};
 use world::{lock, Clock};
@@ -34,63 +34,8 @@ G1 X30 Y120
 
 /// The programmed feed path, machine mm (arcs as chords within 1 nm), from (20, 20).
 fn nominal_path() -> Vec<[f64; 2]> {
-    let mut interp = Interpreter::new();
-    interp.arc_tolerance = 1e-6;
-    let mut path = Vec::new();
-    for line in PROGRAM.lines() {
-        let f = filter_line(line).unwrap();
-        if f.is_empty() {
-            continue;
-        }
-        for a in interp.execute(&f, false).unwrap() {
-            if let Action::Move { target, .. } = a {
-                path.push([target[0], target[1]]);
-            }
-        }
-    }
     // Feed moves start where the rapid to (20, 20) ended.
-    path.split_off(path.iter().position(|p| *p == [20.0, 20.0]).unwrap())
-}
-
-fn distance_to_segment(q: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
-    let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
-    let len2 = dx * dx + dy * dy;
-    let t = if len2 == 0.0 {
-        0.0
-    } else {
-        (((q[0] - a[0]) * dx + (q[1] - a[1]) * dy) / len2).clamp(0.0, 1.0)
-    };
-    (q[0] - a[0] - t * dx).hypot(q[1] - a[1] - t * dy)
-}
-
-/// Largest distance of the points from the path, both in travel order: each point is
-/// matched within a window of segments around the last match (the tool moves along the
-/// path), which keeps the check linear in the number of rows.
-fn worst_distance(points: impl Iterator<Item = [f64; 2]>, path: &[[f64; 2]]) -> f64 {
-    let mut at: usize = 0;
-    let mut worst: f64 = 0.0;
-    for q in points {
-        // A window both ways: near a corner the next element (an arc leaving the corner
-        // along the same line) can be as close as the current one.
-        let (begin, end) = (at.saturating_sub(400), (at + 400).min(path.len() - 1));
-        let (k, d) = (begin..end)
-            .map(|k| (k, distance_to_segment(q, path[k], path[k + 1])))
-            .fold(
-                (at, f64::INFINITY),
-                |best, x| if x.1 < best.1 { x } else { best },
-            );
-        at = k;
-        if d > worst && std::env::var_os("PROXY_DEBUG").is_some() {
-            eprintln!(
-                "worst so far {:.3} um at {q:?}, segment {k} {:?} -> {:?}",
-                d * 1e3,
-                path[k],
-                path[k + 1]
-            );
-        }
-        worst = worst.max(d);
-    }
-    worst
+    programmed_path(PROGRAM, [20.0, 20.0])
 }
 
 /// What a streaming session through the proxy gave.
@@ -231,8 +176,7 @@ fn check_session(s: &Streamed, who: &str, bound_mm: f64) -> f64 {
 #[test]
 fn an_independent_sender_streams_through_the_proxy_and_the_tool_follows_the_program() {
     if let Some(why) = python_missing("serial", "pyserial") {
-        eprintln!("SKIPPED: {why}");
-        return;
+        panic!("cannot run: {why}");
     }
     let s = stream_through_proxy([0.0, 0.0], true, |link, program| {
         system_tests::grbl_sender(link, program)
@@ -262,8 +206,7 @@ fn an_independent_sender_streams_through_the_proxy_and_the_tool_follows_the_prog
 #[test]
 fn a_tool_away_from_the_camera_follows_the_program_when_the_map_knows_the_arm() {
     if let Some(why) = python_missing("serial", "pyserial") {
-        eprintln!("SKIPPED: {why}");
-        return;
+        panic!("cannot run: {why}");
     }
     // 120 mm right of and 80 mm below the camera (a tool on a long arm, a laser head
     // beside the camera): the carriage's yaw (up to 8 arcsec on X) moves the tool by
@@ -300,34 +243,9 @@ fn a_tool_away_from_the_camera_follows_the_program_when_the_map_knows_the_arm() 
     );
 }
 
-/// Where CNCjs is installed (`.ci/run` puts it in tests/interop/cncjs; CNCJS_DIR
-/// overrides), or why the test skips.
-fn cncjs_dir() -> Result<std::path::PathBuf, String> {
-    let dir = std::env::var_os("CNCJS_DIR")
-        .map(std::path::PathBuf::from)
-        .unwrap_or_else(|| workspace().join("tests/interop/cncjs"));
-    if Command::new("node").arg("--version").output().is_err() {
-        return Err("node is not available".into());
-    }
-    if !dir.join("node_modules/cncjs/package.json").exists() {
-        return Err(format!(
-            "CNCjs is not installed in {} (npm install --prefix {} cncjs@1.11.5 --omit=dev)",
-            dir.display(),
-            dir.display()
-        ));
-    }
-    Ok(dir)
-}
-
 #[test]
 fn cncjs_streams_through_the_proxy_and_the_tool_follows_the_program() {
-    let dir = match cncjs_dir() {
-        Ok(d) => d,
-        Err(why) => {
-            eprintln!("SKIPPED: {why}");
-            return;
-        }
-    };
+    let dir = system_tests::cncjs_dir().unwrap_or_else(|why| panic!("cannot run: {why}"));
     let s = stream_through_proxy([0.0, 0.0], true, move |link, program| {
         let mut c = Command::new("node");
         c.arg(workspace().join("tests/interop/cncjs_sender.js"))

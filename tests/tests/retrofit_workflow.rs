@@ -20,11 +20,11 @@ use procedure::map::{FileJournal, FolderShelf};
 use procedure::reference::{self as refer, Choice};
 use procedure::request::{MapRequest, ReferenceRequest};
 use protocol::errormap::ErrorMap;
-use protocol::grbl::gcode::{filter_line, Action, Interpreter};
 use proxy::{open_controller, Ending, Proxy, SenderPort};
 use rewrite::{Options, Rewriter};
 use std::path::Path;
 use std::time::Duration;
+use system_tests::program_path::{programmed_path, worst_distance};
 use system_tests::{python_missing, runtime};
 use world::{lock, Clock, SharedRig};
 
@@ -46,54 +46,8 @@ G1 X172.5 Y12.25
 
 /// The programmed feed path, machine mm (arcs as chords within 1 nm), from (20, 20).
 fn nominal_path() -> Vec<[f64; 2]> {
-    let mut interp = Interpreter::new();
-    interp.arc_tolerance = 1e-6;
-    let mut path = Vec::new();
-    for line in PROGRAM.lines() {
-        let f = filter_line(line).unwrap();
-        if f.is_empty() {
-            continue;
-        }
-        for a in interp.execute(&f, false).unwrap() {
-            if let Action::Move { target, .. } = a {
-                path.push([target[0], target[1]]);
-            }
-        }
-    }
-    path.split_off(path.iter().position(|p| *p == [20.0, 20.0]).unwrap())
-}
-
-fn distance_to_segment(q: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
-    let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
-    let len2 = dx * dx + dy * dy;
-    let t = if len2 == 0.0 {
-        0.0
-    } else {
-        (((q[0] - a[0]) * dx + (q[1] - a[1]) * dy) / len2).clamp(0.0, 1.0)
-    };
-    (q[0] - a[0] - t * dx).hypot(q[1] - a[1] - t * dy)
-}
-
-/// Largest distance of the points from the path, both in travel order (each point
-/// matched within a window of segments around the last match).
-fn worst_distance(points: impl Iterator<Item = [f64; 2]>, path: &[[f64; 2]]) -> f64 {
-    let mut at: usize = 0;
-    let mut worst: f64 = 0.0;
-    for q in points {
-        let (begin, end) = (at.saturating_sub(400), (at + 400).min(path.len() - 1));
-        let (k, d) = (begin..end)
-            .map(|k| (k, distance_to_segment(q, path[k], path[k + 1])))
-            .fold(
-                (at, f64::INFINITY),
-                |best, x| if x.1 < best.1 { x } else { best },
-            );
-        at = k;
-        if d > worst && std::env::var_os("RETROFIT_DEBUG").is_some() {
-            eprintln!("worst so far {:.3} um at {q:?}, segment {k}", d * 1e3);
-        }
-        worst = worst.max(d);
-    }
-    worst
+    // Feed moves start where the rapid to (20, 20) ended.
+    programmed_path(PROGRAM, [20.0, 20.0])
 }
 
 /// The demo job on a smaller camera window, thermal drift off.
@@ -234,25 +188,6 @@ async fn home_then_send(link: &Path) -> String {
     got
 }
 
-/// Where CNCjs is installed (`.ci/run` puts it in tests/interop/cncjs; CNCJS_DIR
-/// overrides), or why its session skips.
-fn cncjs_dir() -> Result<std::path::PathBuf, String> {
-    let dir = std::env::var_os("CNCJS_DIR")
-        .map(std::path::PathBuf::from)
-        .unwrap_or_else(|| system_tests::workspace().join("tests/interop/cncjs"));
-    if std::process::Command::new("node")
-        .arg("--version")
-        .output()
-        .is_err()
-    {
-        return Err("node is not available".into());
-    }
-    if !dir.join("node_modules/cncjs/package.json").exists() {
-        return Err(format!("CNCjs is not installed in {}", dir.display()));
-    }
-    Ok(dir)
-}
-
 /// The true tool path from its arrival at (20, 20) against the program, mm.
 fn path_deviation(rows: &[world::machine::TraceRow]) -> f64 {
     let start = rows
@@ -269,8 +204,7 @@ fn path_deviation(rows: &[world::machine::TraceRow]) -> f64 {
 #[test]
 fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_program() {
     if let Some(why) = python_missing("serial", "pyserial") {
-        eprintln!("SKIPPED: {why}");
-        return;
+        panic!("cannot run: {why}");
     }
     let job = job();
     let StageSpec::Sim { machine } = &job.stage else {
@@ -409,42 +343,38 @@ fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_prog
         );
         assert!(referenced < 2.5, "{referenced:.3} um with the reference");
 
-        // CNCjs as the sender (headless, through its socket.io API), when it is
-        // installed: it homes first, so the pass-through re-references by itself.
-        match cncjs_dir() {
-            Err(why) => eprintln!("CNCjs session SKIPPED: {why}"),
-            Ok(cncjs) => {
-                let applied = refer::apply(map.clone(), &Choice::Recorded(record.clone())).unwrap();
-                let (rows, v, rereferenced) = stream(
-                    &port,
-                    &rig,
-                    &job,
-                    applied.model,
-                    true,
-                    &applied.describe,
-                    dir.path(),
-                    move |link, program| {
-                        let mut c = std::process::Command::new("node");
-                        c.arg(system_tests::workspace().join("tests/interop/cncjs_sender.js"))
-                            .arg(&cncjs)
-                            .arg(link)
-                            .arg(program);
-                        c
-                    },
-                )
-                .await;
-                assert_eq!(v["errors"].as_array().unwrap().len(), 0, "{v}");
-                assert_eq!(v["alarms"].as_array().unwrap().len(), 0, "{v}");
-                // CNCjs homes before it streams: the pass-through re-referenced.
-                assert_eq!(rereferenced, 1, "{v}");
-                let with_cncjs = path_deviation(&rows) * 1000.0;
-                eprintln!(
-                    "CNCjs (it homes first) through the pass-through, which re-referenced by \
-                     itself: true path within {with_cncjs:.3} um of the program"
-                );
-                assert!(with_cncjs < 2.5, "{with_cncjs:.3} um with CNCjs");
-            }
-        }
+        // CNCjs as the sender (headless, through its socket.io API): it homes first, so
+        // the pass-through re-references by itself.
+        let cncjs = system_tests::cncjs_dir().unwrap_or_else(|why| panic!("cannot run: {why}"));
+        let applied = refer::apply(map.clone(), &Choice::Recorded(record.clone())).unwrap();
+        let (rows, v, rereferenced) = stream(
+            &port,
+            &rig,
+            &job,
+            applied.model,
+            true,
+            &applied.describe,
+            dir.path(),
+            move |link, program| {
+                let mut c = std::process::Command::new("node");
+                c.arg(system_tests::workspace().join("tests/interop/cncjs_sender.js"))
+                    .arg(&cncjs)
+                    .arg(link)
+                    .arg(program);
+                c
+            },
+        )
+        .await;
+        assert_eq!(v["errors"].as_array().unwrap().len(), 0, "{v}");
+        assert_eq!(v["alarms"].as_array().unwrap().len(), 0, "{v}");
+        // CNCjs homes before it streams: the pass-through re-referenced.
+        assert_eq!(rereferenced, 1, "{v}");
+        let with_cncjs = path_deviation(&rows) * 1000.0;
+        eprintln!(
+            "CNCjs (it homes first) through the pass-through, which re-referenced by \
+             itself: true path within {with_cncjs:.3} um of the program"
+        );
+        assert!(with_cncjs < 2.5, "{with_cncjs:.3} um with CNCjs");
 
         // 4. The sender homes (the zero moves again): the pass-through re-references by
         // itself with the camera before the next line, and the program stays on its path.
