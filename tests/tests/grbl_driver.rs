@@ -184,15 +184,12 @@ fn stop_during_homing_resets_and_homing_again_works() {
         {
             let home = g.home();
             tokio::pin!(home);
-            // The cancel comes once the controller has started the cycle.
+            // The cancel comes once the controller has started the cycle (the emulator's
+            // thread counts it; this task yields to the homing future meanwhile).
             let started = async {
-                for _ in 0..10_000 {
-                    if rig.lock().unwrap().machine().homings() > homings {
-                        return;
-                    }
-                    tokio::time::sleep(Duration::from_millis(1)).await; // pacing only
+                while rig.lock().unwrap().machine().homings() == homings {
+                    tokio::task::yield_now().await;
                 }
-                panic!("the controller never started homing");
             };
             tokio::select! {
                 r = &mut home => panic!("homing ended before the cancel: {r:?}"),
