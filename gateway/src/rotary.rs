@@ -153,16 +153,8 @@ pub fn run(cmd: RotaryCmd, json: bool) -> anyhow::Result<ExitCode> {
 
 /// The machine constants from a JSON file, or the defaults.
 pub fn load_constants(path: Option<&Path>) -> anyhow::Result<MachineConstants> {
-    let Some(path) = path else {
-        return Ok(MachineConstants::default());
-    };
-    let text = procedure::rotary::read_errors_file(path).map_err(anyhow::Error::msg)?;
-    let de = &mut serde_json::Deserializer::from_str(&text);
-    let k: MachineConstants = serde_path_to_error::deserialize(&mut *de)
-        .map_err(|e| anyhow::anyhow!("{}: {} (at {})", path.display(), e.inner(), e.path()))?;
-    de.end()
-        .map_err(|e| anyhow::anyhow!("{}: after the constants: {e}", path.display()))?;
-    k.check()
-        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    Ok(k)
+    match path {
+        None => Ok(MachineConstants::default()),
+        Some(path) => procedure::rotary::read_machine_file(path).map_err(anyhow::Error::msg),
+    }
 }

@@ -220,6 +220,20 @@ pub fn read_errors_file(path: &std::path::Path) -> Result<String, String> {
     read_input(path, DataKind::RotaryJson)
 }
 
+/// Machine constants (JSON: `a_axis_y_mm`, ... `tool_length_mm`) from the file at
+/// `path`, read bounded, one document, checked; every error names the file.
+pub fn read_machine_file(path: &std::path::Path) -> Result<MachineConstants, String> {
+    let text = read_errors_file(path)?;
+    let name = path.display();
+    let de = &mut serde_json::Deserializer::from_str(&text);
+    let k: MachineConstants = serde_path_to_error::deserialize(&mut *de)
+        .map_err(|e| format!("{name}: {} (at {})", e.inner(), e.path()))?;
+    de.end()
+        .map_err(|e| format!("{name}: after the constants: {e}"))?;
+    k.check().map_err(|e| format!("{name}: {e}"))?;
+    Ok(k)
+}
+
 /// The most bytes a rewritten 5-axis program may have (a split move adds at most 2^10
 /// pieces): the rewrite stops, naming the line, when its output passes this.
 pub const MAX_REWRITTEN_BYTES: usize = 256 << 20;
