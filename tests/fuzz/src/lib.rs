@@ -40,7 +40,9 @@ pub use layout::{layout_cut, layout_dxf, layout_json, layout_svg};
 pub use media::{localize, png_load};
 pub use modbus::modbus_frame;
 pub use nc::nc_program;
-pub use outside::{dollar_hash, gcode_dialect, program_lines, rotary_errors, volumetric_campaign};
+pub use outside::{
+    dollar_hash, gcode_dialect, program_lines, reference_record, rotary_errors, volumetric_campaign,
+};
 pub use rewrite::{nc_rewrite, proxy_stream};
 pub use rotary::{grbl_probe, rotary_centres, rotary_json, rotary_rewrite};
 pub use service::{api_job_body, box_toml};
@@ -96,6 +98,7 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("rotary_errors", rotary_errors),
     ("program_lines", program_lines),
     ("gcode_dialect", gcode_dialect),
+    ("reference_record", reference_record),
 ];
 
 /// The fuzz crate's folder (corpora, regressions).

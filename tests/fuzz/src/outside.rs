@@ -179,6 +179,23 @@ pub fn gcode_dialect(data: &[u8]) {
     }
 }
 
+/// Any text as a map's reference record (`procedure::reference::parse_record`, what
+/// `gateway reference` writes beside the map and `rewrite`/`proxy` read): refused, or a
+/// record whose numbers are finite, whose shift is within the bound, and that reads back
+/// when written again.
+pub fn reference_record(data: &[u8]) {
+    let text = String::from_utf8_lossy(data);
+    let Ok(r) = procedure::reference::parse_record(&text, "record") else {
+        return;
+    };
+    for v in r.seen_um.iter().chain(&r.shift_um).chain(&r.reference_mm) {
+        assert!(v.is_finite(), "{v}");
+    }
+    assert!(r.shift_um[0].hypot(r.shift_um[1]) <= errormap::reference::MAX_SHIFT_UM);
+    let again = serde_json::to_string(&r).expect("a record serializes");
+    procedure::reference::parse_record(&again, "again").expect("a written record reads back");
+}
+
 #[cfg(test)]
 mod tests {
     /// The seeds reach past the readers: the simulated campaign identifies, the GRBL
