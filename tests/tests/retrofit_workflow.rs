@@ -260,6 +260,7 @@ fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_prog
             &map,
             &kept,
             None,
+            std::time::SystemTime::now(),
             &mut artifacts,
         )
         .await;
@@ -274,7 +275,7 @@ fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_prog
 
         // A spot check right after: the recorded reference applies, no homing; the zero
         // has not drifted since, and the map holds.
-        let spot = procedure::verify::run_with_reference(
+        let spot = procedure::verify::check_map(
             &procedure::request::VerifyRequest {
                 spot_check: true,
                 ..Default::default()
@@ -283,8 +284,8 @@ fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_prog
             &mut devices,
             map.clone(),
             &kept,
-            0,
             Some(&record),
+            std::time::SystemTime::now(),
             &mut procedure::Discard,
         )
         .await;
@@ -306,7 +307,7 @@ fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_prog
         // with its reference.
         let mut worst = Vec::new();
         for choice in [Choice::NotWanted, Choice::Recorded(record.clone())] {
-            let applied = refer::apply(map.clone(), &choice).unwrap();
+            let applied = refer::apply(map.clone(), &choice, std::time::SystemTime::now()).unwrap();
             let (rows, sender, _) = stream(
                 &port,
                 &rig,
@@ -346,7 +347,12 @@ fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_prog
         // CNCjs as the sender (headless, through its socket.io API): it homes first, so
         // the pass-through re-references by itself.
         let cncjs = system_tests::cncjs_dir().unwrap_or_else(|why| panic!("cannot run: {why}"));
-        let applied = refer::apply(map.clone(), &Choice::Recorded(record.clone())).unwrap();
+        let applied = refer::apply(
+            map.clone(),
+            &Choice::Recorded(record.clone()),
+            std::time::SystemTime::now(),
+        )
+        .unwrap();
         let (rows, v, rereferenced) = stream(
             &port,
             &rig,
@@ -379,9 +385,13 @@ fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_prog
         // 4. The sender homes (the zero moves again): the pass-through re-references by
         // itself with the camera before the next line, and the program stays on its path.
         let shared = procedure::proxy::SharedMap::new(
-            refer::apply(map.clone(), &Choice::Recorded(record.clone()))
-                .unwrap()
-                .model,
+            refer::apply(
+                map.clone(),
+                &Choice::Recorded(record.clone()),
+                std::time::SystemTime::now(),
+            )
+            .unwrap()
+            .model,
         );
         let seen = std::cell::Cell::new(None);
         let homings = lock(&rig).machine().homings();

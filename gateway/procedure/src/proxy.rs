@@ -295,10 +295,11 @@ pub async fn run(
             if let Err(e) = crate::check_identity(&map, &here, &map_source) {
                 return Outcome::failed(e);
             }
-            let applied = match crate::reference::apply(*map, &reference) {
-                Ok(a) => a,
-                Err(e) => return Outcome::failed(format!("{map_source}: {e}")),
-            };
+            let applied =
+                match crate::reference::apply(*map, &reference, std::time::SystemTime::now()) {
+                    Ok(a) => a,
+                    Err(e) => return Outcome::failed(format!("{map_source}: {e}")),
+                };
             let shared = SharedMap::new(applied.model);
             let map_copy = shared.read().map().clone();
             let bound_um = match job.board.code {

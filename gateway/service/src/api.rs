@@ -493,14 +493,15 @@ async fn enqueue(
             invalid(e)
         }
     })?;
-    if let procedure::Request::Map(r) = &parsed {
-        let area = *m.scan_area.lock().unwrap_or_else(|p| p.into_inner());
-        if let Some((lo, hi)) = area {
-            r.check_area(lo, hi).map_err(invalid)?;
-        }
-    }
+    let facts = procedure::registry::Facts {
+        scan_area: *m.scan_area.lock().unwrap_or_else(|p| p.into_inner()),
+    };
     let params = parsed.params();
-    if request.kind == "rotary" && m.rotary.is_none() {
+    parsed
+        .registered()
+        .admit(&params, &facts)
+        .map_err(invalid)?;
+    if parsed.registered().uses.rotary && m.rotary.is_none() {
         return Err(ApiError::new(
             StatusCode::UNPROCESSABLE_ENTITY,
             "invalid_job",
@@ -596,7 +597,7 @@ async fn job(
     let summary = record
         .result
         .as_ref()
-        .and_then(|r| procedure::summary(&record.kind, r));
+        .and_then(|r| procedure::registry::summary(&record.kind, r));
     let mut v = serde_json::to_value(record).unwrap_or(Value::Null);
     v["summary"] = json!(summary);
     Ok(Json(v))

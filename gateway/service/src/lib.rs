@@ -9,6 +9,7 @@
 
 pub mod api;
 pub mod config;
+pub mod context;
 mod serve;
 pub mod sink;
 pub mod state;

@@ -8,14 +8,14 @@
 //! [`CANCEL_GRACE`] drops it the same way.
 
 use crate::config::MachineConfig;
-use crate::sink::{profile_map, ProfileShelf, RotaryShelf, StoreJournal, StoreSink};
+use crate::context::StoreContext;
+use crate::sink::StoreSink;
 use crate::state::{lock, Machine, MachineState, Shared};
 use devices::Devices;
 use futures_util::FutureExt;
 use job::{CameraSpec, Job, StageSpec};
-use procedure::iso230::NamedMap;
-use procedure::{End, Request};
-use serde_json::{json, Map, Value};
+use procedure::{End, Request, Stop};
+use serde_json::{Map, Value};
 use std::panic::AssertUnwindSafe;
 use std::sync::Arc;
 use std::time::Duration;
@@ -215,7 +215,7 @@ async fn run_one(
 
     // The stop signal the procedure sees, and the worker's own watch on it: a procedure
     // that does not end within the grace period after a cancel is dropped.
-    let (stop_tx, stop_rx) = watch::channel(false);
+    let (stop_tx, stop) = Stop::new();
     let mut shutdown = shared.shutdown.clone();
     let stop_requested = async move {
         tokio::select! {
@@ -223,25 +223,18 @@ async fn run_one(
             _ = shutdown.wait_for(|s| *s) => {}
         }
     };
-    let stop = {
-        let mut rx = stop_rx.clone();
-        async move {
-            let _ = rx.wait_for(|s| *s).await;
+    let mut cx = StoreContext::new(shared, machine, config, devices, &record, profile, stop);
+    let job_future = async {
+        match &request {
+            Ok(r) => r.registered().run(r.params(), &mut cx).await,
+            Err(e) if e.field == "params" => {
+                procedure::Outcome::failed(format!("params: {}", e.message))
+            }
+            Err(e) => procedure::Outcome::failed(format!("params.{e}")),
         }
     };
-    let mut sink = StoreSink::new(shared, &machine.id, id);
-    let job_future = run_request(
-        shared,
-        machine,
-        config,
-        devices,
-        &record,
-        request,
-        profile.map(|(v, body)| (format!("error_map profile {} v{}", v.name, v.version), body)),
-        &mut sink,
-        stop,
-    );
     let ended = supervise(job_future, stop_requested, stop_tx, CANCEL_GRACE).await;
+    let sink = cx.sink;
     let (outcome, lost) = match ended {
         Supervised::Ended(outcome) => to_store(outcome, sink),
         Supervised::Panicked(message) => {
@@ -318,111 +311,6 @@ pub(crate) async fn supervise<T>(
             _ = tokio::time::sleep(grace), if stopping => return Supervised::Dropped,
         }
     }
-}
-
-/// Translates a stored request into its procedure's call: the machine's job file, its
-/// active map, the store as the sink.
-#[allow(clippy::too_many_arguments)]
-async fn run_request(
-    shared: &Arc<Shared>,
-    machine: &Arc<Machine>,
-    config: &MachineConfig,
-    devices: &mut Devices,
-    record: &JobRecord,
-    request: Result<Request, procedure::RequestError>,
-    map: Option<(String, Value)>,
-    sink: &mut StoreSink,
-    stop: impl std::future::Future<Output = ()>,
-) -> procedure::Outcome {
-    let request = match request {
-        Ok(r) => r,
-        Err(e) if e.field == "params" => {
-            return procedure::Outcome::failed(format!("params: {}", e.message))
-        }
-        Err(e) => return procedure::Outcome::failed(format!("params.{e}")),
-    };
-    if let Request::Rotary(r) = &request {
-        // The table's own link, from the machine's rotary job file (the X-Y stage's
-        // devices are not used).
-        let Some(source) = &config.rotary else {
-            return procedure::Outcome::failed(format!(
-                "machine {} has no rotary job file",
-                machine.id
-            ));
-        };
-        let job = match source.load() {
-            Ok(j) => j,
-            Err(e) => return procedure::Outcome::failed(format!("rotary job file: {e}")),
-        };
-        let mut shelf = RotaryShelf {
-            shared: shared.clone(),
-            machine: machine.id.clone(),
-            job: record.id,
-        };
-        return procedure::rotary::measure(r, &job, &mut shelf, sink, stop).await;
-    }
-    if let Request::Layout(r) = &request {
-        return procedure::layout::partition(r, sink);
-    }
-    let job = match config.job.load() {
-        Ok(j) => j,
-        Err(e) => return procedure::Outcome::failed(format!("job file: {e}")),
-    };
-    let map = match (request.uses_map(), map) {
-        (false, _) => None,
-        (true, None) => {
-            return procedure::Outcome::failed(format!(
-                "{}: machine {} has no active error_map profile; activate one first",
-                if request.kind() == "iso230" {
-                    "params.with_map"
-                } else {
-                    request.kind()
-                },
-                machine.id
-            ))
-        }
-        (true, Some((name, body))) => match profile_map(&body) {
-            Ok(map) => Some(NamedMap { map, name }),
-            Err(e) => return procedure::Outcome::failed(format!("the active {name}: {e}")),
-        },
-    };
-    let outcome = match &request {
-        Request::Compensate(r) => procedure::compensate::run(r, &job, devices, sink, stop).await,
-        Request::Map(r) => {
-            let mut journal = StoreJournal {
-                shared: shared.clone(),
-                machine: machine.id.clone(),
-                job: record.id,
-                name: r.name.clone(),
-                params: record.params.clone(),
-                resumed_from: None,
-            };
-            let mut shelf = ProfileShelf {
-                shared: shared.clone(),
-                machine: machine.id.clone(),
-                job: record.id,
-            };
-            let mut o =
-                procedure::map::run(r, &job, devices, &mut journal, &mut shelf, sink, stop).await;
-            if let (Some(from), Some(Value::Object(result))) = (journal.resumed_from, &mut o.result)
-            {
-                result.insert("resumed_from_job".into(), json!(from));
-            }
-            o
-        }
-        Request::Verify(r) => {
-            let m = map.expect("resolved above");
-            procedure::verify::run(r, &job, devices, m.map, &m.name, 0, sink).await
-        }
-        Request::Iso230(r) => procedure::iso230::run(r, &job, devices, map, None, sink, stop).await,
-        // The record (result `record`, artifact `reference.json`) is kept with the job.
-        Request::Reference(r) => {
-            let m = map.expect("resolved above");
-            procedure::reference::run(r, &job, devices, &m.map, &m.name, None, sink).await
-        }
-        Request::Layout(_) | Request::Rotary(_) => unreachable!("handled above"),
-    };
-    outcome
 }
 
 #[cfg(test)]
