@@ -30,7 +30,7 @@ pub fn export(args: ExportArgs, json: bool) -> anyhow::Result<ExitCode> {
         let path = args.out.with_file_name(&name);
         sink = sink.artifact_to(&name, path);
     }
-    let kind = procedure::registry::kind("export").map_err(|e| anyhow::anyhow!("{e}"))?;
+    let kind = procedure::kinds::kind("export").map_err(|e| anyhow::anyhow!("{e}"))?;
     let mut outcome =
         crate::front::run_outcome(kind, &request, &mut sink, |f| f.map_file(&args.map))?;
     // `file`: where the table was written.

@@ -185,7 +185,7 @@ pub fn run_kind(
     json: bool,
     configure: impl for<'s> FnOnce(Files<'s>) -> Files<'s>,
 ) -> anyhow::Result<ExitCode> {
-    let kind = procedure::registry::kind(kind).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let kind = procedure::kinds::kind(kind).map_err(|e| anyhow::anyhow!("{e}"))?;
     let outcome = run_outcome(kind, request, sink, configure)?;
     print(&outcome, json, |r| kind.summary(r))
 }

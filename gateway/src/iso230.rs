@@ -114,7 +114,7 @@ pub fn run(args: RunArgs, json: bool) -> anyhow::Result<ExitCode> {
         .inputs(&inputs)
         .into_folder(&args.out)?
         .on_measurement(move |m| log.append(m));
-    let kind = procedure::registry::kind("iso230").map_err(|e| anyhow::anyhow!("{e}"))?;
+    let kind = procedure::kinds::kind("iso230").map_err(|e| anyhow::anyhow!("{e}"))?;
     let outcome = crate::front::run_outcome(kind, &request, &mut sink, |f| {
         let f = f.job_file(&args.config);
         match &args.map {

@@ -141,7 +141,7 @@ pub fn rewrite(args: RewriteArgs, json: bool) -> anyhow::Result<ExitCode> {
     let mut sink = crate::front::CliSink::new("", true)
         .inputs(&inputs)
         .artifact_to(PROGRAM_ARTIFACT, args.out.clone());
-    let kind = procedure::registry::kind("rewrite").map_err(|e| anyhow::anyhow!("{e}"))?;
+    let kind = procedure::kinds::kind("rewrite").map_err(|e| anyhow::anyhow!("{e}"))?;
     let mut outcome = match (&args.map, &args.volumetric) {
         (Some(_), Some(_)) => anyhow::bail!("give one compensation: --map or --volumetric"),
         (Some(map), None) => crate::front::run_outcome(kind, &request, &mut sink, |f| {

@@ -145,7 +145,7 @@ fn run_and_print(
     wrote: String,
     configure: impl for<'s> FnOnce(procedure::files::Files<'s>) -> procedure::files::Files<'s>,
 ) -> anyhow::Result<ExitCode> {
-    let kind = procedure::registry::kind(kind).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let kind = procedure::kinds::kind(kind).map_err(|e| anyhow::anyhow!("{e}"))?;
     let outcome = crate::front::run_outcome(kind, request, sink, configure)?;
     crate::front::print(&outcome, json, |r| format!("{}{wrote}", kind.summary(r)))
 }

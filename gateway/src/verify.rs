@@ -34,7 +34,7 @@ pub fn verify(args: VerifyArgs, json: bool) -> anyhow::Result<ExitCode> {
         "--every-s must be a number of seconds from 0 to 1e7, got {}",
         args.every_s
     );
-    let kind = procedure::registry::kind("verify").map_err(|e| anyhow::anyhow!("{e}"))?;
+    let kind = procedure::kinds::kind("verify").map_err(|e| anyhow::anyhow!("{e}"))?;
     let rt = crate::front::runtime()?;
     let mut sink = crate::front::CliSink::new("points", true);
     let (raise, stop) = Stop::new();

@@ -14,13 +14,14 @@
 
 use devices::{spawn_grbl_emulator, Devices};
 use drivers::grbl::GrblOptions;
+use drivers::open_grbl_line as open_controller;
 use drivers::StageLink;
 use job::{CameraSpec, Job, StageSpec};
 use procedure::map::{FileJournal, FolderShelf};
 use procedure::reference::{self as refer, Choice};
 use procedure::request::{MapRequest, ReferenceRequest};
 use protocol::errormap::ErrorMap;
-use proxy::{open_controller, Ending, Proxy, SenderPort};
+use proxy::{Ending, Proxy, SenderPort};
 use rewrite::{Options, Rewriter};
 use std::path::Path;
 use std::time::Duration;

@@ -204,8 +204,7 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
         ]
     );
     let refused =
-        procedure::request::Request::parse("map", &serde_json::json!({"grid_step_mm": 0.01}))
-            .unwrap_err();
+        procedure::Request::parse("map", &serde_json::json!({"grid_step_mm": 0.01})).unwrap_err();
     assert_eq!(report["field_error"], refused.message.as_str(), "{report}");
     assert_eq!(report["machine_state_before"], "idle");
     assert_eq!(report["machine_state_after"], "idle");
@@ -259,7 +258,7 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
         .unwrap_or_else(|| panic!("{report}"));
     let mut walked: Vec<&str> = kinds.iter().map(|k| k["kind"].as_str().unwrap()).collect();
     walked.sort_unstable();
-    let mut registered: Vec<&str> = procedure::request::kinds().collect();
+    let mut registered: Vec<&str> = procedure::kinds::kinds().collect();
     registered.sort_unstable();
     assert_eq!(
         walked, registered,

@@ -9,14 +9,15 @@
 //! (`service::context`). Which reference applies, whether a scan resumes, which identity
 //! must match: those rules are the procedures', so both front ends behave alike.
 
-use crate::map::{MapShelf, ScanJournal};
-use crate::rotary::ErrorsShelf;
 use crate::Sink;
 use devices::Devices;
 use errormap::reference::MapReference;
+use errormap::scan::{journal, Sample, ScanPlan};
 use job::rotary::RotaryJob;
 use job::Job;
 use protocol::errormap::{ErrorMap, Identity};
+use serde_json::Value;
+
 use std::time::SystemTime;
 use tokio::sync::watch;
 
@@ -129,4 +130,39 @@ pub trait Context {
 pub fn unix_s(t: SystemTime) -> u64 {
     t.duration_since(SystemTime::UNIX_EPOCH)
         .map_or(0, |d| d.as_secs())
+}
+
+/// Where a scan's samples are kept as they come, and where a stopped scan's are found.
+pub trait ScanJournal {
+    /// The samples a stopped scan of this job, machine and plan (`header`) kept (empty
+    /// for a new scan); an error when what is there belongs to another scan (naming what
+    /// differs) or is damaged.
+    fn resume(
+        &mut self,
+        header: &journal::Header,
+        plan: &ScanPlan,
+    ) -> Result<Vec<(usize, Sample)>, String>;
+    /// Keeps one sample (a failure stops the scan with the stage stopped).
+    fn append(&mut self, index: usize, sample: &Sample) -> Result<(), String>;
+    /// The map is kept: the journal has done its job.
+    fn close(&mut self);
+    /// Where resumed samples came from (the service: the stopped job), for the result.
+    fn resumed_from(&self) -> Option<Value> {
+        None
+    }
+}
+
+/// Where the finished map goes.
+pub trait MapShelf {
+    /// The version the next map of `name` gets.
+    fn next_version(&mut self, name: &str) -> Result<u32, String>;
+    /// Keeps the map; returns where it went (a path, a profile), for the result.
+    fn keep(&mut self, name: &str, map: &ErrorMap) -> Result<String, String>;
+}
+
+/// Where the identified errors are kept (the CLI: `errors.json` in its folder, written
+/// as an artifact; the service: the next version of a rotary profile).
+pub trait ErrorsShelf {
+    /// Keeps the report; returns where it went, for the result.
+    fn keep(&mut self, name: &str, report: &Value) -> Result<String, String>;
 }

@@ -17,6 +17,7 @@ pub mod export;
 pub mod files;
 pub mod frame;
 pub mod iso230;
+pub mod kinds;
 pub mod layout;
 pub mod localize;
 pub mod map;
@@ -37,8 +38,9 @@ use serde::Serialize;
 use serde_json::{Map, Value};
 
 pub use context::{ActiveMap, Bench, Context, ContextError, Stop};
-pub use registry::{summary, Procedure};
-pub use request::{Request, RequestError};
+pub use kinds::{summary, Request, KINDS};
+pub use registry::Procedure;
+pub use request::RequestError;
 
 /// How a procedure ended.
 #[derive(Debug, Clone, PartialEq, Serialize)]

@@ -23,33 +23,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::{Instant, SystemTime};
 
-/// Where a scan's samples are kept as they come, and where a stopped scan's are found.
-pub trait ScanJournal {
-    /// The samples a stopped scan of this job, machine and plan (`header`) kept (empty
-    /// for a new scan); an error when what is there belongs to another scan (naming what
-    /// differs) or is damaged.
-    fn resume(
-        &mut self,
-        header: &journal::Header,
-        plan: &ScanPlan,
-    ) -> Result<Vec<(usize, Sample)>, String>;
-    /// Keeps one sample (a failure stops the scan with the stage stopped).
-    fn append(&mut self, index: usize, sample: &Sample) -> Result<(), String>;
-    /// The map is kept: the journal has done its job.
-    fn close(&mut self);
-    /// Where resumed samples came from (the service: the stopped job), for the result.
-    fn resumed_from(&self) -> Option<Value> {
-        None
-    }
-}
-
-/// Where the finished map goes.
-pub trait MapShelf {
-    /// The version the next map of `name` gets.
-    fn next_version(&mut self, name: &str) -> Result<u32, String>;
-    /// Keeps the map; returns where it went (a path, a profile), for the result.
-    fn keep(&mut self, name: &str, map: &ErrorMap) -> Result<String, String>;
-}
+pub use crate::context::{MapShelf, ScanJournal};
 
 /// Runs (or resumes) a scan and keeps the map. The result: `name`, `version`, `kept_as`,
 /// `frames`, `resumed_frames`, `grid`, `lines`, `passes`, `uncertainty_um`,

@@ -12,8 +12,8 @@ use errormap::MapModel;
 use job::{GrblLink, Job, StageSpec};
 use protocol::errormap::ErrorMap;
 use proxy::{
-    open_controller, serve_with_camera, AfterHoming, Ending, FiveAxisRewriter, LineAccount, Proxy,
-    ReferenceFrames, SenderPort,
+    serve_with_camera, AfterHoming, Ending, FiveAxisRewriter, LineAccount, Proxy, ReferenceFrames,
+    SenderPort,
 };
 use rewrite::{Approach, Compensation, Options, Pose, Rewriter, N_AXIS};
 use rotary::{LocationErrors, MachineConstants};
@@ -473,7 +473,7 @@ async fn sessions<'m>(
     mut make: impl FnMut() -> Result<Proxy<'m>, String>,
     mut frames: Option<&mut dyn ReferenceFrames>,
 ) -> Outcome {
-    let mut controller = match open_controller(s.port, s.baud, BANNER_WAIT).await {
+    let mut controller = match drivers::open_grbl_line(s.port, s.baud, BANNER_WAIT).await {
         Ok((c, _banner)) => c,
         Err(e) => return Outcome::failed(e.to_string()),
     };

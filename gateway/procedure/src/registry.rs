@@ -220,54 +220,10 @@ impl Kind {
     }
 }
 
-/// Every capability, in the order the page offers them.
-pub static KINDS: &[Kind] = &[
-    entry::<crate::compensate::Compensate>(),
-    entry::<crate::map::Map>(),
-    entry::<crate::reference::Reference>(),
-    entry::<crate::verify::Verify>(),
-    entry::<crate::iso230::Iso230>(),
-    entry::<crate::iso230::Iso230Evaluate>(),
-    entry::<crate::export::Export>(),
-    entry::<crate::rewrite::Rewrite>(),
-    entry::<crate::layout::LayoutPartition>(),
-    entry::<crate::rotary::RotaryMeasure>(),
-    entry::<crate::rotary::RotaryIdentify>(),
-    entry::<crate::rotary::RotaryRewrite>(),
-];
-
-/// The kind named `name`.
-pub fn find(name: &str) -> Option<&'static Kind> {
-    KINDS.iter().find(|k| k.name == name)
-}
-
-/// The kind named `name`, or the error the API answers (naming every kind).
-pub fn kind(name: &str) -> Result<&'static Kind, RequestError> {
-    find(name).ok_or_else(|| {
-        RequestError::new(
-            "kind",
-            format!(
-                "unknown job kind {name:?}; this service runs: {}",
-                KINDS.iter().map(|k| k.name).collect::<Vec<_>>().join(", ")
-            ),
-        )
-    })
-}
-
-/// The text a person reads of a job kind's result (the CLI's summary; the page shows it
-/// above the result's numbers).
-pub fn summary(kind: &str, result: &Value) -> Option<String> {
-    find(kind).map(|k| k.summary(result))
-}
-
-/// Each kind's params schema, `(kind, schema)`.
-pub fn schemas() -> Vec<(&'static str, RefOr<Schema>)> {
-    KINDS.iter().map(|k| (k.name, k.schema())).collect()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::kinds::{find, kind, KINDS};
     use serde_json::json;
 
     /// Every registered kind is whole: a unique name, a title for its form, a command,

@@ -832,20 +832,6 @@ impl RotaryRequest {
     }
 }
 
-/// A checked request of any registered kind ([`crate::registry::KINDS`]): the kind and
-/// its params with every default written out (what the service stores, so a stored job
-/// says exactly what it asked for).
-#[derive(Debug, Clone, PartialEq)]
-pub struct Request {
-    kind: &'static crate::registry::Kind,
-    params: Value,
-}
-
-/// The kinds [`Request::parse`] knows: every registered procedure.
-pub fn kinds() -> impl Iterator<Item = &'static str> {
-    crate::registry::KINDS.iter().map(|k| k.name)
-}
-
 /// A request's params as the request type (serde's error turned into the field named).
 pub(crate) fn from_json<T: serde::de::DeserializeOwned>(params: &Value) -> Result<T, RequestError> {
     serde_path_to_error::deserialize(params).map_err(|e| {
@@ -877,71 +863,10 @@ pub(crate) fn from_json<T: serde::de::DeserializeOwned>(params: &Value) -> Resul
     })
 }
 
-impl Request {
-    /// Parses and checks a request: `kind` and its `params` object. Unknown kinds and
-    /// fields are refused, every bound checked, the field named.
-    pub fn parse(kind: &str, params: &Value) -> Result<Request, RequestError> {
-        let kind = crate::registry::kind(kind)?;
-        Ok(Request {
-            kind,
-            params: kind.parse(params)?,
-        })
-    }
-
-    /// The request as its params object, every default written out.
-    pub fn params(&self) -> Value {
-        self.params.clone()
-    }
-
-    pub fn kind(&self) -> &'static str {
-        self.kind.name
-    }
-
-    /// The registered kind.
-    pub fn registered(&self) -> &'static crate::registry::Kind {
-        self.kind
-    }
-
-    /// Whether the request uses the machine's active error map.
-    pub fn uses_map(&self) -> bool {
-        self.kind.uses_map(&self.params)
-    }
-}
-
-/// The JSON schema (OpenAPI 3.1) of each job kind's params, enums inline: the service's
-/// OpenAPI document names them `job.<kind>`, and the page builds its forms from them.
-/// Their bounds are the requests' checks (a test holds the two together).
-pub fn schemas() -> Vec<(
-    &'static str,
-    utoipa::openapi::RefOr<utoipa::openapi::schema::Schema>,
-)> {
-    crate::registry::schemas()
-}
-
-/// Each request's bounds, checked once where it is parsed (the registry's [`Checked`]).
-macro_rules! checked {
-    ($($t:ty),* $(,)?) => {
-        $(impl crate::registry::Checked for $t {
-            fn check(&self) -> Result<(), RequestError> {
-                <$t>::check(self)
-            }
-        })*
-    };
-}
-
-checked!(
-    CompensateRequest,
-    MapRequest,
-    VerifyRequest,
-    Iso230Request,
-    LayoutRequest,
-    RotaryRequest,
-    ReferenceRequest,
-);
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::kinds::{schemas, Request};
     use serde_json::json;
 
     /// The schemas the page builds its forms from say what the checks do: each default

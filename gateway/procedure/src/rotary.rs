@@ -13,12 +13,7 @@ use serde_json::{json, Value};
 use std::cell::Cell;
 use std::future::Future;
 
-/// Where the identified errors are kept (the CLI: `errors.json` in its folder, written
-/// as an artifact; the service: the next version of a rotary profile).
-pub trait ErrorsShelf {
-    /// Keeps the report; returns where it went, for the result.
-    fn keep(&mut self, name: &str, report: &Value) -> Result<String, String>;
-}
+pub use crate::context::ErrorsShelf;
 
 /// The errors' report as `errors.json` in a folder, written atomically.
 pub struct FolderShelf(pub std::path::PathBuf);

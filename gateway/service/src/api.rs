@@ -378,12 +378,12 @@ fn static_file(content_type: &'static str, body: &'static str) -> Response {
 pub struct ApiDoc;
 
 /// Each job kind's params as `components.schemas["job.<kind>"]`: the request types the
-/// API checks (`procedure::request::schemas`), from which the page builds its forms.
+/// API checks (`procedure::kinds::schemas`), from which the page builds its forms.
 struct JobParams;
 impl utoipa::Modify for JobParams {
     fn modify(&self, openapi: &mut utoipa::openapi::OpenApi) {
         let components = openapi.components.get_or_insert_with(Default::default);
-        for (kind, schema) in procedure::request::schemas() {
+        for (kind, schema) in procedure::kinds::schemas() {
             components.schemas.insert(format!("job.{kind}"), schema);
         }
     }
@@ -597,7 +597,7 @@ async fn job(
     let summary = record
         .result
         .as_ref()
-        .and_then(|r| procedure::registry::summary(&record.kind, r));
+        .and_then(|r| procedure::summary(&record.kind, r));
     let mut v = serde_json::to_value(record).unwrap_or(Value::Null);
     v["summary"] = json!(summary);
     Ok(Json(v))

@@ -13,6 +13,7 @@ pub mod context;
 mod serve;
 pub mod sink;
 pub mod state;
+mod supervise;
 pub mod worker;
 
 pub use config::{BoxConfig, ConfigError, JobSource, MachineConfig, ServiceConfig};

@@ -11,16 +11,15 @@ use crate::config::MachineConfig;
 use crate::context::StoreContext;
 use crate::sink::StoreSink;
 use crate::state::{lock, Machine, MachineState, Shared};
+use crate::supervise::{supervise, Supervised};
 use devices::Devices;
-use futures_util::FutureExt;
 use job::{CameraSpec, Job, StageSpec};
 use procedure::{End, Request, Stop};
 use serde_json::{Map, Value};
-use std::panic::AssertUnwindSafe;
 use std::sync::Arc;
 use std::time::Duration;
 use store::{JobRecord, Outcome, ProfileKind, ProfileRef};
-use tokio::sync::{watch, Notify};
+use tokio::sync::Notify;
 use tracing::{info, info_span, warn, Instrument};
 
 /// How long a cancelled procedure may take to stop by itself before it is dropped.
@@ -159,15 +158,6 @@ fn to_store(outcome: procedure::Outcome, sink: StoreSink) -> (Outcome, Option<St
     (stored, outcome.link_lost)
 }
 
-/// The text of a panic's payload.
-fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
-    payload
-        .downcast_ref::<&str>()
-        .map(|s| s.to_string())
-        .or_else(|| payload.downcast_ref::<String>().cloned())
-        .unwrap_or_else(|| "a panic without a message".into())
-}
-
 /// Runs one queued job to its end; `Some(detail)` when the device link was lost (or
 /// the devices' state is unknown after a panic or a dropped procedure).
 async fn run_one(
@@ -273,97 +263,4 @@ async fn run_one(
         Err(e) => warn!(error = %e, "job result not saved"),
     }
     lost
-}
-
-/// How a supervised job ended.
-#[derive(Debug, PartialEq)]
-pub(crate) enum Supervised<T> {
-    Ended(T),
-    /// It panicked: the panic's message.
-    Panicked(String),
-    /// It did not end within the grace period after its stop was requested: dropped.
-    Dropped,
-}
-
-/// Runs `job` so that it can never jam its machine: a panic inside it is caught (the
-/// job ends, the worker goes on); once `stop_requested` completes the job's own stop
-/// signal (`stop_tx`) is raised, and a job still running `grace` later is dropped.
-pub(crate) async fn supervise<T>(
-    job: impl std::future::Future<Output = T>,
-    stop_requested: impl std::future::Future<Output = ()>,
-    stop_tx: watch::Sender<bool>,
-    grace: Duration,
-) -> Supervised<T> {
-    let job = AssertUnwindSafe(job).catch_unwind();
-    tokio::pin!(job);
-    tokio::pin!(stop_requested);
-    let mut stopping = false;
-    loop {
-        tokio::select! {
-            r = &mut job => return match r {
-                Ok(v) => Supervised::Ended(v),
-                Err(payload) => Supervised::Panicked(panic_message(payload.as_ref())),
-            },
-            _ = &mut stop_requested, if !stopping => {
-                stopping = true;
-                let _ = stop_tx.send(true);
-            }
-            _ = tokio::time::sleep(grace), if stopping => return Supervised::Dropped,
-        }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn stop_pair() -> (watch::Sender<bool>, watch::Receiver<bool>) {
-        watch::channel(false)
-    }
-
-    #[tokio::test]
-    async fn a_panicking_job_ends_with_its_message() {
-        let (tx, _rx) = stop_pair();
-        let job = async {
-            if tx.is_closed() {
-                return 1;
-            }
-            panic!("boom in a procedure")
-        };
-        let (tx2, _rx2) = stop_pair();
-        let r = supervise(job, std::future::pending(), tx2, CANCEL_GRACE).await;
-        assert_eq!(r, Supervised::Panicked("boom in a procedure".into()));
-    }
-
-    #[tokio::test]
-    async fn a_job_that_honours_its_stop_ends_by_itself() {
-        let (tx, mut rx) = stop_pair();
-        let job = async move {
-            let _ = rx.wait_for(|s| *s).await;
-            "stopped"
-        };
-        let r = supervise(job, async {}, tx, CANCEL_GRACE).await;
-        assert_eq!(r, Supervised::Ended("stopped"));
-    }
-
-    // The paused clock advances only when every task waits: no wall time passes.
-    #[tokio::test(start_paused = true)]
-    async fn a_job_that_ignores_its_stop_is_dropped_after_the_grace() {
-        let (tx, _rx) = stop_pair();
-        let started = tokio::time::Instant::now();
-        let r = supervise(std::future::pending::<()>(), async {}, tx, CANCEL_GRACE).await;
-        assert_eq!(r, Supervised::Dropped);
-        assert_eq!(started.elapsed(), CANCEL_GRACE);
-    }
-
-    #[tokio::test(start_paused = true)]
-    async fn a_job_is_never_dropped_without_a_stop() {
-        let (tx, _rx) = stop_pair();
-        let job = async {
-            tokio::time::sleep(CANCEL_GRACE * 10).await;
-            7
-        };
-        let r = supervise(job, std::future::pending(), tx, CANCEL_GRACE).await;
-        assert_eq!(r, Supervised::Ended(7));
-    }
 }
