@@ -163,6 +163,22 @@ mod tests {
         Request::parse(kind, &params).unwrap().params()
     }
 
+    /// Every registered procedure is a command of this binary (the registry's
+    /// `COMMAND` words name it).
+    #[test]
+    fn every_registered_kind_is_a_command() {
+        use clap::CommandFactory;
+        let cli = Cli::command();
+        for k in procedure::KINDS {
+            let mut cmd = &cli;
+            for word in k.command.split(' ') {
+                cmd = cmd.find_subcommand(word).unwrap_or_else(|| {
+                    panic!("kind {}: no command `gateway {}`", k.name, k.command)
+                });
+            }
+        }
+    }
+
     /// The flags are the request's fields: with no flag given, the CLI's request is the
     /// API's request with no param given (the defaults are declared once).
     #[test]

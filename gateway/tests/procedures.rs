@@ -126,6 +126,72 @@ async fn map_verify_and_iso230_through_the_cli_and_the_api_give_one_outcome() {
     assert_eq!(from_cli["points"].as_array().unwrap().len(), 3);
     assert_same(from_cli, job_record["result"].clone());
 
+    // The reference after homing, three times, then a spot check: the same rules on both
+    // sides (each record continues the previous one, the spot check applies the
+    // recorded reference instead of homing). The machines are not the same run (one
+    // process per command on the CLI, one service), so the rules are compared, not the
+    // micrometres.
+    let reference = |from: &Value| {
+        assert_eq!(from["reference_count"], 3, "{from}");
+        assert!(from["drift_since_previous_um"].is_array(), "{from}");
+        assert!(from["written_to"].is_string(), "{from}");
+    };
+    let spot = |from: &Value| {
+        assert_eq!(from["spot_check"], true, "{from}");
+        assert_eq!(from["recorded_reference"]["reference_count"], 3, "{from}");
+        assert!(from["drift_since_reference_um"].is_array(), "{from}");
+        assert!(from.get("warning").is_none(), "{from}");
+    };
+    let keys = |v: &Value| {
+        let mut k: Vec<String> = v.as_object().unwrap().keys().cloned().collect();
+        k.sort();
+        k
+    };
+    let _ = std::fs::remove_file(map_file.replace(".json", ".reference.json"));
+    for _ in 0..2 {
+        cli(&["reference", "--config", &job, "--map", &map_file, "--json"]);
+    }
+    // The CLI's context in this process (the binary's simulated machine lives only as
+    // long as its process: a spot check needs the machine the reference was taken on).
+    let (cli_reference, cli_spot) = {
+        let mut sink = procedure::Discard;
+        let (_raise, stop) = procedure::Stop::new();
+        let mut files = procedure::files::Files::new(&mut sink, stop)
+            .job_file(std::path::Path::new(&job))
+            .map_file(std::path::Path::new(&map_file));
+        let run = |kind: &str| procedure::kinds::kind(kind).unwrap();
+        let r = run("reference").run(json!({}), &mut files).await;
+        assert!(r.is_success(), "{:?}", r.error());
+        let params = json!({"spot_check": true, "points": 2});
+        let v = run("verify").run(params, &mut files).await;
+        assert!(v.is_success(), "{:?}", v.error());
+        (r.result.unwrap(), v.result.unwrap())
+    };
+    let mut api_reference = Value::Null;
+    for _ in 0..3 {
+        let r = api.run("reference", json!({})).await;
+        assert_eq!(r["state"], "succeeded", "{r}");
+        api_reference = r["result"].clone();
+    }
+    let api_spot = api
+        .run("verify", json!({"spot_check": true, "points": 2}))
+        .await;
+    assert_eq!(api_spot["state"], "succeeded", "{api_spot}");
+    let api_spot = api_spot["result"].clone();
+    for (c, a) in [(&cli_reference, &api_reference), (&cli_spot, &api_spot)] {
+        assert_eq!(
+            keys(c),
+            keys(a),
+            "the same result's fields:\nCLI {c:#}\nAPI {a:#}"
+        );
+    }
+    for r in [&cli_reference, &api_reference] {
+        reference(r);
+    }
+    for r in [&cli_spot, &api_spot] {
+        spot(r);
+    }
+
     // ISO 230-2 without a map.
     let iso = scratch("iso230");
     let iso_out = iso.display().to_string();

@@ -56,6 +56,7 @@ pub fn open_devices(job: &Job) -> Result<Devices, OpenError> {
 /// Open the devices of any job. Call from inside the runtime that will run the job
 /// (emulators in-process and bus tasks are tasks of that runtime).
 pub async fn open_devices_async(job: &Job) -> Result<Devices, OpenError> {
+    job.check_pairing()?;
     let (stage, rig) = open_stage_async(job).await?;
     let camera = open_camera(&job.camera, rig.as_ref()).await?;
     Ok(Devices { stage, camera, rig })
@@ -64,8 +65,8 @@ pub async fn open_devices_async(job: &Job) -> Result<Devices, OpenError> {
 /// Open the stage of a job alone (with the simulated machine's rig when it is one):
 /// for a front end that needs the controller but may have no camera (the pass-through
 /// after a map was measured).
+/// The camera's pairing with the stage is not checked: no camera is opened here.
 pub async fn open_stage_async(job: &Job) -> Result<OpenedStage, OpenError> {
-    job.check_pairing()?;
     Ok(match &job.stage {
         StageSpec::Sim { machine } => {
             let rig = new_rig(job, machine);
