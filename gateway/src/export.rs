@@ -24,6 +24,8 @@ pub struct ExportArgs {
     /// Beckhoff grid interval, mm.
     #[arg(long, default_value_t = 1.0)]
     pub interval_mm: f64,
+    #[command(flatten)]
+    pub controller: procedure::export::ControllerOptions,
 }
 
 pub fn export(args: ExportArgs, json: bool) -> anyhow::Result<ExitCode> {
@@ -39,6 +41,7 @@ pub fn export(args: ExportArgs, json: bool) -> anyhow::Result<ExitCode> {
         tolerance_um: args.tolerance_um,
         entries: args.entries as u64,
         interval_mm: args.interval_mm,
+        controller: args.controller,
     };
     request.check().map_err(cli)?;
     let map = ErrorMap::load(&args.map)?;
