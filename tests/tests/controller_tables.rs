@@ -104,8 +104,8 @@ const POINTS: usize = 4000;
 fn check(name: &str, t: &ControllerTables, reader_fit: (f64, f64)) -> (f64, f64) {
     let (max, rms) = reader_fit;
     println!(
-        "{name:<34} reader: max {max:6.2} rms {rms:5.2} um | writer: max {:6.2} rms {:5.2} um, share {:.3}, zero not held ({:.2}, {:.2}) um | map max {:.2} rms {:.2} um",
-        t.fit.max_um, t.fit.rms_um, t.fit.share, t.zero_not_held_um[0], t.zero_not_held_um[1], t.fit.map_max_um, t.fit.map_rms_um
+        "{name:<34} reader: max {max:6.2} rms {rms:5.2} um | writer: max {:6.2} rms {:5.2} um, share {:.4}, worst at ({:.1}, {:.1}) mm, zero not held ({:.2}, {:.2}) um | map max {:.2} rms {:.2} um",
+        t.fit.max_um, t.fit.rms_um, t.fit.share, t.fit.worst_at_mm[0], t.fit.worst_at_mm[1], t.zero_not_held_um[0], t.zero_not_held_um[1], t.fit.map_max_um, t.fit.map_rms_um
     );
     assert!(
         (rms - t.fit.rms_um).abs() < 0.1 * t.fit.rms_um.max(1.0),

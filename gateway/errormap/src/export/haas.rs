@@ -56,7 +56,8 @@ pub fn haas(
             let machine_in = -(i as f64 * HAAS_SPACING_IN) + 0.0;
             let s = hi[k] + machine_in * MM_PER_IN;
             let e_in = profiles.mean(model, k, k, s, None)? / MM_PER_IN;
-            let written = (sign.apply(e_in) * 10_000.0).round() / 10_000.0;
+            // + 0.0: never -0.0000.
+            let written = (sign.apply(e_in) * 10_000.0).round() / 10_000.0 + 0.0;
             if let Some(steps) = steps_per_inch {
                 let limit = HAAS_MAX_STEPS / steps[k];
                 if written.abs() > limit {

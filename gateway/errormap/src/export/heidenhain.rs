@@ -110,8 +110,8 @@ pub fn heidenhain_com(
         let _ = writeln!(text, "BEGIN {} MM", com_names[input]);
         let _ = writeln!(
             text,
-            "{:<6}{:<14}{:<14}{:<14}{:<14}",
-            "NR", "AXISPOS", "X", "Y", "BACKLASH"
+            "{:<6}{:<14}{:<14}{:<14}BACKLASH",
+            "NR", "AXISPOS", "X", "Y"
         );
         for i in 0..n {
             let (x, y) = if input == 0 {
@@ -121,12 +121,12 @@ pub fn heidenhain_com(
             };
             let _ = writeln!(
                 text,
-                "{:<6}{:<14}{:<14}{:<14}{:<14}",
+                "{:<6}{:<14}{:<14}{:<14}{}",
                 i,
                 format!("{:+.4}", at[i]),
-                format!("{:+.4}", sign.apply(x)),
-                format!("{:+.4}", sign.apply(y)),
-                format!("{:+.4}", sign.apply(backlash[i])),
+                signed4(sign.apply(x)),
+                signed4(sign.apply(y)),
+                signed4(sign.apply(backlash[i])),
             );
         }
         let _ = writeln!(text, "[END]");
@@ -140,10 +140,10 @@ pub fn heidenhain_com(
     }
     let mut cma = String::new();
     let _ = writeln!(cma, "BEGIN {cma_name}");
-    let _ = writeln!(cma, "{:<6}{:<24}{:<24}{:<8}", "NR", "X", "Y", "ACTIVE");
+    let _ = writeln!(cma, "{:<6}{:<24}{:<24}ACTIVE", "NR", "X", "Y");
     let _ = writeln!(
         cma,
-        "{:<6}{:<24}{:<24}{:<8}",
+        "{:<6}{:<24}{:<24}{}",
         0, com_names[0], com_names[1], "*"
     );
     let _ = writeln!(cma, "[END]");
@@ -165,6 +165,11 @@ pub fn heidenhain_com(
 
 fn round4(mm: f64) -> f64 {
     (mm * 10_000.0).round() / 10_000.0
+}
+
+/// `+0.0012`, never `-0.0000`.
+fn signed4(mm: f64) -> String {
+    format!("{:+.4}", round4(mm) + 0.0)
 }
 
 /// The TNC 306/360 tables, `X=F(X)` and `Y=F(Y)` (file suffixes `x`, `y`).
