@@ -141,11 +141,8 @@ pub fn heidenhain_com(
     let mut cma = String::new();
     let _ = writeln!(cma, "BEGIN {cma_name}");
     let _ = writeln!(cma, "{:<6}{:<24}{:<24}ACTIVE", "NR", "X", "Y");
-    let _ = writeln!(
-        cma,
-        "{:<6}{:<24}{:<24}{}",
-        0, com_names[0], com_names[1], "*"
-    );
+    // Line 0, active.
+    let _ = writeln!(cma, "{:<6}{:<24}{:<24}*", 0, com_names[0], com_names[1]);
     let _ = writeln!(cma, "[END]");
     files.push((cma_name, cma));
     let fit = fit(model, &terms, [0.0; 2])?;
