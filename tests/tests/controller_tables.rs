@@ -432,6 +432,17 @@ fn the_writers_refuse_what_the_control_refuses() {
     )
     .expect_err("the demo's pitch error needs more than 2 units a point");
     assert!(e.to_string().contains("past the 2 a point holds"), "{e}");
+    let e = siemens(
+        &model,
+        &SiemensOptions {
+            points: 5000,
+            multiplier: CecMultiplier::OwnOutputAdded,
+            ..SiemensOptions::default()
+        },
+        true,
+    )
+    .expect_err("products over 5000 x 5000 points");
+    assert!(e.to_string().contains("at most 4000000"), "{e}");
     let e = heidenhain_com(&model, "demo", 300, ValueSign::Correction).expect_err("300 entries");
     assert!(e.to_string().contains("a table holds 2 to 256"), "{e}");
     let e = haas(&model, ValueSign::Correction, Some([1e6, 1e6]))

@@ -361,10 +361,14 @@ impl ExportRequest {
             ExportFormat::Csv => ("map", (g.xs.len() * g.ys.len()) as f64 * 100.0),
             // A few tables of at most `points` lines, and the check on a grid of at most
             // 2000 x 2000 points evaluated one at a time.
-            _ => (
-                "points",
-                self.controller.points.unwrap_or(256) as f64 * 10.0 * 64.0,
-            ),
+            _ => {
+                let points = self.controller.points.unwrap_or(256) as f64;
+                // Products of CEC tables fit the residual at every pair of points.
+                let products = self.format == ExportFormat::SiemensCec
+                    && self.controller.cec_multiplier != CecMultiplier::Off;
+                let pairs = if products { points * points * 8.0 } else { 0.0 };
+                ("points", points * 10.0 * 64.0 + pairs)
+            }
         };
         if !(bytes <= MAX_EXPORT_BYTES as f64) {
             return Err(RequestError::new(

@@ -66,6 +66,10 @@ impl CecMultiplier {
     }
 }
 
+/// The products' fit holds the map's residual at every pair of X and Y table points
+/// (8 bytes each): at most 32 MB.
+pub const MAX_PRODUCT_PAIRS: usize = 4_000_000;
+
 #[derive(Debug, Clone, PartialEq)]
 pub struct SiemensOptions {
     /// Machine axis names of X and Y (`X1`, `Y1`; `AX1`, `AX2` on some machines).
@@ -223,6 +227,13 @@ pub fn siemens(
             }
         }
         if options.multiplier != CecMultiplier::Off {
+            let pairs = geometry[0].1 * geometry[1].1;
+            if pairs > MAX_PRODUCT_PAIRS {
+                return Err(ExportError::Options(format!(
+                    "Siemens CEC products fit the map at every pair of X and Y points: {} x {} = {pairs}, at most {MAX_PRODUCT_PAIRS} (fewer points per table)",
+                    geometry[0].1, geometry[1].1
+                )));
+            }
             products(model, options, &mut eec, &mut cecs, &grid, &table)?;
         }
     }
