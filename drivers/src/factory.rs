@@ -78,3 +78,52 @@ pub async fn open_camera(link: &CameraLink) -> Result<Box<dyn Camera>, DriverErr
         )),
     }
 }
+
+#[cfg(feature = "serial")]
+/// Open a GRBL controller's port as a raw line (the pass-through forwards the sender's
+/// bytes itself) and wait for its banner line (an Arduino resets when its
+/// port opens and talks after about two seconds; a controller that was already running
+/// says nothing, so `banner_wait` bounds the wait). What it said at start-up (with a
+/// first power-up's `error:7` and settings dump) is not the sender's and is returned,
+/// not passed on.
+pub async fn open_grbl_line(
+    port: &str,
+    baud: u32,
+    banner_wait: std::time::Duration,
+) -> std::io::Result<(tokio_serial::SerialStream, String)> {
+    use std::io;
+    use tokio::io::AsyncReadExt;
+    use tokio_serial::SerialPortBuilderExt;
+    let mut controller = tokio_serial::new(port, baud)
+        .open_native_async()
+        .map_err(|e| io::Error::other(format!("opening the controller at {port}: {e}")))?;
+    let mut banner = Vec::new();
+    let mut buf = [0u8; 256];
+    let deadline = tokio::time::Instant::now() + banner_wait;
+    // Up to the end of the banner's line: a boot prints more before it (a first
+    // power-up's `error:7` and settings), none of it the sender's.
+    let complete_banner = |bytes: &[u8]| {
+        let mut lines: Vec<&[u8]> = bytes.split(|b| *b == b'\n').collect();
+        lines.pop(); // not ended yet
+        lines.iter().any(|l| {
+            matches!(
+                protocol::grbl::response::Response::parse(
+                    String::from_utf8_lossy(l).trim_end_matches('\r')
+                ),
+                protocol::grbl::response::Response::Banner { .. }
+            )
+        })
+    };
+    while !complete_banner(&banner) {
+        match tokio::time::timeout_at(deadline, controller.read(&mut buf)).await {
+            Ok(Ok(n)) if n > 0 => banner.extend_from_slice(&buf[..n]),
+            Ok(Ok(_)) => return Err(io::Error::other(format!("the controller at {port} closed"))),
+            Ok(Err(e)) => return Err(e),
+            Err(_) => break,
+        }
+    }
+    Ok((
+        controller,
+        String::from_utf8_lossy(&banner).trim().to_string(),
+    ))
+}

@@ -31,6 +31,8 @@ pub mod stage;
 
 pub use camera::{Camera, CameraInfo, Frame, FrameMeta};
 pub use error::DriverError;
+#[cfg(feature = "serial")]
+pub use factory::open_grbl_line;
 pub use factory::{open_camera, open_prober, open_stage};
 pub use link_spec::{CameraLink, StageLink};
 pub use multi_axis::{AxisDrive, AxisStatus, MultiAxisStage};

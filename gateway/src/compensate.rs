@@ -1,8 +1,6 @@
 //! `gateway demo` and `gateway compensate`: the compensation procedure on the embedded
 //! demo job (over any emulated link) or a job file.
 
-use devices::open_devices_async;
-use job::Job;
 use procedure::request::CompensateRequest;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -38,27 +36,13 @@ pub struct CompensateArgs {
 pub fn demo(a: DemoArgs, json: bool) -> anyhow::Result<ExitCode> {
     let job = procedure::demo::demo_job(&a.stage, &a.transport, &a.camera)
         .map_err(|e| anyhow::anyhow!(e.for_cli()))?;
-    run(job, a.request, json)
+    let mut sink = crate::front::CliSink::new("targets", json);
+    crate::front::run_kind("compensate", &a.request, &mut sink, json, |f| f.job(job))
 }
 
 pub fn compensate(a: CompensateArgs, json: bool) -> anyhow::Result<ExitCode> {
-    run(Job::load(&a.config)?, a.request, json)
-}
-
-fn run(job: Job, request: CompensateRequest, json: bool) -> anyhow::Result<ExitCode> {
-    request.check().map_err(|e| anyhow::anyhow!(e.for_cli()))?;
-    let rt = crate::front::runtime()?;
-    let mut devices = rt.block_on(open_devices_async(&job))?;
     let mut sink = crate::front::CliSink::new("targets", json);
-    // Ctrl-C stops the job cleanly: the stage is told to stop and the report printed
-    // with everything measured so far.
-    let (outcome, report) = rt.block_on(procedure::compensate::run_with_report(
-        &request,
-        &job,
-        &mut devices,
-        &mut sink,
-        crate::front::ctrl_c(),
-    ));
-    sink.finish();
-    crate::front::print(&outcome, json, |_| report.to_text())
+    crate::front::run_kind("compensate", &a.request, &mut sink, json, |f| {
+        f.job_file(&a.config)
+    })
 }

@@ -1,8 +1,7 @@
-//! `gateway export`: flags to `procedure::export`'s request; the tables it hands over
-//! (all of them, or none when one is beyond the tolerance) written beside `--out`.
+//! `gateway export`: the export procedure on `--map`; the tables it hands over (all of
+//! them, or none when one is beyond the tolerance) written beside `--out`.
 
-use procedure::export::{ExportFormat, ExportRequest};
-use protocol::errormap::ErrorMap;
+use procedure::export::ExportRequest;
 use serde_json::{json, Value};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -11,48 +10,29 @@ use std::process::ExitCode;
 pub struct ExportArgs {
     #[arg(long)]
     pub map: PathBuf,
-    #[arg(long)]
-    pub format: String,
     /// Output file (`_x`/`_y` are added for the per-axis formats).
     #[arg(long)]
     pub out: PathBuf,
-    #[arg(long, default_value_t = 1.0)]
-    pub tolerance_um: f64,
-    /// LinuxCNC entries per joint (2..256).
-    #[arg(long, default_value_t = DEFAULT_ENTRIES)]
-    pub entries: usize,
-    /// Beckhoff grid interval, mm.
-    #[arg(long, default_value_t = 1.0)]
-    pub interval_mm: f64,
     #[command(flatten)]
-    pub controller: procedure::export::ControllerOptions,
+    pub request: ExportRequest,
 }
 
 pub fn export(args: ExportArgs, json: bool) -> anyhow::Result<ExitCode> {
-    let cli = |e: procedure::RequestError| anyhow::anyhow!(e.for_cli());
-    let name = args
+    let mut request = args.request;
+    request.name = args
         .out
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .ok_or_else(|| anyhow::anyhow!("--out {}: must name a file", args.out.display()))?;
-    let request = ExportRequest {
-        format: ExportFormat::parse(&args.format).map_err(cli)?,
-        name,
-        tolerance_um: args.tolerance_um,
-        entries: args.entries as u64,
-        interval_mm: args.interval_mm,
-        controller: args.controller,
-    };
-    request.check().map_err(cli)?;
-    let map = ErrorMap::load(&args.map)?;
-    request.check_map(&map).map_err(cli)?;
     // Each table goes beside --out, under the name the procedure gave it.
     let mut sink = crate::front::CliSink::new("", true).inputs(&[args.map.as_path()]);
     for name in request.artifact_names() {
         let path = args.out.with_file_name(&name);
         sink = sink.artifact_to(&name, path);
     }
-    let mut outcome = procedure::export::run(&request, map, &mut sink);
+    let kind = procedure::kinds::kind("export").map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut outcome =
+        crate::front::run_outcome(kind, &request, &mut sink, |f| f.map_file(&args.map))?;
     // `file`: where the table was written.
     if let Some(r) = outcome.result.as_mut() {
         let tables: Vec<&mut Value> = if r.get("tables").is_some() {
@@ -66,8 +46,5 @@ pub fn export(args: ExportArgs, json: bool) -> anyhow::Result<ExitCode> {
             }
         }
     }
-    crate::front::print(&outcome, json, procedure::export::summary)
+    crate::front::print(&outcome, json, |r| kind.summary(r))
 }
-
-/// The default number of LinuxCNC entries.
-pub const DEFAULT_ENTRIES: usize = errormap::export::LINUXCNC_MAX_ENTRIES;

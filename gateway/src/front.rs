@@ -5,7 +5,8 @@
 
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
-use procedure::{Artifact, Outcome, Sink};
+use procedure::files::Files;
+use procedure::{Artifact, Outcome, Sink, Stop};
 use serde_json::Value;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -172,4 +173,48 @@ pub fn print(
             Ok(ExitCode::FAILURE)
         }
     }
+}
+
+/// Runs the registered procedure `kind` on `request` (checked once here: an error names
+/// the flag) in the files context `configure` makes of the command's files, with Ctrl-C
+/// as the stop signal, and prints its outcome with the kind's summary (`then` appended).
+pub fn run_kind(
+    kind: &str,
+    request: &impl serde::Serialize,
+    sink: &mut CliSink,
+    json: bool,
+    configure: impl for<'s> FnOnce(Files<'s>) -> Files<'s>,
+) -> anyhow::Result<ExitCode> {
+    let kind = procedure::kinds::kind(kind).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let outcome = run_outcome(kind, request, sink, configure)?;
+    print(&outcome, json, |r| kind.summary(r))
+}
+
+/// [`run_kind`] without printing: the outcome.
+pub fn run_outcome(
+    kind: &procedure::registry::Kind,
+    request: &impl serde::Serialize,
+    sink: &mut CliSink,
+    configure: impl for<'s> FnOnce(Files<'s>) -> Files<'s>,
+) -> anyhow::Result<Outcome> {
+    let params = serde_json::to_value(request)?;
+    let params = kind
+        .parse(&params)
+        .map_err(|e| anyhow::anyhow!(e.for_cli()))?;
+    let rt = runtime()?;
+    let (raise, stop) = Stop::new();
+    let outcome = rt.block_on(async {
+        // Ctrl-C raises the stop: the procedure stops the stage and ends with what it
+        // measured so far.
+        let watcher = tokio::spawn(async move {
+            ctrl_c().await;
+            let _ = raise.send(true);
+        });
+        let mut files = configure(Files::new(&mut *sink, stop));
+        let outcome = kind.run(params, &mut files).await;
+        watcher.abort();
+        outcome
+    });
+    sink.finish();
+    Ok(outcome)
 }

@@ -5,19 +5,12 @@
 
 use crate::front::CliSink;
 use anyhow::Context;
-use devices::open_devices_async;
 use iso230::{csv_io, Direction, Measurement};
-use job::Job;
-use procedure::iso230::NamedMap;
 use procedure::request::Iso230Request;
-use protocol::errormap::ErrorMap;
 use serde_json::Value;
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-
-fn read_measurements(path: &Path) -> anyhow::Result<Vec<Measurement>> {
-    procedure::iso230::read_measurements_file(path).map_err(anyhow::Error::msg)
-}
 
 pub fn evaluate_file(
     file: &Path,
@@ -25,20 +18,18 @@ pub fn evaluate_file(
     before: Option<&Path>,
     json: bool,
 ) -> anyhow::Result<ExitCode> {
-    let measurements = read_measurements(file)?;
-    let before_measurements = before.map(read_measurements).transpose()?;
+    let read = |p: &Path| protocol::config::read_kind(p, protocol::config::DataKind::Iso230);
+    let request = procedure::iso230::Iso230EvaluateRequest {
+        measurements: read(file)?,
+        measurements_name: file.display().to_string(),
+        before: before.map(read).transpose()?,
+    };
     let inputs: Vec<&Path> = [Some(file), before].into_iter().flatten().collect();
     let mut sink = CliSink::new("", true).inputs(&inputs);
     if let Some(dir) = out {
         sink = sink.into_folder(dir)?;
     }
-    let outcome = procedure::iso230::evaluate_measurements(
-        &measurements,
-        before_measurements.as_deref(),
-        &file.display().to_string(),
-        &mut sink,
-    );
-    crate::front::print(&outcome, json, procedure::iso230::summary)
+    crate::front::run_kind("iso230-evaluate", &request, &mut sink, json, |f| f)
 }
 
 pub struct RunArgs {
@@ -49,36 +40,63 @@ pub struct RunArgs {
     pub request: Iso230Request,
 }
 
-/// A measurement as the procedure hands it to the sink, back as a row of the file.
-fn measurement_of(m: &Value) -> Measurement {
-    Measurement {
-        axis: m["axis"].as_str().unwrap_or("").to_string(),
-        position_index: m["position_index"].as_u64().unwrap_or(0) as usize,
-        target_mm: m["target_mm"].as_f64().unwrap_or(f64::NAN),
-        run: m["run"].as_u64().unwrap_or(0) as usize,
-        direction: if m["direction"] == "-" {
-            Direction::Down
-        } else {
-            Direction::Up
-        },
-        deviation_um: m["deviation_um"].as_f64().unwrap_or(f64::NAN),
+/// `measurements.csv` as the cycle goes: the header, then each measurement appended and
+/// synced as it is taken (a stopped cycle leaves its runs so far); the procedure's
+/// whole file replaces it atomically at the end.
+struct MeasurementLog {
+    path: PathBuf,
+    /// Files the command reads: the log is never one of them.
+    inputs: Vec<PathBuf>,
+    file: Option<std::fs::File>,
+}
+
+impl MeasurementLog {
+    fn append(&mut self, m: &Value) -> Result<(), String> {
+        let row = Measurement {
+            axis: m["axis"].as_str().unwrap_or("").to_string(),
+            position_index: m["position_index"].as_u64().unwrap_or(0) as usize,
+            target_mm: m["target_mm"].as_f64().unwrap_or(f64::NAN),
+            run: m["run"].as_u64().unwrap_or(0) as usize,
+            direction: if m["direction"] == "-" {
+                Direction::Down
+            } else {
+                Direction::Up
+            },
+            deviation_um: m["deviation_um"].as_f64().unwrap_or(f64::NAN),
+        };
+        let text = csv_io::write(&[row]);
+        let shown = self.path.display().to_string();
+        match &mut self.file {
+            Some(file) => {
+                let row = text.split_once('\n').map_or("", |(_, rows)| rows);
+                file.write_all(row.as_bytes())
+                    .and_then(|()| file.sync_data())
+                    .map_err(|e| format!("{shown}: {e}"))
+            }
+            None => {
+                // The header and the first row written whole (never over an input),
+                // then opened for the rows to come.
+                crate::front::write_atomic(&self.path, text.as_bytes(), &self.inputs)
+                    .map_err(|e| format!("{e:#}"))?;
+                let file = std::fs::OpenOptions::new()
+                    .append(true)
+                    .open(&self.path)
+                    .map_err(|e| format!("opening {shown}: {e}"))?;
+                self.file = Some(file);
+                Ok(())
+            }
+        }
     }
 }
 
 pub fn run(args: RunArgs, json: bool) -> anyhow::Result<ExitCode> {
-    let request = args.request;
-    request.check().map_err(|e| anyhow::anyhow!(e.for_cli()))?;
-    let job = Job::load(&args.config)?;
-    let map = match &args.map {
-        Some(path) => Some(NamedMap {
-            map: ErrorMap::load(path)?,
-            name: path.display().to_string(),
-        }),
-        None => None,
-    };
-    let before = args.before.as_deref().map(read_measurements).transpose()?;
-    let rt = crate::front::runtime()?;
-    let mut devices = rt.block_on(open_devices_async(&job))?;
+    let mut request = args.request;
+    request.with_map = args.map.is_some();
+    request.before = args
+        .before
+        .as_deref()
+        .map(|p| protocol::config::read_kind(p, protocol::config::DataKind::Iso230))
+        .transpose()?;
     let inputs: Vec<&Path> = [
         Some(args.config.as_path()),
         args.map.as_deref(),
@@ -87,33 +105,27 @@ pub fn run(args: RunArgs, json: bool) -> anyhow::Result<ExitCode> {
     .into_iter()
     .flatten()
     .collect();
-    // measurements.csv is rewritten after each measurement: a stopped cycle leaves its
-    // runs so far.
-    let csv_path = args.out.join("measurements.csv");
-    let csv_inputs: Vec<PathBuf> = inputs.iter().map(|p| p.to_path_buf()).collect();
-    let mut taken: Vec<Measurement> = Vec::new();
+    let mut log = MeasurementLog {
+        path: args.out.join("measurements.csv"),
+        inputs: inputs.iter().map(|p| p.to_path_buf()).collect(),
+        file: None,
+    };
     let mut sink = CliSink::new("measurements", json)
         .inputs(&inputs)
         .into_folder(&args.out)?
-        .on_measurement(move |m| {
-            taken.push(measurement_of(m));
-            crate::front::write_atomic(&csv_path, csv_io::write(&taken).as_bytes(), &csv_inputs)
-                .map_err(|e| format!("{e:#}"))
-        });
-    let outcome = rt.block_on(procedure::iso230::run(
-        &request,
-        &job,
-        &mut devices,
-        map,
-        before.as_deref(),
-        &mut sink,
-        crate::front::ctrl_c(),
-    ));
-    sink.finish();
+        .on_measurement(move |m| log.append(m));
+    let kind = procedure::kinds::kind("iso230").map_err(|e| anyhow::anyhow!("{e}"))?;
+    let outcome = crate::front::run_outcome(kind, &request, &mut sink, |f| {
+        let f = f.job_file(&args.config);
+        match &args.map {
+            Some(m) => f.map_file(m),
+            None => f,
+        }
+    })?;
     crate::front::print(&outcome, json, |r| {
         if outcome.is_success() {
             let out = args.out.display();
-            format!("{}outputs in {out}", procedure::iso230::summary(r))
+            format!("{}outputs in {out}", kind.summary(r))
         } else {
             format!(
                 "{} measurements taken are in {}",

@@ -112,9 +112,10 @@ pub fn run(cmd: LayoutCmd, json: bool) -> anyhow::Result<ExitCode> {
         request.picture = Some(kind);
         sink = sink.artifact_to(&format!("picture.{}", ext_of(path)), path.clone());
     }
-    let outcome = procedure::layout::partition(&request, &mut sink);
+    let kind = procedure::kinds::kind("layout").map_err(|e| anyhow::anyhow!("{e}"))?;
+    let outcome = crate::front::run_outcome(kind, &request, &mut sink, |f| f)?;
     crate::front::print(&outcome, json, |r| {
-        format!("{}written {}", procedure::layout::summary(r), out.display())
+        format!("{}written {}", kind.summary(r), out.display())
     })
 }
 

@@ -150,7 +150,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use procedure::request::Request;
+    use procedure::Request;
     use serde_json::Value;
 
     fn parse(args: &[&str]) -> Cmd {

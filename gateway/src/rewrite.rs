@@ -3,7 +3,6 @@
 //! atomically to `--out` (never over an input).
 
 use procedure::rewrite::{RewriteModel, RewriteRequest, PROGRAM_ARTIFACT};
-use protocol::errormap::ErrorMap;
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -43,9 +42,9 @@ pub struct RewriteArgs {
     /// Largest distance of the executed path from the compensated path, um.
     #[arg(long, default_value_t = 0.5)]
     pub tolerance_um: f64,
-    /// Largest correction accepted at any point, um.
-    #[arg(long, default_value_t = 200.0)]
-    pub max_correction_um: f64,
+    /// Largest correction accepted at any point, um (default 200).
+    #[arg(long)]
+    pub max_correction_um: Option<f64>,
     /// The controller's `$#` reply saved to a file: its G54..G59 offsets.
     #[arg(long)]
     pub offsets: Option<PathBuf>,
@@ -100,7 +99,7 @@ pub fn rewrite(args: RewriteArgs, json: bool) -> anyhow::Result<ExitCode> {
             (args.offsets.is_some(), "--offsets"),
             (args.start.is_some(), "--start"),
             (args.limits.is_some(), "--limits"),
-            (args.max_correction_um != 200.0, "--max-correction-um"),
+            (args.max_correction_um.is_some(), "--max-correction-um"),
         ];
         if let Some((_, flag)) = other.iter().find(|(given, _)| *given) {
             anyhow::bail!(
@@ -119,50 +118,16 @@ pub fn rewrite(args: RewriteArgs, json: bool) -> anyhow::Result<ExitCode> {
             json,
         );
     }
-    let model = match (&args.map, &args.volumetric) {
-        (Some(_), Some(_)) => anyhow::bail!("give one compensation: --map or --volumetric"),
-        (Some(path), None) => {
-            let map = ErrorMap::load(path)?;
-            if let Some(config) = &args.config {
-                // The one identity check, on the job's devices (opened, asked, closed).
-                let job = job::Job::load(config)?;
-                let here = crate::front::runtime()?
-                    .block_on(procedure::identity_of_job(&job))
-                    .map_err(|e| anyhow::anyhow!(e))?;
-                procedure::check_identity(&map, &here, &path.display().to_string())
-                    .map_err(|e| anyhow::anyhow!(e))?;
-            }
-            // The map's current reference, if recorded (a damaged or foreign one is an
-            // error: the operator runs `gateway reference` or says --no-reference).
-            let record = match args.no_reference {
-                true => None,
-                false => {
-                    procedure::reference::read_record(&procedure::reference::reference_path(path))
-                        .map_err(anyhow::Error::msg)?
-                }
-            };
-            RewriteModel::ReferencedMap {
-                map,
-                reference: procedure::reference::choose(record, args.no_reference),
-            }
-        }
-        (None, Some(path)) => RewriteModel::Volumetric {
-            model: crate::volumetric::load_model(path)?,
-            name: path.display().to_string(),
-        },
-        (None, None) => {
-            anyhow::bail!("give the compensation to apply: --map MAP or --volumetric MODEL")
-        }
-    };
-    let request = RewriteRequest {
-        program: read(&args.input)?,
-        tolerance_um: args.tolerance_um,
-        max_correction_um: args.max_correction_um,
-        offsets: args.offsets.as_deref().map(read_offsets).transpose()?,
-        start: args.start.as_deref().map(parse_pose).transpose()?,
-        limits: args.limits.as_deref().map(parse_limits).transpose()?,
-    };
-    request.check().map_err(|e| anyhow::anyhow!(e.for_cli()))?;
+    let mut request = RewriteRequest::new(read(&args.input)?);
+    request.program_name = args.input.display().to_string();
+    request.no_reference = args.no_reference;
+    request.tolerance_um = args.tolerance_um;
+    if let Some(m) = args.max_correction_um {
+        request.max_correction_um = m;
+    }
+    request.offsets = args.offsets.as_deref().map(read_offsets).transpose()?;
+    request.start = args.start.as_deref().map(parse_pose).transpose()?;
+    request.limits = args.limits.as_deref().map(parse_limits).transpose()?;
     let inputs: Vec<&Path> = [
         Some(args.input.as_path()),
         args.map.as_deref(),
@@ -176,10 +141,33 @@ pub fn rewrite(args: RewriteArgs, json: bool) -> anyhow::Result<ExitCode> {
     let mut sink = crate::front::CliSink::new("", true)
         .inputs(&inputs)
         .artifact_to(PROGRAM_ARTIFACT, args.out.clone());
-    let source = args.input.display().to_string();
-    let mut outcome = procedure::rewrite::run(&request, model, &source, &mut sink);
+    let kind = procedure::kinds::kind("rewrite").map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut outcome = match (&args.map, &args.volumetric) {
+        (Some(_), Some(_)) => anyhow::bail!("give one compensation: --map or --volumetric"),
+        (Some(map), None) => crate::front::run_outcome(kind, &request, &mut sink, |f| {
+            let f = f.map_file(map).input(&args.input);
+            match &args.config {
+                Some(job) => f.job_file(job),
+                None => f,
+            }
+        })?,
+        (None, Some(path)) => {
+            // A volumetric model is not a map: the same rewrite, another compensation.
+            request.check().map_err(|e| anyhow::anyhow!(e.for_cli()))?;
+            let model = RewriteModel::Volumetric {
+                model: crate::volumetric::load_model(path)?,
+                name: path.display().to_string(),
+            };
+            let source = args.input.display().to_string();
+            let now = std::time::SystemTime::now();
+            procedure::rewrite::run(&request, model, &source, now, &mut sink)
+        }
+        (None, None) => {
+            anyhow::bail!("give the compensation to apply: --map MAP or --volumetric MODEL")
+        }
+    };
     if let Some(r) = outcome.result.as_mut() {
         r["output"] = json!(args.out.display().to_string());
     }
-    crate::front::print(&outcome, json, procedure::rewrite::summary)
+    crate::front::print(&outcome, json, |r| kind.summary(r))
 }

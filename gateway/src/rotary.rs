@@ -4,7 +4,6 @@
 
 use crate::front::CliSink;
 use clap::Subcommand;
-use job::rotary::RotaryJob;
 use protocol::config::DataKind;
 use rotary::MachineConstants;
 use std::path::{Path, PathBuf};
@@ -70,56 +69,38 @@ pub enum RotaryCmd {
 }
 
 pub fn run(cmd: RotaryCmd, json: bool) -> anyhow::Result<ExitCode> {
-    let print = |outcome: &procedure::Outcome, wrote: String| {
-        crate::front::print(outcome, json, |r| {
-            format!("{}{wrote}", procedure::rotary::summary(r))
-        })
-    };
     match cmd {
         RotaryCmd::Identify {
             centres,
             machine,
             plot,
         } => {
-            let constants = load_constants(machine.as_deref())?;
-            let text = protocol::config::read_kind(&centres, DataKind::Centres)?;
+            let request = procedure::rotary::RotaryIdentifyRequest {
+                centres: protocol::config::read_kind(&centres, DataKind::Centres)?,
+                centres_name: centres.display().to_string(),
+                machine: machine
+                    .as_deref()
+                    .map(|p| load_constants(Some(p)))
+                    .transpose()?,
+            };
             let mut sink = CliSink::new("", true).inputs(&[&centres]);
             if let Some(dir) = &plot {
                 sink = sink.into_folder(dir)?;
             }
-            let outcome = procedure::rotary::identify(
-                &text,
-                &centres.display().to_string(),
-                &constants,
-                &mut sink,
-            );
             let wrote = plot
                 .map(|d| format!("chart: {}", d.join("rotary-sweeps.svg").display()))
                 .unwrap_or_default();
-            print(&outcome, wrote)
+            run_and_print("rotary-identify", &request, &mut sink, json, wrote, |f| f)
         }
         RotaryCmd::Measure { config, out } => {
-            let text = protocol::config::read_kind(&config, DataKind::RotaryJson)?;
-            let job = RotaryJob::from_json(&text)
-                .map_err(|e| anyhow::anyhow!("{}: {e}", config.display()))?;
             let request = procedure::request::RotaryRequest::default();
             let mut sink = CliSink::new("balls", json)
                 .inputs(&[&config])
                 .into_folder(&out)?;
-            let mut shelf = procedure::rotary::FolderShelf(out.clone());
-            // Nothing stops the command's cycle but a failure (Ctrl-C ends the process).
-            let rt = tokio::runtime::Builder::new_current_thread()
-                .enable_all()
-                .build()?;
-            let outcome = rt.block_on(procedure::rotary::measure(
-                &request,
-                &job,
-                &mut shelf,
-                &mut sink,
-                std::future::pending(),
-            ));
-            sink.finish();
-            print(&outcome, format!("wrote {}", out.display()))
+            let wrote = format!("wrote {}", out.display());
+            run_and_print("rotary", &request, &mut sink, json, wrote, |f| {
+                f.rotary_file(&config).out_folder(&out)
+            })
         }
         RotaryCmd::Rewrite {
             input,
@@ -129,26 +110,44 @@ pub fn run(cmd: RotaryCmd, json: bool) -> anyhow::Result<ExitCode> {
             force_machine,
             tolerance_um,
         } => {
-            let given = machine
-                .as_deref()
-                .map(|p| load_constants(Some(p)))
-                .transpose()?;
+            // The program as a bounded stream of lines (64 KiB a line).
+            let mut program = String::new();
+            for line in protocol::config::open_lines(&input, DataKind::Program)?.keep_endings() {
+                program.push_str(&line?.1);
+            }
+            let request = procedure::rotary::RotaryRewriteRequest {
+                program,
+                program_name: input.display().to_string(),
+                errors: procedure::rotary::read_errors_file(&errors).map_err(anyhow::Error::msg)?,
+                errors_name: errors.display().to_string(),
+                machine: machine
+                    .as_deref()
+                    .map(|p| load_constants(Some(p)))
+                    .transpose()?,
+                force_machine,
+                tolerance_um,
+            };
             let mut sink = CliSink::new("", true)
                 .inputs(&[&input, &errors])
                 .artifact_to("program.nc", out.clone());
-            // The program as a bounded stream of lines; the constants those recorded
-            // with the errors unless --machine (differing only with --force-machine).
-            let outcome = procedure::rotary::rewrite_files(
-                &input,
-                &errors,
-                given,
-                force_machine,
-                tolerance_um,
-                &mut sink,
-            );
-            print(&outcome, format!("wrote {}", out.display()))
+            let wrote = format!("wrote {}", out.display());
+            run_and_print("rotary-rewrite", &request, &mut sink, json, wrote, |f| f)
         }
     }
+}
+
+/// Runs a rotary kind and prints its summary with a line saying what was written.
+fn run_and_print(
+    kind: &str,
+    request: &impl serde::Serialize,
+    sink: &mut CliSink,
+    json: bool,
+    wrote: String,
+    configure: impl for<'s> FnOnce(procedure::files::Files<'s>) -> procedure::files::Files<'s>,
+) -> anyhow::Result<ExitCode> {
+    let kind = procedure::kinds::kind(kind).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let outcome = crate::front::run_outcome(kind, request, sink, configure)?;
+    crate::front::print(&outcome, json, |r| format!("{}{wrote}", kind.summary(r)))
 }
 
 /// The machine constants from a JSON file, or the defaults.

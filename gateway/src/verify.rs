@@ -1,9 +1,8 @@
 //! `gateway verify`: the verification procedure, once or as a periodic spot check.
 
-use devices::open_devices_async;
-use job::Job;
+use procedure::files::Files;
 use procedure::request::VerifyRequest;
-use protocol::errormap::ErrorMap;
+use procedure::Stop;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -22,61 +21,55 @@ pub struct VerifyArgs {
     /// Seconds between two checks of --repeat.
     #[arg(long, default_value_t = 600.0)]
     pub every_s: f64,
-    /// With --spot-check: home and re-reference instead of using the map's recorded
-    /// reference (MAP.reference.json).
-    #[arg(long)]
-    pub no_reference: bool,
 }
 
 pub fn verify(args: VerifyArgs, json: bool) -> anyhow::Result<ExitCode> {
-    let request = args.request;
-    request.check().map_err(|e| anyhow::anyhow!(e.for_cli()))?;
-    anyhow::ensure!(args.repeat >= 1, "--repeat must be at least 1");
     anyhow::ensure!(
-        args.every_s.is_finite() && args.every_s >= 0.0,
-        "--every-s must be a number of seconds >= 0, got {}",
+        (1..=1_000_000).contains(&args.repeat),
+        "--repeat must be from 1 to 1000000, got {}",
+        args.repeat
+    );
+    anyhow::ensure!(
+        args.every_s.is_finite() && (0.0..=1e7).contains(&args.every_s),
+        "--every-s must be a number of seconds from 0 to 1e7, got {}",
         args.every_s
     );
-    let job = Job::load(&args.config)?;
-    let map = ErrorMap::load(&args.map)?;
-    // A spot check uses the map's current reference (as rewrite and proxy do).
-    let reference = match request.spot_check && !args.no_reference {
-        true => procedure::reference::read_record(&procedure::reference::reference_path(&args.map))
-            .map_err(anyhow::Error::msg)?,
-        false => None,
-    };
-    if request.spot_check && !args.no_reference && reference.is_none() {
-        eprintln!(
-            "warning: no reference is recorded for {}: the spot check homes and re-references \
-             (run `gateway reference` after every homing)",
-            args.map.display()
-        );
-    }
+    let kind = procedure::kinds::kind("verify").map_err(|e| anyhow::anyhow!("{e}"))?;
     let rt = crate::front::runtime()?;
-    let mut devices = rt.block_on(open_devices_async(&job))?;
-    let what = args.map.display().to_string();
+    let mut sink = crate::front::CliSink::new("points", true);
+    let (raise, stop) = Stop::new();
     let mut any_drifted = false;
+    // One files context for every round: the devices are opened once.
+    let mut files = Files::new(&mut sink, stop.clone())
+        .job_file(&args.config)
+        .map_file(&args.map);
+    let _watcher = rt.spawn(async move {
+        crate::front::ctrl_c().await;
+        let _ = raise.send(true);
+    });
     for round in 0..args.repeat {
         if round > 0 {
-            // The timer must be made inside the runtime (tokio panics otherwise).
             let pause = std::time::Duration::from_secs_f64(args.every_s);
-            rt.block_on(async { tokio::time::sleep(pause).await });
+            let stopped = rt.block_on(async {
+                tokio::select! {
+                    _ = tokio::time::sleep(pause) => false,
+                    _ = stop.clone().requested() => true,
+                }
+            });
+            if stopped {
+                break;
+            }
         }
         if args.repeat > 1 && !json {
             println!("check {} of {}:", round + 1, args.repeat);
         }
-        let mut sink = crate::front::CliSink::new("points", true);
-        let outcome = rt.block_on(procedure::verify::run_with_reference(
-            &request,
-            &job,
-            &mut devices,
-            map.clone(),
-            &what,
-            round as u64,
-            reference.as_ref(),
-            &mut sink,
-        ));
-        let code = crate::front::print(&outcome, json, procedure::verify::summary)?;
+        let mut request = args.request.clone();
+        request.round = round as u64;
+        let params = kind
+            .parse(&serde_json::to_value(&request)?)
+            .map_err(|e| anyhow::anyhow!(e.for_cli()))?;
+        let outcome = rt.block_on(kind.run(params, &mut files));
+        let code = crate::front::print(&outcome, json, |r| kind.summary(r))?;
         if code != ExitCode::SUCCESS {
             return Ok(code);
         }

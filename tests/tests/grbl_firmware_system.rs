@@ -12,10 +12,11 @@
 //! that a broken test ends).
 
 use drivers::grbl::{GrblOptions, GrblStage};
+use drivers::open_grbl_line as open_controller;
 use drivers::{Axis, AxisValues, Stage, StageState};
 use protocol::grbl::command::Command;
 use protocol::grbl::response::Response;
-use proxy::{open_controller, serve, Ending, Proxy, SenderPort};
+use proxy::{serve, Ending, Proxy, SenderPort};
 use rewrite::{Approach, Compensation, Options, Pose, Rewriter, N_AXIS};
 use std::time::Duration;
 use system_tests::firmware::{Firmware, RunningFirmware, INSTALL_STEP};

@@ -6,10 +6,11 @@
 //! is compared with the programmed path. Skips, saying why, without python3/pyserial.
 
 use devices::spawn_grbl_emulator;
+use drivers::open_grbl_line as open_controller;
 use errormap::MapModel;
 use job::{Job, StageSpec};
 use protocol::errormap::Identity;
-use proxy::{open_controller, serve, Ending, Proxy, SenderPort};
+use proxy::{serve, Ending, Proxy, SenderPort};
 use rewrite::{Options, Rewriter};
 use std::process::Command;
 use std::time::Duration;

@@ -7,9 +7,10 @@
 //! with the programmed tool tip and direction; the status the sender sees is in
 //! programmed coordinates.
 
+use drivers::open_grbl_line as open_controller;
 use emulators::grbl::{GrblConfig, GrblDevice, GrblPty};
 use job::rotary::RotaryJob;
-use proxy::{open_controller, serve, Ending, FiveAxisRewriter, Proxy, SenderPort};
+use proxy::{serve, Ending, FiveAxisRewriter, Proxy, SenderPort};
 use rotary::rewrite::{RewriteOptions, RotaryRewriter};
 use rotary::{Axes, MachineConstants, RotaryMachine};
 use std::time::Duration;

@@ -14,13 +14,14 @@
 
 use devices::{spawn_grbl_emulator, Devices};
 use drivers::grbl::GrblOptions;
+use drivers::open_grbl_line as open_controller;
 use drivers::StageLink;
 use job::{CameraSpec, Job, StageSpec};
 use procedure::map::{FileJournal, FolderShelf};
 use procedure::reference::{self as refer, Choice};
 use procedure::request::{MapRequest, ReferenceRequest};
 use protocol::errormap::ErrorMap;
-use proxy::{open_controller, Ending, Proxy, SenderPort};
+use proxy::{Ending, Proxy, SenderPort};
 use rewrite::{Options, Rewriter};
 use std::path::Path;
 use std::time::Duration;
@@ -260,6 +261,7 @@ fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_prog
             &map,
             &kept,
             None,
+            std::time::SystemTime::now(),
             &mut artifacts,
         )
         .await;
@@ -274,7 +276,7 @@ fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_prog
 
         // A spot check right after: the recorded reference applies, no homing; the zero
         // has not drifted since, and the map holds.
-        let spot = procedure::verify::run_with_reference(
+        let spot = procedure::verify::check_map(
             &procedure::request::VerifyRequest {
                 spot_check: true,
                 ..Default::default()
@@ -283,8 +285,8 @@ fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_prog
             &mut devices,
             map.clone(),
             &kept,
-            0,
             Some(&record),
+            std::time::SystemTime::now(),
             &mut procedure::Discard,
         )
         .await;
@@ -306,7 +308,7 @@ fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_prog
         // with its reference.
         let mut worst = Vec::new();
         for choice in [Choice::NotWanted, Choice::Recorded(record.clone())] {
-            let applied = refer::apply(map.clone(), &choice).unwrap();
+            let applied = refer::apply(map.clone(), &choice, std::time::SystemTime::now()).unwrap();
             let (rows, sender, _) = stream(
                 &port,
                 &rig,
@@ -346,7 +348,12 @@ fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_prog
         // CNCjs as the sender (headless, through its socket.io API): it homes first, so
         // the pass-through re-references by itself.
         let cncjs = system_tests::cncjs_dir().unwrap_or_else(|why| panic!("cannot run: {why}"));
-        let applied = refer::apply(map.clone(), &Choice::Recorded(record.clone())).unwrap();
+        let applied = refer::apply(
+            map.clone(),
+            &Choice::Recorded(record.clone()),
+            std::time::SystemTime::now(),
+        )
+        .unwrap();
         let (rows, v, rereferenced) = stream(
             &port,
             &rig,
@@ -379,9 +386,13 @@ fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_prog
         // 4. The sender homes (the zero moves again): the pass-through re-references by
         // itself with the camera before the next line, and the program stays on its path.
         let shared = procedure::proxy::SharedMap::new(
-            refer::apply(map.clone(), &Choice::Recorded(record.clone()))
-                .unwrap()
-                .model,
+            refer::apply(
+                map.clone(),
+                &Choice::Recorded(record.clone()),
+                std::time::SystemTime::now(),
+            )
+            .unwrap()
+            .model,
         );
         let seen = std::cell::Cell::new(None);
         let homings = lock(&rig).machine().homings();

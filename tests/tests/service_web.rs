@@ -98,7 +98,24 @@ fn kind_jobs() -> serde_json::Value {
             "tools": 2, "window_mm": 25, "gap_mm": 2, "picture": "svg"}, "chart": true},
         {"kind": "rotary", "params": {}, "chart": true},
         {"kind": "reference", "params": {}, "chart": false},
+        {"kind": "export", "params": {"format": "csv"}, "chart": false},
+        {"kind": "rewrite", "params": {"program": {"name": "part.nc",
+            "text": "G21 G90\nG0 X60 Y60\nG1 X90 Y75 F600\nG0 X60 Y60\n"}}, "chart": false},
+        {"kind": "iso230-evaluate", "params": {"measurements": corpus("iso230_csv/five_positions.csv")},
+            "chart": true},
+        {"kind": "rotary-identify", "params": {"centres": corpus("rotary_centres/paper.csv")},
+            "chart": true},
+        {"kind": "rotary-rewrite", "params": {"program": corpus("rotary_rewrite/program.nc"),
+            "errors": corpus("rotary_errors/measured.json")}, "chart": false},
     ])
+}
+
+/// A fuzz corpus file as a file the page uploads (`{name, text}`).
+fn corpus(path: &str) -> serde_json::Value {
+    let full = workspace().join("tests/fuzz/corpus").join(path);
+    let text = std::fs::read_to_string(&full).unwrap_or_else(|e| panic!("{}: {e}", full.display()));
+    let name = full.file_name().unwrap().to_string_lossy().into_owned();
+    serde_json::json!({ "name": name, "text": text })
 }
 
 fn fresh_dir(path: PathBuf) -> PathBuf {
@@ -187,8 +204,7 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
         ]
     );
     let refused =
-        procedure::request::Request::parse("map", &serde_json::json!({"grid_step_mm": 0.01}))
-            .unwrap_err();
+        procedure::Request::parse("map", &serde_json::json!({"grid_step_mm": 0.01})).unwrap_err();
     assert_eq!(report["field_error"], refused.message.as_str(), "{report}");
     assert_eq!(report["machine_state_before"], "idle");
     assert_eq!(report["machine_state_after"], "idle");
@@ -240,10 +256,12 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
     let kinds = report["kinds"]
         .as_array()
         .unwrap_or_else(|| panic!("{report}"));
-    let walked: Vec<&str> = kinds.iter().map(|k| k["kind"].as_str().unwrap()).collect();
+    let mut walked: Vec<&str> = kinds.iter().map(|k| k["kind"].as_str().unwrap()).collect();
+    walked.sort_unstable();
+    let mut registered: Vec<&str> = procedure::kinds::kinds().collect();
+    registered.sort_unstable();
     assert_eq!(
-        walked,
-        procedure::request::KINDS,
+        walked, registered,
         "every job kind is started from its form: a new kind needs its quickest params in \
          kind_jobs() (and its result table in the page, or it shows its numbers by name)"
     );

@@ -8,7 +8,7 @@ use crate::session::{OrientationResult, TargetOutcome};
 use serde::Serialize;
 use vision::localize::Method;
 
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]
 pub struct Stats {
     pub max: f64,
     pub rms: f64,
@@ -35,13 +35,13 @@ fn norm(v: [f64; 2]) -> f64 {
 }
 
 /// Truth errors (um) at a target's first and last measurement, when known.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct TruthAt {
     pub before_um: [f64; 2],
     pub after_um: [f64; 2],
 }
 
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct TargetRow {
     pub index: usize,
     pub target_mm: [f64; 2],
@@ -60,13 +60,13 @@ pub struct TargetRow {
     pub truth: Option<TruthAt>,
 }
 
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct Iterations {
     pub mean: f64,
     pub max: usize,
 }
 
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct Report {
     pub job: String,
     pub stage: String,

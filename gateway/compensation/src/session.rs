@@ -172,7 +172,7 @@ impl OrientationCheck {
 
 /// What the orientation check measured: how the board moved in the image for each
 /// commanded machine step, mm.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]
 pub struct OrientationResult {
     pub step_mm: f64,
     pub moved_for_x_mm: [f64; 2],

@@ -56,8 +56,17 @@ pub fn open_devices(job: &Job) -> Result<Devices, OpenError> {
 /// Open the devices of any job. Call from inside the runtime that will run the job
 /// (emulators in-process and bus tasks are tasks of that runtime).
 pub async fn open_devices_async(job: &Job) -> Result<Devices, OpenError> {
+    let (stage, rig) = open_stage_async(job).await?;
+    let camera = open_camera(&job.camera, rig.as_ref()).await?;
+    Ok(Devices { stage, camera, rig })
+}
+
+/// Open the stage of a job alone (with the simulated machine's rig when it is one):
+/// for a front end that needs the controller but may have no camera (the pass-through
+/// after a map was measured).
+pub async fn open_stage_async(job: &Job) -> Result<OpenedStage, OpenError> {
     job.check_pairing()?;
-    let (stage, rig): OpenedStage = match &job.stage {
+    Ok(match &job.stage {
         StageSpec::Sim { machine } => {
             let rig = new_rig(job, machine);
             (Box::new(SimStage::new(rig.clone())), Some(rig))
@@ -65,7 +74,5 @@ pub async fn open_devices_async(job: &Job) -> Result<Devices, OpenError> {
         StageSpec::Grbl { link, baud } => grbl::open(job, link, *baud).await?,
         StageSpec::Modbus(spec) => modbus::open(job, spec).await?,
         StageSpec::Canopen(spec) => canopen::open(job, spec).await?,
-    };
-    let camera = open_camera(&job.camera, rig.as_ref()).await?;
-    Ok(Devices { stage, camera, rig })
+    })
 }

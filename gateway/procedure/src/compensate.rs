@@ -102,3 +102,38 @@ pub async fn run_with_report(
     };
     (outcome, report)
 }
+
+/// The compensation job as a registered procedure.
+pub struct Compensate;
+
+impl crate::registry::Procedure for Compensate {
+    const KIND: &'static str = "compensate";
+    const TITLE: &'static str =
+        "Compensate: move to each target, measure with the camera, correct until on target";
+    const COMMAND: &'static str = "compensate";
+    const USES: crate::registry::Uses = crate::registry::Uses::DEVICES;
+    type Request = CompensateRequest;
+
+    async fn run(request: CompensateRequest, cx: &mut dyn crate::Context) -> Outcome {
+        let stop = cx.stop();
+        let bench = match cx.bench().await {
+            Ok(b) => b,
+            Err(e) => return Outcome::failed(e.to_string()),
+        };
+        run(
+            &request,
+            bench.job,
+            bench.devices,
+            bench.sink,
+            stop.requested(),
+        )
+        .await
+    }
+
+    /// The report's text (per target, then the figures).
+    fn summary(result: &serde_json::Value) -> String {
+        serde_json::from_value::<Report>(result.clone())
+            .map(|r| r.to_text())
+            .unwrap_or_else(|_| crate::summary::compensate_summary(result))
+    }
+}

@@ -28,7 +28,8 @@ pub const MAX_EXPORT_BYTES: u64 = 256 << 20;
 const BECKHOFF_BYTES_PER_POINT: u64 = 2 * 64;
 
 /// The controller's format.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum ExportFormat {
     Linuxcnc,
@@ -42,6 +43,7 @@ pub enum ExportFormat {
     FanucPitch,
     Heidenhain,
     #[serde(rename = "heidenhain-64")]
+    #[cfg_attr(feature = "cli", value(name = "heidenhain-64"))]
     Heidenhain64,
     Haas,
 }
@@ -271,24 +273,38 @@ fn default_interval() -> f64 {
 }
 
 /// An export of the error map.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct ExportRequest {
+    /// The controller's table format.
+    #[cfg_attr(feature = "cli", arg(long, value_enum))]
     pub format: ExportFormat,
-    /// The table's file name; the per-axis formats add `_x`/`_y` before its extension.
+    /// The table's file name; the per-axis formats add `_x`/`_y` before its extension
+    /// (the CLI's: the name of `--out`).
     #[serde(default = "default_name")]
+    #[cfg_attr(feature = "cli", arg(skip = default_name()))]
+    #[schema(default = default_name)]
     pub name: String,
     /// The largest difference accepted between a table and the map, um.
     #[serde(default = "default_tolerance")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_tolerance()))]
+    #[schema(default = default_tolerance, minimum = 0.001, maximum = 1000.0)]
     pub tolerance_um: f64,
     /// LinuxCNC entries per joint (2..256).
     #[serde(default = "default_entries")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_entries()))]
+    #[schema(default = default_entries, minimum = 2, maximum = 256)]
     pub entries: u64,
     /// Beckhoff grid interval, mm.
     #[serde(default = "default_interval")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_interval()))]
+    #[schema(default = default_interval, minimum = 0.1, maximum = 10000.0)]
     pub interval_mm: f64,
     /// The industrial controllers' options (siemens-*, fanuc-pitch, heidenhain*, haas).
     #[serde(default)]
+    #[cfg_attr(feature = "cli", command(flatten))]
+    #[schema(value_type = Object)]
     pub controller: ControllerOptions,
 }
 
@@ -529,6 +545,35 @@ fn controller_result(format: ExportFormat, names: &[String], t: &ControllerTable
         },
         "zero_not_held_um": t.zero_not_held_um,
     })
+}
+
+/// The export of the error map as a registered procedure.
+pub struct Export;
+
+impl crate::registry::Procedure for Export {
+    const KIND: &'static str = "export";
+    const TITLE: &'static str = "Export the error map as the controller's own compensation tables";
+    const COMMAND: &'static str = "export";
+    const USES: crate::registry::Uses = crate::registry::Uses::MAP;
+    type Request = ExportRequest;
+
+    async fn run(request: ExportRequest, cx: &mut dyn crate::Context) -> Outcome {
+        let active = match cx.map() {
+            Ok(m) => m,
+            Err(e) => return Outcome::failed(e.to_string()),
+        };
+        run(&request, active.map, cx.sink())
+    }
+
+    fn summary(result: &Value) -> String {
+        summary(result)
+    }
+}
+
+impl crate::registry::Checked for ExportRequest {
+    fn check(&self) -> Result<(), RequestError> {
+        ExportRequest::check(self)
+    }
 }
 
 /// The export as text, one line per table (its `file` as the front end left it).

@@ -390,6 +390,149 @@ pub async fn run(
     }
 }
 
+/// A measurements file's text parsed (`what` names it in errors).
+fn measurements_of(text: &str, what: &str) -> Result<Vec<Measurement>, String> {
+    if text.len() as u64 > protocol::config::DataKind::Iso230.max_bytes() {
+        return Err(format!(
+            "{what}: {} bytes; at most {} are accepted",
+            text.len(),
+            protocol::config::DataKind::Iso230.max_bytes()
+        ));
+    }
+    csv_io::read(text).map_err(|e| format!("{what}: {e}"))
+}
+
+/// The ISO 230-2 test on the machine as a registered procedure (with the map when the
+/// request says `with_map`).
+pub struct Iso230;
+
+impl crate::registry::Procedure for Iso230 {
+    const KIND: &'static str = "iso230";
+    const TITLE: &'static str =
+        "ISO 230-2 positioning test of one axis, with or without the error map";
+    const COMMAND: &'static str = "iso230";
+    const USES: crate::registry::Uses = crate::registry::Uses {
+        devices: true,
+        map: crate::registry::MapUse::WhenAsked,
+        rotary: false,
+    };
+    type Request = Iso230Request;
+
+    async fn run(request: Iso230Request, cx: &mut dyn crate::Context) -> Outcome {
+        let stop = cx.stop();
+        let map = match request.with_map {
+            false => None,
+            true => match cx.map() {
+                Ok(m) => Some(NamedMap {
+                    map: m.map,
+                    name: m.name,
+                }),
+                Err(e) => return Outcome::failed(format!("with_map: {e}")),
+            },
+        };
+        let before = match request.before.as_deref() {
+            Some(text) => match measurements_of(text, "before") {
+                Ok(m) => Some(m),
+                Err(e) => return Outcome::failed(e),
+            },
+            None => None,
+        };
+        let bench = match cx.bench().await {
+            Ok(b) => b,
+            Err(e) => return Outcome::failed(e.to_string()),
+        };
+        run(
+            &request,
+            bench.job,
+            bench.devices,
+            map,
+            before.as_deref(),
+            bench.sink,
+            stop.requested(),
+        )
+        .await
+    }
+
+    fn summary(result: &Value) -> String {
+        summary(result)
+    }
+
+    fn uses_map(request: &Iso230Request) -> bool {
+        request.with_map
+    }
+}
+
+/// An evaluation of measurements from any instrument.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Iso230EvaluateRequest {
+    /// The measurements file (`axis,position_index,target_mm,run,direction,deviation_um`).
+    #[schema(format = Binary, max_length = 16777216)]
+    pub measurements: String,
+    /// How messages name it (its file name).
+    #[serde(default = "default_measurements_name")]
+    #[schema(default = default_measurements_name)]
+    pub measurements_name: String,
+    /// A test of the same axis before compensation, overlaid on the charts.
+    #[serde(default)]
+    #[schema(format = Binary, max_length = 16777216)]
+    pub before: Option<String>,
+}
+
+fn default_measurements_name() -> String {
+    "measurements.csv".into()
+}
+
+impl crate::registry::Checked for Iso230EvaluateRequest {
+    fn check(&self) -> Result<(), crate::RequestError> {
+        let max = protocol::config::DataKind::Iso230.max_bytes();
+        for (field, text) in [
+            ("measurements", Some(&self.measurements)),
+            ("before", self.before.as_ref()),
+        ] {
+            if text.is_some_and(|t| t.len() as u64 > max) {
+                return Err(crate::RequestError::new(
+                    field,
+                    format!("at most {max} bytes are accepted"),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The evaluation of a measurements file as a registered procedure.
+pub struct Iso230Evaluate;
+
+impl crate::registry::Procedure for Iso230Evaluate {
+    const KIND: &'static str = "iso230-evaluate";
+    const TITLE: &'static str =
+        "ISO 230-2 evaluation of measurements from any instrument (a laser, a probe)";
+    const COMMAND: &'static str = "iso230 evaluate";
+    const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
+    type Request = Iso230EvaluateRequest;
+
+    async fn run(request: Iso230EvaluateRequest, cx: &mut dyn crate::Context) -> Outcome {
+        let name = &request.measurements_name;
+        let measurements = match measurements_of(&request.measurements, name) {
+            Ok(m) => m,
+            Err(e) => return Outcome::failed(e),
+        };
+        let before = match request.before.as_deref() {
+            Some(text) => match measurements_of(text, "before") {
+                Ok(m) => Some(m),
+                Err(e) => return Outcome::failed(e),
+            },
+            None => None,
+        };
+        evaluate_measurements(&measurements, before.as_deref(), name, cx.sink())
+    }
+
+    fn summary(result: &Value) -> String {
+        summary(result)
+    }
+}
+
 /// The figures as text, the before test first (the CLI's output without `--json`).
 pub fn summary(r: &Value) -> String {
     use std::fmt::Write;

@@ -169,6 +169,26 @@ pub fn partition(request: &LayoutRequest, sink: &mut dyn Sink) -> Outcome {
     Outcome::succeeded(result, metrics)
 }
 
+/// The partition of a cutting layout as a registered procedure.
+pub struct LayoutPartition;
+
+impl crate::registry::Procedure for LayoutPartition {
+    const KIND: &'static str = "layout";
+    const TITLE: &'static str =
+        "Partition a cutting layout into tool and window groups for a multi-tool cutter";
+    const COMMAND: &'static str = "layout partition";
+    const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
+    type Request = LayoutRequest;
+
+    async fn run(request: LayoutRequest, cx: &mut dyn crate::Context) -> Outcome {
+        partition(&request, cx.sink())
+    }
+
+    fn summary(result: &Value) -> String {
+        summary(result)
+    }
+}
+
 /// The report as text, one line per figure (the CLI's output without `--json`).
 pub fn summary(r: &Value) -> String {
     use std::fmt::Write;

@@ -10,16 +10,20 @@
 
 pub mod board;
 pub mod compensate;
+pub mod context;
 pub mod cut;
 pub mod demo;
 pub mod export;
+pub mod files;
 pub mod frame;
 pub mod iso230;
+pub mod kinds;
 pub mod layout;
 pub mod localize;
 pub mod map;
 pub mod proxy;
 pub mod reference;
+pub mod registry;
 pub mod request;
 pub mod rewrite;
 pub mod rotary;
@@ -33,8 +37,10 @@ use protocol::errormap::{ErrorMap, Identity};
 use serde::Serialize;
 use serde_json::{Map, Value};
 
-pub use request::{Request, RequestError};
-pub use summary::summary;
+pub use context::{ActiveMap, Bench, Context, ContextError, Stop};
+pub use kinds::{summary, Request, KINDS};
+pub use registry::Procedure;
+pub use request::RequestError;
 
 /// How a procedure ended.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -199,7 +205,12 @@ pub fn identity(job: &Job, devices: &Devices) -> Identity {
 /// machine, controller, board certificate and camera; the error names the first field
 /// that differs and both values. `what` names the map (a file, a profile).
 pub fn check_identity(map: &ErrorMap, here: &Identity, what: &str) -> Result<(), String> {
-    map.check_identity(here).map_err(|e| {
+    // No camera here (none could be opened): the map's is not compared.
+    let mut here = here.clone();
+    if here.camera.is_empty() {
+        here.camera = map.identity.camera.clone();
+    }
+    map.check_identity(&here).map_err(|e| {
         format!("{what}: {e}: refused (a map applies only to the machine it was measured on)")
     })
 }
@@ -220,11 +231,24 @@ pub(crate) fn metrics_from(result: &Value, keys: &[&str]) -> Map<String, Value> 
 }
 
 /// The identity of the machine a job describes, read from its devices (opened, asked,
-/// closed): for a front end that applies a map without keeping the devices open, as the
-/// pass-through does before it opens the controller's port itself.
+/// closed): for a front end that applies a map without keeping the devices open. The
+/// stage is required; a camera that cannot be opened (a machine whose map was measured
+/// once, so that programs run without the camera) leaves `camera` empty, and
+/// [`check_identity`] then does not compare it.
 pub async fn identity_of_job(job: &Job) -> Result<Identity, String> {
-    let devices = devices::open_devices_async(job)
+    let (stage, rig) = devices::open_stage_async(job)
         .await
         .map_err(|e| format!("reading the machine's identity: {e}"))?;
-    Ok(identity(job, &devices))
+    let camera = devices::open_camera(&job.camera, rig.as_ref())
+        .await
+        .map(|c| c.info().model.clone())
+        .unwrap_or_default();
+    let name = errormap::scan::without_link(&stage.info().name);
+    Ok(Identity {
+        machine: name.clone(),
+        controller: name,
+        board: job.board.name.clone(),
+        certificate_sha256: job.board.fingerprint_sha256(),
+        camera,
+    })
 }

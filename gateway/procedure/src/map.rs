@@ -23,29 +23,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::{Instant, SystemTime};
 
-/// Where a scan's samples are kept as they come, and where a stopped scan's are found.
-pub trait ScanJournal {
-    /// The samples a stopped scan of this job, machine and plan (`header`) kept (empty
-    /// for a new scan); an error when what is there belongs to another scan (naming what
-    /// differs) or is damaged.
-    fn resume(
-        &mut self,
-        header: &journal::Header,
-        plan: &ScanPlan,
-    ) -> Result<Vec<(usize, Sample)>, String>;
-    /// Keeps one sample (a failure stops the scan with the stage stopped).
-    fn append(&mut self, index: usize, sample: &Sample) -> Result<(), String>;
-    /// The map is kept: the journal has done its job.
-    fn close(&mut self);
-}
-
-/// Where the finished map goes.
-pub trait MapShelf {
-    /// The version the next map of `name` gets.
-    fn next_version(&mut self, name: &str) -> Result<u32, String>;
-    /// Keeps the map; returns where it went (a path, a profile), for the result.
-    fn keep(&mut self, name: &str, map: &ErrorMap) -> Result<String, String>;
-}
+pub use crate::context::{MapShelf, ScanJournal};
 
 /// Runs (or resumes) a scan and keeps the map. The result: `name`, `version`, `kept_as`,
 /// `frames`, `resumed_frames`, `grid`, `lines`, `passes`, `uncertainty_um`,
@@ -125,6 +103,7 @@ pub async fn run(
         Err(e) => {
             let mut result = shape;
             result["frames_taken"] = json!(builder.done());
+            note_resume(&mut result, journal.resumed_from());
             let lost = matches!(
                 e,
                 ScanError::Reference(JobError::Driver(_))
@@ -171,6 +150,7 @@ pub async fn run(
     };
     journal.close();
     let mut result = shape;
+    note_resume(&mut result, journal.resumed_from());
     let obj = result.as_object_mut().expect("an object");
     obj.insert("version".into(), json!(version));
     obj.insert("kept_as".into(), json!(kept_as));
@@ -190,6 +170,18 @@ pub fn job_name(job: &Job) -> String {
     Path::new(&job.source)
         .file_name()
         .map_or_else(|| job.source.clone(), |n| n.to_string_lossy().into_owned())
+}
+
+/// Where a scan's samples came from (`resumed_from_job`), or why a stopped scan was not
+/// resumed (`not_resumed`), in its result.
+fn note_resume(result: &mut Value, from: Option<Value>) {
+    match from {
+        Some(Value::Object(o)) if o.contains_key("not_resumed") => {
+            result["not_resumed"] = o["not_resumed"].clone()
+        }
+        Some(from) => result["resumed_from_job"] = from,
+        None => {}
+    }
 }
 
 /// The journal file ([`journal`]'s format): a header naming the job, machine and plan,
@@ -514,5 +506,53 @@ mod tests {
             assert!(e.contains("not a regular file"), "{e}");
         }
         std::fs::remove_dir_all(&dir).ok();
+    }
+}
+
+/// The error-map scan as a registered procedure.
+pub struct Map;
+
+impl crate::registry::Procedure for Map {
+    const KIND: &'static str = "map";
+    const TITLE: &'static str =
+        "Error map: scan the travel once, so programs run accurately without the camera";
+    const COMMAND: &'static str = "map";
+    const USES: crate::registry::Uses = crate::registry::Uses::DEVICES;
+    type Request = MapRequest;
+
+    async fn run(request: MapRequest, cx: &mut dyn crate::Context) -> Outcome {
+        let stop = cx.stop();
+        let (mut journal, mut shelf) = match (cx.scan_journal(&request.name), cx.map_shelf()) {
+            (Ok(j), Ok(s)) => (j, s),
+            (Err(e), _) | (_, Err(e)) => return Outcome::failed(e.to_string()),
+        };
+        let bench = match cx.bench().await {
+            Ok(b) => b,
+            Err(e) => return Outcome::failed(e.to_string()),
+        };
+        run(
+            &request,
+            bench.job,
+            bench.devices,
+            journal.as_mut(),
+            shelf.as_mut(),
+            bench.sink,
+            stop.requested(),
+        )
+        .await
+    }
+
+    fn summary(result: &Value) -> String {
+        summary(result)
+    }
+
+    fn admit(
+        request: &MapRequest,
+        facts: &crate::registry::Facts,
+    ) -> Result<(), crate::RequestError> {
+        match facts.scan_area {
+            Some((lo, hi)) => request.check_area(lo, hi).map(|_| ()),
+            None => Ok(()),
+        }
     }
 }

@@ -12,8 +12,8 @@ use errormap::MapModel;
 use job::{GrblLink, Job, StageSpec};
 use protocol::errormap::ErrorMap;
 use proxy::{
-    open_controller, serve_with_camera, AfterHoming, Ending, FiveAxisRewriter, LineAccount, Proxy,
-    ReferenceFrames, SenderPort,
+    serve_with_camera, AfterHoming, Ending, FiveAxisRewriter, LineAccount, Proxy, ReferenceFrames,
+    SenderPort,
 };
 use rewrite::{Approach, Compensation, Options, Pose, Rewriter, N_AXIS};
 use rotary::{LocationErrors, MachineConstants};
@@ -295,10 +295,11 @@ pub async fn run(
             if let Err(e) = crate::check_identity(&map, &here, &map_source) {
                 return Outcome::failed(e);
             }
-            let applied = match crate::reference::apply(*map, &reference) {
-                Ok(a) => a,
-                Err(e) => return Outcome::failed(format!("{map_source}: {e}")),
-            };
+            let applied =
+                match crate::reference::apply(*map, &reference, std::time::SystemTime::now()) {
+                    Ok(a) => a,
+                    Err(e) => return Outcome::failed(format!("{map_source}: {e}")),
+                };
             let shared = SharedMap::new(applied.model);
             let map_copy = shared.read().map().clone();
             let bound_um = match job.board.code {
@@ -472,7 +473,7 @@ async fn sessions<'m>(
     mut make: impl FnMut() -> Result<Proxy<'m>, String>,
     mut frames: Option<&mut dyn ReferenceFrames>,
 ) -> Outcome {
-    let mut controller = match open_controller(s.port, s.baud, BANNER_WAIT).await {
+    let mut controller = match drivers::open_grbl_line(s.port, s.baud, BANNER_WAIT).await {
         Ok((c, _banner)) => c,
         Err(e) => return Outcome::failed(e.to_string()),
     };

@@ -60,13 +60,9 @@ pub fn record_json(r: &MapReference) -> String {
     t
 }
 
-/// Seconds since 1970 now, and the same as RFC 3339.
-fn now() -> (u64, String) {
-    let t = SystemTime::now();
-    let s = t
-        .duration_since(SystemTime::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs());
-    (s, errormap::scan::rfc3339(t))
+/// Seconds since 1970 of `t`, and the same as RFC 3339.
+fn at(t: SystemTime) -> (u64, String) {
+    (crate::context::unix_s(t), errormap::scan::rfc3339(t))
 }
 
 /// Which reference a program is compensated with.
@@ -101,9 +97,9 @@ pub struct Applied {
 }
 
 /// The map's model under `choice` (a record of another map refused).
-pub fn apply(map: ErrorMap, choice: &Choice) -> Result<Applied, String> {
+pub fn apply(map: ErrorMap, choice: &Choice, now: SystemTime) -> Result<Applied, String> {
     let model = MapModel::new(map);
-    let (now_s, _) = now();
+    let (now_s, _) = at(now);
     Ok(match choice {
         Choice::Recorded(r) => Applied {
             model: r.apply(model).map_err(|e| e.to_string())?,
@@ -149,6 +145,7 @@ pub async fn run(
     map: &ErrorMap,
     what: &str,
     previous: Option<&MapReference>,
+    now: SystemTime,
     sink: &mut dyn Sink,
 ) -> Outcome {
     if let Err(e) = request.check() {
@@ -180,7 +177,7 @@ pub async fn run(
         };
     sink.progress(1, 1);
     let machine_time_s = t0.zip(crate::machine_time_s(devices)).map(|(a, b)| b - a);
-    let (now_s, now_text) = now();
+    let (now_s, now_text) = at(now);
     let record = match MapReference::new(
         map,
         frame.seen_um,
@@ -251,6 +248,84 @@ pub fn summary(r: &Value) -> String {
         t += &format!("recorded in {p}: rewrite, proxy and verify --spot-check use it\n");
     }
     t
+}
+
+/// The reference after homing as a registered procedure: the previous record is the
+/// map's current one (its count goes on, the drift since it is reported; a damaged one
+/// is replaced, said in the result), the new record kept by the context.
+pub struct Reference;
+
+impl crate::registry::Procedure for Reference {
+    const KIND: &'static str = "reference";
+    const TITLE: &'static str = "Reference after homing: one frame at the map's reference point records how far the zero moved";
+    const COMMAND: &'static str = "reference";
+    const USES: crate::registry::Uses = crate::registry::Uses::DEVICES_AND_MAP;
+    type Request = ReferenceRequest;
+
+    async fn run(request: ReferenceRequest, cx: &mut dyn crate::Context) -> Outcome {
+        let stop = cx.stop();
+        let now = cx.now();
+        let active = match cx.map() {
+            Ok(m) => m,
+            Err(e) => return Outcome::failed(e.to_string()),
+        };
+        let (previous, replaced) = match &active.reference {
+            Ok(p) => (p.clone(), None),
+            Err(e) => (None, Some(e.clone())),
+        };
+        let bench = match cx.bench().await {
+            Ok(b) => b,
+            Err(e) => return Outcome::failed(e.to_string()),
+        };
+        let measured = {
+            let measuring = run(
+                &request,
+                bench.job,
+                bench.devices,
+                &active.map,
+                &active.name,
+                previous.as_ref(),
+                now,
+                bench.sink,
+            );
+            tokio::select! {
+                o = measuring => Some(o),
+                _ = stop.requested() => None,
+            }
+        };
+        let Some(mut outcome) = measured else {
+            let _ = bench.devices.stage.stop().await;
+            return Outcome::stopped(
+                true,
+                "stopped before the reference was recorded".into(),
+                None,
+                Default::default(),
+                false,
+            );
+        };
+        if !outcome.is_success() {
+            return outcome;
+        }
+        let Some(result) = outcome.result.as_mut() else {
+            return outcome;
+        };
+        let record: MapReference = match serde_json::from_value(result["record"].clone()) {
+            Ok(r) => r,
+            Err(e) => return Outcome::failed(format!("the new record: {e}")),
+        };
+        match cx.keep_reference(&active, &record) {
+            Ok(kept) => result["written_to"] = json!(kept),
+            Err(e) => return Outcome::failed(format!("recording the reference: {e}")),
+        }
+        if let Some(e) = replaced {
+            result["replaced_damaged_record"] = json!(e);
+        }
+        outcome
+    }
+
+    fn summary(result: &Value) -> String {
+        summary(result)
+    }
 }
 
 #[cfg(test)]

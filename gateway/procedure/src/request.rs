@@ -288,6 +288,16 @@ pub struct VerifyRequest {
     #[cfg_attr(feature = "cli", arg(long, default_value_t = default_drift_threshold()))]
     #[schema(default = default_drift_threshold, minimum = 0.001, maximum = 1000.0)]
     pub drift_threshold_um: f64,
+    /// With a spot check: home and re-reference instead of using the map's recorded
+    /// reference (the reference after the last homing).
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub no_reference: bool,
+    /// Which check of a series this is (from 0): each round checks fresh points.
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(skip))]
+    #[schema(minimum = 0, maximum = 1000000)]
+    pub round: u64,
 }
 
 impl Default for VerifyRequest {
@@ -297,6 +307,8 @@ impl Default for VerifyRequest {
             seed: default_seed(),
             spot_check: false,
             drift_threshold_um: default_drift_threshold(),
+            no_reference: false,
+            round: 0,
         }
     }
 }
@@ -307,6 +319,7 @@ impl VerifyRequest {
             count("points", n, 1, 1000)?;
         }
         number("drift_threshold_um", self.drift_threshold_um, 1e-3, 1000.0)?;
+        count("round", self.round, 0, 1_000_000)?;
         Ok(())
     }
 
@@ -432,6 +445,12 @@ pub struct Iso230Request {
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(skip))]
     pub with_map: bool,
+    /// A test of the same axis before compensation, overlaid on the charts: its
+    /// measurements file (`axis,position_index,target_mm,run,direction,deviation_um`).
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(skip))]
+    #[schema(format = Binary, max_length = 16777216)]
+    pub before: Option<String>,
 }
 
 impl Iso230Request {
@@ -447,6 +466,7 @@ impl Iso230Request {
             at_mm: None,
             certificate_uncertainty_um: default_certificate_uncertainty(),
             with_map: false,
+            before: None,
         }
     }
 
@@ -812,30 +832,8 @@ impl RotaryRequest {
     }
 }
 
-/// Any request, by the kind the API names it.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Request {
-    Compensate(CompensateRequest),
-    Map(MapRequest),
-    Verify(VerifyRequest),
-    Iso230(Iso230Request),
-    Layout(LayoutRequest),
-    Rotary(RotaryRequest),
-    Reference(ReferenceRequest),
-}
-
-/// The kinds [`Request::parse`] knows.
-pub const KINDS: &[&str] = &[
-    "compensate",
-    "iso230",
-    "map",
-    "verify",
-    "layout",
-    "rotary",
-    "reference",
-];
-
-fn from_json<T: serde::de::DeserializeOwned>(params: &Value) -> Result<T, RequestError> {
+/// A request's params as the request type (serde's error turned into the field named).
+pub(crate) fn from_json<T: serde::de::DeserializeOwned>(params: &Value) -> Result<T, RequestError> {
     serde_path_to_error::deserialize(params).map_err(|e| {
         let path = e.path().to_string();
         let message = e.into_inner().to_string();
@@ -865,103 +863,10 @@ fn from_json<T: serde::de::DeserializeOwned>(params: &Value) -> Result<T, Reques
     })
 }
 
-impl Request {
-    /// Parses and checks a request: `kind` and its `params` object. Unknown kinds and
-    /// fields are refused, every bound checked, the field named.
-    pub fn parse(kind: &str, params: &Value) -> Result<Request, RequestError> {
-        if !params.is_object() {
-            return Err(RequestError::new("params", "must be a JSON object"));
-        }
-        let request = match kind {
-            "compensate" => Request::Compensate(from_json(params)?),
-            "map" => Request::Map(from_json(params)?),
-            "verify" => Request::Verify(from_json(params)?),
-            "iso230" => Request::Iso230(from_json(params)?),
-            "layout" => Request::Layout(from_json(params)?),
-            "rotary" => Request::Rotary(from_json(params)?),
-            "reference" => Request::Reference(from_json(params)?),
-            other => {
-                return Err(RequestError::new(
-                    "kind",
-                    format!(
-                        "unknown job kind {other:?}; this service runs: {}",
-                        KINDS.join(", ")
-                    ),
-                ))
-            }
-        };
-        request.check()?;
-        Ok(request)
-    }
-
-    pub fn check(&self) -> Result<(), RequestError> {
-        match self {
-            Request::Compensate(r) => r.check(),
-            Request::Map(r) => r.check(),
-            Request::Verify(r) => r.check(),
-            Request::Iso230(r) => r.check(),
-            Request::Layout(r) => r.check(),
-            Request::Rotary(r) => r.check(),
-            Request::Reference(r) => r.check(),
-        }
-    }
-
-    /// The request as its params object, every default written out (what the service
-    /// stores, so a stored job says exactly what it asked for).
-    pub fn params(&self) -> Value {
-        let v = match self {
-            Request::Compensate(r) => serde_json::to_value(r),
-            Request::Map(r) => serde_json::to_value(r),
-            Request::Verify(r) => serde_json::to_value(r),
-            Request::Iso230(r) => serde_json::to_value(r),
-            Request::Layout(r) => serde_json::to_value(r),
-            Request::Rotary(r) => serde_json::to_value(r),
-            Request::Reference(r) => serde_json::to_value(r),
-        };
-        v.unwrap_or(Value::Null)
-    }
-
-    pub fn kind(&self) -> &'static str {
-        match self {
-            Request::Compensate(_) => "compensate",
-            Request::Map(_) => "map",
-            Request::Verify(_) => "verify",
-            Request::Iso230(_) => "iso230",
-            Request::Layout(_) => "layout",
-            Request::Rotary(_) => "rotary",
-            Request::Reference(_) => "reference",
-        }
-    }
-
-    /// Whether the request uses the machine's active error map.
-    pub fn uses_map(&self) -> bool {
-        matches!(self, Request::Verify(_) | Request::Reference(_))
-            || matches!(self, Request::Iso230(r) if r.with_map)
-    }
-}
-
-/// The JSON schema (OpenAPI 3.1) of each job kind's params, enums inline: the service's
-/// OpenAPI document names them `job.<kind>`, and the page builds its forms from them.
-/// Their bounds are [`Request::check`]'s (a test holds the two together).
-pub fn schemas() -> Vec<(
-    &'static str,
-    utoipa::openapi::RefOr<utoipa::openapi::schema::Schema>,
-)> {
-    use utoipa::PartialSchema;
-    vec![
-        ("compensate", CompensateRequest::schema()),
-        ("map", MapRequest::schema()),
-        ("verify", VerifyRequest::schema()),
-        ("iso230", Iso230Request::schema()),
-        ("layout", LayoutRequest::schema()),
-        ("rotary", RotaryRequest::schema()),
-        ("reference", ReferenceRequest::schema()),
-    ]
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::kinds::{schemas, Request};
     use serde_json::json;
 
     /// The schemas the page builds its forms from say what the checks do: each default
@@ -973,6 +878,11 @@ mod tests {
             "iso230" => json!({"axis": "x"}),
             "layout" => json!({"layout": "", "format": "json", "tools": 2, "window_mm": 100.0,
                 "gap_mm": 5.0}),
+            "export" => json!({"format": "csv"}),
+            "rewrite" => json!({"program": ""}),
+            "iso230-evaluate" => json!({"measurements": ""}),
+            "rotary-identify" => json!({"centres": ""}),
+            "rotary-rewrite" => json!({"program": "", "errors": ""}),
             _ => json!({}),
         };
         let mut bounds = 0;

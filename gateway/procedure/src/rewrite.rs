@@ -67,20 +67,36 @@ fn default_max_correction() -> f64 {
     200.0
 }
 
+fn default_program_name() -> String {
+    "program.nc".into()
+}
+
 /// A program rewrite.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct RewriteRequest {
-    /// The program's text.
+    /// The program's text (G-code for GRBL 1.1).
+    #[schema(format = Binary, max_length = 67108864)]
     pub program: String,
+    /// How messages name the program (its file name).
+    #[serde(default = "default_program_name")]
+    #[schema(default = default_program_name)]
+    pub program_name: String,
+    /// Apply the map as scanned, without its recorded reference (the reference after
+    /// the last homing).
+    #[serde(default)]
+    pub no_reference: bool,
     /// Largest distance of the executed path from the compensated path, um.
     #[serde(default = "default_tolerance")]
+    #[schema(default = default_tolerance, minimum = 0.01, maximum = 1000.0)]
     pub tolerance_um: f64,
     /// Largest correction accepted at any point, um.
     #[serde(default = "default_max_correction")]
+    #[schema(default = default_max_correction, minimum = 0.001, maximum = 100000.0)]
     pub max_correction_um: f64,
     /// The controller's reply to `$#` (its `[G54:x,y,z]` ... `[G59:...]` lines).
     #[serde(default)]
+    #[schema(format = Binary)]
     pub offsets: Option<String>,
     /// Machine position when the program starts, `[x, y]` or `[x, y, z]` mm (else the
     /// first moves must name every compensated axis).
@@ -96,6 +112,8 @@ impl RewriteRequest {
     pub fn new(program: String) -> Self {
         Self {
             program,
+            program_name: default_program_name(),
+            no_reference: false,
             tolerance_um: default_tolerance(),
             max_correction_um: default_max_correction(),
             offsets: None,
@@ -317,6 +335,7 @@ pub fn run(
     request: &RewriteRequest,
     model: RewriteModel,
     source: &str,
+    now: std::time::SystemTime,
     sink: &mut dyn Sink,
 ) -> Outcome {
     let options = match request.options() {
@@ -328,7 +347,7 @@ pub fn run(
     let compensation: Box<dyn Compensation> = match model {
         RewriteModel::Map(map) => Box::new(MapModel::new(map)),
         RewriteModel::ReferencedMap { map, reference: r } => {
-            let applied = match crate::reference::apply(map, &r) {
+            let applied = match crate::reference::apply(map, &r, now) {
                 Ok(a) => a,
                 Err(e) => return Outcome::failed(e),
             };
@@ -556,6 +575,7 @@ mod tests {
                     name: "m".into(),
                 },
                 "in.nc",
+                std::time::SystemTime::now(),
                 &mut sink,
             );
             assert!(out.is_success(), "{:?}", out.error());
@@ -578,7 +598,7 @@ mod tests {
             model: model(),
             name: "m.vol.csv".into(),
         };
-        let out = run(&r, m, "in.nc", &mut sink);
+        let out = run(&r, m, "in.nc", std::time::SystemTime::now(), &mut sink);
         assert!(out.is_success(), "{:?}", out.error());
         let res = out.result.unwrap();
         assert_eq!(res["input"], "in.nc");
@@ -603,6 +623,7 @@ mod tests {
                 name: "m.vol.csv".into(),
             },
             "in.nc",
+            std::time::SystemTime::now(),
             &mut sink,
         );
         assert!(out
@@ -618,6 +639,7 @@ mod tests {
                 name: "m".into(),
             },
             "in.nc",
+            std::time::SystemTime::now(),
             &mut sink,
         );
         assert!(
@@ -644,5 +666,60 @@ mod tests {
         assert!(whole.lines().count() > 20, "{}", whole.lines().count());
         let e = rewrite_bounded(&r.program, &wavy, options(), whole.len() / 2).unwrap_err();
         assert!(e.starts_with("line 2: the rewritten program passes"), "{e}");
+    }
+}
+
+/// A program rewritten with the error map (under its current reference unless the
+/// request says `no_reference`) as a registered procedure. When the context knows the
+/// machine (the CLI's `--config`, the service's machine), the map must have been
+/// measured on it.
+pub struct Rewrite;
+
+impl crate::registry::Procedure for Rewrite {
+    const KIND: &'static str = "rewrite";
+    const TITLE: &'static str =
+        "Rewrite a program: every move lands where it was programmed, without the camera";
+    const COMMAND: &'static str = "rewrite";
+    const USES: crate::registry::Uses = crate::registry::Uses::MAP;
+    type Request = RewriteRequest;
+
+    async fn run(request: RewriteRequest, cx: &mut dyn crate::Context) -> Outcome {
+        let active = match cx.map() {
+            Ok(m) => m,
+            Err(e) => return Outcome::failed(e.to_string()),
+        };
+        match cx.identity().await {
+            Ok(Some(here)) => {
+                if let Err(e) = crate::check_identity(&active.map, &here, &active.name) {
+                    return Outcome::failed(e);
+                }
+            }
+            Ok(None) => {}
+            Err(e) => return Outcome::failed(e.to_string()),
+        }
+        // The map's current reference, if recorded: a damaged or foreign one is an error
+        // (the operator records a new one, or asks for none).
+        let record = match (request.no_reference, active.reference) {
+            (true, _) => None,
+            (false, Ok(r)) => r,
+            (false, Err(e)) => return Outcome::failed(e),
+        };
+        let model = RewriteModel::ReferencedMap {
+            map: active.map,
+            reference: crate::reference::choose(record, request.no_reference),
+        };
+        let now = cx.now();
+        let name = request.program_name.clone();
+        run(&request, model, &name, now, cx.sink())
+    }
+
+    fn summary(result: &Value) -> String {
+        summary(result)
+    }
+}
+
+impl crate::registry::Checked for RewriteRequest {
+    fn check(&self) -> Result<(), RequestError> {
+        RewriteRequest::check(self)
     }
 }

@@ -13,12 +13,7 @@ use serde_json::{json, Value};
 use std::cell::Cell;
 use std::future::Future;
 
-/// Where the identified errors are kept (the CLI: `errors.json` in its folder, written
-/// as an artifact; the service: the next version of a rotary profile).
-pub trait ErrorsShelf {
-    /// Keeps the report; returns where it went, for the result.
-    fn keep(&mut self, name: &str, report: &Value) -> Result<String, String>;
-}
+pub use crate::context::ErrorsShelf;
 
 /// The errors' report as `errors.json` in a folder, written atomically.
 pub struct FolderShelf(pub std::path::PathBuf);
@@ -364,6 +359,195 @@ pub fn rewrite(
         }),
         Default::default(),
     )
+}
+
+/// The probing cycle of the rotary table as a registered procedure.
+pub struct RotaryMeasure;
+
+impl crate::registry::Procedure for RotaryMeasure {
+    const KIND: &'static str = "rotary";
+    const TITLE: &'static str =
+        "Rotary table: probe the A/C table and identify its eight location errors";
+    const COMMAND: &'static str = "rotary measure";
+    const USES: crate::registry::Uses = crate::registry::Uses::ROTARY;
+    type Request = RotaryRequest;
+
+    async fn run(request: RotaryRequest, cx: &mut dyn crate::Context) -> Outcome {
+        let stop = cx.stop();
+        let job = match cx.rotary_job() {
+            Ok(j) => j,
+            Err(e) => return Outcome::failed(e.to_string()),
+        };
+        let mut shelf = match cx.errors_shelf() {
+            Ok(s) => s,
+            Err(e) => return Outcome::failed(e.to_string()),
+        };
+        measure(&request, &job, shelf.as_mut(), cx.sink(), stop.requested()).await
+    }
+
+    fn summary(result: &Value) -> String {
+        summary(result)
+    }
+}
+
+/// An identification from ball centres measured elsewhere.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct RotaryIdentifyRequest {
+    /// The centres file (`axis,step,angle_deg,ball,x_mm,y_mm,z_mm`: the C sweep at A = 0
+    /// and the A sweep at C = 0, machine coordinates).
+    #[schema(format = Binary, max_length = 16777216)]
+    pub centres: String,
+    /// How messages name it (its file name).
+    #[serde(default = "default_centres_name")]
+    #[schema(default = default_centres_name)]
+    pub centres_name: String,
+    /// The machine constants (`a_axis_y_mm`, `a_axis_z_mm`, `ac_offset_y_mm`,
+    /// `ac_offset_z_mm`, `tool_length_mm`); default: the built-in 340A-style mill.
+    #[serde(default)]
+    #[schema(value_type = Option<Object>)]
+    pub machine: Option<MachineConstants>,
+}
+
+fn default_centres_name() -> String {
+    "centres.csv".into()
+}
+
+impl crate::registry::Checked for RotaryIdentifyRequest {
+    fn check(&self) -> Result<(), crate::RequestError> {
+        let max = DataKind::Centres.max_bytes();
+        if self.centres.len() as u64 > max {
+            return Err(crate::RequestError::new(
+                "centres",
+                format!("at most {max} bytes are accepted"),
+            ));
+        }
+        if let Some(k) = &self.machine {
+            k.check()
+                .map_err(|e| crate::RequestError::new("machine", e.to_string()))?;
+        }
+        Ok(())
+    }
+}
+
+/// The identification from centres as a registered procedure.
+pub struct RotaryIdentify;
+
+impl crate::registry::Procedure for RotaryIdentify {
+    const KIND: &'static str = "rotary-identify";
+    const TITLE: &'static str =
+        "Rotary table: the eight location errors from ball centres measured elsewhere";
+    const COMMAND: &'static str = "rotary identify";
+    const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
+    type Request = RotaryIdentifyRequest;
+
+    async fn run(request: RotaryIdentifyRequest, cx: &mut dyn crate::Context) -> Outcome {
+        let constants = request.machine.clone().unwrap_or_default();
+        identify(
+            &request.centres,
+            &request.centres_name,
+            &constants,
+            cx.sink(),
+        )
+    }
+
+    fn summary(result: &Value) -> String {
+        summary(result)
+    }
+}
+
+fn default_rotary_tolerance() -> f64 {
+    0.5
+}
+
+/// A 5-axis program rewritten for a rotary table's location errors.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct RotaryRewriteRequest {
+    /// The program (X Y Z A C, absolute, mm).
+    #[schema(format = Binary, max_length = 67108864)]
+    pub program: String,
+    /// How messages name it (its file name).
+    #[serde(default = "default_program_name")]
+    #[schema(default = default_program_name)]
+    pub program_name: String,
+    /// The errors (the JSON the identification or the probing cycle writes).
+    #[schema(format = Binary, max_length = 16777216)]
+    pub errors: String,
+    /// How messages name the errors (their file name).
+    #[serde(default = "default_errors_name")]
+    #[schema(default = default_errors_name)]
+    pub errors_name: String,
+    /// The machine constants; default: those recorded with the errors. Refused where
+    /// they differ from the recorded ones unless `force_machine`.
+    #[serde(default)]
+    #[schema(value_type = Option<Object>)]
+    pub machine: Option<MachineConstants>,
+    /// Use `machine` even where it differs from the constants recorded with the errors.
+    #[serde(default)]
+    pub force_machine: bool,
+    /// Largest distance (X Y Z) of a piece's middle from the compensated path, um.
+    #[serde(default = "default_rotary_tolerance")]
+    #[schema(default = default_rotary_tolerance, minimum = 0.001, maximum = 1000.0)]
+    pub tolerance_um: f64,
+}
+
+fn default_program_name() -> String {
+    "program.nc".into()
+}
+fn default_errors_name() -> String {
+    "errors.json".into()
+}
+
+impl crate::registry::Checked for RotaryRewriteRequest {
+    fn check(&self) -> Result<(), crate::RequestError> {
+        for (field, text, kind) in [
+            ("program", &self.program, DataKind::Program),
+            ("errors", &self.errors, DataKind::RotaryJson),
+        ] {
+            if text.len() as u64 > kind.max_bytes() {
+                return Err(crate::RequestError::new(
+                    field,
+                    format!("at most {} bytes are accepted", kind.max_bytes()),
+                ));
+            }
+        }
+        crate::request::number("tolerance_um", self.tolerance_um, 1e-3, 1000.0)?;
+        if let Some(k) = &self.machine {
+            k.check()
+                .map_err(|e| crate::RequestError::new("machine", e.to_string()))?;
+        }
+        Ok(())
+    }
+}
+
+/// The 5-axis rewrite as a registered procedure.
+pub struct RotaryRewrite;
+
+impl crate::registry::Procedure for RotaryRewrite {
+    const KIND: &'static str = "rotary-rewrite";
+    const TITLE: &'static str =
+        "Rotary table: rewrite a 5-axis program so the tool tip lands where programmed";
+    const COMMAND: &'static str = "rotary rewrite";
+    const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
+    type Request = RotaryRewriteRequest;
+
+    async fn run(r: RotaryRewriteRequest, cx: &mut dyn crate::Context) -> Outcome {
+        rewrite_with_errors_file(
+            &r.program,
+            &r.program_name,
+            &r.errors,
+            &r.errors_name,
+            r.machine.clone(),
+            r.force_machine,
+            r.tolerance_um,
+            cx.sink(),
+        )
+    }
+
+    fn summary(result: &Value) -> String {
+        summary(result)
+    }
 }
 
 /// An identification or a cycle's report as text (the CLI's output without `--json`).

@@ -1,23 +1,9 @@
-//! A job's result as a person reads it, by its kind (the service's page shows it).
+//! The compensation's result in a few lines (the other kinds' summaries live with their procedures).
 
 use serde_json::Value;
 
-/// The text a person reads of a job kind's result: the CLI's summary, shown by the
-/// service's page above the result's numbers.
-pub fn summary(kind: &str, result: &Value) -> Option<String> {
-    Some(match kind {
-        "compensate" => compensate_summary(result),
-        "map" => crate::map::summary(result),
-        "verify" => crate::verify::summary(result),
-        "iso230" => crate::iso230::summary(result),
-        "layout" => crate::layout::summary(result),
-        "rotary" => crate::rotary::summary(result),
-        _ => return None,
-    })
-}
-
 /// A compensation's result in a few lines (the CLI prints its full per-target table).
-fn compensate_summary(r: &Value) -> String {
+pub(crate) fn compensate_summary(r: &Value) -> String {
     let um = |v: &Value| v.as_f64().map_or("-".to_string(), |x| format!("{x:.3}"));
     let figures = |key: &str| {
         let f = &r[key];

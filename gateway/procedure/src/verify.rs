@@ -24,37 +24,26 @@ fn point_json(p: &CheckedPoint) -> Value {
 
 /// Checks `map` (named `what` in messages) on this machine: refused before any motion
 /// when it was measured on another machine, controller, board or camera. `round`
-/// (from 0) picks fresh points for a repeated check. The result: `points`, `residual_um`
+/// (from 0) picks fresh points for a repeated check. With the map's current reference
+/// (`gateway reference`'s record) a spot check does not home: it applies the recorded
+/// reference, as `rewrite` and `proxy` do, and reports the zero's drift since it
+/// (`drift_since_reference_um`, with the record's `recorded_reference`: when, how old,
+/// the shift); a record of another map is refused. Otherwise it homes and
+/// re-references the map at its reference point. The result: `points`, `residual_um`
 /// and `uncompensated_um` (max, rms), `reference_um` (the zero's shift since the scan),
 /// `drift_um` (mean residual), `spot_check`, `drift_threshold_um`, `rescan`.
-pub async fn run(
-    request: &VerifyRequest,
-    job: &Job,
-    devices: &mut Devices,
-    map: ErrorMap,
-    what: &str,
-    round: u64,
-    sink: &mut dyn Sink,
-) -> Outcome {
-    run_with_reference(request, job, devices, map, what, round, None, sink).await
-}
-
-/// [`run`] with the map's current reference (`gateway reference`'s record): a spot check
-/// then does not home; it applies the recorded reference, as `rewrite` and `proxy` do,
-/// and reports the zero's drift since it (`drift_since_reference_um`, with the record's
-/// `recorded_reference`: when, how old, the shift). A record of another map is refused.
-/// A full verification (not a spot check) homes and re-references as [`run`] does.
 #[allow(clippy::too_many_arguments)]
-pub async fn run_with_reference(
+pub async fn check_map(
     request: &VerifyRequest,
     job: &Job,
     devices: &mut Devices,
     map: ErrorMap,
     what: &str,
-    round: u64,
     reference: Option<&MapReference>,
+    now: std::time::SystemTime,
     sink: &mut dyn Sink,
 ) -> Outcome {
+    let round = request.round;
     if let Err(e) = crate::check_identity(&map, &crate::identity(job, devices), what) {
         return Outcome::failed(e);
     }
@@ -91,9 +80,7 @@ pub async fn run_with_reference(
     ];
     // The map no longer holds where any point is off by more than the threshold.
     let rescan = request.spot_check && res_max > request.drift_threshold_um;
-    let now_s = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs());
+    let now_s = crate::context::unix_s(now);
     let recorded_reference = reference.map(|r| {
         json!({
             "measured_at": r.measured_at, "age_s": r.age_s(now_s),
@@ -138,11 +125,91 @@ pub async fn run_with_reference(
     }
 }
 
+/// The map's check as a registered procedure: a spot check uses the map's recorded
+/// reference (no homing) unless the request says `no_reference` or none is recorded
+/// (then it homes and re-references, and the result's `warning` says so).
+pub struct Verify;
+
+impl crate::registry::Procedure for Verify {
+    const KIND: &'static str = "verify";
+    const TITLE: &'static str =
+        "Verify the map: move to random points with the map and measure with the camera";
+    const COMMAND: &'static str = "verify";
+    const USES: crate::registry::Uses = crate::registry::Uses::DEVICES_AND_MAP;
+    type Request = VerifyRequest;
+
+    async fn run(request: VerifyRequest, cx: &mut dyn crate::Context) -> Outcome {
+        let stop = cx.stop();
+        let now = cx.now();
+        let active = match cx.map() {
+            Ok(m) => m,
+            Err(e) => return Outcome::failed(e.to_string()),
+        };
+        let reference = match (
+            request.spot_check && !request.no_reference,
+            active.reference,
+        ) {
+            (false, _) => None,
+            (true, Ok(r)) => r,
+            (true, Err(e)) => return Outcome::failed(e),
+        };
+        let warning =
+            (request.spot_check && !request.no_reference && reference.is_none()).then(|| {
+                format!(
+                    "no reference is recorded for {}: the spot check homes and re-references \
+                     (record one after every homing: the reference job)",
+                    active.name
+                )
+            });
+        let bench = match cx.bench().await {
+            Ok(b) => b,
+            Err(e) => return Outcome::failed(e.to_string()),
+        };
+        let checked = {
+            let checking = check_map(
+                &request,
+                bench.job,
+                bench.devices,
+                active.map,
+                &active.name,
+                reference.as_ref(),
+                now,
+                bench.sink,
+            );
+            tokio::select! {
+                o = checking => Some(o),
+                _ = stop.requested() => None,
+            }
+        };
+        let Some(mut outcome) = checked else {
+            let _ = bench.devices.stage.stop().await;
+            return Outcome::stopped(
+                true,
+                "stopped during the check".into(),
+                None,
+                Default::default(),
+                false,
+            );
+        };
+        if let (Some(w), Some(r)) = (warning, outcome.result.as_mut()) {
+            r["warning"] = json!(w);
+        }
+        outcome
+    }
+
+    fn summary(result: &Value) -> String {
+        summary(result)
+    }
+}
+
 /// The result as text (the CLI's output without `--json`).
 pub fn summary(r: &Value) -> String {
     use std::fmt::Write;
     let mut t = String::new();
     let f = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
+    if let Some(w) = r["warning"].as_str() {
+        let _ = writeln!(t, "warning: {w}");
+    }
     if let Some(d) = r["drift_since_reference_um"].as_array() {
         let _ = writeln!(
             t,

@@ -18,7 +18,7 @@ pub use crate::core::{
     RAW_LINE_KEPT, RX_BUFFER, UNREFERENCED_CODE,
 };
 pub use line_rewriter::{CartesianRewriter, FiveAxisRewriter, LineRewriter};
-pub use serve::{open_controller, serve, serve_with_camera, Ending, ReferenceFrames, SenderPort};
+pub use serve::{serve, serve_with_camera, Ending, ReferenceFrames, SenderPort};
 
 #[cfg(test)]
 mod tests;

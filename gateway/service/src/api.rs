@@ -378,12 +378,12 @@ fn static_file(content_type: &'static str, body: &'static str) -> Response {
 pub struct ApiDoc;
 
 /// Each job kind's params as `components.schemas["job.<kind>"]`: the request types the
-/// API checks (`procedure::request::schemas`), from which the page builds its forms.
+/// API checks (`procedure::kinds::schemas`), from which the page builds its forms.
 struct JobParams;
 impl utoipa::Modify for JobParams {
     fn modify(&self, openapi: &mut utoipa::openapi::OpenApi) {
         let components = openapi.components.get_or_insert_with(Default::default);
-        for (kind, schema) in procedure::request::schemas() {
+        for (kind, schema) in procedure::kinds::schemas() {
             components.schemas.insert(format!("job.{kind}"), schema);
         }
     }
@@ -493,14 +493,15 @@ async fn enqueue(
             invalid(e)
         }
     })?;
-    if let procedure::Request::Map(r) = &parsed {
-        let area = *m.scan_area.lock().unwrap_or_else(|p| p.into_inner());
-        if let Some((lo, hi)) = area {
-            r.check_area(lo, hi).map_err(invalid)?;
-        }
-    }
+    let facts = procedure::registry::Facts {
+        scan_area: *m.scan_area.lock().unwrap_or_else(|p| p.into_inner()),
+    };
     let params = parsed.params();
-    if request.kind == "rotary" && m.rotary.is_none() {
+    parsed
+        .registered()
+        .admit(&params, &facts)
+        .map_err(invalid)?;
+    if parsed.registered().uses.rotary && m.rotary.is_none() {
         return Err(ApiError::new(
             StatusCode::UNPROCESSABLE_ENTITY,
             "invalid_job",

@@ -9,9 +9,11 @@
 
 pub mod api;
 pub mod config;
+pub mod context;
 mod serve;
 pub mod sink;
 pub mod state;
+mod supervise;
 pub mod worker;
 
 pub use config::{BoxConfig, ConfigError, JobSource, MachineConfig, ServiceConfig};

@@ -98,9 +98,15 @@ pub struct StoreJournal {
     pub name: String,
     /// The job's params (the normalized request): only a scan asked the same way resumes.
     pub params: Value,
-    /// Where the resumed samples came from, for the result.
-    pub resumed_from: Option<JobId>,
+    /// Where the resumed samples came from (the job), or why a stopped scan was not
+    /// resumed, for the result.
+    pub resumed_from: Option<Value>,
 }
+
+/// The job file that keeps a scan's journal header: the next scan of the same name and
+/// params resumes it only when its own header (job, machine, camera, board, plan) is the
+/// same, as the CLI's journal file is checked.
+pub const JOURNAL_HEADER_FILE: &str = "scan-journal-header.txt";
 
 impl StoreJournal {
     /// The latest map job of this name on this machine that did not finish (looked for
@@ -134,12 +140,37 @@ impl StoreJournal {
 impl ScanJournal for StoreJournal {
     fn resume(
         &mut self,
-        _: &journal::Header,
+        header: &journal::Header,
         plan: &ScanPlan,
     ) -> Result<Vec<(usize, Sample)>, String> {
+        // This scan's header first: whoever resumes it checks it.
+        lock(&self.shared.store)
+            .add_job_file(
+                self.job,
+                JOURNAL_HEADER_FILE,
+                None,
+                "text/plain",
+                header.line().as_bytes(),
+            )
+            .map_err(|e| e.to_string())?;
         let Some((id, result)) = self.stopped_scan()? else {
             return Ok(Vec::new());
         };
+        // The stopped scan's header (job, machine, controller, board, camera, plan) must
+        // be this one's: a scan of another camera or board starts anew, saying why.
+        let stored = lock(&self.shared.store)
+            .job_file(id, JOURNAL_HEADER_FILE)
+            .map_err(|e| e.to_string())?;
+        let differs = match stored {
+            Some((_, bytes)) => journal::read(header, plan, &bytes).err(),
+            None => Some(format!("job {id} kept no journal header")),
+        };
+        if let Some(why) = differs {
+            self.resumed_from = Some(
+                json!({ "not_resumed": format!("job {id}'s stopped scan: {why}: started anew") }),
+            );
+            return Ok(Vec::new());
+        }
         // Only the same plan continues (a job interrupted by a restart has no result:
         // its samples are checked against the plan's points instead).
         if let Some(p) = result.get("plan").and_then(Value::as_str) {
@@ -167,7 +198,7 @@ impl ScanJournal for StoreJournal {
                 .add_measurement(self.job, row)
                 .map_err(|e| e.to_string())?;
         }
-        self.resumed_from = Some(id);
+        self.resumed_from = Some(json!(id));
         Ok(samples)
     }
 
@@ -177,6 +208,10 @@ impl ScanJournal for StoreJournal {
     }
 
     fn close(&mut self) {}
+
+    fn resumed_from(&self) -> Option<Value> {
+        self.resumed_from.clone()
+    }
 }
 
 /// The machine's error_map profiles.

@@ -135,8 +135,9 @@ impl Shared {
             "rotary": m.rotary, "state": status.state.as_str(), "state_detail": status.detail,
             "job": job, "queued": queue.len(), "queue": shown,
             // The job kinds this machine runs (a rotary job needs its A/C table).
-            "kinds": procedure::request::KINDS.iter()
-                .filter(|k| **k != "rotary" || m.rotary.is_some())
+            "kinds": procedure::KINDS.iter()
+                .filter(|k| !k.uses.rotary || m.rotary.is_some())
+                .map(|k| k.name)
                 .collect::<Vec<_>>(),
         })
     }

@@ -8,19 +8,18 @@
 //! [`CANCEL_GRACE`] drops it the same way.
 
 use crate::config::MachineConfig;
-use crate::sink::{profile_map, ProfileShelf, RotaryShelf, StoreJournal, StoreSink};
+use crate::context::StoreContext;
+use crate::sink::StoreSink;
 use crate::state::{lock, Machine, MachineState, Shared};
+use crate::supervise::{supervise, Supervised};
 use devices::Devices;
-use futures_util::FutureExt;
 use job::{CameraSpec, Job, StageSpec};
-use procedure::iso230::NamedMap;
-use procedure::{End, Request};
-use serde_json::{json, Map, Value};
-use std::panic::AssertUnwindSafe;
+use procedure::{End, Request, Stop};
+use serde_json::{Map, Value};
 use std::sync::Arc;
 use std::time::Duration;
 use store::{JobRecord, Outcome, ProfileKind, ProfileRef};
-use tokio::sync::{watch, Notify};
+use tokio::sync::Notify;
 use tracing::{info, info_span, warn, Instrument};
 
 /// How long a cancelled procedure may take to stop by itself before it is dropped.
@@ -159,15 +158,6 @@ fn to_store(outcome: procedure::Outcome, sink: StoreSink) -> (Outcome, Option<St
     (stored, outcome.link_lost)
 }
 
-/// The text of a panic's payload.
-fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
-    payload
-        .downcast_ref::<&str>()
-        .map(|s| s.to_string())
-        .or_else(|| payload.downcast_ref::<String>().cloned())
-        .unwrap_or_else(|| "a panic without a message".into())
-}
-
 /// Runs one queued job to its end; `Some(detail)` when the device link was lost (or
 /// the devices' state is unknown after a panic or a dropped procedure).
 async fn run_one(
@@ -215,7 +205,7 @@ async fn run_one(
 
     // The stop signal the procedure sees, and the worker's own watch on it: a procedure
     // that does not end within the grace period after a cancel is dropped.
-    let (stop_tx, stop_rx) = watch::channel(false);
+    let (stop_tx, stop) = Stop::new();
     let mut shutdown = shared.shutdown.clone();
     let stop_requested = async move {
         tokio::select! {
@@ -223,25 +213,18 @@ async fn run_one(
             _ = shutdown.wait_for(|s| *s) => {}
         }
     };
-    let stop = {
-        let mut rx = stop_rx.clone();
-        async move {
-            let _ = rx.wait_for(|s| *s).await;
+    let mut cx = StoreContext::new(shared, machine, config, devices, &record, profile, stop);
+    let job_future = async {
+        match &request {
+            Ok(r) => r.registered().run(r.params(), &mut cx).await,
+            Err(e) if e.field == "params" => {
+                procedure::Outcome::failed(format!("params: {}", e.message))
+            }
+            Err(e) => procedure::Outcome::failed(format!("params.{e}")),
         }
     };
-    let mut sink = StoreSink::new(shared, &machine.id, id);
-    let job_future = run_request(
-        shared,
-        machine,
-        config,
-        devices,
-        &record,
-        request,
-        profile.map(|(v, body)| (format!("error_map profile {} v{}", v.name, v.version), body)),
-        &mut sink,
-        stop,
-    );
     let ended = supervise(job_future, stop_requested, stop_tx, CANCEL_GRACE).await;
+    let sink = cx.sink;
     let (outcome, lost) = match ended {
         Supervised::Ended(outcome) => to_store(outcome, sink),
         Supervised::Panicked(message) => {
@@ -280,202 +263,4 @@ async fn run_one(
         Err(e) => warn!(error = %e, "job result not saved"),
     }
     lost
-}
-
-/// How a supervised job ended.
-#[derive(Debug, PartialEq)]
-pub(crate) enum Supervised<T> {
-    Ended(T),
-    /// It panicked: the panic's message.
-    Panicked(String),
-    /// It did not end within the grace period after its stop was requested: dropped.
-    Dropped,
-}
-
-/// Runs `job` so that it can never jam its machine: a panic inside it is caught (the
-/// job ends, the worker goes on); once `stop_requested` completes the job's own stop
-/// signal (`stop_tx`) is raised, and a job still running `grace` later is dropped.
-pub(crate) async fn supervise<T>(
-    job: impl std::future::Future<Output = T>,
-    stop_requested: impl std::future::Future<Output = ()>,
-    stop_tx: watch::Sender<bool>,
-    grace: Duration,
-) -> Supervised<T> {
-    let job = AssertUnwindSafe(job).catch_unwind();
-    tokio::pin!(job);
-    tokio::pin!(stop_requested);
-    let mut stopping = false;
-    loop {
-        tokio::select! {
-            r = &mut job => return match r {
-                Ok(v) => Supervised::Ended(v),
-                Err(payload) => Supervised::Panicked(panic_message(payload.as_ref())),
-            },
-            _ = &mut stop_requested, if !stopping => {
-                stopping = true;
-                let _ = stop_tx.send(true);
-            }
-            _ = tokio::time::sleep(grace), if stopping => return Supervised::Dropped,
-        }
-    }
-}
-
-/// Translates a stored request into its procedure's call: the machine's job file, its
-/// active map, the store as the sink.
-#[allow(clippy::too_many_arguments)]
-async fn run_request(
-    shared: &Arc<Shared>,
-    machine: &Arc<Machine>,
-    config: &MachineConfig,
-    devices: &mut Devices,
-    record: &JobRecord,
-    request: Result<Request, procedure::RequestError>,
-    map: Option<(String, Value)>,
-    sink: &mut StoreSink,
-    stop: impl std::future::Future<Output = ()>,
-) -> procedure::Outcome {
-    let request = match request {
-        Ok(r) => r,
-        Err(e) if e.field == "params" => {
-            return procedure::Outcome::failed(format!("params: {}", e.message))
-        }
-        Err(e) => return procedure::Outcome::failed(format!("params.{e}")),
-    };
-    if let Request::Rotary(r) = &request {
-        // The table's own link, from the machine's rotary job file (the X-Y stage's
-        // devices are not used).
-        let Some(source) = &config.rotary else {
-            return procedure::Outcome::failed(format!(
-                "machine {} has no rotary job file",
-                machine.id
-            ));
-        };
-        let job = match source.load() {
-            Ok(j) => j,
-            Err(e) => return procedure::Outcome::failed(format!("rotary job file: {e}")),
-        };
-        let mut shelf = RotaryShelf {
-            shared: shared.clone(),
-            machine: machine.id.clone(),
-            job: record.id,
-        };
-        return procedure::rotary::measure(r, &job, &mut shelf, sink, stop).await;
-    }
-    if let Request::Layout(r) = &request {
-        return procedure::layout::partition(r, sink);
-    }
-    let job = match config.job.load() {
-        Ok(j) => j,
-        Err(e) => return procedure::Outcome::failed(format!("job file: {e}")),
-    };
-    let map = match (request.uses_map(), map) {
-        (false, _) => None,
-        (true, None) => {
-            return procedure::Outcome::failed(format!(
-                "{}: machine {} has no active error_map profile; activate one first",
-                if request.kind() == "iso230" {
-                    "params.with_map"
-                } else {
-                    request.kind()
-                },
-                machine.id
-            ))
-        }
-        (true, Some((name, body))) => match profile_map(&body) {
-            Ok(map) => Some(NamedMap { map, name }),
-            Err(e) => return procedure::Outcome::failed(format!("the active {name}: {e}")),
-        },
-    };
-    let outcome = match &request {
-        Request::Compensate(r) => procedure::compensate::run(r, &job, devices, sink, stop).await,
-        Request::Map(r) => {
-            let mut journal = StoreJournal {
-                shared: shared.clone(),
-                machine: machine.id.clone(),
-                job: record.id,
-                name: r.name.clone(),
-                params: record.params.clone(),
-                resumed_from: None,
-            };
-            let mut shelf = ProfileShelf {
-                shared: shared.clone(),
-                machine: machine.id.clone(),
-                job: record.id,
-            };
-            let mut o =
-                procedure::map::run(r, &job, devices, &mut journal, &mut shelf, sink, stop).await;
-            if let (Some(from), Some(Value::Object(result))) = (journal.resumed_from, &mut o.result)
-            {
-                result.insert("resumed_from_job".into(), json!(from));
-            }
-            o
-        }
-        Request::Verify(r) => {
-            let m = map.expect("resolved above");
-            procedure::verify::run(r, &job, devices, m.map, &m.name, 0, sink).await
-        }
-        Request::Iso230(r) => procedure::iso230::run(r, &job, devices, map, None, sink, stop).await,
-        // The record (result `record`, artifact `reference.json`) is kept with the job.
-        Request::Reference(r) => {
-            let m = map.expect("resolved above");
-            procedure::reference::run(r, &job, devices, &m.map, &m.name, None, sink).await
-        }
-        Request::Layout(_) | Request::Rotary(_) => unreachable!("handled above"),
-    };
-    outcome
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn stop_pair() -> (watch::Sender<bool>, watch::Receiver<bool>) {
-        watch::channel(false)
-    }
-
-    #[tokio::test]
-    async fn a_panicking_job_ends_with_its_message() {
-        let (tx, _rx) = stop_pair();
-        let job = async {
-            if tx.is_closed() {
-                return 1;
-            }
-            panic!("boom in a procedure")
-        };
-        let (tx2, _rx2) = stop_pair();
-        let r = supervise(job, std::future::pending(), tx2, CANCEL_GRACE).await;
-        assert_eq!(r, Supervised::Panicked("boom in a procedure".into()));
-    }
-
-    #[tokio::test]
-    async fn a_job_that_honours_its_stop_ends_by_itself() {
-        let (tx, mut rx) = stop_pair();
-        let job = async move {
-            let _ = rx.wait_for(|s| *s).await;
-            "stopped"
-        };
-        let r = supervise(job, async {}, tx, CANCEL_GRACE).await;
-        assert_eq!(r, Supervised::Ended("stopped"));
-    }
-
-    // The paused clock advances only when every task waits: no wall time passes.
-    #[tokio::test(start_paused = true)]
-    async fn a_job_that_ignores_its_stop_is_dropped_after_the_grace() {
-        let (tx, _rx) = stop_pair();
-        let started = tokio::time::Instant::now();
-        let r = supervise(std::future::pending::<()>(), async {}, tx, CANCEL_GRACE).await;
-        assert_eq!(r, Supervised::Dropped);
-        assert_eq!(started.elapsed(), CANCEL_GRACE);
-    }
-
-    #[tokio::test(start_paused = true)]
-    async fn a_job_is_never_dropped_without_a_stop() {
-        let (tx, _rx) = stop_pair();
-        let job = async {
-            tokio::time::sleep(CANCEL_GRACE * 10).await;
-            7
-        };
-        let r = supervise(job, std::future::pending(), tx, CANCEL_GRACE).await;
-        assert_eq!(r, Supervised::Ended(7));
-    }
 }

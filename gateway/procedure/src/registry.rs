@@ -1,0 +1,260 @@
+//! Every capability as one [`Procedure`], and the registry ([`KINDS`]) from which the
+//! command line's commands, the service's job kinds, the forms' JSON schemas, the
+//! summaries and the worker's dispatch all come. A new capability is one module that
+//! implements [`Procedure`] and one line in [`KINDS`]; the tests of this module and of
+//! the front ends fail when a registered kind lacks a schema, a summary, a command or a
+//! job kind.
+
+use crate::context::Context;
+use crate::request::{from_json, RequestError};
+use crate::Outcome;
+use serde::de::DeserializeOwned;
+use serde::Serialize;
+use serde_json::Value;
+use std::future::Future;
+use std::pin::Pin;
+use utoipa::openapi::schema::Schema;
+use utoipa::openapi::RefOr;
+
+/// A request whose bounds are checked once, where it is parsed.
+pub trait Checked {
+    fn check(&self) -> Result<(), RequestError>;
+}
+
+/// What a kind of job needs from the machine it runs on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Uses {
+    /// The X-Y stage and camera of the machine's job file.
+    pub devices: bool,
+    /// The error map (the service: the machine's active `error_map` profile).
+    pub map: MapUse,
+    /// The rotary table's job file.
+    pub rotary: bool,
+}
+
+/// Whether a kind applies an error map.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MapUse {
+    Never,
+    Always,
+    /// When the request says so (ISO 230-2's `with_map`).
+    WhenAsked,
+}
+
+impl Uses {
+    /// Nothing from the machine: files in, files out.
+    pub const NOTHING: Uses = Uses {
+        devices: false,
+        map: MapUse::Never,
+        rotary: false,
+    };
+    /// The stage and the camera.
+    pub const DEVICES: Uses = Uses {
+        devices: true,
+        map: MapUse::Never,
+        rotary: false,
+    };
+    /// The stage, the camera and the error map.
+    pub const DEVICES_AND_MAP: Uses = Uses {
+        devices: true,
+        map: MapUse::Always,
+        rotary: false,
+    };
+    /// The error map alone.
+    pub const MAP: Uses = Uses {
+        devices: false,
+        map: MapUse::Always,
+        rotary: false,
+    };
+    /// The rotary table.
+    pub const ROTARY: Uses = Uses {
+        devices: false,
+        map: MapUse::Never,
+        rotary: true,
+    };
+}
+
+/// What the service knows of a machine when a job is queued, so a request can be
+/// refused before it waits in the queue.
+#[derive(Debug, Clone, Default)]
+pub struct Facts {
+    /// The area a map scan covers (from the stage's soft limits and the board).
+    pub scan_area: Option<([f64; 2], [f64; 2])>,
+}
+
+/// One capability.
+#[allow(async_fn_in_trait)]
+pub trait Procedure {
+    /// The job kind (the service) and the key of the command (the CLI).
+    const KIND: &'static str;
+    /// One line for the form's title and the command's help.
+    const TITLE: &'static str;
+    /// The command line's words for it (`rotary identify`).
+    const COMMAND: &'static str;
+    /// What it needs of the machine.
+    const USES: Uses;
+    /// Its request: the CLI's flags and the API's params, checked once.
+    type Request: Serialize + DeserializeOwned + utoipa::PartialSchema + Checked;
+    /// Runs it; the outcome's result is what `--json` prints and the store keeps.
+    async fn run(request: Self::Request, cx: &mut dyn Context) -> Outcome;
+    /// The result as a person reads it (the CLI's text, the page's summary).
+    fn summary(result: &Value) -> String;
+    /// A refusal at queue time from what the machine knows (default: none).
+    fn admit(_request: &Self::Request, _facts: &Facts) -> Result<(), RequestError> {
+        Ok(())
+    }
+    /// Whether a request uses the error map (by default: what [`Self::USES`] says).
+    fn uses_map(_request: &Self::Request) -> bool {
+        Self::USES.map == MapUse::Always
+    }
+}
+
+type Run = for<'a> fn(Value, &'a mut dyn Context) -> Pin<Box<dyn Future<Output = Outcome> + 'a>>;
+
+/// A registered capability, its types erased (see [`Procedure`]).
+pub struct Kind {
+    pub name: &'static str,
+    pub title: &'static str,
+    pub command: &'static str,
+    pub uses: Uses,
+    parse: fn(&Value) -> Result<Value, RequestError>,
+    admit: fn(&Value, &Facts) -> Result<(), RequestError>,
+    uses_map: fn(&Value) -> bool,
+    run: Run,
+    summary: fn(&Value) -> String,
+    schema: fn() -> RefOr<Schema>,
+}
+
+impl std::fmt::Debug for Kind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Kind").field("name", &self.name).finish()
+    }
+}
+
+impl PartialEq for Kind {
+    fn eq(&self, other: &Self) -> bool {
+        self.name == other.name
+    }
+}
+
+fn parse_as<P: Procedure>(params: &Value) -> Result<P::Request, RequestError> {
+    if !params.is_object() {
+        return Err(RequestError::new("params", "must be a JSON object"));
+    }
+    let request: P::Request = from_json(params)?;
+    request.check()?;
+    Ok(request)
+}
+
+fn normalized<P: Procedure>(params: &Value) -> Result<Value, RequestError> {
+    let request = parse_as::<P>(params)?;
+    serde_json::to_value(&request).map_err(|e| RequestError::new("params", e.to_string()))
+}
+
+fn admit_as<P: Procedure>(params: &Value, facts: &Facts) -> Result<(), RequestError> {
+    P::admit(&parse_as::<P>(params)?, facts)
+}
+
+fn uses_map_as<P: Procedure>(params: &Value) -> bool {
+    parse_as::<P>(params).is_ok_and(|r| P::uses_map(&r))
+}
+
+fn run_as<P: Procedure + 'static>(
+    params: Value,
+    cx: &mut dyn Context,
+) -> Pin<Box<dyn Future<Output = Outcome> + '_>> {
+    Box::pin(async move {
+        match parse_as::<P>(&params) {
+            Ok(request) => P::run(request, cx).await,
+            // A stored request that no longer parses (a database from an older version).
+            Err(e) if e.field == "params" => Outcome::failed(format!("params: {}", e.message)),
+            Err(e) => Outcome::failed(format!("params.{e}")),
+        }
+    })
+}
+
+/// The registry's entry of `P`.
+pub const fn entry<P: Procedure + 'static>() -> Kind {
+    Kind {
+        name: P::KIND,
+        title: P::TITLE,
+        command: P::COMMAND,
+        uses: P::USES,
+        parse: normalized::<P>,
+        admit: admit_as::<P>,
+        uses_map: uses_map_as::<P>,
+        run: run_as::<P>,
+        summary: P::summary,
+        schema: <P::Request as utoipa::PartialSchema>::schema,
+    }
+}
+
+impl Kind {
+    /// The params checked, every default written out (what the service stores).
+    pub fn parse(&self, params: &Value) -> Result<Value, RequestError> {
+        (self.parse)(params)
+    }
+
+    /// Refused at queue time from what the machine knows.
+    pub fn admit(&self, params: &Value, facts: &Facts) -> Result<(), RequestError> {
+        (self.admit)(params, facts)
+    }
+
+    /// Whether these params use the error map.
+    pub fn uses_map(&self, params: &Value) -> bool {
+        (self.uses_map)(params)
+    }
+
+    /// Runs a request (its params) in a context.
+    pub async fn run(&self, params: Value, cx: &mut dyn Context) -> Outcome {
+        (self.run)(params, cx).await
+    }
+
+    pub fn summary(&self, result: &Value) -> String {
+        (self.summary)(result)
+    }
+
+    /// The JSON schema (OpenAPI 3.1) of its params: the page builds the form from it.
+    pub fn schema(&self) -> RefOr<Schema> {
+        (self.schema)()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::kinds::{find, kind, KINDS};
+    use serde_json::json;
+
+    /// Every registered kind is whole: a unique name, a title for its form, a command,
+    /// a params schema with its fields, and a summary that reads any result (also an
+    /// empty one: a failed job's) without panicking.
+    #[test]
+    fn every_registered_kind_has_what_the_front_ends_take_from_it() {
+        let mut names = std::collections::HashSet::new();
+        for k in KINDS {
+            assert!(names.insert(k.name), "{} registered twice", k.name);
+            assert!(!k.title.is_empty() && !k.command.is_empty(), "{}", k.name);
+            let schema = serde_json::to_value(k.schema()).unwrap();
+            assert_eq!(schema["type"], "object", "{}: {schema}", k.name);
+            assert!(schema["properties"].is_object(), "{}: {schema}", k.name);
+            let _ = k.summary(&json!({}));
+            assert_eq!(find(k.name), Some(k));
+        }
+        assert!(kind("nope").unwrap_err().message.contains("compensate"));
+    }
+
+    /// What a kind needs of the machine is what the service resolves for it.
+    #[test]
+    fn a_kind_says_what_it_uses() {
+        let uses = |name: &str| find(name).unwrap().uses;
+        assert!(uses("compensate").devices);
+        assert_eq!(uses("verify").map, MapUse::Always);
+        assert_eq!(uses("iso230").map, MapUse::WhenAsked);
+        assert!(uses("rotary").rotary && !uses("rotary").devices);
+        let iso = find("iso230").unwrap();
+        assert!(!iso.uses_map(&json!({"axis": "x"})));
+        assert!(iso.uses_map(&json!({"axis": "x", "with_map": true})));
+        assert!(find("reference").unwrap().uses_map(&json!({})));
+    }
+}
