@@ -9,7 +9,11 @@
 
 use crate::request::{count, number, RequestError};
 use crate::{Artifact, Outcome, Sink};
-use errormap::export::{beckhoff_plane, linuxcnc_joint, plain_csv, LINUXCNC_MAX_ENTRIES};
+use errormap::export::{
+    beckhoff_plane, controller::ControllerTables, fanuc_pitch, haas, heidenhain, heidenhain_64,
+    heidenhain_com, linuxcnc_joint, plain_csv, siemens, CecMultiplier, FanucOptions, FanucSection,
+    SiemensOptions, TvCheck, ValueSign, LINUXCNC_MAX_ENTRIES,
+};
 use errormap::MapModel;
 use protocol::errormap::ErrorMap;
 use serde::{Deserialize, Serialize};
@@ -31,19 +35,40 @@ pub enum ExportFormat {
     Linuxcnc,
     Beckhoff,
     Csv,
+    #[serde(rename = "siemens-eec")]
+    SiemensEec,
+    #[serde(rename = "siemens-cec")]
+    SiemensCec,
+    #[serde(rename = "fanuc-pitch")]
+    FanucPitch,
+    Heidenhain,
+    #[serde(rename = "heidenhain-64")]
+    #[cfg_attr(feature = "cli", value(name = "heidenhain-64"))]
+    Heidenhain64,
+    Haas,
 }
 
 impl ExportFormat {
+    pub const ALL: [ExportFormat; 9] = [
+        ExportFormat::Linuxcnc,
+        ExportFormat::Beckhoff,
+        ExportFormat::Csv,
+        ExportFormat::SiemensEec,
+        ExportFormat::SiemensCec,
+        ExportFormat::FanucPitch,
+        ExportFormat::Heidenhain,
+        ExportFormat::Heidenhain64,
+        ExportFormat::Haas,
+    ];
+
     pub fn parse(text: &str) -> Result<ExportFormat, RequestError> {
-        match text {
-            "linuxcnc" => Ok(ExportFormat::Linuxcnc),
-            "beckhoff" => Ok(ExportFormat::Beckhoff),
-            "csv" => Ok(ExportFormat::Csv),
-            other => Err(RequestError::new(
-                "format",
-                format!("`{other}`: linuxcnc, beckhoff or csv"),
-            )),
-        }
+        Self::ALL
+            .into_iter()
+            .find(|f| f.as_str() == text)
+            .ok_or_else(|| {
+                let names: Vec<&str> = Self::ALL.iter().map(|f| f.as_str()).collect();
+                RequestError::new("format", format!("`{text}`: {}", names.join(", ")))
+            })
     }
 
     pub fn as_str(self) -> &'static str {
@@ -51,6 +76,185 @@ impl ExportFormat {
             ExportFormat::Linuxcnc => "linuxcnc",
             ExportFormat::Beckhoff => "beckhoff",
             ExportFormat::Csv => "csv",
+            ExportFormat::SiemensEec => "siemens-eec",
+            ExportFormat::SiemensCec => "siemens-cec",
+            ExportFormat::FanucPitch => "fanuc-pitch",
+            ExportFormat::Heidenhain => "heidenhain",
+            ExportFormat::Heidenhain64 => "heidenhain-64",
+            ExportFormat::Haas => "haas",
+        }
+    }
+}
+
+fn default_siemens_axes() -> String {
+    "X1,Y1".into()
+}
+fn default_cec_tables() -> u64 {
+    8
+}
+fn default_fanuc_unit() -> f64 {
+    1.0
+}
+fn default_one() -> u32 {
+    1
+}
+fn default_fanuc_max_increment() -> u32 {
+    127
+}
+fn default_fanuc_record_base() -> u32 {
+    10000
+}
+
+/// The options of the industrial controllers' tables: their limits as set on the
+/// machine, and what their manuals leave open, each with the default docs/error-map.md
+/// states.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+#[serde(deny_unknown_fields)]
+pub struct ControllerOptions {
+    /// Points per table: Siemens MD38000/MD18342 (default 200, the 828D's), Fanuc
+    /// compensation points per axis (default 128), Heidenhain .COM entries (default 256).
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub points: Option<u64>,
+    /// Siemens machine axis names of X and Y.
+    #[serde(default = "default_siemens_axes")]
+    #[cfg_attr(feature = "cli", arg(long, default_value = "X1,Y1"))]
+    pub siemens_axes: String,
+    /// Siemens CEC tables available (828D: 8).
+    #[serde(default = "default_cec_tables")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 8))]
+    pub cec_tables: u64,
+    /// Siemens CEC products of two tables: off, own-output-added or own-output-not-added
+    /// (whether the multiplier table also adds its own output: open in the manual).
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, default_value = "off"))]
+    pub cec_multiplier: CecMultiplier,
+    /// Fanuc: the unit of a value and of the interval 3624, um (open in the manuals).
+    #[serde(default = "default_fanuc_unit")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 1.0))]
+    pub fanuc_unit_um: f64,
+    /// Fanuc: step-ending, step-starting or ramp (which section a point covers: open).
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, default_value = "step-ending"))]
+    pub fanuc_section: FanucSection,
+    /// Fanuc: the magnification 3623.
+    #[serde(default = "default_one")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 1))]
+    pub fanuc_magnification: u32,
+    /// Fanuc: the largest value of one point, units (open in the manuals).
+    #[serde(default = "default_fanuc_max_increment")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 127))]
+    pub fanuc_max_increment: u32,
+    /// Fanuc: pitch data of point n as record N(base + n) (open in the manuals).
+    #[serde(default = "default_fanuc_record_base")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 10000))]
+    pub fanuc_record_base: u32,
+    /// Fanuc TV check padding: off, without-eob or with-eob.
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, default_value = "without-eob"))]
+    pub fanuc_tv_check: TvCheck,
+    /// Fanuc, Heidenhain, Haas: correction (minus the error) or error (open in the
+    /// manuals; Siemens's is fixed: the error).
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, default_value = "correction"))]
+    pub value_sign: ValueSign,
+    /// Haas: encoder steps per inch of X and Y (Parameters 5 and 19), to check the
+    /// +-127 steps a value may hold; unchecked (and said so) without.
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, value_delimiter = ','))]
+    pub haas_steps_per_inch: Vec<f64>,
+}
+
+impl Default for ControllerOptions {
+    fn default() -> Self {
+        Self {
+            points: None,
+            siemens_axes: default_siemens_axes(),
+            cec_tables: default_cec_tables(),
+            cec_multiplier: CecMultiplier::default(),
+            fanuc_unit_um: default_fanuc_unit(),
+            fanuc_section: FanucSection::default(),
+            fanuc_magnification: default_one(),
+            fanuc_max_increment: default_fanuc_max_increment(),
+            fanuc_record_base: default_fanuc_record_base(),
+            fanuc_tv_check: TvCheck::default(),
+            value_sign: ValueSign::default(),
+            haas_steps_per_inch: Vec::new(),
+        }
+    }
+}
+
+impl ControllerOptions {
+    pub fn check(&self) -> Result<(), RequestError> {
+        if let Some(p) = self.points {
+            count("points", p, 2, 100_000)?;
+        }
+        let axes: Vec<&str> = self.siemens_axes.split(',').collect();
+        if axes.len() != 2 {
+            return Err(RequestError::new(
+                "siemens_axes",
+                format!("{:?}: the names of X and Y, as X1,Y1", self.siemens_axes),
+            ));
+        }
+        count("cec_tables", self.cec_tables, 0, 64)?;
+        number("fanuc_unit_um", self.fanuc_unit_um, 0.001, 100.0)?;
+        count(
+            "fanuc_magnification",
+            self.fanuc_magnification.into(),
+            1,
+            100,
+        )?;
+        count(
+            "fanuc_max_increment",
+            self.fanuc_max_increment.into(),
+            1,
+            99_999,
+        )?;
+        count(
+            "fanuc_record_base",
+            self.fanuc_record_base.into(),
+            1,
+            90_000,
+        )?;
+        match self.haas_steps_per_inch[..] {
+            [] => Ok(()),
+            [x, y] => {
+                number("haas_steps_per_inch", x, 1.0, 1e7)?;
+                number("haas_steps_per_inch", y, 1.0, 1e7)
+            }
+            _ => Err(RequestError::new(
+                "haas_steps_per_inch",
+                "the steps per inch of X and Y, as 138718,138718",
+            )),
+        }
+    }
+
+    fn siemens(&self, cec: bool) -> SiemensOptions {
+        let mut axes = self.siemens_axes.split(',').map(|s| s.trim().to_string());
+        let d = SiemensOptions::default();
+        SiemensOptions {
+            axes: [
+                axes.next().unwrap_or(d.axes[0].clone()),
+                axes.next().unwrap_or(d.axes[1].clone()),
+            ],
+            points: self.points.map_or(d.points, |p| p as usize),
+            cec_tables: if cec { self.cec_tables as usize } else { 0 },
+            multiplier: self.cec_multiplier,
+        }
+    }
+
+    fn fanuc(&self) -> FanucOptions {
+        let d = FanucOptions::default();
+        FanucOptions {
+            unit_um: self.fanuc_unit_um,
+            sign: self.value_sign,
+            section: self.fanuc_section,
+            magnification: self.fanuc_magnification,
+            max_increment: self.fanuc_max_increment,
+            points: self.points.map_or(d.points, |p| p as usize),
+            record_base: self.fanuc_record_base,
+            tv_check: self.fanuc_tv_check,
         }
     }
 }
@@ -97,6 +301,11 @@ pub struct ExportRequest {
     #[cfg_attr(feature = "cli", arg(long, default_value_t = default_interval()))]
     #[schema(default = default_interval, minimum = 0.1, maximum = 10000.0)]
     pub interval_mm: f64,
+    /// The industrial controllers' options (siemens-*, fanuc-pitch, heidenhain*, haas).
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", command(flatten))]
+    #[schema(value_type = Object)]
+    pub controller: ControllerOptions,
 }
 
 impl ExportRequest {
@@ -107,6 +316,7 @@ impl ExportRequest {
             tolerance_um: default_tolerance(),
             entries: default_entries(),
             interval_mm: default_interval(),
+            controller: ControllerOptions::default(),
         }
     }
 
@@ -120,18 +330,27 @@ impl ExportRequest {
         }
         number("tolerance_um", self.tolerance_um, 1e-3, 1e3)?;
         count("entries", self.entries, 2, LINUXCNC_MAX_ENTRIES as u64)?;
-        number("interval_mm", self.interval_mm, 0.1, 1e4)
+        number("interval_mm", self.interval_mm, 0.1, 1e4)?;
+        self.controller.check()
     }
 
     /// The artifacts the export produces, in order: `NAME_x`, `NAME_y` (the extension
     /// kept) for the per-axis formats, `NAME` for the CSV.
     pub fn artifact_names(&self) -> Vec<String> {
+        let axes = || ["x", "y"].iter().map(|axis| per_axis(&self.name, axis));
         match self.format {
-            ExportFormat::Csv => vec![self.name.clone()],
-            _ => ["x", "y"]
-                .iter()
-                .map(|axis| per_axis(&self.name, axis))
-                .collect(),
+            ExportFormat::Csv | ExportFormat::FanucPitch => vec![self.name.clone()],
+            ExportFormat::SiemensCec => axes().chain([per_axis(&self.name, "cec")]).collect(),
+            ExportFormat::Heidenhain => heidenhain::com_file_names(&self.stem()).to_vec(),
+            _ => axes().collect(),
+        }
+    }
+
+    /// The name without its extension (the Heidenhain tables' stem).
+    fn stem(&self) -> String {
+        match self.name.rsplit_once('.') {
+            Some((stem, _)) if !stem.is_empty() => stem.to_string(),
+            _ => self.name.clone(),
         }
     }
 
@@ -156,6 +375,16 @@ impl ExportRequest {
             }
             ExportFormat::Linuxcnc => ("map", (span(0).max(span(1)) / 0.05 + 2.0) * 8.0),
             ExportFormat::Csv => ("map", (g.xs.len() * g.ys.len()) as f64 * 100.0),
+            // A few tables of at most `points` lines, and the check on a grid of at most
+            // 2000 x 2000 points evaluated one at a time.
+            _ => {
+                let points = self.controller.points.unwrap_or(256) as f64;
+                // Products of CEC tables fit the residual at every pair of points.
+                let products = self.format == ExportFormat::SiemensCec
+                    && self.controller.cec_multiplier != CecMultiplier::Off;
+                let pairs = if products { points * points * 8.0 } else { 0.0 };
+                ("points", points * 10.0 * 64.0 + pairs)
+            }
         };
         if !(bytes <= MAX_EXPORT_BYTES as f64) {
             return Err(RequestError::new(
@@ -241,6 +470,15 @@ pub fn run(request: &ExportRequest, map: ErrorMap, sink: &mut dyn Sink) -> Outco
             texts.push(text);
             json!({ "format": "csv", "file": names[0], "rows": rows })
         }
+        f => {
+            let tables = match controller_tables(request, &model) {
+                Ok(t) => t,
+                Err(e) => return Outcome::failed(e),
+            };
+            let result = controller_result(f, &names, &tables);
+            texts = tables.files.into_iter().map(|(_, text)| text).collect();
+            result
+        }
     };
     // Every table is within the tolerance: now they are handed over.
     for (name, text) in names.into_iter().zip(texts) {
@@ -259,6 +497,54 @@ pub fn run(request: &ExportRequest, map: ErrorMap, sink: &mut dyn Sink) -> Outco
         }
     }
     Outcome::succeeded(result, Default::default())
+}
+
+/// The tables of an industrial controller's format, in the order of the artifacts.
+fn controller_tables(
+    request: &ExportRequest,
+    model: &MapModel,
+) -> Result<ControllerTables, String> {
+    let c = &request.controller;
+    let sign = c.value_sign;
+    let out = match request.format {
+        ExportFormat::SiemensEec => siemens(model, &c.siemens(false), false),
+        ExportFormat::SiemensCec => siemens(model, &c.siemens(true), true),
+        ExportFormat::FanucPitch => fanuc_pitch(model, &c.fanuc()),
+        ExportFormat::Heidenhain => heidenhain_com(
+            model,
+            &request.stem(),
+            c.points
+                .map_or(heidenhain::HEIDENHAIN_COM_MAX_ENTRIES, |p| p as usize),
+            sign,
+        ),
+        ExportFormat::Heidenhain64 => heidenhain_64(model, sign),
+        ExportFormat::Haas => haas(
+            model,
+            sign,
+            match c.haas_steps_per_inch[..] {
+                [x, y] => Some([x, y]),
+                _ => None,
+            },
+        ),
+        other => unreachable!("{} is not a controller's own table", other.as_str()),
+    };
+    out.map_err(|e| e.to_string())
+}
+
+fn controller_result(format: ExportFormat, names: &[String], t: &ControllerTables) -> Value {
+    let f = &t.fit;
+    json!({
+        "format": format.as_str(),
+        "tables": names.iter().map(|n| json!({ "file": n })).collect::<Vec<_>>(),
+        "chosen": t.tables,
+        "settings": t.settings,
+        "residual": {
+            "max_um": f.max_um, "rms_um": f.rms_um, "share": f.share,
+            "map_max_um": f.map_max_um, "map_rms_um": f.map_rms_um,
+            "worst_at_mm": f.worst_at_mm,
+        },
+        "zero_not_held_um": t.zero_not_held_um,
+    })
 }
 
 /// The export of the error map as a registered procedure.
@@ -318,13 +604,43 @@ pub fn summary(r: &Value) -> String {
                 );
             }
         }
-        _ => {
+        Some("csv") => {
             let _ = writeln!(
                 t,
                 "{}: the model at every node of the map's grid, both directions",
                 file(r)
             );
         }
+        Some(format) => {
+            let files: Vec<String> = r["tables"]
+                .as_array()
+                .into_iter()
+                .flatten()
+                .map(file)
+                .collect();
+            let _ = writeln!(t, "{format}: {}", files.join(", "));
+            for c in r["chosen"].as_array().into_iter().flatten() {
+                let _ = writeln!(t, "  {}", c.as_str().unwrap_or(""));
+            }
+            for s in r["settings"].as_array().into_iter().flatten() {
+                let _ = writeln!(t, "  set: {}", s.as_str().unwrap_or(""));
+            }
+            let f = &r["residual"];
+            let _ = writeln!(
+                t,
+                "  left of the map: max {:.2} um, rms {:.2} um (the map: max {:.2}, rms {:.2} um); the tables express {:.2} % of it",
+                n(&f["max_um"]), n(&f["rms_um"]), n(&f["map_max_um"]), n(&f["map_rms_um"]), 100.0 * n(&f["share"]),
+            );
+            let z = &r["zero_not_held_um"];
+            if n(&z[0]) != 0.0 || n(&z[1]) != 0.0 {
+                let _ = writeln!(
+                    t,
+                    "  not held: the map's ({:.2}, {:.2}) um at the control's zero, where its table is 0 (the reference sets it)",
+                    n(&z[0]), n(&z[1]),
+                );
+            }
+        }
+        None => {}
     }
     t
 }
@@ -431,5 +747,43 @@ mod tests {
         let out = run(&ExportRequest::new(ExportFormat::Csv), map(40.0), &mut sink);
         assert_eq!(out.result.unwrap()["rows"], 63);
         assert_eq!(sink.0[0].name, "table");
+    }
+
+    #[test]
+    fn controller_formats_hand_over_the_files_they_name() {
+        for format in ExportFormat::ALL {
+            assert_eq!(ExportFormat::parse(format.as_str()), Ok(format));
+            let mut r = ExportRequest::new(format);
+            r.name = "comp.txt".into();
+            let mut sink = Keep::default();
+            let out = run(&r, map(40.0), &mut sink);
+            assert!(out.is_success(), "{}: {:?}", format.as_str(), out.error());
+            let names: Vec<_> = sink.0.iter().map(|a| a.name.clone()).collect();
+            assert_eq!(names, r.artifact_names(), "{}", format.as_str());
+            let text = summary(out.result.as_ref().unwrap());
+            assert!(text.contains("comp"), "{}: {text}", format.as_str());
+        }
+        let r = ExportRequest::new(ExportFormat::SiemensCec);
+        assert_eq!(r.artifact_names(), ["table_x", "table_y", "table_cec"]);
+        // The options travel as JSON under `controller`, checked with their field named.
+        let json = serde_json::json!({
+            "format": "fanuc-pitch",
+            "controller": { "fanuc_section": "ramp", "fanuc_unit_um": 0.0 }
+        });
+        let r: ExportRequest = serde_json::from_value(json).unwrap();
+        assert_eq!(r.controller.fanuc_section, FanucSection::Ramp);
+        assert_eq!(r.check().unwrap_err().field, "fanuc_unit_um");
+        // A value past the range of one point (0.01 um units): refused, nothing handed.
+        let mut r = ExportRequest::new(ExportFormat::FanucPitch);
+        r.controller.fanuc_max_increment = 1;
+        r.controller.fanuc_unit_um = 0.01;
+        let mut sink = Keep::default();
+        let out = run(&r, map(40.0), &mut sink);
+        assert!(
+            out.error().unwrap().contains("a point holds"),
+            "{:?}",
+            out.error()
+        );
+        assert!(sink.0.is_empty());
     }
 }

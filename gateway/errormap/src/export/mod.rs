@@ -15,6 +15,21 @@
 //!   added to the slave's command, so a correction is minus the error. One table for
 //!   both directions: the backlash (half the forward/reverse difference) is not held.
 //! * A plain CSV of the model on the map's grid, every quantity in both directions.
+//!
+//! The industrial controllers' own tables (Siemens EEC/CEC, Fanuc pitch error,
+//! Heidenhain, Haas) are in their modules; [`controller`] holds what they share.
+
+pub mod controller;
+pub mod fanuc;
+pub mod haas;
+pub mod heidenhain;
+pub mod siemens;
+
+pub use controller::{ControllerTables, Fit, ValueSign};
+pub use fanuc::{fanuc_pitch, FanucOptions, FanucSection, TvCheck};
+pub use haas::haas;
+pub use heidenhain::{heidenhain_64, heidenhain_com};
+pub use siemens::{siemens, CecMultiplier, SiemensOptions};
 
 use crate::{Approach, Direction, MapModel, ModelError};
 use std::fmt::Write;
