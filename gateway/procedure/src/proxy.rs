@@ -246,13 +246,15 @@ impl ReferenceFrames for CameraFrames<'_> {
             let z = self.job.board_at_machine_zero_mm;
             let target = [self.reference_mm[0] + z[0], self.reference_mm[1] + z[1]];
             let frame = self.camera.grab().await.map_err(|e| e.to_string())?;
-            let mut params = self.job.localize_params(target);
-            if self.job.board.code.is_some() {
-                params.hint_mm = None;
-            }
-            let board = &self.job.board;
-            let o = drivers::blocking(|| vision::localize::localize(&frame.image, board, &params))
-                .map_err(|e| format!("localizing the reference frame: {e}"))?;
+            let at = runner::measure::At {
+                path: &[],
+                target_mm: target,
+                index: 0,
+                measurement: 0,
+                free_on_coded_board: true,
+            };
+            let o = runner::measure::localize_frame(self.job, &frame, at)
+                .map_err(|e| format!("the reference frame: {e}"))?;
             Ok([(o.x_mm - target[0]) * 1000.0, (o.y_mm - target[1]) * 1000.0])
         })
     }

@@ -27,7 +27,6 @@ use errormap::{Approach, Direction as MapDirection, MapModel, ModelError};
 use iso230::plan::{Cycle, Step};
 use iso230::{Direction, Measurement};
 use job::Job;
-use vision::localize::localize;
 
 /// What to test.
 #[derive(Clone, Debug)]
@@ -194,21 +193,17 @@ pub async fn run_iso230(
         // The localization's repeatability: still frames at the reference point.
         let hint = one.targets[0];
         for frame_no in 0..spec.still_frames {
-            let frame = camera
-                .grab()
+            let at = crate::measure::At {
+                path: &[],
+                target_mm: hint,
+                index: 0,
+                measurement: frame_no,
+                free_on_coded_board: false,
+            };
+            let o = crate::measure::measure_at(job, stage, camera, at)
                 .await
-                .map_err(|e| Iso230Error::Reference(e.into()))?;
-            let params = job.localize_params(hint);
-            let o = drivers::blocking(|| localize(&frame.image, &job.board, &params)).map_err(
-                |source| {
-                    Iso230Error::Reference(JobError::Localize {
-                        index: 0,
-                        target_mm: hint,
-                        measurement: frame_no,
-                        source,
-                    })
-                },
-            )?;
+                .map_err(Iso230Error::Reference)?
+                .observation;
             still_um.push([o.x_mm, o.y_mm][axis] * 1000.0);
         }
         // The held axis approached from below, then the cycle.
@@ -264,23 +259,18 @@ pub async fn run_iso230(
                             message: e.to_string(),
                         }
                     })?;
-                    stage
-                        .move_to(AxisValues::xy(c[0], c[1]), feed)
-                        .await
-                        .map_err(|e| fail(e.into()))?;
-                    stage.wait_idle().await.map_err(|e| fail(e.into()))?;
-                    let frame = camera.grab().await.map_err(|e| fail(e.into()))?;
                     let hint = [nominal[0] + z[0], nominal[1] + z[1]];
-                    let params = job.localize_params(hint);
-                    let o = drivers::blocking(|| localize(&frame.image, &job.board, &params))
-                        .map_err(|source| {
-                            fail(JobError::Localize {
-                                index: position,
-                                target_mm: hint,
-                                measurement: run,
-                                source,
-                            })
-                        })?;
+                    let at = crate::measure::At {
+                        path: &[c],
+                        target_mm: hint,
+                        index: position,
+                        measurement: run,
+                        free_on_coded_board: false,
+                    };
+                    let o = crate::measure::measure_at(job, stage, camera, at)
+                        .await
+                        .map_err(fail)?
+                        .observation;
                     let seen = [o.x_mm, o.y_mm][axis];
                     let m = Measurement {
                         axis: AXIS_NAMES[axis].into(),

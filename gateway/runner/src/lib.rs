@@ -8,6 +8,7 @@
 
 pub mod cutter;
 pub mod iso230;
+pub mod measure;
 pub mod reference;
 pub mod rotary;
 pub mod scan;

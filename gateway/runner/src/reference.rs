@@ -78,35 +78,21 @@ pub async fn measure_at_reference(
                 source,
             })?;
     }
-    let step = async {
-        for at in [approach, reference_mm] {
-            stage
-                .move_to(drivers::AxisValues::xy(at[0], at[1]), job.feed_mm_min)
-                .await?;
-            stage.wait_idle().await?;
-        }
-        camera.grab().await
-    };
-    let frame = match step.await {
-        Ok(f) => f,
-        Err(e) => {
-            let _ = stage.stop().await;
-            return Err(e.into());
-        }
-    };
-    let mut params = job.localize_params(target);
-    if job.board.code.is_some() {
-        params.hint_mm = None;
-    }
-    let o = drivers::blocking(|| vision::localize::localize(&frame.image, &job.board, &params))
-        .map_err(|source| JobError::Localize {
-            index: 0,
+    let seen = crate::measure::measure_at(
+        job,
+        stage,
+        camera,
+        crate::measure::At {
+            path: &[approach, reference_mm],
             target_mm: target,
+            index: 0,
             measurement: 0,
-            source,
-        })?;
+            free_on_coded_board: true,
+        },
+    )
+    .await?;
     Ok(ReferenceFrame {
         command_mm: reference_mm,
-        seen_um: [(o.x_mm - target[0]) * 1000.0, (o.y_mm - target[1]) * 1000.0],
+        seen_um: seen.error_um(target),
     })
 }

@@ -13,11 +13,9 @@
 use crate::{Event, FrameSeen, JobError, Orchestrator};
 use compensation::correction::SoftLimits;
 use devices::Devices;
-use drivers::AxisValues;
 use errormap::scan::{MapBuilder, Sample, ScanPlan};
 use errormap::Approach;
 use job::Job;
-use vision::localize::localize;
 
 /// What the reference frame of this run saw.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -178,27 +176,18 @@ pub async fn run_scan_frames(
                 at: p.command_mm,
                 source,
             };
-            let feed = job.feed_mm_min;
-            for at in [approach_point(p.command_mm, p.dir, a), p.command_mm] {
-                stage
-                    .move_to(AxisValues::xy(at[0], at[1]), feed)
-                    .await
-                    .map_err(|e| fail(e.into()))?;
-                stage.wait_idle().await.map_err(|e| fail(e.into()))?;
-            }
-            let frame = camera.grab().await.map_err(|e| fail(e.into()))?;
             let hint = [p.command_mm[0] + z[0], p.command_mm[1] + z[1]];
-            let params = job.localize_params(hint);
-            let o = drivers::blocking(|| localize(&frame.image, &job.board, &params)).map_err(
-                |source| {
-                    fail(JobError::Localize {
-                        index,
-                        target_mm: hint,
-                        measurement: 0,
-                        source,
-                    })
-                },
-            )?;
+            let at = crate::measure::At {
+                path: &[approach_point(p.command_mm, p.dir, a), p.command_mm],
+                target_mm: hint,
+                index,
+                measurement: 0,
+                free_on_coded_board: false,
+            };
+            let seen = crate::measure::measure_at(job, stage, camera, at)
+                .await
+                .map_err(fail)?;
+            let (frame, o) = (seen.frame, seen.observation);
             crate::send_frame(
                 &mut on_event,
                 &mut last_frame,

@@ -12,10 +12,8 @@
 use crate::scan::approach_point;
 use crate::JobError;
 use devices::Devices;
-use drivers::AxisValues;
 use errormap::{Approach, Direction, MapModel};
 use job::Job;
-use vision::localize::localize;
 
 /// One checked point.
 #[derive(Clone, Debug, PartialEq)]
@@ -183,37 +181,17 @@ pub async fn run_verify_with(
             at: p,
             source,
         };
-        let step = async {
-            for at in [approach_point(c, dir, a), c] {
-                stage
-                    .move_to(AxisValues::xy(at[0], at[1]), job.feed_mm_min)
-                    .await?;
-                stage.wait_idle().await?;
-            }
-            let frame = camera.grab().await?;
-            Ok::<_, drivers::DriverError>(frame)
-        };
-        let frame = match step.await {
-            Ok(f) => f,
-            Err(e) => {
-                let _ = stage.stop().await;
-                return Err((fail(e.into()), checked));
-            }
-        };
         let hint = [p[0] + z[0], p[1] + z[1]];
-        let params = job.localize_params(hint);
-        let o = match drivers::blocking(|| localize(&frame.image, &job.board, &params)) {
-            Ok(o) => o,
-            Err(source) => {
-                let _ = stage.stop().await;
-                let e = fail(JobError::Localize {
-                    index,
-                    target_mm: hint,
-                    measurement: 0,
-                    source,
-                });
-                return Err((e, checked));
-            }
+        let at = crate::measure::At {
+            path: &[approach_point(c, dir, a), c],
+            target_mm: hint,
+            index,
+            measurement: 0,
+            free_on_coded_board: false,
+        };
+        let o = match crate::measure::measure_at(job, stage, camera, at).await {
+            Ok(seen) => seen.observation,
+            Err(e) => return Err((fail(e), checked)),
         };
         let uncompensated_um = model
             .camera_error_um(p, dir)
