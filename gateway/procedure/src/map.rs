@@ -330,6 +330,54 @@ pub fn summary(r: &Value) -> String {
     )
 }
 
+/// The error-map scan as a registered procedure.
+pub struct Map;
+
+impl crate::registry::Procedure for Map {
+    const KIND: &'static str = "map";
+    const TITLE: &'static str =
+        "Error map: scan the travel once, so programs run accurately without the camera";
+    const COMMAND: &'static str = "map";
+    const USES: crate::registry::Uses = crate::registry::Uses::DEVICES;
+    type Request = MapRequest;
+
+    async fn run(request: MapRequest, cx: &mut dyn crate::Context) -> Outcome {
+        let stop = cx.stop();
+        let (mut journal, mut shelf) = match (cx.scan_journal(&request.name), cx.map_shelf()) {
+            (Ok(j), Ok(s)) => (j, s),
+            (Err(e), _) | (_, Err(e)) => return Outcome::failed(e.to_string()),
+        };
+        let bench = match cx.bench().await {
+            Ok(b) => b,
+            Err(e) => return Outcome::failed(e.to_string()),
+        };
+        run(
+            &request,
+            bench.job,
+            bench.devices,
+            journal.as_mut(),
+            shelf.as_mut(),
+            bench.sink,
+            stop.requested(),
+        )
+        .await
+    }
+
+    fn summary(result: &Value) -> String {
+        summary(result)
+    }
+
+    fn admit(
+        request: &MapRequest,
+        facts: &crate::registry::Facts,
+    ) -> Result<(), crate::RequestError> {
+        match facts.scan_area {
+            Some((lo, hi)) => request.check_area(lo, hi).map(|_| ()),
+            None => Ok(()),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -506,53 +554,5 @@ mod tests {
             assert!(e.contains("not a regular file"), "{e}");
         }
         std::fs::remove_dir_all(&dir).ok();
-    }
-}
-
-/// The error-map scan as a registered procedure.
-pub struct Map;
-
-impl crate::registry::Procedure for Map {
-    const KIND: &'static str = "map";
-    const TITLE: &'static str =
-        "Error map: scan the travel once, so programs run accurately without the camera";
-    const COMMAND: &'static str = "map";
-    const USES: crate::registry::Uses = crate::registry::Uses::DEVICES;
-    type Request = MapRequest;
-
-    async fn run(request: MapRequest, cx: &mut dyn crate::Context) -> Outcome {
-        let stop = cx.stop();
-        let (mut journal, mut shelf) = match (cx.scan_journal(&request.name), cx.map_shelf()) {
-            (Ok(j), Ok(s)) => (j, s),
-            (Err(e), _) | (_, Err(e)) => return Outcome::failed(e.to_string()),
-        };
-        let bench = match cx.bench().await {
-            Ok(b) => b,
-            Err(e) => return Outcome::failed(e.to_string()),
-        };
-        run(
-            &request,
-            bench.job,
-            bench.devices,
-            journal.as_mut(),
-            shelf.as_mut(),
-            bench.sink,
-            stop.requested(),
-        )
-        .await
-    }
-
-    fn summary(result: &Value) -> String {
-        summary(result)
-    }
-
-    fn admit(
-        request: &MapRequest,
-        facts: &crate::registry::Facts,
-    ) -> Result<(), crate::RequestError> {
-        match facts.scan_area {
-            Some((lo, hi)) => request.check_area(lo, hi).map(|_| ()),
-            None => Ok(()),
-        }
     }
 }

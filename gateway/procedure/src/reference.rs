@@ -138,6 +138,7 @@ pub fn apply(map: ErrorMap, choice: &Choice, now: SystemTime) -> Result<Applied,
 /// `seen_um`, `shift_um`, `drift_since_previous_um`, `reference_mm`, `measured_at`,
 /// `reference_count`, `homing_count`, `temperature_c`, `machine_time_s` (simulated
 /// machines), `record`.
+#[allow(clippy::too_many_arguments)]
 pub async fn run(
     request: &ReferenceRequest,
     job: &Job,

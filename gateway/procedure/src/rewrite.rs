@@ -493,6 +493,61 @@ pub fn summary(r: &Value) -> String {
     t
 }
 
+/// A program rewritten with the error map (under its current reference unless the
+/// request says `no_reference`) as a registered procedure. When the context knows the
+/// machine (the CLI's `--config`, the service's machine), the map must have been
+/// measured on it.
+pub struct Rewrite;
+
+impl crate::registry::Procedure for Rewrite {
+    const KIND: &'static str = "rewrite";
+    const TITLE: &'static str =
+        "Rewrite a program: every move lands where it was programmed, without the camera";
+    const COMMAND: &'static str = "rewrite";
+    const USES: crate::registry::Uses = crate::registry::Uses::MAP;
+    type Request = RewriteRequest;
+
+    async fn run(request: RewriteRequest, cx: &mut dyn crate::Context) -> Outcome {
+        let active = match cx.map() {
+            Ok(m) => m,
+            Err(e) => return Outcome::failed(e.to_string()),
+        };
+        match cx.identity().await {
+            Ok(Some(here)) => {
+                if let Err(e) = crate::check_identity(&active.map, &here, &active.name) {
+                    return Outcome::failed(e);
+                }
+            }
+            Ok(None) => {}
+            Err(e) => return Outcome::failed(e.to_string()),
+        }
+        // The map's current reference, if recorded: a damaged or foreign one is an error
+        // (the operator records a new one, or asks for none).
+        let record = match (request.no_reference, active.reference) {
+            (true, _) => None,
+            (false, Ok(r)) => r,
+            (false, Err(e)) => return Outcome::failed(e),
+        };
+        let model = RewriteModel::ReferencedMap {
+            map: active.map,
+            reference: crate::reference::choose(record, request.no_reference),
+        };
+        let now = cx.now();
+        let name = request.program_name.clone();
+        run(&request, model, &name, now, cx.sink())
+    }
+
+    fn summary(result: &Value) -> String {
+        summary(result)
+    }
+}
+
+impl crate::registry::Checked for RewriteRequest {
+    fn check(&self) -> Result<(), RequestError> {
+        RewriteRequest::check(self)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -666,60 +721,5 @@ mod tests {
         assert!(whole.lines().count() > 20, "{}", whole.lines().count());
         let e = rewrite_bounded(&r.program, &wavy, options(), whole.len() / 2).unwrap_err();
         assert!(e.starts_with("line 2: the rewritten program passes"), "{e}");
-    }
-}
-
-/// A program rewritten with the error map (under its current reference unless the
-/// request says `no_reference`) as a registered procedure. When the context knows the
-/// machine (the CLI's `--config`, the service's machine), the map must have been
-/// measured on it.
-pub struct Rewrite;
-
-impl crate::registry::Procedure for Rewrite {
-    const KIND: &'static str = "rewrite";
-    const TITLE: &'static str =
-        "Rewrite a program: every move lands where it was programmed, without the camera";
-    const COMMAND: &'static str = "rewrite";
-    const USES: crate::registry::Uses = crate::registry::Uses::MAP;
-    type Request = RewriteRequest;
-
-    async fn run(request: RewriteRequest, cx: &mut dyn crate::Context) -> Outcome {
-        let active = match cx.map() {
-            Ok(m) => m,
-            Err(e) => return Outcome::failed(e.to_string()),
-        };
-        match cx.identity().await {
-            Ok(Some(here)) => {
-                if let Err(e) = crate::check_identity(&active.map, &here, &active.name) {
-                    return Outcome::failed(e);
-                }
-            }
-            Ok(None) => {}
-            Err(e) => return Outcome::failed(e.to_string()),
-        }
-        // The map's current reference, if recorded: a damaged or foreign one is an error
-        // (the operator records a new one, or asks for none).
-        let record = match (request.no_reference, active.reference) {
-            (true, _) => None,
-            (false, Ok(r)) => r,
-            (false, Err(e)) => return Outcome::failed(e),
-        };
-        let model = RewriteModel::ReferencedMap {
-            map: active.map,
-            reference: crate::reference::choose(record, request.no_reference),
-        };
-        let now = cx.now();
-        let name = request.program_name.clone();
-        run(&request, model, &name, now, cx.sink())
-    }
-
-    fn summary(result: &Value) -> String {
-        summary(result)
-    }
-}
-
-impl crate::registry::Checked for RewriteRequest {
-    fn check(&self) -> Result<(), RequestError> {
-        RewriteRequest::check(self)
     }
 }

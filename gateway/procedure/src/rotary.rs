@@ -442,7 +442,7 @@ impl crate::registry::Procedure for RotaryIdentify {
     type Request = RotaryIdentifyRequest;
 
     async fn run(request: RotaryIdentifyRequest, cx: &mut dyn crate::Context) -> Outcome {
-        let constants = request.machine.clone().unwrap_or_default();
+        let constants = request.machine.unwrap_or_default();
         identify(
             &request.centres,
             &request.centres_name,
@@ -538,7 +538,7 @@ impl crate::registry::Procedure for RotaryRewrite {
             &r.program_name,
             &r.errors,
             &r.errors_name,
-            r.machine.clone(),
+            r.machine,
             r.force_machine,
             r.tolerance_um,
             cx.sink(),
