@@ -45,6 +45,7 @@ pub struct CliSink {
     out: Option<PathBuf>,
     rename: Vec<(String, PathBuf)>,
     inputs: Vec<PathBuf>,
+    replacing: Vec<PathBuf>,
     on_measurement: Option<OnMeasurement>,
 }
 
@@ -68,15 +69,25 @@ impl CliSink {
             out: None,
             rename: Vec::new(),
             inputs: Vec::new(),
+            replacing: Vec::new(),
             on_measurement: None,
         }
     }
 
-    /// Artifacts are written into `dir` (created).
+    /// Artifacts are written into `dir`, created with the first thing written into it
+    /// (a run refused before that leaves no folder behind).
     pub fn into_folder(mut self, dir: &Path) -> anyhow::Result<Self> {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         self.out = Some(dir.to_path_buf());
         Ok(self)
+    }
+
+    /// The output folder, created when it is not there yet.
+    fn folder(&self) -> Result<Option<&Path>, String> {
+        let Some(dir) = &self.out else {
+            return Ok(None);
+        };
+        std::fs::create_dir_all(dir).map_err(|e| format!("creating {}: {e}", dir.display()))?;
+        Ok(Some(dir))
     }
 
     /// The artifact `name` is written to `path` instead (only those named, when no
@@ -89,6 +100,13 @@ impl CliSink {
     /// Files the command reads: never written over.
     pub fn inputs(mut self, inputs: &[&Path]) -> Self {
         self.inputs = inputs.iter().map(|p| p.to_path_buf()).collect();
+        self
+    }
+
+    /// `path` is an output that replaces its own previous version, which the command
+    /// read first (a map's reference record): `protocol::config::replace_output`.
+    pub fn replacing(mut self, path: &Path) -> Self {
+        self.replacing.push(path.to_path_buf());
         self
     }
 
@@ -113,6 +131,10 @@ impl Sink for CliSink {
     }
 
     fn measurement(&mut self, measurement: &Value) -> Result<(), String> {
+        if self.on_measurement.is_some() {
+            // What it writes goes into the folder.
+            self.folder()?;
+        }
         match &mut self.on_measurement {
             Some(f) => f(measurement),
             None => Ok(()),
@@ -122,11 +144,16 @@ impl Sink for CliSink {
     fn artifact(&mut self, artifact: Artifact) -> Result<(), String> {
         let path = match self.rename.iter().find(|(n, _)| *n == artifact.name) {
             Some((_, p)) => p.clone(),
-            None => match &self.out {
+            None => match self.folder()? {
                 Some(dir) => dir.join(&artifact.name),
                 None => return Ok(()),
             },
         };
+        if self.replacing.contains(&path) {
+            let inputs: Vec<&Path> = self.inputs.iter().map(PathBuf::as_path).collect();
+            return protocol::config::replace_output(&path, &artifact.bytes, &inputs)
+                .map_err(|e| format!("writing {}: {e}", path.display()));
+        }
         write_atomic(&path, &artifact.bytes, &self.inputs).map_err(|e| format!("{e:#}"))
     }
 }

@@ -38,6 +38,8 @@ pub fn reference(args: ReferenceArgs, json: bool) -> anyhow::Result<ExitCode> {
     let inputs = [args.map.as_path(), args.config.as_path()];
     let mut sink = crate::front::CliSink::new("frames", true)
         .inputs(&inputs)
+        // The record replaces the one read above (never a link to another file read).
+        .replacing(&path)
         .artifact_to(REFERENCE_ARTIFACT, path.clone());
     let what = args.map.display().to_string();
     let mut outcome = rt.block_on(procedure::reference::run(

@@ -32,10 +32,16 @@ pub fn verify(args: VerifyArgs, json: bool) -> anyhow::Result<ExitCode> {
     let request = args.request;
     request.check().map_err(|e| anyhow::anyhow!(e.for_cli()))?;
     anyhow::ensure!(args.repeat >= 1, "--repeat must be at least 1");
+    // A week at most: a pause beyond it is no watch (and 1e308 s is no Duration).
+    let s = args.every_s;
     anyhow::ensure!(
-        args.every_s.is_finite() && args.every_s >= 0.0,
-        "--every-s must be a number of seconds >= 0, got {}",
-        args.every_s
+        (0.0..=604_800.0).contains(&s),
+        "--every-s must be a number of seconds from 0 to 604800 (a week), got {}",
+        if s.abs() < 1e6 {
+            s.to_string()
+        } else {
+            format!("{s:e}")
+        }
     );
     let job = Job::load(&args.config)?;
     let map = ErrorMap::load(&args.map)?;
