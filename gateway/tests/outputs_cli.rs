@@ -233,3 +233,32 @@ fn a_pause_beyond_a_week_is_refused_naming_the_flag() {
         "{e}"
     );
 }
+
+/// Issue 38: `gateway iso230 --map` with another machine's map was refused but left its
+/// output folder behind; the folder is made with the first file written into it.
+#[test]
+fn a_refused_iso230_run_leaves_no_output_folder() {
+    let dir = scratch("iso230-other-map");
+    let out = dir.join("iso");
+    let map = repo().join("tests/fuzz/corpus/error_map_json/small_map.json");
+    let config = repo().join("config/gateway/demo.toml");
+    let o = gateway(&[
+        "iso230",
+        "--config",
+        config.to_str().unwrap(),
+        "--map",
+        map.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--axis",
+        "X",
+    ]);
+    assert!(!o.status.success(), "another machine's map was taken");
+    assert!(stderr(&o).contains("machine"), "{}", stderr(&o));
+    assert!(
+        !out.exists(),
+        "the refused run left {} behind",
+        out.display()
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
