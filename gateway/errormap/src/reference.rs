@@ -93,7 +93,7 @@ pub enum ReferenceError {
         field: &'static str,
         message: String,
     },
-    #[error("the reference belongs to another map (map {theirs}, this one {ours}); take a new reference (gateway reference)")]
+    #[error("`map.fingerprint`: the reference belongs to another map (map {theirs}, this one {ours}); take a new reference (gateway reference)")]
     OtherMap { theirs: String, ours: String },
     #[error("not a reference record: {0}")]
     Invalid(String),
@@ -234,10 +234,23 @@ impl MapReference {
     fn check_model(&self, model: &MapModel) -> Result<(), ReferenceError> {
         let map = model.map();
         let ours = fingerprint(map);
-        if self.map.fingerprint != ours || self.reference_mm != map.reference_mm {
+        if self.map.fingerprint != ours {
             return Err(ReferenceError::OtherMap {
                 theirs: format!("{} of {}", self.map.fingerprint, self.map.created),
                 ours: format!("{ours} of {}", map.created),
+            });
+        }
+        if self.reference_mm != map.reference_mm {
+            let [x, y] = self.reference_mm;
+            return Err(ReferenceError::Field {
+                field: "reference_mm",
+                message: format!(
+                    "({}, {}) mm, but the map's reference point is ({}, {}) mm",
+                    number_text(x),
+                    number_text(y),
+                    number_text(map.reference_mm[0]),
+                    number_text(map.reference_mm[1])
+                ),
             });
         }
         // The fingerprint says which map; the fields for people must say the same.
@@ -333,16 +346,16 @@ impl MapReference {
             t += &format!(", after homing #{h}");
         }
         if let Some(c) = self.temperature_c {
-            t += &format!(", at {} C", number_text(c));
+            t += &format!(", at {c:.1} C");
         }
         t
     }
 }
 
-/// Any other number in a message: one decimal, or the exponent for an absurd value.
+/// Any other number in a message: as written, or the exponent for an absurd value.
 fn number_text(v: f64) -> String {
     if v.abs() < 1e6 || !v.is_finite() {
-        format!("{v:.1}")
+        format!("{v}")
     } else {
         format!("{v:.3e}")
     }
@@ -510,6 +523,20 @@ mod tests {
             ),
             "{e}"
         );
+        let mut moved = r.clone();
+        moved.reference_mm = [5.0, 1e300];
+        let e = moved.check_map(&m).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                ReferenceError::Field {
+                    field: "reference_mm",
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        assert!(e.to_string().contains("(5, 1.000e300) mm"), "{e}");
         let mut other = r;
         other.map.version = 9;
         let e = other.check_map(&m).unwrap_err();

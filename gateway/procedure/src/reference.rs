@@ -108,7 +108,9 @@ pub fn apply(map: ErrorMap, choice: &Choice) -> Result<Applied, String> {
     let (now_s, _) = now();
     Ok(match choice {
         Choice::Recorded(r) => Applied {
-            model: r.apply(model, now_s).map_err(|e| e.to_string())?,
+            model: r
+                .apply(model, now_s)
+                .map_err(|e| format!("the map's reference record: {e}"))?,
             describe: r.describe(now_s),
             warning: None,
             json: json!({
