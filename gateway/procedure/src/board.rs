@@ -266,7 +266,7 @@ mod tests {
             4,
             [0.0, 0.0],
         );
-        b.set_code(28, [0.2, 0.3]);
+        b.set_code(protocol::board_code::CodeScheme::Additive, 28, [0.2, 0.3]);
         let s = svg(&b);
         assert_eq!(s.matches("<circle").count(), 24);
         assert!(s.contains("r=\"0.1500\"") && s.contains("r=\"0.1000\""));
