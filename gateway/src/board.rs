@@ -24,6 +24,14 @@ pub fn run(cmd: BoardCmd, json: bool) -> anyhow::Result<ExitCode> {
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_else(|| "board".to_string());
+    // Every output checked before any is written (never over the board, its
+    // certificate or anything else read): a refused run leaves nothing behind. The names
+    // are procedure::board::make's.
+    for ext in ["svg", "dxf", "pdf", "certificate-template.csv"] {
+        let file = out.join(format!("{name}.{ext}"));
+        protocol::config::check_output(&file, &[path.as_path()])
+            .map_err(|e| anyhow::anyhow!("writing {}: {e}", file.display()))?;
+    }
     let mut sink = crate::front::CliSink::new("", true)
         .inputs(&[path.as_path()])
         .into_folder(&out)?;

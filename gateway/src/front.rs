@@ -73,11 +73,20 @@ impl CliSink {
         }
     }
 
-    /// Artifacts are written into `dir` (created).
+    /// Artifacts are written into `dir`, created with the first thing written into it
+    /// (a run refused before that leaves no folder behind).
     pub fn into_folder(mut self, dir: &Path) -> anyhow::Result<Self> {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         self.out = Some(dir.to_path_buf());
         Ok(self)
+    }
+
+    /// The output folder, created when it is not there yet.
+    fn folder(&self) -> Result<Option<&Path>, String> {
+        let Some(dir) = &self.out else {
+            return Ok(None);
+        };
+        std::fs::create_dir_all(dir).map_err(|e| format!("creating {}: {e}", dir.display()))?;
+        Ok(Some(dir))
     }
 
     /// The artifact `name` is written to `path` instead (only those named, when no
@@ -114,6 +123,10 @@ impl Sink for CliSink {
     }
 
     fn measurement(&mut self, measurement: &Value) -> Result<(), String> {
+        if self.on_measurement.is_some() {
+            // What it writes goes into the folder.
+            self.folder()?;
+        }
         match &mut self.on_measurement {
             Some(f) => f(measurement),
             None => Ok(()),
@@ -123,7 +136,7 @@ impl Sink for CliSink {
     fn artifact(&mut self, artifact: Artifact) -> Result<(), String> {
         let path = match self.rename.iter().find(|(n, _)| *n == artifact.name) {
             Some((_, p)) => p.clone(),
-            None => match &self.out {
+            None => match self.folder()? {
                 Some(dir) => dir.join(&artifact.name),
                 None => return Ok(()),
             },

@@ -86,7 +86,7 @@ impl ProxyFront for Printer {
             return Ok(());
         };
         let text = procedure::reference::record_json(record);
-        protocol::config::write_output(path, text.as_bytes(), &[])
+        protocol::config::replace_output(path, text.as_bytes(), &[])
             .map_err(|e| format!("recording the reference in {}: {e}", path.display()))?;
         let v = serde_json::json!({"reference_recorded": path.display().to_string(),
             "reference_count": record.reference_count, "shift_um": record.shift_um});

@@ -21,7 +21,7 @@
 //! metrology lab) coordinate of each listed point. Points not listed are taken at their
 //! nominal position, so a board without a certificate is a perfect nominal grid.
 
-use crate::board_code::{BoardCode, CodeSection, MIN_SIZE_RATIO, SCHEME};
+use crate::board_code::{BoardCode, CodeScheme, CodeSection, MIN_SIZE_RATIO};
 use crate::config::{ConfigDoc, ConfigError, Location, Xy};
 use crate::text::escape_text;
 use serde::{Deserialize, Serialize};
@@ -155,8 +155,8 @@ impl Board {
             s.origin_mm.0,
         );
         if let Some(c) = &s.code {
-            check_code(doc, c, s.pitch_mm, s.dot_diameter_mm)?;
-            board.set_code(c.seed, c.dot_diameters_mm);
+            let scheme = check_code(doc, c, s.pitch_mm, s.dot_diameter_mm)?;
+            board.set_code(scheme, c.seed, c.dot_diameters_mm);
         }
         if let Some(rel) = &s.certified {
             let cert = doc.read_relative("board.certified", rel)?;
@@ -166,8 +166,9 @@ impl Board {
     }
 
     /// Make this board a coded one (dots of two sizes carrying `seed`'s code).
-    pub fn set_code(&mut self, seed: u64, dot_diameters_mm: [f64; 2]) {
+    pub fn set_code(&mut self, scheme: CodeScheme, seed: u64, dot_diameters_mm: [f64; 2]) {
         self.code = Some(BoardCode::generate(
+            scheme,
             seed,
             dot_diameters_mm,
             self.cols,
@@ -348,10 +349,13 @@ impl Board {
             self.origin_mm
         ));
         if let Some(c) = &self.code {
-            // Plain boards hash as before, so their maps stay valid.
+            // Plain boards hash as before, so their maps stay valid; so do boards of the
+            // first scheme (its name is the one this line always had).
             h.update(format!(
-                "code {SCHEME} seed {} sizes {:?}\n",
-                c.seed, c.dot_diameters_mm
+                "code {} seed {} sizes {:?}\n",
+                c.scheme.name(),
+                c.seed,
+                c.dot_diameters_mm
             ));
         }
         h.update(self.certificate_csv());
@@ -382,23 +386,24 @@ impl Board {
     }
 }
 
-/// The `[board.code]` section: a known scheme, two sizes that can be told apart, both
-/// inside the pitch, the nominal dot diameter between them.
+/// The `[board.code]` section: a known scheme (returned), two sizes that can be told
+/// apart, both inside the pitch, the nominal dot diameter between them.
 fn check_code(
     doc: &ConfigDoc,
     c: &CodeSection,
     pitch_mm: f64,
     dot_diameter_mm: f64,
-) -> Result<(), ConfigError> {
-    if c.scheme != SCHEME {
+) -> Result<CodeScheme, ConfigError> {
+    let Some(scheme) = CodeScheme::from_name(&c.scheme) else {
         return Err(doc.invalid(
             "board.code.scheme",
             format!(
-                "unknown code scheme `{}`: the only one is `{SCHEME}`",
+                "unknown code scheme `{}`: `keyed-two-size` (new boards) or \
+                 `random-two-size` (boards printed before issue 38)",
                 escape_text(&c.scheme)
             ),
         ));
-    }
+    };
     let [d0, d1] = c.dot_diameters_mm;
     let key = "board.code.dot_diameters_mm";
     if !(d0.is_finite() && d1.is_finite() && d0 > 0.0 && d1 > 0.0) {
@@ -429,7 +434,7 @@ fn check_code(
             ),
         ));
     }
-    Ok(())
+    Ok(scheme)
 }
 
 #[cfg(test)]
@@ -454,7 +459,8 @@ mod tests {
         assert_eq!(c.seed, 28);
         for (i, j) in [(0, 0), (3, 4), (9, 7)] {
             let d = coded.dot_diameter_at(i, j);
-            let want = if crate::board_code::code_bit(28, i as u32, j as u32) {
+            let want = if crate::board_code::code_bit(CodeScheme::Additive, 28, i as u32, j as u32)
+            {
                 0.3
             } else {
                 0.2
@@ -466,6 +472,30 @@ mod tests {
         // The plain fingerprint is the one maps recorded before coded boards existed.
         let again = Board::nominal("", 0.5, 0.25, Polarity::DarkOnLight, 10, 8, [1.0, 2.0]);
         assert_eq!(plain.fingerprint_sha256(), again.fingerprint_sha256());
+    }
+
+    /// Issue 38: new boards name the keyed scheme; boards of the first scheme read (and
+    /// fingerprint) as before; the two are different boards.
+    #[test]
+    fn a_keyed_board_loads_and_an_old_one_reads_as_before() {
+        let old = Board::from_doc(&doc(CODED)).unwrap();
+        assert_eq!(old.code.as_ref().unwrap().scheme, CodeScheme::Additive);
+        let keyed = Board::from_doc(&doc(
+            &CODED.replace("\"random-two-size\"", "\"keyed-two-size\"")
+        ))
+        .unwrap();
+        let c = keyed.code.as_ref().unwrap();
+        assert_eq!(c.scheme, CodeScheme::Keyed);
+        let differ = (0..10)
+            .flat_map(|i| (0..8).map(move |j| (i, j)))
+            .filter(|&(i, j)| {
+                let want = crate::board_code::code_bit(CodeScheme::Keyed, 28, i, j);
+                assert_eq!(c.bit(i.into(), j.into()), Some(want));
+                c.bit(i.into(), j.into()) != old.code.as_ref().unwrap().bit(i.into(), j.into())
+            })
+            .count();
+        assert!(differ > 20, "{differ}");
+        assert_ne!(keyed.fingerprint_sha256(), old.fingerprint_sha256());
     }
 
     #[test]

@@ -1,10 +1,12 @@
 //! The position code of a coded calibration board (issue 28, `docs/coded-board.md`).
 //!
 //! Every dot of a coded board carries one bit in its diameter: bit 0 a small dot, bit 1
-//! a large one. The bit of dot (i, j) is the top bit of SplitMix64 of
-//! `seed + (j << 32 | i)` (wrapping), so the whole array follows from the seed alone, a
-//! lab can print it from a one-line formula, and cutting a board to another size keeps
-//! every dot's bit. A pseudo-random array of this kind has, with overwhelming
+//! a large one. The bit of dot (i, j) follows from the seed by a one-line formula
+//! ([`CodeScheme`]), so the whole array follows from the seed alone, a lab can print it,
+//! and cutting a board to another size keeps every dot's bit. In the scheme of new
+//! boards (`keyed-two-size`) the seed is mixed into the hash, so every seed is its own
+//! array; in the first scheme (`random-two-size`, kept so boards printed with it still
+//! read) the seed was added to the index, so seed + 1 is the same array one column over. A pseudo-random array of this kind has, with overwhelming
 //! probability, every window of 7 x 7 or more dots unique on the board in all eight
 //! orientations (turned by 90°, 180°, 270°, mirrored) and far (in Hamming distance) from
 //! every other window: the decoder (`vision::localize::code`) checks the margin on every
@@ -16,7 +18,42 @@
 
 use serde::{Deserialize, Serialize};
 
-/// The only scheme so far; the board file names it so another can be added later.
+/// How the seed makes the array; the board file names it (`[board.code] scheme`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CodeScheme {
+    /// `random-two-size` (issue 28): `bit(i, j) = top bit of SplitMix64(seed + (j << 32 |
+    /// i))`. The seed is added to the index, so the array of seed `s + m * 2^32 + k` is
+    /// that of seed `s` shifted by m rows and k columns: two boards with nearby seeds
+    /// read each other's frames one pitch off. Kept so boards printed with it read as
+    /// before; new boards use [`CodeScheme::Keyed`].
+    Additive,
+    /// `keyed-two-size` (issue 38): `bit(i, j) = top bit of SplitMix64(SplitMix64(seed) ^
+    /// (j << 32 | i))`. The seed is hashed before it meets the index, so two seeds give
+    /// unrelated arrays (a window of one board differs from every window of another in
+    /// about half its dots) and a frame of another board is refused.
+    Keyed,
+}
+
+impl CodeScheme {
+    /// Every scheme, by the name board files give it.
+    pub const ALL: [(&'static str, CodeScheme); 2] = [
+        ("keyed-two-size", CodeScheme::Keyed),
+        ("random-two-size", CodeScheme::Additive),
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            CodeScheme::Additive => "random-two-size",
+            CodeScheme::Keyed => "keyed-two-size",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.iter().find(|(n, _)| *n == name).map(|(_, s)| *s)
+    }
+}
+
+/// The scheme of the first coded boards (its name); [`CodeScheme`] has all of them.
 pub const SCHEME: &str = "random-two-size";
 
 /// Smallest accepted ratio of the large to the small dot diameter: below it blur and
@@ -37,15 +74,21 @@ pub fn splitmix64(x: u64) -> u64 {
     z ^ (z >> 31)
 }
 
-/// The bit of dot (i, j) for `seed`: true = a large dot.
+/// The bit of dot (i, j) for `seed` in `scheme`: true = a large dot.
 #[inline]
-pub fn code_bit(seed: u64, i: u32, j: u32) -> bool {
-    splitmix64(seed.wrapping_add(((j as u64) << 32) | i as u64)) >> 63 == 1
+pub fn code_bit(scheme: CodeScheme, seed: u64, i: u32, j: u32) -> bool {
+    let index = ((j as u64) << 32) | i as u64;
+    let mixed = match scheme {
+        CodeScheme::Additive => seed.wrapping_add(index),
+        CodeScheme::Keyed => splitmix64(seed) ^ index,
+    };
+    splitmix64(mixed) >> 63 == 1
 }
 
 /// The code of one board: the seed, the two dot sizes, and every bit packed by row.
 #[derive(Clone, Debug, PartialEq)]
 pub struct BoardCode {
+    pub scheme: CodeScheme,
     pub seed: u64,
     /// Diameter of a 0 dot and of a 1 dot, mm.
     pub dot_diameters_mm: [f64; 2],
@@ -74,18 +117,25 @@ pub struct CodeSection {
 
 impl BoardCode {
     /// The code of a `cols` x `rows` board.
-    pub fn generate(seed: u64, dot_diameters_mm: [f64; 2], cols: u32, rows: u32) -> Self {
+    pub fn generate(
+        scheme: CodeScheme,
+        seed: u64,
+        dot_diameters_mm: [f64; 2],
+        cols: u32,
+        rows: u32,
+    ) -> Self {
         let words_per_row = cols as usize / 64 + 2;
         let mut packed = vec![0u64; words_per_row * rows as usize];
         for j in 0..rows {
             let row = &mut packed[j as usize * words_per_row..(j as usize + 1) * words_per_row];
             for i in 0..cols {
-                if code_bit(seed, i, j) {
+                if code_bit(scheme, seed, i, j) {
                     row[i as usize / 64] |= 1 << (i % 64);
                 }
             }
         }
         let mut code = Self {
+            scheme,
             seed,
             dot_diameters_mm,
             cols,
@@ -194,18 +244,25 @@ mod tests {
 
     #[test]
     fn bits_follow_the_formula_and_read_across_words() {
-        let c = BoardCode::generate(28, [0.2, 0.3], 150, 3);
+        let c = BoardCode::generate(CodeScheme::Additive, 28, [0.2, 0.3], 150, 3);
         let ones = (0..150).filter(|&i| c.bit(i, 1).unwrap()).count();
         assert!((50..100).contains(&ones), "{ones}");
         for j in 0..3u32 {
             for i in 0..150u32 {
-                assert_eq!(c.bit(i as i64, j as i64), Some(code_bit(28, i, j)));
+                assert_eq!(
+                    c.bit(i as i64, j as i64),
+                    Some(code_bit(CodeScheme::Additive, 28, i, j))
+                );
             }
             for i in [0u32, 1, 60, 63, 64, 100, 140] {
                 let n = 10.min(150 - i);
                 let v = c.bits(i, j, n);
                 for k in 0..n {
-                    assert_eq!((v >> k) & 1 == 1, code_bit(28, i + k, j), "{i} {j} {k}");
+                    assert_eq!(
+                        (v >> k) & 1 == 1,
+                        code_bit(CodeScheme::Additive, 28, i + k, j),
+                        "{i} {j} {k}"
+                    );
                 }
             }
         }
@@ -213,23 +270,68 @@ mod tests {
         assert_eq!(c.bit(0, -1), None);
         // The first bits of seed 28, as the documentation's worked example gives them.
         let row0: String = (0..8)
-            .map(|i| if code_bit(28, i, 0) { '1' } else { '0' })
+            .map(|i| {
+                if code_bit(CodeScheme::Additive, 28, i, 0) {
+                    '1'
+                } else {
+                    '0'
+                }
+            })
             .collect();
         assert_eq!(row0.len(), 8);
     }
 
     #[test]
     fn every_key_window_is_found_where_it_is() {
-        let c = BoardCode::generate(7, [0.2, 0.3], 60, 40);
+        let c = BoardCode::generate(CodeScheme::Keyed, 7, [0.2, 0.3], 60, 40);
         for (i, j) in [(0u32, 0u32), (13, 7), (55, 36)] {
             let key = (0..KEY_H).fold(0u64, |k, r| {
                 (0..KEY_W).fold(k, |k, col| {
-                    k | (u64::from(code_bit(7, i + col, j + r)) << (r * KEY_W + col))
+                    k | (u64::from(code_bit(CodeScheme::Keyed, 7, i + col, j + r))
+                        << (r * KEY_W + col))
                 })
             });
             let found: Vec<[i64; 2]> = c.lookup(key).collect();
             assert!(found.contains(&[i as i64, j as i64]), "{i} {j}: {found:?}");
         }
+    }
+
+    /// Issue 38: in the first scheme seed 29 is seed 28 one column over (and seed
+    /// 28 + 2^32 one row over), so a frame of one board reads on the other one pitch off.
+    /// In the keyed scheme no shift of a nearby seed's array comes close to another's.
+    #[test]
+    fn keyed_seeds_are_their_own_arrays_where_added_seeds_were_shifted_copies() {
+        let agreement = |scheme, s0: u64, s1: u64, di: u32, dj: u32| {
+            let same = (0..40u32)
+                .flat_map(|j| (0..60u32).map(move |i| (i, j)))
+                .filter(|&(i, j)| {
+                    code_bit(scheme, s1, i, j) == code_bit(scheme, s0, i + di, j + dj)
+                })
+                .count();
+            same as f64 / 2400.0
+        };
+        assert_eq!(agreement(CodeScheme::Additive, 28, 29, 1, 0), 1.0);
+        assert_eq!(
+            agreement(CodeScheme::Additive, 28, 28 + (1 << 32), 0, 1),
+            1.0
+        );
+        for s1 in [29, 30, 28 + (1 << 32), 27] {
+            for dj in 0..4 {
+                for di in 0..4 {
+                    let a = agreement(CodeScheme::Keyed, 28, s1, di, dj);
+                    assert!(
+                        (0.45..0.55).contains(&a),
+                        "seed {s1} shifted ({di}, {dj}): {a}"
+                    );
+                }
+            }
+        }
+        assert_eq!(
+            CodeScheme::from_name("keyed-two-size"),
+            Some(CodeScheme::Keyed)
+        );
+        assert_eq!(CodeScheme::from_name(SCHEME), Some(CodeScheme::Additive));
+        assert_eq!(CodeScheme::from_name("qr"), None);
     }
 
     #[test]

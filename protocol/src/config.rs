@@ -279,39 +279,85 @@ fn number(v: f64) -> String {
     }
 }
 
-/// Write an output file atomically: the bytes go to a new file beside `path` (created,
-/// never opened over anything), are synced, then renamed over `path`, so a reader sees
-/// the old file or the whole new one, never a part. `inputs` are the files the command
-/// read: `path` naming one of them (directly or through a symlink) is refused, so an
-/// output never replaces its own input.
+/// Write an output file atomically: the bytes go to a new file beside `path` (in the
+/// folder that holds the name `path`, created, never opened over anything), are synced,
+/// then renamed onto `path`, so a reader sees the old file or the whole new one, never a
+/// part. A symbolic link at `path` is replaced by the file, never written through: the
+/// file it pointed to is left as it was.
+///
+/// Refused (nothing written) when `path` names, directly or through any link, a file of
+/// `inputs` or any file this process has read through the bounded readers of this
+/// module (board, certificate, job, map, its reference record, program: [`was_read`]),
+/// so an output never replaces what the run reads, whatever the command forgot to list.
 pub fn write_output(path: &Path, bytes: &[u8], inputs: &[&Path]) -> std::io::Result<()> {
+    check_output(path, inputs)?;
+    write_beside(path, bytes)
+}
+
+/// [`write_output`] for an output that replaces its own previous version, which the run
+/// read first (a map's reference record, a scan journal): the regular file at `path`
+/// itself may be replaced; a link there to a file the run read, and `inputs`, are still
+/// refused. (The rename replaces the name only, so another name of the same file keeps
+/// its content.)
+pub fn replace_output(path: &Path, bytes: &[u8], inputs: &[&Path]) -> std::io::Result<()> {
+    check(path, inputs, true)?;
+    write_beside(path, bytes)
+}
+
+/// What [`write_output`] checks before it writes: a command with several outputs checks
+/// them all first, so a refused run leaves nothing behind.
+pub fn check_output(path: &Path, inputs: &[&Path]) -> std::io::Result<()> {
+    check(path, inputs, false)
+}
+
+fn check(path: &Path, inputs: &[&Path], replacing: bool) -> std::io::Result<()> {
+    use std::io::{Error, ErrorKind};
+    if path.file_name().is_none() {
+        return Err(Error::new(
+            ErrorKind::InvalidInput,
+            "the output names no file",
+        ));
+    }
+    // The file the name leads to now (through links), if any.
+    let Some(target) = std::fs::metadata(path).ok().and_then(|m| file_id(&m)) else {
+        return Ok(());
+    };
+    for input in inputs {
+        if std::fs::metadata(input).ok().and_then(|m| file_id(&m)) == Some(target) {
+            return Err(Error::new(
+                ErrorKind::AlreadyExists,
+                format!(
+                    "is {} (an input of this command); it is never written over",
+                    input.display()
+                ),
+            ));
+        }
+    }
+    let is_link = std::fs::symlink_metadata(path).is_ok_and(|m| m.file_type().is_symlink());
+    if (is_link || !replacing) && read_before(target) {
+        let how = if is_link { "links to" } else { "is" };
+        return Err(Error::new(
+            ErrorKind::AlreadyExists,
+            format!("{how} a file this run read; it is never written over"),
+        ));
+    }
+    Ok(())
+}
+
+fn write_beside(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     use std::io::{Error, ErrorKind, Write};
     let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => Path::new(".").to_path_buf(),
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
     };
     let name = path
         .file_name()
         .ok_or_else(|| Error::new(ErrorKind::InvalidInput, "the output names no file"))?;
-    // Where the output really goes: an existing file (or symlink) resolved, else its
-    // folder's real path and its name.
-    let target = path
-        .canonicalize()
-        .or_else(|_| dir.canonicalize().map(|d| d.join(name)))?;
-    for input in inputs {
-        if input.canonicalize().is_ok_and(|i| i == target) {
-            return Err(Error::new(
-                ErrorKind::AlreadyExists,
-                "is an input of this command; it is never written over",
-            ));
-        }
-    }
-    let folder = target.parent().unwrap_or(Path::new("."));
     let stamp = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map(|d| d.as_nanos())
         .unwrap_or(0);
-    let tmp = folder.join(format!(
+    let tmp = dir.join(format!(
         ".{}.{}.{stamp}.tmp",
         name.to_string_lossy(),
         std::process::id()
@@ -323,12 +369,57 @@ pub fn write_output(path: &Path, bytes: &[u8], inputs: &[&Path]) -> std::io::Res
             .open(&tmp)?;
         f.write_all(bytes)?;
         f.sync_all()?;
-        std::fs::rename(&tmp, &target)
+        std::fs::rename(&tmp, path)
     })();
     if written.is_err() {
         let _ = std::fs::remove_file(&tmp);
     }
     written
+}
+
+/// A file's identity: device, inode and modification time, the same for every name and
+/// link of it. The time tells a file from a later one given the inode of a deleted one.
+type FileId = (u64, u64, i64, i64);
+
+#[cfg(unix)]
+fn file_id(meta: &std::fs::Metadata) -> Option<FileId> {
+    use std::os::unix::fs::MetadataExt;
+    Some((meta.dev(), meta.ino(), meta.mtime(), meta.mtime_nsec()))
+}
+
+#[cfg(not(unix))]
+fn file_id(_: &std::fs::Metadata) -> Option<FileId> {
+    None
+}
+
+/// The most files [`was_read`] remembers (32 bytes each): a command reads a few
+/// dozen; a service that reads more stops adding (documented in docs/reliability.md).
+const MAX_FILES_READ: usize = 1 << 16;
+
+static FILES_READ: std::sync::Mutex<Vec<FileId>> = std::sync::Mutex::new(Vec::new());
+
+/// Whether this process has read the file `path` names (through any link or name)
+/// through the bounded readers of this module: [`write_output`] never replaces one.
+pub fn was_read(path: &Path) -> bool {
+    std::fs::metadata(path)
+        .ok()
+        .and_then(|m| file_id(&m))
+        .is_some_and(read_before)
+}
+
+fn read_before(id: FileId) -> bool {
+    FILES_READ
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .contains(&id)
+}
+
+fn note_read(meta: &std::fs::Metadata) {
+    let Some(id) = file_id(meta) else { return };
+    let mut read = FILES_READ.lock().unwrap_or_else(|e| e.into_inner());
+    if !read.contains(&id) && read.len() < MAX_FILES_READ {
+        read.push(id);
+    }
 }
 
 /// Read a data file as text, bounded: only a regular file (a device such as `/dev/zero`,
@@ -574,7 +665,9 @@ fn too_big(size: u64, cap: u64, what: &str) -> std::io::Error {
 fn open_regular(path: &Path) -> std::io::Result<std::fs::File> {
     check_regular(&std::fs::metadata(path)?)?;
     let file = std::fs::File::open(path)?;
-    check_regular(&file.metadata()?)?;
+    let meta = file.metadata()?;
+    check_regular(&meta)?;
+    note_read(&meta);
     Ok(file)
 }
 
@@ -1221,6 +1314,62 @@ mod tests {
             .filter(|e| e.file_name().to_string_lossy().ends_with(".tmp"))
             .collect();
         assert!(left.is_empty());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// Issue 38: `gateway reference` wrote its record through a link onto the job's
+    /// board file; `board make -o` replaced the board's certificate; `rewrite --out
+    /// MAP.reference.json` replaced the record it read. Whatever a command lists as its
+    /// inputs, a file it read is never replaced, and a link is never written through.
+    #[cfg(unix)]
+    #[test]
+    fn a_file_the_run_read_is_never_replaced_and_links_are_never_written_through() {
+        let dir = std::env::temp_dir().join(format!("write-read-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let board = dir.join("board.toml");
+        std::fs::write(&board, "name = \"b\"\n").unwrap();
+        let record = dir.join("map.reference.json");
+        std::fs::write(&record, "{}").unwrap();
+        let unread = dir.join("unread.txt");
+        std::fs::write(&unread, "kept").unwrap();
+        read_data_file(&board).unwrap();
+        read_bytes_bounded(&record, 1 << 10, "a record").unwrap();
+        assert!(was_read(&board) && was_read(&record) && !was_read(&unread));
+        // Not listed as an input, yet read: refused, by its name and through a link.
+        let e = write_output(&board, b"x", &[]).unwrap_err();
+        assert!(e.to_string().contains("a file this run read"), "{e}");
+        let link = dir.join("link.json");
+        std::os::unix::fs::symlink(&board, &link).unwrap();
+        let e = write_output(&link, b"x", &[]).unwrap_err();
+        assert!(
+            e.to_string().contains("links to a file this run read"),
+            "{e}"
+        );
+        let e = replace_output(&link, b"x", &[]).unwrap_err();
+        assert!(e.to_string().contains("links to"), "{e}");
+        assert!(check_output(&link, &[]).is_err());
+        // An output replacing its own previous version (read first) may; an input not.
+        replace_output(&record, b"{\"new\": 1}", &[]).unwrap();
+        assert_eq!(std::fs::read_to_string(&record).unwrap(), "{\"new\": 1}");
+        assert!(replace_output(&record, b"x", &[&record]).is_err());
+        // A link to a file not read is replaced by the output; its target stays.
+        let other = dir.join("other.txt");
+        std::os::unix::fs::symlink(&unread, &other).unwrap();
+        write_output(&other, b"new", &[]).unwrap();
+        assert!(!std::fs::symlink_metadata(&other)
+            .unwrap()
+            .file_type()
+            .is_symlink());
+        assert_eq!(std::fs::read_to_string(&other).unwrap(), "new");
+        assert_eq!(std::fs::read_to_string(&unread).unwrap(), "kept");
+        assert_eq!(std::fs::read_to_string(&board).unwrap(), "name = \"b\"\n");
+        let left = std::fs::read_dir(&dir)
+            .unwrap()
+            .filter_map(|e| e.ok())
+            .filter(|e| e.file_name().to_string_lossy().ends_with(".tmp"))
+            .count();
+        assert_eq!(left, 0);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -55,6 +55,10 @@ BOARD = os.path.join(CONFIG, "boards", "dot-grid-0.5mm.toml")
 # Made in the sweep's folder (see `seeds`): a program inside the small map, points
 # inside the volumetric model's travel, a frame of the 0.5 mm dot grid.
 PROGRAM = "{tmp}/program.nc"
+# The map's reference record is found beside the map (`NAME.reference.json` for
+# `NAME.json`): the crafted record is `{tmp}/input.v9.reference.json`, beside a copy of
+# the small map made in `seeds`; its seed is a record of that map (issue 38).
+RECORD_MAP = "{tmp}/input.v9.json"
 LAYOUT = ["layout", "partition", "{in}", "--tools", "1", "--window-mm", "200",
           "--gap-mm", "0.5", "--clearance-mm", "0.001", "--out", "{out}/l.json"]
 
@@ -63,6 +67,8 @@ SURFACES = [
      ["rewrite", PROGRAM, "--map", "{in}", "--out", "{out}/p.nc"]),
     ("error map (export)", MAP, ".json",
      ["export", "--map", "{in}", "--format", "csv", "--out", "{out}/t.csv"]),
+    ("map reference record (rewrite)", corpus("reference_record", "small_map.json"),
+     ".v9.reference.json", ["rewrite", PROGRAM, "--map", RECORD_MAP, "--out", "{out}/p.nc"]),
     ("G-code program (rewrite)", PROGRAM, ".nc",
      ["rewrite", "{in}", "--map", MAP, "--out", "{out}/p.nc"]),
     ("$# reply (rewrite --offsets)", corpus("dollar_hash", "grbl_reply.txt"), ".txt",
@@ -102,6 +108,7 @@ def png_grey(width, height, pixel):
 
 def seeds(tmp):
     """The seeds made for the sweep (each checked to be accepted before it is mutated)."""
+    shutil.copy(MAP, os.path.join(tmp, "input.v9.json"))
     with open(os.path.join(tmp, "program.nc"), "w") as f:
         # Inside the map (0..100 x 0..50 mm) also with the seed's `$#` offsets
         # (G92 X+20, G55 Y-5.5).
@@ -144,7 +151,7 @@ def variants(seed: bytes, suffix: str, rng: random.Random):
         return out + png_variants(seed)
     out.append(("CRLF line ends", "benign", seed.replace(b"\r\n", b"\n").replace(b"\n", b"\r\n")))
     out.append(("byte-order mark", "benign", b"\xef\xbb\xbf" + seed))
-    if suffix in (".json",):
+    if suffix.endswith(".json"):
         out.append(("JSON nested 100 000 deep", "bad", b"[" * 100_000 + b"]" * 100_000))
         out.append(("JSON of another type", "bad", b'"a string"'))
     # Numbers in comments (`#` to the line's end) and in URLs are not data.
@@ -204,6 +211,9 @@ def materialise(tmp, name, suffix, what):
             f.write(what)
     elif what == "fifo":
         os.mkfifo(path)
+    elif what == "/dev/zero" and suffix.endswith(".reference.json"):
+        # A record is found beside its map, not named: a link there stands in.
+        os.symlink("/dev/zero", path)
     elif what == "/dev/zero":
         return "/dev/zero"
     elif what == "dir":

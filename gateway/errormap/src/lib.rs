@@ -46,6 +46,21 @@ use protocol::errormap::{ErrorMap, Measured, Node};
 /// map plugs into it without conversion).
 pub use rewrite::Approach;
 
+/// The largest machine-zero shift a reference accepts, um. Homing moves the zero by a
+/// few um; more than half a millimetre is not a homing error but the wrong lattice
+/// point, a moved board or a crash.
+pub const MAX_SHIFT_UM: f64 = 500.0;
+
+/// Micrometres as messages print them: `+6.27`, and never hundreds of digits for an
+/// absurd value (`+1.000e308`).
+pub fn um_text(v: f64) -> String {
+    if v.abs() < 1e6 || !v.is_finite() {
+        format!("{v:+.2}")
+    } else {
+        format!("{v:+.3e}")
+    }
+}
+
 /// Approach per axis.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Direction {
@@ -92,6 +107,8 @@ pub enum ModelError {
     },
     #[error("the inverse did not settle at ({:.3}, {:.3}) mm (the map's errors change too fast to invert)", p[0], p[1])]
     NoInverse { p: [f64; 2] },
+    #[error("the machine's zero would be shifted by ({}, {}) um, more than the {bound_um} um a homing can move it: not applied", um_text(shift_um[0]), um_text(shift_um[1]))]
+    ShiftTooLarge { shift_um: [f64; 2], bound_um: f64 },
 }
 
 /// The three measured quantities of a node, each from the side its axis came from:
@@ -252,12 +269,19 @@ impl MapModel {
 
     /// The same map shifted by what the camera saw at the reference point after a new
     /// homing (each homing moves the machine's zero by a few um): `seen_um` is the error
-    /// measured there now, approached forward.
+    /// measured there now, approached forward. The shift this applies is bounded here,
+    /// where it is applied, whoever measured or recorded it: more than
+    /// [`MAX_SHIFT_UM`] (or not finite) is refused.
     pub fn rereferenced(mut self, seen_um: [f64; 2]) -> Result<Self, ModelError> {
         self.offset_um = [0.0; 2];
         let r = self.map.reference_mm;
         let mapped = self.camera_error_um(r, Direction::FORWARD)?;
-        self.offset_um = [seen_um[0] - mapped[0], seen_um[1] - mapped[1]];
+        let shift_um = [seen_um[0] - mapped[0], seen_um[1] - mapped[1]];
+        let bound_um = MAX_SHIFT_UM;
+        if !(shift_um[0].hypot(shift_um[1]) <= bound_um) {
+            return Err(ModelError::ShiftTooLarge { shift_um, bound_um });
+        }
+        self.offset_um = shift_um;
         Ok(self)
     }
 
@@ -265,7 +289,7 @@ impl MapModel {
         self.offset_um
     }
 
-    fn inside(&self, p: [f64; 2]) -> Result<(), ModelError> {
+    pub(crate) fn inside(&self, p: [f64; 2]) -> Result<(), ModelError> {
         let (lo, hi) = self.extent();
         // A nanometre of slack for points computed onto the edge.
         let eps = 1e-6;

@@ -19,17 +19,34 @@
 //! moved +6.70 um in X, and a point the map commanded at X 50.0120 is now commanded at
 //! X 50.0053.
 
-use crate::{Direction, MapModel, ModelError};
+use crate::{um_text, Direction, MapModel, ModelError};
 use protocol::errormap::ErrorMap;
 use serde::{Deserialize, Serialize};
 
 /// The schema of a reference record.
 pub const SCHEMA: &str = "xy-gateway/map-reference/1";
 
-/// The largest machine-zero shift a reference accepts, um. Homing moves the zero by a
-/// few um; more than half a millimetre is not a homing error but the wrong lattice
-/// point, a moved board or a crash.
-pub const MAX_SHIFT_UM: f64 = 500.0;
+pub use crate::MAX_SHIFT_UM;
+
+/// The most the camera's error at the reference point may be in a record, um: the map's
+/// own error there (bounded at 1 mm by the map's reader) plus the largest shift.
+pub const MAX_SEEN_UM: f64 = 1500.0;
+
+/// The most references a record may count: one a minute for 1900 years. A larger count
+/// is not a count (and `u64::MAX + 1` would wrap to "reference #0").
+pub const MAX_REFERENCE_COUNT: u64 = 1_000_000_000;
+
+/// How far ahead of this computer's clock a record's time may be, s: the record is
+/// written on this computer or one beside it; a record from the future lies about its
+/// age (the age would read "0 s").
+pub const MAX_CLOCK_AHEAD_S: u64 = 300;
+
+/// How far a record's `shift_um` may differ from its `seen_um` minus the map's own error
+/// there, um: the JSON round trip of the numbers, nothing a measurement could mean.
+pub const CONSISTENCY_UM: f64 = 1e-3;
+
+/// A record's temperature must be one a machine works at, degrees C.
+const TEMPERATURE_C: std::ops::RangeInclusive<f64> = -50.0..=150.0;
 
 /// Which map a record belongs to.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -68,9 +85,15 @@ pub struct MapReference {
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ReferenceError {
-    #[error("the machine's zero moved by ({:+.2}, {:+.2}) um, more than the {bound_um} um a homing can: the camera is on another board point (or the board or camera moved); nothing recorded", shift_um[0], shift_um[1])]
+    #[error("the machine's zero moved by ({}, {}) um, more than the {bound_um} um a homing can: the camera is on another board point (or the board or camera moved); nothing recorded", um_text(shift_um[0]), um_text(shift_um[1]))]
     TooLarge { shift_um: [f64; 2], bound_um: f64 },
-    #[error("the reference belongs to another map (map {theirs}, this one {ours}); take a new reference (gateway reference)")]
+    /// One field of a record is wrong: `field` names it as the JSON does.
+    #[error("`{field}`: {message}; take a new reference (gateway reference)")]
+    Field {
+        field: &'static str,
+        message: String,
+    },
+    #[error("`map.fingerprint`: the reference belongs to another map (map {theirs}, this one {ours}); take a new reference (gateway reference)")]
     OtherMap { theirs: String, ours: String },
     #[error("not a reference record: {0}")]
     Invalid(String),
@@ -126,12 +149,15 @@ impl MapReference {
             seen_um,
             shift_um,
             homing_count: at.homing_count,
-            reference_count: at.previous_count + 1,
+            // A count at its bound stays there rather than wrap.
+            reference_count: (at.previous_count.saturating_add(1)).min(MAX_REFERENCE_COUNT),
             temperature_c: at.temperature_c,
         })
     }
 
-    /// Everything a reader relies on: the schema, finite numbers, a sane shift.
+    /// Everything a reader relies on without the map: the schema, each number finite
+    /// and within its bound, the count, and the time written twice the same way. The
+    /// error names the field.
     pub fn check(&self) -> Result<(), ReferenceError> {
         if self.schema != SCHEMA {
             return Err(ReferenceError::Invalid(format!(
@@ -139,32 +165,156 @@ impl MapReference {
                 self.schema
             )));
         }
-        let numbers = self
-            .seen_um
-            .iter()
-            .chain(&self.shift_um)
-            .chain(&self.reference_mm);
-        if !numbers.chain(&self.temperature_c).all(|v| v.is_finite()) {
-            return Err(ReferenceError::Invalid("a number is not finite".into()));
+        let field = |field, message: String| Err(ReferenceError::Field { field, message });
+        for (name, v) in [("seen_um", self.seen_um), ("shift_um", self.shift_um)] {
+            if !v.iter().all(|c| c.is_finite()) {
+                return field(name, format!("({}, {}) is not a number", v[0], v[1]));
+            }
         }
-        check_shift(self.shift_um, MAX_SHIFT_UM)
+        if !self.reference_mm.iter().all(|c| c.is_finite()) {
+            return field("reference_mm", "not a number".into());
+        }
+        if !self.seen_um.iter().all(|c| c.abs() <= MAX_SEEN_UM) {
+            let [x, y] = self.seen_um;
+            return field(
+                "seen_um",
+                format!(
+                    "({}, {}) um, more than the {MAX_SEEN_UM} um the camera can be off at the \
+                     reference point (the map's own error plus the largest shift)",
+                    um_text(x),
+                    um_text(y)
+                ),
+            );
+        }
+        check_shift(self.shift_um, MAX_SHIFT_UM)?;
+        if let Some(t) = self.temperature_c {
+            if !TEMPERATURE_C.contains(&t) {
+                return field(
+                    "temperature_c",
+                    format!(
+                        "{} C is not a machine's temperature (-50 to 150 C)",
+                        number_text(t)
+                    ),
+                );
+            }
+        }
+        if !(1..=MAX_REFERENCE_COUNT).contains(&self.reference_count) {
+            return field(
+                "reference_count",
+                format!(
+                    "{} is not a count of references (1 to {MAX_REFERENCE_COUNT})",
+                    self.reference_count
+                ),
+            );
+        }
+        let written = chrono::DateTime::parse_from_rfc3339(&self.measured_at)
+            .map_err(|e| ReferenceError::Field {
+                field: "measured_at",
+                message: format!("`{}` is not an RFC 3339 time ({e})", self.measured_at),
+            })?
+            .timestamp();
+        if u64::try_from(written).ok() != Some(self.measured_unix_s) {
+            return field(
+                "measured_unix_s",
+                format!(
+                    "{} s since 1970, but `measured_at` says {} ({written} s)",
+                    self.measured_unix_s, self.measured_at
+                ),
+            );
+        }
+        Ok(())
     }
 
-    /// Refused unless the record was measured for `map`.
+    /// Refused unless the record was measured for `map` (its fingerprint, version, date
+    /// and reference point) and its shift is what its `seen_um` implies on this map.
     pub fn check_map(&self, map: &ErrorMap) -> Result<(), ReferenceError> {
+        self.check_model(&MapModel::new(map.clone()))
+    }
+
+    fn check_model(&self, model: &MapModel) -> Result<(), ReferenceError> {
+        let map = model.map();
         let ours = fingerprint(map);
-        if self.map.fingerprint != ours || self.reference_mm != map.reference_mm {
+        if self.map.fingerprint != ours {
             return Err(ReferenceError::OtherMap {
                 theirs: format!("{} of {}", self.map.fingerprint, self.map.created),
                 ours: format!("{ours} of {}", map.created),
             });
         }
+        if self.reference_mm != map.reference_mm {
+            let [x, y] = self.reference_mm;
+            return Err(ReferenceError::Field {
+                field: "reference_mm",
+                message: format!(
+                    "({}, {}) mm, but the map's reference point is ({}, {}) mm",
+                    number_text(x),
+                    number_text(y),
+                    number_text(map.reference_mm[0]),
+                    number_text(map.reference_mm[1])
+                ),
+            });
+        }
+        // The fingerprint says which map; the fields for people must say the same.
+        if self.map.created != map.created {
+            return Err(ReferenceError::Field {
+                field: "map.created",
+                message: format!(
+                    "`{}`, but the map it fingerprints was created {}",
+                    self.map.created, map.created
+                ),
+            });
+        }
+        if self.map.version != map.version {
+            return Err(ReferenceError::Field {
+                field: "map.version",
+                message: format!(
+                    "{}, but the map it fingerprints is version {}",
+                    self.map.version, map.version
+                ),
+            });
+        }
+        // The shift applied is `seen_um` minus the map's error: the record's own
+        // `shift_um` (what it prints) must be that, or the record contradicts itself.
+        let [ex, ey] = model.camera_error_um(map.reference_mm, Direction::FORWARD)?;
+        let [ox, oy] = model.offset_um();
+        let mapped = [ex - ox, ey - oy];
+        let implied = [self.seen_um[0] - mapped[0], self.seen_um[1] - mapped[1]];
+        if (0..2).any(|i| !((self.shift_um[i] - implied[i]).abs() <= CONSISTENCY_UM)) {
+            return Err(ReferenceError::Field {
+                field: "shift_um",
+                message: format!(
+                    "({}, {}) um, but `seen_um` ({}, {}) minus the map's own error there \
+                     ({}, {}) is ({}, {}) um: the record contradicts itself",
+                    um_text(self.shift_um[0]),
+                    um_text(self.shift_um[1]),
+                    um_text(self.seen_um[0]),
+                    um_text(self.seen_um[1]),
+                    um_text(mapped[0]),
+                    um_text(mapped[1]),
+                    um_text(implied[0]),
+                    um_text(implied[1]),
+                ),
+            });
+        }
         Ok(())
     }
 
-    /// The map's model under this reference (checked against the map first).
-    pub fn apply(&self, model: MapModel) -> Result<MapModel, ReferenceError> {
-        self.check_map(model.map())?;
+    /// The map's model under this reference, at `now_unix_s` (this computer's clock):
+    /// checked against the map first, and refused when it is dated more than
+    /// [`MAX_CLOCK_AHEAD_S`] after now. The shift is bounded again where it is applied
+    /// ([`MapModel::rereferenced`]).
+    pub fn apply(&self, model: MapModel, now_unix_s: u64) -> Result<MapModel, ReferenceError> {
+        self.check()?;
+        self.check_model(&model)?;
+        if self.measured_unix_s > now_unix_s.saturating_add(MAX_CLOCK_AHEAD_S) {
+            return Err(ReferenceError::Field {
+                field: "measured_at",
+                message: format!(
+                    "{} is {} after this computer's clock: a record from the future",
+                    self.measured_at,
+                    age_text(self.measured_unix_s - now_unix_s)
+                ),
+            });
+        }
         Ok(model.rereferenced(self.seen_um)?)
     }
 
@@ -185,12 +335,12 @@ impl MapReference {
     /// One line for a program's header, a log or a message: which reference, how old.
     pub fn describe(&self, now_unix_s: u64) -> String {
         let mut t = format!(
-            "reference #{} of {} ({} old), machine zero shift ({:+.2}, {:+.2}) um",
+            "reference #{} of {} ({} old), machine zero shift ({}, {}) um",
             self.reference_count,
             self.measured_at,
             age_text(self.age_s(now_unix_s)),
-            self.shift_um[0],
-            self.shift_um[1]
+            um_text(self.shift_um[0]),
+            um_text(self.shift_um[1])
         );
         if let Some(h) = self.homing_count {
             t += &format!(", after homing #{h}");
@@ -199,6 +349,15 @@ impl MapReference {
             t += &format!(", at {c:.1} C");
         }
         t
+    }
+}
+
+/// Any other number in a message: as written, or the exponent for an absurd value.
+fn number_text(v: f64) -> String {
+    if v.abs() < 1e6 || !v.is_finite() {
+        format!("{v}")
+    } else {
+        format!("{v:.3e}")
     }
 }
 
@@ -265,10 +424,14 @@ mod tests {
         }
     }
 
+    /// 2026-11-27T13:00:00Z
+    const T0: u64 = 1_795_784_400;
+
     fn at(s: u64) -> Circumstances {
+        let t = std::time::UNIX_EPOCH + std::time::Duration::from_secs(T0 + s);
         Circumstances {
-            measured_at: "2026-11-27T13:00:00Z".into(),
-            measured_unix_s: s,
+            measured_at: crate::scan::rfc3339(t),
+            measured_unix_s: T0 + s,
             previous_count: 1,
             ..Circumstances::default()
         }
@@ -285,16 +448,16 @@ mod tests {
             .command_for([5.0, 5.0], Direction::FORWARD)
             .unwrap();
         let after = r
-            .apply(MapModel::new(m))
+            .apply(MapModel::new(m), T0 + 100)
             .unwrap()
             .command_for([5.0, 5.0], Direction::FORWARD)
             .unwrap();
         assert!(((before[0] - after[0]) * 1000.0 - 6.7).abs() < 1e-6);
         assert!(((before[1] - after[1]) * 1000.0 + 8.29).abs() < 1e-6);
         assert!(
-            r.describe(100 + 720).contains("(12 min old)"),
+            r.describe(T0 + 100 + 720).contains("(12 min old)"),
             "{}",
-            r.describe(820)
+            r.describe(T0 + 820)
         );
         assert_eq!(
             r.drift_um([7.6, -8.29]).map(|v| (v * 100.0).round()),
@@ -306,7 +469,7 @@ mod tests {
     fn a_reference_of_another_map_or_an_absurd_shift_is_refused() {
         let r = MapReference::new(&map(0.4), [1.0, 1.0], MAX_SHIFT_UM, at(0)).unwrap();
         r.check().unwrap();
-        let e = r.apply(MapModel::new(map(0.5))).unwrap_err();
+        let e = r.apply(MapModel::new(map(0.5)), T0).unwrap_err();
         assert!(matches!(e, ReferenceError::OtherMap { .. }), "{e}");
         let e = MapReference::new(&map(0.0), [400.0, 320.0], MAX_SHIFT_UM, at(0)).unwrap_err();
         assert!(e.to_string().contains("more than the 500 um"), "{e}");
@@ -317,6 +480,190 @@ mod tests {
         let mut bad = r.clone();
         bad.schema = "x".into();
         assert!(bad.check().is_err());
+    }
+
+    /// Issue 38: a record edited to `seen_um: [110, 0]` printed its own shift and applied
+    /// another (99.5 um silently).
+    #[test]
+    fn a_record_whose_shift_is_not_its_seen_error_minus_the_map_is_refused_naming_the_field() {
+        let m = map(0.4);
+        let r = MapReference::new(&m, [7.1, -8.29], MAX_SHIFT_UM, at(0)).unwrap();
+        r.apply(MapModel::new(m.clone()), T0).unwrap();
+        let mut edited = r.clone();
+        edited.seen_um = [110.0, 0.0];
+        edited.check().unwrap();
+        let e = edited.apply(MapModel::new(m.clone()), T0).unwrap_err();
+        let text = e.to_string();
+        assert!(
+            matches!(
+                e,
+                ReferenceError::Field {
+                    field: "shift_um",
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        assert!(text.contains("(+109.60, +0.00) um"), "{text}");
+        // A nanometre of JSON round trip is not a contradiction.
+        let mut rounded = r.clone();
+        rounded.shift_um[0] += 1e-4;
+        rounded.apply(MapModel::new(m.clone()), T0).unwrap();
+        // The fields for people must name the map the fingerprint names.
+        let mut other = r.clone();
+        other.map.created = "2026-11-01T00:00:00Z".into();
+        let e = other.apply(MapModel::new(m.clone()), T0).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                ReferenceError::Field {
+                    field: "map.created",
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        let mut moved = r.clone();
+        moved.reference_mm = [5.0, 1e300];
+        let e = moved.check_map(&m).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                ReferenceError::Field {
+                    field: "reference_mm",
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        assert!(e.to_string().contains("(5, 1.000e300) mm"), "{e}");
+        let mut other = r;
+        other.map.version = 9;
+        let e = other.check_map(&m).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                ReferenceError::Field {
+                    field: "map.version",
+                    ..
+                }
+            ),
+            "{e}"
+        );
+    }
+
+    /// Issue 38: with `--max-correction-um 2000` a record applied 889 um.
+    #[test]
+    fn every_applied_shift_is_bounded_where_it_is_applied() {
+        let m = map(0.4);
+        let e = MapModel::new(m.clone())
+            .rereferenced([889.0, 0.0])
+            .unwrap_err();
+        assert!(matches!(e, ModelError::ShiftTooLarge { .. }), "{e}");
+        assert!(e.to_string().contains("(+888.60, +0.00) um"), "{e}");
+        let e = MapModel::new(m.clone())
+            .rereferenced([f64::NAN, 0.0])
+            .unwrap_err();
+        assert!(matches!(e, ModelError::ShiftTooLarge { .. }), "{e}");
+        assert!(MapModel::new(m).rereferenced([400.4, 0.0]).is_ok());
+    }
+
+    #[test]
+    fn a_record_from_the_future_or_with_two_different_times_is_refused() {
+        let m = map(0.4);
+        let r = MapReference::new(&m, [1.0, 1.0], MAX_SHIFT_UM, at(1000)).unwrap();
+        // A clock a few minutes behind the record's is a clock, not a lie.
+        r.apply(MapModel::new(m.clone()), T0 + 1000 - MAX_CLOCK_AHEAD_S)
+            .unwrap();
+        let e = r.apply(MapModel::new(m.clone()), T0).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                ReferenceError::Field {
+                    field: "measured_at",
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        assert!(e.to_string().contains("16 min after"), "{e}");
+        // 2100, as issue 38 tried: refused, not "(0 s old)".
+        let mut late = r.clone();
+        late.measured_at = "2100-01-01T00:00:00Z".into();
+        late.measured_unix_s = 4_102_444_800;
+        late.check().unwrap();
+        assert!(late.apply(MapModel::new(m.clone()), T0).is_err());
+        let mut two = r.clone();
+        two.measured_unix_s += 3600;
+        let e = two.check().unwrap_err();
+        assert!(
+            matches!(
+                e,
+                ReferenceError::Field {
+                    field: "measured_unix_s",
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        let mut garbled = r;
+        garbled.measured_at = "yesterday".into();
+        let e = garbled.check().unwrap_err();
+        assert!(
+            matches!(
+                e,
+                ReferenceError::Field {
+                    field: "measured_at",
+                    ..
+                }
+            ),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn counts_and_temperatures_are_bounded_and_absurd_numbers_print_short() {
+        let m = map(0.4);
+        let r = MapReference::new(&m, [1.0, 1.0], MAX_SHIFT_UM, at(0)).unwrap();
+        let mut wrapped = r.clone();
+        wrapped.reference_count = u64::MAX;
+        let e = wrapped.check().unwrap_err();
+        assert!(
+            matches!(
+                e,
+                ReferenceError::Field {
+                    field: "reference_count",
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        let mut zero = r.clone();
+        zero.reference_count = 0;
+        assert!(zero.check().is_err());
+        // Continuing a record at the bound does not wrap to #0 (nor panic).
+        let next = MapReference::new(
+            &m,
+            [1.0, 1.0],
+            MAX_SHIFT_UM,
+            Circumstances {
+                previous_count: u64::MAX,
+                ..at(0)
+            },
+        )
+        .unwrap();
+        assert_eq!(next.reference_count, MAX_REFERENCE_COUNT);
+        let mut hot = r.clone();
+        hot.temperature_c = Some(1e308);
+        let e = hot.check().unwrap_err().to_string();
+        assert!(e.contains("temperature_c") && e.len() < 200, "{e}");
+        let mut far = r;
+        far.seen_um = [1e308, 0.0];
+        let e = far.check().unwrap_err().to_string();
+        assert!(e.contains("`seen_um`") && e.contains("+1.000e308"), "{e}");
+        assert!(e.len() < 300, "{e}");
+        let e = MapReference::new(&m, [1e308, 0.0], MAX_SHIFT_UM, at(0)).unwrap_err();
+        assert!(e.to_string().len() < 300, "{e}");
     }
 
     #[test]

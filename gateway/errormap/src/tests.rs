@@ -489,3 +489,96 @@ fn two_versions_of_a_map_are_compared_node_by_node() {
     let e = diff::compare(&old, &coarser).unwrap_err();
     assert!(e.contains("the grids differ"), "{e}");
 }
+
+/// Issue 38: the diff read "at most 0.00 um" for a backlash change of 16 um on every
+/// node, a yaw of 500 urad and +20 um on every line node, and 2.5 um for one node's
+/// forward +5 um. It compares what compensation uses: each is seen, with its own figure.
+#[test]
+fn the_diff_sees_each_direction_the_lines_the_yaw_the_squareness_and_the_backlash() {
+    let xs = steps(0.0, 100.0, 50.0);
+    let ys = steps(0.0, 100.0, 50.0);
+    let base = |x: f64, y: f64, _| (x / 10.0, y / 10.0, 0.0);
+    let old = map_of(xs.clone(), ys.clone(), base);
+    let same = diff::compare(&old, &old).unwrap();
+    assert_eq!(same.max_um, 0.0);
+    assert_eq!(same.squareness_change_urad, 0.0);
+    // One node's forward approach only, +5 um in X: 5, not the average of both sides.
+    let one = map_of(xs.clone(), ys.clone(), |x, y, forward| {
+        let (ex, ey, yaw) = base(x, y, forward);
+        let bump = if forward && x == 50.0 && y == 50.0 {
+            5.0
+        } else {
+            0.0
+        };
+        (ex + bump, ey, yaw)
+    });
+    let d = diff::compare(&old, &one).unwrap();
+    assert!((d.max_um - 5.0).abs() < 1e-9, "{d:?}");
+    assert_eq!(d.max_at_mm, [50.0, 50.0]);
+    assert!(d.max_approach.starts_with("x forward"), "{d:?}");
+    assert!((d.backlash_max_um - 5.0).abs() < 1e-9, "{d:?}");
+    // Backlash: the reverse side 16 um further on every node (the mean moves by 8).
+    let lash = map_of(xs.clone(), ys.clone(), |x, y, forward| {
+        let (ex, ey, yaw) = base(x, y, forward);
+        (if forward { ex } else { ex + 16.0 }, ey, yaw)
+    });
+    let d = diff::compare(&old, &lash).unwrap();
+    assert!((d.max_um - 16.0).abs() < 1e-9, "{d:?}");
+    assert!((d.backlash_max_um - 16.0).abs() < 1e-9, "{d:?}");
+    // A yaw growing to 500 urad at X 100 (the map's yaw is relative to its reference
+    // point, here X 0): its own figure, and on a tool 100 mm from the camera it moves
+    // the tool by 50 um there.
+    let yawed = map_of(xs.clone(), ys.clone(), |x, y, f| {
+        let (ex, ey, _) = base(x, y, f);
+        (ex, ey, 5.0 * x)
+    });
+    let d = diff::compare(&old, &yawed).unwrap();
+    assert!((d.yaw_max_urad - 500.0).abs() < 1e-9, "{d:?}");
+    let (mut armed_old, mut armed_new) = (old.clone(), yawed.clone());
+    armed_old.tool_offset_mm = [0.0, 100.0];
+    armed_new.tool_offset_mm = [0.0, 100.0];
+    let d = diff::compare(&armed_old, &armed_new).unwrap();
+    assert!((d.max_um - 50.0).abs() < 0.5, "{d:?}");
+    // Squareness: X's error grows by 5 um more over 100 mm of Y: +50 urad.
+    let leaning = map_of(xs.clone(), ys.clone(), |x, y, f| {
+        let (ex, ey, yaw) = base(x, y, f);
+        (ex + 0.05 * y, ey, yaw)
+    });
+    let d = diff::compare(&old, &leaning).unwrap();
+    assert!((d.squareness_change_urad - 50.0).abs() < 1e-9, "{d:?}");
+    assert!((d.max_um - 5.0).abs() < 1e-9, "{d:?}");
+    // A turned board (ex = -t y, ey = t x) is no squareness.
+    let turned = map_of(xs.clone(), ys.clone(), |x, y, f| {
+        let (ex, ey, yaw) = base(x, y, f);
+        (ex - 0.05 * y, ey + 0.05 * x, yaw)
+    });
+    assert!(
+        diff::compare(&old, &turned)
+            .unwrap()
+            .squareness_change_urad
+            .abs()
+            < 1e-9
+    );
+    // The dense lines: +20 um on every line node, the grid unchanged.
+    let line = |ex: f64| Line {
+        at_mm: 50.0,
+        positions: steps(0.0, 100.0, 1.0),
+        nodes: steps(0.0, 100.0, 1.0)
+            .iter()
+            .map(|&x| Node {
+                forward: measured(x / 10.0 + ex, 5.0, 0.0),
+                reverse: measured(x / 10.0 + ex, 5.0, 0.0),
+            })
+            .collect(),
+    };
+    let (mut lined_old, mut lined_new) = (old.clone(), old.clone());
+    lined_old.x_lines.push(line(0.0));
+    lined_new.x_lines.push(line(20.0));
+    let d = diff::compare(&lined_old, &lined_new).unwrap();
+    assert!(d.lines_max_um >= 19.9, "{d:?}");
+    assert!(d.max_um >= 19.9, "{d:?}");
+    // Grids that differ are named without Rust's `Some(..)`.
+    let coarser = map_of(xs, steps(0.0, 100.0, 100.0), base);
+    let e = diff::compare(&old, &coarser).unwrap_err();
+    assert!(e.contains("Y 0..100") && !e.contains("Some"), "{e}");
+}

@@ -1,16 +1,19 @@
-//! A board's artwork for the lab that makes it (DXF and SVG at 1:1, millimetres, board
-//! +y up), a PDF for a test print at 1:1 on an office printer, and the certificate template the metrology lab fills in (`i,j,x_mm,y_mm`,
-//! nominal positions to be replaced by the measured ones). Coded boards
-//! (docs/coded-board.md) get each dot at its code size.
+//! `gateway board make`: a board's artwork for the lab that makes it, the test print and
+//! the certificate template, written by the formats crate `board_art` (sized there
+//! before anything is made) and handed to the sink.
 
 use crate::{Artifact, Outcome, Sink};
+pub use board_art::{dxf, pdf, svg, template};
 use protocol::Board;
 use serde_json::{json, Map, Value};
-use std::fmt::Write as _;
 
 /// `gateway board make`: the four files handed to the sink as artifacts named after
 /// the board file (`NAME.svg`, `NAME.dxf`, `NAME.pdf`, `NAME.certificate-template.csv`).
 pub fn make(board: &Board, name: &str, sink: &mut dyn Sink) -> Outcome {
+    // Sized before anything is made: refused naming the limit.
+    if let Err(e) = board_art::check(board) {
+        return Outcome::failed(format!("board `{}`: {e}", board.name));
+    }
     let files = [
         (
             format!("{name}.svg"),
@@ -66,197 +69,12 @@ pub fn summary(r: &Value) -> String {
     )
 }
 
-fn dots(board: &Board) -> impl Iterator<Item = ([f64; 2], f64)> + '_ {
-    (0..board.rows as i64).flat_map(move |j| {
-        (0..board.cols as i64).map(move |i| (board.nominal_xy(i, j), board.dot_diameter_at(i, j)))
-    })
-}
-
-/// A margin of one pitch around the dots.
-fn frame(board: &Board) -> ([f64; 2], [f64; 2]) {
-    let (lo, hi) = board.extent();
-    let m = board.pitch_mm;
-    ([lo[0] - m, lo[1] - m], [hi[0] + m, hi[1] + m])
-}
-
-/// The artwork as SVG at 1:1 (mm), board +y up.
-pub fn svg(board: &Board) -> String {
-    let (lo, hi) = frame(board);
-    let (w, h) = (hi[0] - lo[0], hi[1] - lo[1]);
-    let (fg, bg) = match board.polarity {
-        protocol::Polarity::DarkOnLight => ("black", "white"),
-        protocol::Polarity::BrightOnDark => ("white", "black"),
-    };
-    let mut s = format!(
-        "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}mm\" height=\"{h}mm\" viewBox=\"0 0 {w} {h}\">\n<rect width=\"{w}\" height=\"{h}\" fill=\"{bg}\"/>\n<g fill=\"{fg}\">\n"
-    );
-    for (c, d) in dots(board) {
-        // SVG y runs down; the board's +y runs up.
-        let _ = writeln!(
-            s,
-            "<circle cx=\"{:.4}\" cy=\"{:.4}\" r=\"{:.4}\"/>",
-            c[0] - lo[0],
-            hi[1] - c[1],
-            d / 2.0
-        );
-    }
-    s.push_str("</g>\n</svg>\n");
-    s
-}
-
-/// The artwork as DXF (R12 entities, mm: `$INSUNITS` 4), a CIRCLE per dot.
-pub fn dxf(board: &Board) -> String {
-    // AutoCAD R12 style: a header with millimetre units, one CIRCLE per dot on layer DOTS.
-    let mut s = String::from(
-        "0\nSECTION\n2\nHEADER\n9\n$INSUNITS\n70\n4\n0\nENDSEC\n0\nSECTION\n2\nENTITIES\n",
-    );
-    for (c, d) in dots(board) {
-        let _ = write!(
-            s,
-            "0\nCIRCLE\n8\nDOTS\n10\n{:.4}\n20\n{:.4}\n30\n0.0\n40\n{:.4}\n",
-            c[0],
-            c[1],
-            d / 2.0
-        );
-    }
-    s.push_str("0\nENDSEC\n0\nEOF\n");
-    s
-}
-
-/// Millimetres to PDF points.
-const PT_PER_MM: f32 = 72.0 / 25.4;
-/// Height of the caption strip under the artwork, mm.
-const CAPTION_MM: f64 = 8.0;
-
-/// A test print: one page the size of the artwork (plus a caption), dots at 1:1 in mm
-/// (the content is drawn in mm through one scale transform, so each coordinate keeps
-/// f32's precision, 0.01 um at 200 mm), Deflate-compressed. Printed at "actual size"
-/// it checks the optics and the code before a lab makes the glass.
-pub fn pdf(board: &Board) -> Vec<u8> {
-    use pdf_writer::{Content, Filter, Finish, Name, Pdf, Rect, Ref, Str};
-    let (lo, hi) = frame(board);
-    let (w, h) = (hi[0] - lo[0], hi[1] - lo[1] + CAPTION_MM);
-    let (catalog, tree, page, content_id, font) = (
-        Ref::new(1),
-        Ref::new(2),
-        Ref::new(3),
-        Ref::new(4),
-        Ref::new(5),
-    );
-    let font_name = Name(b"F1");
-    let (fg, bg) = match board.polarity {
-        protocol::Polarity::DarkOnLight => (0.0, 1.0),
-        protocol::Polarity::BrightOnDark => (1.0, 0.0),
-    };
-    let mut c = Content::new();
-    c.save_state();
-    c.transform([PT_PER_MM, 0.0, 0.0, PT_PER_MM, 0.0, 0.0]);
-    // The board's background (a bright-on-dark board prints its dark field).
-    c.set_fill_gray(bg);
-    c.rect(0.0, CAPTION_MM as f32, w as f32, (hi[1] - lo[1]) as f32);
-    c.fill_nonzero();
-    c.set_fill_gray(fg);
-    // A circle as four cubic Beziers (0.027 % radial error).
-    const K: f32 = 0.552_284_8;
-    for (centre, d) in dots(board) {
-        let x = (centre[0] - lo[0]) as f32;
-        let y = (centre[1] - lo[1] + CAPTION_MM) as f32;
-        let r = (d / 2.0) as f32;
-        let k = K * r;
-        c.move_to(x + r, y);
-        c.cubic_to(x + r, y + k, x + k, y + r, x, y + r);
-        c.cubic_to(x - k, y + r, x - r, y + k, x - r, y);
-        c.cubic_to(x - r, y - k, x - k, y - r, x, y - r);
-        c.cubic_to(x + k, y - r, x + r, y - k, x + r, y);
-        c.close_path();
-    }
-    c.fill_nonzero();
-    c.restore_state();
-    let caption = format!(
-        "{}: {} x {} dots, pitch {} mm{} - print at actual size (100 %), then measure the pitch",
-        board.name,
-        board.cols,
-        board.rows,
-        board.pitch_mm,
-        if board.code.is_some() { ", coded" } else { "" }
-    );
-    c.set_fill_gray(0.0);
-    c.begin_text();
-    c.set_font(font_name, 9.0);
-    c.next_line(3.0 * PT_PER_MM, 3.0 * PT_PER_MM);
-    // The base-14 fonts read single bytes: anything outside ASCII becomes '?'.
-    let ascii: Vec<u8> = caption
-        .chars()
-        .map(|ch| if ch.is_ascii() { ch as u8 } else { b'?' })
-        .collect();
-    c.show(Str(&ascii));
-    c.end_text();
-    let raw = c.finish();
-    let packed = miniz_oxide::deflate::compress_to_vec_zlib(&raw, 6);
-
-    let mut pdf = Pdf::new();
-    pdf.catalog(catalog).pages(tree);
-    pdf.pages(tree).kids([page]).count(1);
-    let mut p = pdf.page(page);
-    p.media_box(Rect::new(
-        0.0,
-        0.0,
-        w as f32 * PT_PER_MM,
-        h as f32 * PT_PER_MM,
-    ));
-    p.parent(tree);
-    p.contents(content_id);
-    p.resources().fonts().pair(font_name, font);
-    p.finish();
-    pdf.type1_font(font).base_font(Name(b"Helvetica"));
-    pdf.stream(content_id, &packed).filter(Filter::FlateDecode);
-    pdf.finish()
-}
-
-/// The certificate template the metrology lab fills in (`i,j,x_mm,y_mm`).
-pub fn template(board: &Board) -> String {
-    let mut s = format!(
-        "# Certificate of `{}`: replace each nominal x_mm,y_mm by the measured position\n# (lines starting with # are ignored; unlisted points are taken as nominal)\ni,j,x_mm,y_mm\n",
-        board.name
-    );
-    for j in 0..board.rows as i64 {
-        for i in 0..board.cols as i64 {
-            let n = board.nominal_xy(i, j);
-            let _ = writeln!(s, "{i},{j},{:.6},{:.6}", n[0], n[1]);
-        }
-    }
-    s
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    /// The page size (points) and the content's operator lines, read back by hand:
-    /// the MediaBox, the one Flate stream inflated.
-    fn read_pdf(pdf: &[u8]) -> ([f64; 2], Vec<String>) {
-        let text = String::from_utf8_lossy(pdf);
-        let mb = text.split("/MediaBox [").nth(1).expect("a MediaBox");
-        let v: Vec<f64> = mb
-            .split(']')
-            .next()
-            .unwrap()
-            .split_whitespace()
-            .map(|x| x.parse().unwrap())
-            .collect();
-        let start = pdf.windows(7).position(|w| w == b"stream\n").unwrap() + 7;
-        let end = pdf.windows(10).position(|w| w == b"\nendstream").unwrap();
-        let raw = miniz_oxide::inflate::decompress_to_vec_zlib(&pdf[start..end]).unwrap();
-        let ops = String::from_utf8(raw)
-            .unwrap()
-            .lines()
-            .map(str::to_string)
-            .collect();
-        ([v[2] - v[0], v[3] - v[1]], ops)
-    }
-
     #[test]
-    fn artwork_has_every_dot_at_its_code_size_and_the_template_reads_back() {
+    fn make_hands_over_the_four_files_named_after_the_board() {
         let mut b = Board::nominal(
             "t",
             0.5,
@@ -266,78 +84,35 @@ mod tests {
             4,
             [0.0, 0.0],
         );
-        b.set_code(28, [0.2, 0.3]);
-        let s = svg(&b);
-        assert_eq!(s.matches("<circle").count(), 24);
-        assert!(s.contains("r=\"0.1500\"") && s.contains("r=\"0.1000\""));
-        let d = dxf(&b);
-        assert_eq!(d.matches("CIRCLE").count(), 24);
-        assert!(d.ends_with("EOF\n"));
-        let mut c = b.clone();
-        c.apply_certificate("t.csv", &template(&b)).unwrap();
-        assert_eq!(c.certified_points, 24);
-        assert_eq!(c.true_xy(5, 3), b.true_xy(5, 3));
+        b.set_code(protocol::board_code::CodeScheme::Additive, 28, [0.2, 0.3]);
+        let mut sink = crate::Collect(Vec::new());
+        let outcome = make(&b, "t", &mut sink);
+        assert!(outcome.is_success(), "{:?}", outcome.error());
+        let names: Vec<&str> = sink.0.iter().map(|a| a.name.as_str()).collect();
+        assert_eq!(
+            names,
+            ["t.svg", "t.dxf", "t.pdf", "t.certificate-template.csv"]
+        );
+        assert_eq!(sink.0[0].bytes, svg(&b).into_bytes());
     }
 
+    /// Issue 38: a 7071 x 7071 board was made until memory ran out; it is refused
+    /// before anything is made or handed over.
     #[test]
-    fn the_artwork_has_a_circle_per_dot_and_the_template_a_row_per_dot() {
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-        let board = Board::load(&dir.join("../../config/boards/coded-0.5mm.toml")).unwrap();
+    fn a_board_too_large_for_its_files_is_refused_before_anything_is_made() {
+        let b = Board::nominal(
+            "huge",
+            0.5,
+            0.25,
+            protocol::Polarity::DarkOnLight,
+            7071,
+            7071,
+            [0.0, 0.0],
+        );
         let mut sink = crate::Collect(Vec::new());
-        let outcome = make(&board, "coded", &mut sink);
-        assert!(outcome.is_success(), "{:?}", outcome.error());
-        let dots = (board.cols * board.rows) as usize;
-        let text = |n: &str| {
-            let a = sink.0.iter().find(|a| a.name == n).unwrap();
-            String::from_utf8(a.bytes.clone()).unwrap()
-        };
-        assert_eq!(text("coded.svg").matches("<circle").count(), dots);
-        assert_eq!(text("coded.dxf").matches("\nCIRCLE\n").count(), dots);
-        let pdf = &sink.0.iter().find(|a| a.name == "coded.pdf").unwrap().bytes;
-        let (page_pt, ops) = read_pdf(pdf);
-        // The page: the artwork and a pitch of margin each side, plus the caption.
-        let (lo, hi) = board.extent();
-        let m = board.pitch_mm;
-        let expect = [
-            (hi[0] - lo[0] + 2.0 * m) * 72.0 / 25.4,
-            (hi[1] - lo[1] + 2.0 * m + CAPTION_MM) * 72.0 / 25.4,
-        ];
-        assert!(
-            (page_pt[0] - expect[0]).abs() < 0.01,
-            "{page_pt:?} {expect:?}"
-        );
-        assert!(
-            (page_pt[1] - expect[1]).abs() < 0.01,
-            "{page_pt:?} {expect:?}"
-        );
-        // One closed path of four curves per dot.
-        assert_eq!(ops.iter().filter(|l| l.ends_with(" m")).count(), dots);
-        assert_eq!(ops.iter().filter(|l| l.ends_with(" c")).count(), 4 * dots);
-        // The first dot, (0, 0), starts at its right edge, in mm from the page's corner.
-        let first = ops.iter().find(|l| l.ends_with(" m")).unwrap();
-        let xy: Vec<f64> = first
-            .split(' ')
-            .take(2)
-            .map(|v| v.parse().unwrap())
-            .collect();
-        let c = board.nominal_xy(0, 0);
-        let r = board.dot_diameter_at(0, 0) / 2.0;
-        assert!((xy[0] - (c[0] - (lo[0] - m) + r)).abs() < 1e-4, "{first}");
-        assert!(
-            (xy[1] - (c[1] - (lo[1] - m) + CAPTION_MM)).abs() < 1e-4,
-            "{first}"
-        );
-        // Two dot sizes on a coded board.
-        let radii: std::collections::BTreeSet<String> = text("coded.svg")
-            .split(" r=\"")
-            .skip(1)
-            .map(|r| r.split('"').next().unwrap().to_string())
-            .collect();
-        assert_eq!(radii.len(), 2, "{radii:?}");
-        let csv = text("coded.certificate-template.csv");
-        assert_eq!(
-            csv.lines().filter(|l| !l.starts_with('#')).count(),
-            dots + 1
-        );
+        let outcome = make(&b, "huge", &mut sink);
+        let e = outcome.error().unwrap_or_default().to_string();
+        assert!(e.contains("certificate template"), "{e}");
+        assert!(sink.0.is_empty());
     }
 }

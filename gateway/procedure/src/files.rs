@@ -182,7 +182,8 @@ impl Context for Files<'_> {
         let path = crate::reference::reference_path(map);
         let inputs: Vec<&Path> = self.inputs.iter().map(PathBuf::as_path).collect();
         let text = crate::reference::record_json(record);
-        protocol::config::write_output(&path, text.as_bytes(), &inputs)
+        // The record replaces the one read before (never a link to another file read).
+        protocol::config::replace_output(&path, text.as_bytes(), &inputs)
             .map_err(|e| ContextError::Files(format!("writing {}: {e}", path.display())))?;
         Ok(path.display().to_string())
     }

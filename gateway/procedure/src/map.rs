@@ -211,7 +211,8 @@ impl ScanJournal for FileJournal {
     ) -> Result<Vec<(usize, Sample)>, String> {
         let shown = self.path.display();
         let write = |bytes: &[u8]| {
-            protocol::config::write_output(&self.path, bytes, &[])
+            // The journal replaces the one it read (never a link to another file read).
+            protocol::config::replace_output(&self.path, bytes, &[])
                 .map_err(|e| format!("writing {shown}: {e}"))
         };
         let samples = match read_journal(&self.path, plan) {

@@ -35,6 +35,8 @@ pub fn reference_path(map: &Path) -> PathBuf {
 
 /// A record's text parsed and checked; `what` names it in errors.
 pub fn parse_record(text: &str, what: &str) -> Result<MapReference, String> {
+    // A byte-order mark is dropped, as every other reader does.
+    let text = text.strip_prefix('\u{FEFF}').unwrap_or(text);
     let r: MapReference =
         serde_json::from_str(text).map_err(|e| format!("{what}: not a reference record: {e}"))?;
     r.check().map_err(|e| format!("{what}: {e}"))?;
@@ -102,7 +104,9 @@ pub fn apply(map: ErrorMap, choice: &Choice, now: SystemTime) -> Result<Applied,
     let (now_s, _) = at(now);
     Ok(match choice {
         Choice::Recorded(r) => Applied {
-            model: r.apply(model).map_err(|e| e.to_string())?,
+            model: r
+                .apply(model, now_s)
+                .map_err(|e| format!("the map's reference record: {e}"))?,
             describe: r.describe(now_s),
             warning: None,
             json: json!({

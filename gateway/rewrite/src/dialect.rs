@@ -97,8 +97,10 @@ mod tests {
     /// The refusals both rewriters share, on three axes and on six.
     #[test]
     fn what_grbl_refuses_is_refused_naming_the_line() {
-        let cases: [(&str, &str); 6] = [
+        let cases: [(&str, &str); 7] = [
             ("G1 X1 X2 F100", "error:25"),
+            // R and offsets in one arc: GRBL 1.1h leaves I/J/K unused (issue 38).
+            ("G2 X60 Y50 I5 J5 R50 F600", "error:36"),
             ("G0 X1e308", "error:2"),
             ("G1 X1 F0", "error:22"),
             ("G1 X1 Q5 F100", "error:20"),

@@ -269,6 +269,16 @@ fn refuses_what_the_controller_would_refuse_naming_the_line() {
     );
     let err = rewrite("G0 X10 Y10\nG93 G1 X20 F2\n").unwrap_err();
     assert!(matches!(err.kind, RewriteErrorKind::InverseTime), "{err}");
+    // Issue 38: an arc with R and I/J was rewritten as the R arc; GRBL 1.1h answers
+    // error:36 (unused words), checked on the firmware.
+    let err = rewrite("G0 X40 Y40\nG2 X60 Y50 I5 J5 R50 F600\n").unwrap_err();
+    assert_eq!(err.line, 2);
+    assert!(
+        matches!(err.kind, RewriteErrorKind::Refused { code: 36 }),
+        "{err}"
+    );
+    // With offsets GRBL takes I, J and K alike: a K in G17 is no unused word.
+    rewrite("G0 X40 Y40\nG17 G2 X60 Y40 I10 K3 F600\n").unwrap();
 }
 
 #[test]

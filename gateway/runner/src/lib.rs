@@ -520,7 +520,8 @@ mod tests {
     fn coded_job(lost_mm: f64) -> Job {
         let mut job = Job::demo();
         // The coded board of config/boards/coded-0.5mm.toml (the same grid, seed 28).
-        job.board.set_code(28, [0.2, 0.3]);
+        job.board
+            .set_code(protocol::board_code::CodeScheme::Additive, 28, [0.2, 0.3]);
         job.home = false;
         // Inside the travel by more than the largest loss: the controller's own soft
         // limits still bound the re-referenced commands.

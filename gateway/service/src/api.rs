@@ -1201,8 +1201,9 @@ async fn diff(
         let d = errormap::diff::compare(&as_map(&old, against)?, &as_map(&new, version)?)
             .map_err(|e| ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, "not_comparable", e))?;
         answer["summary"] = json!(format!(
-            "v{against} -> v{version}: the errors moved by at most {:.2} µm (rms {:.2} µm over {} nodes), most at X {:.1} Y {:.1} mm{}",
-            d.max_um, d.rms_um, d.nodes, d.max_at_mm[0], d.max_at_mm[1],
+            "v{against} -> v{version}: the compensated tool point moves by at most {:.2} µm (rms {:.2} µm over {} points, both approaches of each axis), most at X {:.1} Y {:.1} mm ({}); dense lines {:.2} µm, yaw {:.1} µrad, backlash {:.2} µm, squareness {:+.1} µrad{}",
+            d.max_um, d.rms_um, d.nodes, d.max_at_mm[0], d.max_at_mm[1], d.max_approach,
+            d.lines_max_um, d.yaw_max_urad, d.backlash_max_um, d.squareness_change_urad,
             if d.identity_changed.is_empty() { String::new() }
             else { format!("; identity changed: {}", d.identity_changed.join(", ")) }
         ));

@@ -192,6 +192,12 @@ pub fn reference_record(data: &[u8]) {
         assert!(v.is_finite(), "{v}");
     }
     assert!(r.shift_um[0].hypot(r.shift_um[1]) <= errormap::reference::MAX_SHIFT_UM);
+    // Issue 38: a count that would wrap, seen errors of 1e308, two times that disagree.
+    assert!((1..=errormap::reference::MAX_REFERENCE_COUNT).contains(&r.reference_count));
+    assert!(r
+        .seen_um
+        .iter()
+        .all(|v| v.abs() <= errormap::reference::MAX_SEEN_UM));
     let again = serde_json::to_string(&r).expect("a record serializes");
     procedure::reference::parse_record(&again, "again").expect("a written record reads back");
 }

@@ -389,7 +389,13 @@ mod tests {
 
     #[test]
     fn every_orientation_is_found_and_named() {
-        let code = BoardCode::generate(28, [0.2, 0.3], 421, 321);
+        let code = BoardCode::generate(
+            protocol::board_code::CodeScheme::Additive,
+            28,
+            [0.2, 0.3],
+            421,
+            321,
+        );
         for (k, axes) in ORIENTATIONS.iter().enumerate() {
             let at = [17 + 40 * k as i64, 300 - 30 * k as i64];
             let obs = view(&code, *axes, at, [4, 3]);
@@ -405,7 +411,13 @@ mod tests {
 
     #[test]
     fn misread_dots_are_outvoted_and_too_many_refused() {
-        let code = BoardCode::generate(28, [0.2, 0.3], 421, 321);
+        let code = BoardCode::generate(
+            protocol::board_code::CodeScheme::Additive,
+            28,
+            [0.2, 0.3],
+            421,
+            321,
+        );
         let axes = ORIENTATIONS[0];
         let mut obs = view(&code, axes, [200, 100], [4, 3]);
         for k in [3, 20, 41] {

@@ -21,7 +21,7 @@ fn coded_board() -> Board {
         321,
         [0.0, 0.0],
     );
-    b.set_code(28, [0.2, 0.3]);
+    b.set_code(protocol::board_code::CodeScheme::Additive, 28, [0.2, 0.3]);
     b
 }
 
@@ -154,5 +154,47 @@ fn damaged_dots_are_outvoted_or_the_frame_refused_never_misread() {
     match localize(&f.image, &b, &absolute()) {
         Ok(o) => assert!(err_um(&o, truth) < 0.5, "misread {o:?}"),
         Err(e) => assert!(matches!(e, LocalizeError::CodeUnreadable { .. }), "{e}"),
+    }
+}
+
+fn board_of(scheme: protocol::board_code::CodeScheme, seed: u64) -> Board {
+    let mut b = Board::nominal(
+        "coded",
+        0.5,
+        0.25,
+        Polarity::DarkOnLight,
+        421,
+        321,
+        [0.0, 0.0],
+    );
+    b.set_code(scheme, seed, [0.2, 0.3]);
+    b
+}
+
+/// Issue 38: boards numbered by consecutive seeds. In the first scheme a frame of the
+/// seed-29 board reads on the seed-28 board's file one pitch off, accepted (why the
+/// scheme changed); in the keyed scheme it is refused.
+#[test]
+fn a_frame_of_another_board_is_refused_on_keyed_boards() {
+    use protocol::board_code::CodeScheme;
+    let cam = camera(1280, 1024, 0.8, 1.0, 2.0, 0.8);
+    let truth = [107.77, 41.05];
+    for (scheme, refused) in [(CodeScheme::Additive, false), (CodeScheme::Keyed, true)] {
+        let (ours, theirs) = (board_of(scheme, 28), board_of(scheme, 29));
+        let f = render(&theirs, &cam, &pose(truth), 9);
+        // The frame reads on its own board.
+        let o = localize(&f.image, &theirs, &absolute()).unwrap();
+        assert!(err_um(&o, truth) <= 0.06, "{scheme:?}: {o:?}");
+        match localize(&f.image, &ours, &absolute()) {
+            Err(e) => {
+                assert!(refused, "{scheme:?}: {e}");
+                assert!(matches!(e, LocalizeError::CodeUnreadable { .. }), "{e}");
+            }
+            Ok(o) => {
+                assert!(!refused, "{scheme:?}: another board's frame read as {o:?}");
+                // One column over: 0.5 mm off, and accepted.
+                assert!((err_um(&o, truth) - 500.0).abs() < 1.0, "{o:?}");
+            }
+        }
     }
 }

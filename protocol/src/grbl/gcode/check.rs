@@ -292,8 +292,9 @@ impl<const N: usize> Interpreter<N> {
         }
     }
 
-    /// G2/G3: the centre offset from the R word or the IJK words, whichever the block
-    /// gives (R wins), taking the words it uses.
+    /// G2/G3: the centre offset from the R word or the IJK words, taking the words it
+    /// uses, as GRBL 1.1h does (gcode.c): with R the I/J/K words stay unused, so a block
+    /// with both is error:36; with offsets all of I, J and K are taken (a K in G17 too).
     fn arc_offset(
         &self,
         block: &mut BlockWords,
@@ -314,11 +315,12 @@ impl<const N: usize> Interpreter<N> {
         );
         let clockwise = block.modal.motion == Motion::ArcCw;
         let (o0, o1) = match v.r.take() {
-            Some(r) => {
+            Some(r) => arc_offset_from_radius(chord, r * unit, clockwise)?,
+            None => {
+                let offsets = arc_offset_from_ijk(v, axes, chord, unit);
                 v.ijk = [None; 3];
-                arc_offset_from_radius(chord, r * unit, clockwise)?
+                offsets?
             }
-            None => arc_offset_from_ijk(v, axes, chord, unit)?,
         };
         let mut offset = [0.0; N];
         offset[a0] = o0;
