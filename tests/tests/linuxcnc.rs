@@ -580,3 +580,46 @@ fn exported_comp_tables_are_applied_by_linuxcnc_as_the_map_says() {
         interpolation_um(1)
     );
 }
+
+/// The demo job with its stage on the real LinuxCNC and the simulated stage following
+/// LinuxCNC's joint motor commands (the demo's C5 machine, the simulated camera on it).
+fn demo_on_linuxcnc() -> job::Job {
+    let mut job = job::Job::demo();
+    let job::StageSpec::Sim { machine } = &job.stage else {
+        unreachable!("the demo simulates its stage")
+    };
+    let (tx, ty) = (machine.axes.x.travel_mm, machine.axes.y.travel_mm);
+    let limit = |a: Axis, joint: u8, travel: f64| LinuxcncAxis {
+        axis: a,
+        joint,
+        min_mm: 0.0,
+        max_mm: travel,
+        max_feed_mm_min: 6000.0,
+    };
+    job.stage = job::StageSpec::Linuxcnc(job::linuxcnc::LinuxcncStageSpec {
+        address: ADDRESS.into(),
+        options: LinuxcncOptions::default(),
+        axes: vec![limit(Axis::X, 0, tx), limit(Axis::Y, 1, ty)],
+        follow: Some(Box::new(machine.clone())),
+    });
+    job
+}
+
+#[test]
+fn the_demo_job_on_linuxcnc_compensates_every_target_like_on_grbl() {
+    let job = demo_on_linuxcnc();
+    let _one = lock();
+    let _peer = Peer::start("x.ini");
+    let rt = system_tests::runtime_two_workers();
+    let report = rt.block_on(async {
+        let mut devices = devices::open_devices_async(&job).await.expect("opens");
+        assert!(devices.rig.is_some(), "the rig follows LinuxCNC");
+        runner::run_job(&job, &mut devices, &mut |_, _| {}).await
+    });
+    system_tests::assert_demo_figure(&report, 20.0);
+    eprintln!("demo on LinuxCNC:\n{}", report.to_text());
+    // The figure: all 30 targets within 0.5 um of the truth.
+    assert_eq!(report.targets, 30);
+    let after = report.after_um.unwrap();
+    assert!(after.max <= 0.5, "compensated max {} um", after.max);
+}

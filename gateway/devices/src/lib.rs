@@ -14,6 +14,7 @@ mod cutter;
 mod emulated;
 mod error;
 mod grbl;
+mod linuxcnc;
 mod modbus;
 mod rotary;
 
@@ -65,15 +66,7 @@ pub async fn open_devices_async(job: &Job) -> Result<Devices, OpenError> {
         StageSpec::Grbl { link, baud } => grbl::open(job, link, *baud).await?,
         StageSpec::Modbus(spec) => modbus::open(job, spec).await?,
         StageSpec::Canopen(spec) => canopen::open(job, spec).await?,
-        StageSpec::Linuxcnc(spec) => (
-            drivers::open_stage(&drivers::StageLink::Linuxcnc {
-                address: spec.address.clone(),
-                options: spec.options.clone(),
-                axes: spec.axes.clone(),
-            })
-            .await?,
-            None,
-        ),
+        StageSpec::Linuxcnc(spec) => linuxcnc::open(job, spec).await?,
     };
     let camera = open_camera(&job.camera, rig.as_ref()).await?;
     Ok(Devices { stage, camera, rig })

@@ -204,7 +204,7 @@ impl StageSpec {
             StageSpec::Canopen(spec) => {
                 matches!(spec.link, crate::canopen::CanopenLink::Emulate { .. })
             }
-            StageSpec::Linuxcnc(_) => false,
+            StageSpec::Linuxcnc(spec) => spec.follow.is_some(),
         }
     }
 }

@@ -13,6 +13,8 @@
 //!   { axis = "y", joint = 1, min_mm = 0.0, max_mm = 150.0, max_feed_mm_min = 6000.0 },
 //! ]
 //! timeout_ms = 5000                   # one command; motion_timeout_s = 120 for a move
+//! # follow = "../machines/c5-stage.toml"  # tests and demos: the simulated stage follows
+//! #   LinuxCNC's joint motor commands (LinuxCNC on this computer), the sim camera on it
 //! ```
 
 use link_spec::linuxcnc::{LinuxcncAxis, LinuxcncOptions};
@@ -20,6 +22,7 @@ use link_spec::Axis;
 use protocol::config::{ConfigDoc, ConfigError};
 use serde::Deserialize;
 use std::time::Duration;
+use world::machine::MachineConfig;
 
 /// `[stage]` with `driver = "linuxcnc"`, as written.
 #[derive(Deserialize, Debug)]
@@ -37,6 +40,7 @@ pub struct RawLinuxcncStage {
     timeout_ms: u64,
     #[serde(default = "default_motion_timeout_s")]
     motion_timeout_s: u64,
+    follow: Option<String>,
 }
 
 #[derive(Deserialize, Debug)]
@@ -72,6 +76,9 @@ pub struct LinuxcncStageSpec {
     pub address: String,
     pub options: LinuxcncOptions,
     pub axes: Vec<LinuxcncAxis>,
+    /// The simulated machine that follows LinuxCNC's joint motor commands (a test or
+    /// demo rig: LinuxCNC runs on this computer), for the simulated camera.
+    pub follow: Option<Box<MachineConfig>>,
 }
 
 fn password(doc: &ConfigDoc, key: &str, value: &str) -> Result<(), ConfigError> {
@@ -151,7 +158,14 @@ pub fn resolve(doc: &ConfigDoc, raw: RawLinuxcncStage) -> Result<LinuxcncStageSp
     } else {
         format!("{}:{}", raw.host, raw.port)
     };
+    let follow = match &raw.follow {
+        Some(rel) => Some(Box::new(MachineConfig::from_doc(
+            &doc.read_relative("stage.follow", rel)?,
+        )?)),
+        None => None,
+    };
     Ok(LinuxcncStageSpec {
+        follow,
         address,
         options: LinuxcncOptions {
             connect_password: raw.connect_password,
