@@ -575,9 +575,11 @@ fn exported_comp_tables_are_applied_by_linuxcnc_as_the_map_says() {
         }
     });
     eprintln!(
-        "LinuxCNC COMP_FILE check: {checked} joint positions; applied trim vs table worst {worst_table_um:.5} um; vs the map at table points {worst_point_um:.5} um, between points {worst_between_um:.5} um (exporter's interpolation figure X {:.4} um, Y {:.4} um)",
+        "LinuxCNC COMP_FILE check: {checked} joint positions; applied trim vs table worst {worst_table_um:.5} um; vs the map at table points {worst_point_um:.5} um, between points {worst_between_um:.5} um (exporter's interpolation figure X {:.4} um, Y {:.4} um; cross-axis terms the tables cannot hold: X {:.3} um, Y {:.3} um)",
         interpolation_um(0),
-        interpolation_um(1)
+        interpolation_um(1),
+        result["tables"][0]["cross_terms_not_held_um"],
+        result["tables"][1]["cross_terms_not_held_um"],
     );
 }
 

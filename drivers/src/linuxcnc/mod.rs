@@ -710,6 +710,10 @@ impl Stage for LinuxcncStage {
                 quoted(&l.text)
             )));
         }
+        // Give control up again (the closed socket's number must not keep it).
+        let _ = other
+            .exchange("set enable off", self.opts.command_timeout)
+            .await;
         drop(other);
         self.enabled = false;
         // The move's reply comes now that its motion ended; then the errors the abort
