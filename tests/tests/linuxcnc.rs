@@ -583,27 +583,19 @@ fn exported_comp_tables_are_applied_by_linuxcnc_as_the_map_says() {
     );
 }
 
-/// The demo job with its stage on the real LinuxCNC and the simulated stage following
-/// LinuxCNC's joint motor commands (the demo's C5 machine, the simulated camera on it).
+/// `config/gateway/linuxcnc-demo.toml`: the demo job with its stage on the real
+/// LinuxCNC and the simulated stage following LinuxCNC's joint motor commands (the
+/// demo's C5 machine, the simulated camera on it).
 fn demo_on_linuxcnc() -> job::Job {
-    let mut job = job::Job::demo();
-    let job::StageSpec::Sim { machine } = &job.stage else {
-        unreachable!("the demo simulates its stage")
+    let job = job::Job::load(&system_tests::config_dir().join("gateway/linuxcnc-demo.toml"))
+        .expect("the LinuxCNC demo job loads");
+    let job::StageSpec::Linuxcnc(spec) = &job.stage else {
+        panic!("a linuxcnc stage")
     };
-    let (tx, ty) = (machine.axes.x.travel_mm, machine.axes.y.travel_mm);
-    let limit = |a: Axis, joint: u8, travel: f64| LinuxcncAxis {
-        axis: a,
-        joint,
-        min_mm: 0.0,
-        max_mm: travel,
-        max_feed_mm_min: 6000.0,
-    };
-    job.stage = job::StageSpec::Linuxcnc(job::linuxcnc::LinuxcncStageSpec {
-        address: ADDRESS.into(),
-        options: LinuxcncOptions::default(),
-        axes: vec![limit(Axis::X, 0, tx), limit(Axis::Y, 1, ty)],
-        follow: Some(Box::new(machine.clone())),
-    });
+    assert_eq!(spec.address, ADDRESS);
+    assert!(spec.follow.is_some() && job.stage.is_simulated());
+    // The same targets as the demo's.
+    assert_eq!(job.targets, job::Job::demo().targets);
     job
 }
 
