@@ -3,6 +3,14 @@
 //! compensation and backlash correction), read at full precision from HAL through
 //! Debian's python3 `hal` module (`halcmd` prints 7 significant digits only).
 //!
+//! Homing: a LinuxCNC without home switches (the test peer's `HOME_SEARCH_VEL = 0`)
+//! declares the current position home and keeps the motor where it is by setting
+//! `joint.N.motor-offset`; the simulated machine homes to its own switch at the same
+//! moment. So the simulated machine's command is `motor-pos-cmd - motor-offset`: the
+//! motor command measured from where LinuxCNC last homed, which is the simulated
+//! home. Worked example: homed again at X 50, LinuxCNC says X 0, `motor-offset` 50,
+//! `motor-pos-cmd` 50.000012 (a 12 nm trim): the simulated X is commanded to 0.000012.
+//!
 //! The follower is told when to follow (after each move has ended, after homing), so
 //! the simulated machine moves once per LinuxCNC move, along the same direction: its
 //! backlash and every other simulated error act as on a stage driven by that motor
@@ -17,10 +25,11 @@ use world::{lock, SharedRig};
 pub const HAL_PYTHON: &str = "/usr/bin/python3";
 
 /// Per request line (the joint numbers), once each joint's backlash filter has reached
-/// its correction (the motor command has settled), `motor-pos-cmd` of those joints.
+/// its correction (the motor command has settled), `motor-pos-cmd - motor-offset` of
+/// those joints.
 const READER: &str = r#"
-import hal, sys, time
-c = hal.component("xygw_rig_follower")
+import hal, os, sys, time
+c = hal.component("xygw_rig_follower_%d" % os.getpid())
 g = hal.get_value
 for line in sys.stdin:
     joints = [int(j) for j in line.split()]
@@ -28,14 +37,15 @@ for line in sys.stdin:
         if all(g("joint.%d.backlash-filt" % j) == g("joint.%d.backlash-corr" % j) for j in joints):
             break
         time.sleep(0.001)
-    print(" ".join(repr(g("joint.%d.motor-pos-cmd" % j)) for j in joints), flush=True)
+    print(" ".join(repr(g("joint.%d.motor-pos-cmd" % j) - g("joint.%d.motor-offset" % j)) for j in joints), flush=True)
 c.exit()
 "#;
 
 /// HAL's joint pins of the LinuxCNC running on this computer.
 pub struct HalJoints {
     child: Child,
-    stdin: ChildStdin,
+    /// Closed on drop: the reader then removes its HAL component and ends.
+    stdin: Option<ChildStdin>,
     stdout: BufReader<ChildStdout>,
 }
 
@@ -67,16 +77,21 @@ impl HalJoints {
         );
         Ok(HalJoints {
             child,
-            stdin,
+            stdin: Some(stdin),
             stdout,
         })
     }
 
-    /// `joint.N.motor-pos-cmd` of `joints`, settled, in machine units.
+    /// `joint.N.motor-pos-cmd - joint.N.motor-offset` of `joints`, settled, in machine
+    /// units: the motor command from where LinuxCNC last homed.
     pub fn motor_pos_cmd(&mut self, joints: &[u8]) -> std::io::Result<Vec<f64>> {
         let request: Vec<String> = joints.iter().map(|j| j.to_string()).collect();
-        writeln!(self.stdin, "{}", request.join(" "))?;
-        self.stdin.flush()?;
+        let stdin = self
+            .stdin
+            .as_mut()
+            .ok_or_else(|| io_error("the HAL reader is closed".into()))?;
+        writeln!(stdin, "{}", request.join(" "))?;
+        stdin.flush()?;
         let mut line = String::new();
         // Bounded: one short line (a few numbers) per request.
         if self.stdout.read_line(&mut line)? == 0 {
@@ -100,6 +115,15 @@ impl HalJoints {
 
 impl Drop for HalJoints {
     fn drop(&mut self) {
+        // End of input: the reader leaves HAL cleanly (`c.exit()`); a killed one would
+        // leave its component behind. Killed only if it has not ended within 2 s.
+        drop(self.stdin.take());
+        for _ in 0..200 {
+            if let Ok(Some(_)) = self.child.try_wait() {
+                return;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(10));
+        }
         let _ = self.child.kill();
         let _ = self.child.wait();
     }

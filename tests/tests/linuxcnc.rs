@@ -339,8 +339,8 @@ struct Hal {
 }
 
 const HAL_READER: &str = r#"
-import hal, sys, time
-c = hal.component("xygw_comp_check")
+import hal, os, sys, time
+c = hal.component("xygw_comp_check_%d" % os.getpid())
 g = hal.get_value
 for _ in sys.stdin:
     for _ in range(5000):
@@ -616,4 +616,116 @@ fn the_demo_job_on_linuxcnc_compensates_every_target_like_on_grbl() {
     assert_eq!(report.targets, 30);
     let after = report.after_um.unwrap();
     assert!(after.max <= 0.5, "compensated max {} um", after.max);
+}
+
+/// The LinuxCNC demo job with a small camera window (fast in a debug build) and no
+/// thermal drift (the map's spatial model only).
+fn small_job_on_linuxcnc() -> job::Job {
+    let mut job = demo_on_linuxcnc();
+    let job::CameraSpec::Sim { model } = &mut job.camera else {
+        unreachable!("the demo job simulates its camera")
+    };
+    model.width = 480;
+    model.height = 384;
+    job.localize.min_points = 8;
+    let job::StageSpec::Linuxcnc(spec) = &mut job.stage else {
+        unreachable!("a linuxcnc stage")
+    };
+    if let Some(machine) = &mut spec.follow {
+        machine.thermal = None;
+    }
+    job
+}
+
+#[test]
+fn a_map_scanned_through_linuxcnc_improves_its_iso230_figures() {
+    use errormap::scan::{MapBuilder, ScanPlan, ScanSpec};
+    use iso230::plan::{targets, Cycle, CycleKind};
+    use runner::iso230::{run_iso230, Iso230Spec};
+
+    let job = small_job_on_linuxcnc();
+    let _one = lock();
+    let _peer = Peer::start("x.ini");
+    let rt = system_tests::runtime_two_workers();
+    let (before, after) = rt.block_on(async {
+        // A map over x 20 .. 50, y 35 .. 55 mm scanned through LinuxCNC: 10 mm grid, 1 mm
+        // lines (the screw's 5 mm pitch error needs them).
+        let mut devices = devices::open_devices_async(&job).await.unwrap();
+        let spec = ScanSpec {
+            grid_step_mm: 10.0,
+            line_step_mm: 1.0,
+            passes: 1,
+        };
+        let plan = ScanPlan::new([20.0, 35.0], [50.0, 55.0], spec).unwrap();
+        let mut builder = MapBuilder::new();
+        let reference = runner::scan::run_scan(
+            &job,
+            &mut devices,
+            &plan,
+            &mut builder,
+            &mut |_, _| Ok(()),
+            &mut |_, _| {},
+            std::future::pending(),
+        )
+        .await
+        .expect("the scan runs through LinuxCNC");
+        drop(devices);
+        let id = Identity {
+            machine: "sim".into(),
+            controller: "linuxcnc".into(),
+            board: job.board.name.clone(),
+            certificate_sha256: job.board.fingerprint_sha256(),
+            camera: "c".into(),
+        };
+        let map = builder
+            .finish(
+                &plan,
+                id,
+                1,
+                "t".into(),
+                [0.0; 2],
+                job.board_at_machine_zero_mm,
+                reference.command_mm,
+            )
+            .unwrap();
+        let model = MapModel::new(map);
+        // ISO 230-2 along X (5 positions, 5 runs each way) without and with the map,
+        // each after a new homing of LinuxCNC.
+        let mut figures = Vec::new();
+        for map in [None, Some(&model)] {
+            let mut devices = devices::open_devices_async(&job).await.unwrap();
+            let spec = Iso230Spec {
+                axis: 0,
+                cycle: Cycle::new(
+                    targets(22.0, 48.0, None).unwrap(),
+                    5,
+                    1.0,
+                    CycleKind::Linear,
+                )
+                .unwrap(),
+                across_mm: plan.x_line_at,
+                still_frames: 3,
+            };
+            let run = run_iso230(
+                &job,
+                &mut devices,
+                &spec,
+                map,
+                &mut |_| {},
+                &mut |_, _| {},
+                std::future::pending(),
+            )
+            .await
+            .expect("the ISO 230-2 cycle runs through LinuxCNC");
+            assert_eq!(run.measurements.len(), 50);
+            figures.push(iso230::evaluate(&run.measurements).unwrap().figures);
+        }
+        (figures[0], figures[1])
+    });
+    eprintln!("ISO 230-2 through LinuxCNC, X 22..48 mm:\nbefore {before:?}\nafter  {after:?}");
+    // As on the in-process stage (tests/tests/iso230.rs): A, B and E to a fifth at most.
+    assert!(before.a > 5.0 && before.b > 2.0, "{before:?}");
+    assert!(after.a < 0.2 * before.a, "A {} -> {}", before.a, after.a);
+    assert!(after.b < 0.2 * before.b, "B {} -> {}", before.b, after.b);
+    assert!(after.e < 0.2 * before.e, "E {} -> {}", before.e, after.e);
 }

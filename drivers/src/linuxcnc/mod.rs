@@ -12,8 +12,10 @@
 //!   later, through its error channel. After every command `get error` is polled until
 //!   `ERROR OK`, and what it said becomes [`DriverError::InvalidState`] quoting LinuxCNC
 //!   (for example `Linear move on line 0 would exceed X's positive limit`).
-//! * Home: `set mode manual`, `set home -1` (all joints, in the INI's
-//!   `HOME_SEQUENCE`), then `get joint_homed` polled until the driven joints say `YES`.
+//! * Home: `set mode manual`, `set teleop_enable off` if on (a homed LinuxCNC runs in
+//!   world mode and homes only in joint mode), `set home -1` (all joints, in the INI's
+//!   `HOME_SEQUENCE`), then `get joint_homed` polled until the driven joints say `YES`
+//!   (a re-homing clears them as it starts).
 //! * Move: `set mode mdi`, then one block `G21 G90 G53 G1 X.. Y.. F..`: millimetres,
 //!   absolute, in machine coordinates whatever the work offsets (G53), at the feed
 //!   asked. `G21` and `G90` stay in effect afterwards (they are modal in LinuxCNC too).
@@ -624,6 +626,13 @@ impl Stage for LinuxcncStage {
 
     async fn home(&mut self) -> Result<(), DriverError> {
         self.mode("manual").await?;
+        // Once homed, LinuxCNC runs in world (teleop) mode, and homes only in joint
+        // mode ("must be in joint mode to home").
+        if self.get_word("get teleop_enable", "TELEOP_ENABLE").await? == "YES" {
+            self.set("set teleop_enable off").await?;
+            self.confirm("get teleop_enable", "TELEOP_ENABLE", "NO")
+                .await?;
+        }
         self.set("set home -1").await?;
         let deadline = Instant::now() + self.opts.motion_timeout;
         loop {
