@@ -729,3 +729,109 @@ fn a_map_scanned_through_linuxcnc_improves_its_iso230_figures() {
     assert!(after.b < 0.2 * before.b, "B {} -> {}", before.b, after.b);
     assert!(after.e < 0.2 * before.e, "E {} -> {}", before.e, after.e);
 }
+
+/// Held-out points at rest, LinuxCNC without and with the exported tables, the rig
+/// following it: the true error of the tool (the camera's centre on the board) at each,
+/// approached from below. What the tables take out, and what they cannot (the part of
+/// each axis's error that depends on the other axis).
+#[test]
+fn held_out_points_with_linuxcnc_tables_only_and_uncompensated() {
+    let machine = world::machine::MachineConfig::load(
+        &system_tests::config_dir().join("machines/c5-stage.toml"),
+    )
+    .unwrap();
+    let mut machine = machine;
+    machine.thermal = None;
+    let id = Identity {
+        machine: "sim".into(),
+        controller: "linuxcnc".into(),
+        board: "dot-grid-0.5mm".into(),
+        certificate_sha256: String::new(),
+        camera: "sim".into(),
+    };
+    let map = map_from_truth(&machine, id);
+    let mut request = ExportRequest::new(ExportFormat::Linuxcnc);
+    request.name = "comp.txt".into();
+    let mut sink = procedure::Collect(Vec::new());
+    procedure::export::run(&request, map, &mut sink);
+    assert_eq!(sink.0.len(), 2);
+    let src = tempfile::tempdir().unwrap();
+    let ini = std::fs::read_to_string(peers().join("x.ini")).unwrap();
+    let ini = ini
+        .replace(
+            "[JOINT_0]\n",
+            "[JOINT_0]\nCOMP_FILE = comp_x.txt\nCOMP_FILE_TYPE = 0\n",
+        )
+        .replace(
+            "[JOINT_1]\n",
+            "[JOINT_1]\nCOMP_FILE = comp_y.txt\nCOMP_FILE_TYPE = 0\n",
+        );
+    std::fs::write(src.path().join("comp.ini"), ini).unwrap();
+    for f in ["x.hal", "sim.tbl"] {
+        std::fs::copy(peers().join(f), src.path().join(f)).unwrap();
+    }
+    std::fs::write(src.path().join("comp_x.txt"), &sink.0[0].bytes).unwrap();
+    std::fs::write(src.path().join("comp_y.txt"), &sink.0[1].bytes).unwrap();
+
+    let mut job = small_job_on_linuxcnc();
+    if let job::StageSpec::Linuxcnc(spec) = &mut job.stage {
+        spec.follow = Some(Box::new(machine.clone()));
+    }
+    let zero = machine.machine.board_at_home_mm;
+    // Held out: off the map's nodes and the tables' entries, over the travel.
+    let points: Vec<[f64; 2]> = (0..5)
+        .flat_map(|i| (0..4).map(move |j| [13.3 + 43.1 * i as f64, 11.7 + 41.9 * j as f64]))
+        .collect();
+    let _one = lock();
+    let rt = system_tests::runtime_two_workers();
+    let mut figures = Vec::new();
+    for ini in [
+        "x.ini".to_string(),
+        src.path().join("comp.ini").display().to_string(),
+    ] {
+        let _peer = Peer::start(&ini);
+        let errors: Vec<[f64; 2]> = rt.block_on(async {
+            let mut devices = devices::open_devices_async(&job).await.unwrap();
+            devices.stage.home().await.unwrap();
+            let rig = devices.rig.clone().unwrap();
+            let mut errors = Vec::new();
+            for p in &points {
+                for q in [[p[0] - 0.5, p[1] - 0.5], *p] {
+                    devices
+                        .stage
+                        .move_to(AxisValues::xy(q[0], q[1]), 3000.0)
+                        .await
+                        .unwrap();
+                }
+                let pose = world::lock(&rig).truth();
+                errors.push([
+                    (pose.centre_mm[0] - p[0] - zero[0]) * 1000.0,
+                    (pose.centre_mm[1] - p[1] - zero[1]) * 1000.0,
+                ]);
+            }
+            errors
+        });
+        let worst = |f: &dyn Fn(&[f64; 2]) -> f64| errors.iter().map(f).fold(0.0f64, f64::max);
+        let rms = (errors
+            .iter()
+            .map(|e| e[0] * e[0] + e[1] * e[1])
+            .sum::<f64>()
+            / errors.len() as f64)
+            .sqrt();
+        figures.push((
+            worst(&|e| e[0].abs()),
+            worst(&|e| e[1].abs()),
+            worst(&|e| e[0].hypot(e[1])),
+            rms,
+        ));
+    }
+    let (u, t) = (figures[0], figures[1]);
+    eprintln!(
+        "{} held-out points at rest, true error (um): uncompensated X max {:.2}, Y max {:.2}, XY max {:.2}, rms {:.2}; LinuxCNC tables only X max {:.2}, Y max {:.2}, XY max {:.2}, rms {:.2}",
+        points.len(), u.0, u.1, u.2, u.3, t.0, t.1, t.2, t.3
+    );
+    // The tables take out the along-axis errors on their lines and part of the rest;
+    // the cross-axis terms they cannot hold remain.
+    assert!(t.3 < u.3, "rms {} -> {}", u.3, t.3);
+    assert!(t.2 < u.2, "max {} -> {}", u.2, t.2);
+}
