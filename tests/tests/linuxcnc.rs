@@ -331,7 +331,7 @@ fn stop_aborts_a_move_in_flight() {
 
 /// HAL's pins at full precision, through Debian's python3 `hal` module (halcmd prints 7
 /// significant digits): per request, once each joint's backlash filter has reached its
-/// correction, `pos-cmd` and `motor-pos-cmd` of joints 0 and 1.
+/// correction, `pos-cmd` and `motor-pos-cmd - motor-offset` of joints 0 and 1.
 struct Hal {
     child: Child,
     stdin: ChildStdin,
@@ -347,7 +347,8 @@ for _ in sys.stdin:
         if all(g("joint.%d.backlash-filt" % j) == g("joint.%d.backlash-corr" % j) for j in (0, 1)):
             break
         time.sleep(0.001)
-    print(" ".join(repr(g("joint.%d.%s" % (j, p))) for j in (0, 1) for p in ("pos-cmd", "motor-pos-cmd")), flush=True)
+    # the motor command less the homing offset (0 on a fresh start; kept exact anyway)
+    print(" ".join("%r %r" % (g("joint.%d.pos-cmd" % j), g("joint.%d.motor-pos-cmd" % j) - g("joint.%d.motor-offset" % j)) for j in (0, 1)), flush=True)
 c.exit()
 "#;
 
