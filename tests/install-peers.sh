@@ -3,7 +3,8 @@
 # test on a fresh machine (a test whose peer is missing fails naming this script):
 #   system packages (Debian/Ubuntu apt-get): Aravis 0.8 tools and development files,
 #     Mosquitto, headless Chromium, Node.js and npm, iproute2 and util-linux (network
-#     namespaces), socat, gcc, make and cmake (the real GRBL/grblHAL firmware builds);
+#     namespaces), socat, gcc, make and cmake (the real GRBL/grblHAL firmware builds),
+#     LinuxCNC 2.9 (linuxcnc-uspace, without its recommends);
 #   Python packages (pip, versions tested): pyserial, numpy, paho-mqtt, grpcio-tools,
 #     pymodbus, python-can, canopen;
 #   npm packages: CNCjs 1.11.5 (tests/interop/cncjs), playwright-core (tests/interop/web);
@@ -74,6 +75,16 @@ if [ ${#missing[@]} -gt 0 ]; then
   say "installing system packages: ${missing[*]}"
   as_root apt-get update -qq >/dev/null
   as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${missing[@]}" >/dev/null
+fi
+
+# LinuxCNC 2.9 (linuxcnc-uspace): the real controller of tests/tests/linuxcnc.rs, started
+# headless by ../shared/peers/linuxcnc/start.sh. --no-install-recommends: with its
+# recommends it pulls 1.3 GB, an RT kernel image among them (about 200 MB without).
+if ! have linuxcnc; then
+  have apt-get || die "LinuxCNC (linuxcnc-uspace) is missing and there is no apt-get to install it: install it by hand"
+  say "installing LinuxCNC (linuxcnc-uspace, without recommends)"
+  as_root apt-get update -qq >/dev/null
+  as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends linuxcnc-uspace >/dev/null
 fi
 
 # --- Python packages -------------------------------------------------------------------

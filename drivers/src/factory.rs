@@ -50,6 +50,13 @@ pub async fn open_stage(link: &StageLink) -> Result<Box<dyn Stage>, DriverError>
                 crate::canopen::open_stage(bus, axes.clone(), options.clone()).await?;
             Ok(Box::new(stage))
         }
+        StageLink::Linuxcnc {
+            address,
+            options,
+            axes,
+        } => Ok(Box::new(
+            crate::linuxcnc::LinuxcncStage::open(address, options.clone(), axes.clone()).await?,
+        )),
     }
 }
 

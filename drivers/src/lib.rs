@@ -20,6 +20,7 @@ pub mod error;
 mod factory;
 pub mod gige;
 pub mod grbl;
+pub mod linuxcnc;
 #[cfg(feature = "modbus")]
 pub mod modbus;
 pub mod multi_axis;

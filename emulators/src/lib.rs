@@ -10,6 +10,7 @@ pub mod canopen;
 pub mod cutter;
 pub mod gige;
 pub mod grbl;
+pub mod linuxcnc;
 pub mod modbus;
 pub mod pty;
 pub mod trace;

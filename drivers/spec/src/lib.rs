@@ -12,6 +12,7 @@ pub mod capabilities;
 pub mod gige;
 pub mod grbl;
 pub mod link;
+pub mod linuxcnc;
 pub mod modbus;
 
 pub use axis::Axis;

@@ -6,6 +6,7 @@ use crate::can::BusSpec;
 use crate::canopen::{AxisConfig, CanopenOptions};
 use crate::gige::GigeOptions;
 use crate::grbl::GrblOptions;
+use crate::linuxcnc::{LinuxcncAxis, LinuxcncOptions};
 use crate::modbus::{Endpoint, ModbusAxisConfig, ModbusOptions};
 use protocol::modbus::DriveProfile;
 use std::fmt;
@@ -35,6 +36,13 @@ pub enum StageLink {
         options: CanopenOptions,
         axes: Vec<AxisConfig>,
     },
+    /// A LinuxCNC machine through its text remote shell `linuxcncrsh` (TCP, default
+    /// port 5007): `address` is `host:port`.
+    Linuxcnc {
+        address: String,
+        options: LinuxcncOptions,
+        axes: Vec<LinuxcncAxis>,
+    },
 }
 
 impl fmt::Display for StageLink {
@@ -43,6 +51,7 @@ impl fmt::Display for StageLink {
             StageLink::Grbl { port, baud, .. } => write!(f, "GRBL at {port} @{baud}"),
             StageLink::Modbus { endpoint, .. } => write!(f, "{endpoint}"),
             StageLink::Canopen { bus, .. } => write!(f, "CANopen on {bus}"),
+            StageLink::Linuxcnc { address, .. } => write!(f, "LinuxCNC at {address}"),
         }
     }
 }

@@ -14,6 +14,7 @@ mod cutter;
 mod emulated;
 mod error;
 mod grbl;
+mod linuxcnc;
 mod modbus;
 mod rotary;
 
@@ -75,5 +76,6 @@ pub async fn open_stage_async(job: &Job) -> Result<OpenedStage, OpenError> {
         StageSpec::Grbl { link, baud } => grbl::open(job, link, *baud).await?,
         StageSpec::Modbus(spec) => modbus::open(job, spec).await?,
         StageSpec::Canopen(spec) => canopen::open(job, spec).await?,
+        StageSpec::Linuxcnc(spec) => linuxcnc::open(job, spec).await?,
     })
 }

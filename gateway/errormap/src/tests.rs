@@ -338,6 +338,13 @@ mod export_tables {
         let t = linuxcnc_joint(&linear(0.0), 0, 11, 0.5).unwrap();
         let lines: Vec<&str> = t.text.lines().collect();
         assert_eq!(lines.len(), 11);
+        // No header, no comment, no commas: three numbers on every line (anything else
+        // makes LinuxCNC load nothing, silently).
+        for l in &lines {
+            let w: Vec<&str> = l.split(' ').collect();
+            assert_eq!(w.len(), 3, "{l:?}");
+            assert!(w.iter().all(|v| v.parse::<f64>().is_ok()), "{l:?}");
+        }
         // At 50 mm: 5 um further going up, 3 um short going down.
         assert_eq!(lines[5], "50.000000 50.005000 49.997000");
         assert!(
@@ -377,6 +384,21 @@ mod export_tables {
         let e = linuxcnc_joint(&screw, 0, 256, 0.5).unwrap_err();
         assert!(matches!(e, ExportError::BeyondTolerance { .. }), "{e}");
         assert!(e.to_string().contains("at most 256"), "{e}");
+    }
+
+    #[test]
+    fn linuxcnc_refuses_nominals_that_would_not_increase_as_written() {
+        // 0.0002 mm of X in 256 entries: 6 decimals write several entries alike.
+        let tiny = MapModel::new(map_of(
+            vec![0.0, 0.0002],
+            vec![0.0, 10.0],
+            move |_, _, _| (0.0, 0.0, 0.0),
+        ));
+        let e = linuxcnc_joint(&tiny, 0, 256, 0.5).unwrap_err();
+        assert!(matches!(e, ExportError::Options(_)), "{e}");
+        assert!(e.to_string().contains("strictly increasing"), "{e}");
+        // Three entries over the same 0.0002 mm are written apart.
+        assert!(linuxcnc_joint(&tiny, 0, 3, 0.5).is_ok());
     }
 
     #[test]

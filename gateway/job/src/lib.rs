@@ -29,6 +29,7 @@
 pub mod camera;
 pub mod canopen;
 pub mod demo;
+pub mod linuxcnc;
 pub mod modbus;
 pub mod rotary;
 
@@ -108,6 +109,9 @@ enum RawStage {
     /// CiA 402 drives on CAN (SLCAN adapter or SocketCAN interface), one node per
     /// axis; or with `emulate` the drive emulator (see `canopen_stage`).
     Canopen(crate::canopen::RawCanopenStage),
+    /// A LinuxCNC machine through its text remote shell linuxcncrsh (see
+    /// module `linuxcnc`).
+    Linuxcnc(crate::linuxcnc::RawLinuxcncStage),
 }
 
 fn default_baud() -> u32 {
@@ -174,6 +178,8 @@ pub enum StageSpec {
     Modbus(crate::modbus::ModbusStageSpec),
     /// CANopen CiA 402 drives (SLCAN, SocketCAN, or the emulator on an SLCAN pty).
     Canopen(crate::canopen::CanopenStageSpec),
+    /// A LinuxCNC machine through linuxcncrsh (TCP).
+    Linuxcnc(crate::linuxcnc::LinuxcncStageSpec),
 }
 
 /// Where a GRBL controller is.
@@ -198,6 +204,7 @@ impl StageSpec {
             StageSpec::Canopen(spec) => {
                 matches!(spec.link, crate::canopen::CanopenLink::Emulate { .. })
             }
+            StageSpec::Linuxcnc(spec) => spec.follow.is_some(),
         }
     }
 }
@@ -268,6 +275,7 @@ impl Job {
             }
             RawStage::Modbus(raw) => StageSpec::Modbus(crate::modbus::resolve(doc, raw)?),
             RawStage::Canopen(raw) => StageSpec::Canopen(crate::canopen::resolve(doc, raw)?),
+            RawStage::Linuxcnc(raw) => StageSpec::Linuxcnc(crate::linuxcnc::resolve(doc, raw)?),
         };
         let camera = raw.camera.resolve(doc)?;
         let pixel_axes = match &raw.camera.pixel_axes {

@@ -32,6 +32,7 @@ pub fn describe(job: &Job) -> (String, String) {
         StageSpec::Grbl { .. } => "grbl".to_string(),
         StageSpec::Modbus(_) => "modbus".to_string(),
         StageSpec::Canopen(_) => "canopen".to_string(),
+        StageSpec::Linuxcnc(spec) => format!("linuxcnc:{}", spec.address),
     };
     let camera = match &job.camera {
         CameraSpec::Sim { .. } => "sim".to_string(),

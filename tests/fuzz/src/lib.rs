@@ -19,6 +19,7 @@ mod gige;
 mod grbl;
 mod iso230;
 mod layout;
+mod linuxcnc;
 mod media;
 mod modbus;
 mod nc;
@@ -37,6 +38,7 @@ pub use gige::{genicam_xml, gige_url, gige_zip, gvcp, gvsp};
 pub use grbl::{grbl_gcode, grbl_response};
 pub use iso230::iso230_csv;
 pub use layout::{layout_cut, layout_dxf, layout_json, layout_svg};
+pub use linuxcnc::linuxcnc_reply;
 pub use media::{localize, png_load};
 pub use modbus::modbus_frame;
 pub use nc::nc_program;
@@ -99,6 +101,7 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("program_lines", program_lines),
     ("gcode_dialect", gcode_dialect),
     ("reference_record", reference_record),
+    ("linuxcnc_reply", linuxcnc_reply),
 ];
 
 /// The fuzz crate's folder (corpora, regressions).

@@ -110,12 +110,27 @@ pub fn linuxcnc_joint(
         Ok(model.tool_error_um(point(s, t), dir(a))?[axis])
     };
     let nominal = sample(lo[axis], hi[axis], entries);
+    // LinuxCNC refuses a table whose nominals do not strictly increase (through its
+    // error channel, after loading nothing): check them as written, 6 decimals.
+    let written: Vec<String> = nominal.iter().map(|s| format!("{s:.6}")).collect();
+    if let Some(k) = written
+        .windows(2)
+        .position(|w| w[1].parse::<f64>().ok() <= w[0].parse::<f64>().ok())
+    {
+        return Err(ExportError::Options(format!(
+            "{entries} entries over {:.6} mm: entries {k} and {} are both written {} mm (LinuxCNC needs strictly increasing nominals at 1 nm): fewer entries",
+            hi[axis] - lo[axis],
+            k + 1,
+            written[k]
+        )));
+    }
+    // No header or comment line: LinuxCNC would silently load nothing.
     let mut text = String::new();
     let mut table = Vec::with_capacity(entries);
-    for &s in &nominal {
+    for (&s, w) in nominal.iter().zip(&written) {
         let f = s + error(s, at, Approach::Forward)? / 1000.0;
         let r = s + error(s, at, Approach::Reverse)? / 1000.0;
-        let _ = writeln!(text, "{s:.6} {f:.6} {r:.6}");
+        let _ = writeln!(text, "{w} {f:.6} {r:.6}");
         table.push((s, f, r));
     }
     // LinuxCNC's linear interpolation against the map, every 0.05 mm of the line.

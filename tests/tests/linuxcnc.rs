@@ -1,0 +1,838 @@
+//! The LinuxCNC stage driver against a real LinuxCNC 2.9 (`linuxcnc-uspace`, headless,
+//! `../shared/peers/linuxcnc`), and the gateway's exported `COMP_FILE` tables loaded
+//! into it and checked in HAL.
+//!
+//! One LinuxCNC per machine (fixed shared-memory keys, ports 5007 and 5005, the
+//! `/tmp/linuxcnc.lock`): every test that starts one holds [`LINUXCNC`], and they all
+//! live in this one test binary. A machine without LinuxCNC fails naming
+//! `tests/install-peers.sh`.
+
+use drivers::linuxcnc::{LinuxcncAxis, LinuxcncOptions};
+use drivers::{Axis, AxisValues, DriverError, Stage, StageLink, StageState};
+use errormap::{Approach, Direction, MapModel};
+use procedure::export::{ExportFormat, ExportRequest};
+use protocol::errormap::Identity;
+use std::io::{BufRead, BufReader, Write};
+use std::path::PathBuf;
+use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
+use std::sync::Mutex;
+use std::time::Duration;
+use system_tests::runtime;
+use system_tests::truth_map::map_from_truth;
+use tokio::io::{AsyncBufReadExt, AsyncWriteExt};
+
+static LINUXCNC: Mutex<()> = Mutex::new(());
+
+const ADDRESS: &str = "127.0.0.1:5007";
+const INSTALL: &str =
+    "run tests/install-peers.sh (apt-get install --no-install-recommends linuxcnc-uspace)";
+
+fn peers() -> PathBuf {
+    let dir = system_tests::workspace().join("../shared/peers/linuxcnc");
+    assert!(
+        dir.join("start.sh").exists(),
+        "no LinuxCNC peer scripts at {} (the shared peers folder beside the repository)",
+        dir.display()
+    );
+    dir
+}
+
+/// A running LinuxCNC, stopped (through its own scripts, by the PIDs they recorded) on
+/// drop.
+struct Peer {
+    run: tempfile::TempDir,
+}
+
+impl Peer {
+    /// Start LinuxCNC on `ini` (a file of the peers folder, or a path).
+    fn start(ini: &str) -> Peer {
+        let found = Command::new("sh")
+            .args(["-c", "command -v linuxcnc"])
+            .output()
+            .map(|o| o.status.success())
+            .unwrap_or(false);
+        assert!(found, "LinuxCNC is not installed: {INSTALL}");
+        let run = tempfile::tempdir().expect("a temporary folder");
+        let out = Command::new("bash")
+            .arg(peers().join("start.sh"))
+            .arg(ini)
+            .env("LCNC_DIR", run.path())
+            .output()
+            .expect("start.sh runs");
+        assert!(
+            out.status.success(),
+            "LinuxCNC did not start ({INSTALL}): {}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        Peer { run }
+    }
+}
+
+impl Drop for Peer {
+    fn drop(&mut self) {
+        let _ = Command::new("bash")
+            .arg(peers().join("stop.sh"))
+            .env("LCNC_DIR", self.run.path())
+            .output();
+    }
+}
+
+fn lock() -> std::sync::MutexGuard<'static, ()> {
+    LINUXCNC.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+fn axis(axis: Axis, joint: u8, max_mm: f64) -> LinuxcncAxis {
+    LinuxcncAxis {
+        axis,
+        joint,
+        min_mm: -max_mm,
+        max_mm,
+        max_feed_mm_min: 12_000.0,
+    }
+}
+
+fn link(options: LinuxcncOptions, max_mm: f64) -> StageLink {
+    StageLink::Linuxcnc {
+        address: ADDRESS.into(),
+        options,
+        axes: vec![axis(Axis::X, 0, max_mm), axis(Axis::Y, 1, max_mm)],
+    }
+}
+
+async fn open(max_mm: f64) -> Box<dyn Stage> {
+    drivers::open_stage(&link(LinuxcncOptions::default(), max_mm))
+        .await
+        .expect("the driver connects to LinuxCNC")
+}
+
+/// A plain linuxcncrsh session of its own (another operator's client).
+struct Shell {
+    lines: tokio::io::Lines<tokio::io::BufReader<tokio::net::tcp::OwnedReadHalf>>,
+    write: tokio::net::tcp::OwnedWriteHalf,
+}
+
+impl Shell {
+    async fn connect() -> Shell {
+        let s = tokio::net::TcpStream::connect(ADDRESS)
+            .await
+            .expect("linuxcncrsh accepts");
+        let (r, write) = s.into_split();
+        let mut shell = Shell {
+            lines: tokio::io::BufReader::new(r).lines(),
+            write,
+        };
+        assert!(shell
+            .ask("hello EMC other 1.0")
+            .await
+            .starts_with("HELLO ACK"));
+        shell.write.write_all(b"set echo off\r\n").await.unwrap();
+        // verbose: every later command gets one reply (echoes before it are skipped)
+        shell.write.write_all(b"set verbose on\r\n").await.unwrap();
+        while shell.next().await != "SET VERBOSE ACK" {}
+        shell
+    }
+
+    async fn next(&mut self) -> String {
+        loop {
+            let l = tokio::time::timeout(Duration::from_secs(10), self.lines.next_line())
+                .await
+                .expect("linuxcncrsh answers within 10 s")
+                .expect("reads")
+                .expect("the connection stays open");
+            // SET replies end "\n\r": the '\r' starts the next line.
+            let l = l.trim_matches(['\r', '\n']).to_string();
+            if !l.is_empty() {
+                return l;
+            }
+        }
+    }
+
+    async fn ask(&mut self, command: &str) -> String {
+        self.write
+            .write_all(format!("{command}\r\n").as_bytes())
+            .await
+            .unwrap();
+        self.next().await
+    }
+}
+
+#[test]
+fn nothing_listening_is_said_plainly() {
+    // A port nobody listens on: bound, then closed.
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let rt = runtime();
+    let link = StageLink::Linuxcnc {
+        address: format!("127.0.0.1:{port}"),
+        options: LinuxcncOptions::default(),
+        axes: vec![axis(Axis::X, 0, 100.0), axis(Axis::Y, 1, 100.0)],
+    };
+    let e = rt
+        .block_on(drivers::open_stage(&link))
+        .err()
+        .expect("refused");
+    assert!(matches!(e, DriverError::Transport { .. }), "{e}");
+    assert!(
+        e.to_string().contains("nothing listens at 127.0.0.1:"),
+        "{e}"
+    );
+}
+
+#[test]
+fn drives_a_real_linuxcnc() {
+    let _one = lock();
+    let _peer = Peer::start("x.ini");
+    let rt = runtime();
+    rt.block_on(async {
+        // Wrong passwords are named as such.
+        let bad = LinuxcncOptions {
+            connect_password: "NOPE".into(),
+            ..Default::default()
+        };
+        let e = drivers::open_stage(&link(bad, 400.0)).await.err().unwrap();
+        assert!(e.to_string().contains("connect password is wrong"), "{e}");
+        let bad = LinuxcncOptions {
+            enable_password: "NOPE".into(),
+            ..Default::default()
+        };
+        let e = drivers::open_stage(&link(bad, 400.0)).await.err().unwrap();
+        assert!(e.to_string().contains("enable password is wrong"), "{e}");
+
+        // Out of estop and on at connect; not homed yet.
+        let mut stage = drivers::open_stage(&link(LinuxcncOptions::default(), 600.0))
+            .await
+            .expect("connects");
+        assert!(
+            stage.info().name.contains("EMCNETSVR"),
+            "{}",
+            stage.info().name
+        );
+        assert_eq!(stage.status().await.unwrap().state, StageState::NotHomed);
+        // LinuxCNC refuses MDI motion before homing, and the driver says what it said.
+        let e = stage
+            .move_to(AxisValues::xy(1.0, 1.0), 3000.0)
+            .await
+            .unwrap_err();
+        assert!(matches!(e, DriverError::InvalidState { .. }), "{e}");
+
+        stage.home().await.expect("homes");
+        assert_eq!(stage.status().await.unwrap().state, StageState::Idle);
+        assert_eq!(stage.position().await.unwrap(), AxisValues::xy(0.0, 0.0));
+
+        // A move ends when LinuxCNC's motion has ended, exactly where commanded.
+        stage
+            .move_to(AxisValues::xy(10.5, -3.25), 6000.0)
+            .await
+            .expect("moves");
+        stage.wait_idle().await.unwrap();
+        assert_eq!(stage.position().await.unwrap(), AxisValues::xy(10.5, -3.25));
+        stage
+            .move_to(AxisValues::xy(123.456789, 45.000001), 12_000.0)
+            .await
+            .unwrap();
+        assert_eq!(
+            stage.position().await.unwrap(),
+            AxisValues::xy(123.456789, 45.000001)
+        );
+
+        // Past LinuxCNC's own limit (X +500 in the INI; the job allowed 600): ACKed or
+        // not, its error channel says why, and nothing moved.
+        let e = stage
+            .move_to(AxisValues::xy(550.0, 0.0), 6000.0)
+            .await
+            .unwrap_err();
+        assert!(
+            e.to_string().contains("would exceed X's positive limit"),
+            "{e}"
+        );
+        assert_eq!(
+            stage.position().await.unwrap(),
+            AxisValues::xy(123.456789, 45.000001)
+        );
+        // Past the job's limits: refused before anything is sent.
+        let e = stage
+            .move_to(AxisValues::xy(700.0, 0.0), 6000.0)
+            .await
+            .unwrap_err();
+        assert!(matches!(e, DriverError::OutOfLimits { .. }), "{e}");
+        // The errors were drained: the next move is clean.
+        stage
+            .move_to(AxisValues::xy(-20.0, 30.0), 6000.0)
+            .await
+            .unwrap();
+        assert_eq!(stage.position().await.unwrap(), AxisValues::xy(-20.0, 30.0));
+
+        // Another session takes control: said plainly, never taken back silently.
+        let mut other = Shell::connect().await;
+        assert_eq!(other.ask("set enable EMCTOO").await, "SET ENABLE ACK");
+        let e = stage
+            .move_to(AxisValues::xy(0.0, 0.0), 6000.0)
+            .await
+            .unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("another linuxcncrsh session has taken control"),
+            "{e}"
+        );
+        assert_eq!(
+            other.ask("get abs_act_pos").await.split_whitespace().nth(1),
+            Some("-20.000000")
+        );
+    });
+}
+
+#[test]
+fn stop_aborts_a_move_in_flight() {
+    let _one = lock();
+    let _peer = Peer::start("x.ini");
+    let rt = runtime();
+    rt.block_on(async {
+        let mut stage = open(400.0).await;
+        stage.home().await.unwrap();
+        let mut observer = Shell::connect().await;
+        {
+            // 300 mm at 600 mm/min: 30 s, unless stopped.
+            let mv = stage.move_to(AxisValues::xy(300.0, 0.0), 600.0);
+            tokio::pin!(mv);
+            let running = async {
+                loop {
+                    if observer.ask("get program_status").await == "PROGRAM_STATUS RUNNING" {
+                        // and the machine has left zero
+                        let p = observer.ask("get abs_act_pos").await;
+                        let x: f64 = p.split_whitespace().nth(1).unwrap().parse().unwrap();
+                        if x > 0.0 {
+                            break;
+                        }
+                    }
+                    tokio::task::yield_now().await;
+                }
+            };
+            tokio::select! {
+                r = &mut mv => panic!("the move ended before it was stopped: {r:?}"),
+                _ = running => {}
+            }
+        }
+        stage.stop().await.expect("stops");
+        let x = stage.position().await.unwrap().get(Axis::X).unwrap();
+        assert!(x > 0.0 && x < 290.0, "stopped at X {x}");
+        assert_eq!(stage.status().await.unwrap().state, StageState::Idle);
+        // The stage has control again and moves on.
+        stage
+            .move_to(AxisValues::xy(1.0, 2.0), 12_000.0)
+            .await
+            .expect("moves after the stop");
+        assert_eq!(stage.position().await.unwrap(), AxisValues::xy(1.0, 2.0));
+    });
+}
+
+/// HAL's pins at full precision, through Debian's python3 `hal` module (halcmd prints 7
+/// significant digits): per request, once each joint's backlash filter has reached its
+/// correction, `pos-cmd` and `motor-pos-cmd - motor-offset` of joints 0 and 1.
+struct Hal {
+    child: Child,
+    stdin: ChildStdin,
+    stdout: BufReader<ChildStdout>,
+}
+
+const HAL_READER: &str = r#"
+import hal, os, sys, time
+c = hal.component("xygw_comp_check_%d" % os.getpid())
+g = hal.get_value
+for _ in sys.stdin:
+    for _ in range(5000):
+        if all(g("joint.%d.backlash-filt" % j) == g("joint.%d.backlash-corr" % j) for j in (0, 1)):
+            break
+        time.sleep(0.001)
+    # the motor command less the homing offset (0 on a fresh start; kept exact anyway)
+    print(" ".join("%r %r" % (g("joint.%d.pos-cmd" % j), g("joint.%d.motor-pos-cmd" % j) - g("joint.%d.motor-offset" % j)) for j in (0, 1)), flush=True)
+c.exit()
+"#;
+
+impl Hal {
+    fn start() -> Hal {
+        let mut child = Command::new("/usr/bin/python3")
+            .args(["-c", HAL_READER])
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .spawn()
+            .unwrap_or_else(|e| panic!("Debian's /usr/bin/python3 ({e}): {INSTALL}"));
+        let stdin = child.stdin.take().unwrap();
+        let stdout = BufReader::new(child.stdout.take().unwrap());
+        Hal {
+            child,
+            stdin,
+            stdout,
+        }
+    }
+
+    /// `[pos-cmd, motor-pos-cmd]` of joints 0 and 1, mm.
+    fn read(&mut self) -> [[f64; 2]; 2] {
+        self.stdin.write_all(b"\n").unwrap();
+        let mut line = String::new();
+        self.stdout.read_line(&mut line).unwrap();
+        let v: Vec<f64> = line
+            .split_whitespace()
+            .map(|w| w.parse().expect("a number"))
+            .collect();
+        assert_eq!(v.len(), 4, "HAL reader said {line:?}");
+        [[v[0], v[1]], [v[2], v[3]]]
+    }
+}
+
+impl Drop for Hal {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// A COMP_FILE table as LinuxCNC reads it: `nominal forward reverse` per line.
+fn read_table(text: &str) -> Vec<[f64; 3]> {
+    text.lines()
+        .map(|l| {
+            let w: Vec<f64> = l
+                .split_whitespace()
+                .map(|w| w.parse().unwrap_or_else(|_| panic!("a number in {l:?}")))
+                .collect();
+            assert_eq!(
+                w.len(),
+                3,
+                "three numbers per line (no header, no commas): {l:?}"
+            );
+            [w[0], w[1], w[2]]
+        })
+        .collect()
+}
+
+/// LinuxCNC's trim (type 0: nominal - measured) at `s`, linear between entries, the end
+/// value held beyond; `col` 1 forward, 2 reverse.
+fn table_trim(t: &[[f64; 3]], s: f64, col: usize) -> f64 {
+    let trim = |e: &[f64; 3]| e[0] - e[col];
+    if s <= t[0][0] {
+        return trim(&t[0]);
+    }
+    let k = t
+        .windows(2)
+        .position(|w| s < w[1][0])
+        .unwrap_or(t.len() - 2);
+    let (a, b) = (&t[k], &t[k + 1]);
+    if s >= b[0] {
+        return trim(b);
+    }
+    trim(a) + (trim(b) - trim(a)) * (s - a[0]) / (b[0] - a[0])
+}
+
+#[test]
+fn exported_comp_tables_are_applied_by_linuxcnc_as_the_map_says() {
+    // The map of the demo's C5 stage, as a perfect scan would measure it.
+    let machine = world::machine::MachineConfig::load(
+        &system_tests::config_dir().join("machines/c5-stage.toml"),
+    )
+    .expect("the demo machine loads");
+    let id = Identity {
+        machine: "sim".into(),
+        controller: "linuxcnc".into(),
+        board: "dot-grid-0.5mm".into(),
+        certificate_sha256: String::new(),
+        camera: "sim".into(),
+    };
+    let map = map_from_truth(&machine, id);
+    let model = MapModel::new(map.clone());
+
+    // `gateway export --format linuxcnc` (the same procedure).
+    let mut request = ExportRequest::new(ExportFormat::Linuxcnc);
+    request.name = "comp.txt".into();
+    let mut sink = procedure::Collect(Vec::new());
+    let outcome = procedure::export::run(&request, map, &mut sink);
+    let result = outcome.result.clone().expect("the export has a result");
+    assert_eq!(sink.0.len(), 2, "two tables: {:?}", outcome.end);
+    let text = |i: usize| String::from_utf8(sink.0[i].bytes.clone()).unwrap();
+    let tables = [read_table(&text(0)), read_table(&text(1))];
+    for t in &tables {
+        assert!(t.len() <= 256, "LinuxCNC holds 256 entries");
+        assert!(t.windows(2).all(|w| w[0][0] < w[1][0]), "nominals increase");
+    }
+    let taken_at = |j: usize| result["tables"][j]["taken_at_mm"].as_f64().unwrap();
+    let interpolation_um = |j: usize| {
+        result["tables"][j]["interpolation_error_um"]
+            .as_f64()
+            .unwrap()
+    };
+
+    // LinuxCNC's own INI with the two tables (type 0).
+    let src = tempfile::tempdir().unwrap();
+    let ini = std::fs::read_to_string(peers().join("x.ini")).unwrap();
+    let ini = ini
+        .replace(
+            "[JOINT_0]\n",
+            "[JOINT_0]\nCOMP_FILE = comp_x.txt\nCOMP_FILE_TYPE = 0\n",
+        )
+        .replace(
+            "[JOINT_1]\n",
+            "[JOINT_1]\nCOMP_FILE = comp_y.txt\nCOMP_FILE_TYPE = 0\n",
+        );
+    std::fs::write(src.path().join("comp.ini"), ini).unwrap();
+    for f in ["x.hal", "sim.tbl"] {
+        std::fs::copy(peers().join(f), src.path().join(f)).unwrap();
+    }
+    std::fs::write(src.path().join("comp_x.txt"), text(0)).unwrap();
+    std::fs::write(src.path().join("comp_y.txt"), text(1)).unwrap();
+
+    let _one = lock();
+    let _peer = Peer::start(src.path().join("comp.ini").to_str().unwrap());
+    let mut hal = Hal::start();
+    let rt = runtime();
+    // Table indices checked (X has 256 entries over 200 mm, Y over 150 mm): at the
+    // entry and a third of the way to the next.
+    let picks = [3usize, 41, 97, 128, 177, 201, 250];
+    let (mut worst_table_um, mut worst_point_um, mut worst_between_um) = (0.0f64, 0.0f64, 0.0f64);
+    let mut checked = 0;
+    rt.block_on(async {
+        let mut stage = open(400.0).await;
+        stage.home().await.unwrap();
+        for &k in &picks {
+            for fraction in [0.0, 1.0 / 3.0] {
+                let at = |j: usize| {
+                    let t = &tables[j];
+                    t[k][0] + (t[k + 1][0] - t[k][0]) * fraction
+                };
+                // What the driver sends (6 decimals), so HAL's nominal is exactly it.
+                let six = |v: f64| format!("{v:.6}").parse::<f64>().unwrap();
+                let p = [six(at(0)), six(at(1))];
+                for forward in [true, false] {
+                    // Approach from 0.5 mm below (forward) or above (reverse).
+                    let side = if forward { -0.5 } else { 0.5 };
+                    for q in [[six(p[0] + side), six(p[1] + side)], p] {
+                        stage
+                            .move_to(AxisValues::xy(q[0], q[1]), 6000.0)
+                            .await
+                            .unwrap();
+                    }
+                    let pins = hal.read();
+                    let approach = if forward {
+                        Approach::Forward
+                    } else {
+                        Approach::Reverse
+                    };
+                    for j in 0..2 {
+                        let [nominal, motor] = pins[j];
+                        // (the planner's double arithmetic: within 1e-9 mm)
+                        assert!(
+                            (nominal - p[j]).abs() < 1e-9,
+                            "joint {j} at {nominal}, not at its nominal {}",
+                            p[j]
+                        );
+                        let applied = motor - nominal;
+                        let table = table_trim(&tables[j], p[j], if forward { 1 } else { 2 });
+                        // The map's correction along this joint, on the table's line.
+                        let mut on_line = [0.0; 2];
+                        on_line[j] = p[j];
+                        on_line[1 - j] = taken_at(j);
+                        let error_um = model
+                            .tool_error_um(
+                                on_line,
+                                Direction {
+                                    x: approach,
+                                    y: approach,
+                                },
+                            )
+                            .unwrap()[j];
+                        let map_correction = -error_um / 1000.0;
+                        let d_table = (applied - table).abs() * 1000.0;
+                        let d_map = (applied - map_correction).abs() * 1000.0;
+                        worst_table_um = worst_table_um.max(d_table);
+                        assert!(
+                            d_table < 0.05,
+                            "joint {j} at {} ({}): LinuxCNC applies {applied} mm, the table says {table} mm",
+                            p[j],
+                            if forward { "forward" } else { "reverse" }
+                        );
+                        if fraction == 0.0 {
+                            worst_point_um = worst_point_um.max(d_map);
+                            assert!(
+                                d_map < 0.05,
+                                "joint {j} at table point {}: LinuxCNC applies {applied} mm, the map's correction is {map_correction} mm",
+                                p[j]
+                            );
+                        } else {
+                            // Between entries the table is linear: within what the
+                            // exporter reported.
+                            worst_between_um = worst_between_um.max(d_map);
+                            assert!(
+                                d_map < interpolation_um(j) + 0.05,
+                                "joint {j} at {} between entries: {d_map} um from the map, the exporter said {} um",
+                                p[j],
+                                interpolation_um(j)
+                            );
+                        }
+                        checked += 1;
+                    }
+                }
+            }
+        }
+    });
+    eprintln!(
+        "LinuxCNC COMP_FILE check: {checked} joint positions; applied trim vs table worst {worst_table_um:.5} um; vs the map at table points {worst_point_um:.5} um, between points {worst_between_um:.5} um (exporter's interpolation figure X {:.4} um, Y {:.4} um; cross-axis terms the tables cannot hold: X {:.3} um, Y {:.3} um)",
+        interpolation_um(0),
+        interpolation_um(1),
+        result["tables"][0]["cross_terms_not_held_um"],
+        result["tables"][1]["cross_terms_not_held_um"],
+    );
+}
+
+/// `config/gateway/linuxcnc-demo.toml`: the demo job with its stage on the real
+/// LinuxCNC and the simulated stage following LinuxCNC's joint motor commands (the
+/// demo's C5 machine, the simulated camera on it).
+fn demo_on_linuxcnc() -> job::Job {
+    let job = job::Job::load(&system_tests::config_dir().join("gateway/linuxcnc-demo.toml"))
+        .expect("the LinuxCNC demo job loads");
+    let job::StageSpec::Linuxcnc(spec) = &job.stage else {
+        panic!("a linuxcnc stage")
+    };
+    assert_eq!(spec.address, ADDRESS);
+    assert!(spec.follow.is_some() && job.stage.is_simulated());
+    // The same targets as the demo's.
+    assert_eq!(job.targets, job::Job::demo().targets);
+    job
+}
+
+#[test]
+fn the_demo_job_on_linuxcnc_compensates_every_target_like_on_grbl() {
+    let job = demo_on_linuxcnc();
+    let _one = lock();
+    let _peer = Peer::start("x.ini");
+    let rt = system_tests::runtime_two_workers();
+    let report = rt.block_on(async {
+        let mut devices = devices::open_devices_async(&job).await.expect("opens");
+        assert!(devices.rig.is_some(), "the rig follows LinuxCNC");
+        runner::run_job(&job, &mut devices, &mut |_, _| {}).await
+    });
+    system_tests::assert_demo_figure(&report, 20.0);
+    eprintln!("demo on LinuxCNC:\n{}", report.to_text());
+    // The issue's figure: all 30 targets within 0.5 um of the truth.
+    assert_eq!(report.targets, 30);
+    let after = report.after_um.unwrap();
+    assert!(after.max <= 0.5, "compensated max {} um", after.max);
+}
+
+/// The LinuxCNC demo job with a small camera window (fast in a debug build) and no
+/// thermal drift (the map's spatial model only).
+fn small_job_on_linuxcnc() -> job::Job {
+    let mut job = demo_on_linuxcnc();
+    let job::CameraSpec::Sim { model } = &mut job.camera else {
+        unreachable!("the demo job simulates its camera")
+    };
+    model.width = 480;
+    model.height = 384;
+    job.localize.min_points = 8;
+    let job::StageSpec::Linuxcnc(spec) = &mut job.stage else {
+        unreachable!("a linuxcnc stage")
+    };
+    if let Some(machine) = &mut spec.follow {
+        machine.thermal = None;
+    }
+    job
+}
+
+#[test]
+fn a_map_scanned_through_linuxcnc_improves_its_iso230_figures() {
+    use errormap::scan::{MapBuilder, ScanPlan, ScanSpec};
+    use iso230::plan::{targets, Cycle, CycleKind};
+    use runner::iso230::{run_iso230, Iso230Spec};
+
+    let job = small_job_on_linuxcnc();
+    let _one = lock();
+    let _peer = Peer::start("x.ini");
+    let rt = system_tests::runtime_two_workers();
+    let (before, after) = rt.block_on(async {
+        // A map over x 20 .. 50, y 35 .. 55 mm scanned through LinuxCNC: 10 mm grid, 1 mm
+        // lines (the screw's 5 mm pitch error needs them).
+        let mut devices = devices::open_devices_async(&job).await.unwrap();
+        let spec = ScanSpec {
+            grid_step_mm: 10.0,
+            line_step_mm: 1.0,
+            passes: 1,
+        };
+        let plan = ScanPlan::new([20.0, 35.0], [50.0, 55.0], spec).unwrap();
+        let mut builder = MapBuilder::new();
+        let reference = runner::scan::run_scan(
+            &job,
+            &mut devices,
+            &plan,
+            &mut builder,
+            &mut |_, _| Ok(()),
+            &mut |_, _| {},
+            std::future::pending(),
+        )
+        .await
+        .expect("the scan runs through LinuxCNC");
+        drop(devices);
+        let id = Identity {
+            machine: "sim".into(),
+            controller: "linuxcnc".into(),
+            board: job.board.name.clone(),
+            certificate_sha256: job.board.fingerprint_sha256(),
+            camera: "c".into(),
+        };
+        let map = builder
+            .finish(
+                &plan,
+                id,
+                1,
+                "t".into(),
+                [0.0; 2],
+                job.board_at_machine_zero_mm,
+                reference.command_mm,
+            )
+            .unwrap();
+        let model = MapModel::new(map);
+        // ISO 230-2 along X (5 positions, 5 runs each way) without and with the map,
+        // each after a new homing of LinuxCNC.
+        let mut figures = Vec::new();
+        for map in [None, Some(&model)] {
+            let mut devices = devices::open_devices_async(&job).await.unwrap();
+            let spec = Iso230Spec {
+                axis: 0,
+                cycle: Cycle::new(
+                    targets(22.0, 48.0, None).unwrap(),
+                    5,
+                    1.0,
+                    CycleKind::Linear,
+                )
+                .unwrap(),
+                across_mm: plan.x_line_at,
+                still_frames: 3,
+            };
+            let run = run_iso230(
+                &job,
+                &mut devices,
+                &spec,
+                map,
+                &mut |_| {},
+                &mut |_, _| {},
+                std::future::pending(),
+            )
+            .await
+            .expect("the ISO 230-2 cycle runs through LinuxCNC");
+            assert_eq!(run.measurements.len(), 50);
+            figures.push(iso230::evaluate(&run.measurements).unwrap().figures);
+        }
+        (figures[0], figures[1])
+    });
+    eprintln!("ISO 230-2 through LinuxCNC, X 22..48 mm:\nbefore {before:?}\nafter  {after:?}");
+    // As on the in-process stage (tests/tests/iso230.rs): A, B and E to a fifth at most.
+    assert!(before.a > 5.0 && before.b > 2.0, "{before:?}");
+    assert!(after.a < 0.2 * before.a, "A {} -> {}", before.a, after.a);
+    assert!(after.b < 0.2 * before.b, "B {} -> {}", before.b, after.b);
+    assert!(after.e < 0.2 * before.e, "E {} -> {}", before.e, after.e);
+}
+
+/// Held-out points at rest, LinuxCNC without and with the exported tables, the rig
+/// following it: the true error of the tool (the camera's centre on the board) at each,
+/// approached from below. What the tables take out, and what they cannot (the part of
+/// each axis's error that depends on the other axis).
+#[test]
+fn held_out_points_with_linuxcnc_tables_only_and_uncompensated() {
+    let machine = world::machine::MachineConfig::load(
+        &system_tests::config_dir().join("machines/c5-stage.toml"),
+    )
+    .unwrap();
+    let mut machine = machine;
+    machine.thermal = None;
+    let id = Identity {
+        machine: "sim".into(),
+        controller: "linuxcnc".into(),
+        board: "dot-grid-0.5mm".into(),
+        certificate_sha256: String::new(),
+        camera: "sim".into(),
+    };
+    let map = map_from_truth(&machine, id);
+    let mut request = ExportRequest::new(ExportFormat::Linuxcnc);
+    request.name = "comp.txt".into();
+    let mut sink = procedure::Collect(Vec::new());
+    procedure::export::run(&request, map, &mut sink);
+    assert_eq!(sink.0.len(), 2);
+    let src = tempfile::tempdir().unwrap();
+    let ini = std::fs::read_to_string(peers().join("x.ini")).unwrap();
+    let ini = ini
+        .replace(
+            "[JOINT_0]\n",
+            "[JOINT_0]\nCOMP_FILE = comp_x.txt\nCOMP_FILE_TYPE = 0\n",
+        )
+        .replace(
+            "[JOINT_1]\n",
+            "[JOINT_1]\nCOMP_FILE = comp_y.txt\nCOMP_FILE_TYPE = 0\n",
+        );
+    std::fs::write(src.path().join("comp.ini"), ini).unwrap();
+    for f in ["x.hal", "sim.tbl"] {
+        std::fs::copy(peers().join(f), src.path().join(f)).unwrap();
+    }
+    std::fs::write(src.path().join("comp_x.txt"), &sink.0[0].bytes).unwrap();
+    std::fs::write(src.path().join("comp_y.txt"), &sink.0[1].bytes).unwrap();
+
+    let mut job = small_job_on_linuxcnc();
+    if let job::StageSpec::Linuxcnc(spec) = &mut job.stage {
+        spec.follow = Some(Box::new(machine.clone()));
+    }
+    let zero = machine.machine.board_at_home_mm;
+    // Held out: off the map's nodes and the tables' entries, over the travel.
+    let points: Vec<[f64; 2]> = (0..5)
+        .flat_map(|i| (0..4).map(move |j| [13.3 + 43.1 * i as f64, 11.7 + 41.9 * j as f64]))
+        .collect();
+    let _one = lock();
+    let rt = system_tests::runtime_two_workers();
+    let mut figures = Vec::new();
+    for ini in [
+        "x.ini".to_string(),
+        src.path().join("comp.ini").display().to_string(),
+    ] {
+        let _peer = Peer::start(&ini);
+        let errors: Vec<[f64; 2]> = rt.block_on(async {
+            let mut devices = devices::open_devices_async(&job).await.unwrap();
+            devices.stage.home().await.unwrap();
+            let rig = devices.rig.clone().unwrap();
+            let mut errors = Vec::new();
+            for p in &points {
+                for q in [[p[0] - 0.5, p[1] - 0.5], *p] {
+                    devices
+                        .stage
+                        .move_to(AxisValues::xy(q[0], q[1]), 3000.0)
+                        .await
+                        .unwrap();
+                }
+                let pose = world::lock(&rig).truth();
+                errors.push([
+                    (pose.centre_mm[0] - p[0] - zero[0]) * 1000.0,
+                    (pose.centre_mm[1] - p[1] - zero[1]) * 1000.0,
+                ]);
+            }
+            errors
+        });
+        let worst = |f: &dyn Fn(&[f64; 2]) -> f64| errors.iter().map(f).fold(0.0f64, f64::max);
+        let rms = (errors
+            .iter()
+            .map(|e| e[0] * e[0] + e[1] * e[1])
+            .sum::<f64>()
+            / errors.len() as f64)
+            .sqrt();
+        figures.push((
+            worst(&|e| e[0].abs()),
+            worst(&|e| e[1].abs()),
+            worst(&|e| e[0].hypot(e[1])),
+            rms,
+        ));
+    }
+    let (u, t) = (figures[0], figures[1]);
+    eprintln!(
+        "{} held-out points at rest, true error (um): uncompensated X max {:.2}, Y max {:.2}, XY max {:.2}, rms {:.2}; LinuxCNC tables only X max {:.2}, Y max {:.2}, XY max {:.2}, rms {:.2}",
+        points.len(), u.0, u.1, u.2, u.3, t.0, t.1, t.2, t.3
+    );
+    // The tables take out the along-axis errors on their lines and part of the rest;
+    // the cross-axis terms they cannot hold remain.
+    assert!(t.3 < u.3, "rms {} -> {}", u.3, t.3);
+    assert!(t.2 < u.2, "max {} -> {}", u.2, t.2);
+}
