@@ -1068,7 +1068,11 @@ fn directions(n: &Vector3<f64>, cone_deg: f64, count: usize) -> Vec<Vector3<f64>
     let mut out = vec![*n];
     let around = count.saturating_sub(1);
     let step = 360.0 / around.max(1) as f64;
-    let turn = if around.is_multiple_of(2) { step / 2.0 } else { 0.0 };
+    let turn = if around.is_multiple_of(2) {
+        step / 2.0
+    } else {
+        0.0
+    };
     for k in 0..around {
         let t = (turn + step * k as f64).to_radians();
         out.push((n * c + (e1 * t.cos() + e2 * t.sin()) * s).normalize());
