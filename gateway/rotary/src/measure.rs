@@ -1384,8 +1384,15 @@ mod tests {
         // 2 balls at the optimal 5 + 5 positions.
         assert_eq!(s.progress(), (0, 20));
         s.moved();
-        // Over the first rim touch, then the protected descent beside the rim.
+        // Over the first rim touch, rapidly down to 15 mm above the face, then the
+        // protected descent beside the rim.
         assert!(matches!(s.next_action(), Action::MoveTo(_)));
+        s.moved();
+        let face = axis.z + MachineConstants::default().tool_length_mm;
+        assert!(matches!(
+            s.next_action(),
+            Action::MoveTo(to) if (to.z - (face + 15.0)).abs() < 1e-9
+        ));
         s.moved();
         assert!(matches!(
             s.next_action(),
@@ -1459,8 +1466,10 @@ mod tests {
     #[test]
     fn a_probe_that_never_touches_stops_at_the_first_rim_touch() {
         let mut s = session();
-        // Over the axis, over the first touch, down beside the rim (no contact: good),
-        // then the fast touch finds nothing.
+        // Over the axis, over the first touch, rapidly down to 15 mm above the face,
+        // probing down beside the rim (no contact: good), then the fast touch finds
+        // nothing.
+        s.moved();
         s.moved();
         s.moved();
         s.probed(None);
