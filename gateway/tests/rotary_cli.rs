@@ -64,7 +64,7 @@ fn measure_then_identify_from_its_centres() {
         assert!(d.abs() <= tol, "{name}: {d}");
         assert!(v["uncertainty"][name].as_f64().unwrap() > 0.0);
     }
-    assert_eq!(v["cycle"]["probe_points"], 231);
+    assert_eq!(v["cycle"]["probe_points"], 103);
     assert!(
         v["compensation_check"]["tip_improvement_pct"]
             .as_f64()
@@ -232,7 +232,7 @@ fn measure_through_a_controller_on_a_serial_port() {
     let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
     // A real controller's truth is unknown to the gateway: no comparison in its report.
     assert!(v.get("truth").is_none() && v.get("compensation_check").is_none());
-    assert_eq!(v["cycle"]["probe_points"], 231);
+    assert_eq!(v["cycle"]["probe_points"], 103);
     // The C centre from the rim: the actual axis (delta_XC, delta_YC off the nominal)
     // within the rim's run-out (1.2 and 0.8 um) and the probe's scatter.
     let offset = &v["c_centre"]["offset_mm"];

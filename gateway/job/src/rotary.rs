@@ -255,7 +255,7 @@ mod tests {
         let m = measure(
             &mut table,
             &MachineConstants::default(),
-            &MeasurePlan::default(),
+            &MeasurePlan::paper(),
             |_, _| {},
         )
         .unwrap_or_else(|s| panic!("{}", s.error));
@@ -286,7 +286,7 @@ mod tests {
             let stopped = measure(
                 &mut machine,
                 &MachineConstants::default(),
-                &MeasurePlan::default(),
+                &MeasurePlan::paper(),
                 |_, _| {},
             )
             .expect_err("the machine failed");
@@ -305,7 +305,7 @@ mod tests {
     fn a_stop_after_n_balls_keeps_them() {
         for n in [1, 2, 20] {
             let mut table = RotaryJob::default().simulated();
-            let mut s = MeasureSession::new(&MachineConstants::default(), &MeasurePlan::default());
+            let mut s = MeasureSession::new(&MachineConstants::default(), &MeasurePlan::paper());
             loop {
                 if s.progress().0 == n {
                     s.stop();

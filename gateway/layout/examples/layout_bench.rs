@@ -20,24 +20,10 @@ use std::time::Instant;
 use layout::{
     detect, detect_exhaustive, figures, partition, resolve, resolve_widening, Params, Partition,
 };
-use layout_io::{Format, Layout, Part, ReadOptions};
+use layout_io::Part;
 
-/// Every layout of data/esicup, by name.
-fn layouts() -> Vec<(String, String)> {
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/esicup");
-    let mut out: Vec<(String, String)> = std::fs::read_dir(&dir)
-        .expect("data/esicup")
-        .filter_map(|e| {
-            let path = e.ok()?.path();
-            (path.extension()? == "json").then(|| {
-                let name = path.file_stem().unwrap().to_string_lossy().into_owned();
-                (name, std::fs::read_to_string(&path).expect("layout"))
-            })
-        })
-        .collect();
-    out.sort();
-    out
-}
+#[path = "../tests/nests/mod.rs"]
+mod nests;
 
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
@@ -102,42 +88,6 @@ fn run(parts: &[Part], params: &Params, runs: usize, widen: bool) -> Run {
     }
 }
 
-/// Star-shaped parts (radius 6 to 10 mm) on a grid of `pitch` mm: at 20 mm they touch
-/// or nearly touch their neighbours, at 22.5 mm every two are at least 2.5 mm apart.
-fn generated(n: usize, seed: u64, pitch: f64) -> Vec<Part> {
-    let mut state = seed;
-    let mut next = || {
-        state = state
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (state >> 11) as f64 / (1u64 << 53) as f64
-    };
-    let rows = 50;
-    (0..n)
-        .map(|i| {
-            let (cx, cy) = (
-                (i / rows) as f64 * pitch + 10.0,
-                (i % rows) as f64 * pitch + 10.0,
-            );
-            let k = 5 + (next() * 6.0) as usize;
-            let outer = (0..k)
-                .map(|j| {
-                    let a = std::f64::consts::TAU * j as f64 / k as f64;
-                    let r = 6.0 + next() * 4.0;
-                    [cx + r * a.cos(), cy + r * a.sin()]
-                })
-                .collect();
-            Part {
-                id: format!("p{i}"),
-                outer,
-                holes: vec![],
-                layer: String::new(),
-                attributes: Default::default(),
-            }
-        })
-        .collect()
-}
-
 fn main() {
     let runs: usize = std::env::args()
         .nth(1)
@@ -147,11 +97,11 @@ fn main() {
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     // The second argument, if any: only the layouts whose name starts with it.
     let only = std::env::args().nth(2);
-    for (name, text) in layouts() {
+    for (name, doc) in nests::esicup() {
         if only.as_ref().is_some_and(|o| !name.starts_with(o.as_str())) {
             continue;
         }
-        let doc = match Layout::read(text.as_bytes(), Format::Json, &ReadOptions::default()) {
+        let doc = match doc {
             Ok(d) => d,
             Err(e) => {
                 println!("| {name} | refused: {e} |");
@@ -159,28 +109,9 @@ fn main() {
             }
         };
         let w = doc.width_mm.expect("width");
-        // Two tools, or one where a part is wider than half the strip.
-        let widest = doc
-            .parts
-            .iter()
-            .map(|p| p.bounds()[3] - p.bounds()[1])
-            .fold(0.0, f64::max);
-        let tools = if widest <= w / 2.0 { 2 } else { 1 };
-        // L' = 0.8 W, or 1.1 times the longest part where that is longer.
-        let longest = doc
-            .parts
-            .iter()
-            .map(|p| p.bounds()[2] - p.bounds()[0])
-            .fold(0.0, f64::max);
-        let window = (0.8 * w).max(1.1 * longest);
         for clearance in [1.0, 0.5] {
-            let params = Params {
-                tools,
-                window_mm: window,
-                gap_mm: w / 80.0,
-                width_mm: Some(w),
-                clearance_mm: Some(w / 80.0 * clearance),
-            };
+            let params = nests::esicup_params(&doc, clearance);
+            let tools = params.tools;
             for widen in [false, true] {
                 let Ok(_) = partition(&doc.parts, &params) else {
                     println!(
@@ -218,49 +149,48 @@ fn main() {
             }
         }
     }
-    if only.is_some() {
-        return;
-    }
-    for (what, pitch, widen) in [
-        ("dense", 20.0, false),
-        ("dense", 20.0, true),
-        ("spaced 2.5 mm", 22.5, false),
-    ] {
-        let parts = generated(10_000, 7, pitch);
-        let params = Params {
-            tools: 4,
-            window_mm: 300.0,
-            gap_mm: 2.0,
-            width_mm: Some(50.0 * pitch),
-            clearance_mm: None,
-        };
-        let r = run(&parts, &params, 5, widen);
-        let (ms, s8) = (r.ms, &r.s8);
-        let f = figures(&parts, &r.resolved);
-        let t = Instant::now();
-        let found = detect(&parts, s8);
-        let detect_ms = t.elapsed().as_secs_f64() * 1e3;
-        // Pairs closer than the gap before S8 (every part its own group: each pair).
-        let mut alone = s8.clone();
-        alone.groups = (0..parts.len())
-            .map(|i| layout::Group {
-                id: i + 1,
-                tool: 0,
-                window: 0,
-                dx_mm: 0.0,
-                dy_mm: 0.0,
-                parts: vec![i],
-            })
-            .collect();
-        alone.group_of = (0..parts.len()).collect();
-        let before = detect(&parts, &alone);
-        let close_before: std::collections::HashSet<(usize, usize)> =
-            before.iter().map(|o| (o.a, o.b)).collect();
-        let new = found
-            .iter()
-            .filter(|o| !close_before.contains(&(o.a, o.b)))
-            .count();
-        println!(
+    // Generated nests: `layout_bench RUNS generated` runs only these, `layout_bench RUNS
+    // diamonds` (or another generated name's start) only that one.
+    let generated_only = only
+        .as_deref()
+        .map(|o| o.strip_prefix("generated").unwrap_or(o).trim().to_string());
+    for case in nests::generated(10_000) {
+        if generated_only
+            .as_ref()
+            .is_some_and(|o| !case.name.starts_with(o.as_str()))
+        {
+            continue;
+        }
+        for widen in [false, true] {
+            let (what, parts, params) = (&case.name, &case.parts, case.params);
+            let parts = &parts[..];
+            let r = run(parts, &params, 5, widen);
+            let (ms, s8) = (r.ms, &r.s8);
+            let f = figures(parts, &r.resolved);
+            let t = Instant::now();
+            let found = detect(parts, s8);
+            let detect_ms = t.elapsed().as_secs_f64() * 1e3;
+            // Pairs closer than the gap before S8 (every part its own group: each pair).
+            let mut alone = s8.clone();
+            alone.groups = (0..parts.len())
+                .map(|i| layout::Group {
+                    id: i + 1,
+                    tool: 0,
+                    window: 0,
+                    dx_mm: 0.0,
+                    dy_mm: 0.0,
+                    parts: vec![i],
+                })
+                .collect();
+            alone.group_of = (0..parts.len()).collect();
+            let before = detect(parts, &alone);
+            let close_before: std::collections::HashSet<(usize, usize)> =
+                before.iter().map(|o| (o.a, o.b)).collect();
+            let new = found
+                .iter()
+                .filter(|o| !close_before.contains(&(o.a, o.b)))
+                .count();
+            println!(
             "\ngenerated {what}: {} parts, 4 tools, L' 300 mm, gap 2 mm{}: partition + resolution {:.1} ms fastest, {ms:.1} ms median of 5, detection alone {detect_ms:.1} ms; {} pairs closer than the gap before S8, {} after S8 of which {new} new; {}; length {:.1} -> {:.1} mm (gap every part {:.1} mm, {:.1} %)",
             parts.len(),
             if widen { ", --widen" } else { "" },
@@ -273,14 +203,15 @@ fn main() {
             f.gap_every_part.length_mm,
             f.added_length_fraction.unwrap_or(f64::NAN) * 100.0
         );
-        if !widen {
-            let t = Instant::now();
-            let same = found == detect_exhaustive(&parts, s8);
-            println!(
+            if !widen {
+                let t = Instant::now();
+                let same = found == detect_exhaustive(parts, s8);
+                println!(
                 "exhaustive pairwise check: identical = {same} ({:.0} ms); pairs left after the resolution: {}",
                 t.elapsed().as_secs_f64() * 1e3,
-                detect_exhaustive(&parts, &r.resolved).len()
+                detect_exhaustive(parts, &r.resolved).len()
             );
+            }
         }
     }
 }

@@ -191,19 +191,33 @@ impl Partition {
         g: usize,
         extra: Option<usize>,
     ) -> Result<(), String> {
+        if self.window_fits(boxes, g, extra) {
+            return Ok(());
+        }
         let ext = self.extent_with(boxes, g, extra);
         let w = self.groups[g].window;
         let start = self.windows_mm.get(w).copied().unwrap_or(ext[0]);
         let from = ext[0].min(start);
-        if ext[1] - from >= self.window_mm {
-            return Err(format!(
-                "the group with window {w}'s start would span X {from:.3}..{:.3} mm, {:.3} mm: not shorter than the window ({:.3} mm)",
-                ext[1],
-                ext[1] - from,
-                self.window_mm
-            ));
-        }
-        Ok(())
+        Err(format!(
+            "the group with window {w}'s start would span X {from:.3}..{:.3} mm, {:.3} mm: not shorter than the window ({:.3} mm)",
+            ext[1],
+            ext[1] - from,
+            self.window_mm
+        ))
+    }
+
+    /// [`Self::fits_window`] without saying why (what the resolution asks for every
+    /// candidate move, where the message would be thrown away).
+    pub(crate) fn window_fits(&self, boxes: &[[f64; 4]], g: usize, extra: Option<usize>) -> bool {
+        self.window_fits_extent(g, self.extent_with(boxes, g, extra))
+    }
+
+    /// Whether group `g` spanning X `ext` (its parts' and a newcomer's, unshifted) fits
+    /// its window.
+    pub(crate) fn window_fits_extent(&self, g: usize, ext: [f64; 2]) -> bool {
+        let w = self.groups[g].window;
+        let start = self.windows_mm.get(w).copied().unwrap_or(ext[0]);
+        ext[1] - ext[0].min(start) < self.window_mm
     }
 
     /// X extent `[xmin, xmax]` of group `g`'s unshifted parts plus part `extra`.

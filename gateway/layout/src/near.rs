@@ -19,10 +19,28 @@ fn box_gap(a: [f64; 4], b: [f64; 4]) -> f64 {
 /// its box.
 fn edges_near(p: &Polygon<f64>, other: [f64; 4], limit: f64) -> Vec<(Segment, [f64; 4])> {
     let limit2 = limit * limit;
-    let mut out = Vec::new();
+    // A quick and safe rejection first: both ends past the other box grown by a little
+    // more than the limit on one side (the exact test below decides the rest, so the
+    // edges kept are the same).
+    let margin = limit * (1.0 + 1e-6) + 1e-9;
+    let (lo_x, lo_y, hi_x, hi_y) = (
+        other[0] - margin,
+        other[1] - margin,
+        other[2] + margin,
+        other[3] + margin,
+    );
+    let mut out = Vec::with_capacity(16);
     for ring in std::iter::once(p.exterior()).chain(p.interiors()) {
         for w in ring.0.windows(2) {
-            let s = [[w[0].x, w[0].y], [w[1].x, w[1].y]];
+            let (a, b) = (w[0], w[1]);
+            if (a.x > hi_x && b.x > hi_x)
+                || (a.x < lo_x && b.x < lo_x)
+                || (a.y > hi_y && b.y > hi_y)
+                || (a.y < lo_y && b.y < lo_y)
+            {
+                continue;
+            }
+            let s = [[a.x, a.y], [b.x, b.y]];
             let b = [
                 s[0][0].min(s[1][0]),
                 s[0][1].min(s[1][1]),

@@ -74,90 +74,214 @@ const MAX_WIDENING_ROUNDS: usize = 10_000;
 
 type Entry = GeomWithData<Rectangle<[f64; 2]>, usize>;
 
-/// The parts' shifted polygons, their boxes, and an R*-tree of the boxes.
-struct Placed<'a> {
-    /// The parts' polygons as given (made once per resolution, not once per round).
-    polygons: std::borrow::Cow<'a, [Polygon<f64>]>,
-    shifted: Vec<Polygon<f64>>,
-    boxes: Vec<[f64; 4]>,
-    tree: RTree<Entry>,
-}
-
 fn rect(b: [f64; 4]) -> Rectangle<[f64; 2]> {
     Rectangle::from_corners([b[0], b[1]], [b[2], b[3]])
 }
 
-impl<'a> Placed<'a> {
-    fn new(parts: &[Part], partition: &Partition) -> Placed<'static> {
-        let polygons: Vec<Polygon<f64>> = parts.iter().map(Part::polygon).collect();
-        Placed::with_polygons(parts, partition, std::borrow::Cow::Owned(polygons))
-    }
+/// `b` moved by `d`.
+fn shifted_box(b: [f64; 4], d: [f64; 2]) -> [f64; 4] {
+    [b[0] + d[0], b[1] + d[1], b[2] + d[0], b[3] + d[1]]
+}
 
-    fn with_polygons(
-        parts: &[Part],
+/// The parts where their groups put them, found through one R*-tree per group of the
+/// parts' boxes as given: a group's parts share its shift, so its tree never changes
+/// when shifts grow (widening) and changes by one entry when a part moves. Pairs are
+/// looked for only between groups whose boxes come within the clearance, and there only
+/// among the parts near the other group's box; each part's polygon is translated when a
+/// distance needs it at a shift it was not translated to yet. Positions, boxes and
+/// distances are computed exactly as a polygon translated by its group's shift gives
+/// them, so every result is the same as with one tree of all shifted boxes.
+struct Placed<'a> {
+    /// The parts' polygons and boxes as given.
+    polygons: &'a [Polygon<f64>],
+    bounds: &'a [[f64; 4]],
+    /// Per group: an R*-tree of its parts' boxes as given, and their union.
+    trees: Vec<RTree<Entry>>,
+    group_boxes: Vec<[f64; 4]>,
+    /// Per part: the shift it was last translated by and the polygon so translated.
+    shifted: Vec<Option<([f64; 2], Polygon<f64>)>>,
+}
+
+const EMPTY_BOX: [f64; 4] = [
+    f64::INFINITY,
+    f64::INFINITY,
+    f64::NEG_INFINITY,
+    f64::NEG_INFINITY,
+];
+
+fn union(a: [f64; 4], b: [f64; 4]) -> [f64; 4] {
+    [
+        a[0].min(b[0]),
+        a[1].min(b[1]),
+        a[2].max(b[2]),
+        a[3].max(b[3]),
+    ]
+}
+
+/// Whether boxes `a` and `b`, `b` grown by `gap` on every side, meet (touching counts):
+/// the R*-tree's envelope test.
+fn within(a: [f64; 4], b: [f64; 4], gap: f64) -> bool {
+    a[0] <= b[2] + gap && b[0] - gap <= a[2] && a[1] <= b[3] + gap && b[1] - gap <= a[3]
+}
+
+impl<'a> Placed<'a> {
+    fn new(
+        polygons: &'a [Polygon<f64>],
+        bounds: &'a [[f64; 4]],
         partition: &Partition,
-        polygons: std::borrow::Cow<'a, [Polygon<f64>]>,
     ) -> Placed<'a> {
-        let offsets = partition.offsets();
-        let shifted: Vec<Polygon<f64>> = polygons
+        let trees: Vec<RTree<Entry>> = partition
+            .groups
             .iter()
-            .zip(&offsets)
-            .map(|(p, d)| p.translate(d[0], d[1]))
-            .collect();
-        let boxes: Vec<[f64; 4]> = parts
-            .iter()
-            .zip(&offsets)
-            .map(|(p, d)| {
-                let b = p.bounds();
-                [b[0] + d[0], b[1] + d[1], b[2] + d[0], b[3] + d[1]]
+            .map(|g| {
+                RTree::bulk_load(
+                    g.parts
+                        .iter()
+                        .map(|&p| Entry::new(rect(bounds[p]), p))
+                        .collect(),
+                )
             })
             .collect();
-        let tree = RTree::bulk_load(
-            boxes
-                .iter()
-                .enumerate()
-                .map(|(i, b)| Entry::new(rect(*b), i))
-                .collect(),
-        );
+        let group_boxes = partition
+            .groups
+            .iter()
+            .map(|g| g.parts.iter().fold(EMPTY_BOX, |u, &p| union(u, bounds[p])))
+            .collect();
         Placed {
             polygons,
-            shifted,
-            boxes,
-            tree,
+            bounds,
+            trees,
+            group_boxes,
+            shifted: vec![None; polygons.len()],
         }
     }
 
-    /// Parts whose box comes within `gap` of box `b` (a superset of those within `gap`
-    /// of the polygon: two shapes are never closer than their boxes).
-    fn near(&self, b: [f64; 4], gap: f64) -> impl Iterator<Item = usize> + '_ {
-        let env = AABB::from_corners([b[0] - gap, b[1] - gap], [b[2] + gap, b[3] + gap]);
-        self.tree
-            .locate_in_envelope_intersecting(&env)
-            .map(|e| e.data)
+    fn shift(partition: &Partition, p: usize) -> [f64; 2] {
+        let g = &partition.groups[partition.group_of[p]];
+        [g.dx_mm, g.dy_mm]
+    }
+
+    /// Part `p`'s box where its group puts it.
+    fn placed_box(&self, partition: &Partition, p: usize) -> [f64; 4] {
+        shifted_box(self.bounds[p], Self::shift(partition, p))
+    }
+
+    /// Parts whose placed box comes within `gap` of box `b` (a superset of those within
+    /// `gap` of the polygon: two shapes are never closer than their boxes), in no
+    /// particular order.
+    fn near(&self, partition: &Partition, b: [f64; 4], gap: f64) -> Vec<usize> {
+        let mut out = Vec::new();
+        for (h, grp) in partition.groups.iter().enumerate() {
+            let d = [grp.dx_mm, grp.dy_mm];
+            if grp.parts.is_empty() || !within(shifted_box(self.group_boxes[h], d), b, gap) {
+                continue;
+            }
+            // `b` grown by `gap`, in the group's unshifted frame: the parts whose placed
+            // box meets it.
+            let env = AABB::from_corners(
+                [b[0] - gap - d[0], b[1] - gap - d[1]],
+                [b[2] + gap - d[0], b[3] + gap - d[1]],
+            );
+            out.extend(
+                self.trees[h]
+                    .locate_in_envelope_intersecting(&env)
+                    .map(|e| e.data)
+                    .filter(|&q| within(self.placed_box(partition, q), b, gap)),
+            );
+        }
+        out
+    }
+
+    /// Every pair `a < b` of parts of different groups whose placed boxes come within
+    /// `gap` of each other.
+    fn candidate_pairs(&self, partition: &Partition, gap: f64) -> Vec<(usize, usize)> {
+        let mut out = Vec::new();
+        let groups = &partition.groups;
+        for (g, gg) in groups.iter().enumerate() {
+            let dg = [gg.dx_mm, gg.dy_mm];
+            if gg.parts.is_empty() {
+                continue;
+            }
+            let gbox = shifted_box(self.group_boxes[g], dg);
+            for (h, hg) in groups.iter().enumerate() {
+                let dh = [hg.dx_mm, hg.dy_mm];
+                if h == g || hg.parts.is_empty() {
+                    continue;
+                }
+                let hbox = shifted_box(self.group_boxes[h], dh);
+                if !within(gbox, hbox, gap) {
+                    continue;
+                }
+                // The parts of g near h's box, then h's parts near each.
+                let env = AABB::from_corners(
+                    [hbox[0] - gap - dg[0], hbox[1] - gap - dg[1]],
+                    [hbox[2] + gap - dg[0], hbox[3] + gap - dg[1]],
+                );
+                for a in self.trees[g].locate_in_envelope_intersecting(&env) {
+                    let a = a.data;
+                    let abox = shifted_box(self.bounds[a], dg);
+                    let env = AABB::from_corners(
+                        [abox[0] - gap - dh[0], abox[1] - gap - dh[1]],
+                        [abox[2] + gap - dh[0], abox[3] + gap - dh[1]],
+                    );
+                    out.extend(
+                        self.trees[h]
+                            .locate_in_envelope_intersecting(&env)
+                            .map(|e| e.data)
+                            .filter(|&b| {
+                                a < b && within(shifted_box(self.bounds[b], dh), abox, gap)
+                            })
+                            .map(|b| (a, b)),
+                    );
+                }
+            }
+        }
+        out.sort_unstable();
+        out
+    }
+
+    /// Translates part `p`'s polygon by its group's shift unless it already is.
+    fn translate(&mut self, partition: &Partition, p: usize) {
+        let d = Self::shift(partition, p);
+        if self.shifted[p].as_ref().is_none_or(|(at, _)| *at != d) {
+            self.shifted[p] = Some((d, self.polygons[p].translate(d[0], d[1])));
+        }
+    }
+
+    /// Part `p`'s polygon where its group puts it (after [`Self::translate`]).
+    fn polygon(&self, p: usize) -> &Polygon<f64> {
+        &self.shifted[p].as_ref().expect("translated").1
     }
 
     /// The distance between parts `a` and `b` as placed, if below `limit`.
-    fn distance_below(&self, a: usize, b: usize, limit: f64) -> Option<f64> {
+    fn distance_below(
+        &mut self,
+        partition: &Partition,
+        a: usize,
+        b: usize,
+        limit: f64,
+    ) -> Option<f64> {
+        self.translate(partition, a);
+        self.translate(partition, b);
         crate::near::distance_below(
-            &self.shifted[a],
-            self.boxes[a],
-            &self.shifted[b],
-            self.boxes[b],
+            self.polygon(a),
+            self.placed_box(partition, a),
+            self.polygon(b),
+            self.placed_box(partition, b),
             limit,
         )
     }
 
-    fn place(&mut self, p: usize, d: [f64; 2], bounds: [f64; 4]) {
-        let old = self.boxes[p];
-        self.tree.remove(&Entry::new(rect(old), p));
-        self.shifted[p] = self.polygons[p].translate(d[0], d[1]);
-        self.boxes[p] = [
-            bounds[0] + d[0],
-            bounds[1] + d[1],
-            bounds[2] + d[0],
-            bounds[3] + d[1],
-        ];
-        self.tree.insert(Entry::new(rect(self.boxes[p]), p));
+    /// Part `p` moved from group index `from` to `to` (the partition already says so).
+    fn moved(&mut self, p: usize, from: usize, to: usize, partition: &Partition) {
+        self.trees[from].remove(&Entry::new(rect(self.bounds[p]), p));
+        self.trees[to].insert(Entry::new(rect(self.bounds[p]), p));
+        for g in [from, to] {
+            self.group_boxes[g] = partition.groups[g]
+                .parts
+                .iter()
+                .fold(EMPTY_BOX, |u, &q| union(u, self.bounds[q]));
+        }
     }
 }
 
@@ -170,7 +294,7 @@ fn box_distance(a: [f64; 4], b: [f64; 4]) -> f64 {
 
 fn overlap(
     partition: &Partition,
-    placed: &Placed,
+    placed: &mut Placed,
     a: usize,
     b: usize,
     gap: f64,
@@ -179,7 +303,7 @@ fn overlap(
     if ga == gb {
         return None;
     }
-    let d = placed.distance_below(a, b, gap - SLACK_MM)?;
+    let d = placed.distance_below(partition, a, b, gap - SLACK_MM)?;
     Some(Overlap {
         a: a.min(b),
         b: a.max(b),
@@ -189,59 +313,64 @@ fn overlap(
     })
 }
 
-fn detect_placed(partition: &Partition, placed: &Placed) -> Vec<Overlap> {
-    detect_remembering(partition, placed, &mut Apart::new())
-}
-
 /// Pairs of parts found not close, with the translation of the second relative to the
 /// first they were measured at: the same polygons at the same relative translation are
 /// as far apart again, so a widening round measures only the pairs whose groups' shifts
 /// changed relative to each other.
 type Apart = std::collections::HashMap<(usize, usize), [f64; 2]>;
 
-/// [`detect_placed`], skipping the pairs `apart` holds at their relative translation and
-/// adding those it finds apart.
-fn detect_remembering(partition: &Partition, placed: &Placed, apart: &mut Apart) -> Vec<Overlap> {
+/// The overlaps as placed, sorted by (a, b), skipping the pairs `apart` holds at their
+/// relative translation and adding those it finds apart.
+fn detect_remembering(
+    partition: &Partition,
+    placed: &mut Placed,
+    apart: &mut Apart,
+) -> Vec<Overlap> {
     let gap = partition.clearance_mm;
-    let offsets = partition.offsets();
     let mut out = Vec::new();
-    for a in 0..placed.boxes.len() {
-        let mut near: Vec<usize> = placed
-            .near(placed.boxes[a], gap)
-            .filter(|&b| b > a && partition.group_of[a] != partition.group_of[b])
-            .collect();
-        near.sort_unstable();
-        for b in near {
-            let rel = [offsets[b][0] - offsets[a][0], offsets[b][1] - offsets[a][1]];
-            if apart.get(&(a, b)) == Some(&rel) {
-                continue;
-            }
-            match overlap(partition, placed, a, b, gap) {
-                Some(o) => out.push(o),
-                None => {
-                    apart.insert((a, b), rel);
-                }
+    for (a, b) in placed.candidate_pairs(partition, gap) {
+        let (da, db) = (Placed::shift(partition, a), Placed::shift(partition, b));
+        let rel = [db[0] - da[0], db[1] - da[1]];
+        if apart.get(&(a, b)) == Some(&rel) {
+            continue;
+        }
+        match overlap(partition, placed, a, b, gap) {
+            Some(o) => out.push(o),
+            None => {
+                apart.insert((a, b), rel);
             }
         }
     }
     out
 }
 
+/// The parts' polygons and boxes as given.
+fn shapes(parts: &[Part]) -> (Vec<Polygon<f64>>, Vec<[f64; 4]>) {
+    (
+        parts.iter().map(Part::polygon).collect(),
+        parts.iter().map(Part::bounds).collect(),
+    )
+}
+
 /// Every pair of parts of different groups, after their groups' shifts, whose contours
-/// intersect or are closer than the clearance (exact polygon distance, `geo`), candidates
-/// from an R*-tree of the shifted boxes (`rstar`). Sorted by (a, b).
+/// intersect or are closer than the clearance (exact polygon distance, `near.rs`, the
+/// same as `geo`'s), candidates from R*-trees of the boxes (`rstar`, one per group).
+/// Sorted by (a, b).
 pub fn detect(parts: &[Part], partition: &Partition) -> Vec<Overlap> {
-    detect_placed(partition, &Placed::new(parts, partition))
+    let (polygons, bounds) = shapes(parts);
+    let mut placed = Placed::new(&polygons, &bounds, partition);
+    detect_remembering(partition, &mut placed, &mut Apart::new())
 }
 
 /// The same as [`detect`] by checking every pair: the reference for tests and benchmarks.
 pub fn detect_exhaustive(parts: &[Part], partition: &Partition) -> Vec<Overlap> {
-    let placed = Placed::new(parts, partition);
+    let (polygons, bounds) = shapes(parts);
+    let mut placed = Placed::new(&polygons, &bounds, partition);
     let gap = partition.clearance_mm;
     let mut out = Vec::new();
     for a in 0..parts.len() {
         for b in a + 1..parts.len() {
-            out.extend(overlap(partition, &placed, a, b, gap));
+            out.extend(overlap(partition, &mut placed, a, b, gap));
         }
     }
     out
@@ -314,18 +443,26 @@ fn resolve_with(
     pinned: &[usize],
     widen: bool,
 ) -> Result<Resolution, PartitionError> {
-    let bounds: Vec<[f64; 4]> = parts.iter().map(Part::bounds).collect();
-    let found = detect(parts, partition);
+    let (polygons, bounds) = shapes(parts);
+    // The groups' trees, kept from round to round: a widening changes only shifts.
+    let mut placed = Placed::new(&polygons, &bounds, partition);
+    let found = detect_remembering(partition, &mut placed, &mut Apart::new());
     let mut moves = Vec::new();
     let mut widenings: Vec<Widening> = Vec::new();
     let mut rounds = 0;
     let mut memory = Memory {
         left_groups: vec![Vec::new(); parts.len()],
-        polygons: parts.iter().map(Part::polygon).collect(),
         apart: Apart::new(),
     };
     loop {
-        let left = move_parts(partition, &bounds, pinned, parts, &mut moves, &mut memory);
+        let left = move_parts(
+            partition,
+            &bounds,
+            pinned,
+            &mut placed,
+            &mut moves,
+            &mut memory,
+        );
         if left.is_empty() {
             return Ok(Resolution {
                 found,
@@ -404,10 +541,9 @@ fn widen_once(partition: &mut Partition, left: &[Overlap], widenings: &mut Vec<W
 }
 
 /// What one resolution keeps from round to round: per part the groups it left (it never
-/// goes back to one), the parts' polygons, and the pairs found apart.
+/// goes back to one), and the pairs found apart.
 struct Memory {
     left_groups: Vec<Vec<usize>>,
-    polygons: Vec<Polygon<f64>>,
     apart: Apart,
 }
 
@@ -416,20 +552,14 @@ fn move_parts(
     partition: &mut Partition,
     bounds: &[[f64; 4]],
     pinned: &[usize],
-    parts: &[Part],
+    placed: &mut Placed,
     moves: &mut Vec<Move>,
     memory: &mut Memory,
 ) -> Vec<Overlap> {
-    let Memory {
-        left_groups,
-        polygons,
-        apart,
-    } = memory;
+    let Memory { left_groups, apart } = memory;
     let gap = partition.clearance_mm;
-    let mut placed =
-        Placed::with_polygons(parts, partition, std::borrow::Cow::Borrowed(&polygons[..]));
     let mut current: std::collections::BTreeSet<(usize, usize)> =
-        detect_remembering(partition, &placed, apart)
+        detect_remembering(partition, placed, apart)
             .iter()
             .map(|o| (o.a, o.b))
             .collect();
@@ -437,7 +567,19 @@ fn move_parts(
     // change it.
     let mut cache: std::collections::HashMap<(usize, usize), Option<Vec<usize>>> =
         std::collections::HashMap::new();
+    // Each group's X extent (its parts' as given), for the window check of a candidate.
+    let extent = |partition: &Partition, g: usize| partition.extent_with(bounds, g, None);
+    let mut extents: Vec<[f64; 2]> = (0..partition.groups.len())
+        .map(|g| extent(partition, g))
+        .collect();
     'search: while !current.is_empty() {
+        // How many overlaps each part has (the score's "before"; `current` changes only
+        // by a move, which starts the search again).
+        let mut count: std::collections::HashMap<usize, usize> = Default::default();
+        for &(x, y) in &current {
+            *count.entry(x).or_default() += 1;
+            *count.entry(y).or_default() += 1;
+        }
         for &(a, b) in &current {
             let (ga, gb) = (partition.group_of[a], partition.group_of[b]);
             // The partner's group first, when it is a neighbour (tool and window each
@@ -474,12 +616,12 @@ fn move_parts(
                 }
                 let Some(after) = cache
                     .entry((p, g))
-                    .or_insert_with(|| overlaps_if_moved(partition, bounds, &placed, p, g))
+                    .or_insert_with(|| overlaps_if_moved(partition, bounds, placed, &extents, p, g))
                     .clone()
                 else {
                     continue;
                 };
-                let before = current.iter().filter(|&&(x, y)| x == p || y == p).count() as i64;
+                let before = count.get(&p).copied().unwrap_or(0) as i64;
                 let score = after.len() as i64 - before;
                 if score < 0 && best.as_ref().is_none_or(|b| score < b.0) {
                     best = Some((score, p, g, after));
@@ -489,21 +631,19 @@ fn move_parts(
                 let from = partition.group_of[p];
                 let other = if p == a { b } else { a };
                 let distance_mm = placed
-                    .distance_below(p, other, f64::INFINITY)
+                    .distance_below(partition, p, other, f64::INFINITY)
                     .unwrap_or(0.0);
-                let overlaps_before = current.iter().filter(|&&(x, y)| x == p || y == p).count();
+                let overlaps_before = count.get(&p).copied().unwrap_or(0);
                 let overlaps_after = after.len();
                 left_groups[p].push(from);
-                let old_box = placed.boxes[p];
+                let old_box = placed.placed_box(partition, p);
                 partition.reassign(p, g);
-                placed.place(
-                    p,
-                    [partition.groups[g].dx_mm, partition.groups[g].dy_mm],
-                    bounds[p],
-                );
+                placed.moved(p, from, g, partition);
+                extents[from] = extent(partition, from);
+                extents[g] = extent(partition, g);
                 // A candidate's outcome depends on its target group's extent and on the
                 // parts near where it would go: keep those the move cannot touch.
-                let new_box = placed.boxes[p];
+                let new_box = placed.placed_box(partition, p);
                 cache.retain(|&(q, h), _| {
                     let grp = &partition.groups[h];
                     let b = bounds[q];
@@ -535,7 +675,7 @@ fn move_parts(
         }
         return current
             .iter()
-            .filter_map(|&(a, b)| overlap(partition, &placed, a, b, gap))
+            .filter_map(|&(a, b)| overlap(partition, placed, a, b, gap))
             .collect();
     }
     Vec::new()
@@ -546,11 +686,19 @@ fn move_parts(
 fn overlaps_if_moved(
     partition: &Partition,
     bounds: &[[f64; 4]],
-    placed: &Placed,
+    placed: &mut Placed,
+    extents: &[[f64; 2]],
     p: usize,
     g: usize,
 ) -> Option<Vec<usize>> {
-    partition.fits_window(bounds, g, Some(p)).ok()?;
+    // The group's X extent with the part (min and max: the same as over its parts).
+    let ext = [
+        extents[g][0].min(bounds[p][0]),
+        extents[g][1].max(bounds[p][2]),
+    ];
+    if !partition.window_fits_extent(g, ext) {
+        return None;
+    }
     let grp = &partition.groups[g];
     let moved = placed.polygons[p].translate(grp.dx_mm, grp.dy_mm);
     let b = bounds[p];
@@ -562,17 +710,20 @@ fn overlaps_if_moved(
     ];
     let gap = partition.clearance_mm;
     let mut close = Vec::new();
-    for q in placed.near(bx, gap).filter(|&q| q != p) {
+    for q in placed.near(partition, bx, gap) {
         // Group mates keep their nested positions (the same shift): no check needed.
-        if partition.group_of[q] != g
-            && crate::near::distance_below(
-                &moved,
-                bx,
-                &placed.shifted[q],
-                placed.boxes[q],
-                gap - SLACK_MM,
-            )
-            .is_some()
+        if q == p || partition.group_of[q] == g {
+            continue;
+        }
+        placed.translate(partition, q);
+        if crate::near::distance_below(
+            &moved,
+            bx,
+            placed.polygon(q),
+            placed.placed_box(partition, q),
+            gap - SLACK_MM,
+        )
+        .is_some()
         {
             close.push(q);
         }

@@ -604,7 +604,11 @@ fn errors_from_slice(v: &[f64]) -> LocationErrors {
 
 /// Where each centre row should be for parameters `theta` (8 errors, then the two balls'
 /// centres in the workpiece frame).
-fn predicted(rows: &[CentreRow], constants: &MachineConstants, theta: &[f64]) -> DVector<f64> {
+pub(crate) fn predicted(
+    rows: &[CentreRow],
+    constants: &MachineConstants,
+    theta: &[f64],
+) -> DVector<f64> {
     let m = RotaryMachine::with_errors(*constants, errors_from_slice(&theta[..8]));
     let mut out = DVector::zeros(3 * rows.len());
     for (i, r) in rows.iter().enumerate() {

@@ -33,6 +33,7 @@
 
 pub mod centres;
 pub mod chart;
+pub mod design;
 pub mod identify;
 pub mod machine;
 pub mod measure;

@@ -15,9 +15,10 @@
 //! ([`MeasureSession::stop`]) ends it before its next move, keeping what it measured.
 
 use crate::centres::{Axis, CentreRow};
+use crate::design::{optimal_design, Design};
 use crate::identify::{check_sphere, fit_sphere, FitError, SphereFit};
 use crate::machine::{Axes, RotaryMachine};
-use crate::{sweep, Artifact, MachineConstants};
+use crate::{Artifact, MachineConstants};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
@@ -66,6 +67,60 @@ pub struct MeasurePlan {
     /// defaults).
     #[serde(default)]
     pub rim: RimPlan,
+    /// Which table positions are measured (absent: the optimal design of the default
+    /// plan).
+    #[serde(default = "default_design")]
+    pub design: PlanDesign,
+    /// Touches per ball: the top and the others around it at `cone_deg` (at least 5, so
+    /// that the sphere's residual says something; absent: 5).
+    #[serde(default = "default_touches_per_ball")]
+    pub touches_per_ball: usize,
+    /// Where the probe goes between two touches of one ball (absent: over the ball).
+    #[serde(default = "default_retract")]
+    pub retract: Retract,
+}
+
+/// Which table positions the cycle measures: C positions at A = 0, A positions at C = 0.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
+pub enum PlanDesign {
+    /// The paper's: C in 12 steps of 30°, A in 6 steps of 15° (19 positions).
+    Paper,
+    /// The Ds-optimal `c_positions` and `a_positions` among the paper's for the eight
+    /// errors ([`crate::design::optimal_design`]).
+    Optimal {
+        c_positions: usize,
+        a_positions: usize,
+    },
+}
+
+/// Where the probe goes between two touches of one ball.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Retract {
+    /// Up to the safe height after every touch (the paper's plan).
+    SafeHeight,
+    /// Up only to `approach_mm` above the ball's top, then across to over the next
+    /// start point: the stylus stays outside the ball grown by the approach distance
+    /// (a start point at `cone_deg` is further than that from the ball's vertical axis,
+    /// so the way up from it is clear, and the way across is above the ball). The safe
+    /// height is kept between balls and to turn the table.
+    OverBall,
+}
+
+fn default_design() -> PlanDesign {
+    PlanDesign::Optimal {
+        c_positions: 5,
+        a_positions: 5,
+    }
+}
+
+fn default_touches_per_ball() -> usize {
+    5
+}
+
+fn default_retract() -> Retract {
+    Retract::OverBall
 }
 
 /// Where and how the C rotation centre is found: 3 touches on the table's cylindrical rim,
@@ -86,6 +141,17 @@ pub struct RimPlan {
     /// and the constants are wrong for this machine: the cycle stops before looking for
     /// the balls where they are not.
     pub max_offset_mm: f64,
+    /// How far above the touch's height the probing descent beside the rim starts: the
+    /// probe comes down rapidly from the safe height to there, then probes its way down
+    /// (25 mm: from 15 mm above the table face; absent in a plan file: 25). None: the
+    /// whole way down from the safe height is a probing move (the paper's plan as first
+    /// run, about 36 s a touch at 300 mm/min).
+    #[serde(default = "default_protected_descent")]
+    pub protected_descent_mm: Option<f64>,
+}
+
+fn default_protected_descent() -> Option<f64> {
+    Some(25.0)
 }
 
 impl Default for RimPlan {
@@ -96,6 +162,7 @@ impl Default for RimPlan {
             angles_deg: [90.0, 210.0, 330.0],
             radius_tolerance_mm: 0.05,
             max_offset_mm: 1.0,
+            protected_descent_mm: default_protected_descent(),
         }
     }
 }
@@ -114,7 +181,30 @@ pub struct CCentre {
 }
 
 impl Default for MeasurePlan {
+    /// The cycle of issue 39: the optimal 5 + 5 positions, 5 touches per ball, the probe
+    /// kept over the balls between their touches, the rim's probing descent from 15 mm
+    /// above the face, the slow touch at 50 mm/min (see `docs/rotary.md` for its figures
+    /// beside the paper's plan).
     fn default() -> Self {
+        Self {
+            design: default_design(),
+            touches_per_ball: default_touches_per_ball(),
+            retract: default_retract(),
+            rim: RimPlan::default(),
+            // The slow touch at 50 mm/min (0.83 mm/s): GRBL latches the probe position
+            // in its step interrupt (`probe_state_monitor`, stepper.c), so the feed
+            // adds only the probe's own trigger-delay scatter times the speed; a probe
+            // whose datasheet states its repeatability at a lower speed sets this lower.
+            slow_feed_mm_min: 50.0,
+            ..Self::paper()
+        }
+    }
+}
+
+impl MeasurePlan {
+    /// The paper's plan as this project first ran it: 19 positions, 6 touches per ball,
+    /// the probe up to the safe height after every touch.
+    pub fn paper() -> Self {
         Self {
             artifact: Artifact::default(),
             stylus_radius_mm: 1.4992,
@@ -127,7 +217,31 @@ impl Default for MeasurePlan {
             radius_tolerance_mm: 0.005,
             residual_limit_mm: 0.002,
             safe_z_mm: -20.0,
-            rim: RimPlan::default(),
+            rim: RimPlan {
+                protected_descent_mm: None,
+                ..RimPlan::default()
+            },
+            design: PlanDesign::Paper,
+            touches_per_ball: 6,
+            retract: Retract::SafeHeight,
+        }
+    }
+
+    /// The table positions this plan measures, or why it cannot.
+    pub fn positions(&self, constants: &MachineConstants) -> Result<Design, String> {
+        if self.touches_per_ball < 5 {
+            return Err(format!(
+                "plan.touches_per_ball: {}, at least 5 (a sphere through 4 points has no residual to check)",
+                self.touches_per_ball
+            ));
+        }
+        match self.design {
+            PlanDesign::Paper => Ok(Design::paper()),
+            PlanDesign::Optimal {
+                c_positions,
+                a_positions,
+            } => optimal_design(constants, &self.artifact, c_positions, a_positions)
+                .map_err(|e| format!("plan.design: {e}")),
         }
     }
 }
@@ -198,6 +312,8 @@ pub enum MeasureError {
     },
     #[error("table rim: {0}; stopped before the balls")]
     Rim(String),
+    #[error("the plan: {0}; nothing moved")]
+    Plan(String),
     /// Stopped from outside ([`MeasureSession::stop`]) before the next move.
     #[error("{STOPPED_ON_REQUEST}")]
     StopRequested,
@@ -237,6 +353,8 @@ pub enum Action {
 enum Leg {
     /// Over the start point at the safe height.
     Above,
+    /// Beside the rim: rapidly down to where the probing descent starts.
+    Lower,
     /// Down to the start point (beside the rim: a probing move, so a table that is not
     /// where the constants put it stops the machine instead of crashing it).
     Descend,
@@ -275,9 +393,6 @@ enum Cursor {
 
 const SWEEPS: [Axis; 2] = [Axis::C, Axis::A];
 
-/// Touches per ball (the pole and five around it, see `directions`).
-const TOUCHES_PER_BALL: usize = 6;
-
 /// One rim touch's geometry.
 struct RimTouch {
     /// Outwards from the C axis, horizontal.
@@ -301,6 +416,12 @@ struct BallTouch {
     end: [f64; 3],
     /// Certified radius plus the stylus's.
     reach: f64,
+    /// The gauge point's height `approach_mm` over the ball's top, and over every
+    /// ball's top at this position.
+    over_z: f64,
+    over_all_z: f64,
+    /// The ball (0-based).
+    ball: usize,
 }
 
 /// Where one ball should be at one step, worked out once for its touches.
@@ -316,6 +437,9 @@ struct BallPlace {
     reach: f64,
     /// Outwards from the centre, one per touch.
     directions: Vec<Vector3<f64>>,
+    /// The height `approach_mm` over the highest ball's top at this position (stylus
+    /// centre, machine Z).
+    over_all_z: f64,
 }
 
 /// The measurement cycle as a state machine: [`next_action`](Self::next_action) says
@@ -344,12 +468,18 @@ pub struct MeasureSession {
     /// The current ball's place.
     place: Option<BallPlace>,
     total: usize,
+    /// The table positions measured.
+    design: Design,
 }
 
 impl MeasureSession {
     /// The cycle for a machine with these nominal constants, to this plan; nothing has
     /// moved yet.
     pub fn new(constants: &MachineConstants, plan: &MeasurePlan) -> Self {
+        let (design, refused) = match plan.positions(constants) {
+            Ok(d) => (d, None),
+            Err(e) => (Design::paper(), Some(e)),
+        };
         let mut s = Self {
             plan: *plan,
             nominal: RotaryMachine::nominal(*constants),
@@ -369,11 +499,20 @@ impl MeasureSession {
             place: None,
             total: SWEEPS
                 .iter()
-                .map(|&axis| sweep(axis).len() * plan.artifact.balls.len())
+                .map(|&axis| design.sweep(axis).len() * plan.artifact.balls.len())
                 .sum(),
+            design,
         };
-        s.enter(Cursor::RimStart);
+        match refused {
+            None => s.enter(Cursor::RimStart),
+            Some(e) => s.stop_with(MeasureError::Plan(e)),
+        }
         s
+    }
+
+    /// The table positions this cycle measures.
+    pub fn design(&self) -> &Design {
+        &self.design
     }
 
     /// What the machine is to do now (the same until it is answered).
@@ -392,7 +531,11 @@ impl MeasureSession {
                 leg: Leg::Above,
             },
             Cursor::Rim { touch, leg } => match leg {
-                Leg::Above => Cursor::Rim {
+                Leg::Above if self.plan.rim.protected_descent_mm.is_some() => Cursor::Rim {
+                    touch,
+                    leg: Leg::Lower,
+                },
+                Leg::Above | Leg::Lower => Cursor::Rim {
                     touch,
                     leg: Leg::Descend,
                 },
@@ -440,12 +583,13 @@ impl MeasureSession {
                     Leg::Descend => at(touch, Leg::Fast),
                     Leg::BackOff => at(touch, Leg::Slow),
                     Leg::Retract => at(touch, Leg::Up),
-                    Leg::Up if touch + 1 < TOUCHES_PER_BALL => at(touch + 1, Leg::Above),
+                    Leg::Up if touch + 1 < self.plan.touches_per_ball => at(touch + 1, Leg::Above),
                     Leg::Up => match self.ball_done(step, ball) {
                         Ok(()) => self.after_ball(sweep, step, ball),
                         Err(e) => return self.stop_with(e),
                     },
                     Leg::Fast | Leg::Slow => unreachable!("probing legs"),
+                    Leg::Lower => unreachable!("beside the rim only"),
                 }
             }
             Cursor::Done => unreachable!("no move is asked once done"),
@@ -652,6 +796,10 @@ impl MeasureSession {
                 let above = Axes::new(over.x, over.y, safe.max(over.z), 0.0, 0.0);
                 match leg {
                     Leg::Above | Leg::Up => Action::MoveTo(above),
+                    Leg::Lower => {
+                        let low = over.z + plan.rim.protected_descent_mm.unwrap_or(f64::INFINITY);
+                        Action::MoveTo(Axes::new(over.x, over.y, low.min(above.z), 0.0, 0.0))
+                    }
                     Leg::Descend => probe([over.x, over.y, over.z], plan.fast_feed_mm_min),
                     Leg::Fast => probe(t.end, plan.fast_feed_mm_min),
                     Leg::BackOff => {
@@ -663,15 +811,27 @@ impl MeasureSession {
                 }
             }
             Cursor::Turn { sweep: k, step } => {
-                let (a, c) = sweep(SWEEPS[k])[step];
+                let (a, c) = self.design.sweep(SWEEPS[k])[step];
                 Action::MoveTo(Axes::new(0.0, 0.0, safe, a, c))
             }
             Cursor::Ball { touch, leg, .. } => {
                 let t = self.ball_touch(touch);
                 let (a, c, s) = (t.a, t.c, t.start);
                 let above = Axes::new(s[0], s[1], safe.max(s[2]), a, c);
+                // Between two touches of the ball: over it (see `Retract::OverBall`).
+                let over = Axes::new(s[0], s[1], t.over_z.max(s[2]), a, c);
+                // Between two balls of one position: over both.
+                let over_all = Axes::new(s[0], s[1], t.over_all_z.max(s[2]), a, c);
+                let last = touch + 1 == plan.touches_per_ball;
+                let hop = plan.retract == Retract::OverBall;
+                let (first_ball, last_ball) =
+                    (t.ball == 0, t.ball + 1 == plan.artifact.balls.len());
                 let start = Axes::new(s[0], s[1], s[2], a, c);
                 match leg {
+                    Leg::Above if hop && touch > 0 => Action::MoveTo(over),
+                    Leg::Up if hop && !last => Action::MoveTo(over),
+                    Leg::Above if hop && !first_ball => Action::MoveTo(over_all),
+                    Leg::Up if hop && !last_ball => Action::MoveTo(over_all),
                     Leg::Above | Leg::Up => Action::MoveTo(above),
                     Leg::Descend | Leg::Retract => Action::MoveTo(start),
                     Leg::Fast => probe(t.end, plan.fast_feed_mm_min),
@@ -680,6 +840,7 @@ impl MeasureSession {
                         Action::MoveTo(Axes::new(back.x, back.y, back.z, a, c))
                     }
                     Leg::Slow => probe(t.end, plan.slow_feed_mm_min),
+                    Leg::Lower => unreachable!("beside the rim only"),
                 }
             }
             Cursor::Done => Action::Finished,
@@ -752,7 +913,7 @@ impl MeasureSession {
     fn ball_place(&self, sweep_no: usize, step: usize, ball: usize) -> BallPlace {
         let plan = &self.plan;
         let axis = SWEEPS[sweep_no];
-        let (a, c) = sweep(axis)[step];
+        let (a, c) = self.design.sweep(axis)[step];
         let table = self.nominal.table(a, c);
         let b = &plan.artifact.balls[ball];
         // Where the ball should be, with the table where the rim says it is (the offset
@@ -764,14 +925,25 @@ impl MeasureSession {
         // radius (a cap of 40° would make it 4 times noisier than the touches). The stem
         // (below the ball on the table normal) is at least 90° - (90° - cone) away at any
         // A up to 90°.
+        let over_all_z = plan
+            .artifact
+            .balls
+            .iter()
+            .map(|other| {
+                let at = kinematics::transform_point(&table, &Vector3::from(other.centre_mm))
+                    + self.nominal.table(a, 0.0).fixed_view::<3, 3>(0, 0) * self.offset;
+                at.z + other.radius_mm + plan.stylus_radius_mm + plan.approach_mm
+            })
+            .fold(f64::NEG_INFINITY, f64::max);
         BallPlace {
+            over_all_z,
             key: (sweep_no, step, ball),
             axis,
             a,
             c,
             centre,
             reach: b.radius_mm + plan.stylus_radius_mm,
-            directions: directions(&Vector3::z(), plan.cone_deg),
+            directions: directions(&Vector3::z(), plan.cone_deg, plan.touches_per_ball),
         }
     }
 
@@ -795,6 +967,9 @@ impl MeasureSession {
             start: gauge(start),
             end: gauge(end),
             reach,
+            over_z: centre.z + reach + plan.approach_mm + l,
+            over_all_z: place.over_all_z + l,
+            ball: place.key.2,
         }
     }
 
@@ -843,7 +1018,7 @@ impl MeasureSession {
                 touch: 0,
                 leg: Leg::Above,
             }
-        } else if step + 1 < sweep(SWEEPS[sweep_no]).len() {
+        } else if step + 1 < self.design.sweep(SWEEPS[sweep_no]).len() {
             Cursor::Turn {
                 sweep: sweep_no,
                 step: step + 1,
@@ -876,9 +1051,12 @@ fn circle_through(p: &[[f64; 3]]) -> Option<(f64, f64, f64)> {
     Some((a[0] + ux, a[1] + uy, ux.hypot(uy)))
 }
 
-/// The six approach directions (unit vectors from the ball's centre outwards, machine
-/// frame): the pole `n` and five around it at `cone_deg`, 72° apart.
-fn directions(n: &Vector3<f64>, cone_deg: f64) -> Vec<Vector3<f64>> {
+/// The `count` approach directions (unit vectors from the ball's centre outwards,
+/// machine frame): the pole `n` and `count - 1` around it at `cone_deg`, evenly apart;
+/// with an even number around, turned by half a step so that none points along ±Y
+/// (where the stem lies when A turns the table by 90°): 4 around at 45°, 135°, 225°,
+/// 315° from +Y; 5 around (the paper's plan) from +Y, 72° apart.
+fn directions(n: &Vector3<f64>, cone_deg: f64, count: usize) -> Vec<Vector3<f64>> {
     let helper = if n.x.abs() < 0.9 {
         Vector3::x()
     } else {
@@ -888,8 +1066,15 @@ fn directions(n: &Vector3<f64>, cone_deg: f64) -> Vec<Vector3<f64>> {
     let e2 = n.cross(&e1);
     let (s, c) = cone_deg.to_radians().sin_cos();
     let mut out = vec![*n];
-    for k in 0..5 {
-        let t = (72.0 * k as f64).to_radians();
+    let around = count.saturating_sub(1);
+    let step = 360.0 / around.max(1) as f64;
+    let turn = if around.is_multiple_of(2) {
+        step / 2.0
+    } else {
+        0.0
+    };
+    for k in 0..around {
+        let t = (turn + step * k as f64).to_radians();
         out.push((n * c + (e1 * t.cos() + e2 * t.sin()) * s).normalize());
     }
     out
@@ -1076,6 +1261,69 @@ mod tests {
         true
     }
 
+    /// The default plan: the optimal positions, 5 touches per ball, over the ball
+    /// between them; every move of a touch is clear of the ball grown by the stylus
+    /// (the perfect table would report a contact on a positioning move's way as a
+    /// crash: checked below on every move's straight line).
+    #[test]
+    fn the_default_cycle_measures_the_optimal_positions_over_the_balls() {
+        let mut table = PerfectTable::new();
+        let plan = MeasurePlan::default();
+        let constants = MachineConstants::default();
+        let design = plan.positions(&constants).unwrap();
+        let m = measure(&mut table, &constants, &plan, |_, _| {})
+            .unwrap_or_else(|s| panic!("{}", s.error));
+        let positions = design.c_steps_deg.len() + design.a_steps_deg.len();
+        assert_eq!(positions, 10);
+        assert_eq!(m.balls.len(), 2 * positions);
+        assert_eq!(m.probe_touches, (3 + m.balls.len() * 5) * 2);
+        let angles: Vec<f64> = m.balls.iter().map(|b| b.angle_deg).collect();
+        let want: Vec<f64> = design
+            .c_steps_deg
+            .iter()
+            .chain(&design.a_steps_deg)
+            .flat_map(|&a| [a, a])
+            .collect();
+        assert_eq!(angles, want);
+        // Positioning moves: between two touches of a ball only over it (never up to
+        // the safe height), and no positioning move passes through a ball.
+        let nominal = RotaryMachine::nominal(constants);
+        let mut from: Option<Axes> = None;
+        let mut safe_moves = 0;
+        for action in &table.log {
+            if let Action::MoveTo(to) = action {
+                if to.z == plan.safe_z_mm {
+                    safe_moves += 1;
+                }
+                if let Some(f) = from.filter(|f| f.a == to.a && f.c == to.c) {
+                    let table_at = nominal.table(to.a, to.c);
+                    for ball in &plan.artifact.balls {
+                        let centre =
+                            kinematics::transform_point(&table_at, &Vector3::from(ball.centre_mm));
+                        let l = constants.tool_length_mm;
+                        let (p, q) = (
+                            Vector3::new(f.x, f.y, f.z - l),
+                            Vector3::new(to.x, to.y, to.z - l),
+                        );
+                        let reach = ball.radius_mm + plan.stylus_radius_mm;
+                        assert!(
+                            PerfectTable::first_contact(p, q, centre, reach, 3).is_none(),
+                            "a move from {f:?} to {to:?} passes through a ball"
+                        );
+                    }
+                }
+                from = Some(*to);
+            } else if let Action::ProbeTowards { to, .. } = action {
+                if let Some(f) = from.as_mut() {
+                    (f.x, f.y, f.z) = (to[0], to[1], to[2]);
+                }
+            }
+        }
+        // Over the C axis, per rim touch over it and back up, per position the turn,
+        // over the first ball's first start and up from the last ball's last touch.
+        assert_eq!(safe_moves, 1 + 3 * 2 + positions * 3);
+    }
+
     #[test]
     fn the_whole_cycle_on_a_perfect_table_finds_every_ball_where_it_is() {
         let mut table = PerfectTable::new();
@@ -1083,7 +1331,7 @@ mod tests {
         let m = measure(
             &mut table,
             &MachineConstants::default(),
-            &MeasurePlan::default(),
+            &MeasurePlan::paper(),
             |done, total| calls.push((done, total)),
         )
         .unwrap_or_else(|s| panic!("{}", s.error));
@@ -1133,10 +1381,18 @@ mod tests {
         let first = Action::MoveTo(Axes::new(axis.x, axis.y, -20.0, 0.0, 0.0));
         assert_eq!(s.next_action(), first);
         assert_eq!(s.next_action(), first);
-        assert_eq!(s.progress(), (0, 38));
+        // 2 balls at the optimal 5 + 5 positions.
+        assert_eq!(s.progress(), (0, 20));
         s.moved();
-        // Over the first rim touch, then the protected descent beside the rim.
+        // Over the first rim touch, rapidly down to 15 mm above the face, then the
+        // protected descent beside the rim.
         assert!(matches!(s.next_action(), Action::MoveTo(_)));
+        s.moved();
+        let face = axis.z + MachineConstants::default().tool_length_mm;
+        assert!(matches!(
+            s.next_action(),
+            Action::MoveTo(to) if (to.z - (face + 15.0)).abs() < 1e-9
+        ));
         s.moved();
         assert!(matches!(
             s.next_action(),
@@ -1146,8 +1402,36 @@ mod tests {
     }
 
     #[test]
+    fn a_plan_that_cannot_be_run_stops_before_any_move() {
+        for (plan, says) in [
+            (
+                MeasurePlan {
+                    touches_per_ball: 4,
+                    ..MeasurePlan::default()
+                },
+                "plan.touches_per_ball: 4, at least 5",
+            ),
+            (
+                MeasurePlan {
+                    design: PlanDesign::Optimal {
+                        c_positions: 3,
+                        a_positions: 4,
+                    },
+                    ..MeasurePlan::default()
+                },
+                "plan.design: an optimal design needs 4 to 12 C positions",
+            ),
+        ] {
+            let s = MeasureSession::new(&MachineConstants::default(), &plan);
+            assert_eq!(s.next_action(), Action::Finished);
+            let e = s.finish().expect_err("refused").error.to_string();
+            assert!(e.starts_with("the plan: ") && e.contains(says), "{e}");
+        }
+    }
+
+    #[test]
     fn a_stop_after_n_balls_keeps_n_balls() {
-        for n in [0, 1, 5, 24] {
+        for n in [0, 1, 5, 14] {
             let mut table = PerfectTable::new();
             let mut s = session();
             while s.progress().0 < n && step(&mut s, &mut table) {}
@@ -1182,8 +1466,10 @@ mod tests {
     #[test]
     fn a_probe_that_never_touches_stops_at_the_first_rim_touch() {
         let mut s = session();
-        // Over the axis, over the first touch, down beside the rim (no contact: good),
-        // then the fast touch finds nothing.
+        // Over the axis, over the first touch, rapidly down to 15 mm above the face,
+        // probing down beside the rim (no contact: good), then the fast touch finds
+        // nothing.
+        s.moved();
         s.moved();
         s.moved();
         s.probed(None);
@@ -1223,6 +1509,7 @@ mod tests {
     /// frozen: the session must drive any machine move for move as it did.
     mod frozen {
         use super::super::*;
+        use crate::sweep;
 
         fn reference_locate_c_centre(
             machine: &mut impl ProbingMachine,
@@ -1381,7 +1668,9 @@ mod tests {
                         let pole = Vector3::z();
                         let reach = ball.radius_mm + plan.stylus_radius_mm;
                         let mut points = Vec::new();
-                        for (touch, d) in directions(&pole, plan.cone_deg).into_iter().enumerate() {
+                        for (touch, d) in
+                            directions(&pole, plan.cone_deg, 6).into_iter().enumerate()
+                        {
                             let start = centre + d * (reach + plan.approach_mm);
                             let end = centre + d * (reach - plan.overtravel_mm);
                             let gauge = |p: Vector3<f64>| [p.x, p.y, p.z + l];
@@ -1514,7 +1803,7 @@ mod tests {
         constants: &MachineConstants,
         fail_at: Option<usize>,
     ) -> Result<Measurement, Box<Stopped>> {
-        let plan = MeasurePlan::default();
+        let plan = MeasurePlan::paper();
         let mut ours = Recorder {
             inner: table.clone(),
             log: Vec::new(),

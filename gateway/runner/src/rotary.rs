@@ -455,7 +455,7 @@ mod tests {
             .unwrap();
             stopper.await.unwrap();
             let stopped = run.cycle.expect_err("stopped");
-            assert!(stopped.so_far.balls.len() < 38);
+            assert!(stopped.so_far.balls.len() < 20);
             assert_eq!(stopped.error.to_string(), STOPPED_ON_REQUEST);
         });
     }
@@ -528,8 +528,8 @@ mod tests {
             .block_on(run_cycle(&job, |_, _| {}, std::future::pending()))
             .unwrap();
         let m = run.cycle.as_ref().unwrap_or_else(|s| panic!("{}", s.error));
-        assert_eq!(m.balls.len(), 38);
-        assert_eq!(m.probe_touches, 462);
+        assert_eq!(m.balls.len(), 20);
+        assert_eq!(m.probe_touches, 206);
         let constants = MachineConstants::default();
         let id = rotary::identify(&m.centres(), &constants).unwrap();
         let report = cycle_report(&run, m, &id, &constants).unwrap();
