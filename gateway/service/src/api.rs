@@ -324,17 +324,18 @@ pub fn router(shared: AppState, limits: BodyLimits, cors_origins: &[String]) -> 
         ));
     let mut app = Router::new()
         .route("/healthz", get(|| async { Json(json!({"status": "ok"})) }))
+        // The page's files: ETag, Cache-Control and gzip (serve.rs).
         .route(
             "/",
-            get(|| async { static_file("text/html; charset=utf-8", webpage::INDEX_HTML) }),
+            get(|h: HeaderMap| async move { crate::serve::PAGE_FILES[0].answer(&h) }),
         )
         .route(
             "/app.js",
-            get(|| async { static_file("text/javascript; charset=utf-8", webpage::APP_JS) }),
+            get(|h: HeaderMap| async move { crate::serve::PAGE_FILES[1].answer(&h) }),
         )
         .route(
             "/style.css",
-            get(|| async { static_file("text/css; charset=utf-8", webpage::STYLE_CSS) }),
+            get(|h: HeaderMap| async move { crate::serve::PAGE_FILES[2].answer(&h) }),
         )
         .merge(api)
         .fallback(|| async { ApiError::not_found("not_found", "no such route") })
@@ -361,10 +362,6 @@ pub fn router(shared: AppState, limits: BodyLimits, cors_origins: &[String]) -> 
         );
     }
     app
-}
-
-fn static_file(content_type: &'static str, body: &'static str) -> Response {
-    ([(header::CONTENT_TYPE, content_type)], body).into_response()
 }
 
 #[derive(OpenApi)]
@@ -499,6 +496,15 @@ async fn enqueue(
             r.check_area(lo, hi).map_err(invalid)?;
         }
     }
+    // An uploaded file is read now by the reader its job uses (a layout of megabytes
+    // off the async threads), so a file the job would refuse is refused here.
+    let (parsed, upload) = tokio::task::spawn_blocking(move || {
+        let checked = check_upload(&parsed);
+        (parsed, checked)
+    })
+    .await
+    .map_err(|e| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, "internal", e.to_string()))?;
+    upload.map_err(invalid)?;
     let params = parsed.params();
     if request.kind == "rotary" && m.rotary.is_none() {
         return Err(ApiError::new(
@@ -538,6 +544,30 @@ async fn enqueue(
     ))
 }
 
+/// A request's uploaded file read as its job will read it: a layout with the job's
+/// format and chord tolerance through `layout_io`, the reader `procedure::layout` uses.
+/// The error is the reader's, on the field that holds the file.
+fn check_upload(request: &procedure::Request) -> Result<(), procedure::RequestError> {
+    if let procedure::Request::Layout(r) = request {
+        let options = layout_io::ReadOptions {
+            chord_tolerance_mm: r.chord_tolerance_mm,
+            ..layout_io::ReadOptions::default()
+        };
+        let format = match r.format {
+            procedure::request::LayoutFormat::Json => "JSON",
+            procedure::request::LayoutFormat::Dxf => "DXF",
+            procedure::request::LayoutFormat::Svg => "SVG",
+        };
+        layout_io::Layout::read(r.layout.as_bytes(), r.format.format(), &options).map_err(|e| {
+            procedure::RequestError::new(
+                "layout",
+                format!("the file is not a layout the job can read as {format}: {e}"),
+            )
+        })?;
+    }
+    Ok(())
+}
+
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct JobsQuery {
@@ -574,7 +604,21 @@ async fn jobs(
         before_id: q.before,
     };
     let list = lock(&shared.store).jobs(&filter)?;
-    Ok(Json(serde_json::to_value(list).unwrap_or(Value::Null)))
+    Ok(Json(Value::Array(
+        list.into_iter().map(list_entry).collect(),
+    )))
+}
+
+/// A job as a list shows it: without its `params` and `result`, which can be megabytes
+/// (a layout job carries its file and the shifted layout); `GET /api/v1/jobs/{id}` has
+/// them.
+fn list_entry(record: store::JobRecord) -> Value {
+    let mut v = serde_json::to_value(record).unwrap_or(Value::Null);
+    if let Some(o) = v.as_object_mut() {
+        o.remove("params");
+        o.remove("result");
+    }
+    v
 }
 
 fn job_record(shared: &Shared, id: JobId) -> ApiResult<store::JobRecord> {
