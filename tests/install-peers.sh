@@ -7,7 +7,8 @@
 #     LinuxCNC 2.9 (linuxcnc-uspace, without its recommends);
 #   Python packages (pip, versions tested): pyserial, numpy, paho-mqtt, grpcio-tools,
 #     pymodbus, python-can, canopen;
-#   npm packages: CNCjs 1.11.5 (tests/interop/cncjs), playwright-core (tests/interop/web);
+#   npm packages: CNCjs 1.11.5 (tests/interop/cncjs), playwright-core and axe-core
+#     (tests/interop/web);
 #   the real controller firmware (tests/firmware/build.sh, from ../shared/peers);
 #   a vcan0 SocketCAN interface where the kernel has CAN (best effort: a kernel without
 #     CAN cannot have one, and the SocketCAN test says so).
@@ -125,10 +126,12 @@ if [ ! -f tests/interop/cncjs/node_modules/cncjs/package.json ]; then
   say "installing CNCjs 1.11.5 (npm)"
   npm install --prefix tests/interop/cncjs cncjs@1.11.5 --omit=dev --no-audit --no-fund --loglevel=error >/dev/null
 fi
-# playwright-core (pinned in tests/interop/web/package.json): drives headless Chromium
-# for the web page's test (tests/interop/web/drive_page.js).
-if [ ! -f tests/interop/web/node_modules/playwright-core/package.json ]; then
-  say "installing playwright-core (npm)"
+# playwright-core and axe-core (pinned in tests/interop/web/package.json): drive headless
+# Chromium for the web page's test and check each view's accessibility
+# (tests/interop/web/drive_page.js).
+if [ ! -f tests/interop/web/node_modules/playwright-core/package.json ] ||
+  [ ! -f tests/interop/web/node_modules/axe-core/axe.min.js ]; then
+  say "installing playwright-core and axe-core (npm)"
   npm install --prefix tests/interop/web --no-package-lock --no-audit --no-fund --loglevel=error >/dev/null
 fi
 

@@ -8,8 +8,9 @@
 //! fails naming what to install. The screenshot is kept as
 //! `$CARGO_TARGET_DIR/tmp/service_web/page.png` (target/tmp/service_web/page.png by default).
 
+use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Command, Stdio};
 
 use plot::plotters::coord::Shift;
 use plot::plotters::prelude::*;
@@ -93,9 +94,9 @@ fn kind_jobs() -> serde_json::Value {
         {"kind": "iso230", "params": {"axis": "X", "positions": 5, "runs": 5}, "chart": true},
         {"kind": "map", "params": {"name": "error_map", "grid_step_mm": 50, "line_step_mm": 25, "passes": 1},
             "chart": false, "activate": "error_map"},
-        {"kind": "verify", "params": {"points": 2, "seed": 3}, "chart": false},
+        {"kind": "verify", "params": {"points": 2, "seed": 3, "drift_threshold_um": "2,5"}, "chart": false},
         {"kind": "layout", "params": {"layout": {"name": "three.json", "text": layout},
-            "tools": 2, "window_mm": 25, "gap_mm": 2, "picture": "svg"}, "chart": true},
+            "tools": 2, "window_mm": "25,0", "gap_mm": "1,5", "picture": "svg"}, "chart": true},
         {"kind": "rotary", "params": {}, "chart": true},
         {"kind": "reference", "params": {}, "chart": false},
         {"kind": "export", "params": {"format": "csv"}, "chart": false},
@@ -136,11 +137,13 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
     let screenshot = artefacts.join("page.png");
     seed_profiles(&data_dir);
 
-    let running = service::start(service::BoxConfig::demo(&data_dir))
+    let first = service::start(service::BoxConfig::demo(&data_dir))
         .await
         .expect("the demo service starts");
-    let base = format!("http://{}", running.local_addr());
-    let token = running.token().to_string();
+    let addr = first.local_addr();
+    let base = format!("http://{addr}");
+    let token = first.token().to_string();
+    let mut running = Some(first);
 
     let driver = web_dir.join("drive_page.js");
     let args: Vec<String> = vec![
@@ -155,20 +158,62 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
         CHARTS.into(),
         serde_json::json!({
             "queue": {"kind": "compensate", "long": {"targets": null}, "short": {"targets": 1}},
+            "form": true,
             "kinds": {"screenshots": artefacts.display().to_string(), "jobs": kind_jobs()},
+            "restart": {"screenshots": artefacts.display().to_string(), "params":
+                {"name": "restart_map", "grid_step_mm": 100, "line_step_mm": "50,0", "passes": 1}},
         })
         .to_string(),
     ];
-    let output = tokio::task::spawn_blocking(move || Command::new("node").args(&args).output())
-        .await
-        .expect("the driver task")
+    // The driver asks on stdout ({"ask": "stop"} / {"ask": "start"}) for the service to
+    // be shut down (as SIGTERM does) and started again on the same port and data, and is
+    // answered on stdin; its last line is its report.
+    let mut child = Command::new("node")
+        .args(&args)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
         .expect("node runs");
-    running.shutdown().await;
+    let mut answers = child.stdin.take().unwrap();
+    let stdout = child.stdout.take().unwrap();
+    let (lines_tx, mut lines) = tokio::sync::mpsc::unbounded_channel();
+    let reader = std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            let _ = lines_tx.send(line);
+        }
+    });
+    let mut report_line = String::new();
+    while let Some(line) = lines.recv().await {
+        let asked: serde_json::Value = serde_json::from_str(&line).unwrap_or_default();
+        match asked["ask"].as_str() {
+            Some("stop") => {
+                running.take().expect("running").shutdown().await;
+                writeln!(answers, "stopped").unwrap();
+            }
+            Some("start") => {
+                let mut config = service::BoxConfig::demo(&data_dir);
+                config.service.listen = addr;
+                running = Some(
+                    service::start(config)
+                        .await
+                        .expect("the service starts again"),
+                );
+                writeln!(answers, "started").unwrap();
+            }
+            _ => report_line = line,
+        }
+    }
+    reader.join().unwrap();
+    let output = child.wait_with_output().expect("the driver ends");
+    if let Some(r) = running.take() {
+        r.shutdown().await;
+    }
 
-    let stdout = String::from_utf8_lossy(&output.stdout);
     let stderr = String::from_utf8_lossy(&output.stderr);
-    let report: serde_json::Value = serde_json::from_str(stdout.trim())
-        .unwrap_or_else(|e| panic!("driver output is not JSON ({e}): {stdout}\n{stderr}"));
+    std::fs::write(artefacts.join("report.json"), &report_line).expect("the report is kept");
+    let report: serde_json::Value = serde_json::from_str(report_line.trim())
+        .unwrap_or_else(|e| panic!("driver output is not JSON ({e}): {report_line}\n{stderr}"));
     assert_eq!(
         report["ok"],
         true,
@@ -180,11 +225,19 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
     assert!(!url.contains(&token) && !url.contains("token="), "{url}");
     // The camera's last frame of the job: the thumbnail loaded (at most 320 px wide) with
     // the detected dots and the measured point drawn over it.
+    // Shown after the tab was reopened mid-job: only the running job's frame, and it
+    // went when the job ended.
     let frame = &report["frame"];
     let width = frame["width"].as_u64().unwrap_or(0);
     assert!((1..=320).contains(&width), "{frame}");
     assert!(frame["dots"].as_u64().unwrap_or(0) >= 12, "{frame}");
     assert_eq!(frame["centre"], true, "{frame}");
+    assert_eq!(
+        frame["jobs_shown"],
+        serde_json::json!([frame["running_job"]]),
+        "{frame}"
+    );
+    assert_eq!(frame["dropped_after_end"], true, "{frame}");
     // The map form has a field per param of the API's schema, and shows the API's
     // refusal of a too-fine grid beside its field (the message the API itself gives).
     let fields: Vec<&str> = report["form_fields"]
@@ -203,9 +256,51 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
             "tool_offset_mm"
         ]
     );
-    let refused =
-        procedure::Request::parse("map", &serde_json::json!({"grid_step_mm": 0.01})).unwrap_err();
-    assert_eq!(report["field_error"], refused.message.as_str(), "{report}");
+    // Every bad field is refused at once, beside its field and in a list above Start,
+    // in the page's words, before anything is queued.
+    let words = |v: &serde_json::Value| v.as_str().unwrap_or("").replace('\u{a0}', " ");
+    assert_eq!(
+        words(&report["field_error"]),
+        "Grid step must be between 0.25 and 10 000 mm; you entered 0.01.",
+        "{report}"
+    );
+    let errors = &report["field_errors"];
+    assert!(
+        words(&errors["line_step_mm"]).starts_with("Line step is not a number"),
+        "{errors}"
+    );
+    assert!(
+        words(&errors["passes"]).starts_with("Passes must be a whole number; you entered 2,5"),
+        "{errors}"
+    );
+    assert!(
+        words(&errors["tool_offset_mm"]).contains("could be 1.250 or 1250"),
+        "{errors}"
+    );
+    assert_eq!(report["form_errors_listed"], 4, "{report}");
+    // The API's refusal of what the page could not know (the scan's size over this
+    // machine's travel) is beside the field it names, without the API's field path.
+    let api_errors = report["api_field_errors"]
+        .as_object()
+        .expect("the API's refusal");
+    assert_eq!(api_errors.len(), 1, "{report}");
+    for message in api_errors.values() {
+        assert!(!words(message).contains("params."), "{message}");
+    }
+    // A picture is refused when chosen; a JSON that is no layout and a broken DXF by the
+    // layout reader the job uses, when queued.
+    let uploads = &report["upload_errors"];
+    assert!(
+        words(&uploads["png"]).contains("is a PNG picture, not a layout"),
+        "{uploads}"
+    );
+    for format in ["json", "dxf"] {
+        assert!(
+            words(&uploads[format])
+                .starts_with("Layout file: the file is not a layout the job can read as"),
+            "{uploads}"
+        );
+    }
     assert_eq!(report["machine_state_before"], "idle");
     assert_eq!(report["machine_state_after"], "idle");
     assert_eq!(report["job_detail_state"], "succeeded");
@@ -226,6 +321,29 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
     for d in dialogs {
         assert!(d.as_str().unwrap().contains("on machine demo"), "{d}");
     }
+    // Cancel and Roll back ask too.
+    for verb in ["Cancel ", "Roll back "] {
+        assert!(
+            dialogs
+                .iter()
+                .any(|d| d.as_str().unwrap().starts_with(verb)),
+            "no confirmation of {verb}: {dialogs:?}"
+        );
+    }
+    // Nothing wider than the screen on a 390 px phone or a 1366 px desktop.
+    for (label, width) in [("390", 390), ("1366", 1366)] {
+        let got = report["widths"][label].as_u64().unwrap();
+        assert!(
+            got <= width,
+            "the page is {got} px wide at {width} px: {report}"
+        );
+    }
+    assert!(
+        report["phone_form_width"].as_u64().unwrap() <= 390,
+        "{report}"
+    );
+    // axe-core: no serious or critical violation on any view.
+    assert_eq!(report["axe"], serde_json::json!([]), "axe-core violations");
     // The seeded versions carry only drawings, no map: the page says what the API
     // answers for them (they cannot be compared node by node).
     assert!(
@@ -279,9 +397,52 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
             assert!(!k["charts"].as_array().unwrap().is_empty(), "{k}");
         }
         assert_eq!(k["raw_collapsed"], true, "{k}");
+        assert_eq!(k["raw_hidden"], true, "{k}");
+        assert!(k["phone_width"].as_u64().unwrap() <= 390, "{k}");
+        // Each number as typed (a decimal comma too) is the number stored.
+        for (name, typed) in want["params"].as_object().unwrap() {
+            if let Some(text) = typed.as_str().filter(|t| t.contains(',')) {
+                let exact: f64 = text.replace(',', ".").parse().unwrap();
+                assert_eq!(k["params"][name], exact, "{name} typed {text}: {k}");
+            }
+        }
         let shot = std::fs::read(k["screenshot"].as_str().unwrap()).expect("a screenshot per kind");
         assert!(shot.starts_with(b"\x89PNG\r\n\x1a\n"), "{k}");
     }
+    // The service stopped mid-scan: the page said it was not live (every action
+    // disabled, no time left); back up, the job is what the service recorded, no frame
+    // or progress of it is left, and Resume measured only what was missing.
+    let restart = &report["restart"];
+    assert_eq!(restart["down"]["stale_shown"], true, "{restart}");
+    assert_eq!(restart["down"]["actions_disabled"], true, "{restart}");
+    assert!(
+        restart["down"]["actions"].as_u64().unwrap() > 0,
+        "{restart}"
+    );
+    for p in restart["down"]["progress"].as_array().unwrap() {
+        let p = p.as_str().unwrap();
+        assert!(p.contains("not live") && !p.contains("left"), "{p}");
+    }
+    assert_eq!(restart["after"]["state"], "cancelled", "{restart}");
+    assert_eq!(restart["after"]["row_state"], "cancelled", "{restart}");
+    assert!(
+        restart["after"]["next"]
+            .as_str()
+            .unwrap()
+            .contains("kept. Starting the same scan again measures only what is missing"),
+        "{restart}"
+    );
+    assert_eq!(restart["after"]["running"], 0, "{restart}");
+    assert_eq!(restart["after"]["frames"], 0, "{restart}");
+    assert_eq!(restart["resumed"]["state"], "succeeded", "{restart}");
+    assert_eq!(
+        restart["resumed"]["resumed_from_job"], restart["job"],
+        "{restart}"
+    );
+    assert!(
+        restart["resumed"]["resumed_frames"].as_u64().unwrap() > 0,
+        "{restart}"
+    );
     let png = std::fs::read(&screenshot).expect("the screenshot was written");
     assert!(
         png.starts_with(b"\x89PNG\r\n\x1a\n"),

@@ -187,6 +187,31 @@ impl crate::registry::Procedure for LayoutPartition {
     fn summary(result: &Value) -> String {
         summary(result)
     }
+
+    /// The uploaded layout read as the job will read it (its format, its chord
+    /// tolerance): a file the job would refuse is refused when queued, on its field.
+    fn admit(
+        request: &LayoutRequest,
+        _facts: &crate::registry::Facts,
+    ) -> Result<(), crate::RequestError> {
+        let options = ReadOptions {
+            chord_tolerance_mm: request.chord_tolerance_mm,
+            ..ReadOptions::default()
+        };
+        let format = match request.format {
+            LayoutFormat::Json => "JSON",
+            LayoutFormat::Dxf => "DXF",
+            LayoutFormat::Svg => "SVG",
+        };
+        layout_io::Layout::read(request.layout.as_bytes(), request.format.format(), &options)
+            .map(|_| ())
+            .map_err(|e| {
+                crate::RequestError::new(
+                    "layout",
+                    format!("the file is not a layout the job can read as {format}: {e}"),
+                )
+            })
+    }
 }
 
 /// The report as text, one line per figure (the CLI's output without `--json`).

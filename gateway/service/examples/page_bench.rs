@@ -4,8 +4,10 @@
 //! in its history; tests/interop/web/bench_page.js (node, playwright-core, /usr/bin/chromium
 //! as for the browser test) then
 //! 1. loads the page five times: from navigation to the machines, the history and the
-//!    live connection shown;
-//! 2. starts a map job (its frames are its measurements, thousands at a fine grid), shows
+//!    live connection shown (the history holds one 15 MB layout job too; the size of the
+//!    list the page fetches is printed);
+//! 2. starts a map job, times its first frame on the page (from the request to the
+//!    picture loaded), then (its frames are its measurements, thousands at a fine grid), shows
 //!    it, and times each measurement event the page appends (its handler and the layout
 //!    after it), counting the page's fetches of the measurements.
 
@@ -35,6 +37,26 @@ fn seed(data_dir: &std::path::Path, jobs: usize) {
             )
             .unwrap();
     }
+    // One accepted 15 MB layout job (its file in params, its shifted layout in the
+    // result), as issue 37 found it: the history list must not carry it.
+    let layout = format!("{{\"parts\": []}}{}", " ".repeat(15 << 20));
+    let job = store
+        .enqueue(
+            "demo",
+            "layout",
+            &json!({"layout": layout, "format": "json"}),
+        )
+        .unwrap();
+    store.start(job.id, None).unwrap();
+    store
+        .finish(
+            job.id,
+            store::Outcome::Succeeded {
+                result: json!({"groups": [], "layout": layout}),
+                metrics: Default::default(),
+            },
+        )
+        .unwrap();
 }
 
 #[tokio::main(flavor = "multi_thread", worker_threads = 2)]

@@ -324,17 +324,18 @@ pub fn router(shared: AppState, limits: BodyLimits, cors_origins: &[String]) -> 
         ));
     let mut app = Router::new()
         .route("/healthz", get(|| async { Json(json!({"status": "ok"})) }))
+        // The page's files: ETag, Cache-Control and gzip (serve.rs).
         .route(
             "/",
-            get(|| async { static_file("text/html; charset=utf-8", webpage::INDEX_HTML) }),
+            get(|h: HeaderMap| async move { crate::serve::PAGE_FILES[0].answer(&h) }),
         )
         .route(
             "/app.js",
-            get(|| async { static_file("text/javascript; charset=utf-8", webpage::APP_JS) }),
+            get(|h: HeaderMap| async move { crate::serve::PAGE_FILES[1].answer(&h) }),
         )
         .route(
             "/style.css",
-            get(|| async { static_file("text/css; charset=utf-8", webpage::STYLE_CSS) }),
+            get(|h: HeaderMap| async move { crate::serve::PAGE_FILES[2].answer(&h) }),
         )
         .merge(api)
         .fallback(|| async { ApiError::not_found("not_found", "no such route") })
@@ -361,10 +362,6 @@ pub fn router(shared: AppState, limits: BodyLimits, cors_origins: &[String]) -> 
         );
     }
     app
-}
-
-fn static_file(content_type: &'static str, body: &'static str) -> Response {
-    ([(header::CONTENT_TYPE, content_type)], body).into_response()
 }
 
 #[derive(OpenApi)]
@@ -497,10 +494,19 @@ async fn enqueue(
         scan_area: *m.scan_area.lock().unwrap_or_else(|p| p.into_inner()),
     };
     let params = parsed.params();
-    parsed
-        .registered()
-        .admit(&params, &facts)
-        .map_err(invalid)?;
+    // The kind's own refusals when queued (a map too fine for the machine's travel, an
+    // uploaded file its job's reader would refuse), off the async threads: a layout may
+    // be megabytes.
+    let kind = parsed.registered();
+    let admitted = {
+        let params = params.clone();
+        tokio::task::spawn_blocking(move || kind.admit(&params, &facts))
+            .await
+            .map_err(|e| {
+                ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, "internal", e.to_string())
+            })?
+    };
+    admitted.map_err(invalid)?;
     if parsed.registered().uses.rotary && m.rotary.is_none() {
         return Err(ApiError::new(
             StatusCode::UNPROCESSABLE_ENTITY,
@@ -575,7 +581,21 @@ async fn jobs(
         before_id: q.before,
     };
     let list = lock(&shared.store).jobs(&filter)?;
-    Ok(Json(serde_json::to_value(list).unwrap_or(Value::Null)))
+    Ok(Json(Value::Array(
+        list.into_iter().map(list_entry).collect(),
+    )))
+}
+
+/// A job as a list shows it: without its `params` and `result`, which can be megabytes
+/// (a layout job carries its file and the shifted layout); `GET /api/v1/jobs/{id}` has
+/// them.
+fn list_entry(record: store::JobRecord) -> Value {
+    let mut v = serde_json::to_value(record).unwrap_or(Value::Null);
+    if let Some(o) = v.as_object_mut() {
+        o.remove("params");
+        o.remove("result");
+    }
+    v
 }
 
 fn job_record(shared: &Shared, id: JobId) -> ApiResult<store::JobRecord> {

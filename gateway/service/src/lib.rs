@@ -149,12 +149,35 @@ fn write_private(path: &Path, text: &str) -> std::io::Result<()> {
     std::fs::write(path, format!("{text}\n"))
 }
 
+/// The store's file and its WAL companions readable and writable by their owner only
+/// (mode 0600; SQLite creates them with the process's umask): they hold every job's
+/// parameters, results and files.
+#[cfg(unix)]
+fn owner_only(db: &Path) -> std::io::Result<()> {
+    use std::os::unix::fs::PermissionsExt;
+    for suffix in ["", "-wal", "-shm"] {
+        let mut path = db.as_os_str().to_owned();
+        path.push(suffix);
+        match std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o600)) {
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound && !suffix.is_empty() => {}
+            other => other?,
+        }
+    }
+    Ok(())
+}
+
+#[cfg(not(unix))]
+fn owner_only(_db: &Path) -> std::io::Result<()> {
+    Ok(())
+}
+
 /// Starts the service: store, token, workers, HTTP server.
 pub async fn start(config: BoxConfig) -> Result<Running, StartError> {
     let data_dir = &config.service.data_dir;
     std::fs::create_dir_all(data_dir).map_err(io(format!("data_dir {}", data_dir.display())))?;
     let db = data_dir.join("gateway.sqlite");
     let mut store = Store::open(&db).map_err(in_store(db.display().to_string()))?;
+    owner_only(&db).map_err(io(format!("{}: restricting it to its owner", db.display())))?;
     let interrupted = store
         .recover()
         .map_err(in_store("recovering interrupted jobs"))?;

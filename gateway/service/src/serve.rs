@@ -11,9 +11,12 @@
 //! - *idle*: a keep-alive connection between requests (its last response written).
 //!   Closed after `idle_timeout` without a byte of a new request.
 //! - *busy*: a request is being answered (from its complete head to the end of its
-//!   response body). Never timed out nor evicted. Request bodies are only read by the
-//!   handlers, behind the bearer check, so only a token holder can be slow here; the
-//!   wrong-token delay is capped by `bad_token_delay_cap_ms`.
+//!   response body). Never evicted. Request bodies are only read by the handlers,
+//!   behind the bearer check, so only a token holder can be slow here; the wrong-token
+//!   delay is capped by `bad_token_delay_cap_ms`. A token holder's body, too, must have
+//!   arrived whole within `idle_timeout` of its head (60 s by default: 16 MiB at about
+//!   2.3 Mbit/s); else the request is answered 408 `body_timeout` and the connection
+//!   closed, so a body sent a byte a second holds nothing for long.
 //! - *upgraded*: a WebSocket (`/api/v1/events`, authenticated). Never timed out nor
 //!   evicted; it ends with its client or at shutdown.
 //!
@@ -502,13 +505,24 @@ impl hyper::service::Service<Request<Incoming>> for ConnService {
             return Box::pin(std::future::ready(Ok(response)));
         };
         req.extensions_mut().insert(ConnectInfo(self.peer));
+        let late = Arc::new(AtomicBool::new(false));
+        let timeout = self.conn.limits.idle_timeout;
+        let req = req.map(|inner| DeadlineBody {
+            inner,
+            deadline: Box::pin(tokio::time::sleep(timeout)),
+            late: late.clone(),
+        });
         let mut app = self.app.clone();
         let conn = self.conn.clone();
         Box::pin(async move {
-            let response = match tower_service::Service::call(&mut app, req).await {
+            let mut response = match tower_service::Service::call(&mut app, req).await {
                 Ok(response) => response,
                 Err(never) => match never {},
             };
+            if late.load(Ordering::Relaxed) {
+                // Whatever the handler made of its cut body: the client is told why.
+                response = body_timeout(timeout);
+            }
             if response.status() == StatusCode::SWITCHING_PROTOCOLS {
                 conn.upgraded();
             }
@@ -519,6 +533,174 @@ impl hyper::service::Service<Request<Incoming>> for ConnService {
         })
     }
 }
+
+/// A request body that must have arrived whole by its deadline: past it, the next read
+/// fails (the handler refuses the request) and `late` says why.
+struct DeadlineBody {
+    inner: Incoming,
+    deadline: Pin<Box<tokio::time::Sleep>>,
+    late: Arc<AtomicBool>,
+}
+
+impl HttpBody for DeadlineBody {
+    type Data = Bytes;
+    type Error = Box<dyn std::error::Error + Send + Sync>;
+
+    fn poll_frame(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+    ) -> Poll<Option<Result<Frame<Bytes>, Self::Error>>> {
+        let this = self.get_mut();
+        match Pin::new(&mut this.inner).poll_frame(cx) {
+            Poll::Ready(frame) => Poll::Ready(frame.map(|f| f.map_err(Into::into))),
+            Poll::Pending => match this.deadline.as_mut().poll(cx) {
+                Poll::Ready(()) => {
+                    this.late.store(true, Ordering::Relaxed);
+                    Poll::Ready(Some(Err("the request body did not arrive in time".into())))
+                }
+                Poll::Pending => Poll::Pending,
+            },
+        }
+    }
+
+    fn is_end_stream(&self) -> bool {
+        self.inner.is_end_stream()
+    }
+
+    fn size_hint(&self) -> SizeHint {
+        self.inner.size_hint()
+    }
+}
+
+/// 408 for a body that was not whole by its deadline; the connection is closed (the
+/// rest of the body is never read).
+fn body_timeout(timeout: Duration) -> Response<Body> {
+    let message = format!(
+        "the request body did not arrive within {} s of its head (service.idle_timeout_s in BOX.toml)",
+        timeout.as_secs_f64()
+    );
+    let body = serde_json::json!({"error": "body_timeout", "message": message}).to_string();
+    let mut response = Response::new(Body::from(body));
+    *response.status_mut() = StatusCode::REQUEST_TIMEOUT;
+    let headers = response.headers_mut();
+    headers.insert(
+        header::CONTENT_TYPE,
+        header::HeaderValue::from_static("application/json"),
+    );
+    headers.insert(
+        header::CONNECTION,
+        header::HeaderValue::from_static("close"),
+    );
+    headers.insert(
+        header::X_CONTENT_TYPE_OPTIONS,
+        header::HeaderValue::from_static("nosniff"),
+    );
+    response
+}
+
+/// The page's files (`/`, `/app.js`, `/style.css`), built into the binary: each with a
+/// strong `ETag` (a hash of its text) and `Cache-Control: no-cache`, so a browser asks
+/// again at each load and gets 304 without a body while the file is unchanged (a new
+/// build's page is used at once); gzip-compressed (once, at first use) for a client
+/// that accepts it.
+pub(crate) struct PageFile {
+    content_type: &'static str,
+    text: &'static str,
+    etag: String,
+    gzip: Vec<u8>,
+}
+
+impl PageFile {
+    fn new(content_type: &'static str, text: &'static str) -> PageFile {
+        use std::hash::{Hash, Hasher};
+        use std::io::Write;
+        // SipHash with fixed keys: the same text gives the same tag in every process of
+        // a build.
+        let mut hasher = std::hash::DefaultHasher::new();
+        text.hash(&mut hasher);
+        let mut gz = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::best());
+        let gzip = gz
+            .write_all(text.as_bytes())
+            .and_then(|()| gz.finish())
+            .unwrap_or_default();
+        PageFile {
+            content_type,
+            text,
+            etag: format!("\"{:016x}-{}\"", hasher.finish(), text.len()),
+            gzip,
+        }
+    }
+
+    /// The answer to a GET with these request headers.
+    pub(crate) fn answer(&self, request: &header::HeaderMap) -> Response<Body> {
+        let etag = header::HeaderValue::from_str(&self.etag).expect("an ASCII tag");
+        let matches = request
+            .get_all(header::IF_NONE_MATCH)
+            .iter()
+            .filter_map(|v| v.to_str().ok())
+            .flat_map(|v| v.split(','))
+            .map(|t| t.trim().trim_start_matches("W/"))
+            .any(|t| t == "*" || t == self.etag);
+        let gzip = !self.gzip.is_empty() && accepts_gzip(request);
+        let mut response = if matches {
+            let mut r = Response::new(Body::empty());
+            *r.status_mut() = StatusCode::NOT_MODIFIED;
+            r
+        } else if gzip {
+            let mut r = Response::new(Body::from(self.gzip.clone()));
+            r.headers_mut().insert(
+                header::CONTENT_ENCODING,
+                header::HeaderValue::from_static("gzip"),
+            );
+            r
+        } else {
+            Response::new(Body::from(self.text))
+        };
+        let headers = response.headers_mut();
+        headers.insert(
+            header::CONTENT_TYPE,
+            header::HeaderValue::from_static(self.content_type),
+        );
+        headers.insert(header::ETAG, etag);
+        headers.insert(
+            header::CACHE_CONTROL,
+            header::HeaderValue::from_static("no-cache"),
+        );
+        headers.insert(
+            header::VARY,
+            header::HeaderValue::from_static("accept-encoding"),
+        );
+        response
+    }
+}
+
+/// Whether `Accept-Encoding` accepts gzip (RFC 9110 12.5.3: `gzip` or `*`, with a
+/// q-value above 0).
+fn accepts_gzip(request: &header::HeaderMap) -> bool {
+    request
+        .get_all(header::ACCEPT_ENCODING)
+        .iter()
+        .filter_map(|v| v.to_str().ok())
+        .flat_map(|v| v.split(','))
+        .any(|coding| {
+            let mut parts = coding.split(';');
+            let name = parts.next().unwrap_or("").trim().to_ascii_lowercase();
+            let q = parts
+                .filter_map(|p| p.trim().strip_prefix("q="))
+                .find_map(|q| q.trim().parse::<f64>().ok())
+                .unwrap_or(1.0);
+            (name == "gzip" || name == "x-gzip" || name == "*") && q > 0.0
+        })
+}
+
+/// The page's three files.
+pub(crate) static PAGE_FILES: std::sync::LazyLock<[PageFile; 3]> = std::sync::LazyLock::new(|| {
+    [
+        PageFile::new("text/html; charset=utf-8", webpage::INDEX_HTML),
+        PageFile::new("text/javascript; charset=utf-8", webpage::APP_JS),
+        PageFile::new("text/css; charset=utf-8", webpage::STYLE_CSS),
+    ]
+});
 
 /// A response body holding its request's busy guard until hyper has taken its last
 /// frame.
@@ -573,6 +755,106 @@ mod tests {
         assert_eq!(answer.status(), 200);
         let peer: SocketAddr = answer.text().await.unwrap().parse().unwrap();
         assert!(peer.ip().is_loopback());
+        let _ = stop.send(true);
+        server.await.unwrap();
+    }
+
+    fn headers(pairs: &[(header::HeaderName, &'static str)]) -> header::HeaderMap {
+        pairs
+            .iter()
+            .map(|(k, v)| (k.clone(), header::HeaderValue::from_static(v)))
+            .collect()
+    }
+
+    /// The page's script: gzip when accepted (and it inflates to the file), its tag
+    /// answered 304 without a body, plain text otherwise.
+    #[tokio::test]
+    async fn page_files_are_tagged_revalidated_and_compressed() {
+        use std::io::Read;
+        let file = &PAGE_FILES[1];
+        let plain = file.answer(&header::HeaderMap::new());
+        assert_eq!(plain.status(), StatusCode::OK);
+        assert_eq!(plain.headers()[header::CACHE_CONTROL], "no-cache");
+        assert!(plain.headers().get(header::CONTENT_ENCODING).is_none());
+        let etag = plain.headers()[header::ETAG].to_str().unwrap().to_string();
+        let body = axum::body::to_bytes(plain.into_body(), usize::MAX)
+            .await
+            .unwrap();
+        assert_eq!(body, webpage::APP_JS.as_bytes());
+
+        let zipped = file.answer(&headers(&[(header::ACCEPT_ENCODING, "gzip, deflate, br")]));
+        assert_eq!(zipped.headers()[header::CONTENT_ENCODING], "gzip");
+        let body = axum::body::to_bytes(zipped.into_body(), usize::MAX)
+            .await
+            .unwrap();
+        assert!(
+            body.len() * 3 < webpage::APP_JS.len(),
+            "{} bytes",
+            body.len()
+        );
+        let mut text = String::new();
+        flate2::read::GzDecoder::new(&body[..])
+            .read_to_string(&mut text)
+            .unwrap();
+        assert_eq!(text, webpage::APP_JS);
+        // gzip refused with q=0: plain.
+        let refused = file.answer(&headers(&[(header::ACCEPT_ENCODING, "gzip;q=0, identity")]));
+        assert!(refused.headers().get(header::CONTENT_ENCODING).is_none());
+
+        let mut again = header::HeaderMap::new();
+        again.insert(header::IF_NONE_MATCH, etag.parse().unwrap());
+        let unchanged = file.answer(&again);
+        assert_eq!(unchanged.status(), StatusCode::NOT_MODIFIED);
+        let body = axum::body::to_bytes(unchanged.into_body(), usize::MAX)
+            .await
+            .unwrap();
+        assert!(body.is_empty());
+        // Another file's tag is not this one's.
+        let other = PAGE_FILES[2].answer(&again);
+        assert_eq!(other.status(), StatusCode::OK);
+    }
+
+    /// A request whose body stops arriving is answered 408 `body_timeout` when its
+    /// deadline passes (the clock is tokio's paused one: no wall time is waited).
+    #[tokio::test(start_paused = true)]
+    async fn a_body_that_stops_arriving_is_answered_408() {
+        use tokio::io::{AsyncReadExt, AsyncWriteExt};
+        let app = Router::new().route(
+            "/upload",
+            axum::routing::post(|body: String| async move { body.len().to_string() }),
+        );
+        let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = listener.local_addr().unwrap();
+        let (stop, shutdown) = watch::channel(false);
+        let limits = Limits {
+            header_timeout: Duration::from_secs(10),
+            idle_timeout: Duration::from_secs(60),
+            max_connections: 4,
+        };
+        let server = tokio::spawn(serve(listener, app, limits, shutdown));
+        let mut client = TcpStream::connect(addr).await.unwrap();
+        client
+            .write_all(b"POST /upload HTTP/1.1\r\nhost: x\r\ncontent-length: 100\r\n\r\nabc")
+            .await
+            .unwrap();
+        let mut answer = Vec::new();
+        client.read_to_end(&mut answer).await.unwrap();
+        let answer = String::from_utf8_lossy(&answer);
+        assert!(answer.starts_with("HTTP/1.1 408"), "{answer}");
+        assert!(answer.contains("\"body_timeout\""), "{answer}");
+        assert!(answer.contains("service.idle_timeout_s"), "{answer}");
+
+        // A whole body is answered as before.
+        let mut client = TcpStream::connect(addr).await.unwrap();
+        client
+            .write_all(b"POST /upload HTTP/1.1\r\nhost: x\r\nconnection: close\r\ncontent-length: 3\r\n\r\nabc")
+            .await
+            .unwrap();
+        let mut answer = Vec::new();
+        client.read_to_end(&mut answer).await.unwrap();
+        let answer = String::from_utf8_lossy(&answer);
+        assert!(answer.starts_with("HTTP/1.1 200"), "{answer}");
+        assert!(answer.ends_with("\r\n\r\n3"), "{answer}");
         let _ = stop.send(true);
         server.await.unwrap();
     }

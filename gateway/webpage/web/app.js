@@ -8,7 +8,10 @@
 // #job-result table[data-result] (iso230-figures, verify-before-after, compensate-before-after, figures),
 // #profile-rows tr[data-profile][data-version][data-active], #heatmap-image img,
 // #machines li[data-machine] figure.live-frame[data-machine][data-job-id][data-dots] (img.frame-image,
-// svg.frame-overlay circle.frame-dot, .frame-centre).
+// svg.frame-overlay circle.frame-dot, .frame-centre), body[data-live] (false while the
+// event connection is down: nothing shown is current), #form-errors (every field's
+// refusal at once), .field-error[data-field-error] beside each field, #job-next (what
+// happened to a stopped job and what can be done: button.resume-job).
 'use strict';
 
 const TOKEN_KEY = 'gateway.token';
@@ -26,6 +29,7 @@ const view = {
   schemas: {}, // job kind -> its params' JSON schema (the start form)
   frames: new Map(), // machine id -> { url (blob: of the PNG), data (frame.json) }
   frameFetch: new Map(), // machine id -> 'busy' | 'again' (one fetch in flight; one more after it)
+  live: false, // the event connection is open: what is shown is current
 };
 
 const $ = (id) => document.getElementById(id);
@@ -39,7 +43,170 @@ function el(tag, attributes, ...children) {
     else node.setAttribute(key, value);
   }
   for (const child of children) node.append(child);
+  // An action that changes the box waits for the page to be live (setLive).
+  if (node.classList.contains('live-action')) {
+    node.setAttribute('data-off', String(node.disabled));
+    if (!view.live) node.disabled = true;
+  }
   return node;
+}
+
+// ---- words, units and numbers as an operator reads them
+
+// The unit a name carries (`gap_mm`, `drift_threshold_um`, `feed_mm_min`, `machine_time_s`).
+const UNIT_SUFFIXES = [['_mm_min', 'mm/min'], ['_mm2', 'mm²'], ['_mm', 'mm'], ['_pct', '%'], ['_percent', '%'], ['_um', 'µm'], ['_ms', 'ms'], ['_s', 's'],
+  ['_deg', '°'], ['_arcsec', '″'], ['_px', 'px']];
+function unitOf(name) {
+  const found = UNIT_SUFFIXES.find(([suffix]) => name.endsWith(suffix));
+  return found ? found[1] : '';
+}
+
+// What the page calls the API's names (params, results, measurements); any other name is
+// made readable: `line_step_mm` -> "Line step".
+const LABELS = {
+  targets: 'Targets', method: 'Method', name: 'Name', grid_step_mm: 'Grid step', line_step_mm: 'Line step',
+  passes: 'Passes', tool_offset_mm: 'Tool offset X, Y', points: 'Check points', seed: 'Random seed',
+  spot_check: 'Spot check only', drift_threshold_um: 'Drift threshold', layout: 'Layout file', format: 'File format',
+  tools: 'Tools', window_mm: 'Cutting window', gap_mm: 'Gap between groups', width_mm: 'Material width',
+  material_width_mm: 'Output material width', clearance_mm: 'Clearance', assign: 'Fixed groups',
+  widen: 'Widen gaps to clear overlaps', chord_tolerance_mm: 'Arc tolerance', out_format: 'Output format',
+  picture: 'Picture', max_shift_um: 'Largest zero shift', axis: 'Axis', positions: 'Positions', runs: 'Runs',
+  cycle: 'Test cycle', overrun_mm: 'Overrun', from_mm: 'From', to_mm: 'To', at_mm: 'Other axis at',
+  certificate_uncertainty_um: 'Board uncertainty (k = 2)', with_map: 'With the active error map',
+  machine_time_s: 'Machine time', kept_as: 'Saved as', residual_rms_um: 'Residual rms', rms_um: 'rms', max_um: 'max',
+  mean_um: 'mean', dx_um: 'dx', dy_um: 'dy', dx_mm: 'dx', dy_mm: 'dy', x_mm: 'X', y_mm: 'Y',
+};
+const KIND_LABELS = { compensate: 'Compensation run', iso230: 'ISO 230-2 axis test', map: 'Error map scan',
+  verify: 'Error map check', layout: 'Layout partition', rotary: 'Rotary table measurement',
+  reference: 'Machine zero check' };
+const STATE_WORDS = { queued: 'queued', running: 'running', succeeded: 'done', failed: 'failed',
+  cancelled: 'cancelled', interrupted: 'interrupted', idle: 'idle', busy: 'busy', opening: 'connecting',
+  link_lost: 'link lost', stopped: 'stopped' };
+
+function labelOf(name) {
+  if (LABELS[name]) return LABELS[name];
+  const unit = UNIT_SUFFIXES.find(([suffix]) => name.endsWith(suffix));
+  const bare = (unit ? name.slice(0, -unit[0].length) : name).replace(/_/g, ' ').trim();
+  return bare.charAt(0).toUpperCase() + bare.slice(1);
+}
+const kindLabel = (kind) => KIND_LABELS[kind] || labelOf(kind);
+const stateWord = (state) => STATE_WORDS[state] || String(state || '').replace(/_/g, ' ');
+
+// Help written for the shop floor; a kind or field not listed here shows its schema's
+// text, cleaned of the developers' references.
+const KIND_HELP = {
+  compensate: 'Visits the job\u2019s targets and measures each with the camera: the error before and after compensation.',
+  iso230: 'Positioning test of one axis to ISO 230-2: accuracy, repeatability and reversal, with the deviation chart.',
+  map: 'Scans the board over the travel and makes a new version of the error map (not used until you activate it). '
+    + 'A stopped scan continues where it stopped when started again with the same settings.',
+  verify: 'Checks random points with the active error map: the error without and with it.',
+  layout: 'Splits a cutting layout into groups per tool and cutting window and shifts parts apart. The machine does not move.',
+  rotary: 'Probes the rotary table\u2019s balls and finds its eight errors; they become a new rotary profile version.',
+  reference: 'Finds the machine zero on the board again after homing and checks how far it moved.',
+};
+const FIELD_HELP = {
+  'compensate.targets': 'How many of the job\u2019s targets to visit, from the first. Empty: all of them.',
+  'compensate.method': 'How a position is worked out from the board: fit (all dots) or four-point. Empty: the job\u2019s own.',
+  'iso230.axis': 'The axis to test.',
+  'iso230.positions': 'Target positions along the axis. Empty: the standard\u2019s minimum.',
+  'iso230.runs': 'Runs in each direction.',
+  'iso230.cycle': 'Linear, or pilgrim-step.',
+  'iso230.overrun_mm': 'How far past the end targets the axis goes before turning back.',
+  'iso230.from_mm': 'Start of the tested travel, machine coordinates. Empty: the usable travel\u2019s start.',
+  'iso230.to_mm': 'End of the tested travel, machine coordinates. Empty: the usable travel\u2019s end.',
+  'iso230.at_mm': 'Where the other axis stays, machine coordinates. Empty: chosen for you.',
+  'iso230.certificate_uncertainty_um': 'The board certificate\u2019s uncertainty of a dot position.',
+  'iso230.with_map': 'Test with the active error map correcting the moves.',
+  'map.name': 'The error map this scan makes a new version of.',
+  'map.grid_step_mm': 'Distance between map points: smaller is finer and slower.',
+  'map.line_step_mm': 'Distance between pictures along each scanned line.',
+  'map.passes': 'How often each point is measured from each side.',
+  'map.tool_offset_mm': 'Tool point minus camera centre on the machine axes: X and Y, e.g. 0; 0.',
+  'verify.points': 'How many random points to check. Empty: 20 (5 for a spot check).',
+  'verify.seed': 'Chooses the random points: the same seed checks the same points.',
+  'verify.spot_check': 'A quick drift check: it asks for a new scan when a point is off by more than the threshold.',
+  'verify.drift_threshold_um': 'Drift that asks for a new scan.',
+  'layout.layout': 'The layout file: JSON, DXF or SVG.',
+  'layout.format': 'Set from the file\u2019s name; change it only if the name is wrong.',
+  'layout.tools': 'Number of cutting tools (equal lanes across the material).',
+  'layout.window_mm': 'Length of the cutting window along the feed.',
+  'layout.gap_mm': 'Space between groups.',
+  'layout.width_mm': 'Material width. Empty: the file\u2019s, else the layout\u2019s width.',
+  'layout.material_width_mm': 'Width of the material the result is cut from. Empty: the material width.',
+  'layout.clearance_mm': 'Parts of different groups closer than this overlap. Empty: the gap.',
+  'layout.assign': 'Put a part in a group: one per line, PART=GROUP (e.g. a=2).',
+  'layout.widen': 'When shifted parts still overlap, widen the gaps instead of stopping.',
+  'layout.chord_tolerance_mm': 'How closely straight pieces follow arcs and curves.',
+  'layout.out_format': 'Format of the shifted layout. Empty: the same as the file\u2019s.',
+  'layout.picture': 'Also draw the groups as a picture.',
+  'rotary.name': 'The rotary profile the result becomes a new version of.',
+  'reference.max_shift_um': 'Largest accepted move of the machine zero; more means the board or the camera moved.',
+};
+function cleanHelp(text) {
+  return String(text || '')
+    .replace(/\[`([^`\]]+)`\]/g, '$1').replace(/`/g, '')
+    .replace(/\s*\((source [A-Z]|the CLI[^)]*|the paper[^)]*)\)/g, '')
+    .replace(/\bS\d+'s\s*/g, 'the ').replace(/\bum\b/g, 'µm').trim();
+}
+
+// `10000` -> `10 000` (a no-break space between groups of three from five digits on).
+function groupDigits(text) {
+  const [whole, fraction] = String(text).split('.');
+  const sign = whole.startsWith('-') ? '-' : '';
+  const digits = whole.replace('-', '');
+  const grouped = digits.length > 4 ? digits.replace(/\B(?=(\d{3})+(?!\d))/g, '\u00a0') : digits;
+  return sign + grouped + (fraction !== undefined ? '.' + fraction : '');
+}
+
+// A number with the precision its unit deserves: µm to 0.01 (0.1 from 100), mm to 0.001,
+// seconds to 0.1, whole numbers whole, anything else 4 significant digits.
+function fmtNumber(v, unit) {
+  if (typeof v !== 'number' || !Number.isFinite(v)) return v === null || v === undefined ? '' : String(v);
+  const a = Math.abs(v);
+  let text;
+  if (unit === 'µm') text = v.toFixed(a >= 100 ? 1 : 2);
+  else if (unit === 'mm' || unit === 'mm/min') text = Number.isInteger(v) ? String(v) : v.toFixed(3);
+  else if (unit === 's' && a >= 60) return duration(v);
+  else if (unit === 's' || unit === 'ms') text = v.toFixed(1);
+  else if (Number.isInteger(v)) text = String(v);
+  else text = a >= 1e4 ? v.toFixed(0) : String(Number(v.toPrecision(4)));
+  if (/e/.test(text)) return text;
+  return groupDigits(text);
+}
+function withUnit(v, unit) {
+  const text = fmtNumber(v, unit);
+  if (!text || !unit || typeof v !== 'number') return text;
+  if (unit === 's' && Math.abs(v) >= 60) return text; // a duration carries its units
+  return text + '\u00a0' + unit;
+}
+
+// `14:02, 3 min ago` (the browser's local time; the date too when not today), with the
+// exact instant in its title.
+function ago(ms) {
+  const s = Math.round(ms / 1000);
+  if (s < 45) return 'just now';
+  if (s < 3600) return Math.max(1, Math.round(s / 60)) + ' min ago';
+  if (s < 48 * 3600) return Math.round(s / 3600) + ' h ago';
+  return Math.round(s / 86400) + ' days ago';
+}
+function fmtTime(iso, bare) {
+  const t = Date.parse(iso);
+  if (!Number.isFinite(t)) return '';
+  const d = new Date(t);
+  const now = new Date();
+  const hm = d.toLocaleTimeString([], { hour: '2-digit', minute: '2-digit', hourCycle: 'h23' });
+  const day = d.toDateString() === now.toDateString() ? ''
+    : d.toLocaleDateString([], { day: 'numeric', month: 'short', year: d.getFullYear() === now.getFullYear() ? undefined : 'numeric' }) + ' ';
+  return day + hm + (bare ? '' : ', ' + ago(now - d));
+}
+// `bare`: the time only (beside another time that says how long ago).
+function timeEl(iso, bare) {
+  if (!iso) return '';
+  return el('time', { datetime: iso, 'data-ago': bare ? null : '', title: new Date(Date.parse(iso)).toLocaleString(),
+    text: fmtTime(iso, bare) });
+}
+function refreshTimes() {
+  for (const t of document.querySelectorAll('time[data-ago]')) t.textContent = fmtTime(t.getAttribute('datetime'));
 }
 
 // ---- token: from the fragment (then removed from the address bar), sessionStorage, or the form
@@ -130,14 +297,15 @@ function renderMachines() {
     const detail = machine.state_detail ? ' (' + machine.state_detail + ')' : '';
     list.append(el('li', { 'data-machine': machine.id, 'data-state': machine.state },
       el('strong', { class: 'machine-name', text: machine.id }), ' ',
-      el('span', { class: 'state machine-state', 'data-state': machine.state, text: machine.state }),
+      el('span', { class: 'state machine-state', 'data-state': machine.state, text: stateWord(machine.state) }),
       el('span', { class: 'machine-detail', text: detail }),
-      el('span', { class: 'machine-queued', 'data-queued': machine.queued, text: ' queued: ' + machine.queued }),
+      el('span', { class: 'machine-queued', 'data-queued': machine.queued,
+        text: machine.queued ? ', ' + machine.queued + ' queued' : '' }),
       el('div', { class: 'machine-description', text: machine.description || '' }),
-      el('div', { class: 'machine-links', text: 'stage ' + machine.stage + ', camera ' + machine.camera
+      el('div', { class: 'machine-links', text: 'Stage ' + machine.stage + ', camera ' + machine.camera
         + (machine.rotary ? ', A/C table ' + machine.rotary : '') }),
       renderQueue(machine),
-      view.frames.has(machine.id) ? frameFigure(machine.id) : ''));
+      frameFor(machine) ? frameFigure(machine.id) : ''));
   }
   for (const select of [$('job-machine'), $('profile-machine')]) {
     const chosen = select.value;
@@ -151,6 +319,27 @@ function renderMachines() {
 // ---- the camera's last frame per machine: the service's thumbnail with the detected
 // dots and the measured point drawn over it (an SVG in the thumbnail's pixels)
 
+// The frame shown for a machine: only one of the job it is running now (a frame of an
+// earlier job, or of a job that has ended, is not shown as the machine's picture).
+function frameFor(machine) {
+  const frame = view.frames.get(machine.id);
+  const running = machine.job && machine.job.state === 'running' ? machine.job.id : null;
+  return frame && running !== null && frame.data.job_id === running ? frame : null;
+}
+
+// A machine's job ended or changed: its frame goes with it.
+function dropStaleFrames() {
+  for (const [id, frame] of view.frames) {
+    const machine = view.machines.get(id);
+    if (!machine || !frameFor(machine)) {
+      URL.revokeObjectURL(frame.url);
+      view.frames.delete(id);
+      const figure = document.querySelector('#machines li[data-machine="' + CSS.escape(id) + '"] figure.live-frame');
+      if (figure) figure.remove();
+    }
+  }
+}
+
 function frameFigure(machineId) {
   const { url, data } = view.frames.get(machineId);
   const o = data.overlay;
@@ -162,7 +351,7 @@ function frameFigure(machineId) {
   img.src = url;
   img.width = o.width;
   img.height = o.height;
-  img.alt = 'camera frame of ' + machineId;
+  img.alt = 'Camera picture of ' + machineId + ' during job ' + data.job_id;
   const svg = figure.querySelector('svg');
   // Pixel centres at integers: pixel i spans i - 0.5 .. i + 0.5.
   svg.setAttribute('viewBox', '-0.5 -0.5 ' + o.width + ' ' + o.height);
@@ -178,17 +367,24 @@ function frameFigure(machineId) {
     shape('line', { class: 'frame-centre', x1: cx, y1: cy - 8, x2: cx, y2: cy + 8 });
     shape('circle', { class: 'frame-centre', cx, cy, r: 3 });
   }
-  const fixed = (v) => Number(v).toFixed(3);
-  let caption = 'job ' + data.job_id + ', ' + o.dots.length + ' dots';
-  if (o.centre_mm) caption += ', measured (' + fixed(o.centre_mm[0]) + ', ' + fixed(o.centre_mm[1]) + ') mm';
-  if (o.deviation_um) caption += ', off target (' + o.deviation_um[0].toFixed(1) + ', ' + o.deviation_um[1].toFixed(1) + ') µm';
-  caption += ', ' + (data.at || '').replace('T', ' ').replace('Z', ' UTC');
-  figure.querySelector('figcaption').textContent = caption;
+  const caption = figure.querySelector('figcaption');
+  const line = (text) => caption.append(el('span', { class: 'frame-line', text }));
+  line('Job ' + data.job_id + ', picture at ' + fmtTime(data.at) + '.');
+  if (o.centre_mm) {
+    line('Camera centre on the board: X ' + fmtNumber(o.centre_mm[0], 'mm') + ', Y ' + fmtNumber(o.centre_mm[1], 'mm')
+      + ' mm (board coordinates).');
+  }
+  if (o.deviation_um) {
+    line('Off its target by X ' + fmtNumber(o.deviation_um[0], 'µm') + ', Y ' + fmtNumber(o.deviation_um[1], 'µm') + ' µm.');
+  }
+  caption.append(el('span', { class: 'frame-legend' },
+    el('span', { class: 'legend-dot', 'aria-hidden': 'true' }), ' ' + o.dots.length + ' board dots found ',
+    el('span', { class: 'legend-cross', 'aria-hidden': 'true', text: '+' }), ' measured point (picture centre)'));
   return figure;
 }
 
 function showFrame(machineId) {
-  const item = document.querySelector('#machines li[data-machine="' + machineId + '"]');
+  const item = document.querySelector('#machines li[data-machine="' + CSS.escape(machineId) + '"]');
   if (!item) return;
   const figure = frameFigure(machineId);
   const old = item.querySelector('figure.live-frame');
@@ -197,7 +393,8 @@ function showFrame(machineId) {
 }
 
 // At most one fetch in flight per machine: a frame event during it asks for one more
-// after it (the newest then), the ones between are dropped.
+// after it (the newest then), the ones between are dropped. A frame of another job than
+// the one the machine runs is not shown.
 async function loadFrame(machineId) {
   if (view.frameFetch.has(machineId)) {
     view.frameFetch.set(machineId, 'again');
@@ -207,12 +404,16 @@ async function loadFrame(machineId) {
   try {
     const base = '/api/v1/machines/' + encodeURIComponent(machineId) + '/frame';
     const data = await api(base + '.json');
+    const machine = view.machines.get(machineId);
+    const running = machine && machine.job && machine.job.state === 'running' ? machine.job.id : null;
+    if (data.job_id !== running) return;
     const response = await fetch(base, { headers: { Authorization: 'Bearer ' + view.token } });
     if (!response.ok) throw new ApiError(response.status + ' ' + response.statusText);
     const url = URL.createObjectURL(await response.blob());
     const previous = view.frames.get(machineId);
     view.frames.set(machineId, { url, data });
-    showFrame(machineId);
+    if (frameFor(view.machines.get(machineId))) showFrame(machineId);
+    else dropStaleFrames();
     if (previous) URL.revokeObjectURL(previous.url);
   } catch (error) {
     // No frame yet is not an error of the page.
@@ -224,6 +425,16 @@ async function loadFrame(machineId) {
   }
 }
 
+// Cancel asks first, naming the job and what stopping it means.
+function confirmCancel(job) {
+  const what = kindLabel(job.kind) + ' job ' + job.id + ' on machine ' + job.machine;
+  const question = job.state === 'running'
+    ? 'Cancel ' + what + '?\nThe machine stops; what it measured so far is kept.'
+    : 'Cancel ' + what + '?\nIt has not started; it leaves the queue.';
+  if (!window.confirm(question)) return;
+  post('/api/v1/jobs/' + job.id + '/cancel').then(upsertAndRender).catch(reportError);
+}
+
 // A machine's queue in run order (the first runs next), each job with Up, Down and
 // Cancel; the machine's event after a move or a cancel redraws it.
 function renderQueue(machine) {
@@ -232,13 +443,13 @@ function renderQueue(machine) {
   queue.forEach((job, index) => {
     const move = (position) => post('/api/v1/jobs/' + job.id + '/move', { position }).catch(reportError);
     list.append(el('li', { class: 'queued-job', 'data-job-id': job.id, 'data-position': index },
-      el('span', { class: 'queued-label', text: 'job ' + job.id + ' (' + job.kind + ') ' }),
-      el('button', { type: 'button', class: 'queue-up', text: 'Up', disabled: index === 0 ? '' : null,
-        'aria-label': 'Run job ' + job.id + ' earlier', onclick: () => move(index - 1) }), ' ',
-      el('button', { type: 'button', class: 'queue-down', text: 'Down', disabled: index === queue.length - 1 ? '' : null,
-        'aria-label': 'Run job ' + job.id + ' later', onclick: () => move(index + 1) }), ' ',
-      el('button', { type: 'button', class: 'queue-cancel', text: 'Cancel', 'aria-label': 'Cancel job ' + job.id,
-        onclick: () => post('/api/v1/jobs/' + job.id + '/cancel').then(upsertAndRender).catch(reportError) })));
+      el('span', { class: 'queued-label', text: 'Job ' + job.id + ', ' + kindLabel(job.kind) + ' ' }),
+      el('button', { type: 'button', class: 'queue-up live-action', text: 'Up', disabled: index === 0 ? '' : null,
+        'aria-label': 'Up: run job ' + job.id + ' earlier', onclick: () => move(index - 1) }), ' ',
+      el('button', { type: 'button', class: 'queue-down live-action', text: 'Down', disabled: index === queue.length - 1 ? '' : null,
+        'aria-label': 'Down: run job ' + job.id + ' later', onclick: () => move(index + 1) }), ' ',
+      el('button', { type: 'button', class: 'queue-cancel live-action', text: 'Cancel', 'aria-label': 'Cancel job ' + job.id,
+        onclick: () => confirmCancel({ ...job, machine: machine.id, state: 'queued' }) })));
   });
   if (machine.queued > queue.length) {
     list.append(el('li', { class: 'queue-more', text: (machine.queued - queue.length) + ' more queued' }));
@@ -261,13 +472,13 @@ function renderRunning() {
   const jobs = runningJobs();
   $('running-none').hidden = jobs.length > 0;
   $('running-jobs').replaceChildren(...jobs.map((job) => {
-    const bar = el('progress', { class: 'running-progress', max: 1, value: 0 });
+    const bar = el('progress', { class: 'running-progress', max: 1, value: 0, 'aria-label': 'Progress of job ' + job.id });
     const item = el('li', { class: 'running-job', 'data-job-id': job.id, 'data-machine': job.machine },
-      el('span', { class: 'running-label', text: job.machine + ': job ' + job.id + ' (' + job.kind + ') ' }),
-      el('span', { class: 'state', 'data-state': job.state, text: job.state }), ' ',
+      el('span', { class: 'running-label', text: job.machine + ': job ' + job.id + ', ' + kindLabel(job.kind) + ' ' }),
+      el('span', { class: 'state', 'data-state': job.state, text: stateWord(job.state) }), ' ',
       bar, ' ', el('span', { class: 'running-progress-text', 'aria-live': 'polite' }), ' ',
-      el('button', { type: 'button', class: 'cancel-running', text: 'Cancel',
-        onclick: () => post('/api/v1/jobs/' + job.id + '/cancel').then(upsertAndRender).catch(reportError) }));
+      el('button', { type: 'button', class: 'cancel-running live-action', text: 'Cancel', 'aria-label': 'Cancel job ' + job.id,
+        onclick: () => confirmCancel(job) }));
     return item;
   }));
   for (const job of jobs) renderProgress(job.id, job.progress ? job.progress.done : 0, job.progress ? job.progress.total : 0);
@@ -291,8 +502,10 @@ function renderProgress(jobId, done, total) {
   bar.setAttribute('data-total', total);
   const job = view.jobs.get(jobId);
   const started = job && job.started_at ? Date.parse(job.started_at) : NaN;
-  let text = done + ' / ' + total;
-  if (done > 0 && total > done && Number.isFinite(started)) {
+  let text = done + ' of ' + total;
+  // No estimate while the page is not live: the job may have ended meanwhile.
+  if (!view.live) text += ' (last known; not live)';
+  else if (done > 0 && total > done && Number.isFinite(started)) {
     const elapsed = (Date.now() - started) / 1000;
     text += ', about ' + duration(elapsed * (total - done) / done) + ' left';
   }
@@ -306,9 +519,12 @@ function renderProgress(jobId, done, total) {
 const STATE_RANK = { queued: 0, running: 1 };
 const rank = (state) => STATE_RANK[state] ?? 2;
 
-function upsertJob(job) {
-  const known = view.jobs.get(job.id);
-  if (known && rank(known.state) > rank(job.state)) return;
+function upsertJob(full) {
+  const known = view.jobs.get(full.id);
+  if (known && rank(known.state) > rank(full.state)) return;
+  // The list keeps no params or result (a layout job's are megabytes): the job's detail
+  // fetches them.
+  const { params, result, ...job } = full;
   view.jobs.set(job.id, job);
   const machine = view.machines.get(job.machine);
   if (machine && machine.job && machine.job.id === job.id) machine.job = job;
@@ -316,21 +532,21 @@ function upsertJob(job) {
 
 function renderHistory() {
   const rows = [...view.jobs.values()].sort((a, b) => b.id - a.id).map((job) => {
-    const actions = el('td', {},
+    const actions = el('td', { class: 'actions' },
       el('button', { type: 'button', class: 'show-job', 'data-job-id': job.id, text: 'Show',
-        onclick: () => showJob(job.id).catch(reportError) }));
+        'aria-label': 'Show job ' + job.id, onclick: () => showJob(job.id).catch(reportError) }));
     if (job.state === 'queued' || job.state === 'running') {
-      actions.append(' ', el('button', { type: 'button', class: 'cancel-job', text: 'Cancel',
-        onclick: () => post('/api/v1/jobs/' + job.id + '/cancel').then(upsertAndRender).catch(reportError) }));
+      actions.append(' ', el('button', { type: 'button', class: 'cancel-job live-action', text: 'Cancel',
+        'aria-label': 'Cancel job ' + job.id, onclick: () => confirmCancel(job) }));
     }
     return el('tr', { 'data-job-id': job.id, 'data-state': job.state,
       'data-live-progress': view.liveProgress.get(job.id) || 0 },
-      el('td', { text: String(job.id) }),
+      el('td', { class: 'num', text: String(job.id) }),
       el('td', { text: job.machine }),
-      el('td', { text: job.kind }),
-      el('td', {}, el('span', { class: 'state job-state', 'data-state': job.state, text: job.state })),
-      el('td', { text: job.created_at }),
-      el('td', { text: job.finished_at || '' }),
+      el('td', { text: kindLabel(job.kind) }),
+      el('td', {}, el('span', { class: 'state job-state', 'data-state': job.state, text: stateWord(job.state) })),
+      el('td', {}, timeEl(job.created_at)),
+      el('td', {}, timeEl(job.finished_at)),
       actions);
   });
   $('history-rows').replaceChildren(...rows);
@@ -366,11 +582,13 @@ async function showJob(id, again) {
   section.hidden = false;
   section.setAttribute('data-job-id', id);
   section.setAttribute('data-state', job.state);
-  $('job-detail-title').textContent = 'Job ' + id + ' (' + job.kind + ', ' + job.state + ')';
+  $('job-detail-title').textContent = 'Job ' + id + ': ' + kindLabel(job.kind) + ' on ' + job.machine + ', ' + stateWord(job.state);
   // What a person reads first: the summary (the CLI's text) or the error; the whole
-  // record stays one click away.
+  // record is under the developer view.
   $('job-summary').textContent = job.error ? 'Error: ' + job.error
-    : (job.summary || (job.state === 'running' || job.state === 'queued' ? 'Not finished yet.' : ''));
+    : (job.summary || (job.state === 'running' ? 'Running, not finished yet.' : job.state === 'queued' ? 'Waiting in the queue.' : ''));
+  renderJobTimes(job);
+  renderNext(job, measurements ? measurements.list.length : (view.detailMeasurements || []).length);
   renderResult(job);
   $('job-record').textContent = JSON.stringify(
     { params: job.params, profile: job.profile, error: job.error, result: job.result }, null, 2);
@@ -394,15 +612,54 @@ async function showJob(id, again) {
   loadProfiles().catch(reportError);
 }
 
+function renderJobTimes(job) {
+  const times = [['Queued', job.created_at], ['started', job.started_at], ['ended', job.finished_at]].filter(([, t]) => t);
+  const parts = times.flatMap(([label, t], i) => [(i ? ', ' : '') + label + ' ', timeEl(t, i < times.length - 1)]);
+  $('job-times').replaceChildren(...parts);
+}
+
+// What happened to a job that did not finish, as the service recorded it, and what the
+// operator can do: a stopped map scan is resumed by the same scan started again.
+function renderNext(job, measured) {
+  const box = $('job-next');
+  box.replaceChildren();
+  box.removeAttribute('data-next');
+  const kept = measured === 1 ? ' Its measurement is kept.' : measured ? ' Its ' + measured + ' measurements are kept.' : '';
+  let text = '';
+  if (job.state === 'interrupted') {
+    text = 'The service stopped while this job was running (a restart or a power loss); the job did not finish.' + kept;
+  } else if (job.state === 'cancelled') {
+    text = 'Cancelled before the end' + (job.error ? ': ' + job.error : '') + '.' + kept;
+  } else if (job.state === 'failed' && measured) {
+    text = 'Failed before the end.' + kept;
+  }
+  if (!text) {
+    box.hidden = true;
+    return;
+  }
+  box.hidden = false;
+  box.setAttribute('data-next', job.state);
+  box.append(el('span', { text }));
+  if (job.kind === 'map' && job.params && measured) {
+    box.append(' ', el('span', { text: 'Starting the same scan again measures only what is missing.' }), ' ',
+      el('button', { type: 'button', class: 'resume-job live-action', text: 'Resume the scan',
+        onclick: () => {
+          if (!window.confirm('Resume the error map scan of job ' + job.id + ' on machine ' + job.machine + '?')) return;
+          post('/api/v1/machines/' + encodeURIComponent(job.machine) + '/jobs', { kind: job.kind, params: job.params })
+            .then(upsertAndRender).catch(reportError);
+        } }));
+  }
+}
+
 // ---- a finished job's numbers as tables (its charts are the job's SVG files)
 
 const num = (v, digits) => (typeof v === 'number' && Number.isFinite(v) ? v.toFixed(digits ?? 3) : '');
 
 function table(attributes, head, rows) {
-  return el('table', attributes,
+  return el('div', { class: 'table-scroll' }, el('table', attributes,
     el('thead', {}, el('tr', {}, ...head.map((h) => el('th', { scope: 'col', text: h })))),
     el('tbody', {}, ...rows.map(([rowAttributes, cells]) =>
-      el('tr', rowAttributes, ...cells.map((c, i) => el(i === 0 ? 'th' : 'td', i === 0 ? { scope: 'row', text: c } : { text: c }))))));
+      el('tr', rowAttributes, ...cells.map((c, i) => el(i === 0 ? 'th' : 'td', i === 0 ? { scope: 'row', text: c } : { text: c })))))));
 }
 
 // ISO 230-2 figures, one row per run (before, and this one): the standard's names.
@@ -440,23 +697,37 @@ function compensateTable(r) {
     ['error (µm)', 'mean', 'rms', 'max'], [row('before_um', 'before'), row('after_um', 'after')]);
 }
 
-// Any other kind: its numbers, one level deep (`errors.dx_mm`), as name / value rows.
+// Any other kind: its values, one level deep, each labelled with its unit and shown with
+// its unit's precision (`errors.dx_mm` -> "Errors: dx, mm"); arrays of a few numbers in a
+// line, longer ones counted.
 function figuresTable(r) {
   const rows = [];
-  const add = (key, v) => {
-    if (typeof v === 'number' || typeof v === 'boolean' || (typeof v === 'string' && v.length <= 80)) {
-      rows.push([{ 'data-figure': key }, [key, typeof v === 'number' ? num(v, 4) : String(v)]]);
+  const show = (v, unit) => {
+    if (typeof v === 'number') return fmtNumber(v, unit);
+    if (typeof v === 'boolean') return v ? 'yes' : 'no';
+    if (Array.isArray(v) && v.every((x) => typeof x === 'number')) {
+      return v.length <= 6 ? v.map((x) => fmtNumber(x, unit)).join('; ') : v.length + ' values';
     }
+    return String(v);
+  };
+  const add = (key, parent, v) => {
+    const name = key.split('.').pop();
+    const unit = unitOf(name);
+    const shown = typeof v === 'number' || typeof v === 'boolean' || (typeof v === 'string' && v.length <= 80)
+      || (Array.isArray(v) && v.every((x) => typeof x === 'number'));
+    if (!shown) return;
+    const label = (parent ? labelOf(parent) + ': ' : '') + labelOf(name) + (unit && unit !== 's' ? ', ' + unit : '');
+    rows.push([{ 'data-figure': key }, [label, show(v, unit)]]);
   };
   for (const [key, v] of Object.entries(r || {})) {
     if (v && typeof v === 'object' && !Array.isArray(v)) {
-      for (const [inner, w] of Object.entries(v)) add(key + '.' + inner, w);
+      for (const [inner, w] of Object.entries(v)) add(key + '.' + inner, key, w);
     } else {
-      add(key, v);
+      add(key, '', v);
     }
     if (rows.length >= 60) break;
   }
-  return table({ class: 'result-table', 'data-result': 'figures' }, ['figure', 'value'], rows);
+  return table({ class: 'result-table', 'data-result': 'figures' }, ['Figure', 'Value'], rows);
 }
 
 const RESULT_TABLES = { iso230: iso230Table, verify: verifyTable, compensate: compensateTable };
@@ -469,9 +740,11 @@ function renderResult(job) {
   }
   try {
     box.replaceChildren((RESULT_TABLES[job.kind] || figuresTable)(job.result));
+    box.querySelector('table').setAttribute('aria-label', 'Results of job ' + job.id);
   } catch (error) {
     // A result of an unexpected shape still shows its numbers.
     box.replaceChildren(figuresTable(job.result));
+    box.querySelector('table').setAttribute('aria-label', 'Results of job ' + job.id);
   }
 }
 
@@ -506,7 +779,7 @@ function appendMeasurement(raw) {
     return;
   }
   const body = table.tBodies[0];
-  body.append(el('tr', { class: 'measurement' }, ...columns.map((c) => el('td', { text: format(row[c]) }))));
+  body.append(el('tr', { class: 'measurement' }, ...columns.map((c) => el('td', { text: format(row[c], c) }))));
   while (body.rows.length > SHOWN_MEASUREMENTS) body.deleteRow(0);
   countMeasurements(raw, body.rows.length);
 }
@@ -516,9 +789,9 @@ function renderMeasurements(raw) {
   const table = $('job-measurements');
   const columns = [...new Set(shown.flatMap((m) => Object.keys(m || {})))];
   table.dataset.columns = JSON.stringify(columns);
-  table.tHead.replaceChildren(el('tr', {}, ...columns.map((c) => el('th', { scope: 'col', text: c }))));
+  table.tHead.replaceChildren(el('tr', {}, ...columns.map((c) => el('th', { scope: 'col', title: c, text: columnLabel(c, columns) }))));
   table.tBodies[0].replaceChildren(...shown.map((m) => el('tr', { class: 'measurement' },
-    ...columns.map((c) => el('td', { text: format(m[c]) })))));
+    ...columns.map((c) => el('td', { text: format(m[c], c) })))));
   countMeasurements(raw, shown.length);
 }
 
@@ -554,9 +827,22 @@ function downloadMeasurements() {
   setTimeout(() => URL.revokeObjectURL(link.href), 0);
 }
 
-function format(value) {
+// A dotted column (`measurement.observation.residual_rms_um`) by its last name, with
+// its parent's when two columns end alike, and its unit: "Residual rms, µm".
+function columnLabel(column, columns) {
+  const parts = column.split('.');
+  const last = parts[parts.length - 1];
+  const twin = columns.some((c) => c !== column && c.split('.').pop() === last);
+  const unit = unitOf(last);
+  return (twin && parts.length > 1 ? labelOf(parts[parts.length - 2]) + ' ' : '') + labelOf(last) + (unit ? ', ' + unit : '');
+}
+
+function format(value, column) {
   if (value === undefined || value === null) return '';
-  if (typeof value === 'number') return Number.isInteger(value) ? String(value) : value.toFixed(4);
+  const unit = unitOf(String(column || '').split('.').pop());
+  if (typeof value === 'number') return fmtNumber(value, unit);
+  if (Array.isArray(value) && value.every((x) => typeof x === 'number')) return value.map((x) => fmtNumber(x, unit)).join('; ');
+  if (typeof value === 'boolean') return value ? 'yes' : 'no';
   return typeof value === 'object' ? JSON.stringify(value) : String(value);
 }
 
@@ -578,8 +864,8 @@ async function loadProfiles() {
   for (const p of profiles) if (p.active) activeByName.set(p.name, p);
   const rows = profiles.map((p) => {
     const path = base + '/' + encodeURIComponent(p.name);
-    const actions = el('td', {},
-      el('button', { type: 'button', class: 'activate', disabled: p.active ? '' : null,
+    const actions = el('td', { class: 'actions' },
+      el('button', { type: 'button', class: 'activate live-action', disabled: p.active ? '' : null,
         'aria-label': 'Activate ' + p.name + ' version ' + p.version, text: 'Activate',
         onclick: () => {
           // The operator confirms what it changes: the machine's next jobs use it.
@@ -591,7 +877,7 @@ async function loadProfiles() {
         } }));
     if (p.version > 1) {
       actions.append(' ', el('button', { type: 'button', class: 'show-diff', text: 'Changes',
-        'aria-label': 'What changed from ' + p.name + ' version ' + (p.version - 1) + ' to ' + p.version,
+        'aria-label': 'Changes from ' + p.name + ' version ' + (p.version - 1) + ' to ' + p.version,
         onclick: () => api(path + '/' + p.version + '/diff')
           .then((d) => d.summary)
           .catch((error) => 'v' + (p.version - 1) + ' -> v' + p.version + ': ' + error.message)
@@ -601,19 +887,26 @@ async function loadProfiles() {
           }) }));
     }
     if (p.active) {
-      actions.append(' ', el('button', { type: 'button', class: 'rollback',
-        'aria-label': 'Roll ' + p.name + ' back to the version active before', text: 'Roll back',
-        onclick: () => post(path + '/rollback').then(loadProfiles).catch(reportError) }));
+      actions.append(' ', el('button', { type: 'button', class: 'rollback live-action',
+        'aria-label': 'Roll back ' + p.name + ' to the version active before', text: 'Roll back',
+        onclick: () => {
+          // As Activate: the operator confirms what the machine's next jobs will use.
+          const question = 'Roll back ' + p.name + ' on machine ' + machine + '?\n'
+            + 'Its next jobs use the version that was active before v' + p.version + '.';
+          if (!window.confirm(question)) return;
+          post(path + '/rollback').then(loadProfiles).catch(reportError);
+        } }));
     }
     if (p.kind === 'error_map') {
       actions.append(' ', el('button', { type: 'button', class: 'show-heatmap', text: 'Heat map',
+        'aria-label': 'Heat map of ' + p.name + ' version ' + p.version,
         onclick: () => showHeatmap(machine, p).catch(reportError) }));
     }
     return el('tr', { 'data-profile': p.name, 'data-version': p.version, 'data-kind': p.kind,
       'data-active': String(p.active) },
-      el('td', { text: p.name }), el('td', { text: p.kind }), el('td', { text: String(p.version) }),
+      el('td', { text: p.name }), el('td', { text: labelOf(p.kind) }), el('td', { class: 'num', text: String(p.version) }),
       el('td', { class: 'profile-active', text: p.active ? 'active' : '' }),
-      el('td', { text: p.created_at }), el('td', { text: p.note || '' }), actions);
+      el('td', {}, timeEl(p.created_at)), el('td', { text: p.note || '' }), actions);
   });
   $('profile-rows').replaceChildren(...rows);
   // Show the heat map of the active error map (or the newest error map) by default.
@@ -658,6 +951,8 @@ function connectEvents() {
     }
     $('connection').textContent = 'Live';
     $('connection').setAttribute('data-state', 'open');
+    // Live again only with the service's own word on everything: its `hello` (machines)
+    // and the lists fetched after it.
   });
   socket.addEventListener('message', (event) => {
     try { handleEvent(JSON.parse(event.data)); } catch (error) { reportError(error); }
@@ -665,13 +960,26 @@ function connectEvents() {
   socket.addEventListener('close', () => {
     if (view.socket !== socket) return;
     view.socket = null;
-    $('connection').textContent = 'Disconnected, reconnecting';
+    $('connection').textContent = 'Not live: the box cannot be reached; what is shown may be out of date. Reconnecting';
     $('connection').setAttribute('data-state', 'closed');
+    setLive(false);
     if (!view.token) return;
-    // Back off up to 10 s; reload the lists on reconnect (events were missed).
-    setTimeout(() => { connectEvents(); loadHistory().catch(reportError); }, view.reconnectDelayMs);
+    // Back off up to 10 s; the lists are reloaded on reconnect (events were missed).
+    setTimeout(connectEvents, view.reconnectDelayMs);
     view.reconnectDelayMs = Math.min(view.reconnectDelayMs * 2, 10000);
   });
+}
+
+// Live: the event connection is open and the lists were fetched after it opened. Not
+// live: everything is marked out of date, estimates hidden and actions disabled.
+function setLive(live) {
+  view.live = live;
+  document.body.setAttribute('data-live', String(live));
+  $('stale').hidden = live;
+  for (const button of document.querySelectorAll('.live-action')) {
+    button.disabled = !live || button.getAttribute('data-off') === 'true';
+  }
+  renderRunning();
 }
 
 function handleEvent(message) {
@@ -679,14 +987,20 @@ function handleEvent(message) {
     case 'hello':
       view.machines = new Map(message.machines.map((m) => [m.id, m]));
       for (const m of message.machines) if (m.job) upsertJob(m.job);
+      dropStaleFrames();
       renderMachines();
       for (const m of message.machines) if (m.state === 'busy') loadFrame(m.id);
-      renderHistory();
+      // After a reconnect (a restart, maybe) what happened meanwhile is the service's:
+      // the history and the job shown are fetched again before the page is live.
+      // (The job shown is fetched whole: its measurements' events were missed too.)
+      Promise.all([loadHistory(), view.detailJob !== null ? showJob(view.detailJob) : null])
+        .then(() => setLive(true)).catch(reportError);
       loadProfiles().catch(reportError);
       break;
     case 'machine':
       view.machines.set(message.machine.id, message.machine);
       if (message.machine.job) upsertJob(message.machine.job);
+      dropStaleFrames();
       renderMachines();
       break;
     case 'job': {
@@ -699,6 +1013,8 @@ function handleEvent(message) {
     }
     case 'progress': {
       const job = view.jobs.get(message.job_id);
+      // Progress belongs to a running job; a late one of a job that ended is dropped.
+      if (job && job.state !== 'running' && job.state !== 'queued') break;
       if (job) job.progress = { done: message.done, total: message.total };
       renderProgress(message.job_id, message.done, message.total);
       view.liveProgress.set(message.job_id, (view.liveProgress.get(message.job_id) || 0) + 1);
@@ -727,9 +1043,11 @@ function handleEvent(message) {
 // ---- start
 
 // The start form is built from the API's own schema of each job kind's params
-// (`components.schemas["job.<kind>"]` of the OpenAPI document): the same types, defaults,
-// ranges and help the API checks. The page checks nothing itself: the API's errors,
-// which name the field, are shown beside it.
+// (`components.schemas["job.<kind>"]` of the OpenAPI document): the same types, defaults
+// and ranges the API checks. The page reads every field as an operator types it and
+// checks them all against the schema before anything is queued, each refusal beside its
+// field; the API checks again, and its refusal (a file its reader cannot read, say) is
+// shown beside the field it names.
 
 async function loadSchemas() {
   const doc = await api('/api/v1/openapi.json');
@@ -747,7 +1065,7 @@ function renderKinds() {
   const select = $('job-kind');
   const chosen = select.value;
   if ([...select.options].map((o) => o.value).join() !== kinds.join()) {
-    select.replaceChildren(...kinds.map((k) => el('option', { value: k, text: k })));
+    select.replaceChildren(...kinds.map((k) => el('option', { value: k, text: kindLabel(k) })));
     if (kinds.includes(chosen)) select.value = chosen;
     renderForm();
   }
@@ -771,109 +1089,295 @@ function fieldSpec(schema) {
     type, nullable, choices: inner.enum, min: inner.minimum ?? schema.minimum,
     max: inner.maximum ?? schema.maximum, def: schema.default ?? inner.default,
     help: schema.description || inner.description || '', format: inner.format,
-    items: inner.items,
+    items: inner.items, pattern: inner.pattern ?? schema.pattern,
+    minItems: inner.minItems ?? schema.minItems, maxItems: inner.maxItems ?? schema.maxItems,
   };
 }
 
-// The unit a field's name carries (`gap_mm`, `drift_threshold_um`, `feed_mm_min`).
-function unitOf(name) {
-  const units = [['_mm_min', 'mm/min'], ['_mm', 'mm'], ['_um', 'µm'], ['_s', 's']];
-  const found = units.find(([suffix]) => name.endsWith(suffix));
-  return found ? found[1] : '';
+// "between 0.25 and 10 000 mm", "at least 1", "from 5".
+function rangeWords(spec, unit) {
+  const u = unit ? '\u00a0' + unit : '';
+  const n = (v) => fmtNumber(v, '');
+  if (spec.min !== undefined && spec.max !== undefined) return 'between ' + n(spec.min) + ' and ' + n(spec.max) + u;
+  if (spec.min !== undefined) return 'at least ' + n(spec.min) + u;
+  if (spec.max !== undefined) return 'at most ' + n(spec.max) + u;
+  return '';
 }
 
-function fieldInput(name, spec, required) {
+// A number as people type it: `12.5`, `12,5`, `-3`, `1e-3`, `10 000`, `12,5 mm` (the
+// field's own unit may follow). Refused, with the reason, when it cannot be read exactly:
+// two decimal marks, a comma followed by exactly three digits (`1,250`: 1.25 or 1250?),
+// another unit, anything else. Returns { value } or { error }.
+function readNumber(raw, unit, integer) {
+  let text = raw.trim().replace(/[\u00a0\u202f\u2009]/g, ' ').replace(/\u2212/g, '-');
+  if (unit) {
+    const units = unit === 'µm' ? ['µm', 'μm', 'um'] : [unit];
+    const found = units.find((u) => text.toLowerCase().endsWith(u.toLowerCase()));
+    if (found) text = text.slice(0, -found.length).trim();
+  }
+  const trailing = text.match(/[a-zµμ°″"']+\s*$/i);
+  if (trailing && /\d/.test(text) && !/^e$/i.test(trailing[0])) {
+    return { error: 'is in ' + (unit || 'plain numbers') + '; "' + trailing[0].trim() + '" cannot be used here. Type the value in ' + (unit || 'numbers') + ' only' };
+  }
+  // Spaces between groups of three digits: 10 000.
+  if (/^[+-]?\d{1,3}( \d{3})+([.,]\d+)?$/.test(text)) text = text.replace(/ /g, '');
+  const commas = (text.match(/,/g) || []).length;
+  const points = (text.match(/\./g) || []).length;
+  if (commas + points > 1) return { error: 'has more than one decimal mark; type it like 12.5 or 12,5' };
+  if (commas === 1 && /^[+-]?\d+,\d{3}$/.test(text)) {
+    const [a, b] = text.split(',');
+    return { error: 'could be ' + a + '.' + b + ' or ' + a + b + '; type it without the comma, or with a point' };
+  }
+  const normal = text.replace(',', '.');
+  if (!/^[+-]?(\d+\.?\d*|\.\d+)(e[+-]?\d+)?$/i.test(normal)) {
+    return { error: raw.trim() === '' ? 'is empty' : 'is not a number' + (/[a-z]/i.test(normal) ? '' : ' the page can read') + '; type digits, e.g. 12.5 or 12,5' };
+  }
+  const value = Number(normal);
+  if (!Number.isFinite(value)) return { error: 'is too large' };
+  if (integer) {
+    if (!Number.isInteger(value)) return { error: 'must be a whole number; you entered ' + raw.trim() };
+    if (!Number.isSafeInteger(value)) return { error: 'is too large to be read exactly' };
+  }
+  return { value };
+}
+
+// A list of numbers (`X, Y`): separated by `;` or spaces (a comma is a decimal mark).
+function readNumbers(raw, unit) {
+  const tokens = raw.trim().split(/\s*;\s*|\s+/).map((t) => t.replace(/,$/, '')).filter(Boolean);
+  const values = [];
+  for (const token of tokens) {
+    const read = readNumber(token, unit, false);
+    if (read.error) return { error: '"' + token + '" ' + read.error };
+    values.push(read.value);
+  }
+  return { value: values };
+}
+
+function fieldInput(name, spec, required, kind) {
   const id = 'field-' + name;
   const common = { id, name, 'data-field-input': name, 'aria-describedby': id + '-help ' + id + '-error' };
-  if (spec.type === 'boolean') return el('input', { ...common, type: 'checkbox' });
+  if (spec.type === 'boolean') return el('input', { ...common, type: 'checkbox', checked: spec.def === true ? '' : null });
   if (spec.choices) {
     const options = spec.choices.map((c) => el('option', { value: c, text: c }));
-    if (!required) options.unshift(el('option', { value: '', text: spec.def === undefined ? '(default)' : '(default: ' + spec.def + ')' }));
+    if (!required) options.unshift(el('option', { value: '', text: spec.def === undefined || spec.def === null ? '(default)' : '(default: ' + spec.def + ')' }));
     const select = el('select', common, ...options);
     select.value = required ? spec.choices[0] : '';
     return select;
   }
   if (spec.format === 'binary') {
-    // A file's text (a layout): read when chosen; its extension sets the `format` field.
-    const input = el('input', { ...common, type: 'file', accept: '.json,.dxf,.svg' });
-    input.addEventListener('change', () => {
-      const file = input.files[0];
-      const format = document.getElementById('field-format'); // built with the form
-      const ext = file ? file.name.split('.').pop().toLowerCase() : '';
-      if (format && [...format.options].some((o) => o.value === ext)) format.value = ext;
-      $(id + '-help').textContent = file ? file.name + ', ' + (file.size / 1024).toFixed(1) + ' kB' : spec.help;
-    });
+    // A file's text (a layout, a program, a measurements file): checked when chosen; a
+    // layout's extension sets the `format` field.
+    const input = el('input', { ...common, type: 'file', accept: name === 'layout' ? '.json,.dxf,.svg' : undefined });
+    input.addEventListener('change', () => checkUpload(input, name, spec, kind));
     return input;
   }
   if (spec.type === 'array' && spec.items && spec.items.type === 'string') {
     return el('textarea', { ...common, rows: 2, placeholder: 'one per line' });
   }
   if (spec.type === 'array') {
-    return el('input', { ...common, type: 'text', inputmode: 'decimal', placeholder: 'x, y',
-      value: Array.isArray(spec.def) ? spec.def.join(', ') : '' });
+    return el('input', { ...common, type: 'text', inputmode: 'decimal', autocomplete: 'off', placeholder: 'X; Y',
+      value: Array.isArray(spec.def) ? spec.def.join('; ') : '' });
   }
   if (spec.type === 'integer' || spec.type === 'number') {
-    return el('input', { ...common, type: 'number', step: spec.type === 'integer' ? 1 : 'any',
-      min: spec.min, max: spec.max, value: spec.def, placeholder: spec.nullable ? 'default' : '' });
+    // Text, not type=number: a browser's number field turns `12,5` into nothing or 125.
+    return el('input', { ...common, type: 'text', inputmode: spec.type === 'integer' ? 'numeric' : 'decimal',
+      autocomplete: 'off', value: spec.def === null || spec.def === undefined ? null : String(spec.def),
+      placeholder: spec.nullable || !required ? 'default' : '' });
   }
-  return el('input', { ...common, type: 'text', value: spec.def, placeholder: spec.nullable ? 'default' : '' });
+  return el('input', { ...common, type: 'text', autocomplete: 'off', value: spec.def,
+    placeholder: spec.nullable ? 'default' : '' });
+}
+
+// A chosen layout file, checked before anything is sent: its kind from its name and first
+// bytes (a picture or a binary file is refused at once); the service's reader has the
+// last word when the job is queued.
+const LAYOUT_FORMATS = ['json', 'dxf', 'svg'];
+async function checkUpload(input, name, spec, kind) {
+  const file = input.files[0];
+  const help = document.getElementById('field-' + name + '-help'); // built with the form
+  setFieldError(name, '');
+  if (!file) {
+    help.textContent = fieldHelp(kind, name, spec);
+    return;
+  }
+  const ext = file.name.includes('.') ? file.name.split('.').pop().toLowerCase() : '';
+  const layout = name === 'layout';
+  const format = document.getElementById('field-format'); // built with the form
+  if (layout && format && LAYOUT_FORMATS.includes(ext)) format.value = ext;
+  help.textContent = file.name + ', ' + fmtNumber(file.size / 1024, '') + ' kB';
+  const problem = await uploadProblem(file, ext, layout);
+  if (problem) setFieldError(name, problem);
+}
+
+async function uploadProblem(file, ext, layout) {
+  const head = new Uint8Array(await file.slice(0, 16).arrayBuffer());
+  const starts = (...bytes) => bytes.every((b, i) => head[i] === b);
+  const picture = starts(0x89, 0x50, 0x4e, 0x47) ? 'a PNG picture' : starts(0xff, 0xd8, 0xff) ? 'a JPEG picture'
+    : starts(0x25, 0x50, 0x44, 0x46) ? 'a PDF document' : starts(0x50, 0x4b, 0x03, 0x04) ? 'a ZIP archive' : '';
+  if (picture && !layout) return file.name + ' is ' + picture + ', not a text file: choose the file the job reads.';
+  if (picture) return file.name + ' is ' + picture + ', not a layout: choose the layout\u2019s JSON, DXF or SVG file.';
+  if (layout && !LAYOUT_FORMATS.includes(ext)) return file.name + ': a layout is a .json, .dxf or .svg file.';
+  const text = await file.text();
+  if (text.includes('\ufffd') || text.includes('\u0000')) return file.name + ' is not a text file' + (layout ? ', so not a layout.' : '.');
+  if (!layout) return '';
+  if (ext === 'json') {
+    try { JSON.parse(text); } catch (error) { return file.name + ' is not valid JSON: ' + error.message; }
+  }
+  return '';
+}
+
+function fieldHelp(kind, name, spec) {
+  const unit = unitOf(name);
+  const range = spec.type === 'integer' || spec.type === 'number' ? rangeWords(spec, unit) : '';
+  const text = FIELD_HELP[kind + '.' + name] || cleanHelp(spec.help);
+  return text + (range ? ' (' + range + ')' : '');
 }
 
 function renderForm() {
   const kind = $('job-kind').value;
   const schema = view.schemas[kind];
-  $('job-kind-help').textContent = schema ? schema.description || '' : '';
+  $('job-kind-help').textContent = schema ? KIND_HELP[kind] || cleanHelp(schema.description) : '';
+  $('form-errors').replaceChildren();
   const required = new Set((schema && schema.required) || []);
   const rows = Object.entries((schema && schema.properties) || {}).map(([name, prop]) => {
     const spec = fieldSpec(prop);
     const unit = unitOf(name);
-    const range = [spec.min !== undefined ? 'from ' + spec.min : '', spec.max !== undefined ? 'to ' + spec.max : '']
-      .filter(Boolean).join(' ');
     return el('div', { class: 'field', 'data-field': name, 'data-type': spec.type || 'string' },
-      el('label', { for: 'field-' + name, text: name + (unit ? ' (' + unit + ')' : '') + (required.has(name) ? ' *' : '') }),
-      fieldInput(name, spec, required.has(name)),
-      el('small', { id: 'field-' + name + '-help', class: 'help', text: spec.help + (range ? ' [' + range + ']' : '') }),
-      el('span', { id: 'field-' + name + '-error', class: 'field-error', 'data-field-error': name, role: 'alert' }));
+      el('label', { for: 'field-' + name, text: labelOf(name) + (unit ? ' (' + unit + ')' : '') + (required.has(name) ? ' *' : '') }),
+      fieldInput(name, spec, required.has(name), kind),
+      el('small', { id: 'field-' + name + '-help', class: 'help', text: fieldHelp(kind, name, spec) }),
+      el('span', { id: 'field-' + name + '-error', class: 'field-error', 'data-field-error': name }));
   });
   $('job-fields').replaceChildren(...rows);
 }
 
-// The params the form describes: an empty field is left out (the API's default).
-async function formParams() {
+function setFieldError(name, message) {
+  const span = $('job-fields').querySelector('[data-field-error="' + CSS.escape(name) + '"]');
+  if (!span) return false;
+  span.textContent = message;
+  const input = span.parentElement.querySelector('[data-field-input]');
+  if (message) input.setAttribute('aria-invalid', 'true');
+  else input.removeAttribute('aria-invalid');
+  return true;
+}
+
+// Every field read and checked against the kind's schema: { params, errors } where
+// errors maps a field to its refusal in words ("Grid step must be between 0.25 and
+// 10 000 mm; you entered 0.01"). An empty optional field is left out (the default).
+async function readForm() {
+  const kind = $('job-kind').value;
+  const schema = view.schemas[kind] || {};
+  const required = new Set(schema.required || []);
   const params = {};
+  const errors = {};
   for (const row of $('job-fields').querySelectorAll('.field')) {
     const name = row.dataset.field;
+    const spec = fieldSpec((schema.properties || {})[name] || {});
     const input = row.querySelector('[data-field-input]');
+    const label = labelOf(name);
+    const unit = unitOf(name);
+    const text = input.type === 'file' ? '' : String(input.value || '').trim();
     if (input.type === 'checkbox') {
       if (input.checked) params[name] = true;
-    } else if (input.type === 'file') {
-      if (input.files[0]) params[name] = await input.files[0].text();
-    } else if (input.value.trim() !== '') {
-      const text = input.value.trim();
-      const type = row.dataset.type;
-      if (type === 'integer' || type === 'number') params[name] = Number(text);
-      else if (type === 'array' && input.tagName === 'TEXTAREA') params[name] = text.split('\n').map((l) => l.trim()).filter(Boolean);
-      else if (type === 'array') params[name] = text.split(',').map((v) => Number(v.trim()));
-      else params[name] = text;
+      continue;
+    }
+    if (input.type === 'file') {
+      const file = input.files[0];
+      if (!file) {
+        if (required.has(name)) errors[name] = label + ' is needed: choose the file.';
+        continue;
+      }
+      const problem = await uploadProblem(file, file.name.split('.').pop().toLowerCase(), name === 'layout');
+      if (problem) errors[name] = problem;
+      else params[name] = await file.text();
+      continue;
+    }
+    if (text === '') {
+      if (required.has(name)) errors[name] = label + ' is needed.';
+      continue;
+    }
+    if (spec.choices) {
+      params[name] = text;
+    } else if (spec.type === 'integer' || spec.type === 'number') {
+      const read = readNumber(text, unit, spec.type === 'integer');
+      if (read.error) {
+        errors[name] = label + ' ' + read.error + '.';
+        continue;
+      }
+      const v = read.value;
+      if ((spec.min !== undefined && v < spec.min) || (spec.max !== undefined && v > spec.max)) {
+        errors[name] = label + ' must be ' + rangeWords(spec, unit) + '; you entered ' + text + '.';
+        continue;
+      }
+      params[name] = v;
+    } else if (spec.type === 'array' && input.tagName === 'TEXTAREA') {
+      params[name] = text.split('\n').map((l) => l.trim()).filter(Boolean);
+    } else if (spec.type === 'array') {
+      const read = readNumbers(text, unit);
+      const want = spec.minItems !== undefined && spec.minItems === spec.maxItems ? spec.minItems : 2;
+      if (read.error) errors[name] = label + ': ' + read.error + '.';
+      else if (read.value.length !== want) {
+        errors[name] = label + ' needs ' + want + ' numbers separated by ";" or a space, like 1.5; -2 (you entered ' + text + ').';
+      } else params[name] = read.value;
+    } else {
+      if (spec.pattern && !new RegExp(spec.pattern).test(text)) {
+        errors[name] = spec.pattern === '^[A-Za-z0-9_-]{1,64}$'
+          ? label + ' may hold letters, digits, - and _ only, at most 64 of them; you entered "' + text + '".'
+          : label + ' does not have the expected form; you entered "' + text + '".';
+        continue;
+      }
+      params[name] = text;
     }
   }
-  return params;
+  // A bound that depends on another field (the layout's clearance is at most its gap).
+  if (params.clearance_mm !== undefined && params.gap_mm !== undefined && params.clearance_mm > params.gap_mm) {
+    errors.clearance_mm = 'Clearance must be at most the gap, ' + fmtNumber(params.gap_mm, 'mm') + ' mm; you entered '
+      + fmtNumber(params.clearance_mm, 'mm') + '.';
+  }
+  return { params, errors };
 }
 
 function clearFieldErrors() {
   for (const span of $('job-fields').querySelectorAll('.field-error')) span.textContent = '';
   for (const input of $('job-fields').querySelectorAll('[aria-invalid]')) input.removeAttribute('aria-invalid');
+  $('form-errors').replaceChildren();
+}
+
+// Every refusal beside its field, and their list above the Start button (each links to
+// its field); the first invalid field gets the focus.
+function showFormErrors(errors) {
+  const names = Object.keys(errors);
+  for (const name of names) setFieldError(name, errors[name]);
+  $('form-errors').replaceChildren(
+    el('p', { text: names.length === 1 ? 'One field needs attention; nothing was started:'
+      : names.length + ' fields need attention; nothing was started:' }),
+    el('ul', {}, ...names.map((name) => el('li', {}, el('a', { href: '#field-' + name, text: errors[name] })))));
+  const first = document.getElementById('field-' + names[0]);
+  if (first) first.focus();
+}
+
+// An API refusal in the form's words: `params.grid_step_mm: must be ...` -> "Grid step
+// must be ...".
+function apiFieldMessage(field, message) {
+  const name = field.replace(/^params\.?/, '').replace(/\[.*$/, '').split('.')[0];
+  const text = message.startsWith(field + ': ') ? message.slice(field.length + 2) : message;
+  return { name, text: labelOf(name) + ': ' + text };
 }
 
 async function startJob(event) {
   event.preventDefault();
   $('error').textContent = '';
   clearFieldErrors();
+  const { params, errors } = await readForm();
+  if (Object.keys(errors).length) {
+    showFormErrors(errors);
+    return;
+  }
   const machine = $('job-machine').value;
   const response = await fetch('/api/v1/machines/' + encodeURIComponent(machine) + '/jobs', {
     method: 'POST',
     headers: { Authorization: 'Bearer ' + view.token, 'Content-Type': 'application/json' },
-    body: JSON.stringify({ kind: $('job-kind').value, params: await formParams() }),
+    body: JSON.stringify({ kind: $('job-kind').value, params }),
   });
   const body = await response.json().catch(() => ({}));
   if (response.status === 401) {
@@ -882,16 +1386,9 @@ async function startJob(event) {
   }
   if (!response.ok) {
     // `params.grid_step_mm`, `assign[2]`: the field's row shows the API's message.
-    const field = String(body.field || '').replace(/^params\.?/, '').replace(/\[.*$/, '').split('.')[0];
-    const span = field && $('job-fields').querySelector('[data-field-error="' + CSS.escape(field) + '"]');
-    if (span) {
-      // Beside the field its name is not repeated.
-      const message = String(body.message || body.error);
-      span.textContent = message.startsWith(body.field + ': ') ? message.slice(body.field.length + 2) : message;
-      span.previousElementSibling.previousElementSibling.setAttribute('aria-invalid', 'true');
-    } else {
-      $('error').textContent = (body.error ? body.error + ': ' : '') + (body.message || response.statusText);
-    }
+    const { name, text } = apiFieldMessage(String(body.field || ''), String(body.message || body.error));
+    if (name && setFieldError(name, text)) showFormErrors({ [name]: text });
+    else $('error').textContent = (body.message || response.statusText);
     return;
   }
   upsertAndRender(body);
@@ -923,6 +1420,15 @@ document.addEventListener('DOMContentLoaded', () => {
   $('job-machine').addEventListener('change', renderKinds);
   $('job-kind').addEventListener('change', renderForm);
   $('measurements-csv').addEventListener('click', downloadMeasurements);
+  // The raw records are for developers: shown only with this toggle, kept per browser.
+  const developer = localStorage.getItem('gateway.developer') === 'true';
+  $('developer').checked = developer;
+  document.body.classList.toggle('developer', developer);
+  $('developer').addEventListener('change', () => {
+    localStorage.setItem('gateway.developer', String($('developer').checked));
+    document.body.classList.toggle('developer', $('developer').checked);
+  });
+  setInterval(refreshTimes, 30000);
   // A link with #token= opened on a page already loaded changes only the fragment.
   window.addEventListener('hashchange', () => {
     const fresh = takeToken();

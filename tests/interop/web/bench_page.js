@@ -43,6 +43,15 @@ async function main() {
     const r = await fetch('/api/v1/jobs?limit=1000', { headers: { Authorization: 'Bearer ' + t } });
     return (await r.json()).length;
   }, token);
+  const list = await page.evaluate(async (t) => {
+    const r = await fetch('/api/v1/jobs?limit=50', { headers: { Authorization: 'Bearer ' + t } });
+    return (await r.arrayBuffer()).byteLength;
+  }, token);
+  const files = await page.evaluate(() => performance.getEntriesByType('resource')
+    .filter((e) => /\/(app\.js|style\.css)$/.test(e.name))
+    .map((e) => e.name.split('/').pop() + ' ' + e.transferSize + ' B transferred, ' + e.decodedBodySize + ' B'));
+  console.log(`GET /api/v1/jobs?limit=50 with a 15 MB layout job in the history: ${list} bytes; ` +
+    `page files on the last load: ${files.join('; ')}`);
   console.log(`page load with ${total}+ jobs in history (${rows} rows shown): ` +
     loads.map((x) => x + ' ms').join(', ') + ` (first: a cold browser cache)`);
 
@@ -59,6 +68,7 @@ async function main() {
       return undefined;
     };
   });
+  const window0 = await page.evaluate(() => performance.now());
   const job = await page.evaluate(async ([t, params]) => {
     const r = await fetch('/api/v1/machines/demo/jobs', { method: 'POST',
       headers: { Authorization: 'Bearer ' + t, 'Content-Type': 'application/json' },
@@ -66,6 +76,12 @@ async function main() {
     return r.json();
   }, [token, mapParams]);
   if (!job.id) throw new Error('the map job was refused: ' + JSON.stringify(job));
+  await page.waitForFunction((id) => {
+    const img = document.querySelector(`figure.live-frame[data-job-id="${id}"] img.frame-image`);
+    return img && img.complete && img.naturalWidth > 0;
+  }, job.id, { timeout: 60000 });
+  const firstFrame = await page.evaluate(() => performance.now());
+  console.log(`first frame of map job ${job.id} shown ${(firstFrame - window0).toFixed(0)} ms after its request`);
   await page.locator(`button.show-job[data-job-id="${job.id}"]`).click();
   await page.locator(`#job-detail[data-job-id="${job.id}"]`).waitFor({ timeout: 60000 });
   const t0 = Date.now();

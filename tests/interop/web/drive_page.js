@@ -21,8 +21,98 @@ const [base, token, machine, kind, paramsJson, screenshot, userDataDir, chartsAr
 const walks = walksArg ? JSON.parse(walksArg) : {};
 const chartsRequired = (chartsArg || 'required') === 'required';
 const JOB_TIMEOUT_MS = 180000;
+const DESKTOP = { width: 1366, height: 900 };
+const PHONE = { width: 390, height: 844 };
+const AXE = path.join(__dirname, 'node_modules', 'axe-core', 'axe.min.js');
+
+// The widest element of the page, px (at most the viewport's width when nothing spills).
+function pageWidth(page) {
+  return page.evaluate(() => Math.max(document.documentElement.scrollWidth, document.body.scrollWidth));
+}
+
+// axe-core on the page as it is: the serious and critical violations, each with the
+// elements it found. (Evaluated through the DevTools protocol, which the page's
+// Content-Security-Policy does not apply to.)
+async function axeCheck(page, view) {
+  if (!(await page.evaluate(() => typeof window.axe !== 'undefined'))) {
+    await page.evaluate(require('fs').readFileSync(AXE, 'utf8'));
+  }
+  const result = await page.evaluate(() => window.axe.run(document, { resultTypes: ['violations'] }));
+  return result.violations.filter((v) => v.impact === 'serious' || v.impact === 'critical')
+    .map((v) => ({ view, id: v.id, impact: v.impact, nodes: v.nodes.map((n) => n.target.join(' ')).slice(0, 5) }));
+}
 const UI_TIMEOUT_MS = 20000;
 const out = { ok: false, steps: [] };
+
+// The test runs the service: `ask("stop")` has it shut the service down (as SIGTERM
+// does) and `ask("start")` start it again on the same port and data; each answers a line
+// on stdin once done.
+const asked = [];
+require('readline').createInterface({ input: process.stdin })
+  .on('line', (line) => { const answer = asked.shift(); if (answer) answer(line); });
+function ask(what) {
+  return new Promise((resolve) => {
+    asked.push(resolve);
+    process.stdout.write(JSON.stringify({ ask: what }) + '\n');
+  });
+}
+
+// What the page says while the service is down and after it is back, with the job it
+// was running: not live (actions disabled, no time left), then the job as the service
+// recorded it and, for a stopped scan, a Resume that measures only what is missing.
+async function restartWalk(page, spec) {
+  const result = {};
+  const id = await submitForm(page, 'map', spec.params);
+  result.job = id;
+  await page.locator(`#running-jobs li[data-job-id="${id}"] progress:not([data-done="0"])`)
+    .waitFor({ timeout: JOB_TIMEOUT_MS });
+  await page.click(`button.show-job[data-job-id="${id}"]`);
+  await page.locator(`#job-detail[data-job-id="${id}"][data-state="running"]`).waitFor({ timeout: UI_TIMEOUT_MS });
+  if (await ask('stop') !== 'stopped') throw new Error('the service did not stop');
+  await page.locator('body[data-live="false"]').waitFor({ timeout: UI_TIMEOUT_MS });
+  result.down = await page.evaluate(() => ({
+    stale_shown: !document.getElementById('stale').hidden,
+    connection: document.getElementById('connection').textContent,
+    actions_disabled: [...document.querySelectorAll('button.live-action')].every((b) => b.disabled),
+    actions: document.querySelectorAll('button.live-action').length,
+    progress: [...document.querySelectorAll('.running-progress-text')].map((p) => p.textContent),
+  }));
+  await page.screenshot({ path: path.join(spec.screenshots, 'restart-down-1366.png'), fullPage: true });
+  await page.setViewportSize(PHONE);
+  await page.screenshot({ path: path.join(spec.screenshots, 'restart-down-390.png'), fullPage: true });
+  await page.setViewportSize(DESKTOP);
+  if (await ask('start') !== 'started') throw new Error('the service did not start again');
+  // Back: live once the service has said what happened (the reconnect backs off up to 10 s).
+  await page.locator('body[data-live="true"]').waitFor({ timeout: 60000 });
+  await page.locator(`#job-detail[data-job-id="${id}"]:not([data-state="running"])`).waitFor({ timeout: UI_TIMEOUT_MS });
+  result.after = await page.evaluate((jobId) => ({
+    state: document.getElementById('job-detail').dataset.state,
+    row_state: document.querySelector(`#history-rows tr[data-job-id="${jobId}"]`).dataset.state,
+    next: document.getElementById('job-next').textContent,
+    running: document.querySelectorAll('#running-jobs li').length,
+    frames: document.querySelectorAll('figure.live-frame').length,
+  }), id);
+  await page.screenshot({ path: path.join(spec.screenshots, 'restart-after-1366.png'), fullPage: true });
+  await page.setViewportSize(PHONE);
+  await page.screenshot({ path: path.join(spec.screenshots, 'restart-after-390.png'), fullPage: true });
+  await page.setViewportSize(DESKTOP);
+  // Resume: the same scan queued again; it copies the frames measured and ends.
+  const before = await page.$$eval('#history-rows tr[data-job-id]', (rows) =>
+    rows.reduce((max, row) => Math.max(max, Number(row.dataset.jobId)), 0));
+  await page.click('#job-next button.resume-job');
+  const handle = await page.waitForFunction((earlier) => {
+    const row = document.querySelector('#history-rows tr[data-job-id]');
+    return row && Number(row.dataset.jobId) > earlier ? Number(row.dataset.jobId) : null;
+  }, before, { timeout: UI_TIMEOUT_MS });
+  const resumed = await handle.jsonValue();
+  await page.locator(`#history-rows tr[data-job-id="${resumed}"][data-state="succeeded"]`).waitFor({ timeout: JOB_TIMEOUT_MS });
+  result.resumed = await page.evaluate(async ([jobId, t]) => {
+    const job = await (await fetch('/api/v1/jobs/' + jobId, { headers: { Authorization: 'Bearer ' + t } })).json();
+    return { id: jobId, state: job.state, resumed_frames: job.result.resumed_frames, resumed_from_job: job.result.resumed_from_job };
+  }, [resumed, token]);
+  step('restart walked', result);
+  return result;
+}
 
 function step(name, detail) {
   out.steps.push(detail === undefined ? name : { [name]: detail });
@@ -104,6 +194,27 @@ async function queueWalk(page, spec) {
   const queueItem = (id) => page.locator(`#machines li.queued-job[data-job-id="${id}"]`);
   const long = await submitForm(page, spec.kind, spec.long);
   await page.locator(`#running-jobs li[data-job-id="${long}"]`).waitFor({ timeout: JOB_TIMEOUT_MS });
+  // The tab reopened mid-job: the machine's picture is a frame of the job it runs now
+  // (never one of the earlier job), with the dots and the measured point drawn over it.
+  await page.reload();
+  await page.locator('body[data-live="true"]').waitFor({ timeout: UI_TIMEOUT_MS });
+  await page.locator(`#running-jobs li[data-job-id="${long}"]`).waitFor({ timeout: UI_TIMEOUT_MS });
+  const frameSel = `#machines li[data-machine="${machine}"] figure.live-frame[data-job-id="${long}"]`;
+  await page.waitForFunction((sel) => {
+    const img = document.querySelector(sel + ' img.frame-image');
+    return img && img.complete && img.naturalWidth > 0
+      && document.querySelectorAll(sel + ' svg.frame-overlay circle.frame-dot').length > 0;
+  }, frameSel, { timeout: JOB_TIMEOUT_MS });
+  out.frame = await page.$eval(frameSel, (f) => ({
+    width: f.querySelector('img').naturalWidth,
+    height: f.querySelector('img').naturalHeight,
+    dots: f.querySelectorAll('svg.frame-overlay circle.frame-dot').length,
+    centre: f.querySelectorAll('svg.frame-overlay .frame-centre').length > 0,
+    caption: f.querySelector('figcaption').textContent,
+  }));
+  out.frame.jobs_shown = await page.$$eval('#machines figure.live-frame', (fs) => fs.map((f) => Number(f.dataset.jobId)));
+  out.frame.running_job = long;
+  step('frame shown after reopening', out.frame);
   const short = [];
   for (let i = 0; i < 3; i++) short.push(await submitForm(page, spec.kind, spec.short));
   await waitQueue(page, short);
@@ -120,6 +231,9 @@ async function queueWalk(page, spec) {
   result.after_cancel = await queueOrder(page);
   await page.locator(`#running-jobs li[data-job-id="${long}"] button.cancel-running`).click();
   await page.locator(`#history-rows tr[data-job-id="${long}"][data-state="cancelled"]`).waitFor({ timeout: JOB_TIMEOUT_MS });
+  // Its frame went with it (the next job's, if any, is that job's).
+  await page.locator(`figure.live-frame[data-job-id="${long}"]`).waitFor({ state: 'detached', timeout: UI_TIMEOUT_MS });
+  out.frame.dropped_after_end = true;
   for (const id of [b, c]) {
     await page.locator(`#history-rows tr[data-job-id="${id}"][data-state="succeeded"]`).waitFor({ timeout: JOB_TIMEOUT_MS });
   }
@@ -167,9 +281,22 @@ async function kindsWalk(page, spec) {
     }
     seen.charts = await page.$$eval('#job-charts img[data-chart]', (imgs) => imgs.map((i) => i.dataset.chart));
     seen.raw_collapsed = await page.$eval('#job-raw', (d) => !d.open);
+    // The raw record is only under the developer view.
+    seen.raw_hidden = await page.$eval('#job-raw', (d) => getComputedStyle(d).display === 'none');
     seen.summary = await page.locator('#job-summary').textContent();
+    // What the form sent, as the service stored it (a decimal comma read exactly).
+    seen.params = await page.evaluate(async ([jobId, t]) =>
+      (await (await fetch('/api/v1/jobs/' + jobId, { headers: { Authorization: 'Bearer ' + t } })).json()).params,
+    [id, token]);
+    delete seen.params.layout;
     seen.screenshot = path.join(spec.screenshots, `job-${job.kind}.png`);
     await page.screenshot({ path: seen.screenshot, fullPage: true });
+    // The same job on a phone: nothing wider than the screen.
+    await page.setViewportSize(PHONE);
+    seen.phone_width = await pageWidth(page);
+    seen.phone_screenshot = path.join(spec.screenshots, `job-${job.kind}-390.png`);
+    await page.locator('#job-detail').screenshot({ path: seen.phone_screenshot });
+    await page.setViewportSize(DESKTOP);
     if (job.activate) {
       // The map the next jobs use: its newest version, activated as an operator would.
       await page.selectOption('#profile-machine', machine);
@@ -186,13 +313,61 @@ async function kindsWalk(page, spec) {
   return results;
 }
 
+// The start form as an operator meets it (the service's schemas): a decimal comma read
+// exactly, the API's own refusal beside its field, and wrong uploads refused.
+async function formWalk(page) {
+    // A decimal comma is read exactly; the API's own refusal (here: the scan plan's
+    // frames past their bound) is shown beside the field it names, in the page's words.
+    await page.fill('#field-line_step_mm', '0,05');
+    await page.fill('#field-passes', '10');
+    await page.fill('#field-tool_offset_mm', '0; 0');
+    await page.fill('#field-grid_step_mm', '0,25');
+    await page.click('#start-job');
+    const apiError = page.locator('#form-errors li');
+    await apiError.first().waitFor({ timeout: UI_TIMEOUT_MS });
+    out.api_field_errors = await page.$$eval('.field-error:not(:empty)', (spans) =>
+      Object.fromEntries(spans.map((s) => [s.dataset.fieldError, s.textContent])));
+    if (await page.locator('#history-rows tr[data-job-id]').count() !== 0) {
+      throw new Error('a form the API refused started a job');
+    }
+    for (const [field, value] of [['grid_step_mm', ''], ['line_step_mm', ''], ['passes', ''], ['tool_offset_mm', '0; 0']]) {
+      await page.fill(`#field-${field}`, value);
+    }
+
+    // Uploads: a picture is refused when chosen; a JSON that is no layout and a broken
+    // DXF are refused by the service's layout reader when the job is queued, its
+    // message beside the file field; nothing starts.
+    await page.selectOption('#job-kind', 'layout');
+    const png = Buffer.from('89504e470d0a1a0a0000000d49484452', 'hex');
+    await page.locator('#field-layout').setInputFiles({ name: 'photo.png', mimeType: 'image/png', buffer: png });
+    await page.locator('[data-field-error="layout"]:not(:empty)').waitFor({ timeout: UI_TIMEOUT_MS });
+    out.upload_errors = { png: await page.locator('[data-field-error="layout"]').textContent() };
+    await page.fill('#field-tools', '2');
+    await page.fill('#field-window_mm', '25');
+    await page.fill('#field-gap_mm', '2');
+    for (const [label, name, text] of [['json', 'settings.json', '{"hello": 1}'],
+      ['dxf', 'broken.dxf', '0\nSECTION\n2\nENTITIES\n0\nLINE\n10\nnot-a-number\n']]) {
+      await page.locator('#field-layout').setInputFiles({ name, mimeType: 'text/plain', buffer: Buffer.from(text) });
+      await page.waitForFunction(() => !document.querySelector('[data-field-error="layout"]').textContent);
+      await page.click('#start-job');
+      await page.locator('[data-field-error="layout"]:not(:empty)').waitFor({ timeout: UI_TIMEOUT_MS });
+      out.upload_errors[label] = await page.locator('[data-field-error="layout"]').textContent();
+    }
+    if (await page.locator('#history-rows tr[data-job-id]').count() !== 0) {
+      throw new Error('a refused upload started a job');
+    }
+    step('uploads refused', out.upload_errors);
+    await page.selectOption('#job-kind', 'map');
+
+}
+
 async function main() {
   const context = await chromium.launchPersistentContext(userDataDir, {
     executablePath: '/usr/bin/chromium',
     headless: true,
     args: ['--headless', '--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run',
       '--disable-background-networking', '--disable-component-update', '--disable-sync'],
-    viewport: { width: 1280, height: 1600 },
+    viewport: DESKTOP,
   });
   const page = context.pages()[0] || await context.newPage();
   const pageErrors = [];
@@ -214,6 +389,7 @@ async function main() {
     await page.click('#login-button');
     await page.locator('#login-error:text("refused")').waitFor({ timeout: UI_TIMEOUT_MS });
     step('wrong token refused');
+    out.axe = await axeCheck(page, 'sign-in');
     await page.goto(`${base}/#token=${encodeURIComponent(token)}`);
     await page.locator('#connection[data-state="open"]').waitFor({ timeout: UI_TIMEOUT_MS });
     // The token left the address bar and sits in sessionStorage.
@@ -226,43 +402,41 @@ async function main() {
     await machineRow.waitFor({ timeout: UI_TIMEOUT_MS });
     out.machine_state_before = await machineRow.getAttribute('data-state');
 
-    // The start form: built from the API's schema (a field per param, with its range);
-    // a value the API refuses is shown beside its field, with the API's words, and
-    // nothing starts.
+    // The start form: built from the API's schema (a field per param, with its range).
+    // Every field is read as typed and checked before anything is queued: a too-fine
+    // grid, a word and a fraction where whole numbers go are all refused at once, each
+    // beside its field, and nothing starts.
     await page.selectOption('#job-machine', machine);
     await page.selectOption('#job-kind', 'map');
     const gridHelp = await page.locator('#field-grid_step_mm-help').textContent();
-    if (!gridHelp.includes('from 0.25')) throw new Error(`map form: grid_step_mm help is "${gridHelp}"`);
+    if (!gridHelp.includes('between 0.25 and')) throw new Error(`map form: grid_step_mm help is "${gridHelp}"`);
     out.form_fields = await page.$$eval('#job-fields .field', (rows) => rows.map((r) => r.dataset.field));
     await page.fill('#field-grid_step_mm', '0.01');
+    if (walks.form) {
+      await page.fill('#field-line_step_mm', 'fine');
+      await page.fill('#field-passes', '2,5');
+      await page.fill('#field-tool_offset_mm', '1,250');
+    }
     await page.click('#start-job');
     const fieldError = page.locator('[data-field-error="grid_step_mm"]:not(:empty)');
     await fieldError.waitFor({ timeout: UI_TIMEOUT_MS });
     out.field_error = await fieldError.textContent();
+    out.field_errors = await page.$$eval('.field-error:not(:empty)', (spans) =>
+      Object.fromEntries(spans.map((s) => [s.dataset.fieldError, s.textContent])));
+    out.form_errors_listed = await page.locator('#form-errors li').count();
+    out.axe.push(...await axeCheck(page, 'form with errors'));
+    await page.setViewportSize(PHONE);
+    out.phone_form_width = await pageWidth(page);
+    await page.locator('#start-form').screenshot({ path: screenshot.replace(/\.png$/, '-form-errors-390.png') });
+    await page.setViewportSize(DESKTOP);
     if (await page.locator('#history-rows tr[data-job-id]').count() !== 0) {
       throw new Error('a refused form started a job');
     }
-    step('field error shown', out.field_error);
+    step('field errors shown', out.field_errors);
+    if (walks.form) await formWalk(page);
     await page.fill('#field-grid_step_mm', ''); // back to the API's default
-
     const jobId = await startJob(page);
     out.job_id = jobId;
-    // The camera's last frame: the thumbnail loaded, the detected dots and the measured
-    // point drawn over it (the job localized frames; the figure stays after it ends).
-    const frameSel = `#machines li[data-machine="${machine}"] figure.live-frame[data-job-id="${jobId}"]`;
-    await page.waitForFunction((sel) => {
-      const img = document.querySelector(sel + ' img.frame-image');
-      return img && img.complete && img.naturalWidth > 0
-        && document.querySelectorAll(sel + ' svg.frame-overlay circle.frame-dot').length > 0;
-    }, frameSel, { timeout: UI_TIMEOUT_MS });
-    out.frame = await page.$eval(frameSel, (f) => ({
-      width: f.querySelector('img').naturalWidth,
-      height: f.querySelector('img').naturalHeight,
-      dots: f.querySelectorAll('svg.frame-overlay circle.frame-dot').length,
-      centre: f.querySelectorAll('svg.frame-overlay .frame-centre').length > 0,
-      caption: f.querySelector('figcaption').textContent,
-    }));
-    step('frame shown', out.frame);
     await page.locator(`#machines li[data-machine="${machine}"][data-state="idle"]`)
       .waitFor({ timeout: UI_TIMEOUT_MS });
     out.machine_state_after = 'idle';
@@ -329,7 +503,19 @@ async function main() {
 
     if (walks.queue) out.queue = await queueWalk(page, walks.queue);
     if (walks.kinds) out.kinds = await kindsWalk(page, walks.kinds);
+    if (walks.restart) out.restart = await restartWalk(page, walks.restart);
 
+    // The whole page on a desktop and on a phone (nothing wider than the screen), and
+    // axe-core on the views shown (the job detail, the profiles and their heat map).
+    out.axe.push(...await axeCheck(page, 'page with a job shown'));
+    out.widths = {};
+    for (const [label, size] of [['1366', DESKTOP], ['390', PHONE]]) {
+      await page.setViewportSize(size);
+      out.widths[label] = await pageWidth(page);
+      await page.screenshot({ path: screenshot.replace(/\.png$/, `-${label}.png`), fullPage: true });
+    }
+    out.axe.push(...await axeCheck(page, 'phone'));
+    await page.setViewportSize(DESKTOP);
     out.page_errors = pageErrors;
     out.error_text = await page.locator('#error').textContent();
     await page.screenshot({ path: screenshot, fullPage: true });
