@@ -29,9 +29,11 @@ pub fn verify(args: VerifyArgs, json: bool) -> anyhow::Result<ExitCode> {
         "--repeat must be from 1 to 1000000, got {}",
         args.repeat
     );
+    // At most a week between two checks (a longer pause is a mistyped flag).
+    const WEEK_S: f64 = 7.0 * 24.0 * 3600.0;
     anyhow::ensure!(
-        args.every_s.is_finite() && (0.0..=1e7).contains(&args.every_s),
-        "--every-s must be a number of seconds from 0 to 1e7, got {}",
+        args.every_s.is_finite() && (0.0..=WEEK_S).contains(&args.every_s),
+        "--every-s must be a number of seconds from 0 to {WEEK_S} (a week), got {:?}",
         args.every_s
     );
     let kind = procedure::kinds::kind("verify").map_err(|e| anyhow::anyhow!("{e}"))?;

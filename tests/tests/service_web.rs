@@ -66,15 +66,19 @@ fn missing_tools(web_dir: &Path) -> Option<String> {
     if !Path::new("/usr/bin/chromium").exists() {
         return Some("/usr/bin/chromium is not installed (apt-get install -y chromium)".into());
     }
-    if !web_dir
-        .join("node_modules/playwright-core/package.json")
-        .exists()
-    {
-        return Some(format!(
-            "playwright-core is not installed in {0} (npm install --prefix {0} --no-package-lock, \
-             which installs the pinned version of its package.json; .ci/run does it)",
-            web_dir.display()
-        ));
+    for package in ["playwright-core", "axe-core"] {
+        if !web_dir
+            .join("node_modules")
+            .join(package)
+            .join("package.json")
+            .exists()
+        {
+            return Some(format!(
+                "{package} is not installed in {0} (tests/install-peers.sh installs the pinned \
+                 versions of its package.json; .ci/run runs it)",
+                web_dir.display()
+            ));
+        }
     }
     None
 }
