@@ -116,10 +116,7 @@ impl crate::registry::Procedure for Compensate {
 
     async fn run(request: CompensateRequest, cx: &mut dyn crate::Context) -> Outcome {
         let stop = cx.stop();
-        let bench = match cx.bench().await {
-            Ok(b) => b,
-            Err(e) => return Outcome::failed(e.to_string()),
-        };
+        let bench = crate::or_fail!(cx.bench().await);
         run(
             &request,
             bench.job,

@@ -166,3 +166,15 @@ pub trait ErrorsShelf {
     /// Keeps the report; returns where it went, for the result.
     fn keep(&mut self, name: &str, report: &Value) -> Result<String, String>;
 }
+
+/// The value of a context's answer, or the procedure ends failed with the context's
+/// error (what it could not give and why).
+#[macro_export]
+macro_rules! or_fail {
+    ($answer:expr) => {
+        match $answer {
+            Ok(v) => v,
+            Err(e) => return $crate::Outcome::failed(e.to_string()),
+        }
+    };
+}

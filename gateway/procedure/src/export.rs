@@ -558,10 +558,7 @@ impl crate::registry::Procedure for Export {
     type Request = ExportRequest;
 
     async fn run(request: ExportRequest, cx: &mut dyn crate::Context) -> Outcome {
-        let active = match cx.map() {
-            Ok(m) => m,
-            Err(e) => return Outcome::failed(e.to_string()),
-        };
+        let active = crate::or_fail!(cx.map());
         run(&request, active.map, cx.sink())
     }
 

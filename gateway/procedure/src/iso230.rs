@@ -437,10 +437,7 @@ impl crate::registry::Procedure for Iso230 {
             },
             None => None,
         };
-        let bench = match cx.bench().await {
-            Ok(b) => b,
-            Err(e) => return Outcome::failed(e.to_string()),
-        };
+        let bench = crate::or_fail!(cx.bench().await);
         run(
             &request,
             bench.job,

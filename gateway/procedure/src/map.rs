@@ -348,10 +348,7 @@ impl crate::registry::Procedure for Map {
             (Ok(j), Ok(s)) => (j, s),
             (Err(e), _) | (_, Err(e)) => return Outcome::failed(e.to_string()),
         };
-        let bench = match cx.bench().await {
-            Ok(b) => b,
-            Err(e) => return Outcome::failed(e.to_string()),
-        };
+        let bench = crate::or_fail!(cx.bench().await);
         run(
             &request,
             bench.job,

@@ -270,18 +270,12 @@ impl crate::registry::Procedure for Reference {
     async fn run(request: ReferenceRequest, cx: &mut dyn crate::Context) -> Outcome {
         let stop = cx.stop();
         let now = cx.now();
-        let active = match cx.map() {
-            Ok(m) => m,
-            Err(e) => return Outcome::failed(e.to_string()),
-        };
+        let active = crate::or_fail!(cx.map());
         let (previous, replaced) = match &active.reference {
             Ok(p) => (p.clone(), None),
             Err(e) => (None, Some(e.clone())),
         };
-        let bench = match cx.bench().await {
-            Ok(b) => b,
-            Err(e) => return Outcome::failed(e.to_string()),
-        };
+        let bench = crate::or_fail!(cx.bench().await);
         let measured = {
             let measuring = run(
                 &request,

@@ -508,10 +508,7 @@ impl crate::registry::Procedure for Rewrite {
     type Request = RewriteRequest;
 
     async fn run(request: RewriteRequest, cx: &mut dyn crate::Context) -> Outcome {
-        let active = match cx.map() {
-            Ok(m) => m,
-            Err(e) => return Outcome::failed(e.to_string()),
-        };
+        let active = crate::or_fail!(cx.map());
         match cx.identity().await {
             Ok(Some(here)) => {
                 if let Err(e) = crate::check_identity(&active.map, &here, &active.name) {

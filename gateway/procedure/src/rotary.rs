@@ -374,14 +374,8 @@ impl crate::registry::Procedure for RotaryMeasure {
 
     async fn run(request: RotaryRequest, cx: &mut dyn crate::Context) -> Outcome {
         let stop = cx.stop();
-        let job = match cx.rotary_job() {
-            Ok(j) => j,
-            Err(e) => return Outcome::failed(e.to_string()),
-        };
-        let mut shelf = match cx.errors_shelf() {
-            Ok(s) => s,
-            Err(e) => return Outcome::failed(e.to_string()),
-        };
+        let job = crate::or_fail!(cx.rotary_job());
+        let mut shelf = crate::or_fail!(cx.errors_shelf());
         measure(&request, &job, shelf.as_mut(), cx.sink(), stop.requested()).await
     }
 

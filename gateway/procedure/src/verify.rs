@@ -141,10 +141,7 @@ impl crate::registry::Procedure for Verify {
     async fn run(request: VerifyRequest, cx: &mut dyn crate::Context) -> Outcome {
         let stop = cx.stop();
         let now = cx.now();
-        let active = match cx.map() {
-            Ok(m) => m,
-            Err(e) => return Outcome::failed(e.to_string()),
-        };
+        let active = crate::or_fail!(cx.map());
         let reference = match (
             request.spot_check && !request.no_reference,
             active.reference,
@@ -161,10 +158,7 @@ impl crate::registry::Procedure for Verify {
                     active.name
                 )
             });
-        let bench = match cx.bench().await {
-            Ok(b) => b,
-            Err(e) => return Outcome::failed(e.to_string()),
-        };
+        let bench = crate::or_fail!(cx.bench().await);
         let checked = {
             let checking = check_map(
                 &request,
