@@ -281,7 +281,7 @@ pub struct ExportRequest {
     #[cfg_attr(feature = "cli", arg(long, value_enum))]
     pub format: ExportFormat,
     /// The table's file name; the per-axis formats add `_x`/`_y` before its extension
-    /// (the CLI's: the name of `--out`).
+    /// (on the command line, the name of `--out`).
     #[serde(default = "default_name")]
     #[cfg_attr(feature = "cli", arg(skip = default_name()))]
     #[schema(default = default_name)]

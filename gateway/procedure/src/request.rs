@@ -145,8 +145,8 @@ fn default_passes() -> u32 {
 #[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct MapRequest {
-    /// The map's name (the profile it becomes a version of; the CLI's file name, by
-    /// default the job file's).
+    /// The map's name: the profile it becomes a new version of (on the command line, the
+    /// file's name, by default the job file's).
     #[serde(default = "default_map_name")]
     #[cfg_attr(feature = "cli", arg(skip = default_map_name()))]
     #[schema(default = default_map_name, pattern = "^[A-Za-z0-9_-]{1,64}$")]
@@ -441,7 +441,8 @@ pub struct Iso230Request {
     )]
     #[schema(default = default_certificate_uncertainty, minimum = 0.0, maximum = 1000.0)]
     pub certificate_uncertainty_um: f64,
-    /// Test with an error map acting (the CLI's `--map`, the service's active profile).
+    /// Test with the machine's error map acting (its active profile; on the command line,
+    /// `--map`).
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(skip))]
     pub with_map: bool,
@@ -546,7 +547,7 @@ fn default_chord_tolerance() -> f64 {
 /// The largest layout text a request carries (the service's body limit is lower).
 pub const MAX_LAYOUT_BYTES: usize = 64 << 20;
 
-/// A layout partition (source C).
+/// A cutting layout partitioned into tool and window groups for a multi-tool cutter.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
@@ -555,7 +556,7 @@ pub struct LayoutRequest {
     #[cfg_attr(feature = "cli", arg(skip))]
     #[schema(format = Binary)]
     pub layout: String,
-    /// The layout's format (the CLI's: the file's extension).
+    /// The layout's format (on the command line, the file's extension).
     #[cfg_attr(feature = "cli", arg(skip))]
     #[schema(inline)]
     pub format: LayoutFormat,
@@ -596,8 +597,8 @@ pub struct LayoutRequest {
     #[cfg_attr(feature = "cli", arg(long, value_name = "PART=GROUP"))]
     pub assign: Vec<String>,
     /// When moving parts leaves overlaps, move later windows (along X) or upper lanes
-    /// (along Y) further apart than S8's one gap until none is left (reported as
-    /// `widenings`); without it such overlaps are an error.
+    /// (along Y) further apart than the one gap of the partition until none is left
+    /// (reported as `widenings`); without it such overlaps are an error.
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(long))]
     pub widen: bool,
@@ -606,8 +607,8 @@ pub struct LayoutRequest {
     #[cfg_attr(feature = "cli", arg(long, default_value_t = default_chord_tolerance()))]
     #[schema(default = default_chord_tolerance, minimum = 0.0001, maximum = 10.0)]
     pub chord_tolerance_mm: f64,
-    /// The shifted layout's format (default: the input's; the CLI's: the output's
-    /// extension).
+    /// The shifted layout's format (default: the input's; on the command line, the
+    /// output file's extension).
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(skip))]
     #[schema(inline)]
@@ -1011,9 +1012,9 @@ fn default_max_shift() -> f64 {
     errormap::reference::MAX_SHIFT_UM
 }
 
-/// A reference after homing: home (when the job homes), one frame at the map's reference
-/// point, the machine zero's shift recorded as the map's current reference. Not a job
-/// kind of [`Request`] yet: the service wires it (`procedure::reference::run`).
+/// The reference after homing: home (when the job homes), one frame at the map's
+/// reference point, and how far the machine's zero moved recorded as the map's current
+/// reference, which rewritten programs and spot checks then apply.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
