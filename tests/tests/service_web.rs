@@ -401,6 +401,17 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
             assert!(!k["charts"].as_array().unwrap().is_empty(), "{k}");
         }
         assert_eq!(k["raw_collapsed"], true, "{k}");
+        // An uploaded file gives its name to the field that names it in messages.
+        for (file, named) in [
+            ("program", "program_name"),
+            ("centres", "centres_name"),
+            ("measurements", "measurements_name"),
+            ("errors", "errors_name"),
+        ] {
+            if let Some(upload) = want["params"][file]["name"].as_str() {
+                assert_eq!(k["params"][named], upload, "{}", k["kind"]);
+            }
+        }
         assert_eq!(k["raw_hidden"], true, "{k}");
         assert!(k["phone_width"].as_u64().unwrap() <= 390, "{k}");
         // Each number as typed (a decimal comma too) is the number stored.

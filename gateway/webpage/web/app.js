@@ -1202,6 +1202,10 @@ async function checkUpload(input, name, spec, kind) {
   }
   const ext = file.name.includes('.') ? file.name.split('.').pop().toLowerCase() : '';
   const layout = name === 'layout';
+  // A field that says how messages name the file (`program_name` for `program`) takes
+  // the chosen file's name.
+  const named = document.getElementById('field-' + name + '_name');
+  if (named) named.value = file.name;
   const format = document.getElementById('field-format'); // built with the form
   if (layout && format && LAYOUT_FORMATS.includes(ext)) format.value = ext;
   help.textContent = file.name + ', ' + fmtNumber(file.size / 1024, '') + ' kB';
