@@ -61,12 +61,13 @@ impl Stop {
         (tx, Stop(rx))
     }
 
-    /// A signal that is never raised (a command that only a failure ends).
-    pub fn never() -> Stop {
-        let (tx, stop) = Stop::new();
-        // The sender kept alive forever: the signal never fires, never errors.
-        std::mem::forget(tx);
-        stop
+    /// `work` to its end, or `None` when the stop is raised first (the caller stops the
+    /// stage: `work`, which held it, is dropped by then).
+    pub async fn unless<T>(self, work: impl std::future::Future<Output = T>) -> Option<T> {
+        tokio::select! {
+            done = work => Some(done),
+            _ = self.requested() => None,
+        }
     }
 
     /// Completes once the stop is raised (never, if its sender is gone without it).
@@ -74,10 +75,6 @@ impl Stop {
         if self.0.wait_for(|s| *s).await.is_err() {
             std::future::pending::<()>().await;
         }
-    }
-
-    pub fn is_raised(&self) -> bool {
-        *self.0.borrow()
     }
 }
 
@@ -110,11 +107,7 @@ pub trait Context {
     /// The error map to apply, with its current reference record.
     fn map(&mut self) -> Result<ActiveMap, ContextError>;
     /// Keeps `record` as the current reference of `map`; returns where it went.
-    fn keep_reference(
-        &mut self,
-        map: &ActiveMap,
-        record: &MapReference,
-    ) -> Result<String, ContextError>;
+    fn keep_reference(&mut self, record: &MapReference) -> Result<String, ContextError>;
     /// The journal of a scan named `name` (a stopped scan's samples, resumed when its
     /// header matches).
     fn scan_journal(&mut self, name: &str) -> Result<Box<dyn ScanJournal>, ContextError>;

@@ -84,11 +84,6 @@ impl<'a> Files<'a> {
         self
     }
 
-    /// The devices, if the procedure opened them (a repeated check reuses them).
-    pub fn take_devices(&mut self) -> Option<Devices> {
-        self.devices.take()
-    }
-
     fn loaded_job(&mut self) -> Result<&Job, ContextError> {
         if self.job.is_none() {
             let path = self
@@ -170,11 +165,7 @@ impl Context for Files<'_> {
         })
     }
 
-    fn keep_reference(
-        &mut self,
-        _map: &ActiveMap,
-        record: &MapReference,
-    ) -> Result<String, ContextError> {
+    fn keep_reference(&mut self, record: &MapReference) -> Result<String, ContextError> {
         let map = self
             .map_path
             .as_ref()

@@ -85,6 +85,11 @@ impl Outcome {
         }
     }
 
+    /// Stopped by the operator before anything was kept (the stage told to stop).
+    pub fn cancelled(why: &str) -> Self {
+        Self::stopped(true, why.into(), None, Map::new(), false)
+    }
+
     /// Stopped by an error (or, when `cancelled`, by the operator) with `result` so far.
     pub fn stopped(
         cancelled: bool,

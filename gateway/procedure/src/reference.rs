@@ -276,8 +276,8 @@ impl crate::registry::Procedure for Reference {
             Err(e) => (None, Some(e.clone())),
         };
         let bench = crate::or_fail!(cx.bench().await);
-        let measured = {
-            let measuring = run(
+        let measured = stop
+            .unless(run(
                 &request,
                 bench.job,
                 bench.devices,
@@ -286,21 +286,11 @@ impl crate::registry::Procedure for Reference {
                 previous.as_ref(),
                 now,
                 bench.sink,
-            );
-            tokio::select! {
-                o = measuring => Some(o),
-                _ = stop.requested() => None,
-            }
-        };
+            ))
+            .await;
         let Some(mut outcome) = measured else {
             let _ = bench.devices.stage.stop().await;
-            return Outcome::stopped(
-                true,
-                "stopped before the reference was recorded".into(),
-                None,
-                Default::default(),
-                false,
-            );
+            return Outcome::cancelled("stopped before the reference was recorded");
         };
         if !outcome.is_success() {
             return outcome;
@@ -312,7 +302,7 @@ impl crate::registry::Procedure for Reference {
             Ok(r) => r,
             Err(e) => return Outcome::failed(format!("the new record: {e}")),
         };
-        match cx.keep_reference(&active, &record) {
+        match cx.keep_reference(&record) {
             Ok(kept) => result["written_to"] = json!(kept),
             Err(e) => return Outcome::failed(format!("recording the reference: {e}")),
         }

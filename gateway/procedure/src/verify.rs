@@ -159,8 +159,8 @@ impl crate::registry::Procedure for Verify {
                 )
             });
         let bench = crate::or_fail!(cx.bench().await);
-        let checked = {
-            let checking = check_map(
+        let checked = stop
+            .unless(check_map(
                 &request,
                 bench.job,
                 bench.devices,
@@ -169,21 +169,11 @@ impl crate::registry::Procedure for Verify {
                 reference.as_ref(),
                 now,
                 bench.sink,
-            );
-            tokio::select! {
-                o = checking => Some(o),
-                _ = stop.requested() => None,
-            }
-        };
+            ))
+            .await;
         let Some(mut outcome) = checked else {
             let _ = bench.devices.stage.stop().await;
-            return Outcome::stopped(
-                true,
-                "stopped during the check".into(),
-                None,
-                Default::default(),
-                false,
-            );
+            return Outcome::cancelled("stopped during the check");
         };
         if let (Some(w), Some(r)) = (warning, outcome.result.as_mut()) {
             r["warning"] = json!(w);

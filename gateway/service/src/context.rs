@@ -141,11 +141,7 @@ impl Context for StoreContext<'_> {
         })
     }
 
-    fn keep_reference(
-        &mut self,
-        _map: &ActiveMap,
-        record: &MapReference,
-    ) -> Result<String, ContextError> {
+    fn keep_reference(&mut self, record: &MapReference) -> Result<String, ContextError> {
         let (version, _) = self.profile()?;
         let key = reference_key(&self.machine.id, &version.name, version.version);
         let text = procedure::reference::record_json(record);
