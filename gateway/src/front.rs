@@ -190,7 +190,7 @@ pub fn print(
 
 /// Runs the registered procedure `kind` on `request` (checked once here: an error names
 /// the flag) in the files context `configure` makes of the command's files, with Ctrl-C
-/// as the stop signal, and prints its outcome with the kind's summary (`then` appended).
+/// as the stop signal, and prints its outcome with the kind's summary.
 pub fn run_kind(
     kind: &str,
     request: &impl serde::Serialize,
@@ -198,9 +198,21 @@ pub fn run_kind(
     json: bool,
     configure: impl for<'s> FnOnce(Files<'s>) -> Files<'s>,
 ) -> anyhow::Result<ExitCode> {
+    run_kind_then(kind, request, sink, json, "", configure)
+}
+
+/// [`run_kind`], the summary followed by `then` (what the command wrote where).
+pub fn run_kind_then(
+    kind: &str,
+    request: &impl serde::Serialize,
+    sink: &mut CliSink,
+    json: bool,
+    then: &str,
+    configure: impl for<'s> FnOnce(Files<'s>) -> Files<'s>,
+) -> anyhow::Result<ExitCode> {
     let kind = procedure::kinds::kind(kind).map_err(|e| anyhow::anyhow!("{e}"))?;
     let outcome = run_outcome(kind, request, sink, configure)?;
-    print(&outcome, json, |r| kind.summary(r))
+    print(&outcome, json, |r| format!("{}{then}", kind.summary(r)))
 }
 
 /// [`run_kind`] without printing: the outcome.

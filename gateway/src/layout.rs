@@ -112,11 +112,8 @@ pub fn run(cmd: LayoutCmd, json: bool) -> anyhow::Result<ExitCode> {
         request.picture = Some(kind);
         sink = sink.artifact_to(&format!("picture.{}", ext_of(path)), path.clone());
     }
-    let kind = procedure::kinds::kind("layout").map_err(|e| anyhow::anyhow!("{e}"))?;
-    let outcome = crate::front::run_outcome(kind, &request, &mut sink, |f| f)?;
-    crate::front::print(&outcome, json, |r| {
-        format!("{}written {}", kind.summary(r), out.display())
-    })
+    let written = format!("written {}", out.display());
+    crate::front::run_kind_then("layout", &request, &mut sink, json, &written, |f| f)
 }
 
 fn ext_of(path: &Path) -> String {

@@ -90,7 +90,7 @@ pub fn run(cmd: RotaryCmd, json: bool) -> anyhow::Result<ExitCode> {
             let wrote = plot
                 .map(|d| format!("chart: {}", d.join("rotary-sweeps.svg").display()))
                 .unwrap_or_default();
-            run_and_print("rotary-identify", &request, &mut sink, json, wrote, |f| f)
+            crate::front::run_kind_then("rotary-identify", &request, &mut sink, json, &wrote, |f| f)
         }
         RotaryCmd::Measure { config, out } => {
             let request = procedure::request::RotaryRequest::default();
@@ -98,7 +98,7 @@ pub fn run(cmd: RotaryCmd, json: bool) -> anyhow::Result<ExitCode> {
                 .inputs(&[&config])
                 .into_folder(&out)?;
             let wrote = format!("wrote {}", out.display());
-            run_and_print("rotary", &request, &mut sink, json, wrote, |f| {
+            crate::front::run_kind_then("rotary", &request, &mut sink, json, &wrote, |f| {
                 f.rotary_file(&config).out_folder(&out)
             })
         }
@@ -131,23 +131,9 @@ pub fn run(cmd: RotaryCmd, json: bool) -> anyhow::Result<ExitCode> {
                 .inputs(&[&input, &errors])
                 .artifact_to("program.nc", out.clone());
             let wrote = format!("wrote {}", out.display());
-            run_and_print("rotary-rewrite", &request, &mut sink, json, wrote, |f| f)
+            crate::front::run_kind_then("rotary-rewrite", &request, &mut sink, json, &wrote, |f| f)
         }
     }
-}
-
-/// Runs a rotary kind and prints its summary with a line saying what was written.
-fn run_and_print(
-    kind: &str,
-    request: &impl serde::Serialize,
-    sink: &mut CliSink,
-    json: bool,
-    wrote: String,
-    configure: impl for<'s> FnOnce(procedure::files::Files<'s>) -> procedure::files::Files<'s>,
-) -> anyhow::Result<ExitCode> {
-    let kind = procedure::kinds::kind(kind).map_err(|e| anyhow::anyhow!("{e}"))?;
-    let outcome = crate::front::run_outcome(kind, request, sink, configure)?;
-    crate::front::print(&outcome, json, |r| format!("{}{wrote}", kind.summary(r)))
 }
 
 /// The machine constants from a JSON file, or the defaults.
