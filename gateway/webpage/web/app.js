@@ -78,7 +78,9 @@ const LABELS = {
 };
 const KIND_LABELS = { compensate: 'Compensation run', iso230: 'ISO 230-2 axis test', map: 'Error map scan',
   verify: 'Error map check', layout: 'Layout partition', rotary: 'Rotary table measurement',
-  reference: 'Machine zero check' };
+  reference: 'Machine zero check', export: 'Controller tables', rewrite: 'Program rewrite',
+  'iso230-evaluate': 'ISO 230-2 evaluation of a file', 'rotary-identify': 'Rotary errors from measured centres',
+  'rotary-rewrite': '5-axis program rewrite' };
 const STATE_WORDS = { queued: 'queued', running: 'running', succeeded: 'done', failed: 'failed',
   cancelled: 'cancelled', interrupted: 'interrupted', idle: 'idle', busy: 'busy', opening: 'connecting',
   link_lost: 'link lost', stopped: 'stopped' };
