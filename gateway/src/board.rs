@@ -1,7 +1,6 @@
-//! `gateway board make`: `procedure::board`'s artwork and certificate template written
-//! into the output folder.
+//! `gateway board make`: the registered `board-make` kind, its artwork and certificate
+//! template written into the output folder.
 
-use protocol::Board;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -18,29 +17,27 @@ pub enum BoardCmd {
 }
 
 pub fn run(cmd: BoardCmd, json: bool) -> anyhow::Result<ExitCode> {
-    let BoardCmd::Make { board: path, out } = cmd;
-    let board = Board::load(&path)?;
-    let name = path
+    let BoardCmd::Make { board, out } = cmd;
+    let name = board
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_else(|| "board".to_string());
     // Every output checked before any is written (never over the board, its
-    // certificate or anything else read): a refused run leaves nothing behind. The names
-    // are procedure::board::make's.
+    // certificate or anything else read): a refused run leaves nothing behind. The board
+    // is read first so that its certificate counts as read; the names are
+    // procedure::board::make's.
+    protocol::Board::load(&board)?;
     for ext in ["svg", "dxf", "pdf", "certificate-template.csv"] {
         let file = out.join(format!("{name}.{ext}"));
-        protocol::config::check_output(&file, &[path.as_path()])
+        protocol::config::check_output(&file, &[board.as_path()])
             .map_err(|e| anyhow::anyhow!("writing {}: {e}", file.display()))?;
     }
     let mut sink = crate::front::CliSink::new("", true)
-        .inputs(&[path.as_path()])
+        .inputs(&[board.as_path()])
         .into_folder(&out)?;
-    let outcome = procedure::board::make(&board, &name, &mut sink);
-    crate::front::print(&outcome, json, |r| {
-        format!(
-            "{}\nwritten to {}",
-            procedure::board::summary(r),
-            out.display()
-        )
+    let written = format!("\nwritten to {}", out.display());
+    let request = procedure::board::BoardMakeRequest {};
+    crate::front::run_kind_then("board-make", &request, &mut sink, json, &written, |f| {
+        f.board_file(&board)
     })
 }

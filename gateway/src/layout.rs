@@ -78,16 +78,14 @@ pub fn run(cmd: LayoutCmd, json: bool) -> anyhow::Result<ExitCode> {
             log,
         } => {
             request.partition = with_layout(request.partition, &layout)?;
-            request.check().map_err(|e| anyhow::anyhow!(e.for_cli()))?;
             let mut sink = crate::front::CliSink::new("stops", json).inputs(&[&layout]);
             if let Some(path) = &log {
                 sink = sink.artifact_to("strokes.jsonl", path.clone());
             }
-            let rt = crate::front::runtime()?;
-            let outcome = rt.block_on(procedure::cut::run(&request, &mut sink));
-            sink.finish();
+            let kind = procedure::kinds::kind("cut")?;
+            let outcome = crate::front::run_outcome(kind, &request, &mut sink, |f| f)?;
             return crate::front::print(&outcome, json, |r| {
-                let mut text = procedure::cut::summary(r);
+                let mut text = kind.summary(r);
                 if let Some(path) = log.as_ref().filter(|_| r["emulated"] == true) {
                     text += &format!("log written to {}", path.display());
                 }

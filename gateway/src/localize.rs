@@ -1,8 +1,8 @@
-//! `gateway localize`: one image of the board localized (`procedure::localize`).
+//! `gateway localize`: one image of the board localized (the registered `localize`
+//! kind), the frame read through the bounded reader.
 
+use base64::Engine;
 use procedure::localize::LocalizeRequest;
-use protocol::Board;
-use serde_json::{json, Value};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -21,17 +21,18 @@ pub fn localize(args: LocalizeArgs, json: bool) -> anyhow::Result<ExitCode> {
     let LocalizeArgs {
         image,
         board,
-        request,
+        mut request,
     } = args;
-    let board = Board::load(&board)?;
-    let img = vision::image_io::load_png(&image)?;
-    request
-        .check_for(&board)
-        .map_err(|e| anyhow::anyhow!(e.for_cli()))?;
-    let source = image.display().to_string();
-    let mut outcome = procedure::localize::run(&request, &img, &board, &source);
-    if let Some(Value::Object(frame)) = outcome.result.as_mut().and_then(|r| r.get_mut("image")) {
-        frame.insert("path".into(), json!(source));
-    }
-    crate::front::print(&outcome, json, procedure::localize::summary)
+    let bytes = protocol::config::read_bytes_bounded(
+        &image,
+        vision::image_io::MAX_IMAGE_BYTES,
+        "an image file",
+    )
+    .map_err(|e| anyhow::anyhow!("{}: cannot open: {e}", image.display()))?;
+    request.image = base64::engine::general_purpose::STANDARD.encode(bytes);
+    request.image_name = image.display().to_string();
+    let mut sink = crate::front::CliSink::new("", true);
+    crate::front::run_kind("localize", &request, &mut sink, json, |f| {
+        f.board_file(&board)
+    })
 }

@@ -155,7 +155,11 @@ pub fn rewrite(args: RewriteArgs, json: bool) -> anyhow::Result<ExitCode> {
             // A volumetric model is not a map: the same rewrite, another compensation.
             request.check().map_err(|e| anyhow::anyhow!(e.for_cli()))?;
             let model = RewriteModel::Volumetric {
-                model: crate::volumetric::load_model(path)?,
+                model: procedure::volumetric::read_file(path)
+                    .and_then(|text| {
+                        procedure::volumetric::read_model(&path.display().to_string(), &text)
+                    })
+                    .map_err(anyhow::Error::msg)?,
                 name: path.display().to_string(),
             };
             let source = args.input.display().to_string();

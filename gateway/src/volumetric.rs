@@ -1,24 +1,23 @@
-//! `gateway volumetric ...`: flags to the requests of `procedure::volumetric` (identify,
-//! eval, contributions, simulate-campaign, export-isg), files read through the bounded
-//! reader, artifacts written by the CLI's sink, results printed.
+//! `gateway volumetric ...`: the registered volumetric kinds (identify, eval,
+//! contributions, simulate-campaign, export-isg) with their files read through the
+//! bounded reader and their artifacts written where the flags say.
 
-use crate::front::CliSink;
+use crate::front::{run_kind_then, run_outcome, CliSink};
 use clap::Subcommand;
 use procedure::volumetric::{
-    CampaignFiles, VolumetricCampaignRequest, VolumetricContributionsRequest,
-    VolumetricEvalRequest, VolumetricIdentifyRequest, CAMPAIGN_FILES, MODEL_ARTIFACT,
+    VolumetricCampaignRequest, VolumetricContributionsRequest, VolumetricEvalRequest,
+    VolumetricExportIsgRequest, VolumetricIdentifyRequest, CAMPAIGN_FILES, MODEL_ARTIFACT,
 };
-use procedure::{Outcome, RequestError};
-use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use volumetric::Model;
 
+// Parsed once per run: the size of a variant does not matter.
+#[allow(clippy::large_enum_variant)]
 #[derive(Subcommand)]
 pub enum VolumetricCmd {
     /// Identify the model from a campaign directory (laser_X.csv, level_X.csv, ...,
     /// ballbar_XY.csv ... or squareness.csv, camera.csv if measured) and write the
-    /// model file.
+    /// model file. Exit code 2: identified, but unfit for compensation.
     Identify {
         #[arg(long)]
         campaign: PathBuf,
@@ -71,39 +70,8 @@ fn read(path: &Path) -> anyhow::Result<String> {
     procedure::volumetric::read_file(path).map_err(anyhow::Error::msg)
 }
 
-/// Reads and checks a model file (through the bounded reader).
-pub fn load_model(path: &Path) -> anyhow::Result<Model> {
-    procedure::volumetric::read_model(&path.display().to_string(), &read(path)?)
-        .map_err(anyhow::Error::msg)
-}
-
-fn cli(e: RequestError) -> anyhow::Error {
-    anyhow::anyhow!(e.for_cli())
-}
-
-/// Sets `key` of the outcome's result (where the CLI wrote what the procedure named).
-fn located(mut outcome: Outcome, key: &str, path: &Path) -> Outcome {
-    if let Some(o) = outcome.result.as_mut().and_then(Value::as_object_mut) {
-        o.insert(key.into(), json!(path.display().to_string()));
-    }
-    outcome
-}
-
-/// The campaign folder: each file the procedure asks for, read through the bounded
-/// reader if it is there.
-struct FolderCampaign(PathBuf);
-
-impl CampaignFiles for FolderCampaign {
-    fn place(&self) -> String {
-        self.0.display().to_string()
-    }
-    fn read(&mut self, name: &str) -> Result<Option<String>, String> {
-        let path = self.0.join(name);
-        if !path.exists() {
-            return Ok(None);
-        }
-        read(&path).map(Some).map_err(|e| format!("{e:#}"))
-    }
+fn named(path: &Path) -> String {
+    path.display().to_string()
 }
 
 pub fn run(cmd: VolumetricCmd, json: bool) -> anyhow::Result<ExitCode> {
@@ -115,34 +83,34 @@ pub fn run(cmd: VolumetricCmd, json: bool) -> anyhow::Result<ExitCode> {
             plots,
         } => {
             request.plots = plots.is_some();
-            request.check().map_err(cli)?;
-            let inputs: Vec<PathBuf> = CAMPAIGN_FILES.iter().map(|n| campaign.join(n)).collect();
-            let inputs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
+            request.campaign_name = named(&campaign);
+            // Each file a campaign may hold, when the folder has it.
+            for name in CAMPAIGN_FILES {
+                let path = campaign.join(name);
+                if path.exists() {
+                    *request.file_mut(name).expect("a campaign file") = Some(read(&path)?);
+                }
+            }
             let mut sink = CliSink::new("", true)
-                .inputs(&inputs)
+                .inputs(&[campaign.as_path()])
                 .artifact_to(MODEL_ARTIFACT, out.clone());
             if let Some(dir) = &plots {
                 sink = sink.into_folder(dir)?;
             }
-            let outcome =
-                procedure::volumetric::identify(&request, &mut FolderCampaign(campaign), &mut sink);
-            let outcome = located(outcome, "model", &out);
+            let kind = procedure::kinds::kind("volumetric-identify")?;
+            let outcome = run_outcome(kind, &request, &mut sink, |f| f)?;
             let fit = outcome
                 .result
                 .as_ref()
                 .is_some_and(|r| r["fit_for_compensation"] == true);
             let code = crate::front::print(&outcome, json, |r| {
-                let mut text = procedure::volumetric::identify_summary(r);
-                text += &format!(
-                    "model written to {} ({})",
-                    out.display(),
-                    if fit {
-                        "fit for compensation"
-                    } else {
-                        "UNFIT for compensation: residuals exceed the instruments' stated uncertainty"
-                    }
-                );
-                text
+                let verdict = if fit {
+                    "fit for compensation"
+                } else {
+                    "UNFIT for compensation: residuals exceed the instruments' stated uncertainty"
+                };
+                let summary = kind.summary(r);
+                format!("{summary}model written to {} ({verdict})", out.display())
             })?;
             Ok(if code == ExitCode::SUCCESS && !fit {
                 ExitCode::from(2)
@@ -153,67 +121,61 @@ pub fn run(cmd: VolumetricCmd, json: bool) -> anyhow::Result<ExitCode> {
         VolumetricCmd::Eval {
             model,
             points,
-            request,
+            mut request,
         } => {
-            let m = load_model(&model)?;
-            let text = read(&points)?;
-            request.check_points(&text).map_err(cli)?;
-            let outcome =
-                procedure::volumetric::eval(&request, &m, &points.display().to_string(), &text);
-            crate::front::print(&outcome, json, |r| {
-                procedure::volumetric::eval_lines(r)
-                    .collect::<Vec<_>>()
-                    .join("\n")
-            })
+            (request.model, request.model_name) = (read(&model)?, named(&model));
+            (request.points, request.points_name) = (read(&points)?, named(&points));
+            let mut sink = CliSink::new("", true);
+            run_kind_then("volumetric-eval", &request, &mut sink, json, "", |f| f)
         }
         VolumetricCmd::Contributions {
             model,
             out,
-            request,
+            mut request,
         } => {
-            request.check().map_err(cli)?;
-            let m = load_model(&model)?;
+            (request.model, request.model_name) = (read(&model)?, named(&model));
             let mut sink = CliSink::new("", true)
                 .inputs(&[model.as_path()])
                 .into_folder(&out)?;
-            let outcome = procedure::volumetric::contributions(&request, &m, &mut sink);
-            let outcome = located(outcome, "out", &out);
-            crate::front::print(&outcome, json, |r| {
-                let text = procedure::volumetric::contributions_summary(r);
-                format!("{text}written to {}", out.display())
-            })
+            let written = format!("written to {}", out.display());
+            run_kind_then(
+                "volumetric-contributions",
+                &request,
+                &mut sink,
+                json,
+                &written,
+                |f| f,
+            )
         }
         VolumetricCmd::SimulateCampaign { out, request } => {
-            request.check().map_err(cli)?;
             let mut sink = CliSink::new("", true).into_folder(&out)?;
-            let outcome = procedure::volumetric::simulate_campaign(&request, &mut sink);
-            let outcome = located(outcome, "out", &out);
-            crate::front::print(&outcome, json, |r| {
-                let names: Vec<&str> = r["files"]
-                    .as_array()
-                    .into_iter()
-                    .flatten()
-                    .filter_map(Value::as_str)
-                    .collect();
-                format!(
-                    "{} campaign (seed {}) written to {}: {}",
-                    r["structure"].as_str().unwrap_or(""),
-                    request.seed,
-                    out.display(),
-                    names.join(", ")
-                )
-            })
+            let written = format!("\nwritten to {}", out.display());
+            run_kind_then(
+                "volumetric-campaign",
+                &request,
+                &mut sink,
+                json,
+                &written,
+                |f| f,
+            )
         }
         VolumetricCmd::ExportIsg { model, out } => {
-            let m = load_model(&model)?;
+            let request = VolumetricExportIsgRequest {
+                model: read(&model)?,
+                model_name: named(&model),
+            };
             let mut sink = CliSink::new("", true)
                 .inputs(&[model.as_path()])
                 .into_folder(&out)?;
-            let outcome = procedure::volumetric::export_isg(&m, &mut sink);
-            let outcome = located(outcome, "out", &out);
-            crate::front::print(&outcome, json, |_| {
-                format!("ISG tables written to {}", out.display())
-            })
+            let written = format!("\nISG tables written to {}", out.display());
+            run_kind_then(
+                "volumetric-export-isg",
+                &request,
+                &mut sink,
+                json,
+                &written,
+                |f| f,
+            )
         }
     }
 }

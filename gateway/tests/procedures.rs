@@ -15,7 +15,17 @@ use common::{gateway, job_file, workspace};
 
 /// Keys whose values are times or where a product was delivered (the CLI writes files,
 /// the service keeps charts and the shifted layout in the record): they differ.
-const VOLATILE: &[&str] = &["wall_time_s", "partition_ms", "kept_as", "charts", "layout"];
+const VOLATILE: &[&str] = &[
+    "wall_time_s",
+    "partition_ms",
+    "elapsed_ms",
+    "elapsed_s",
+    "output",
+    "kept_as",
+    "file",
+    "charts",
+    "layout",
+];
 
 fn stripped(mut v: Value) -> Value {
     fn walk(v: &mut Value) {
@@ -124,6 +134,43 @@ async fn map_verify_and_iso230_through_the_cli_and_the_api_give_one_outcome() {
     let job_record = api.run("verify", json!({"points": 3})).await;
     assert_eq!(job_record["state"], "succeeded", "{job_record}");
     assert_eq!(from_cli["points"].as_array().unwrap().len(), 3);
+    assert_same(from_cli, job_record["result"].clone());
+
+    // The same map as the controller's own tables, and a program rewritten with it.
+    let _ = std::fs::remove_file(map_file.replace(".json", ".reference.json"));
+    let tables = dir.join("tables");
+    let from_cli = cli(&[
+        "export",
+        "--map",
+        &map_file,
+        "--format",
+        "csv",
+        "--out",
+        &tables.display().to_string(),
+        "--json",
+    ]);
+    let job_record = api.run("export", json!({"format": "csv"})).await;
+    assert_eq!(job_record["state"], "succeeded", "{job_record}");
+    assert_same(from_cli, job_record["result"].clone());
+    let program = dir.join("part.nc");
+    let text = "G21 G90\nG0 X60 Y60\nG1 X90 Y75 F600\nG0 X60 Y60\n";
+    std::fs::write(&program, text).unwrap();
+    let from_cli = cli(&[
+        "rewrite",
+        &program.display().to_string(),
+        "--map",
+        &map_file,
+        "--out",
+        &dir.join("part.rewritten.nc").display().to_string(),
+        "--json",
+    ]);
+    let job_record = api
+        .run(
+            "rewrite",
+            json!({"program": text, "program_name": program.display().to_string()}),
+        )
+        .await;
+    assert_eq!(job_record["state"], "succeeded", "{job_record}");
     assert_same(from_cli, job_record["result"].clone());
 
     // The reference after homing, three times, then a spot check: the same rules on both
@@ -268,4 +315,277 @@ async fn rotary_measure_through_the_cli_and_the_api_gives_one_outcome() {
     assert!(dir.join("errors.json").is_file());
     assert!(from_cli["cycle"]["balls"].as_u64().unwrap() > 10);
     assert_same(from_cli, from_api);
+}
+
+/// The CLI's `--json` result and the service's for one request of a files-in kind.
+async fn both(api: &mut Api, args: &[&str], kind: &str, params: Value) -> (Value, Value) {
+    let from_cli = cli(args);
+    let job = api.run(kind, params).await;
+    assert_eq!(job["state"], "succeeded", "{kind}: {job}");
+    (from_cli, job["result"].clone())
+}
+
+fn text(path: &std::path::Path) -> String {
+    std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+/// The kinds that take files and give files (no machine moves): each through both front
+/// ends, the CLI reading the files, the API given their text (the page's uploads).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn files_in_files_out_kinds_through_the_cli_and_the_api_give_one_outcome() {
+    let dir = scratch("files");
+    let corpus = workspace().join("tests/fuzz/corpus");
+    let path = |p: &std::path::Path| p.display().to_string();
+    let mut api = Api::start().await;
+
+    // ISO 230-2 of a measurements file.
+    let file = corpus.join("iso230_csv/five_positions.csv");
+    let (c, a) = both(
+        &mut api,
+        &["iso230", "evaluate", &path(&file), "--json"],
+        "iso230-evaluate",
+        json!({"measurements": text(&file), "measurements_name": path(&file)}),
+    )
+    .await;
+    assert_same(c, a);
+
+    // The rotary table's errors from measured centres, and a program rewritten with them.
+    let centres = corpus.join("rotary_centres/paper.csv");
+    let (c, a) = both(
+        &mut api,
+        &["rotary", "identify", "--centres", &path(&centres), "--json"],
+        "rotary-identify",
+        json!({"centres": text(&centres), "centres_name": path(&centres)}),
+    )
+    .await;
+    assert_same(c, a);
+    let (program, errors) = (
+        corpus.join("rotary_rewrite/program.nc"),
+        corpus.join("rotary_errors/measured.json"),
+    );
+    let out = dir.join("five-axis.nc");
+    let (c, a) = both(
+        &mut api,
+        &[
+            "rotary",
+            "rewrite",
+            &path(&program),
+            "--errors",
+            &path(&errors),
+            "--out",
+            &path(&out),
+            "--json",
+        ],
+        "rotary-rewrite",
+        json!({"program": text(&program), "program_name": path(&program),
+               "errors": text(&errors), "errors_name": path(&errors)}),
+    )
+    .await;
+    assert_same(c, a);
+
+    // The volumetric model: a simulated campaign, identified, evaluated, its
+    // contributions and its ISG tables.
+    let campaign = dir.join("campaign");
+    let (c, a) = both(
+        &mut api,
+        &[
+            "volumetric",
+            "simulate-campaign",
+            "--out",
+            &path(&campaign),
+            "--seed",
+            "4",
+            "--json",
+        ],
+        "volumetric-campaign",
+        json!({"seed": 4}),
+    )
+    .await;
+    assert_same(c, a);
+    let model = dir.join("model.vol.csv");
+    let mut params = json!({"structure": "XYFZ", "campaign_name": path(&campaign)});
+    for name in procedure::volumetric::CAMPAIGN_FILES {
+        let file = campaign.join(name);
+        if file.exists() {
+            let field = name.trim_end_matches(".csv").to_ascii_lowercase();
+            params[field] = json!(text(&file));
+        }
+    }
+    let (c, a) = both(
+        &mut api,
+        &[
+            "volumetric",
+            "identify",
+            "--campaign",
+            &path(&campaign),
+            "--structure",
+            "XYFZ",
+            "--out",
+            &path(&model),
+            "--json",
+        ],
+        "volumetric-identify",
+        params,
+    )
+    .await;
+    assert_eq!(c["errors"].as_array().unwrap().len(), 21);
+    assert_same(c, a);
+    let points = dir.join("points.csv");
+    std::fs::write(&points, "x_mm,y_mm,z_mm\n10,20,30\n100,150,200\n").unwrap();
+    let model_text = text(&model);
+    let (c, a) = both(
+        &mut api,
+        &[
+            "volumetric",
+            "eval",
+            "--model",
+            &path(&model),
+            "--points",
+            &path(&points),
+            "--json",
+        ],
+        "volumetric-eval",
+        json!({"model": model_text, "model_name": path(&model),
+               "points": text(&points), "points_name": path(&points)}),
+    )
+    .await;
+    assert_eq!(c["points"].as_array().unwrap().len(), 2);
+    assert_same(c, a);
+    let (c, a) = both(
+        &mut api,
+        &[
+            "volumetric",
+            "contributions",
+            "--model",
+            &path(&model),
+            "--grid",
+            "5",
+            "--out",
+            &path(&dir.join("contributions")),
+            "--json",
+        ],
+        "volumetric-contributions",
+        json!({"model": model_text, "model_name": path(&model), "grid": 5}),
+    )
+    .await;
+    assert_same(c, a);
+    let (c, a) = both(
+        &mut api,
+        &[
+            "volumetric",
+            "export-isg",
+            "--model",
+            &path(&model),
+            "--out",
+            &path(&dir.join("isg")),
+            "--json",
+        ],
+        "volumetric-export-isg",
+        json!({"model": model_text, "model_name": path(&model)}),
+    )
+    .await;
+    assert_same(c, a);
+
+    // The machine's board: its artwork (named after the file on the CLI, after the
+    // board's name in the service), and one frame of it localized.
+    let board = workspace().join("config/boards/dot-grid-0.5mm.toml");
+    let (mut c, mut a) = both(
+        &mut api,
+        &[
+            "board",
+            "make",
+            &path(&board),
+            "-o",
+            &path(&dir.join("board")),
+            "--json",
+        ],
+        "board-make",
+        json!({}),
+    )
+    .await;
+    let names = |r: &mut Value| r.as_object_mut().unwrap().remove("files").unwrap();
+    let (cli_files, api_files) = (names(&mut c), names(&mut a));
+    assert_eq!(cli_files[0], "dot-grid-0.5mm.svg");
+    assert_eq!(api_files[0], "dot-grid-0-5-mm-421-x-321-certified.svg");
+    assert_same(c, a);
+    let frame = dir.join("frame.png");
+    render_frame(&board, [60.25, 40.5], &frame);
+    let image = base64_of(&std::fs::read(&frame).unwrap());
+    let (c, a) = both(
+        &mut api,
+        &[
+            "localize",
+            &path(&frame),
+            "--board",
+            &path(&board),
+            "--near",
+            "60.22,40.48",
+            "--json",
+        ],
+        "localize",
+        json!({"image": image, "image_name": path(&frame), "near": [60.22, 40.48]}),
+    )
+    .await;
+    assert!((c["x_mm"].as_f64().unwrap() - 60.25).abs() < 0.01, "{c}");
+    assert_same(c, a);
+
+    // A layout cut on the emulated cutter (the service cuts nowhere else).
+    let layout = dir.join("three.json");
+    let three = json!({"units": "mm", "width_mm": 40, "parts": [
+        {"id": "a", "contours": [[[0, 5], [10, 5], [10, 15], [0, 15]]]},
+        {"id": "b", "contours": [[[12, 5], [22, 5], [22, 15], [12, 15]]]},
+        {"id": "c", "contours": [[[24, 5], [34, 5], [34, 15], [24, 15]]]}]});
+    std::fs::write(&layout, three.to_string()).unwrap();
+    let (c, a) = both(
+        &mut api,
+        &[
+            "layout",
+            "cut",
+            &path(&layout),
+            "--tools",
+            "2",
+            "--window-mm",
+            "25",
+            "--gap-mm",
+            "1.5",
+            "--json",
+        ],
+        "cut",
+        json!({"partition": {"layout": three.to_string(), "format": "json", "tools": 2,
+               "window_mm": 25.0, "gap_mm": 1.5}}),
+    )
+    .await;
+    assert_eq!(c["strokes"], 12, "{c}");
+    assert_same(c, a);
+    let (status, refused) = api
+        .queue(
+            "cut",
+            json!({"partition": {"layout": three.to_string(), "format": "json", "tools": 2,
+                   "window_mm": 25.0, "gap_mm": 1.5}, "conveyor": "/dev/ttyS0",
+                   "heads": ["/dev/ttyS1", "/dev/ttyS2"]}),
+        )
+        .await;
+    assert_eq!(status, StatusCode::BAD_REQUEST, "{refused}");
+    assert_eq!(refused["field"], "params.conveyor", "{refused}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A frame of `board` centred on `centre_mm`, as the demo's camera takes it.
+fn render_frame(board: &std::path::Path, centre_mm: [f64; 2], png: &std::path::Path) {
+    let board = protocol::Board::load(board).unwrap();
+    let doc =
+        protocol::config::ConfigDoc::read(&workspace().join("config/cameras/mono-1.3mp.toml"))
+            .unwrap();
+    let camera = world::camera::CameraModel::from_doc(&doc).unwrap();
+    let pose = world::camera::CameraPose {
+        centre_mm,
+        rotation_rad: 0.0,
+    };
+    let f = world::render::render(&board, &camera, &pose, 3);
+    vision::image_io::save_png(&f.image, png).unwrap();
+}
+
+fn base64_of(bytes: &[u8]) -> String {
+    use base64::Engine;
+    base64::engine::general_purpose::STANDARD.encode(bytes)
 }

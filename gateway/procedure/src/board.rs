@@ -52,6 +52,41 @@ pub fn make(board: &Board, name: &str, sink: &mut dyn Sink) -> Outcome {
     )
 }
 
+/// Make the board's artwork: nothing to choose (the board is the context's: the CLI's
+/// board file, the service's machine's board).
+#[derive(
+    Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize, utoipa::ToSchema,
+)]
+#[serde(deny_unknown_fields)]
+pub struct BoardMakeRequest {}
+
+impl crate::registry::Checked for BoardMakeRequest {
+    fn check(&self) -> Result<(), crate::RequestError> {
+        Ok(())
+    }
+}
+
+/// [`make`] as a registered kind.
+pub struct BoardMake;
+
+impl crate::registry::Procedure for BoardMake {
+    const KIND: &'static str = "board-make";
+    const TITLE: &'static str =
+        "Make the calibration board's artwork (SVG, DXF, a PDF test print) and certificate template";
+    const COMMAND: &'static str = "board make";
+    const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
+    type Request = BoardMakeRequest;
+
+    async fn run(_request: BoardMakeRequest, cx: &mut dyn crate::Context) -> Outcome {
+        let board = crate::or_fail!(cx.board());
+        make(&board.board, &board.name, cx.sink())
+    }
+
+    fn summary(result: &Value) -> String {
+        summary(result)
+    }
+}
+
 /// The result as text.
 pub fn summary(r: &Value) -> String {
     let files: Vec<&str> = r["files"]

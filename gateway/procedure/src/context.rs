@@ -49,6 +49,14 @@ pub struct ActiveMap {
     pub reference: Result<Option<MapReference>, String>,
 }
 
+/// The calibration board a procedure works with and the name its artifacts take (a
+/// board file's stem on the command line; the board's own name in the service).
+#[derive(Debug, Clone)]
+pub struct NamedBoard {
+    pub name: String,
+    pub board: protocol::Board,
+}
+
 /// The stop signal: raised once (Ctrl-C, a cancel, the service's shutdown), seen by
 /// every clone.
 #[derive(Debug, Clone)]
@@ -117,6 +125,35 @@ pub trait Context {
     fn rotary_job(&mut self) -> Result<RotaryJob, ContextError>;
     /// Where identified rotary errors are kept.
     fn errors_shelf(&mut self) -> Result<Box<dyn ErrorsShelf>, ContextError>;
+    /// The calibration board: the job's (its artifacts named after the board's name:
+    /// `dot-grid-0-5-mm-421-x-321-certified`), unless the front end was given a board
+    /// file (named after the file).
+    fn board(&mut self) -> Result<NamedBoard, ContextError> {
+        let board = self.job()?.board;
+        Ok(NamedBoard {
+            name: file_name_of(&board.name),
+            board,
+        })
+    }
+}
+
+/// A name as a file name: lower-case letters and digits, every other run of characters
+/// one `-` (`dot grid 0.5 mm` is `dot-grid-0-5-mm`); `board` when nothing is left.
+pub fn file_name_of(name: &str) -> String {
+    let mut out = String::new();
+    for c in name.chars() {
+        if c.is_ascii_alphanumeric() {
+            out.push(c.to_ascii_lowercase());
+        } else if !out.is_empty() && !out.ends_with('-') {
+            out.push('-');
+        }
+    }
+    let out = out.trim_end_matches('-').to_string();
+    if out.is_empty() {
+        "board".into()
+    } else {
+        out
+    }
 }
 
 /// Seconds since 1970 of a time (0 before it).

@@ -153,6 +153,47 @@ pub async fn run(request: &CutRequest, sink: &mut dyn Sink) -> Outcome {
     Outcome::succeeded(result, metrics)
 }
 
+/// [`run`] as a registered kind.
+pub struct Cut;
+
+impl crate::registry::Procedure for Cut {
+    const KIND: &'static str = "cut";
+    const TITLE: &'static str =
+        "Partition a layout and cut it on the conveyor cutter, every head's group at once";
+    const COMMAND: &'static str = "layout cut";
+    const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
+    type Request = CutRequest;
+
+    async fn run(request: CutRequest, cx: &mut dyn crate::Context) -> Outcome {
+        run(&request, cx.sink()).await
+    }
+
+    fn summary(result: &Value) -> String {
+        summary(result)
+    }
+
+    /// The service cuts on the emulated cutter: real controllers are named by their
+    /// ports on the box that owns them (`gateway layout cut --conveyor PORT --head
+    /// PORT ...`), never by a request from the network.
+    fn admit(
+        request: &CutRequest,
+        _facts: &crate::registry::Facts,
+    ) -> Result<(), crate::RequestError> {
+        if request.conveyor.is_some() || !request.heads.is_empty() {
+            let field = if request.conveyor.is_some() {
+                "conveyor"
+            } else {
+                "heads"
+            };
+            return Err(crate::RequestError::new(
+                field,
+                "the service cuts on the emulated cutter; a cut on real controllers runs from the command line of the box their ports are on (gateway layout cut --conveyor PORT --head PORT ...)",
+            ));
+        }
+        Ok(())
+    }
+}
+
 /// The cut as text (the CLI's output without `--json`).
 pub fn summary(r: &Value) -> String {
     use std::fmt::Write;

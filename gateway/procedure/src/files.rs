@@ -4,7 +4,7 @@
 //! rotary job file; devices opened through the drivers' factory on first use. Nothing is
 //! ever written over a file the command reads.
 
-use crate::context::{ActiveMap, Bench, Context, ContextError, Stop};
+use crate::context::{ActiveMap, Bench, Context, ContextError, NamedBoard, Stop};
 use crate::map::{FileJournal, FolderShelf, MapShelf, ScanJournal};
 use crate::rotary::ErrorsShelf;
 use crate::Sink;
@@ -22,6 +22,7 @@ pub struct Files<'a> {
     map_path: Option<PathBuf>,
     out: Option<PathBuf>,
     rotary_path: Option<PathBuf>,
+    board_path: Option<PathBuf>,
     /// Every file the command reads: never written over.
     inputs: Vec<PathBuf>,
     job: Option<Job>,
@@ -37,6 +38,7 @@ impl<'a> Files<'a> {
             map_path: None,
             out: None,
             rotary_path: None,
+            board_path: None,
             inputs: Vec::new(),
             job: None,
             devices: None,
@@ -75,6 +77,13 @@ impl<'a> Files<'a> {
     pub fn rotary_file(mut self, path: &Path) -> Self {
         self.inputs.push(path.to_path_buf());
         self.rotary_path = Some(path.to_path_buf());
+        self
+    }
+
+    /// The board file (`board make BOARD`, `localize --board BOARD`).
+    pub fn board_file(mut self, path: &Path) -> Self {
+        self.inputs.push(path.to_path_buf());
+        self.board_path = Some(path.to_path_buf());
         self
     }
 
@@ -206,5 +215,22 @@ impl Context for Files<'_> {
         Ok(Box::new(crate::rotary::FolderShelf(
             self.out()?.to_path_buf(),
         )))
+    }
+
+    fn board(&mut self) -> Result<NamedBoard, ContextError> {
+        let Some(path) = &self.board_path else {
+            let board = self.loaded_job()?.board.clone();
+            return Ok(NamedBoard {
+                name: crate::context::file_name_of(&board.name),
+                board,
+            });
+        };
+        let board = protocol::Board::load(path).map_err(|e| ContextError::Files(e.to_string()))?;
+        // Artifacts are named after the board file.
+        let name = path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "board".to_string());
+        Ok(NamedBoard { name, board })
     }
 }

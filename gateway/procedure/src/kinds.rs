@@ -22,6 +22,14 @@ pub static KINDS: &[Kind] = &[
     entry::<crate::rotary::RotaryMeasure>(),
     entry::<crate::rotary::RotaryIdentify>(),
     entry::<crate::rotary::RotaryRewrite>(),
+    entry::<crate::cut::Cut>(),
+    entry::<crate::volumetric::VolumetricIdentify>(),
+    entry::<crate::volumetric::VolumetricEval>(),
+    entry::<crate::volumetric::VolumetricContributions>(),
+    entry::<crate::volumetric::VolumetricCampaign>(),
+    entry::<crate::volumetric::VolumetricExportIsg>(),
+    entry::<crate::board::BoardMake>(),
+    entry::<crate::localize::Localize>(),
 ];
 
 /// The kind named `name`.
@@ -117,6 +125,7 @@ checked!(
     VerifyRequest,
     Iso230Request,
     LayoutRequest,
+    CutRequest,
     RotaryRequest,
     ReferenceRequest,
 );

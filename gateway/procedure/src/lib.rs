@@ -37,7 +37,7 @@ use protocol::errormap::{ErrorMap, Identity};
 use serde::Serialize;
 use serde_json::{Map, Value};
 
-pub use context::{ActiveMap, Bench, Context, ContextError, Stop};
+pub use context::{ActiveMap, Bench, Context, ContextError, NamedBoard, Stop};
 pub use kinds::{summary, Request, KINDS};
 pub use registry::Procedure;
 pub use request::RequestError;

@@ -1,6 +1,7 @@
 //! One frame of the board localized: the board coordinate under the image centre. The
-//! frame and the board come from the front end (the CLI reads them from files); the
-//! request carries the hint and the localizer's settings, each bounded and named. On a
+//! frame is the request's (a PNG file, base64); the board is the context's (the CLI's
+//! `--board` file, the service's machine's board); the request also carries the hint
+//! and the localizer's settings, each bounded and named. On a
 //! coded board (issue 28) the hint is optional and only checked against the position
 //! the board's code gives; a plain dot grid needs it.
 
@@ -32,11 +33,28 @@ fn default_min_points() -> u64 {
     LocalizeSettings::default().min_points as u64
 }
 
+/// The largest frame accepted in a request: a PNG file of 48 MiB (64 MiB of base64).
+pub const MAX_IMAGE_BASE64: usize = 64 << 20;
+
+fn default_image_name() -> String {
+    "frame.png".into()
+}
+
 /// A localization of one frame.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct LocalizeRequest {
+    /// The frame: a PNG file, 8- or 16-bit greyscale (base64).
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(skip))]
+    #[schema(format = Byte, max_length = 67108864)]
+    pub image: String,
+    /// How messages name the frame (its file name).
+    #[serde(default = "default_image_name")]
+    #[cfg_attr(feature = "cli", arg(skip = default_image_name()))]
+    #[schema(default = default_image_name)]
+    pub image_name: String,
     /// The expected board coordinate at the image centre, `X,Y` mm: required on a plain
     /// dot grid (it picks the grid offset), only checked on a coded board.
     #[serde(default)]
@@ -44,14 +62,17 @@ pub struct LocalizeRequest {
         feature = "cli",
         arg(long, allow_hyphen_values = true, value_parser = crate::request::xy_mm)
     )]
+    #[schema(value_type = Option<Vec<f64>>, min_items = 2, max_items = 2)]
     pub near: Option<[f64; 2]>,
     /// Localization method: fit or four-point (the patent's formula).
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(long, default_value = "fit"))]
+    #[schema(value_type = crate::request::MethodName, inline)]
     pub method: Method,
     /// The nominal scale; the measured scale must agree within 10 %.
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(long))]
+    #[schema(minimum = 0.001, maximum = 10000.0)]
     pub um_per_px: Option<f64>,
     /// The board directions of the image +x and +y axes (`+x,-y`: a camera above).
     #[serde(default)]
@@ -59,19 +80,23 @@ pub struct LocalizeRequest {
         feature = "cli",
         arg(long, default_value = "+x,-y", allow_hyphen_values = true)
     )]
+    #[schema(value_type = String, default = "+x,-y")]
     pub pixel_axes: PixelAxes,
     /// How far the true position may be from `near`, mm (below half the pitch on a plain
     /// grid).
     #[serde(default = "default_hint_tolerance")]
     #[cfg_attr(feature = "cli", arg(long, default_value_t = default_hint_tolerance()))]
+    #[schema(default = default_hint_tolerance, minimum = 0.0001, maximum = 50.0)]
     pub hint_tolerance_mm: f64,
     /// Refuse when the fit's RMS residual exceeds this, um.
     #[serde(default = "default_max_residual")]
     #[cfg_attr(feature = "cli", arg(long, default_value_t = default_max_residual()))]
+    #[schema(default = default_max_residual, minimum = 0.001)]
     pub max_residual_um: f64,
     /// Fewest identified on-board points accepted.
     #[serde(default = "default_min_points")]
     #[cfg_attr(feature = "cli", arg(long, default_value_t = default_min_points()))]
+    #[schema(default = default_min_points, minimum = 4, maximum = 1000000)]
     pub min_points: u64,
 }
 
@@ -80,6 +105,8 @@ impl LocalizeRequest {
     /// unknown) with the hint `near`.
     pub fn new(near: [f64; 2]) -> Self {
         Self {
+            image: String::new(),
+            image_name: default_image_name(),
             near: Some(near),
             method: Method::default(),
             um_per_px: None,
@@ -92,6 +119,15 @@ impl LocalizeRequest {
 
     /// Every bound that holds whatever the board.
     pub fn check(&self) -> Result<(), RequestError> {
+        if self.image.len() > MAX_IMAGE_BASE64 {
+            return Err(RequestError::new(
+                "image",
+                format!(
+                    "{} bytes of base64; at most {MAX_IMAGE_BASE64} are accepted (a PNG file of 48 MiB)",
+                    self.image.len()
+                ),
+            ));
+        }
         for (k, v) in self.near.iter().flatten().enumerate() {
             number(
                 &format!("near[{k}]"),
@@ -168,6 +204,57 @@ impl LocalizeRequest {
         p.um_per_px = self.um_per_px;
         p.pixel_axes = self.pixel_axes;
         p
+    }
+}
+
+/// The request's frame: its PNG bytes (base64) decoded, named in messages by
+/// `image_name`.
+pub fn frame(request: &LocalizeRequest) -> Result<MonoImage, RequestError> {
+    use base64::Engine;
+    let bytes = base64::engine::general_purpose::STANDARD
+        .decode(request.image.trim())
+        .map_err(|e| RequestError::new("image", format!("not base64: {e}")))?;
+    vision::image_io::decode_png(&bytes, &request.image_name)
+        .map_err(|e| RequestError::new("image", e.to_string()))
+}
+
+/// Localizes the request's frame on the context's board.
+pub struct Localize;
+
+impl crate::registry::Procedure for Localize {
+    const KIND: &'static str = "localize";
+    const TITLE: &'static str =
+        "Localize one frame of the board: the board position under its centre";
+    const COMMAND: &'static str = "localize";
+    const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
+    type Request = LocalizeRequest;
+
+    async fn run(request: LocalizeRequest, cx: &mut dyn crate::Context) -> Outcome {
+        let board = crate::or_fail!(cx.board());
+        let image = crate::or_fail!(frame(&request));
+        let mut outcome = run(&request, &image, &board.board, &request.image_name);
+        if let Some(Value::Object(frame)) = outcome.result.as_mut().and_then(|r| r.get_mut("image"))
+        {
+            frame.insert("name".into(), json!(request.image_name));
+        }
+        outcome
+    }
+
+    fn summary(result: &Value) -> String {
+        summary(result)
+    }
+}
+
+/// As a job, the request carries its frame.
+impl crate::registry::Checked for LocalizeRequest {
+    fn check(&self) -> Result<(), RequestError> {
+        if self.image.is_empty() {
+            return Err(RequestError::new(
+                "image",
+                "no frame was given: choose a PNG file of the board",
+            ));
+        }
+        LocalizeRequest::check(self)
     }
 }
 

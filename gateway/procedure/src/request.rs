@@ -95,7 +95,7 @@ pub fn check_name(field: &str, name: &str) -> Result<(), RequestError> {
 #[schema(as = MethodName)]
 #[allow(dead_code)]
 #[serde(rename_all = "kebab-case")]
-enum MethodName {
+pub(crate) enum MethodName {
     Fit,
     FourPoint,
 }
@@ -693,7 +693,7 @@ impl LayoutRequest {
 }
 
 /// A head's place across the material: the material Y of its machine Y 0 and its travel.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct HeadReach {
     pub origin_y_mm: f64,
@@ -728,7 +728,7 @@ fn default_knife_feed() -> f64 {
 
 /// A partitioned layout cut on a conveyor cutter (source C): the emulated one, or real
 /// GRBL controllers (one for the conveyor, one per head in lane order).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct CutRequest {
@@ -755,10 +755,12 @@ pub struct CutRequest {
     /// The controllers' baud rate.
     #[serde(default = "default_baud")]
     #[cfg_attr(feature = "cli", arg(long, default_value_t = default_baud()))]
+    #[schema(default = default_baud, minimum = 1200, maximum = 4000000)]
     pub baud: u32,
     /// Knife feed along the contours, mm/min.
     #[serde(default = "default_knife_feed")]
     #[cfg_attr(feature = "cli", arg(long, default_value_t = default_knife_feed()))]
+    #[schema(default = default_knife_feed, minimum = 1.0, maximum = 100000.0)]
     pub feed_mm_min: f64,
 }
 
@@ -875,10 +877,19 @@ mod tests {
     /// just past it refused naming the field.
     #[test]
     fn the_schemas_bounds_and_defaults_are_the_checks() {
+        let layout = json!({"layout": "", "format": "json", "tools": 2, "window_mm": 100.0,
+            "gap_mm": 5.0});
+        let model = protocol::volumetric::write_model(
+            &volumetric::Model::zero(protocol::volumetric::Structure::Xyfz, [5.0; 3]).file,
+        );
         let base = |kind: &str| match kind {
             "iso230" => json!({"axis": "x"}),
-            "layout" => json!({"layout": "", "format": "json", "tools": 2, "window_mm": 100.0,
-                "gap_mm": 5.0}),
+            "layout" => layout.clone(),
+            "cut" => json!({ "partition": layout }),
+            "volumetric-identify" => json!({"structure": "XYFZ"}),
+            "volumetric-eval" => json!({"model": model, "points": "x_mm,y_mm,z_mm\n"}),
+            "volumetric-contributions" | "volumetric-export-isg" => json!({ "model": model }),
+            "localize" => json!({"image": "iVBORw0K"}),
             "export" => json!({"format": "csv"}),
             "rewrite" => json!({"program": ""}),
             "iso230-evaluate" => json!({"measurements": ""}),
@@ -897,7 +908,9 @@ mod tests {
                 let e = Request::parse(kind, &params).unwrap_err();
                 assert_eq!(e.field, field, "{kind}: {e}");
             }
-            for (field, p) in schema["properties"].as_object().unwrap() {
+            let no_fields = serde_json::Map::new();
+            let fields = schema["properties"].as_object().unwrap_or(&no_fields);
+            for (field, p) in fields {
                 if let Some(d) = p.get("default") {
                     assert_eq!(&parsed[field], d, "{kind}.{field}: default");
                 }

@@ -2,12 +2,10 @@
 //! from a measurement campaign, evaluated at points, each error's contribution over the
 //! volume, the emulated machine's campaign, and the model as the ISG kernel's tables.
 //!
-//! Inputs are text the front end has read (through the bounded reader); the products go
-//! to the [`Sink`] as artifacts. A campaign is a folder of up to eleven named files:
-//! [`identify`] asks a [`CampaignFiles`] for each name a campaign may hold
-//! ([`CAMPAIGN_FILES`]), so the procedure decides what is read and the front end how (the
-//! CLI from a folder through `protocol::config::read_data_file`, at most 16 MiB each; a
-//! service from an upload, [`MemoryCampaign`]).
+//! Inputs are the requests' own fields: the text of each file (the CLI reads the files
+//! through the bounded reader, the page uploads them), at most [`MAX_FILE_BYTES`] each;
+//! the products go to the [`Sink`] as artifacts. A campaign is up to eleven named files
+//! ([`CAMPAIGN_FILES`]); [`identify`] decides which are due.
 //!
 //! Paths are the front end's: a result names its artifacts (`model`: [`MODEL_ARTIFACT`]),
 //! and the CLI replaces the name with the path it wrote or adds the folder (`out`).
@@ -32,6 +30,36 @@ use volumetric::Model;
 pub fn read_file(path: &std::path::Path) -> Result<String, String> {
     protocol::config::read_kind(path, protocol::config::DataKind::Volumetric)
         .map_err(|e| e.to_string())
+}
+
+/// The largest file text a request carries (a model, a points file, a campaign file).
+pub const MAX_FILE_BYTES: usize = 16 << 20;
+
+/// A file's text in a request: at most [`MAX_FILE_BYTES`]; `required` ones not empty.
+fn file_text(field: &str, text: &str, required: bool) -> Result<(), RequestError> {
+    if required && text.trim().is_empty() {
+        return Err(RequestError::new(field, "no file was given"));
+    }
+    if text.len() > MAX_FILE_BYTES {
+        return Err(RequestError::new(
+            field,
+            format!(
+                "{} bytes; at most {MAX_FILE_BYTES} are accepted",
+                text.len()
+            ),
+        ));
+    }
+    Ok(())
+}
+
+fn default_model_name() -> String {
+    "model.vol.csv".into()
+}
+fn default_campaign_name() -> String {
+    "campaign".into()
+}
+fn default_points_name() -> String {
+    "points.csv".into()
 }
 
 /// The model file [`identify`] produces.
@@ -73,7 +101,7 @@ fn offsets(field: &str, v: &[f64; 3]) -> Result<(), RequestError> {
 }
 
 /// Identify the model from a campaign.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct VolumetricIdentifyRequest {
@@ -83,16 +111,78 @@ pub struct VolumetricIdentifyRequest {
     /// The tool point in the last tool carriage's frame, `x,y,z` mm (the tool length).
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(long, default_value = "0,0,0", value_parser = xyz_mm, allow_hyphen_values = true))]
+    #[schema(value_type = Vec<f64>, min_items = 3, max_items = 3)]
     pub tool_offset_mm: [f64; 3],
     /// The workpiece reference point in the last workpiece carriage's frame, `x,y,z` mm.
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(long, default_value = "0,0,0", value_parser = xyz_mm, allow_hyphen_values = true))]
+    #[schema(value_type = Vec<f64>, min_items = 3, max_items = 3)]
     pub work_offset_mm: [f64; 3],
     /// Also draw the ball-bar circles (`ballbar_XY.svg`/`.png`, ...); the CLI's: with
     /// `--plots DIR`.
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(skip))]
     pub plots: bool,
+    /// How messages name the campaign (its folder).
+    #[serde(default = "default_campaign_name")]
+    #[cfg_attr(feature = "cli", arg(skip = default_campaign_name()))]
+    #[schema(default = default_campaign_name)]
+    pub campaign_name: String,
+    /// The laser's positioning errors along X (`laser_X.csv`).
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(skip))]
+    #[schema(format = Binary)]
+    pub laser_x: Option<String>,
+    /// The electronic level's pitch/roll along X (`level_X.csv`).
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(skip))]
+    #[schema(format = Binary)]
+    pub level_x: Option<String>,
+    /// The laser's positioning errors along Y (`laser_Y.csv`).
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(skip))]
+    #[schema(format = Binary)]
+    pub laser_y: Option<String>,
+    /// The electronic level's along Y (`level_Y.csv`).
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(skip))]
+    #[schema(format = Binary)]
+    pub level_y: Option<String>,
+    /// The laser's positioning errors along Z (`laser_Z.csv`).
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(skip))]
+    #[schema(format = Binary)]
+    pub laser_z: Option<String>,
+    /// The electronic level's along Z (`level_Z.csv`).
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(skip))]
+    #[schema(format = Binary)]
+    pub level_z: Option<String>,
+    /// The ball bar's circle in the XY plane (`ballbar_XY.csv`).
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(skip))]
+    #[schema(format = Binary)]
+    pub ballbar_xy: Option<String>,
+    /// The ball bar's circle in the XZ plane (`ballbar_XZ.csv`).
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(skip))]
+    #[schema(format = Binary)]
+    pub ballbar_xz: Option<String>,
+    /// The ball bar's circle in the YZ plane (`ballbar_YZ.csv`).
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(skip))]
+    #[schema(format = Binary)]
+    pub ballbar_yz: Option<String>,
+    /// The squareness measurements (instead of the ball-bar circles) (`squareness.csv`).
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(skip))]
+    #[schema(format = Binary)]
+    pub squareness: Option<String>,
+    /// The camera's board measurements at several heights (if measured) (`camera.csv`).
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(skip))]
+    #[schema(format = Binary)]
+    pub camera: Option<String>,
 }
 
 /// `x,y,z` in mm (a command-line value).
@@ -111,8 +201,59 @@ impl VolumetricIdentifyRequest {
     pub fn check(&self) -> Result<(), RequestError> {
         structure_of("structure", &self.structure)?;
         offsets("tool_offset_mm", &self.tool_offset_mm)?;
-        offsets("work_offset_mm", &self.work_offset_mm)
+        offsets("work_offset_mm", &self.work_offset_mm)?;
+        for (name, text) in CAMPAIGN_FILES.iter().zip(self.files()) {
+            if let Some(text) = text {
+                file_text(&field_of(name), text, false)?;
+            }
+        }
+        Ok(())
     }
+
+    /// The campaign's files in [`CAMPAIGN_FILES`] order.
+    fn files(&self) -> [&Option<String>; 11] {
+        [
+            &self.laser_x,
+            &self.level_x,
+            &self.laser_y,
+            &self.level_y,
+            &self.laser_z,
+            &self.level_z,
+            &self.ballbar_xy,
+            &self.ballbar_xz,
+            &self.ballbar_yz,
+            &self.squareness,
+            &self.camera,
+        ]
+    }
+
+    /// The field holding the campaign file `name` (one of [`CAMPAIGN_FILES`]).
+    pub fn file_mut(&mut self, name: &str) -> Option<&mut Option<String>> {
+        let at = CAMPAIGN_FILES.iter().position(|n| *n == name)?;
+        Some(
+            [
+                &mut self.laser_x,
+                &mut self.level_x,
+                &mut self.laser_y,
+                &mut self.level_y,
+                &mut self.laser_z,
+                &mut self.level_z,
+                &mut self.ballbar_xy,
+                &mut self.ballbar_xz,
+                &mut self.ballbar_yz,
+                &mut self.squareness,
+                &mut self.camera,
+            ]
+            .into_iter()
+            .nth(at)
+            .expect("one field per file"),
+        )
+    }
+}
+
+/// A campaign file's field: `laser_X.csv` is `laser_x`.
+fn field_of(name: &str) -> String {
+    name.trim_end_matches(".csv").to_ascii_lowercase()
 }
 
 /// The files a campaign may hold; [`identify`] says which are due (laser and level per
@@ -130,35 +271,6 @@ pub const CAMPAIGN_FILES: [&str; 11] = [
     "squareness.csv",
     "camera.csv",
 ];
-
-/// Where a campaign's files are read from.
-pub trait CampaignFiles {
-    /// How messages name the campaign (a folder, an upload).
-    fn place(&self) -> String;
-    /// The text of the file `name` (one of [`CAMPAIGN_FILES`]), `None` when the
-    /// campaign has none; an error when it is there but cannot be read.
-    fn read(&mut self, name: &str) -> Result<Option<String>, String>;
-}
-
-/// A campaign held in memory: (file name, text).
-#[derive(Debug, Clone, Default)]
-pub struct MemoryCampaign {
-    pub place: String,
-    pub files: Vec<(String, String)>,
-}
-
-impl CampaignFiles for MemoryCampaign {
-    fn place(&self) -> String {
-        self.place.clone()
-    }
-    fn read(&mut self, name: &str) -> Result<Option<String>, String> {
-        Ok(self
-            .files
-            .iter()
-            .find(|(n, _)| n == name)
-            .map(|(_, t)| t.clone()))
-    }
-}
 
 fn artifact(name: impl Into<String>, media_type: &'static str, bytes: Vec<u8>) -> Artifact {
     Artifact {
@@ -185,24 +297,17 @@ fn display_unit(name: &str) -> (f64, &'static str) {
 /// (per error: `name`, `unit`, `residual`, `uncertainty`, `stated`, `fit`), `ballbar`,
 /// `camera` (null without `camera.csv`). An unfit model is a success: the front end
 /// says so (the CLI's exit code 2).
-pub fn identify(
-    request: &VolumetricIdentifyRequest,
-    campaign: &mut dyn CampaignFiles,
-    sink: &mut dyn Sink,
-) -> Outcome {
+pub fn identify(request: &VolumetricIdentifyRequest, sink: &mut dyn Sink) -> Outcome {
     let structure = match request.check() {
         Ok(()) => structure_of("structure", &request.structure).expect("checked"),
         Err(e) => return Outcome::failed(e.to_string()),
     };
-    let place = campaign.place();
-    let mut files = Vec::new();
-    for name in CAMPAIGN_FILES {
-        match campaign.read(name) {
-            Ok(Some(text)) => files.push((name.to_string(), text)),
-            Ok(None) => {}
-            Err(e) => return Outcome::failed(e),
-        }
-    }
+    let place = &request.campaign_name;
+    let files: Vec<(String, String)> = CAMPAIGN_FILES
+        .iter()
+        .zip(request.files())
+        .filter_map(|(name, text)| Some((name.to_string(), text.clone()?)))
+        .collect();
     let parsed = match Campaign::from_files(&files) {
         Ok(c) => c,
         Err(e) => return Outcome::failed(format!("{place}/{e}")),
@@ -370,10 +475,28 @@ pub fn read_model(name: &str, text: &str) -> Result<Model, String> {
 }
 
 /// The volumetric error at each point of a points file (`x_mm,y_mm,z_mm`).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct VolumetricEvalRequest {
+    /// The model file's text (`gateway volumetric identify`'s).
+    #[cfg_attr(feature = "cli", arg(skip))]
+    #[schema(format = Binary)]
+    pub model: String,
+    /// How messages name the model (its file name).
+    #[serde(default = "default_model_name")]
+    #[cfg_attr(feature = "cli", arg(skip = default_model_name()))]
+    #[schema(default = default_model_name)]
+    pub model_name: String,
+    /// The points file's text (CSV `x_mm,y_mm,z_mm`).
+    #[cfg_attr(feature = "cli", arg(skip))]
+    #[schema(format = Binary)]
+    pub points: String,
+    /// How messages name the points file.
+    #[serde(default = "default_points_name")]
+    #[cfg_attr(feature = "cli", arg(skip = default_points_name()))]
+    #[schema(default = default_points_name)]
+    pub points_name: String,
     /// Use the first-order closed form instead of the full HTM product.
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(long))]
@@ -382,7 +505,9 @@ pub struct VolumetricEvalRequest {
 
 impl VolumetricEvalRequest {
     pub fn check(&self) -> Result<(), RequestError> {
-        Ok(())
+        file_text("model", &self.model, true)?;
+        file_text("points", &self.points, true)?;
+        self.check_points(&self.points).map(|_| ())
     }
 
     /// The points a points file holds, counted before it is parsed; refused past
@@ -407,15 +532,12 @@ impl VolumetricEvalRequest {
 /// The error at every point: the result `{first_order, points: [{x_mm, y_mm, z_mm,
 /// ex_um, ey_um, ez_um}]}`; a point outside the model's travel fails it, named by its
 /// number and line.
-pub fn eval(
-    request: &VolumetricEvalRequest,
-    model: &Model,
-    points_name: &str,
-    points: &str,
-) -> Outcome {
-    if let Err(e) = request.check_points(points) {
+pub fn eval(request: &VolumetricEvalRequest) -> Outcome {
+    if let Err(e) = request.check() {
         return Outcome::failed(e.to_string());
     }
+    let model = crate::or_fail!(read_model(&request.model_name, &request.model));
+    let (points_name, points) = (&request.points_name, &request.points);
     let pts = match parse_points(points) {
         Ok(p) => p,
         Err(e) => return Outcome::failed(format!("{points_name}: {e}")),
@@ -466,19 +588,31 @@ fn default_grid() -> u64 {
 }
 
 /// Each error's contribution over the volume and the error maps of the middle planes.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct VolumetricContributionsRequest {
+    /// The model file's text (`gateway volumetric identify`'s).
+    #[cfg_attr(feature = "cli", arg(skip))]
+    #[schema(format = Binary)]
+    pub model: String,
+    /// How messages name the model (its file name).
+    #[serde(default = "default_model_name")]
+    #[cfg_attr(feature = "cli", arg(skip = default_model_name()))]
+    #[schema(default = default_model_name)]
+    pub model_name: String,
     /// Grid points per axis (from 2; the memory the grid needs is bounded).
     #[serde(default = "default_grid")]
     #[cfg_attr(feature = "cli", arg(long, default_value_t = default_grid()))]
+    #[schema(default = default_grid, minimum = 2, maximum = 219)]
     pub grid: u64,
 }
 
 impl Default for VolumetricContributionsRequest {
     fn default() -> Self {
         Self {
+            model: String::new(),
+            model_name: default_model_name(),
             grid: default_grid(),
         }
     }
@@ -488,6 +622,7 @@ impl VolumetricContributionsRequest {
     /// At least 2 points per axis; the memory the grid implies
     /// ([`contributions_bytes`]) at most [`MAX_CONTRIBUTIONS_BYTES`].
     pub fn check(&self) -> Result<(), RequestError> {
+        file_text("model", &self.model, true)?;
         count("grid", self.grid, 2, u64::from(u32::MAX))?;
         let bytes = contributions_bytes(self.grid);
         if bytes > u128::from(MAX_CONTRIBUTIONS_BYTES) {
@@ -513,14 +648,11 @@ impl VolumetricContributionsRequest {
 /// `.png`) and the exact error over the XY, XZ and YZ planes through the middle
 /// (`map_XY.csv`, `.svg`, `.png`, ...), as artifacts. The result: `grid`,
 /// `total_max_um`, `total_rms_um`, `contributions` (`error`, `max_um`, `rms_um`).
-pub fn contributions(
-    request: &VolumetricContributionsRequest,
-    model: &Model,
-    sink: &mut dyn Sink,
-) -> Outcome {
+pub fn contributions(request: &VolumetricContributionsRequest, sink: &mut dyn Sink) -> Outcome {
     if let Err(e) = request.check() {
         return Outcome::failed(e.to_string());
     }
+    let model = &crate::or_fail!(read_model(&request.model_name, &request.model));
     let grid = request.grid as usize;
     let (c, tmax, trms) = match contributions_over(model, grid) {
         Ok(c) => c,
@@ -629,7 +761,7 @@ fn default_campaign_seed() -> u64 {
 }
 
 /// The emulated machine's measurement campaign.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct VolumetricCampaignRequest {
@@ -687,10 +819,30 @@ pub fn simulate_campaign(request: &VolumetricCampaignRequest, sink: &mut dyn Sin
 /// The ISG kernel's (Beckhoff TF5280) files.
 pub const ISG_FILES: [&str; 2] = ["volcomp.csv", "volcomp.lis"];
 
+/// The model for the ISG kernel.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct VolumetricExportIsgRequest {
+    /// The model file's text (`gateway volumetric identify`'s).
+    #[schema(format = Binary)]
+    pub model: String,
+    /// How messages name the model (its file name).
+    #[serde(default = "default_model_name")]
+    #[schema(default = default_model_name)]
+    pub model_name: String,
+}
+
+impl VolumetricExportIsgRequest {
+    pub fn check(&self) -> Result<(), RequestError> {
+        file_text("model", &self.model, true)
+    }
+}
+
 /// The model for the ISG kernel: `volcomp.csv` (blocks `C0Y B0Z A0Z P0X P0Y P0Z`,
 /// `X EXX ... ECX`, ..., mm and rad) and the compensation list `volcomp.lis` naming it.
 /// The result: `files`.
-pub fn export_isg(model: &Model, sink: &mut dyn Sink) -> Outcome {
+pub fn export_isg(request: &VolumetricExportIsgRequest, sink: &mut dyn Sink) -> Outcome {
+    let model = &crate::or_fail!(read_model(&request.model_name, &request.model));
     let [csv, lis] = ISG_FILES;
     for a in [
         artifact(csv, "text/csv", write_isg_csv(&model.file).into_bytes()),
@@ -707,6 +859,105 @@ pub fn export_isg(model: &Model, sink: &mut dyn Sink) -> Outcome {
     Outcome::succeeded(json!({"files": ISG_FILES}), Default::default())
 }
 
+/// Declares a registered kind for a file-to-file volumetric procedure.
+macro_rules! volumetric_kind {
+    ($name:ident, $request:ty, $kind:literal, $title:literal, $command:literal,
+     |$r:ident, $sink:ident| $run:expr, $summary:expr) => {
+        #[doc = concat!("`gateway ", $command, "` as a registered kind.")]
+        pub struct $name;
+
+        impl crate::registry::Procedure for $name {
+            const KIND: &'static str = $kind;
+            const TITLE: &'static str = $title;
+            const COMMAND: &'static str = $command;
+            const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
+            type Request = $request;
+
+            async fn run($r: $request, cx: &mut dyn crate::Context) -> Outcome {
+                let $sink = cx.sink();
+                $run
+            }
+
+            fn summary(result: &Value) -> String {
+                $summary(result)
+            }
+        }
+
+        impl crate::registry::Checked for $request {
+            fn check(&self) -> Result<(), RequestError> {
+                <$request>::check(self)
+            }
+        }
+    };
+}
+
+volumetric_kind!(
+    VolumetricIdentify,
+    VolumetricIdentifyRequest,
+    "volumetric-identify",
+    "Identify the 21-error volumetric model from a measurement campaign",
+    "volumetric identify",
+    |r, sink| identify(&r, sink),
+    identify_summary
+);
+volumetric_kind!(
+    VolumetricEval,
+    VolumetricEvalRequest,
+    "volumetric-eval",
+    "The volumetric error at each point of a points file",
+    "volumetric eval",
+    |r, _sink| eval(&r),
+    |r: &Value| eval_lines(r).collect::<Vec<_>>().join("\n")
+);
+volumetric_kind!(
+    VolumetricContributions,
+    VolumetricContributionsRequest,
+    "volumetric-contributions",
+    "Each volumetric error's contribution over the volume, and the middle planes' maps",
+    "volumetric contributions",
+    |r, sink| contributions(&r, sink),
+    contributions_summary
+);
+volumetric_kind!(
+    VolumetricCampaign,
+    VolumetricCampaignRequest,
+    "volumetric-campaign",
+    "The emulated machine's measurement campaign (laser, level, ball bar, camera files)",
+    "volumetric simulate-campaign",
+    |r, sink| simulate_campaign(&r, sink),
+    campaign_summary
+);
+volumetric_kind!(
+    VolumetricExportIsg,
+    VolumetricExportIsgRequest,
+    "volumetric-export-isg",
+    "Export the volumetric model as the ISG kernel's tables (Beckhoff TF5280)",
+    "volumetric export-isg",
+    |r, sink| export_isg(&r, sink),
+    files_summary
+);
+
+/// The simulated campaign as text.
+pub fn campaign_summary(r: &Value) -> String {
+    format!(
+        "{} campaign (seed {}): {}",
+        r["structure"].as_str().unwrap_or(""),
+        r["seed"],
+        files_summary(r)
+    )
+}
+
+/// The files a result names, comma-separated.
+pub fn files_summary(r: &Value) -> String {
+    let names: Vec<&str> = r["files"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .filter_map(Value::as_str)
+        .collect();
+    names.join(", ")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -720,48 +971,38 @@ mod tests {
         m
     }
 
+    fn contributions_of(grid: u64) -> VolumetricContributionsRequest {
+        VolumetricContributionsRequest {
+            model: write_model(&zero_model().file),
+            grid,
+            ..Default::default()
+        }
+    }
+
+    fn identify_request(structure: &str) -> VolumetricIdentifyRequest {
+        serde_json::from_value(json!({ "structure": structure })).unwrap()
+    }
+
     #[test]
     fn a_grid_past_the_memory_cap_is_refused_naming_the_field() {
-        let e = VolumetricContributionsRequest { grid: 1000 }
-            .check()
-            .unwrap_err();
+        let e = contributions_of(1000).check().unwrap_err();
         assert_eq!(e.field, "grid");
         assert!(e.for_cli().starts_with("--grid: "), "{e}");
         assert!(e.message.contains("at most 219"), "{e}");
-        VolumetricContributionsRequest { grid: 219 }
-            .check()
-            .unwrap();
+        contributions_of(219).check().unwrap();
+        assert_eq!(contributions_of(1).check().unwrap_err().field, "grid");
         assert_eq!(
-            VolumetricContributionsRequest { grid: 1 }
-                .check()
-                .unwrap_err()
-                .field,
-            "grid"
-        );
-        assert_eq!(
-            VolumetricContributionsRequest { grid: u64::MAX }
-                .check()
-                .unwrap_err()
-                .field,
+            contributions_of(u64::MAX).check().unwrap_err().field,
             "grid"
         );
         // Refused by the procedure too, before anything is computed.
-        let out = contributions(
-            &VolumetricContributionsRequest { grid: 1000 },
-            &zero_model(),
-            &mut Discard,
-        );
+        let out = contributions(&contributions_of(1000), &mut Discard);
         assert!(out.error().unwrap().starts_with("grid: "));
     }
 
     #[test]
     fn bad_structures_offsets_and_too_many_points_are_named() {
-        let mut r = VolumetricIdentifyRequest {
-            structure: "XZFY".into(),
-            tool_offset_mm: [0.0; 3],
-            work_offset_mm: [0.0; 3],
-            plots: false,
-        };
+        let mut r = identify_request("XZFY");
         let e = r.check().unwrap_err();
         assert_eq!(
             e.for_cli(),
@@ -781,6 +1022,12 @@ mod tests {
             .check_points(&text)
             .unwrap_err();
         assert_eq!(e.field, "points");
+        // Files are the request's: a missing one is named, an oversized one refused.
+        let e = VolumetricEvalRequest::default().check().unwrap_err();
+        assert_eq!(e.field, "model");
+        let mut r = identify_request("XYFZ");
+        *r.file_mut("ballbar_XZ.csv").unwrap() = Some("x".repeat(MAX_FILE_BYTES + 1));
+        assert_eq!(r.check().unwrap_err().field, "ballbar_xz");
     }
 
     #[test]
@@ -800,18 +1047,15 @@ mod tests {
             .map(|a| (a.name.clone(), String::from_utf8(a.bytes.clone()).unwrap()))
             .collect();
         assert!(files.iter().any(|f| f.0 == "ballbar_XY.csv"));
-        let mut campaign = MemoryCampaign {
-            place: "camp".into(),
-            files,
-        };
+        let mut request = identify_request("XFYZ");
+        request.tool_offset_mm = [0.0, 0.0, 50.0];
+        request.plots = true;
+        let empty = request.clone();
+        for (name, text) in files {
+            *request.file_mut(&name).unwrap() = Some(text);
+        }
         let mut sink = Keep::default();
-        let request = VolumetricIdentifyRequest {
-            structure: "XFYZ".into(),
-            tool_offset_mm: [0.0, 0.0, 50.0],
-            work_offset_mm: [0.0; 3],
-            plots: true,
-        };
-        let out = identify(&request, &mut campaign, &mut sink);
+        let out = identify(&request, &mut sink);
         assert!(out.is_success(), "{:?}", out.error());
         let r = out.result.unwrap();
         assert_eq!(r["fit_for_compensation"], true);
@@ -820,35 +1064,32 @@ mod tests {
         assert_eq!(names[0], MODEL_ARTIFACT);
         assert!(names.contains(&"ballbar_XZ.png"), "{names:?}");
         assert!(identify_summary(&r).contains("ball bar XY"));
-        let model = read_model("m", std::str::from_utf8(&sink.0[0].bytes).unwrap()).unwrap();
+        let text = String::from_utf8(sink.0[0].bytes.clone()).unwrap();
+        let model = read_model("m", &text).unwrap();
         assert_eq!(model.file.tool_offset_mm, [0.0, 0.0, 50.0]);
-        let out = eval(
-            &VolumetricEvalRequest::default(),
-            &model,
-            "p.csv",
-            "x_mm,y_mm,z_mm\n0,0,0\n250,200,100\n",
-        );
+        let points = |p: &str| VolumetricEvalRequest {
+            model: text.clone(),
+            points: p.into(),
+            points_name: "p.csv".into(),
+            ..Default::default()
+        };
+        let out = eval(&points("x_mm,y_mm,z_mm\n0,0,0\n250,200,100\n"));
         let r = out.result.unwrap();
         assert_eq!(r["points"].as_array().unwrap().len(), 2);
         assert_eq!(eval_lines(&r).count(), 3);
-        let out = eval(
-            &VolumetricEvalRequest::default(),
-            &model,
-            "p.csv",
-            "x_mm,y_mm,z_mm\n0,0,0\n1e6,0,0\n",
-        );
+        let out = eval(&points("x_mm,y_mm,z_mm\n0,0,0\n1e6,0,0\n"));
         assert!(out.error().unwrap().starts_with("p.csv: point 2 (line 3)"));
         let mut sink = Keep::default();
-        assert!(export_isg(&model, &mut sink).is_success());
+        let export = VolumetricExportIsgRequest {
+            model: text.clone(),
+            ..Default::default()
+        };
+        assert!(export_isg(&export, &mut sink).is_success());
         assert_eq!(sink.0.len(), 2);
         // A campaign without its files names what is missing.
-        let mut empty = MemoryCampaign {
-            place: "none".into(),
-            files: Vec::new(),
-        };
-        let out = identify(&request, &mut empty, &mut Discard);
+        let out = identify(&empty, &mut Discard);
         assert!(
-            out.error().unwrap().starts_with("none/"),
+            out.error().unwrap().starts_with("campaign/"),
             "{:?}",
             out.error()
         );
@@ -857,11 +1098,7 @@ mod tests {
     #[test]
     fn contributions_of_a_small_grid() {
         let mut sink = Keep::default();
-        let out = contributions(
-            &VolumetricContributionsRequest { grid: 5 },
-            &zero_model(),
-            &mut sink,
-        );
+        let out = contributions(&contributions_of(5), &mut sink);
         let r = out.result.unwrap();
         assert_eq!(r["contributions"][0]["error"], "E_XX");
         assert!((r["total_max_um"].as_f64().unwrap() - 10.0).abs() < 1e-9);

@@ -28,6 +28,16 @@ pub fn load_png(path: &Path) -> Result<MonoImage, ImageFileError> {
     };
     let bytes = protocol::config::read_bytes_bounded(path, MAX_IMAGE_BYTES, "an image file")
         .map_err(open)?;
+    decode_png(&bytes, &p)
+}
+
+/// A PNG file's bytes as a frame (`name` names it in messages): 8- or 16-bit greyscale.
+pub fn decode_png(bytes: &[u8], name: &str) -> Result<MonoImage, ImageFileError> {
+    let p = name.to_string();
+    let open = |cause| ImageFileError::Open {
+        path: p.clone(),
+        cause,
+    };
     let reader = image::ImageReader::new(std::io::Cursor::new(bytes))
         .with_guessed_format()
         .map_err(open)?;

@@ -80,7 +80,10 @@ const KIND_LABELS = { compensate: 'Compensation run', iso230: 'ISO 230-2 axis te
   verify: 'Error map check', layout: 'Layout partition', rotary: 'Rotary table measurement',
   reference: 'Machine zero check', export: 'Controller tables', rewrite: 'Program rewrite',
   'iso230-evaluate': 'ISO 230-2 evaluation of a file', 'rotary-identify': 'Rotary errors from measured centres',
-  'rotary-rewrite': '5-axis program rewrite' };
+  'rotary-rewrite': '5-axis program rewrite', cut: 'Layout cut', 'volumetric-identify': 'Volumetric model from a campaign',
+  'volumetric-eval': 'Volumetric error at points', 'volumetric-contributions': 'Volumetric error contributions',
+  'volumetric-campaign': 'Simulated volumetric campaign', 'volumetric-export-isg': 'Volumetric tables for the ISG kernel',
+  'board-make': 'Board artwork', localize: 'Localize a frame' };
 const STATE_WORDS = { queued: 'queued', running: 'running', succeeded: 'done', failed: 'failed',
   cancelled: 'cancelled', interrupted: 'interrupted', idle: 'idle', busy: 'busy', opening: 'connecting',
   link_lost: 'link lost', stopped: 'stopped' };
@@ -105,6 +108,9 @@ const KIND_HELP = {
   layout: 'Splits a cutting layout into groups per tool and cutting window and shifts parts apart. The machine does not move.',
   rotary: 'Probes the rotary table\u2019s balls and finds its eight errors; they become a new rotary profile version.',
   reference: 'Finds the machine zero on the board again after homing and checks how far it moved.',
+  cut: 'Splits the layout as a partition does and cuts it on the emulated conveyor cutter, every head\u2019s group at once.',
+  'board-make': 'Draws the machine\u2019s calibration board for the lab that makes it (SVG, DXF, a PDF test print) and its certificate template.',
+  localize: 'Finds where on the machine\u2019s board a camera frame was taken: the board position under the frame\u2019s centre.',
 };
 const FIELD_HELP = {
   'compensate.targets': 'How many of the job\u2019s targets to visit, from the first. Empty: all of them.',
@@ -1166,10 +1172,12 @@ function fieldInput(name, spec, required, kind) {
     select.value = required ? spec.choices[0] : '';
     return select;
   }
-  if (spec.format === 'binary') {
-    // A file's text (a layout, a program, a measurements file): checked when chosen; a
-    // layout's extension sets the `format` field.
-    const input = el('input', { ...common, type: 'file', accept: name === 'layout' ? '.json,.dxf,.svg' : undefined });
+  if (spec.format === 'binary' || spec.format === 'byte') {
+    // A file's text (a layout, a program, a measurements file), or a picture sent as
+    // base64 (`byte`: a frame to localize): checked when chosen; a layout's extension
+    // sets the `format` field.
+    const accept = name === 'layout' ? '.json,.dxf,.svg' : spec.format === 'byte' ? '.png,image/png' : undefined;
+    const input = el('input', { ...common, type: 'file', accept });
     input.addEventListener('change', () => checkUpload(input, name, spec, kind));
     return input;
   }
@@ -1211,8 +1219,23 @@ async function checkUpload(input, name, spec, kind) {
   const format = document.getElementById('field-format'); // built with the form
   if (layout && format && LAYOUT_FORMATS.includes(ext)) format.value = ext;
   help.textContent = file.name + ', ' + fmtNumber(file.size / 1024, '') + ' kB';
-  const problem = await uploadProblem(file, ext, layout);
+  const problem = spec.format === 'byte' ? await pictureProblem(file) : await uploadProblem(file, ext, layout);
   if (problem) setFieldError(name, problem);
+}
+
+// A frame to localize: a PNG picture (the service decodes it and says more).
+async function pictureProblem(file) {
+  const head = new Uint8Array(await file.slice(0, 8).arrayBuffer());
+  const png = [0x89, 0x50, 0x4e, 0x47, 0x0d, 0x0a, 0x1a, 0x0a].every((b, i) => head[i] === b);
+  return png ? '' : file.name + ' is not a PNG picture: choose the camera\u2019s frame saved as PNG.';
+}
+
+// A file's bytes as base64 (what a `byte` field carries).
+async function base64Of(file) {
+  const bytes = new Uint8Array(await file.arrayBuffer());
+  let text = '';
+  for (let i = 0; i < bytes.length; i += 0x8000) text += String.fromCharCode(...bytes.subarray(i, i + 0x8000));
+  return btoa(text);
 }
 
 async function uploadProblem(file, ext, layout) {
@@ -1293,9 +1316,11 @@ async function readForm() {
         if (required.has(name)) errors[name] = label + ' is needed: choose the file.';
         continue;
       }
-      const problem = await uploadProblem(file, file.name.split('.').pop().toLowerCase(), name === 'layout');
+      const picture = spec.format === 'byte';
+      const problem = picture ? await pictureProblem(file)
+        : await uploadProblem(file, file.name.split('.').pop().toLowerCase(), name === 'layout');
       if (problem) errors[name] = problem;
-      else params[name] = await file.text();
+      else params[name] = picture ? await base64Of(file) : await file.text();
       continue;
     }
     if (text === '') {
