@@ -78,8 +78,10 @@ pub(crate) async fn serve(
     listener: TcpListener,
     app: Router,
     limits: Limits,
+    tls: Option<Arc<rustls::ServerConfig>>,
     mut shutdown: watch::Receiver<bool>,
 ) {
+    let tls = tls.map(tokio_rustls::TlsAcceptor::from);
     warn_if_few_descriptors(limits.max_connections);
     let registry = Arc::new(Registry {
         conns: Mutex::new(HashMap::new()),
@@ -105,7 +107,7 @@ pub(crate) async fn serve(
                     };
                     let _ = stream.set_nodelay(true);
                     let io = Tracked { stream, conn: conn.clone(), registry: registry.clone() };
-                    tasks.spawn(connection(io, peer, conn, app.clone(), limits, stop.clone()));
+                    tasks.spawn(open_connection(io, peer, conn, app.clone(), limits, tls.clone(), stop.clone()));
                 }
                 Err(e) if is_connection_error(&e) => {}
                 Err(e) => {
@@ -406,16 +408,52 @@ impl AsyncWrite for Tracked {
     }
 }
 
-/// One connection, from accept to its end (or to its upgrade: the WebSocket then owns
-/// the socket).
-async fn connection(
+/// An accepted connection: with TLS, its handshake first, which belongs to the *head*
+/// phase (done within `header_timeout` of the accept, else closed; evictable; closed at
+/// shutdown), then the connection as over plain TCP.
+async fn open_connection(
     io: Tracked,
     peer: SocketAddr,
     conn: Arc<Conn>,
     app: Router,
     limits: Limits,
+    tls: Option<tokio_rustls::TlsAcceptor>,
     mut shutdown: watch::Receiver<bool>,
 ) {
+    let Some(acceptor) = tls else {
+        return connection(io, peer, conn, app, limits, shutdown).await;
+    };
+    let deadline = conn.deadline();
+    let closed = async {
+        while !conn.is_closing() {
+            conn.changed.notified().await;
+        }
+    };
+    tokio::select! {
+        handshake = acceptor.accept(io) => match handshake {
+            Ok(stream) => connection(stream, peer, conn, app, limits, shutdown).await,
+            Err(e) => debug!(connection = conn.id, %peer, error = %e, "TLS handshake failed"),
+        },
+        _ = sleep_until(deadline) => {
+            debug!(connection = conn.id, %peer, "closed: no TLS handshake in time");
+        }
+        _ = closed => {}
+        _ = async { let _ = shutdown.wait_for(|s| *s).await; } => {}
+    }
+}
+
+/// One connection, from accept (or its TLS handshake) to its end (or to its upgrade: the
+/// WebSocket then owns the socket).
+async fn connection<Io>(
+    io: Io,
+    peer: SocketAddr,
+    conn: Arc<Conn>,
+    app: Router,
+    limits: Limits,
+    mut shutdown: watch::Receiver<bool>,
+) where
+    Io: AsyncRead + AsyncWrite + Unpin + Send + 'static,
+{
     let service = ConnService {
         app,
         peer,
@@ -750,7 +788,7 @@ mod tests {
             idle_timeout: Duration::from_secs(60),
             max_connections: 4,
         };
-        let server = tokio::spawn(serve(listener, app, limits, shutdown));
+        let server = tokio::spawn(serve(listener, app, limits, None, shutdown));
         let answer = reqwest::get(format!("http://{addr}/peer")).await.unwrap();
         assert_eq!(answer.status(), 200);
         let peer: SocketAddr = answer.text().await.unwrap().parse().unwrap();
@@ -831,7 +869,7 @@ mod tests {
             idle_timeout: Duration::from_secs(60),
             max_connections: 4,
         };
-        let server = tokio::spawn(serve(listener, app, limits, shutdown));
+        let server = tokio::spawn(serve(listener, app, limits, None, shutdown));
         let mut client = TcpStream::connect(addr).await.unwrap();
         client
             .write_all(b"POST /upload HTTP/1.1\r\nhost: x\r\ncontent-length: 100\r\n\r\nabc")
