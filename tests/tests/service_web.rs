@@ -1,6 +1,7 @@
 //! The service's web page in a real browser: the service runs in-process (demo machine,
 //! port 0, a fresh data directory) and tests/interop/web/drive_page.js drives headless
-//! Debian Chromium through playwright-core: the page opens with the token in the URL
+//! Debian Chromium through playwright-core, over HTTPS (the self-signed pair made at the
+//! service's first start, Chromium given its public key's pin): the page opens with the token in the URL
 //! fragment, starts a job, sees its live progress over the WebSocket and the finished
 //! job in the history, shows its chart and measurements and the error map's heat map,
 //! activates a profile version and rolls back. Needs `node`, `/usr/bin/chromium` and
@@ -123,6 +124,14 @@ fn corpus(path: &str) -> serde_json::Value {
     serde_json::json!({ "name": name, "text": text })
 }
 
+/// The demo box over HTTPS (`tls = "self-signed"`; its pair in `data_dir/tls`, kept
+/// across the restart).
+fn https_demo(data_dir: &Path) -> service::BoxConfig {
+    let mut config = service::BoxConfig::demo(data_dir);
+    config.service.tls = service::TlsSource::SelfSigned;
+    config
+}
+
 fn fresh_dir(path: PathBuf) -> PathBuf {
     let _ = std::fs::remove_dir_all(&path);
     std::fs::create_dir_all(&path).expect("a temp dir under the target dir");
@@ -141,11 +150,16 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
     let screenshot = artefacts.join("page.png");
     seed_profiles(&data_dir);
 
-    let first = service::start(service::BoxConfig::demo(&data_dir))
+    let first = service::start(https_demo(&data_dir))
         .await
         .expect("the demo service starts");
     let addr = first.local_addr();
-    let base = format!("http://{addr}");
+    // Over HTTPS with the self-signed pair made at this first start: Chromium trusts
+    // exactly its public key (the pin the service logs), as an operator who checked the
+    // fingerprint would.
+    let base = first.url().trim_end_matches('/').to_string();
+    assert!(base.starts_with("https://"), "{base}");
+    let spki = first.tls().expect("HTTPS").spki_sha256_base64.clone();
     let token = first.token().to_string();
     let mut running = Some(first);
 
@@ -164,6 +178,7 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
             "queue": {"kind": "compensate", "long": {"targets": null}, "short": {"targets": 1}},
             "form": true,
             "kinds": {"screenshots": artefacts.display().to_string(), "jobs": kind_jobs()},
+            "spki": spki,
             "restart": {"screenshots": artefacts.display().to_string(), "params":
                 {"name": "restart_map", "grid_step_mm": 100, "line_step_mm": "50,0", "passes": 1}},
         })
@@ -196,7 +211,7 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
                 writeln!(answers, "stopped").unwrap();
             }
             Some("start") => {
-                let mut config = service::BoxConfig::demo(&data_dir);
+                let mut config = https_demo(&data_dir);
                 config.service.listen = addr;
                 running = Some(
                     service::start(config)
@@ -224,6 +239,11 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
         "the page walk failed (screenshot {}): {report}\n{stderr}",
         screenshot.display()
     );
+    // The page, its API calls and its event WebSocket were over TLS (a secure context:
+    // Chromium accepted the pinned certificate; the page was live over wss).
+    assert_eq!(report["tls"]["protocol"], "https:", "{report}");
+    assert_eq!(report["tls"]["secure_context"], true, "{report}");
+    assert_eq!(report["tls"]["socket"], "wss:", "{report}");
     // The token left the address bar.
     let url = report["url_after_load"].as_str().unwrap();
     assert!(!url.contains(&token) && !url.contains("token="), "{url}");

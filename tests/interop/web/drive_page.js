@@ -366,12 +366,17 @@ async function main() {
     executablePath: '/usr/bin/chromium',
     headless: true,
     args: ['--headless', '--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run',
-      '--disable-background-networking', '--disable-component-update', '--disable-sync'],
+      '--disable-background-networking', '--disable-component-update', '--disable-sync',
+      // HTTPS with the box's self-signed certificate: only its public key is trusted (the
+      // pin the service logs), as an operator who checked its fingerprint would.
+      ...(walks.spki ? [`--ignore-certificate-errors-spki-list=${walks.spki}`] : [])],
     viewport: DESKTOP,
   });
   const page = context.pages()[0] || await context.newPage();
   const pageErrors = [];
   page.on('pageerror', (error) => pageErrors.push(String(error)));
+  out.tls = {};
+  page.on('websocket', (ws) => { out.tls.socket = out.tls.socket || new URL(ws.url()).protocol; });
   // Activation asks the operator first; the question is kept to check it names the machine.
   out.dialogs = [];
   page.on('dialog', (dialog) => { out.dialogs.push(dialog.message()); dialog.accept(); });
@@ -394,6 +399,8 @@ async function main() {
     await page.locator('#connection[data-state="open"]').waitFor({ timeout: UI_TIMEOUT_MS });
     // The token left the address bar and sits in sessionStorage.
     out.url_after_load = page.url();
+    out.tls.protocol = await page.evaluate(() => location.protocol);
+    out.tls.secure_context = await page.evaluate(() => window.isSecureContext);
     if (page.url().includes(token)) throw new Error('the token is still in the address bar');
     if (await page.evaluate(() => sessionStorage.getItem('gateway.token')) !== token) {
       throw new Error('the token is not in sessionStorage');
