@@ -132,6 +132,16 @@ fn https_demo(data_dir: &Path) -> service::BoxConfig {
     config
 }
 
+/// A JSON array of strings, sorted.
+fn sorted(v: &serde_json::Value) -> Vec<&str> {
+    let mut all: Vec<&str> = v
+        .as_array()
+        .map(|a| a.iter().filter_map(|s| s.as_str()).collect())
+        .unwrap_or_default();
+    all.sort_unstable();
+    all
+}
+
 fn fresh_dir(path: PathBuf) -> PathBuf {
     let _ = std::fs::remove_dir_all(&path);
     std::fs::create_dir_all(&path).expect("a temp dir under the target dir");
@@ -311,6 +321,30 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
     for message in api_errors.values() {
         assert!(!words(message).contains("params."), "{message}");
     }
+    // Bad values in the other forms too: each form with number fields, a word in each,
+    // has every one of them refused at once (beside its field, listed above Start).
+    let others = report["other_forms"]
+        .as_array()
+        .expect("other forms walked");
+    let several = others
+        .iter()
+        .filter(|f| f["bad"].as_array().unwrap().len() >= 2)
+        .count();
+    assert!(
+        several >= 3,
+        "forms with two or more bad fields: {others:?}"
+    );
+    for form in others {
+        let bad = form["bad"].as_array().unwrap();
+        let marked = form["marked"].as_array().unwrap();
+        for field in bad {
+            assert!(marked.contains(field), "{field} not marked: {form}");
+        }
+        assert!(
+            form["listed"].as_u64().unwrap() >= bad.len() as u64,
+            "{form}"
+        );
+    }
     // A picture is refused when chosen; a JSON that is no layout and a broken DXF by the
     // layout reader the job uses, when queued.
     let uploads = &report["upload_errors"];
@@ -420,6 +454,57 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
         if want["chart"] == true {
             assert!(!k["charts"].as_array().unwrap().is_empty(), "{k}");
         }
+        // Charts people can read (measured by Chromium's layout of each SVG): a legend
+        // covers no data point and is inside the picture; ISO 230-2's deviation chart
+        // has its legend (both directions and the bands) and its axes' units.
+        for (name, g) in k["chart_geometry"].as_object().unwrap() {
+            let legend = &g["legend"];
+            if legend["entries"].as_u64().unwrap() > 0 {
+                assert_eq!(legend["covered"], 0, "{name}: {g}");
+                assert_eq!(legend["inside"], true, "{name}: {g}");
+            }
+            if k["kind"].as_str().unwrap().starts_with("iso230") {
+                assert!(legend["entries"].as_u64().unwrap() >= 3, "{name}: {g}");
+                assert!(legend["points"].as_u64().unwrap() > 0, "{name}: {g}");
+                assert_eq!(
+                    sorted(&g["units"]),
+                    [
+                        "positional deviation (µm)",
+                        "target position, machine axis (mm)"
+                    ],
+                    "{name}: {g}"
+                );
+            }
+        }
+        // The scanned map's heat map: every arrow inside the plot, an arrow-length scale,
+        // the colour bar's value written at both ends, axes in machine mm.
+        if want["activate"].is_string() {
+            let g = &k["heatmap_geometry"];
+            let h = &g["heatmap"];
+            assert!(h["arrows"].as_u64().unwrap() > 0, "{g}");
+            assert_eq!(h["arrows_outside_plot"], 0, "{g}");
+            assert_eq!(h["scale_arrow"], 2, "a shaft and a head: {g}");
+            assert!(h["scale_text"].as_str().is_some(), "{g}");
+            let value = |v: &serde_json::Value| -> Vec<f64> {
+                v.as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|t| t.as_str().unwrap().parse::<f64>().unwrap())
+                    .collect()
+            };
+            let top = value(&h["bar_top"]);
+            assert!(top.len() == 1 && top[0] > 0.0, "{g}");
+            assert_eq!(value(&h["bar_bottom"]), [0.0], "{g}");
+            assert_eq!(
+                sorted(&g["units"]),
+                [
+                    "X, machine position (mm)",
+                    "Y, machine position (mm)",
+                    "|e|, µm"
+                ],
+                "{g}"
+            );
+        }
         assert_eq!(k["raw_collapsed"], true, "{k}");
         // An uploaded file gives its name to the field that names it in messages.
         for (file, named) in [
@@ -465,6 +550,14 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
             .as_str()
             .unwrap()
             .contains("kept. Starting the same scan again measures only what is missing"),
+        "{restart}"
+    );
+    // What stopped it, as the service recorded it: its shutdown, not a Cancel.
+    assert!(
+        restart["after"]["next"]
+            .as_str()
+            .unwrap()
+            .starts_with("Cancelled before the end: the service was shut down while it ran"),
         "{restart}"
     );
     assert_eq!(restart["after"]["running"], 0, "{restart}");
