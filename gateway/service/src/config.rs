@@ -534,6 +534,7 @@ mod tests {
             )))
         );
         assert!(c.mqtt.is_none());
+        assert_eq!(c.service.tls, TlsSource::SelfSigned);
         assert_eq!(c.service.header_timeout, Duration::from_secs(10));
         assert_eq!(c.service.idle_timeout, Duration::from_secs(60));
         assert_eq!(c.service.max_connections, 1024);

@@ -852,6 +852,38 @@ mod tests {
         assert_eq!(other.status(), StatusCode::OK);
     }
 
+    /// A connection that never starts its TLS handshake is closed at `header_timeout`
+    /// of its accept (the clock is tokio's paused one: no wall time is waited).
+    #[tokio::test(start_paused = true)]
+    async fn a_tls_handshake_never_begun_is_closed_at_the_header_timeout() {
+        use tokio::io::AsyncReadExt;
+        let dir = tempfile::tempdir().unwrap();
+        let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = listener.local_addr().unwrap();
+        let tls =
+            crate::tls::load(&crate::config::TlsSource::SelfSigned, dir.path(), &[], addr).unwrap();
+        let app = Router::new().route("/", get(|| async { "ok" }));
+        let (stop, shutdown) = watch::channel(false);
+        let limits = Limits {
+            header_timeout: Duration::from_secs(10),
+            idle_timeout: Duration::from_secs(60),
+            max_connections: 1,
+        };
+        let server = tokio::spawn(serve(listener, app, limits, Some(tls.config), shutdown));
+        let opened = Instant::now();
+        let mut silent = TcpStream::connect(addr).await.unwrap();
+        let mut answer = Vec::new();
+        let _ = silent.read_to_end(&mut answer).await;
+        assert!(answer.is_empty());
+        let waited = Instant::now() - opened;
+        assert!(
+            waited >= Duration::from_secs(10) && waited < Duration::from_secs(11),
+            "{waited:?}"
+        );
+        let _ = stop.send(true);
+        server.await.unwrap();
+    }
+
     /// A request whose body stops arriving is answered 408 `body_timeout` when its
     /// deadline passes (the clock is tokio's paused one: no wall time is waited).
     #[tokio::test(start_paused = true)]
