@@ -103,7 +103,8 @@ impl Api {
                         .contains(&e["job"]["state"].as_str().unwrap_or(""))
             })
             .await;
-        e["job"].clone()
+        // The event is light (no params or result): the job's record has them.
+        self.get(&format!("/api/v1/jobs/{}", e["job"]["id"])).await
     }
 
     /// Waits until the demo machine's devices are open (its state is idle).

@@ -129,6 +129,18 @@ async fn a_job_runs_to_the_end_with_its_events() {
     let id = job["id"].clone();
     let seen = until(&mut ws, |e| job_in(e, &id, "succeeded")).await;
     assert!(seen.iter().any(|e| job_in(e, &id, "running")));
+    // Job events are as light as the job list: ids, state, progress; never the params
+    // or the result (a layout job's are megabytes), which the job's record holds.
+    for e in seen.iter().filter(|e| e["type"] == "job") {
+        assert!(
+            e["job"].get("params").is_none() && e["job"].get("result").is_none(),
+            "{e}"
+        );
+        assert!(
+            e["job"]["kind"].is_string() && e["job"]["state"].is_string(),
+            "{e}"
+        );
+    }
     assert!(seen
         .iter()
         .any(|e| e["type"] == "measurement" && e["job_id"] == id));
@@ -582,7 +594,8 @@ async fn an_iso230_job_keeps_its_figures_and_chart() {
     assert_eq!(status, StatusCode::ACCEPTED, "{job}");
     let id = job["id"].clone();
     let seen = until_finished(&mut ws, &id).await;
-    let last = &seen.last().unwrap()["job"];
+    // The event is light (no params or result): the job's record has them.
+    let last = &get(&c, &s, &format!("/api/v1/jobs/{id}")).await.1;
     assert_eq!(last["state"], "succeeded", "{last}");
     // 5 positions x 5 runs x 2 directions, each seen live and kept.
     let live = seen
@@ -810,8 +823,9 @@ async fn an_uploaded_error_map_is_drawn_activated_and_used_by_a_job() {
     .await;
     assert_eq!(status, StatusCode::ACCEPTED, "{job}");
     let id = job["id"].clone();
-    let seen = until_finished(&mut ws, &id).await;
-    let last = &seen.last().unwrap()["job"];
+    until_finished(&mut ws, &id).await;
+    // The event is light (no params or result): the job's record has them.
+    let last = &get(&c, &s, &format!("/api/v1/jobs/{id}")).await.1;
     assert_eq!(last["state"], "succeeded", "{last}");
     assert_eq!(last["profile"], json!({"name": "stage-map", "version": 1}));
 
@@ -826,8 +840,9 @@ async fn an_uploaded_error_map_is_drawn_activated_and_used_by_a_job() {
     .await;
     assert_eq!(status, StatusCode::ACCEPTED, "{job}");
     let id = job["id"].clone();
-    let seen = until_finished(&mut ws, &id).await;
-    let last = &seen.last().unwrap()["job"];
+    until_finished(&mut ws, &id).await;
+    // The event is light (no params or result): the job's record has them.
+    let last = &get(&c, &s, &format!("/api/v1/jobs/{id}")).await.1;
     assert_eq!(last["state"], "succeeded", "{last}");
     assert_eq!(last["profile"], json!({"name": "stage-map", "version": 1}));
     let r = &last["result"];
@@ -871,8 +886,9 @@ async fn a_layout_job_partitions_the_layout_it_is_given() {
     .await;
     assert_eq!(status, StatusCode::ACCEPTED, "{job}");
     let id = job["id"].clone();
-    let seen = until_finished(&mut ws, &id).await;
-    let last = &seen.last().unwrap()["job"];
+    until_finished(&mut ws, &id).await;
+    // The event is light (no params or result): the job's record has them.
+    let last = &get(&c, &s, &format!("/api/v1/jobs/{id}")).await.1;
     assert_eq!(last["state"], "succeeded", "{last}");
     let groups = last["result"]["groups"].as_array().unwrap();
     assert_eq!(groups.len(), 2, "{groups:?}");
@@ -911,7 +927,8 @@ async fn a_map_job_becomes_a_profile_version() {
     assert_eq!(status, StatusCode::ACCEPTED, "{job}");
     let id = job["id"].clone();
     let seen = until_finished(&mut ws, &id).await;
-    let last = &seen.last().unwrap()["job"];
+    // The event is light (no params or result): the job's record has them.
+    let last = &get(&c, &s, &format!("/api/v1/jobs/{id}")).await.1;
     assert_eq!(last["state"], "succeeded", "{last}");
     assert_eq!(
         (&last["result"]["name"], &last["result"]["version"]),
@@ -979,7 +996,8 @@ async fn a_rotary_job_identifies_the_table_and_becomes_a_profile_version() {
     assert_eq!(status, StatusCode::ACCEPTED, "{job}");
     let id = job["id"].clone();
     let seen = until_finished(&mut ws, &id).await;
-    let last = &seen.last().unwrap()["job"];
+    // The event is light (no params or result): the job's record has them.
+    let last = &get(&c, &s, &format!("/api/v1/jobs/{id}")).await.1;
     assert_eq!(last["state"], "succeeded", "{last}");
     let progress: Vec<u64> = seen
         .iter()

@@ -1,6 +1,7 @@
 //! The service's web page in a real browser: the service runs in-process (demo machine,
 //! port 0, a fresh data directory) and tests/interop/web/drive_page.js drives headless
-//! Debian Chromium through playwright-core: the page opens with the token in the URL
+//! Debian Chromium through playwright-core, over HTTPS (the self-signed pair made at the
+//! service's first start, Chromium given its public key's pin): the page opens with the token in the URL
 //! fragment, starts a job, sees its live progress over the WebSocket and the finished
 //! job in the history, shows its chart and measurements and the error map's heat map,
 //! activates a profile version and rolls back. Needs `node`, `/usr/bin/chromium` and
@@ -123,6 +124,24 @@ fn corpus(path: &str) -> serde_json::Value {
     serde_json::json!({ "name": name, "text": text })
 }
 
+/// The demo box over HTTPS (`tls = "self-signed"`; its pair in `data_dir/tls`, kept
+/// across the restart).
+fn https_demo(data_dir: &Path) -> service::BoxConfig {
+    let mut config = service::BoxConfig::demo(data_dir);
+    config.service.tls = service::TlsSource::SelfSigned;
+    config
+}
+
+/// A JSON array of strings, sorted.
+fn sorted(v: &serde_json::Value) -> Vec<&str> {
+    let mut all: Vec<&str> = v
+        .as_array()
+        .map(|a| a.iter().filter_map(|s| s.as_str()).collect())
+        .unwrap_or_default();
+    all.sort_unstable();
+    all
+}
+
 fn fresh_dir(path: PathBuf) -> PathBuf {
     let _ = std::fs::remove_dir_all(&path);
     std::fs::create_dir_all(&path).expect("a temp dir under the target dir");
@@ -141,11 +160,16 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
     let screenshot = artefacts.join("page.png");
     seed_profiles(&data_dir);
 
-    let first = service::start(service::BoxConfig::demo(&data_dir))
+    let first = service::start(https_demo(&data_dir))
         .await
         .expect("the demo service starts");
     let addr = first.local_addr();
-    let base = format!("http://{addr}");
+    // Over HTTPS with the self-signed pair made at this first start: Chromium trusts
+    // exactly its public key (the pin the service logs), as an operator who checked the
+    // fingerprint would.
+    let base = first.url().trim_end_matches('/').to_string();
+    assert!(base.starts_with("https://"), "{base}");
+    let spki = first.tls().expect("HTTPS").spki_sha256_base64.clone();
     let token = first.token().to_string();
     let mut running = Some(first);
 
@@ -164,6 +188,7 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
             "queue": {"kind": "compensate", "long": {"targets": null}, "short": {"targets": 1}},
             "form": true,
             "kinds": {"screenshots": artefacts.display().to_string(), "jobs": kind_jobs()},
+            "spki": spki,
             "restart": {"screenshots": artefacts.display().to_string(), "params":
                 {"name": "restart_map", "grid_step_mm": 100, "line_step_mm": "50,0", "passes": 1}},
         })
@@ -196,7 +221,7 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
                 writeln!(answers, "stopped").unwrap();
             }
             Some("start") => {
-                let mut config = service::BoxConfig::demo(&data_dir);
+                let mut config = https_demo(&data_dir);
                 config.service.listen = addr;
                 running = Some(
                     service::start(config)
@@ -224,6 +249,11 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
         "the page walk failed (screenshot {}): {report}\n{stderr}",
         screenshot.display()
     );
+    // The page, its API calls and its event WebSocket were over TLS (a secure context:
+    // Chromium accepted the pinned certificate; the page was live over wss).
+    assert_eq!(report["tls"]["protocol"], "https:", "{report}");
+    assert_eq!(report["tls"]["secure_context"], true, "{report}");
+    assert_eq!(report["tls"]["socket"], "wss:", "{report}");
     // The token left the address bar.
     let url = report["url_after_load"].as_str().unwrap();
     assert!(!url.contains(&token) && !url.contains("token="), "{url}");
@@ -290,6 +320,30 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
     assert_eq!(api_errors.len(), 1, "{report}");
     for message in api_errors.values() {
         assert!(!words(message).contains("params."), "{message}");
+    }
+    // Bad values in the other forms too: each form with number fields, a word in each,
+    // has every one of them refused at once (beside its field, listed above Start).
+    let others = report["other_forms"]
+        .as_array()
+        .expect("other forms walked");
+    let several = others
+        .iter()
+        .filter(|f| f["bad"].as_array().unwrap().len() >= 2)
+        .count();
+    assert!(
+        several >= 3,
+        "forms with two or more bad fields: {others:?}"
+    );
+    for form in others {
+        let bad = form["bad"].as_array().unwrap();
+        let marked = form["marked"].as_array().unwrap();
+        for field in bad {
+            assert!(marked.contains(field), "{field} not marked: {form}");
+        }
+        assert!(
+            form["listed"].as_u64().unwrap() >= bad.len() as u64,
+            "{form}"
+        );
     }
     // A picture is refused when chosen; a JSON that is no layout and a broken DXF by the
     // layout reader the job uses, when queued.
@@ -400,6 +454,57 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
         if want["chart"] == true {
             assert!(!k["charts"].as_array().unwrap().is_empty(), "{k}");
         }
+        // Charts people can read (measured by Chromium's layout of each SVG): a legend
+        // covers no data point and is inside the picture; ISO 230-2's deviation chart
+        // has its legend (both directions and the bands) and its axes' units.
+        for (name, g) in k["chart_geometry"].as_object().unwrap() {
+            let legend = &g["legend"];
+            if legend["entries"].as_u64().unwrap() > 0 {
+                assert_eq!(legend["covered"], 0, "{name}: {g}");
+                assert_eq!(legend["inside"], true, "{name}: {g}");
+            }
+            if k["kind"].as_str().unwrap().starts_with("iso230") {
+                assert!(legend["entries"].as_u64().unwrap() >= 3, "{name}: {g}");
+                assert!(legend["points"].as_u64().unwrap() > 0, "{name}: {g}");
+                assert_eq!(
+                    sorted(&g["units"]),
+                    [
+                        "positional deviation (µm)",
+                        "target position, machine axis (mm)"
+                    ],
+                    "{name}: {g}"
+                );
+            }
+        }
+        // The scanned map's heat map: every arrow inside the plot, an arrow-length scale,
+        // the colour bar's value written at both ends, axes in machine mm.
+        if want["activate"].is_string() {
+            let g = &k["heatmap_geometry"];
+            let h = &g["heatmap"];
+            assert!(h["arrows"].as_u64().unwrap() > 0, "{g}");
+            assert_eq!(h["arrows_outside_plot"], 0, "{g}");
+            assert_eq!(h["scale_arrow"], 2, "a shaft and a head: {g}");
+            assert!(h["scale_text"].as_str().is_some(), "{g}");
+            let value = |v: &serde_json::Value| -> Vec<f64> {
+                v.as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|t| t.as_str().unwrap().parse::<f64>().unwrap())
+                    .collect()
+            };
+            let top = value(&h["bar_top"]);
+            assert!(top.len() == 1 && top[0] > 0.0, "{g}");
+            assert_eq!(value(&h["bar_bottom"]), [0.0], "{g}");
+            assert_eq!(
+                sorted(&g["units"]),
+                [
+                    "X, machine position (mm)",
+                    "Y, machine position (mm)",
+                    "|e|, µm"
+                ],
+                "{g}"
+            );
+        }
         assert_eq!(k["raw_collapsed"], true, "{k}");
         // An uploaded file gives its name to the field that names it in messages.
         for (file, named) in [
@@ -445,6 +550,14 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
             .as_str()
             .unwrap()
             .contains("kept. Starting the same scan again measures only what is missing"),
+        "{restart}"
+    );
+    // What stopped it, as the service recorded it: its shutdown, not a Cancel.
+    assert!(
+        restart["after"]["next"]
+            .as_str()
+            .unwrap()
+            .starts_with("Cancelled before the end: the service was shut down while it ran"),
         "{restart}"
     );
     assert_eq!(restart["after"]["running"], 0, "{restart}");

@@ -471,12 +471,20 @@ fn the_heat_map_has_its_colour_scale_and_an_arrow_per_node() {
     };
     assert_eq!(chart.error_xy_um(2, 1), (10.0, 0.0));
     let svg = plot::render_svg(&chart, 900, 600).unwrap();
-    // The scale's ticks run to the largest error, 10 µm.
-    let scale = &svg[svg.find("|e| µm").unwrap()..];
-    assert!(scale.contains("\n10.0\n"), "the scale does not reach 10 µm");
-    // 4 of the 6 nodes have an error: a shaft and a head each.
+    // The colour scale is written at both ends: 0 and the largest error, 10 µm.
+    assert!(svg.contains("|e|, µm"), "the scale says its unit");
+    for end in ["\n10\n", "\n0\n"] {
+        assert!(svg.contains(end), "no {end:?} at an end of the scale");
+    }
+    // The arrows' scale: 10 µm is 22.5 mm long (45 % of the 50 mm step), so a round
+    // length that fits under the colour scale, drawn as the arrows are.
+    assert!(
+        svg.contains("arrow 5 µm") || svg.contains("arrow 2 µm"),
+        "no arrow scale"
+    );
+    // 4 of the 6 nodes have an error: a shaft and a head each; and the scale's arrow.
     let polylines = svg.matches("stroke=\"#141414\"").count();
-    assert_eq!(polylines, 8, "{polylines} strokes");
+    assert_eq!(polylines, 8 + 2, "{polylines} strokes");
 }
 
 /// Two scans of the same grid: the change is found node by node, at its place; a map of

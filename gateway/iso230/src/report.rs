@@ -46,7 +46,8 @@ pub struct Series<'a> {
 }
 
 /// Mean deviation ↑ and ↓ against position, each with its x̄ ± 2s band (thin lines);
-/// several tests overlaid (before/after) in their own colours.
+/// several tests overlaid (before/after) in their own colours. The legend is a strip
+/// under the plot, never over the data.
 pub struct DeviationChart<'a> {
     pub title: String,
     pub series: Vec<Series<'a>>,
@@ -64,6 +65,10 @@ impl plot::Chart for DeviationChart<'_> {
         area: &DrawingArea<DB, Shift>,
     ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
         area.fill(&WHITE)?;
+        // The legend's strip: a row per test (its two directions), then the bands' row.
+        let (_, height) = area.dim_in_pixel();
+        let legend_h = LEGEND_ROW_PX * (self.series.len() as u32 + 1) + 8;
+        let (area, legend) = area.split_vertically(height.saturating_sub(legend_h));
         let all = || self.series.iter().flat_map(|s| &s.evaluation.positions);
         let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
         for q in all() {
@@ -85,7 +90,7 @@ impl plot::Chart for DeviationChart<'_> {
         let std::ops::Range { start: y0, end: y1 } = plot::safe_range(y0, y1, 0.0);
         let xpad = ((x1 - x0) * 0.03).max(0.5);
         let ypad = ((y1 - y0) * 0.1).max(0.5);
-        let mut chart = ChartBuilder::on(area)
+        let mut chart = ChartBuilder::on(&area)
             .caption(&self.title, (plot::FONT, 18))
             .margin(10)
             .x_label_area_size(40)
@@ -96,8 +101,8 @@ impl plot::Chart for DeviationChart<'_> {
             )?;
         chart
             .configure_mesh()
-            .x_desc("target position (mm)")
-            .y_desc("positional deviation (um)")
+            .x_desc("target position, machine axis (mm)")
+            .y_desc("positional deviation (µm)")
             .label_style((plot::FONT, 12))
             .axis_desc_style((plot::FONT, 14))
             .draw()?;
@@ -109,21 +114,18 @@ impl plot::Chart for DeviationChart<'_> {
                 ("up (+)", c_up, |q| (q.mean_up_um, q.s_up_um)),
                 ("down (-)", c_down, |q| (q.mean_down_um, q.s_down_um)),
             ];
-            for (name, colour, pick) in dirs {
+            let row = LEGEND_ROW_PX as i32 * k as i32 + 4;
+            for (d, (name, colour, pick)) in dirs.into_iter().enumerate() {
                 let label = if s.label.is_empty() {
                     format!("mean {name}")
                 } else {
                     format!("{}: mean {name}", s.label)
                 };
-                chart
-                    .draw_series(LineSeries::new(
-                        p.iter().map(|q| (q.target_mm, pick(q).0)),
-                        colour.stroke_width(2),
-                    ))?
-                    .label(label)
-                    .legend(move |(x, y)| {
-                        PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(2))
-                    });
+                legend_entry(&legend, (70 + 260 * d as i32, row), colour, 2, &label)?;
+                chart.draw_series(LineSeries::new(
+                    p.iter().map(|q| (q.target_mm, pick(q).0)),
+                    colour.stroke_width(2),
+                ))?;
                 chart.draw_series(
                     p.iter()
                         .map(|q| Circle::new((q.target_mm, pick(q).0), 3, colour.filled())),
@@ -139,14 +141,41 @@ impl plot::Chart for DeviationChart<'_> {
                 }
             }
         }
-        chart
-            .configure_series_labels()
-            .label_font((plot::FONT, 12))
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()?;
+        let row = LEGEND_ROW_PX as i32 * self.series.len() as i32 + 4;
+        legend_entry(
+            &legend,
+            (70, row),
+            RGBColor(90, 90, 90).mix(0.6),
+            1,
+            "thin lines: mean ± 2s (each direction, its colour)",
+        )?;
         Ok(())
     }
+}
+
+/// Height of a legend row, px.
+const LEGEND_ROW_PX: u32 = 18;
+
+/// One legend entry at `at` (px in the legend's strip): a 20 px line sample and its text.
+fn legend_entry<DB: DrawingBackend, C: Color>(
+    legend: &DrawingArea<DB, Shift>,
+    at: (i32, i32),
+    colour: C,
+    width: u32,
+    text: &str,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    let (x, y) = (at.0, at.1 + LEGEND_ROW_PX as i32 / 2);
+    legend.draw(&PathElement::new(
+        [(x, y), (x + 20, y)],
+        colour.stroke_width(width),
+    ))?;
+    let style = TextStyle::from((plot::FONT, 12).into_font()).pos(
+        plot::plotters::style::text_anchor::Pos::new(
+            plot::plotters::style::text_anchor::HPos::Left,
+            plot::plotters::style::text_anchor::VPos::Center,
+        ),
+    );
+    legend.draw(&Text::new(text.to_string(), (x + 26, y), style))
 }
 
 fn escape(s: &str) -> String {

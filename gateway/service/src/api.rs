@@ -586,16 +586,9 @@ async fn jobs(
     )))
 }
 
-/// A job as a list shows it: without its `params` and `result`, which can be megabytes
-/// (a layout job carries its file and the shifted layout); `GET /api/v1/jobs/{id}` has
-/// them.
+/// A job as a list shows it (as its events carry it: [`crate::state::light_job`]).
 fn list_entry(record: store::JobRecord) -> Value {
-    let mut v = serde_json::to_value(record).unwrap_or(Value::Null);
-    if let Some(o) = v.as_object_mut() {
-        o.remove("params");
-        o.remove("result");
-    }
-    v
+    crate::state::light_job(&record)
 }
 
 fn job_record(shared: &Shared, id: JobId) -> ApiResult<store::JobRecord> {

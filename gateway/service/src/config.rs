@@ -64,6 +64,43 @@ struct RawService {
     idle_timeout_s: f64,
     #[serde(default = "default_max_connections")]
     max_connections: usize,
+    #[serde(default)]
+    tls: TlsMode,
+    #[serde(default)]
+    tls_cert_file: Option<PathBuf>,
+    #[serde(default)]
+    tls_key_file: Option<PathBuf>,
+    #[serde(default)]
+    tls_names: Vec<String>,
+    #[serde(default)]
+    plain_http_beyond_loopback: bool,
+}
+
+/// `tls` in `[service]`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+enum TlsMode {
+    /// A pair made at first start in `<data_dir>/tls/`.
+    #[default]
+    SelfSigned,
+    /// `tls_cert_file` and `tls_key_file`.
+    Files,
+    /// Plain HTTP.
+    Off,
+}
+
+/// Where the HTTPS certificate and key come from (`tls` in `[service]`).
+#[derive(Debug, Clone, PartialEq)]
+pub enum TlsSource {
+    /// `tls = "self-signed"` (the default): made at first start in `<data_dir>/tls/`
+    /// (`cert.pem`, `key.pem`), kept after; its fingerprint logged at every start.
+    SelfSigned,
+    /// `tls = "files"`: PEM files, `tls_cert_file` (the certificate, then its chain) and
+    /// `tls_key_file` (PKCS#8, PKCS#1 or SEC1).
+    Files { cert: PathBuf, key: PathBuf },
+    /// `tls = "off"`: plain HTTP; refused off loopback unless
+    /// `plain_http_beyond_loopback = true` (a TLS proxy in front).
+    Off,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -206,6 +243,42 @@ pub struct ServiceConfig {
     /// request; see `serve.rs` for the policy. Keep it well below the process's open-file
     /// limit (`LimitNOFILE` in the systemd unit).
     pub max_connections: usize,
+    /// HTTPS or plain HTTP (`tls`, `tls_cert_file`, `tls_key_file`).
+    pub tls: TlsSource,
+    /// `tls_names`: host names and addresses put in a self-signed certificate besides
+    /// localhost, 127.0.0.1, ::1 and the listening address.
+    pub tls_names: Vec<String>,
+    /// `plain_http_beyond_loopback` (default false): `tls = "off"` on an address other
+    /// than loopback, for a box behind a TLS reverse proxy.
+    pub plain_http_beyond_loopback: bool,
+}
+
+impl ServiceConfig {
+    /// Plain HTTP is served on loopback only, unless BOX.toml says otherwise: the bearer
+    /// token would cross the plant's network in clear.
+    pub fn check_plain_http(&self) -> Result<(), String> {
+        if self.tls == TlsSource::Off
+            && !self.listen.ip().is_loopback()
+            && !self.plain_http_beyond_loopback
+        {
+            return Err(format!(
+                "\"off\" would serve plain HTTP on {} (not loopback): the token \
+                 would cross the network in clear. Use tls = \"self-signed\" (the default) or \
+                 \"files\", listen on 127.0.0.1, or set service.plain_http_beyond_loopback = \
+                 true when a TLS proxy is in front",
+                self.listen
+            ));
+        }
+        Ok(())
+    }
+
+    /// `https` or `http`.
+    pub fn scheme(&self) -> &'static str {
+        match self.tls {
+            TlsSource::Off => "http",
+            _ => "https",
+        }
+    }
 }
 
 /// BOX.toml, resolved.
@@ -279,6 +352,43 @@ impl BoxConfig {
             ));
         }
         let data_dir = resolve(&raw.service.data_dir);
+        let tls = match (
+            raw.service.tls,
+            &raw.service.tls_cert_file,
+            &raw.service.tls_key_file,
+        ) {
+            (TlsMode::Files, Some(cert), Some(key)) => TlsSource::Files {
+                cert: resolve(cert),
+                key: resolve(key),
+            },
+            (TlsMode::Files, cert, _) => {
+                let missing = if cert.is_none() {
+                    "service.tls_cert_file"
+                } else {
+                    "service.tls_key_file"
+                };
+                return Err(invalid(
+                    missing.into(),
+                    "tls = \"files\" needs tls_cert_file and tls_key_file (PEM)".into(),
+                ));
+            }
+            (mode, cert, key) => {
+                if let Some(key_name) = [(cert, "tls_cert_file"), (key, "tls_key_file")]
+                    .iter()
+                    .find_map(|(v, k)| v.is_some().then_some(*k))
+                {
+                    return Err(invalid(
+                        format!("service.{key_name}"),
+                        "is used with tls = \"files\" only".into(),
+                    ));
+                }
+                if mode == TlsMode::Off {
+                    TlsSource::Off
+                } else {
+                    TlsSource::SelfSigned
+                }
+            }
+        };
         let token_file = match &raw.service.token_file {
             Some(p) => resolve(p),
             None => data_dir.join("token"),
@@ -317,7 +427,7 @@ impl BoxConfig {
                 }),
             });
         }
-        Ok(BoxConfig {
+        let config = BoxConfig {
             service: ServiceConfig {
                 listen: raw.service.listen,
                 data_dir,
@@ -329,6 +439,9 @@ impl BoxConfig {
                 header_timeout,
                 idle_timeout,
                 max_connections: raw.service.max_connections,
+                tls,
+                tls_names: raw.service.tls_names,
+                plain_http_beyond_loopback: raw.service.plain_http_beyond_loopback,
             },
             machines,
             mqtt: match raw.mqtt {
@@ -343,7 +456,16 @@ impl BoxConfig {
                     Some(mqtt)
                 }
             },
-        })
+        };
+        config
+            .service
+            .check_plain_http()
+            .map_err(|m| ConfigError::Invalid {
+                path: name.to_string(),
+                key: "service.tls".into(),
+                message: m,
+            })?;
+        Ok(config)
     }
 
     /// One machine "demo" on the embedded demo job, listening on 127.0.0.1:0, no MQTT.
@@ -360,6 +482,11 @@ impl BoxConfig {
                 header_timeout: Duration::from_secs_f64(default_header_timeout_s()),
                 idle_timeout: Duration::from_secs_f64(default_idle_timeout_s()),
                 max_connections: default_max_connections(),
+                // Loopback: plain HTTP is allowed (the tests' clients and the page test
+                // set `tls` when they mean HTTPS).
+                tls: TlsSource::Off,
+                tls_names: Vec::new(),
+                plain_http_beyond_loopback: false,
             },
             machines: vec![MachineConfig {
                 id: "demo".into(),
@@ -407,6 +534,7 @@ mod tests {
             )))
         );
         assert!(c.mqtt.is_none());
+        assert_eq!(c.service.tls, TlsSource::SelfSigned);
         assert_eq!(c.service.header_timeout, Duration::from_secs(10));
         assert_eq!(c.service.idle_timeout, Duration::from_secs(60));
         assert_eq!(c.service.max_connections, 1024);
@@ -451,6 +579,49 @@ mod tests {
                 BoxConfig::parse(&format!("{base}{line}\n"), "b.toml", Path::new(".")).unwrap_err();
             assert!(e.to_string().contains(key), "{line}: {e}");
         }
+    }
+
+    /// HTTPS by default, files when named, plain HTTP on loopback only unless allowed;
+    /// every refusal names its key.
+    #[test]
+    fn tls_keys() {
+        let base = "[service]\ndata_dir = \"d\"\n";
+        let parse = |extra: &str| {
+            BoxConfig::parse(&format!("{base}{extra}"), "b.toml", Path::new("/etc/gw"))
+        };
+        let c = parse("").unwrap();
+        assert_eq!(c.service.tls, TlsSource::SelfSigned);
+        assert_eq!(c.service.scheme(), "https");
+        let c = parse("tls = \"files\"\ntls_cert_file = \"c.pem\"\ntls_key_file = \"/k.pem\"\n")
+            .unwrap();
+        assert_eq!(
+            c.service.tls,
+            TlsSource::Files {
+                cert: PathBuf::from("/etc/gw/c.pem"),
+                key: PathBuf::from("/k.pem")
+            }
+        );
+        assert_eq!(parse("tls = \"off\"\n").unwrap().service.scheme(), "http");
+        for (extra, key) in [
+            (
+                "tls = \"files\"\ntls_key_file = \"k\"\n",
+                "service.tls_cert_file",
+            ),
+            (
+                "tls = \"files\"\ntls_cert_file = \"c\"\n",
+                "service.tls_key_file",
+            ),
+            ("tls_key_file = \"k\"\n", "service.tls_key_file"),
+            ("tls = \"on\"\n", "service.tls"),
+            ("listen = \"0.0.0.0:8780\"\ntls = \"off\"\n", "service.tls"),
+        ] {
+            let e = parse(extra).unwrap_err().to_string();
+            assert!(e.contains(key), "{extra}: {e}");
+        }
+        let c =
+            parse("listen = \"0.0.0.0:8780\"\ntls = \"off\"\nplain_http_beyond_loopback = true\n")
+                .unwrap();
+        assert_eq!(c.service.tls, TlsSource::Off);
     }
 
     #[test]

@@ -14,9 +14,11 @@ mod serve;
 pub mod sink;
 pub mod state;
 mod supervise;
+pub mod tls;
 pub mod worker;
 
-pub use config::{BoxConfig, ConfigError, JobSource, MachineConfig, ServiceConfig};
+pub use config::{BoxConfig, ConfigError, JobSource, MachineConfig, ServiceConfig, TlsSource};
+pub use tls::TlsIdentity;
 
 use state::{lock, Machine, MachineState, Shared, Status};
 use std::net::SocketAddr;
@@ -41,11 +43,24 @@ pub struct Running {
     workers: Vec<tokio::sync::oneshot::Receiver<()>>,
     /// The MQTT northbound, when `[mqtt]` is configured.
     northbound: Option<northbound::Northbound>,
+    /// The certificate presented, when serving HTTPS.
+    tls: Option<TlsIdentity>,
 }
 
 impl Running {
     pub fn local_addr(&self) -> SocketAddr {
         self.addr
+    }
+
+    /// The page's address: `https://ADDR/` or, with `tls = "off"`, `http://ADDR/`.
+    pub fn url(&self) -> String {
+        let scheme = if self.tls.is_some() { "https" } else { "http" };
+        format!("{scheme}://{}/", self.addr)
+    }
+
+    /// The certificate served (None: plain HTTP).
+    pub fn tls(&self) -> Option<&TlsIdentity> {
+        self.tls.as_ref()
     }
 
     pub fn token(&self) -> &str {
@@ -173,6 +188,11 @@ fn owner_only(_db: &Path) -> std::io::Result<()> {
 
 /// Starts the service: store, token, workers, HTTP server.
 pub async fn start(config: BoxConfig) -> Result<Running, StartError> {
+    // Checked here too: a config may be built in code, not read from BOX.toml.
+    config
+        .service
+        .check_plain_http()
+        .map_err(|m| StartError::Config(format!("service.tls: {m}")))?;
     let data_dir = &config.service.data_dir;
     std::fs::create_dir_all(data_dir).map_err(io(format!("data_dir {}", data_dir.display())))?;
     let db = data_dir.join("gateway.sqlite");
@@ -185,6 +205,18 @@ pub async fn start(config: BoxConfig) -> Result<Running, StartError> {
         info!(job_id = job.id, machine = %job.machine, "job was running when the service stopped: interrupted");
     }
     let token = load_or_create_token(&config.service.token_file)?;
+    let tls = match &config.service.tls {
+        TlsSource::Off => None,
+        source => Some(
+            tls::load(
+                source,
+                data_dir,
+                &config.service.tls_names,
+                config.service.listen,
+            )
+            .map_err(StartError::Config)?,
+        ),
+    };
 
     let mut machines = Vec::new();
     for m in &config.machines {
@@ -268,7 +300,13 @@ pub async fn start(config: BoxConfig) -> Result<Running, StartError> {
         idle_timeout: config.service.idle_timeout,
         max_connections: config.service.max_connections,
     };
-    let server = tokio::spawn(serve::serve(listener, app, limits, shutdown.clone()));
+    let server = tokio::spawn(serve::serve(
+        listener,
+        app,
+        limits,
+        tls.as_ref().map(|t| t.config.clone()),
+        shutdown.clone(),
+    ));
     // Each machine has its own thread and single-threaded runtime: the runner's
     // futures are not `Send`, device emulators and bus tasks live on the runtime that
     // opened them, and a busy machine never slows the API down.
@@ -293,6 +331,18 @@ pub async fn start(config: BoxConfig) -> Result<Running, StartError> {
             .map_err(io("machine worker thread"))?;
         workers.push(finished);
     }
+    let tls = tls.map(|t| t.identity);
+    match &tls {
+        Some(id) => info!(
+            url = %format!("https://{addr}/"),
+            certificate = %id.cert_file.display(),
+            made_now = id.made_now,
+            sha256 = %id.cert_sha256,
+            spki_sha256 = %id.spki_sha256_base64,
+            "HTTPS: before typing the token, check that the browser shows this certificate's SHA-256 fingerprint"
+        ),
+        None => info!(url = %format!("http://{addr}/"), "plain HTTP (service.tls = \"off\")"),
+    }
     info!(%addr, machines = config.machines.len(), "service listening");
     Ok(Running {
         addr,
@@ -302,5 +352,6 @@ pub async fn start(config: BoxConfig) -> Result<Running, StartError> {
         server,
         workers,
         northbound,
+        tls,
     })
 }

@@ -78,8 +78,10 @@ pub(crate) async fn serve(
     listener: TcpListener,
     app: Router,
     limits: Limits,
+    tls: Option<Arc<rustls::ServerConfig>>,
     mut shutdown: watch::Receiver<bool>,
 ) {
+    let tls = tls.map(tokio_rustls::TlsAcceptor::from);
     warn_if_few_descriptors(limits.max_connections);
     let registry = Arc::new(Registry {
         conns: Mutex::new(HashMap::new()),
@@ -105,7 +107,7 @@ pub(crate) async fn serve(
                     };
                     let _ = stream.set_nodelay(true);
                     let io = Tracked { stream, conn: conn.clone(), registry: registry.clone() };
-                    tasks.spawn(connection(io, peer, conn, app.clone(), limits, stop.clone()));
+                    tasks.spawn(open_connection(io, peer, conn, app.clone(), limits, tls.clone(), stop.clone()));
                 }
                 Err(e) if is_connection_error(&e) => {}
                 Err(e) => {
@@ -406,16 +408,52 @@ impl AsyncWrite for Tracked {
     }
 }
 
-/// One connection, from accept to its end (or to its upgrade: the WebSocket then owns
-/// the socket).
-async fn connection(
+/// An accepted connection: with TLS, its handshake first, which belongs to the *head*
+/// phase (done within `header_timeout` of the accept, else closed; evictable; closed at
+/// shutdown), then the connection as over plain TCP.
+async fn open_connection(
     io: Tracked,
     peer: SocketAddr,
     conn: Arc<Conn>,
     app: Router,
     limits: Limits,
+    tls: Option<tokio_rustls::TlsAcceptor>,
     mut shutdown: watch::Receiver<bool>,
 ) {
+    let Some(acceptor) = tls else {
+        return connection(io, peer, conn, app, limits, shutdown).await;
+    };
+    let deadline = conn.deadline();
+    let closed = async {
+        while !conn.is_closing() {
+            conn.changed.notified().await;
+        }
+    };
+    tokio::select! {
+        handshake = acceptor.accept(io) => match handshake {
+            Ok(stream) => connection(stream, peer, conn, app, limits, shutdown).await,
+            Err(e) => debug!(connection = conn.id, %peer, error = %e, "TLS handshake failed"),
+        },
+        _ = sleep_until(deadline) => {
+            debug!(connection = conn.id, %peer, "closed: no TLS handshake in time");
+        }
+        _ = closed => {}
+        _ = async { let _ = shutdown.wait_for(|s| *s).await; } => {}
+    }
+}
+
+/// One connection, from accept (or its TLS handshake) to its end (or to its upgrade: the
+/// WebSocket then owns the socket).
+async fn connection<Io>(
+    io: Io,
+    peer: SocketAddr,
+    conn: Arc<Conn>,
+    app: Router,
+    limits: Limits,
+    mut shutdown: watch::Receiver<bool>,
+) where
+    Io: AsyncRead + AsyncWrite + Unpin + Send + 'static,
+{
     let service = ConnService {
         app,
         peer,
@@ -750,7 +788,7 @@ mod tests {
             idle_timeout: Duration::from_secs(60),
             max_connections: 4,
         };
-        let server = tokio::spawn(serve(listener, app, limits, shutdown));
+        let server = tokio::spawn(serve(listener, app, limits, None, shutdown));
         let answer = reqwest::get(format!("http://{addr}/peer")).await.unwrap();
         assert_eq!(answer.status(), 200);
         let peer: SocketAddr = answer.text().await.unwrap().parse().unwrap();
@@ -814,6 +852,38 @@ mod tests {
         assert_eq!(other.status(), StatusCode::OK);
     }
 
+    /// A connection that never starts its TLS handshake is closed at `header_timeout`
+    /// of its accept (the clock is tokio's paused one: no wall time is waited).
+    #[tokio::test(start_paused = true)]
+    async fn a_tls_handshake_never_begun_is_closed_at_the_header_timeout() {
+        use tokio::io::AsyncReadExt;
+        let dir = tempfile::tempdir().unwrap();
+        let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = listener.local_addr().unwrap();
+        let tls =
+            crate::tls::load(&crate::config::TlsSource::SelfSigned, dir.path(), &[], addr).unwrap();
+        let app = Router::new().route("/", get(|| async { "ok" }));
+        let (stop, shutdown) = watch::channel(false);
+        let limits = Limits {
+            header_timeout: Duration::from_secs(10),
+            idle_timeout: Duration::from_secs(60),
+            max_connections: 1,
+        };
+        let server = tokio::spawn(serve(listener, app, limits, Some(tls.config), shutdown));
+        let opened = Instant::now();
+        let mut silent = TcpStream::connect(addr).await.unwrap();
+        let mut answer = Vec::new();
+        let _ = silent.read_to_end(&mut answer).await;
+        assert!(answer.is_empty());
+        let waited = Instant::now() - opened;
+        assert!(
+            waited >= Duration::from_secs(10) && waited < Duration::from_secs(11),
+            "{waited:?}"
+        );
+        let _ = stop.send(true);
+        server.await.unwrap();
+    }
+
     /// A request whose body stops arriving is answered 408 `body_timeout` when its
     /// deadline passes (the clock is tokio's paused one: no wall time is waited).
     #[tokio::test(start_paused = true)]
@@ -831,7 +901,7 @@ mod tests {
             idle_timeout: Duration::from_secs(60),
             max_connections: 4,
         };
-        let server = tokio::spawn(serve(listener, app, limits, shutdown));
+        let server = tokio::spawn(serve(listener, app, limits, None, shutdown));
         let mut client = TcpStream::connect(addr).await.unwrap();
         client
             .write_all(b"POST /upload HTTP/1.1\r\nhost: x\r\ncontent-length: 100\r\n\r\nabc")

@@ -150,7 +150,7 @@ impl Shared {
     /// The job's event; a final one wakes the northbound for the outbox. Reads the
     /// store: never call it while holding the store's lock (it is not re-entrant).
     pub fn emit_job(&self, job: &JobRecord) {
-        self.emit(json!({"type": "job", "job": job}));
+        self.emit(json!({"type": "job", "job": light_job(job)}));
         if job.state.is_final() {
             self.outbox_ready.notify_one();
         }
@@ -208,6 +208,18 @@ impl Shared {
         self.emit_machine(m);
         self.publish_states();
     }
+}
+
+/// A job as lists and events carry it: without its `params` and `result`, which can be
+/// megabytes (a layout job carries its file and the shifted layout); `GET
+/// /api/v1/jobs/{id}` has them.
+pub fn light_job(record: &JobRecord) -> Value {
+    let mut v = serde_json::to_value(record).unwrap_or(Value::Null);
+    if let Some(o) = v.as_object_mut() {
+        o.remove("params");
+        o.remove("result");
+    }
+    v
 }
 
 #[cfg(test)]

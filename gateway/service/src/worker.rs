@@ -22,6 +22,9 @@ use store::{JobRecord, Outcome, ProfileKind, ProfileRef};
 use tokio::sync::Notify;
 use tracing::{info, info_span, warn, Instrument};
 
+/// A cancelled job's `error` when the service's shutdown stopped it.
+pub const SHUTDOWN_REASON: &str = "the service was shut down while it ran (SIGTERM or a restart)";
+
 /// How long a cancelled procedure may take to stop by itself before it is dropped.
 pub const CANCEL_GRACE: Duration = Duration::from_secs(5);
 
@@ -154,7 +157,11 @@ fn to_store(outcome: procedure::Outcome, sink: StoreSink) -> (Outcome, Option<St
             result,
             metrics,
         },
-        End::Cancelled => Outcome::Cancelled { result, metrics },
+        End::Cancelled => Outcome::Cancelled {
+            reason: None,
+            result,
+            metrics,
+        },
     };
     (stored, outcome.link_lost)
 }
@@ -244,6 +251,7 @@ async fn run_one(
             let _ = devices.stage.stop().await;
             (
                 Outcome::Cancelled {
+                    reason: None,
                     result: None,
                     metrics: Map::new(),
                 },
@@ -255,6 +263,14 @@ async fn run_one(
         }
     };
     *machine.cancel.lock().unwrap_or_else(|p| p.into_inner()) = None;
+    // Stopped by the service's shutdown (SIGTERM), not by a Cancel: the record says so,
+    // so the page can say what happened and that a scan can be resumed.
+    let mut outcome = outcome;
+    if let Outcome::Cancelled { reason, .. } = &mut outcome {
+        if reason.is_none() && *shared.shutdown.borrow() {
+            *reason = Some(SHUTDOWN_REASON.into());
+        }
+    }
     let finished = lock(&shared.store).finish(id, outcome);
     match finished {
         Ok(r) => {

@@ -197,6 +197,9 @@ pub enum Outcome {
         metrics: Map<String, Value>,
     },
     Cancelled {
+        /// Why it was stopped, kept as the job's `error` ("the service was shut down
+        /// while it ran"); None: on request.
+        reason: Option<String>,
         result: Option<Value>,
         metrics: Map<String, Value>,
     },
@@ -515,7 +518,11 @@ impl Store {
                 result,
                 metrics,
             } => (JobState::Failed, Some(error), result, metrics),
-            Outcome::Cancelled { result, metrics } => (JobState::Cancelled, None, result, metrics),
+            Outcome::Cancelled {
+                reason,
+                result,
+                metrics,
+            } => (JobState::Cancelled, reason, result, metrics),
         };
         let tx = self.connection.transaction()?;
         let machine = expect_state(&tx, id, JobState::Running, state)?;

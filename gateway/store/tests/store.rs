@@ -121,12 +121,17 @@ fn failed_and_cancelled_running_jobs_keep_error_and_partial_result() {
         .finish(
             cancelled,
             Outcome::Cancelled {
+                reason: Some("the service was shut down while it ran".into()),
                 result: Some(json!({"points_done": 1})),
                 metrics: Map::new(),
             },
         )
         .unwrap();
     assert_eq!(job.state, JobState::Cancelled);
+    assert_eq!(
+        job.error.as_deref(),
+        Some("the service was shut down while it ran")
+    );
     assert_eq!(job.result, Some(json!({"points_done": 1})));
     // Every finish writes its outbox row.
     assert_eq!(store.outbox_pending(10).unwrap().len(), 2);
@@ -589,6 +594,7 @@ fn restart_turns_running_jobs_into_interrupted_keeping_measurements() {
         store.finish(
             running,
             Outcome::Cancelled {
+                reason: None,
                 result: None,
                 metrics: Map::new()
             }

@@ -7,7 +7,7 @@
 const path = require('path');
 const { chromium } = require(path.join(__dirname, 'node_modules', 'playwright-core'));
 
-const [base, token, mapParams, userDataDir] = process.argv.slice(2);
+const [base, token, mapParams, userDataDir, spki] = process.argv.slice(2);
 const LONG_MS = 30 * 60 * 1000;
 
 const stats = (values) => {
@@ -22,7 +22,9 @@ async function main() {
     executablePath: '/usr/bin/chromium',
     headless: true,
     args: ['--headless', '--no-sandbox', '--disable-gpu', '--no-first-run',
-      '--disable-background-networking', '--disable-component-update', '--disable-sync'],
+      '--disable-background-networking', '--disable-component-update', '--disable-sync',
+      // HTTPS with the box's self-signed pair: its public key trusted (SPKI pin).
+      ...(spki ? [`--ignore-certificate-errors-spki-list=${spki}`] : [])],
     viewport: { width: 1280, height: 1600 },
   });
   const page = context.pages()[0] || await context.newPage();

@@ -252,6 +252,74 @@ async function queueWalk(page, spec) {
 // Every job kind started from its form: the job succeeds, its detail shows its result
 // table and (when the kind draws one) its chart, and a screenshot is kept per kind.
 // spec: {"screenshots": DIR, "jobs": [{"kind", "params", "chart": bool, "activate": NAME}]}
+// What a chart (an SVG of the API, fetched with the token) puts where, measured by the
+// browser's own layout of it (getBBox, in the SVG's pixels):
+// - legend: its entries (texts of "mean up/down" and the bands' line, each with the 30 px
+//   line sample on its left), how many data points (circles) any entry covers, and
+//   whether every entry is inside the picture;
+// - heat map: its arrows (strokes #141414) outside the plot (the union of the cells, the
+//   colour bar's 90 px strip on the right left out), the arrow-length scale's arrows and
+//   text in that strip, and the numbers written at the colour bar's top and bottom;
+// - units: the axis titles that carry a unit in brackets or after a comma.
+async function chartGeometry(page, url) {
+  return page.evaluate(async ([url, t]) => {
+    const text = await (await fetch(url, { headers: { Authorization: 'Bearer ' + t } })).text();
+    const holder = document.createElement('div');
+    holder.style.position = 'absolute';
+    holder.style.visibility = 'hidden';
+    holder.innerHTML = text;
+    document.body.append(holder);
+    try {
+      const svg = holder.querySelector('svg');
+      const W = svg.width.baseVal.value;
+      const H = svg.height.baseVal.value;
+      const box = (e) => { const b = e.getBBox(); return { x: b.x, y: b.y, w: b.width, h: b.height }; };
+      const hit = (a, b) => a.x < b.x + b.w && b.x < a.x + a.w && a.y < b.y + b.h && b.y < a.y + a.h;
+      const inside = (a, b, slack) => a.x >= b.x - slack && a.y >= b.y - slack &&
+        a.x + a.w <= b.x + b.w + slack && a.y + a.h <= b.y + b.h + slack;
+      const texts = [...svg.querySelectorAll('text')].map((e) => ({ ...box(e), text: e.textContent.trim() }));
+      const result = { width: W, height: H };
+      result.units = texts.filter((e) => /\((mm|µm)\)$|, µm$/.test(e.text)).map((e) => e.text);
+      const legend = texts.filter((e) => /mean (up|down)|^thin lines/.test(e.text))
+        .map((e) => ({ x: e.x - 30, y: e.y, w: e.w + 30, h: e.h }));
+      const points = [...svg.querySelectorAll('circle')].map(box);
+      result.legend = {
+        entries: legend.length,
+        points: points.length,
+        covered: points.filter((p) => legend.some((l) => hit(l, p))).length,
+        inside: legend.every((l) => inside(l, { x: 0, y: 0, w: W, h: H }, 0)),
+      };
+      const strip = W - 90;
+      const rects = [...svg.querySelectorAll('rect')].map(box).filter((r) => r.w < W || r.h < H);
+      const cells = rects.filter((r) => r.x + r.w <= strip + 0.5);
+      const bar = rects.filter((r) => r.x >= strip);
+      if (cells.length && bar.length) {
+        const union = (bs) => {
+          const x = Math.min(...bs.map((b) => b.x)); const y = Math.min(...bs.map((b) => b.y));
+          return { x, y, w: Math.max(...bs.map((b) => b.x + b.w)) - x, h: Math.max(...bs.map((b) => b.y + b.h)) - y };
+        };
+        const plot = union(cells);
+        const strokes = [...svg.querySelectorAll('[stroke="#141414"]')].map(box);
+        const arrows = strokes.filter((a) => a.x < strip);
+        const barBox = union(bar);
+        const near = (y) => texts.filter((e) => e.x >= barBox.x + barBox.w - 1 && Math.abs(e.y + e.h / 2 - y) <= 12)
+          .map((e) => e.text);
+        result.heatmap = {
+          arrows: arrows.length,
+          arrows_outside_plot: arrows.filter((a) => !inside(a, plot, 0.5)).length,
+          scale_arrow: strokes.length - arrows.length,
+          scale_text: (texts.find((e) => /^arrow [0-9.]+ µm$/.test(e.text)) || {}).text || null,
+          bar_top: near(barBox.y),
+          bar_bottom: near(barBox.y + barBox.h),
+        };
+      }
+      return result;
+    } finally {
+      holder.remove();
+    }
+  }, [url, token]);
+}
+
 async function kindsWalk(page, spec) {
   const results = [];
   for (const job of spec.jobs) {
@@ -280,6 +348,11 @@ async function kindsWalk(page, spec) {
       }, null, { timeout: UI_TIMEOUT_MS });
     }
     seen.charts = await page.$$eval('#job-charts img[data-chart]', (imgs) => imgs.map((i) => i.dataset.chart));
+    seen.chart_geometry = {};
+    for (const name of seen.charts) {
+      seen.chart_geometry[name] = await chartGeometry(page,
+        `/api/v1/jobs/${id}/charts/${encodeURIComponent(name)}.svg`);
+    }
     seen.raw_collapsed = await page.$eval('#job-raw', (d) => !d.open);
     // The raw record is only under the developer view.
     seen.raw_hidden = await page.$eval('#job-raw', (d) => getComputedStyle(d).display === 'none');
@@ -307,6 +380,9 @@ async function kindsWalk(page, spec) {
       await page.locator(`#profile-rows tr[data-profile="${job.activate}"][data-version="${version}"][data-active="true"]`)
         .waitFor({ timeout: UI_TIMEOUT_MS });
       seen.activated = version;
+      // Its heat map as the page shows it (drawn from the map).
+      seen.heatmap_geometry = await chartGeometry(page, `/api/v1/machines/${encodeURIComponent(machine)}` +
+        `/profiles/${encodeURIComponent(job.activate)}/${version}/heatmap.svg`);
     }
     step('kind walked', { kind: job.kind, id });
   }
@@ -357,6 +433,31 @@ async function formWalk(page) {
       throw new Error('a refused upload started a job');
     }
     step('uploads refused', out.upload_errors);
+
+    // Every other form (each registered kind the page offers): a word in each of its
+    // number fields, then Start: every one of them is refused at once, beside its field
+    // and in the list above Start, and nothing is queued.
+    out.other_forms = [];
+    const kinds = await page.$$eval('#job-kind option', (options) => options.map((o) => o.value));
+    for (const kind of kinds.filter((k) => k !== 'map')) {
+      await page.selectOption('#job-kind', kind);
+      const numbers = await page.$$eval('#job-fields input[inputmode="numeric"], #job-fields input[inputmode="decimal"]',
+        (inputs) => inputs.map((i) => i.dataset.fieldInput));
+      if (numbers.length === 0) continue;
+      for (const name of numbers) await page.fill(`#field-${name}`, 'many');
+      await page.click('#start-job');
+      await page.locator('#form-errors li').first().waitFor({ timeout: UI_TIMEOUT_MS });
+      out.other_forms.push({
+        kind,
+        bad: numbers,
+        marked: await page.$$eval('.field-error:not(:empty)', (spans) => spans.map((s) => s.dataset.fieldError)),
+        listed: await page.locator('#form-errors li').count(),
+      });
+    }
+    if (await page.locator('#history-rows tr[data-job-id]').count() !== 0) {
+      throw new Error('a form with bad values started a job');
+    }
+    step('other forms refused', out.other_forms.map((f) => f.kind));
     await page.selectOption('#job-kind', 'map');
 
 }
@@ -366,12 +467,17 @@ async function main() {
     executablePath: '/usr/bin/chromium',
     headless: true,
     args: ['--headless', '--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run',
-      '--disable-background-networking', '--disable-component-update', '--disable-sync'],
+      '--disable-background-networking', '--disable-component-update', '--disable-sync',
+      // HTTPS with the box's self-signed certificate: only its public key is trusted (the
+      // pin the service logs), as an operator who checked its fingerprint would.
+      ...(walks.spki ? [`--ignore-certificate-errors-spki-list=${walks.spki}`] : [])],
     viewport: DESKTOP,
   });
   const page = context.pages()[0] || await context.newPage();
   const pageErrors = [];
   page.on('pageerror', (error) => pageErrors.push(String(error)));
+  out.tls = {};
+  page.on('websocket', (ws) => { out.tls.socket = out.tls.socket || new URL(ws.url()).protocol; });
   // Activation asks the operator first; the question is kept to check it names the machine.
   out.dialogs = [];
   page.on('dialog', (dialog) => { out.dialogs.push(dialog.message()); dialog.accept(); });
@@ -394,6 +500,8 @@ async function main() {
     await page.locator('#connection[data-state="open"]').waitFor({ timeout: UI_TIMEOUT_MS });
     // The token left the address bar and sits in sessionStorage.
     out.url_after_load = page.url();
+    out.tls.protocol = await page.evaluate(() => location.protocol);
+    out.tls.secure_context = await page.evaluate(() => window.isSecureContext);
     if (page.url().includes(token)) throw new Error('the token is still in the address bar');
     if (await page.evaluate(() => sessionStorage.getItem('gateway.token')) !== token) {
       throw new Error('the token is not in sessionStorage');
