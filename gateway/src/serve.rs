@@ -22,9 +22,17 @@ pub fn serve(config_path: &Path) -> anyhow::Result<ExitCode> {
     rt.block_on(async {
         let running = service::start(config).await?;
         eprintln!(
-            "gateway service on http://{} (token in the token file)",
-            running.local_addr()
+            "gateway service on {} (token in the token file)",
+            running.url()
         );
+        if let Some(tls) = running.tls() {
+            // What the operator compares with the browser's certificate viewer.
+            eprintln!(
+                "certificate {} SHA-256 {}",
+                tls.cert_file.display(),
+                tls.cert_sha256
+            );
+        }
         wait_for_stop_signal().await?;
         tracing::info!("stop signal: stopping running jobs safely");
         running.shutdown().await;

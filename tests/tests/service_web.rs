@@ -94,6 +94,7 @@ fn kind_jobs() -> serde_json::Value {
         {"id": "c", "contours": [[[24, 5], [34, 5], [34, 15], [24, 15]]]},
     ]})
     .to_string();
+    let model = corpus("volumetric_model/xyfz_identified.vol.csv");
     serde_json::json!([
         {"kind": "compensate", "params": {"targets": 1}, "chart": false},
         {"kind": "iso230", "params": {"axis": "X", "positions": 5, "runs": 5}, "chart": true},
@@ -113,7 +114,54 @@ fn kind_jobs() -> serde_json::Value {
             "chart": true},
         {"kind": "rotary-rewrite", "params": {"program": corpus("rotary_rewrite/program.nc"),
             "errors": corpus("rotary_errors/measured.json")}, "chart": false},
+        {"kind": "cut", "params": {"partition.layout": {"name": "three.json", "text": layout},
+            "partition.tools": 2, "partition.window_mm": "25,0", "partition.gap_mm": "1,5"},
+            "chart": false},
+        {"kind": "volumetric-campaign", "params": {"seed": 2}, "chart": false},
+        {"kind": "volumetric-identify", "params": volumetric_campaign(), "chart": false},
+        {"kind": "volumetric-eval", "params": {"model": model.clone(),
+            "points": {"name": "points.csv", "text": "x_mm,y_mm,z_mm\n10,20,30\n"}}, "chart": false},
+        {"kind": "volumetric-contributions", "params": {"model": model.clone(), "grid": 5},
+            "chart": false},
+        {"kind": "volumetric-export-isg", "params": {"model": model}, "chart": false},
+        {"kind": "board-make", "params": {}, "chart": false},
+        {"kind": "localize", "params": {"image": demo_frame([60.25, 40.5]), "near": "60.22; 40.48"},
+            "chart": false},
     ])
+}
+
+/// The emulated machine's campaign as the identify form's uploads (one field per file).
+fn volumetric_campaign() -> serde_json::Value {
+    let mut files = procedure::Collect::default();
+    let request = serde_json::from_value(serde_json::json!({"seed": 2})).unwrap();
+    assert!(procedure::volumetric::simulate_campaign(&request, &mut files).is_success());
+    let mut params = serde_json::json!({"structure": "XYFZ"});
+    for a in files.0 {
+        let field = a.name.trim_end_matches(".csv").to_ascii_lowercase();
+        params[field] = serde_json::json!({"name": a.name,
+            "text": String::from_utf8(a.bytes).unwrap()});
+    }
+    params
+}
+
+/// A frame of the demo machine's board centred on `centre_mm`, as a PNG upload.
+fn demo_frame(centre_mm: [f64; 2]) -> serde_json::Value {
+    use base64::Engine;
+    let ws = workspace();
+    let board = protocol::Board::load(&ws.join("config/boards/dot-grid-0.5mm.toml")).unwrap();
+    let doc =
+        protocol::config::ConfigDoc::read(&ws.join("config/cameras/mono-1.3mp.toml")).unwrap();
+    let camera = world::camera::CameraModel::from_doc(&doc).unwrap();
+    let pose = world::camera::CameraPose {
+        centre_mm,
+        rotation_rad: 0.0,
+    };
+    let frame = world::render::render(&board, &camera, &pose, 3);
+    let png = fresh_dir(ws.join("target/tmp/service-web-frame")).join("frame.png");
+    vision::image_io::save_png(&frame.image, &png).unwrap();
+    let bytes = std::fs::read(&png).unwrap();
+    serde_json::json!({"name": "frame.png",
+        "base64": base64::engine::general_purpose::STANDARD.encode(bytes)})
 }
 
 /// A fuzz corpus file as a file the page uploads (`{name, text}`).

@@ -732,7 +732,9 @@ fn default_knife_feed() -> f64 {
 #[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct CutRequest {
+    /// The layout and how it is partitioned (as a `layout` job's).
     #[cfg_attr(feature = "cli", command(flatten))]
+    #[schema(inline)]
     pub partition: LayoutRequest,
     /// The conveyor's controller (its X axis feeds the material); with a head's for
     /// each tool, in lane order. Default: the emulated cutter.

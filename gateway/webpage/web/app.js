@@ -1176,7 +1176,7 @@ function fieldInput(name, spec, required, kind) {
     // A file's text (a layout, a program, a measurements file), or a picture sent as
     // base64 (`byte`: a frame to localize): checked when chosen; a layout's extension
     // sets the `format` field.
-    const accept = name === 'layout' ? '.json,.dxf,.svg' : spec.format === 'byte' ? '.png,image/png' : undefined;
+    const accept = leafOf(name) === 'layout' ? '.json,.dxf,.svg' : spec.format === 'byte' ? '.png,image/png' : undefined;
     const input = el('input', { ...common, type: 'file', accept });
     input.addEventListener('change', () => checkUpload(input, name, spec, kind));
     return input;
@@ -1211,12 +1211,12 @@ async function checkUpload(input, name, spec, kind) {
     return;
   }
   const ext = file.name.includes('.') ? file.name.split('.').pop().toLowerCase() : '';
-  const layout = name === 'layout';
+  const layout = leafOf(name) === 'layout';
   // A field that says how messages name the file (`program_name` for `program`) takes
   // the chosen file's name.
   const named = document.getElementById('field-' + name + '_name');
   if (named) named.value = file.name;
-  const format = document.getElementById('field-format'); // built with the form
+  const format = document.getElementById('field-' + name.slice(0, -leafOf(name).length) + 'format'); // built with the form
   if (layout && format && LAYOUT_FORMATS.includes(ext)) format.value = ext;
   help.textContent = file.name + ', ' + fmtNumber(file.size / 1024, '') + ' kB';
   const problem = spec.format === 'byte' ? await pictureProblem(file) : await uploadProblem(file, ext, layout);
@@ -1262,18 +1262,40 @@ function fieldHelp(kind, name, spec) {
   return text + (range ? ' (' + range + ')' : '');
 }
 
+// A schema's fields, those of a nested object (a cut's `partition`) named by their path
+// (`partition.tools`): [name, schema, required].
+function formFields(schema, prefix = '') {
+  const required = new Set((schema && schema.required) || []);
+  return Object.entries((schema && schema.properties) || {}).flatMap(([name, prop]) =>
+    prop.type === 'object' && prop.properties ? formFields(prop, prefix + name + '.')
+      : [[prefix + name, prop, required.has(name)]]);
+}
+
+// `{'partition.tools': 2}` as `{partition: {tools: 2}}`.
+function nested(flat) {
+  const out = {};
+  for (const [path, value] of Object.entries(flat)) {
+    const keys = path.split('.');
+    let at = out;
+    for (const k of keys.slice(0, -1)) at = at[k] = at[k] || {};
+    at[keys[keys.length - 1]] = value;
+  }
+  return out;
+}
+
+const leafOf = (name) => name.split('.').pop();
+
 function renderForm() {
   const kind = $('job-kind').value;
   const schema = view.schemas[kind];
   $('job-kind-help').textContent = schema ? KIND_HELP[kind] || cleanHelp(schema.description) : '';
   $('form-errors').replaceChildren();
-  const required = new Set((schema && schema.required) || []);
-  const rows = Object.entries((schema && schema.properties) || {}).map(([name, prop]) => {
+  const rows = formFields(schema).map(([name, prop, required]) => {
     const spec = fieldSpec(prop);
     const unit = unitOf(name);
     return el('div', { class: 'field', 'data-field': name, 'data-type': spec.type || 'string' },
-      el('label', { for: 'field-' + name, text: labelOf(name) + (unit ? ' (' + unit + ')' : '') + (required.has(name) ? ' *' : '') }),
-      fieldInput(name, spec, required.has(name), kind),
+      el('label', { for: 'field-' + name, text: labelOf(leafOf(name)) + (unit ? ' (' + unit + ')' : '') + (required ? ' *' : '') }),
+      fieldInput(name, spec, required, kind),
       el('small', { id: 'field-' + name + '-help', class: 'help', text: fieldHelp(kind, name, spec) }),
       el('span', { id: 'field-' + name + '-error', class: 'field-error', 'data-field-error': name }));
   });
@@ -1296,14 +1318,15 @@ function setFieldError(name, message) {
 async function readForm() {
   const kind = $('job-kind').value;
   const schema = view.schemas[kind] || {};
-  const required = new Set(schema.required || []);
   const params = {};
   const errors = {};
+  const fields = new Map(formFields(schema).map(([name, prop, isRequired]) => [name, [prop, isRequired]]));
+  const required = new Set([...fields].filter(([, [, r]]) => r).map(([name]) => name));
   for (const row of $('job-fields').querySelectorAll('.field')) {
     const name = row.dataset.field;
-    const spec = fieldSpec((schema.properties || {})[name] || {});
+    const spec = fieldSpec((fields.get(name) || [{}])[0]);
     const input = row.querySelector('[data-field-input]');
-    const label = labelOf(name);
+    const label = labelOf(leafOf(name));
     const unit = unitOf(name);
     const text = input.type === 'file' ? '' : String(input.value || '').trim();
     if (input.type === 'checkbox') {
@@ -1318,7 +1341,7 @@ async function readForm() {
       }
       const picture = spec.format === 'byte';
       const problem = picture ? await pictureProblem(file)
-        : await uploadProblem(file, file.name.split('.').pop().toLowerCase(), name === 'layout');
+        : await uploadProblem(file, file.name.split('.').pop().toLowerCase(), leafOf(name) === 'layout');
       if (problem) errors[name] = problem;
       else params[name] = picture ? await base64Of(file) : await file.text();
       continue;
@@ -1365,7 +1388,7 @@ async function readForm() {
     errors.clearance_mm = 'Clearance must be at most the gap, ' + fmtNumber(params.gap_mm, 'mm') + ' mm; you entered '
       + fmtNumber(params.clearance_mm, 'mm') + '.';
   }
-  return { params, errors };
+  return { params: nested(params), errors };
 }
 
 function clearFieldErrors() {
@@ -1390,9 +1413,11 @@ function showFormErrors(errors) {
 // An API refusal in the form's words: `params.grid_step_mm: must be ...` -> "Grid step
 // must be ...".
 function apiFieldMessage(field, message) {
-  const name = field.replace(/^params\.?/, '').replace(/\[.*$/, '').split('.')[0];
+  const path = field.replace(/^params\.?/, '').replace(/\[.*$/, '');
+  // The form's field of that path (a nested one: `partition.tools`), else its top.
+  const name = document.querySelector('[data-field="' + CSS.escape(path) + '"]') ? path : path.split('.')[0];
   const text = message.startsWith(field + ': ') ? message.slice(field.length + 2) : message;
-  return { name, text: labelOf(name) + ': ' + text };
+  return { name, text: labelOf(leafOf(name)) + ': ' + text };
 }
 
 async function startJob(event) {

@@ -162,7 +162,10 @@ async function submitForm(page, formKind, params) {
     if (tag === 'SELECT') await input.selectOption(String(value));
     else if (type === 'checkbox') await input.setChecked(Boolean(value));
     else if (type === 'file') {
-      await input.setInputFiles({ name: value.name, mimeType: 'text/plain', buffer: Buffer.from(value.text) });
+      // `{name, text}`, or a picture as `{name, base64}`.
+      const picture = value.base64 !== undefined;
+      await input.setInputFiles({ name: value.name, mimeType: picture ? 'image/png' : 'text/plain',
+        buffer: picture ? Buffer.from(value.base64, 'base64') : Buffer.from(value.text) });
     } else await input.fill(value === null ? '' : String(value));
   }
   await page.click('#start-job');
