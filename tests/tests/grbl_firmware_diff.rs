@@ -556,6 +556,7 @@ fn errors_bad_words_unsupported_commands_and_codes() {
         "G2 X1 F100",                   // no offsets: error:26
         "G91 G2 X0.2 I0.1 R1 F100",     // R with I: error:36 (issue 38)
         "G91 G17 G2 X0.2 I0.1 K1 F100", // offsets take K too in G17: ok
+        "G4 P0",                        // the arc ends before the `$` lines (error:8 while it runs)
         "G90",
         "G4", // no P: error:28
         "M7", // mist not built: error:20

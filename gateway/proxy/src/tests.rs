@@ -488,6 +488,8 @@ fn after_the_senders_homing_the_gateway_references_before_the_next_line() {
             Ok("zero moved (+6.70, -8.29) um".into())
         }),
     });
+    // The greeting of the map as it was, not shown yet when the homing comes first.
+    p.greet("map v1, no reference recorded");
     p.from_sender(b"$H\nG1 X20 Y10 F600\n", 1.0);
     assert_eq!(text(p.take_to_controller()), "$H\n");
     p.from_controller(b"ok\r\n", 2.0);
@@ -522,6 +524,10 @@ fn after_the_senders_homing_the_gateway_references_before_the_next_line() {
     p.from_controller(b"<Idle|MPos:10.010,9.990,0.000|FS:0,0>\r\n", 2.5);
     let sent = text(p.take_to_controller());
     assert!(sent.starts_with("G1 X20.0100 Y9.9900 F600"), "{sent}");
+    // Issue 38: the stale greeting ("no reference recorded") no longer follows the
+    // reference.
+    let told = text(p.take_to_sender());
+    assert!(!told.contains("no reference recorded"), "{told}");
 }
 
 #[test]
