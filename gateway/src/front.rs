@@ -189,11 +189,12 @@ pub fn print(
 }
 
 /// The `--json` result of an outcome: a failure's object carries its `error` (issue 38:
-/// a failed spot check printed a result with zero points and no error).
+/// a failed spot check printed a result with zero points and no error); a result that
+/// names its own error (a compensation report) keeps it.
 fn json_shown(outcome: &Outcome, result: &Value) -> String {
     let mut shown = result.clone();
     if let (Some(object), Some(error)) = (shown.as_object_mut(), outcome.error()) {
-        object.insert("error".into(), error.into());
+        object.entry("error").or_insert_with(|| error.into());
     }
     shown.to_string()
 }
@@ -270,5 +271,10 @@ mod tests {
         let shown: Value =
             serde_json::from_str(&json_shown(&ok, ok.result.as_ref().unwrap())).unwrap();
         assert!(shown.get("error").is_none(), "{shown}");
+        let mut own = Outcome::failed("stopped at target #1");
+        own.result = Some(serde_json::json!({"error": "target #1: the board was not found"}));
+        let shown: Value =
+            serde_json::from_str(&json_shown(&own, own.result.as_ref().unwrap())).unwrap();
+        assert_eq!(shown["error"], "target #1: the board was not found");
     }
 }
