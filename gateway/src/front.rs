@@ -167,7 +167,7 @@ pub fn print(
         anyhow::bail!("{}", outcome.error().unwrap_or("cancelled"));
     };
     let mut shown = if json {
-        result.to_string()
+        json_shown(outcome, result)
     } else {
         text(result)
     };
@@ -186,6 +186,17 @@ pub fn print(
             Ok(ExitCode::FAILURE)
         }
     }
+}
+
+/// The `--json` result of an outcome: a failure's object carries its `error` (issue 38:
+/// a failed spot check printed a result with zero points and no error); a result that
+/// names its own error (a compensation report) keeps it.
+fn json_shown(outcome: &Outcome, result: &Value) -> String {
+    let mut shown = result.clone();
+    if let (Some(object), Some(error)) = (shown.as_object_mut(), outcome.error()) {
+        object.entry("error").or_insert_with(|| error.into());
+    }
+    shown.to_string()
 }
 
 /// Runs the registered procedure `kind` on `request` (checked once here: an error names
@@ -242,4 +253,28 @@ pub fn run_outcome(
     });
     sink.finish();
     Ok(outcome)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_failed_outcomes_json_names_its_error() {
+        let mut failed = Outcome::failed("the spot check found no dot");
+        failed.result = Some(serde_json::json!({"points": []}));
+        let shown: Value =
+            serde_json::from_str(&json_shown(&failed, failed.result.as_ref().unwrap())).unwrap();
+        assert_eq!(shown["error"], "the spot check found no dot");
+        assert_eq!(shown["points"], serde_json::json!([]));
+        let ok = Outcome::succeeded(serde_json::json!({"points": [1]}), Default::default());
+        let shown: Value =
+            serde_json::from_str(&json_shown(&ok, ok.result.as_ref().unwrap())).unwrap();
+        assert!(shown.get("error").is_none(), "{shown}");
+        let mut own = Outcome::failed("stopped at target #1");
+        own.result = Some(serde_json::json!({"error": "target #1: the board was not found"}));
+        let shown: Value =
+            serde_json::from_str(&json_shown(&own, own.result.as_ref().unwrap())).unwrap();
+        assert_eq!(shown["error"], "target #1: the board was not found");
+    }
 }

@@ -505,6 +505,8 @@ mod tests {
             ("[0.2, 0.3]", "[0.2, 0.22]", "board.code.dot_diameters_mm"),
             ("[0.2, 0.3]", "[0.2, 0.45]", "board.code.dot_diameters_mm"),
             ("[0.2, 0.3]", "[-0.2, 0.3]", "board.code.dot_diameters_mm"),
+            // A third value was dropped silently (issue 38).
+            ("[0.2, 0.3]", "[0.2, 0.3, 0.4]", "[0 dot, 1 dot]"),
             (
                 "dot_diameter_mm = 0.25",
                 "dot_diameter_mm = 0.35",

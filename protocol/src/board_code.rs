@@ -112,6 +112,8 @@ pub struct BoardCode {
 pub struct CodeSection {
     pub scheme: String,
     pub seed: u64,
+    /// The whole list is read: a third value is refused, not dropped (issue 38).
+    #[serde(deserialize_with = "crate::config::two_diameters")]
     pub dot_diameters_mm: [f64; 2],
 }
 

@@ -74,12 +74,29 @@ pub fn two_numbers<'de, D: serde::Deserializer<'de>>(d: D) -> Result<[f64; 2], D
     <Xy as serde::Deserialize>::deserialize(d).map(|Xy(xy)| xy)
 }
 
+/// [`two_numbers`] for an optional field (`#[serde(default, deserialize_with = ..)]`).
+pub fn optional_two_numbers<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> Result<Option<[f64; 2]>, D::Error> {
+    two_numbers(d).map(Some)
+}
+
+/// Two diameters (`[0 dot, 1 dot]` of a coded board), the whole list read as [`Xy`].
+pub fn two_diameters<'de, D: serde::Deserializer<'de>>(d: D) -> Result<[f64; 2], D::Error> {
+    exactly_two(d, "two numbers, [0 dot, 1 dot] diameters in mm")
+}
+
+fn exactly_two<'de, D: serde::Deserializer<'de>>(
+    d: D,
+    what: &'static str,
+) -> Result<[f64; 2], D::Error> {
+    let v = <Vec<f64> as serde::Deserialize>::deserialize(d)?;
+    <[f64; 2]>::try_from(v.as_slice()).map_err(|_| serde::de::Error::invalid_length(v.len(), &what))
+}
+
 impl<'de> serde::Deserialize<'de> for Xy {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        let v = Vec::<f64>::deserialize(d)?;
-        <[f64; 2]>::try_from(v.as_slice())
-            .map(Xy)
-            .map_err(|_| serde::de::Error::invalid_length(v.len(), &"two numbers, [x, y] in mm"))
+        exactly_two(d, "two numbers, [x, y] in mm").map(Xy)
     }
 }
 

@@ -414,6 +414,7 @@ fn e_line(e: &mut TtyClient, l: &str) {
 fn normalise(answer: &str, counters_known: bool) -> String {
     answer
         .split_inclusive('\n')
+        .filter(|l| !sim_percent_debug(l.trim_end()))
         .map(|l| {
             let t = l.trim_end();
             if !is_status(t) {
@@ -446,6 +447,14 @@ fn normalise(answer: &str, counters_known: bool) -> String {
             s
         })
         .collect()
+}
+
+/// grbl-sim prints its clock (`masterclock sim_time`, serial.c: "debugging") on the
+/// serial line for every `%` byte it receives; GRBL itself never sends such a line.
+fn sim_percent_debug(l: &str) -> bool {
+    l.split_once(' ').is_some_and(|(ticks, time)| {
+        ticks.parse::<u64>().is_ok() && time.parse::<f64>().is_ok() && time.contains('.')
+    })
 }
 
 /// The machine position in a status report.
@@ -547,6 +556,7 @@ fn errors_bad_words_unsupported_commands_and_codes() {
         "G2 X1 F100",                   // no offsets: error:26
         "G91 G2 X0.2 I0.1 R1 F100",     // R with I: error:36 (issue 38)
         "G91 G17 G2 X0.2 I0.1 K1 F100", // offsets take K too in G17: ok
+        "G4 P0",                        // the arc ends before the `$` lines (error:8 while it runs)
         "G90",
         "G4", // no P: error:28
         "M7", // mist not built: error:20
@@ -827,6 +837,77 @@ fn changing_steps_per_mm_keeps_the_step_count() {
     p.line("$100=250");
     p.status("back to 250");
     p.finish("steps per mm");
+}
+
+/// G-code constructs GRBL's line filter decides (issue 38: `%`, spaces inside a number,
+/// an unclosed `(`, `/` mid-line): the firmware's answer and where it went, the
+/// emulator's (compared as every case), and what the rewriters make of the same line
+/// (`rewrite::dialect::read_line`, which the program rewrite and the pass-through both
+/// use; the code the pass-through answers is `proxy::refusal_code`): refused with the
+/// firmware's code, or accepted with the firmware's target.
+#[test]
+fn gcode_constructs_are_read_by_rewrite_and_proxy_as_the_firmware_reads_them() {
+    let mut p = Pair::start();
+    let mut gateway = protocol::grbl::gcode::Interpreter::new();
+    for l in [
+        "%",
+        "%G0 X1",
+        "  % end",
+        "G0 X1 0",
+        "G0 X2 (an unclosed comment",
+        "(only an unclosed comment",
+        "G0 X3 / Y1",
+        "/G0 Y2",
+        "G0 X0 (a;b) Y0",
+        "G0 X1 ( Y5",
+        "G0 X 4",
+        "G0 X- 0 . 5",
+        "G0 X0 Y0",
+    ] {
+        p.line(l);
+        let firmware = p.cases.last().expect("a case").firmware.clone();
+        let gateway_answer = match rewrite::dialect::read_line(&mut gateway, l, 1) {
+            Ok(_) => "ok".to_string(),
+            Err(e) => format!("error:{}", proxy::refusal_code(&e)),
+        };
+        assert_eq!(firmware.trim_end(), gateway_answer, "`{l}`");
+        p.line("G4 P0");
+        p.status(&format!("after `{l}`"));
+        let at = mpos(&p.cases.last().expect("a case").firmware);
+        for k in 0..3 {
+            assert!(
+                (at[k] - gateway.position[k]).abs() < 1e-3,
+                "`{l}`: the firmware is at {at:?}, the rewriters' interpreter at {:?}",
+                &gateway.position[..3]
+            );
+        }
+    }
+    p.finish("constructs");
+}
+
+/// A soft-limit alarm (`$20=1`, which needs `$22=1`): a move past the travel is
+/// `ALARM:2` and `[MSG:Reset to continue]`; the firmware then blocks everything but
+/// a reset (even status reports: its loop does not report); after the reset it finishes the offending line.
+#[test]
+fn soft_limit_alarm_and_the_reset_that_follows() {
+    let mut p = Pair::start();
+    p.line("$22=1");
+    p.line("$20=1");
+    // GRBL's machine space is negative from home ($23=0): X1 is past the travel.
+    p.case("G0 X1 past the travel", b"G0 X1\n", |l| {
+        l.starts_with("[MSG:Reset to continue]")
+    });
+    p.case("reset after the soft limit", &[0x18], |l| {
+        l.starts_with("[MSG:'$H'|'$X' to unlock]")
+    });
+    p.line("G0 X0");
+    p.line("$X");
+    p.line("$20=0");
+    p.line("$22=0");
+    p.line("G0 X-1");
+    p.line("G4 P0");
+    p.status("after unlocking");
+    p.finish("soft limit");
 }
 
 /// grblHAL starts on its pty in both builds (the harness other tests use).

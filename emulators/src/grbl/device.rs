@@ -148,6 +148,9 @@ pub struct GrblDevice {
     state: State,
     /// Hard/soft limit alarm: everything blocked until a soft reset.
     critical: bool,
+    /// The line whose move raised a soft-limit alarm, still to be answered (at the
+    /// reset, as GRBL's `gc_execute_line` returns only then).
+    soft_limit_line_open: bool,
     rx: VecDeque<u8>,
     line: Vec<u8>,
     pending: Option<Pending>,
@@ -237,6 +240,7 @@ impl GrblDevice {
             interp: Interpreter::with_axes().restrict_axes(axes),
             state: State::Idle,
             critical: false,
+            soft_limit_line_open: false,
             rx: VecDeque::new(),
             line: Vec::new(),
             pending: None,
@@ -572,21 +576,15 @@ impl GrblDevice {
                 });
             }
         };
+        // The machine's counts are the step pulses GRBL sent (a move goes to
+        // `target * $100` pulses, `machine_move`): GRBL's step counter. Its position is
+        // that count over `$100` now, so a `$100` change keeps the count (as the
+        // firmware does) and a move reports where it was commanded, whatever the
+        // motor's own resolution.
         let counts = lock(rig).machine().counts();
-        let cpm = {
-            let r = lock(rig);
-            let c = r.machine().config();
-            [c.axes.x.counts_per_mm, c.axes.y.counts_per_mm]
-        };
-        // Machine counts are motor steps scaled by the motor's own resolution: GRBL's
-        // step counter is counts * $100 / counts_per_mm.
-        let steps = [
-            (counts[0] as f64 * self.steps_per_mm(0) / cpm[0]).round(),
-            (counts[1] as f64 * self.steps_per_mm(1) / cpm[1]).round(),
-        ];
         [
-            steps[0] / self.steps_per_mm(0),
-            steps[1] / self.steps_per_mm(1),
+            counts[0] as f64 / self.steps_per_mm(0),
+            counts[1] as f64 / self.steps_per_mm(1),
             self.z_steps as f64 / self.steps_per_mm(2),
             0.0,
             0.0,
@@ -1014,8 +1012,11 @@ impl GrblDevice {
 
     fn soft_limit_alarm(&mut self) {
         // GRBL holds the running cycle to a stop (position kept), then resets and
-        // raises the critical alarm; the offending line gets no answer.
+        // raises the critical alarm inside the offending line (limits_soft_check), and
+        // waits there for a reset: that line is answered `ok` once the reset comes,
+        // before the banner (checked on the firmware).
         self.alarm(alarm::SOFT_LIMIT, true);
+        self.soft_limit_line_open = true;
     }
 
     fn soft_reset(&mut self) {
@@ -1037,6 +1038,9 @@ impl GrblDevice {
             self.send(&format!("ALARM:{code}"));
         }
         self.stop_motion();
+        if std::mem::take(&mut self.soft_limit_line_open) {
+            self.respond(Ok(()));
+        }
         self.critical = false;
         self.pending = None;
         self.rx.clear();
@@ -1264,7 +1268,13 @@ impl GrblDevice {
     /// The axes' rate now, in GRBL units per minute (0 at rest).
     fn current_rate(&self) -> f64 {
         match &self.machine {
-            Machine::Rig(rig) => lock(rig).machine().speed_mm_min(),
+            Machine::Rig(rig) => {
+                let r = lock(rig);
+                // The motor's mm per minute as GRBL's: pulses at the motor's resolution
+                // over `$100`.
+                let cpm = r.machine().config().axes.x.counts_per_mm;
+                r.machine().speed_mm_min() * cpm / self.steps_per_mm(0)
+            }
             Machine::Axes(m) => {
                 let r = lock_axes(m).rate();
                 // Machine units to GRBL units along X (the axes share one scale).
@@ -1933,6 +1943,37 @@ mod tests {
         assert_eq!(counts, [20000, 10000]);
     }
 
+    /// GRBL counts the pulses it sends: with `$100` unlike the motor's own resolution
+    /// the position reported is the commanded one (the firmware's 2.000 after `G1 X2`),
+    /// and a later `$100` change keeps the count (issue 38).
+    #[test]
+    fn reported_position_follows_the_command_after_a_steps_per_mm_change() {
+        let mut h = Host::new(Clock::Unconstrained);
+        h.send(b"$X\n");
+        let cpm = h
+            .dev
+            .rig()
+            .lock()
+            .unwrap()
+            .machine()
+            .config()
+            .axes
+            .x
+            .counts_per_mm;
+        assert_eq!(h.send(b"$100=500\n"), vec![Response::Ok]);
+        assert_eq!(h.send(b"G1X2F3000\n"), vec![Response::Ok]);
+        let _ = h.status();
+        let s = h.status();
+        assert_eq!(s.state, MachineState::Idle);
+        assert_eq!(s.position[0], 2.0, "reported after G1 X2 with $100=500");
+        // 1000 pulses at the motor's own resolution.
+        let counts = h.dev.rig().lock().unwrap().machine().counts();
+        assert_eq!(counts[0], 1000);
+        assert!(cpm != 500.0);
+        assert_eq!(h.send(b"$100=250\n"), vec![Response::Ok]);
+        assert_eq!(h.status().position[0], 4.0, "the count kept: 1000 / 250");
+    }
+
     #[test]
     fn realtime_bytes_act_mid_line_and_unknown_extended_bytes_vanish() {
         let mut h = Host::new(Clock::Unconstrained);
@@ -1990,9 +2031,12 @@ mod tests {
             ]
         );
         assert!(h.send(b"?").is_empty(), "no status in the critical alarm");
+        // The offending line is answered once the reset ends the alarm's wait, before
+        // the banner (GRBL 1.1h, issue 38); the line after it was flushed.
         let r = h.send(&[0x18]);
-        assert!(matches!(&r[0], Response::Banner { .. }), "{r:?}");
-        assert_eq!(r[1], Response::Message("'$H'|'$X' to unlock".into()));
+        assert_eq!(r[0], Response::Ok, "{r:?}");
+        assert!(matches!(&r[1], Response::Banner { .. }), "{r:?}");
+        assert_eq!(r[2], Response::Message("'$H'|'$X' to unlock".into()));
         assert_eq!(h.status().state, MachineState::Alarm);
     }
 

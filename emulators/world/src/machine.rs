@@ -177,7 +177,7 @@ pub struct MachineSection {
     /// A machine without homing (issue 28): at power-on the carriage is this far (mm,
     /// machine axes) from the home switches, and the controller takes wherever it is as
     /// its zero, already "homed". None: the controller must home first.
-    #[serde(default)]
+    #[serde(default, deserialize_with = "protocol::config::optional_two_numbers")]
     pub power_on_at_mm: Option<[f64; 2]>,
 }
 
@@ -284,6 +284,38 @@ impl MachineConfig {
                 doc.in_range(&key(k), v, 0.0, hi, unit)?;
             }
             doc.in_range(&key("abbe_arm_mm"), a.abbe_arm_mm, -1000.0, 1000.0, "mm")?;
+            if let Some(stall) = &a.stall {
+                doc.positive(
+                    &key("stall.step_mm"),
+                    stall.step_mm,
+                    10.0,
+                    "mm (one full step of the motor)",
+                )?;
+                if !(stall.lost_mm() <= a.travel_mm) {
+                    return Err(doc.invalid(
+                        &key("stall.full_steps"),
+                        format!(
+                            "{} full steps of {} mm lose {} mm, more than the {} mm travel",
+                            stall.full_steps,
+                            stall.step_mm,
+                            stall.lost_mm(),
+                            a.travel_mm
+                        ),
+                    ));
+                }
+            }
+        }
+        if let Some(at) = m.power_on_at_mm {
+            // From the home switches, either way: at most the travel.
+            for (v, a) in at.into_iter().zip([&cfg.axes.x, &cfg.axes.y]) {
+                doc.in_range(
+                    "machine.power_on_at_mm",
+                    v,
+                    -a.travel_mm,
+                    a.travel_mm,
+                    "mm from the home switches (within the travel)",
+                )?;
+            }
         }
         if let Some(t) = &cfg.thermal {
             doc.in_range("thermal.screw_rise_k", t.screw_rise_k, -50.0, 50.0, "K")?;
@@ -1171,6 +1203,40 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("not a finite number"), "{e}");
+        // Issue 38: these ended in "no dark dots found" or a turned, mirrored image.
+        let home = "board_at_home_mm = [5.0, 5.0]";
+        for (to, key) in [
+            ("power_on_at_mm = [nan, 3.0]", "machine.power_on_at_mm"),
+            ("power_on_at_mm = [3.0, inf]", "machine.power_on_at_mm"),
+            ("power_on_at_mm = [1e308, 3.0]", "machine.power_on_at_mm"),
+        ] {
+            let e = load_with(home, &format!("{home}\n{to}"))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(&format!("key `{key}`")), "{to}: {e}");
+            assert!(e.contains("..="), "{to}: {e}");
+        }
+        let e = load_with(home, &format!("{home}\npower_on_at_mm = [1.0, 2.0, 3.0]"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("two numbers"), "{e}");
+        let axis = "[axes.x]";
+        for (step, key) in [
+            ("nan", "axes.x.stall.step_mm"),
+            ("-0.025", "axes.x.stall.step_mm"),
+            ("inf", "axes.x.stall.step_mm"),
+            ("5.0", "axes.x.stall.full_steps"),
+        ] {
+            let stall = format!("[axes.x.stall]\nfull_steps = 80\nstep_mm = {step}\nat_move = 3\n");
+            let text = include_str!("../../../config/machines/c5-stage.toml");
+            let at = text.find("[axes.y]").unwrap();
+            let text = format!("{}{stall}\n{}", &text[..at], &text[at..]);
+            assert!(text.contains(axis));
+            let e = MachineConfig::from_doc(&ConfigDoc::from_text("m.toml", &text, Path::new(".")))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(&format!("key `{key}`")), "{step}: {e}");
+        }
         // A third coordinate is refused, not dropped.
         let e = load_with(
             "board_at_home_mm = [5.0, 5.0]",

@@ -216,10 +216,10 @@ impl Report {
         ));
         for r in &self.rereferences {
             s.push_str(&format!(
-                "re-referenced at target #{}: the machine was {:.4} mm, {:.4} mm off (lost steps or no homing, read from the coded board); commands offset by ({:.4}, {:.4}) mm from then on\n",
+                "re-referenced at target #{}: the tool was found ({:+.4}, {:+.4}) mm from the target (deviation, seen minus target: lost steps or no homing, read from the coded board); commands offset by ({:+.4}, {:+.4}) mm from then on\n",
                 r.target_index,
-                -r.deviation_mm[0],
-                -r.deviation_mm[1],
+                r.deviation_mm[0],
+                r.deviation_mm[1],
                 r.offset_mm[0],
                 r.offset_mm[1]
             ));
@@ -270,5 +270,23 @@ mod tests {
         assert!((s.rms - (12.5f64).sqrt()).abs() < 1e-12);
         assert_eq!(s.mean, 3.5);
         assert!(Stats::of([]).is_none());
+    }
+
+    /// Issue 38: the text said "the machine was -3.2011 mm, 1.6922 mm off" for a
+    /// `deviation_mm` of (3.2011, -1.6922): the text now shows the JSON's numbers.
+    #[test]
+    fn a_rereference_reads_with_the_sign_of_its_deviation() {
+        let mut r = Report::build("j", "s", "c", Method::default(), 0, &[], &[], 0.0, None);
+        r.rereferences.push(crate::session::Rereference {
+            target_index: 0,
+            deviation_mm: [3.2011, -1.6922],
+            offset_mm: [-3.2011, 1.6922],
+        });
+        let text = r.to_text();
+        assert!(
+            text.contains("found (+3.2011, -1.6922) mm from the target")
+                && text.contains("offset by (-3.2011, +1.6922) mm"),
+            "{text}"
+        );
     }
 }

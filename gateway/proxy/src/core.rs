@@ -426,6 +426,8 @@ impl<'a> Proxy<'a> {
         match applied {
             Ok(what) => {
                 self.message(&format!("referenced: {what}"));
+                // A greeting not yet shown describes the map before this reference.
+                self.greeting = None;
                 let mut lines = vec![self.machine_move(back_mm)];
                 // The gateway's G0 left the motion mode at G0: the sender's comes back.
                 if let Some(m) = self.modal_motion() {
@@ -450,6 +452,7 @@ impl<'a> Proxy<'a> {
     pub fn referenced(&mut self, what: &str) {
         if self.referencing == Referencing::Locked {
             self.message(&format!("referenced: {what}"));
+            self.greeting = None;
             self.referencing = Referencing::Idle;
             self.release_deferred();
         }

@@ -371,6 +371,42 @@ fn a_percent_line_is_answered_error_1_as_grbl_does_and_not_sent() {
     assert_eq!(p.account().refused, vec![1, 3]);
 }
 
+/// GRBL's filter drops spaces inside a number, an unclosed `(` and a `/` anywhere
+/// (issue 38, checked on the firmware): the gateway takes these lines as GRBL does and
+/// sends the compensated moves, each answered `ok`.
+#[test]
+fn lines_grbls_filter_accepts_are_compensated_as_grbl_reads_them() {
+    let comp = Skewed;
+    let mut p = started(&comp);
+    p.take_to_sender();
+    p.from_sender(
+        b"G0 X2 0 Y2 0\nG0 X30 (an unclosed comment Y90\nG0 X40 / Y50\n",
+        1.0,
+    );
+    let sent = text(p.take_to_controller());
+    let targets: Vec<(f64, f64)> = sent
+        .lines()
+        .map(|l| {
+            let mut interp = protocol::grbl::gcode::Interpreter::new();
+            let f = protocol::grbl::gcode::filter_line(l).unwrap();
+            interp.execute(&f, false).unwrap();
+            (interp.position[0], interp.position[1])
+        })
+        .collect();
+    let wanted = [
+        (20.010, 20.0 / 1.001),
+        (30.010, 20.0 / 1.001),
+        (40.010, 50.0 / 1.001),
+    ];
+    assert_eq!(targets.len(), 3, "{sent}");
+    for ((x, y), (wx, wy)) in targets.iter().zip(wanted) {
+        assert!((x - wx).abs() < 1e-4 && (y - wy).abs() < 1e-4, "{sent}");
+    }
+    p.from_controller(b"ok\r\nok\r\nok\r\n", 1.1);
+    assert_eq!(text(p.take_to_sender()), "ok\r\nok\r\nok\r\n");
+    assert!(p.account().refused.is_empty());
+}
+
 #[test]
 fn a_sender_that_ignores_the_buffer_is_not_read_past_a_bound() {
     let comp = Skewed;
@@ -452,6 +488,8 @@ fn after_the_senders_homing_the_gateway_references_before_the_next_line() {
             Ok("zero moved (+6.70, -8.29) um".into())
         }),
     });
+    // The greeting of the map as it was, not shown yet when the homing comes first.
+    p.greet("map v1, no reference recorded");
     p.from_sender(b"$H\nG1 X20 Y10 F600\n", 1.0);
     assert_eq!(text(p.take_to_controller()), "$H\n");
     p.from_controller(b"ok\r\n", 2.0);
@@ -486,6 +524,10 @@ fn after_the_senders_homing_the_gateway_references_before_the_next_line() {
     p.from_controller(b"<Idle|MPos:10.010,9.990,0.000|FS:0,0>\r\n", 2.5);
     let sent = text(p.take_to_controller());
     assert!(sent.starts_with("G1 X20.0100 Y9.9900 F600"), "{sent}");
+    // Issue 38: the stale greeting ("no reference recorded") no longer follows the
+    // reference.
+    let told = text(p.take_to_sender());
+    assert!(!told.contains("no reference recorded"), "{told}");
 }
 
 #[test]

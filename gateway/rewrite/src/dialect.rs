@@ -17,8 +17,16 @@ use protocol::nc::Block;
 
 /// What the controller makes of one line (its text without the line ending, `line_no`
 /// from 1): the parsed block and what the interpreter does for it, or `None` for a line
-/// without words (blank, a comment, a `%` delimiter), which goes as written. On an error
-/// the interpreter is unchanged (GRBL's rule: a refused block changes nothing).
+/// GRBL's filter leaves empty (blank, only comments, an unclosed `(`), which goes as
+/// written. On an error the interpreter is unchanged (GRBL's rule: a refused block
+/// changes nothing).
+///
+/// The line is read as GRBL 1.1h reads it (protocol.c, checked on the firmware): its
+/// filter first drops spaces, `/` anywhere and comments (a `(` without `)` runs to the
+/// end of the line), so `X6 0` is `X60`; what is left goes to the interpreter, which
+/// refuses `%` (a program delimiter GRBL does not support) with error:1. The block
+/// keeps the line as written (comments, spaces) when the dialect-neutral reader sees the
+/// same words there; otherwise it is the filtered text GRBL executes.
 pub fn read_line<const N: usize>(
     interpreter: &mut Interpreter<N>,
     text: &str,
@@ -28,15 +36,28 @@ pub fn read_line<const N: usize>(
         line: line_no,
         kind,
     };
-    let block = Block::parse(text, line_no).map_err(|e| fail(RewriteErrorKind::Syntax(e)))?;
-    if block.has_no_words() {
+    let filtered = filter_line(text).map_err(|e| fail(RewriteErrorKind::Filter(e)))?;
+    if filtered.is_empty() {
         return Ok(None);
     }
-    let filtered = filter_line(text).map_err(|e| fail(RewriteErrorKind::Filter(e)))?;
     let actions = interpreter
         .execute(&filtered, false)
         .map_err(|code| fail(RewriteErrorKind::Refused { code }))?;
+    // The interpreter read the filtered text with the same lexer, so it parses.
+    let executed =
+        Block::parse(&filtered, line_no).map_err(|e| fail(RewriteErrorKind::Syntax(e)))?;
+    let block = match Block::parse(text, line_no) {
+        Ok(written) if same_words(&written, &executed) => written,
+        _ => executed,
+    };
     Ok(Some((block, actions)))
+}
+
+/// The same words (letters and values) in the same order.
+fn same_words(a: &Block, b: &Block) -> bool {
+    a.words()
+        .map(|w| (w.letter(), w.value()))
+        .eq(b.words().map(|w| (w.letter(), w.value())))
 }
 
 /// Takes the controller's modal state from its `$G` reply (the words inside `[GC:...]`,
@@ -105,7 +126,10 @@ mod tests {
             ("G1 X1 F0", "error:22"),
             ("G1 X1 Q5 F100", "error:20"),
             ("G93 G1 X1", "error:22"),
-            ("G0 X1 ?", "found `?`"),
+            (
+                "G0 X1 ?",
+                "`?`, which GRBL would take as a real-time command",
+            ),
         ];
         for (text, want) in cases {
             let mut three = Interpreter::new();
@@ -122,7 +146,8 @@ mod tests {
             .is_some());
         let e = read_line(&mut six, "G1 A1 A2", 2).unwrap_err();
         assert!(e.to_string().contains("error:25"), "{e}");
-        assert!(read_line(&mut six, "%", 3).unwrap().is_none());
+        let e = read_line(&mut six, "%", 3).unwrap_err();
+        assert!(e.to_string().contains("error:1"), "{e}");
         assert!(read_line(&mut six, "(only a comment)", 4)
             .unwrap()
             .is_none());

@@ -113,11 +113,11 @@ fn worst_path_deviation(program: &str, rewritten: &str, start: Pose) -> f64 {
 
 #[test]
 fn identity_leaves_the_program_byte_identical() {
-    let program = "%\r\n(part 7)\r\nN10 G21 G90 g0 x 10.00 Y20 ; start\r\nG2 X20 Y30 I10 J0 F300\r\n$H\r\nM30\r\n%";
+    let program = "(part 7)\r\nN10 G21 G90 g0 x 10.00 Y20 ; start\r\nG2 X20 Y30 I10 J0 F300\r\n$H\r\nM30\r\n(end";
     let (out, report) = rewrite_program(program, &Identity, Options::default()).unwrap();
     assert_eq!(out, program);
-    assert_eq!(report.input_lines, 7);
-    assert_eq!(report.output_lines, 7);
+    assert_eq!(report.input_lines, 6);
+    assert_eq!(report.output_lines, 6);
     assert_eq!(report.segments_added, 0);
 }
 
@@ -279,6 +279,35 @@ fn refuses_what_the_controller_would_refuse_naming_the_line() {
     );
     // With offsets GRBL takes I, J and K alike: a K in G17 is no unused word.
     rewrite("G0 X40 Y40\nG17 G2 X60 Y40 I10 K3 F600\n").unwrap();
+}
+
+/// Lines GRBL's filter decides, read as GRBL 1.1h reads them (issue 38, each checked on
+/// the firmware by tests/tests/grbl_firmware_diff.rs): `%` is error:1; spaces inside a
+/// number, an unclosed `(` and a `/` anywhere are dropped by the filter, so the moves
+/// go where the firmware takes them.
+#[test]
+fn lines_are_read_as_grbls_filter_reads_them() {
+    let err = rewrite("G0 X10 Y10\n%\n").unwrap_err();
+    assert_eq!(err.line, 2);
+    assert!(
+        matches!(err.kind, RewriteErrorKind::Refused { code: 1 }),
+        "{err}"
+    );
+    let program =
+        "G0 X1 0 Y1 0\nG0 X20 (an unclosed comment Y90\nG0 X30 / Y40\n/G0 Y50\n(only a comment\n";
+    let (out, _) = rewrite(program).unwrap();
+    let start = [0.0; 3];
+    let commands = executed_commands(&out, start);
+    let wanted = [[10.0, 10.0], [20.0, 10.0], [30.0, 40.0], [30.0, 50.0]];
+    assert_eq!(commands.len(), wanted.len() + 1, "{out}");
+    for (c, w) in commands[1..].iter().zip(wanted) {
+        let tool = tool_of(c);
+        assert!(
+            (tool[0] - w[0]).abs() < 1e-4 && (tool[1] - w[1]).abs() < 1e-4,
+            "the tool at {tool:?}, programmed {w:?}: {out}"
+        );
+    }
+    assert!(out.ends_with("(only a comment\n"), "{out}");
 }
 
 #[test]

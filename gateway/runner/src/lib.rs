@@ -158,6 +158,10 @@ pub enum JobError {
     Orientation(SessionError),
     #[error("cancelled by the operator; the stage was told to stop")]
     Cancelled,
+    /// GRBL refused a move with error:9 (locked in Alarm, as it is at power-up with
+    /// homing enabled) in a job that skips homing.
+    #[error("{0}; this job skips homing (`setup.home = false` in the job file), but the controller is locked in Alarm (GRBL locks at power-up when homing is enabled, `$22=1`): home it (`$H`) or unlock it (`$X`) before the job, or set `setup.home = true`")]
+    LockedWithoutHoming(DriverError),
     /// A bug in this crate: it performed an action the session did not ask for.
     #[error("internal: {0}")]
     Session(SessionError),
@@ -198,6 +202,27 @@ pub struct JobSuccess {
     pub orientation: Option<OrientationResult>,
     /// Lost references found on a coded board, in order.
     pub rereferences: Vec<compensation::session::Rereference>,
+}
+
+/// A GRBL `error:9` (G-code lock) in a job that does not home says what to do: home or
+/// unlock the controller, or let the job home.
+fn explain_lock(error: JobError, home: bool) -> JobError {
+    match error {
+        JobError::Driver(DriverError::Refused {
+            code: 9,
+            message,
+            device,
+            what,
+        }) if !home && message == protocol::grbl::codes::error_text(9) => {
+            JobError::LockedWithoutHoming(DriverError::Refused {
+                code: 9,
+                message,
+                device,
+                what,
+            })
+        }
+        other => other,
+    }
 }
 
 /// Soft limits of X and Y from what a stage reports.
@@ -273,6 +298,7 @@ impl Orchestrator<'_> {
                 rereferences,
             }),
             Err(error) => {
+                let error = explain_lock(error, self.job.home);
                 // Leave the machine still and safe, then report.
                 let _ = self.stage.stop().await;
                 Err(JobFailure {
@@ -544,6 +570,35 @@ mod tests {
             every: 0,
         });
         job
+    }
+
+    /// Issue 38: a coded job with `home = false` over GRBL stopped with "code 9: G-code
+    /// lock" and said nothing of the job's key or of `$X`.
+    #[test]
+    fn a_lock_in_a_job_that_skips_homing_names_the_key_and_the_commands() {
+        let lock = || {
+            JobError::Driver(DriverError::Refused {
+                device: "GRBL on /dev/ttyUSB0".into(),
+                what: "G0 X30 Y30".into(),
+                code: 9,
+                message: protocol::grbl::codes::error_text(9).into(),
+            })
+        };
+        let e = explain_lock(lock(), false).to_string();
+        for said in ["code 9", "G-code lock", "setup.home", "$X", "$H"] {
+            assert!(e.contains(said), "{said}: {e}");
+        }
+        // A job that homes first, or another code, is left as it was.
+        assert_eq!(explain_lock(lock(), true).to_string(), lock().to_string());
+        let other = JobError::Driver(DriverError::Refused {
+            device: "GRBL".into(),
+            what: "G0 X1".into(),
+            code: 20,
+            message: protocol::grbl::codes::error_text(20).into(),
+        });
+        assert!(!explain_lock(other, false)
+            .to_string()
+            .contains("setup.home"));
     }
 
     #[test]

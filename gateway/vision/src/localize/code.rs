@@ -132,8 +132,23 @@ pub fn classify(diameters: &[Option<f64>], sizes: [f64; 2]) -> Vec<Option<bool>>
 }
 
 /// The board position and orientation of the observed bits (`(lattice index, bit)`),
-/// or why none is accepted: candidates from the board's index of 5 x 4 windows.
+/// or why none is accepted: candidates from the board's index of 5 x 4 windows, and
+/// when none of them is within [`max_errors`], the exhaustive search
+/// ([`decode_exhaustive`]). In the 9 x 7 view the default optics guarantee, every 5 x 4
+/// window holds the centre dot, so one misread dot there hides the true position from
+/// every lookup (issue 38); the exhaustive search finds it whenever it is within the
+/// accepted number of misread dots, wherever they are, at its cost (tens of ms) on
+/// those frames only.
 pub fn decode(code: &BoardCode, obs: &[([i64; 2], bool)]) -> Result<Decoded, DecodeError> {
+    match decode_indexed(code, obs) {
+        Err(DecodeError::NoMatch { .. }) => decode_exhaustive(code, obs),
+        other => other,
+    }
+}
+
+/// [`decode`] from the index alone: a position becomes a candidate only through a 5 x 4
+/// window of the view read without error (up to [`MAX_KEY_HOLES`] dots not read).
+pub fn decode_indexed(code: &BoardCode, obs: &[([i64; 2], bool)]) -> Result<Decoded, DecodeError> {
     use protocol::board_code::{KEY_H, KEY_W};
     let obs: Vec<([i64; 2], bool)> = obs
         .iter()
@@ -437,6 +452,51 @@ mod tests {
             decode(&code, &few),
             Err(DecodeError::TooFewBits { bits: 25 })
         );
+    }
+
+    /// Issue 38: in the guaranteed 9 x 7 view every 5 x 4 window holds the centre dot;
+    /// one misread dot there made the true position no candidate at all. Up to the
+    /// accepted number of misread dots, wherever they are, the position is found.
+    #[test]
+    fn misread_dots_at_the_centre_do_not_hide_the_position() {
+        let code = BoardCode::generate(
+            protocol::board_code::CodeScheme::Keyed,
+            28,
+            [0.2, 0.3],
+            421,
+            321,
+        );
+        for (k, axes) in ORIENTATIONS.iter().enumerate().step_by(3) {
+            let at = [60 + 50 * k as i64, 250 - 20 * k as i64];
+            let clean = view(&code, *axes, at, [4, 3]);
+            let limit = max_errors(clean.len());
+            assert_eq!(limit, 7);
+            // The centre first, then its neighbours: dots in the most windows.
+            let mut central: Vec<usize> = (0..clean.len()).collect();
+            central.sort_by_key(|&n| {
+                let [a, b] = clean[n].0;
+                (a.abs() + b.abs(), a.abs(), b, a)
+            });
+            for wrong in 1..=limit {
+                let mut obs = clean.clone();
+                for &n in &central[..wrong] {
+                    obs[n].1 = !obs[n].1;
+                }
+                // Turned a quarter, the view is 7 x 9 on the board and some windows
+                // leave the centre out; otherwise the index alone misses it.
+                if k < 4 {
+                    assert!(
+                        matches!(
+                            decode_indexed(&code, &obs),
+                            Err(DecodeError::NoMatch { .. })
+                        ),
+                        "the index alone misses it: {k}, {wrong}"
+                    );
+                }
+                let d = decode(&code, &obs).unwrap_or_else(|e| panic!("{k}, {wrong}: {e:?}"));
+                assert_eq!((d.axes, d.ij0, d.errors), (*axes, at, wrong), "{k}");
+            }
+        }
     }
 
     #[test]

@@ -132,20 +132,13 @@ pub(crate) fn estimate_lattice(pts: &[[f64; 2]], nb: &Neighbours) -> Result<Latt
     Ok(Lattice { u, v, theta })
 }
 
-/// Lattice index of every dot (None when not on the lattice), relative to the dot
-/// nearest `centre` (index (0, 0)), plus the affine lattice model fitted to them.
-pub(crate) fn index_dots(
-    pts: &[[f64; 2]],
-    nb: &Neighbours,
-    lat: &Lattice,
-    centre: [f64; 2],
-) -> Option<(Vec<Option<[i64; 2]>>, Affine)> {
+/// Dots tried as the start of the indexing, nearest the centre first.
+const MAX_STARTS: usize = 8;
+
+/// Lattice indices grown from `start` (index (0, 0)) through neighbour steps of up to
+/// two pitches; a dot reached with two different indices gets none.
+fn grow(pts: &[[f64; 2]], nb: &Neighbours, lat: &Lattice, start: usize) -> Vec<Option<[i64; 2]>> {
     let n = pts.len();
-    let start = (0..n).min_by(|&a, &b| {
-        let da = (pts[a][0] - centre[0]).powi(2) + (pts[a][1] - centre[1]).powi(2);
-        let db = (pts[b][0] - centre[0]).powi(2) + (pts[b][1] - centre[1]).powi(2);
-        da.total_cmp(&db)
-    })?;
     let aff0 = Affine {
         t: pts[start],
         u: lat.u,
@@ -187,6 +180,40 @@ pub(crate) fn index_dots(
         if conflict[k] {
             idx[k] = None;
         }
+    }
+    idx
+}
+
+/// Lattice index of every dot (None when not on the lattice), relative to the start dot
+/// (index (0, 0): the dot nearest `centre` from which the lattice grows), plus the
+/// affine lattice model fitted to them.
+pub(crate) fn index_dots(
+    pts: &[[f64; 2]],
+    nb: &Neighbours,
+    lat: &Lattice,
+    centre: [f64; 2],
+) -> Option<(Vec<Option<[i64; 2]>>, Affine)> {
+    let n = pts.len();
+    // The growth starts at the dot nearest the centre; when that is no lattice dot (a
+    // dirt blob between dots reaches none of its neighbours a whole step away, issue
+    // 38), at the next nearest, keeping the growth that reached the most dots.
+    let mut order: Vec<usize> = (0..n).collect();
+    let dist = |k: usize| (pts[k][0] - centre[0]).powi(2) + (pts[k][1] - centre[1]).powi(2);
+    order.sort_by(|&a, &b| dist(a).total_cmp(&dist(b)));
+    let mut idx: Vec<Option<[i64; 2]>> = Vec::new();
+    let mut reached = 0;
+    for &start in order.iter().take(MAX_STARTS) {
+        let grown = grow(pts, nb, lat, start);
+        let count = grown.iter().filter(|i| i.is_some()).count();
+        if count > reached {
+            (idx, reached) = (grown, count);
+        }
+        if 2 * reached >= n {
+            break;
+        }
+    }
+    if idx.is_empty() {
+        return None;
     }
 
     // One affine model for all indexed dots; a dot whose position does not round back

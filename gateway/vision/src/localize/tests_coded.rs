@@ -198,3 +198,27 @@ fn a_frame_of_another_board_is_refused_on_keyed_boards() {
         }
     }
 }
+
+/// Issue 38: a 0.12 mm dirt blob between dots, nearer the image centre than any dot,
+/// was taken as the start of the indexing and the frame refused ("could not be indexed
+/// on one grid"); the plain grid localized it. The indexing now starts at the nearest
+/// dot from which the lattice grows.
+#[test]
+fn a_blob_between_dots_near_the_centre_does_not_stop_the_indexing() {
+    let cam = camera(1280, 1024, 0.8, 1.0, 2.0, 0.8);
+    let truth = [100.25, 100.08];
+    let mut dirt = Damage::default();
+    // 0.17 mm from the centre, midway between four dots.
+    dirt.blobs.push(([100.25, 100.25], 0.12));
+    let coded = coded_board();
+    let f = render_damaged(&coded, &cam, &pose(truth), 5, &dirt);
+    let o = localize(&f.image, &coded, &absolute()).unwrap_or_else(|e| panic!("coded: {e}"));
+    assert!(err_um(&o, truth) <= 0.06, "{o:?}");
+    let mut plain = coded.clone();
+    plain.code = None;
+    let mut hinted = absolute();
+    hinted.hint_mm = Some(truth);
+    let f = render_damaged(&plain, &cam, &pose(truth), 5, &dirt);
+    let o = localize(&f.image, &plain, &hinted).unwrap_or_else(|e| panic!("plain: {e}"));
+    assert!(err_um(&o, truth) <= 0.06, "{o:?}");
+}
