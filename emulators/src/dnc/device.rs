@@ -577,6 +577,9 @@ impl DncDevice {
                 return;
             }
         };
+        if block.skip && self.cfg.program.block_skip {
+            return;
+        }
         let before = self.interp.position;
         let actions = match self.interp.execute(&block, line, text) {
             Ok(a) => a,
@@ -652,5 +655,117 @@ impl DncDevice {
             });
         }
         *from = to;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use protocol::Board;
+    use world::camera::CameraModel;
+    use world::machine::MachineConfig;
+
+    fn device(cfg: DncConfig) -> DncDevice {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config");
+        let rig = world::shared_rig(
+            MachineConfig::load(&root.join("machines/c5-stage.toml")).unwrap(),
+            Board::load(&root.join("boards/dot-grid-0.5mm.toml")).unwrap(),
+            CameraModel::load(&root.join("cameras/mono-1.3mp.toml")).unwrap(),
+        );
+        DncDevice::new(rig, cfg)
+    }
+
+    fn unconstrained() -> DncConfig {
+        DncConfig {
+            clock: Clock::Unconstrained,
+            ..DncConfig::default()
+        }
+    }
+
+    #[test]
+    fn a_tape_runs_with_a_stored_subprogram_a_dwell_and_an_arc() {
+        let mut d = device(unconstrained());
+        d.store_program("%\nO8003\nG91G01X1.F1000.\nM99\n%\n")
+            .unwrap();
+        d.power_on(0.0);
+        assert_eq!(d.take_output(), vec![DC1]);
+        let tape = "\0\0%TITLE\nO1\nG90G00X10.Y10.\nM98P38003\nG04P500\n\
+                    G90G02X23.Y10.R5.F600.\n/G00X50.\nM30\nG00X99.\n%\n";
+        d.receive(tape.as_bytes(), 0.0);
+        let s = d.stats().clone();
+        assert!(s.alarms.is_empty(), "{:?}", s.alarms);
+        assert_eq!(s.tapes, 1);
+        // O1 ... M30 and the block after it are read; the skipped and the one after
+        // M30 do not run; the subprogram's two blocks run three times.
+        assert_eq!(s.lines, 8);
+        assert_eq!(s.blocks, 6 + 3 * 2);
+        assert_eq!(s.position, [23.0, 10.0, 0.0]);
+        let p = lock(&d.rig).machine().position_mm();
+        assert!(
+            (p[0] - 23.0).abs() < 1e-9 && (p[1] - 10.0).abs() < 1e-9,
+            "{p:?}"
+        );
+        assert!(
+            d.take_output().is_empty(),
+            "nothing but flow control comes back"
+        );
+    }
+
+    #[test]
+    fn a_refused_block_alarms_with_nak_and_reset_answers_syn() {
+        let mut d = device(unconstrained());
+        d.power_on(0.0);
+        d.take_output();
+        d.receive(b"%\nG90G00X10.\nG68X1.Y1.R45.\n", 0.0);
+        assert_eq!(d.take_output(), vec![DC3, NAK]);
+        assert!(
+            d.stats().alarms[0].contains("block 2"),
+            "{:?}",
+            d.stats().alarms
+        );
+        // Characters while alarmed are discarded.
+        d.receive(b"G00X20.\n", 0.0);
+        assert_eq!(d.stats().position, [10.0, 0.0, 0.0]);
+        d.reset();
+        assert_eq!(d.take_output(), vec![DC3, SYN, DC1]);
+    }
+
+    #[test]
+    fn the_buffer_marks_send_dc3_and_dc1_and_an_ignored_dc3_alarms() {
+        let cfg = DncConfig {
+            clock: Clock::Scaled(1.0),
+            buffer: 100,
+            dc3_free: 30,
+            dc1_free: 60,
+            ..DncConfig::default()
+        };
+        let mut d = device(cfg);
+        d.power_on(0.0);
+        d.take_output();
+        // 10-character blocks, each a 1 mm move: nothing ends at t = 0.
+        d.receive(b"%\n", 0.0);
+        let block = b"G91X1.F60\n";
+        let mut written = 0u64;
+        assert!(d.take_output().is_empty());
+        while d.take_output().is_empty() {
+            d.receive(block, 0.0);
+            written += block.len() as u64;
+        }
+        // DC3 once the free space fell below 30: the first block left the buffer to
+        // run, the next eight fill 80 of 100.
+        assert_eq!(d.stats().dc3_sent, 1);
+        assert_eq!(written, 90);
+        // It waits for the sender with 20 free: 20 more characters fit, no alarm.
+        d.sender_progress(written, 1);
+        d.sender_progress(written + 20, 0);
+        assert!(d.stats().alarms.is_empty());
+        // More than the room: overrun alarm, NAK.
+        d.sender_progress(written + 21, 0);
+        assert_eq!(d.take_output(), vec![DC3, NAK]);
+        assert!(
+            d.stats().alarms[0].contains("overrun"),
+            "{:?}",
+            d.stats().alarms
+        );
     }
 }
