@@ -253,7 +253,13 @@ impl DncDevice {
     }
 
     /// The operator presses cycle start: an idle control starts reading (DC1).
+    /// Pressed again while it waits for a tape's first characters, it sends DC1 again
+    /// (for a sender that opened its port after the first one and lost it).
     pub fn cycle_start(&mut self) {
+        if self.phase == Phase::Leader && !self.stopped && self.buffer.is_empty() {
+            self.send_dc1();
+            return;
+        }
         if self.phase == Phase::Idle {
             self.phase = Phase::Leader;
             if self.cfg.buffer - self.buffer.len() >= self.cfg.dc1_free {
