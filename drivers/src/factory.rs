@@ -57,6 +57,17 @@ pub async fn open_stage(link: &StageLink) -> Result<Box<dyn Stage>, DriverError>
         } => Ok(Box::new(
             crate::linuxcnc::LinuxcncStage::open(address, options.clone(), axes.clone()).await?,
         )),
+        #[cfg(feature = "serial")]
+        StageLink::Dnc {
+            port,
+            baud,
+            options,
+            axes,
+        } => Ok(Box::new(
+            crate::dnc::DncStage::open(port, *baud, options.clone(), axes.clone()).await?,
+        )),
+        #[cfg(not(feature = "serial"))]
+        StageLink::Dnc { .. } => Err(not_built("a tape port (DNC) on a serial port", "serial")),
     }
 }
 

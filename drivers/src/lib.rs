@@ -16,6 +16,8 @@ pub mod aravis;
 pub mod camera;
 pub mod can;
 pub mod canopen;
+#[cfg(feature = "serial")]
+pub mod dnc;
 pub mod error;
 mod factory;
 pub mod gige;

@@ -8,6 +8,7 @@
 
 pub mod canopen;
 pub mod cutter;
+pub mod dnc;
 pub mod gige;
 pub mod grbl;
 pub mod linuxcnc;

@@ -71,6 +71,10 @@ enum Cmd {
     /// stage's port.
     #[command(visible_alias = "rig")]
     Gige(emulators::gige::cli::GigeArgs),
+    /// Serve a closed controller's tape port (DNC drip-feed: DC1/DC3, `%` tapes, ISO
+    /// code, Fanuc-dialect programs) on a new pseudo-terminal, driving the simulated
+    /// machine; prints `dnc: /dev/pts/N`. Panel on standard input: `reset`, `start`.
+    Dnc(emulators::dnc::cli::DncArgs),
 }
 
 fn serve_grbl(
@@ -131,6 +135,7 @@ fn main() -> anyhow::Result<()> {
         Cmd::Modbus(args) => emulators::modbus::cli::serve(args)?,
         Cmd::Canopen(args) => emulators::canopen::cli::serve(args)?,
         Cmd::Gige(args) => emulators::gige::cli::serve(args)?,
+        Cmd::Dnc(args) => emulators::dnc::cli::serve(args)?,
         Cmd::Grbl {
             machine,
             board,

@@ -11,6 +11,7 @@ pub mod canopen;
 pub mod cia402;
 pub mod config;
 pub mod errormap;
+pub mod fanuc;
 pub mod gige;
 pub mod grbl;
 pub mod image;

@@ -18,6 +18,10 @@ pub struct Capabilities {
     pub probing: bool,
     /// The rotary axes it drives (degrees), in axis order.
     pub rotary_axes: Vec<Axis>,
+    /// Reached only through a tape port (DNC drip-feed): it takes programs, and says
+    /// nothing back but flow control, alarm and reset: no position, no status, no end
+    /// of motion; homing and cycle start are the operator's, on its panel.
+    pub tape_only: bool,
 }
 
 impl Capabilities {

@@ -9,6 +9,7 @@ pub mod axis;
 pub mod can;
 pub mod canopen;
 pub mod capabilities;
+pub mod dnc;
 pub mod gige;
 pub mod grbl;
 pub mod link;

@@ -4,6 +4,7 @@
 
 use crate::can::BusSpec;
 use crate::canopen::{AxisConfig, CanopenOptions};
+use crate::dnc::{DncAxis, DncOptions};
 use crate::gige::GigeOptions;
 use crate::grbl::GrblOptions;
 use crate::linuxcnc::{LinuxcncAxis, LinuxcncOptions};
@@ -43,6 +44,14 @@ pub enum StageLink {
         options: LinuxcncOptions,
         axes: Vec<LinuxcncAxis>,
     },
+    /// A closed controller's tape port (DNC drip-feed, DC1/DC3) on a serial port: it
+    /// takes programs and says nothing back but flow control, alarm and reset.
+    Dnc {
+        port: String,
+        baud: u32,
+        options: DncOptions,
+        axes: Vec<DncAxis>,
+    },
 }
 
 impl fmt::Display for StageLink {
@@ -52,6 +61,7 @@ impl fmt::Display for StageLink {
             StageLink::Modbus { endpoint, .. } => write!(f, "{endpoint}"),
             StageLink::Canopen { bus, .. } => write!(f, "CANopen on {bus}"),
             StageLink::Linuxcnc { address, .. } => write!(f, "LinuxCNC at {address}"),
+            StageLink::Dnc { port, baud, .. } => write!(f, "tape port (DNC) at {port} @{baud}"),
         }
     }
 }

@@ -716,6 +716,7 @@ impl Stage for GrblStage {
             table_upload: false,
             probing: true,
             rotary_axes: Capabilities::rotary_among(self.info.axes.iter().map(|a| a.axis)),
+            tape_only: false,
         }
     }
 

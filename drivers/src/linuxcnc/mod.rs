@@ -621,6 +621,7 @@ impl Stage for LinuxcncStage {
             table_upload: false,
             probing: false,
             rotary_axes: Capabilities::rotary_among(self.axes.iter().map(|a| a.axis)),
+            tape_only: false,
         }
     }
 

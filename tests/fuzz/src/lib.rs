@@ -15,6 +15,7 @@ use std::path::Path;
 mod canopen;
 mod config;
 mod errormap;
+mod fanuc;
 mod gige;
 mod grbl;
 mod iso230;
@@ -34,6 +35,7 @@ mod volumetric;
 pub use canopen::{canopen_eds, sdo_client, sdo_server};
 pub use config::{board_toml, camera_toml, job_toml, machine_toml, modbus_profile};
 pub use errormap::{error_map_json, scan_journal};
+pub use fanuc::fanuc_tape;
 pub use gige::{genicam_xml, gige_url, gige_zip, gvcp, gvsp};
 pub use grbl::{grbl_gcode, grbl_response};
 pub use iso230::iso230_csv;
@@ -102,6 +104,7 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("gcode_dialect", gcode_dialect),
     ("reference_record", reference_record),
     ("linuxcnc_reply", linuxcnc_reply),
+    ("fanuc_tape", fanuc_tape),
 ];
 
 /// The fuzz crate's folder (corpora, regressions).
