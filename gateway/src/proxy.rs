@@ -119,19 +119,15 @@ pub fn proxy(args: ProxyArgs, json: bool) -> anyhow::Result<ExitCode> {
     };
     let correction = match inputs {
         Inputs::Map { job, map } => {
-            let record = match args.no_reference {
-                true => None,
-                false => {
-                    procedure::reference::read_record(&procedure::reference::reference_path(&map))
-                        .map_err(anyhow::Error::msg)?
-                }
-            };
+            let current =
+                procedure::reference::read_record(&procedure::reference::reference_path(&map));
             Correction::Map {
                 job: Box::new(Job::load(&job)?),
                 job_source: job.display().to_string(),
                 map: Box::new(ErrorMap::load(&map)?),
                 map_source: map.display().to_string(),
-                reference: procedure::reference::choose(record, args.no_reference),
+                reference: procedure::reference::choose(current, args.no_reference)
+                    .map_err(anyhow::Error::msg)?,
             }
         }
         Inputs::Rotary { errors, controller } => {

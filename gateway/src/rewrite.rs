@@ -2,7 +2,7 @@
 //! the `$#` reply read through the bounded reader, the rewritten program written
 //! atomically to `--out` (never over an input).
 
-use procedure::rewrite::{RewriteModel, RewriteRequest, PROGRAM_ARTIFACT};
+use procedure::rewrite::{RewriteRequest, PROGRAM_ARTIFACT};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -141,34 +141,28 @@ pub fn rewrite(args: RewriteArgs, json: bool) -> anyhow::Result<ExitCode> {
     let mut sink = crate::front::CliSink::new("", true)
         .inputs(&inputs)
         .artifact_to(PROGRAM_ARTIFACT, args.out.clone());
-    let kind = procedure::kinds::kind("rewrite").map_err(|e| anyhow::anyhow!("{e}"))?;
+    if let Some(path) = &args.volumetric {
+        request.volumetric =
+            Some(procedure::volumetric::read_file(path).map_err(anyhow::Error::msg)?);
+        request.volumetric_name = Some(path.display().to_string());
+    }
+    let kind = procedure::kinds::kind("rewrite")?;
     let mut outcome = match (&args.map, &args.volumetric) {
         (Some(_), Some(_)) => anyhow::bail!("give one compensation: --map or --volumetric"),
-        (Some(map), None) => crate::front::run_outcome(kind, &request, &mut sink, |f| {
-            let f = f.map_file(map).input(&args.input);
+        (None, None) => {
+            anyhow::bail!("give the compensation to apply: --map MAP or --volumetric MODEL")
+        }
+        (map, _) => crate::front::run_outcome(kind, &request, &mut sink, |f| {
+            let f = f.input(&args.input);
+            let f = match map {
+                Some(map) => f.map_file(map),
+                None => f,
+            };
             match &args.config {
                 Some(job) => f.job_file(job),
                 None => f,
             }
         })?,
-        (None, Some(path)) => {
-            // A volumetric model is not a map: the same rewrite, another compensation.
-            request.check().map_err(|e| anyhow::anyhow!(e.for_cli()))?;
-            let model = RewriteModel::Volumetric {
-                model: procedure::volumetric::read_file(path)
-                    .and_then(|text| {
-                        procedure::volumetric::read_model(&path.display().to_string(), &text)
-                    })
-                    .map_err(anyhow::Error::msg)?,
-                name: path.display().to_string(),
-            };
-            let source = args.input.display().to_string();
-            let now = std::time::SystemTime::now();
-            procedure::rewrite::run(&request, model, &source, now, &mut sink)
-        }
-        (None, None) => {
-            anyhow::bail!("give the compensation to apply: --map MAP or --volumetric MODEL")
-        }
     };
     if let Some(r) = outcome.result.as_mut() {
         r["output"] = json!(args.out.display().to_string());

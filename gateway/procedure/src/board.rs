@@ -89,18 +89,12 @@ impl crate::registry::Procedure for BoardMake {
 
 /// The result as text.
 pub fn summary(r: &Value) -> String {
-    let files: Vec<&str> = r["files"]
-        .as_array()
-        .into_iter()
-        .flatten()
-        .filter_map(Value::as_str)
-        .collect();
     format!(
         "{} ({} dots{}): {}",
         r["board"].as_str().unwrap_or(""),
         r["dots"],
         if r["coded"] == true { ", coded" } else { "" },
-        files.join(", ")
+        crate::summary::files(r)
     )
 }
 

@@ -78,14 +78,20 @@ pub enum Choice {
     NotWanted,
 }
 
-/// The choice from what the front end found: `no_reference` (the operator's flag) wins;
-/// else the record if there is one.
-pub fn choose(record: Option<MapReference>, no_reference: bool) -> Choice {
-    match (record, no_reference) {
+/// The choice from the map's current record as the context found it: `no_reference`
+/// (the operator's flag) wins; else the record if there is one. A record that is there
+/// but cannot be read (damaged, another map's) is an error: the operator records a new
+/// one, or asks for none.
+pub fn choose(
+    current: Result<Option<MapReference>, String>,
+    no_reference: bool,
+) -> Result<Choice, String> {
+    Ok(match (current, no_reference) {
         (_, true) => Choice::NotWanted,
-        (Some(r), false) => Choice::Recorded(r),
-        (None, false) => Choice::NoneRecorded,
-    }
+        (Ok(Some(r)), false) => Choice::Recorded(r),
+        (Ok(None), false) => Choice::NoneRecorded,
+        (Err(e), false) => return Err(e),
+    })
 }
 
 /// What applying a choice gave: the model, one line saying which reference and how old
@@ -335,9 +341,12 @@ mod tests {
 
     #[test]
     fn the_choice_follows_the_flag_then_the_record() {
-        assert_eq!(choose(None, false), Choice::NoneRecorded);
-        assert_eq!(choose(None, true), Choice::NotWanted);
+        assert_eq!(choose(Ok(None), false), Ok(Choice::NoneRecorded));
+        assert_eq!(choose(Ok(None), true), Ok(Choice::NotWanted));
         let e = parse_record("{}", "r").unwrap_err();
         assert!(e.starts_with("r: not a reference record"), "{e}");
+        // A record that cannot be read is an error, unless none is wanted.
+        assert_eq!(choose(Err(e.clone()), false), Err(e.clone()));
+        assert_eq!(choose(Err(e), true), Ok(Choice::NotWanted));
     }
 }

@@ -106,6 +106,14 @@ pub struct RewriteRequest {
     /// machine mm (Z unbounded when left out).
     #[serde(default)]
     pub limits: Option<Vec<[f64; 2]>>,
+    /// A volumetric model file's text (`volumetric identify`'s): X, Y and Z corrected
+    /// by it instead of by the machine's error map.
+    #[serde(default)]
+    #[schema(format = Binary)]
+    pub volumetric: Option<String>,
+    /// How messages name the volumetric model (its file name).
+    #[serde(default)]
+    pub volumetric_name: Option<String>,
 }
 
 impl RewriteRequest {
@@ -119,10 +127,21 @@ impl RewriteRequest {
             offsets: None,
             start: None,
             limits: None,
+            volumetric: None,
+            volumetric_name: None,
         }
     }
 
     pub fn check(&self) -> Result<(), RequestError> {
+        if let Some(text) = &self.volumetric {
+            let most = crate::volumetric::MAX_FILE_BYTES;
+            if text.len() > most {
+                return Err(RequestError::new(
+                    "volumetric",
+                    format!("{} bytes; at most {most} are accepted", text.len()),
+                ));
+            }
+        }
         self.options().map(|_| ())
     }
 
@@ -504,10 +523,32 @@ impl crate::registry::Procedure for Rewrite {
     const TITLE: &'static str =
         "Rewrite a program: every move lands where it was programmed, without the camera";
     const COMMAND: &'static str = "rewrite";
-    const USES: crate::registry::Uses = crate::registry::Uses::MAP;
+    const USES: crate::registry::Uses = crate::registry::Uses {
+        map: crate::registry::MapUse::WhenAsked,
+        ..crate::registry::Uses::NOTHING
+    };
     type Request = RewriteRequest;
 
+    /// The machine's map, unless a volumetric model is given.
+    fn uses_map(request: &RewriteRequest) -> bool {
+        request.volumetric.is_none()
+    }
+
     async fn run(request: RewriteRequest, cx: &mut dyn crate::Context) -> Outcome {
+        if let Some(text) = &request.volumetric {
+            // A volumetric model is not a map: the same rewrite, another compensation.
+            let name = request
+                .volumetric_name
+                .as_deref()
+                .unwrap_or("volumetric model");
+            let model = RewriteModel::Volumetric {
+                model: crate::or_fail!(crate::volumetric::read_model(name, text)),
+                name: name.to_string(),
+            };
+            let now = cx.now();
+            let program = request.program_name.clone();
+            return run(&request, model, &program, now, cx.sink());
+        }
         let active = crate::or_fail!(cx.map());
         match cx.identity().await {
             Ok(Some(here)) => {
@@ -518,16 +559,12 @@ impl crate::registry::Procedure for Rewrite {
             Ok(None) => {}
             Err(e) => return Outcome::failed(e.to_string()),
         }
-        // The map's current reference, if recorded: a damaged or foreign one is an error
-        // (the operator records a new one, or asks for none).
-        let record = match (request.no_reference, active.reference) {
-            (true, _) => None,
-            (false, Ok(r)) => r,
-            (false, Err(e)) => return Outcome::failed(e),
-        };
         let model = RewriteModel::ReferencedMap {
             map: active.map,
-            reference: crate::reference::choose(record, request.no_reference),
+            reference: crate::or_fail!(crate::reference::choose(
+                active.reference,
+                request.no_reference
+            )),
         };
         let now = cx.now();
         let name = request.program_name.clone();

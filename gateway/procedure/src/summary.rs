@@ -1,4 +1,5 @@
-//! The compensation's result in a few lines (the other kinds' summaries live with their procedures).
+//! The compensation's result in a few lines (the other kinds' summaries live with their
+//! procedures), and what several summaries share.
 
 use serde_json::Value;
 
@@ -22,4 +23,15 @@ pub(crate) fn compensate_summary(r: &Value) -> String {
         figures("before_um"),
         figures("after_um"),
     )
+}
+
+/// The files a result names (`files`), comma-separated.
+pub(crate) fn files(r: &Value) -> String {
+    let names: Vec<&str> = r["files"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .filter_map(Value::as_str)
+        .collect();
+    names.join(", ")
 }

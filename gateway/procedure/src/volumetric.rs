@@ -840,7 +840,7 @@ impl VolumetricExportIsgRequest {
 
 /// The model for the ISG kernel: `volcomp.csv` (blocks `C0Y B0Z A0Z P0X P0Y P0Z`,
 /// `X EXX ... ECX`, ..., mm and rad) and the compensation list `volcomp.lis` naming it.
-/// The result: `files`.
+/// The result: `files`, `structure`, `fit_for_compensation` and each axis's table points.
 pub fn export_isg(request: &VolumetricExportIsgRequest, sink: &mut dyn Sink) -> Outcome {
     let model = &crate::or_fail!(read_model(&request.model_name, &request.model));
     let [csv, lis] = ISG_FILES;
@@ -856,7 +856,14 @@ pub fn export_isg(request: &VolumetricExportIsgRequest, sink: &mut dyn Sink) -> 
             return Outcome::failed(e);
         }
     }
-    Outcome::succeeded(json!({"files": ISG_FILES}), Default::default())
+    // What the tables hold: the structure and each axis's positions.
+    let f = &model.file;
+    let points: Vec<usize> = f.tables.iter().map(|t| t.positions_mm.len()).collect();
+    Outcome::succeeded(
+        json!({"files": ISG_FILES, "structure": f.structure.name(), "fit_for_compensation": f.fit,
+               "x_points": points[0], "y_points": points[1], "z_points": points[2]}),
+        Default::default(),
+    )
 }
 
 /// Declares a registered kind for a file-to-file volumetric procedure.
@@ -947,15 +954,9 @@ pub fn campaign_summary(r: &Value) -> String {
     )
 }
 
-/// The files a result names, comma-separated.
+/// The exported files.
 pub fn files_summary(r: &Value) -> String {
-    let names: Vec<&str> = r["files"]
-        .as_array()
-        .into_iter()
-        .flatten()
-        .filter_map(Value::as_str)
-        .collect();
-    names.join(", ")
+    crate::summary::files(r)
 }
 
 #[cfg(test)]

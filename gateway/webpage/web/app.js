@@ -1266,9 +1266,12 @@ function fieldHelp(kind, name, spec) {
 // (`partition.tools`): [name, schema, required].
 function formFields(schema, prefix = '') {
   const required = new Set((schema && schema.required) || []);
-  return Object.entries((schema && schema.properties) || {}).flatMap(([name, prop]) =>
-    prop.type === 'object' && prop.properties ? formFields(prop, prefix + name + '.')
-      : [[prefix + name, prop, required.has(name)]]);
+  return Object.entries((schema && schema.properties) || {}).flatMap(([name, prop]) => {
+    // An object field, inline (`oneOf` of one object when it has its own description).
+    const inner = prop.oneOf && prop.oneOf.length === 1 ? prop.oneOf[0] : prop;
+    return inner.type === 'object' && inner.properties ? formFields(inner, prefix + name + '.')
+      : [[prefix + name, prop, required.has(name)]];
+  });
 }
 
 // `{'partition.tools': 2}` as `{partition: {tools: 2}}`.

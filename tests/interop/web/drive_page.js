@@ -18,7 +18,9 @@ const [base, token, machine, kind, paramsJson, screenshot, userDataDir, chartsAr
 // WALKS (optional JSON): {"queue": {"long": PARAMS, "short": PARAMS, "kind": KIND}} walks a
 // machine's queue (up, down, cancel) while a long job runs; {"kinds": ...} starts every
 // job kind from its form (kindsWalk).
-const walks = walksArg ? JSON.parse(walksArg) : {};
+// The walks as JSON, or `@FILE` holding it (uploads of pictures and campaigns pass the
+// size of one command-line argument).
+const walks = walksArg ? JSON.parse(walksArg.startsWith('@') ? require('fs').readFileSync(walksArg.slice(1), 'utf8') : walksArg) : {};
 const chartsRequired = (chartsArg || 'required') === 'required';
 const JOB_TIMEOUT_MS = 180000;
 const DESKTOP = { width: 1366, height: 900 };
@@ -410,7 +412,7 @@ async function formWalk(page) {
       throw new Error('a form the API refused started a job');
     }
     for (const [field, value] of [['grid_step_mm', ''], ['line_step_mm', ''], ['passes', ''], ['tool_offset_mm', '0; 0']]) {
-      await page.fill(`#field-${field}`, value);
+      await page.fill(`[id="field-${field}"]`, value);
     }
 
     // Uploads: a picture is refused when chosen; a JSON that is no layout and a broken
@@ -447,7 +449,7 @@ async function formWalk(page) {
       const numbers = await page.$$eval('#job-fields input[inputmode="numeric"], #job-fields input[inputmode="decimal"]',
         (inputs) => inputs.map((i) => i.dataset.fieldInput));
       if (numbers.length === 0) continue;
-      for (const name of numbers) await page.fill(`#field-${name}`, 'many');
+      for (const name of numbers) await page.fill(`[id="field-${name}"]`, 'many');
       await page.click('#start-job');
       await page.locator('#form-errors li').first().waitFor({ timeout: UI_TIMEOUT_MS });
       out.other_forms.push({
@@ -640,12 +642,16 @@ async function main() {
   } finally {
     await context.close();
   }
-  process.stdout.write(JSON.stringify(out) + '\n');
-  process.exit(out.ok ? 0 : 1);
+  report(out.ok ? 0 : 1);
+}
+
+// The report as the last line, exiting once it is written whole (a pipe takes 64 KiB
+// at a time; process.exit would cut a longer line).
+function report(code) {
+  process.stdout.write(JSON.stringify(out) + '\n', () => process.exit(code));
 }
 
 main().catch((error) => {
   out.why = String(error && error.stack || error);
-  process.stdout.write(JSON.stringify(out) + '\n');
-  process.exit(1);
+  report(1);
 });
