@@ -464,23 +464,7 @@ fn exported_comp_tables_are_applied_by_linuxcnc_as_the_map_says() {
     };
 
     // LinuxCNC's own INI with the two tables (type 0).
-    let src = tempfile::tempdir().unwrap();
-    let ini = std::fs::read_to_string(peers().join("x.ini")).unwrap();
-    let ini = ini
-        .replace(
-            "[JOINT_0]\n",
-            "[JOINT_0]\nCOMP_FILE = comp_x.txt\nCOMP_FILE_TYPE = 0\n",
-        )
-        .replace(
-            "[JOINT_1]\n",
-            "[JOINT_1]\nCOMP_FILE = comp_y.txt\nCOMP_FILE_TYPE = 0\n",
-        );
-    std::fs::write(src.path().join("comp.ini"), ini).unwrap();
-    for f in ["x.hal", "sim.tbl"] {
-        std::fs::copy(peers().join(f), src.path().join(f)).unwrap();
-    }
-    std::fs::write(src.path().join("comp_x.txt"), text(0)).unwrap();
-    std::fs::write(src.path().join("comp_y.txt"), text(1)).unwrap();
+    let src = config_with_tables(&sink.0[0].bytes, &sink.0[1].bytes);
 
     let _one = lock();
     let _peer = Peer::start(src.path().join("comp.ini").to_str().unwrap());
@@ -756,23 +740,7 @@ fn held_out_points_with_linuxcnc_tables_only_and_uncompensated() {
     let mut sink = procedure::Collect(Vec::new());
     procedure::export::run(&request, map, &mut sink);
     assert_eq!(sink.0.len(), 2);
-    let src = tempfile::tempdir().unwrap();
-    let ini = std::fs::read_to_string(peers().join("x.ini")).unwrap();
-    let ini = ini
-        .replace(
-            "[JOINT_0]\n",
-            "[JOINT_0]\nCOMP_FILE = comp_x.txt\nCOMP_FILE_TYPE = 0\n",
-        )
-        .replace(
-            "[JOINT_1]\n",
-            "[JOINT_1]\nCOMP_FILE = comp_y.txt\nCOMP_FILE_TYPE = 0\n",
-        );
-    std::fs::write(src.path().join("comp.ini"), ini).unwrap();
-    for f in ["x.hal", "sim.tbl"] {
-        std::fs::copy(peers().join(f), src.path().join(f)).unwrap();
-    }
-    std::fs::write(src.path().join("comp_x.txt"), &sink.0[0].bytes).unwrap();
-    std::fs::write(src.path().join("comp_y.txt"), &sink.0[1].bytes).unwrap();
+    let src = config_with_tables(&sink.0[0].bytes, &sink.0[1].bytes);
 
     let mut job = small_job_on_linuxcnc();
     if let job::StageSpec::Linuxcnc(spec) = &mut job.stage {
@@ -835,4 +803,28 @@ fn held_out_points_with_linuxcnc_tables_only_and_uncompensated() {
     // the cross-axis terms they cannot hold remain.
     assert!(t.3 < u.3, "rms {} -> {}", u.3, t.3);
     assert!(t.2 < u.2, "max {} -> {}", u.2, t.2);
+}
+
+/// The peer's configuration (`x.ini`, `x.hal`, `sim.tbl`) in a fresh folder as
+/// `comp.ini`, joints 0 and 1 loading `comp_x.txt` and `comp_y.txt` (COMP_FILE type 0)
+/// with these tables' text.
+fn config_with_tables(x: &[u8], y: &[u8]) -> tempfile::TempDir {
+    let src = tempfile::tempdir().unwrap();
+    let ini = std::fs::read_to_string(peers().join("x.ini")).unwrap();
+    let ini = ini
+        .replace(
+            "[JOINT_0]\n",
+            "[JOINT_0]\nCOMP_FILE = comp_x.txt\nCOMP_FILE_TYPE = 0\n",
+        )
+        .replace(
+            "[JOINT_1]\n",
+            "[JOINT_1]\nCOMP_FILE = comp_y.txt\nCOMP_FILE_TYPE = 0\n",
+        );
+    std::fs::write(src.path().join("comp.ini"), ini).unwrap();
+    for f in ["x.hal", "sim.tbl"] {
+        std::fs::copy(peers().join(f), src.path().join(f)).unwrap();
+    }
+    std::fs::write(src.path().join("comp_x.txt"), x).unwrap();
+    std::fs::write(src.path().join("comp_y.txt"), y).unwrap();
+    src
 }

@@ -57,6 +57,16 @@ pub struct NamedBoard {
     pub board: protocol::Board,
 }
 
+impl NamedBoard {
+    /// A job's board, its artifacts named after the board's name.
+    pub fn of_job(board: protocol::Board) -> Self {
+        Self {
+            name: file_name_of(&board.name),
+            board,
+        }
+    }
+}
+
 /// The stop signal: raised once (Ctrl-C, a cancel, the service's shutdown), seen by
 /// every clone.
 #[derive(Debug, Clone)]
@@ -129,11 +139,7 @@ pub trait Context {
     /// `dot-grid-0-5-mm-421-x-321-certified`), unless the front end was given a board
     /// file (named after the file).
     fn board(&mut self) -> Result<NamedBoard, ContextError> {
-        let board = self.job()?.board;
-        Ok(NamedBoard {
-            name: file_name_of(&board.name),
-            board,
-        })
+        Ok(NamedBoard::of_job(self.job()?.board))
     }
 }
 

@@ -219,11 +219,7 @@ impl Context for Files<'_> {
 
     fn board(&mut self) -> Result<NamedBoard, ContextError> {
         let Some(path) = &self.board_path else {
-            let board = self.loaded_job()?.board.clone();
-            return Ok(NamedBoard {
-                name: crate::context::file_name_of(&board.name),
-                board,
-            });
+            return Ok(NamedBoard::of_job(self.loaded_job()?.board.clone()));
         };
         let board = protocol::Board::load(path).map_err(|e| ContextError::Files(e.to_string()))?;
         // Artifacts are named after the board file.
