@@ -14,4 +14,5 @@ pub mod grbl;
 pub mod linuxcnc;
 pub mod modbus;
 pub mod pty;
+pub mod rig_files;
 pub mod trace;

@@ -37,15 +37,9 @@ enum Cmd {
     /// Serve a GRBL 1.1 controller on a new pseudo-terminal, driving the simulated
     /// machine; prints the port path (`/dev/pts/N`) and serves until killed.
     Grbl {
-        /// Simulated machine file.
-        #[arg(long, default_value = "config/machines/c5-stage.toml")]
-        machine: PathBuf,
-        /// Board the camera sees (the rig's board; not used by the controller itself).
-        #[arg(long, default_value = "config/boards/dot-grid-0.5mm.toml")]
-        board: PathBuf,
-        /// Camera optics file.
-        #[arg(long, default_value = "config/cameras/mono-1.3mp.toml")]
-        camera: PathBuf,
+        /// The rig (the board and camera are not used by the controller itself).
+        #[command(flatten)]
+        rig: emulators::rig_files::RigFiles,
         /// Also create a symlink to the port at this path (stable name for senders).
         #[arg(long)]
         link: Option<PathBuf>,
@@ -78,9 +72,7 @@ enum Cmd {
 }
 
 fn serve_grbl(
-    machine: PathBuf,
-    board: PathBuf,
-    camera: PathBuf,
+    rig: emulators::rig_files::RigFiles,
     link: Option<PathBuf>,
     time_scale: String,
     trace: Option<PathBuf>,
@@ -88,10 +80,7 @@ fn serve_grbl(
     use emulators::grbl::{GrblConfig, GrblDevice, GrblPty};
     use std::io::Write;
     let clock = time_scale.parse::<world::Clock>().context("--time-scale")?;
-    let m = world::machine::MachineConfig::load(&machine)?;
-    let b = Board::load(&board)?;
-    let c = world::camera::CameraModel::load(&camera)?;
-    let rig = world::rig::SimRig::new(world::machine::SimMachine::new(m), b, c);
+    let rig = rig.rig()?;
     let rig = std::sync::Arc::new(std::sync::Mutex::new(rig));
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
@@ -137,13 +126,11 @@ fn main() -> anyhow::Result<()> {
         Cmd::Gige(args) => emulators::gige::cli::serve(args)?,
         Cmd::Dnc(args) => emulators::dnc::cli::serve(args)?,
         Cmd::Grbl {
-            machine,
-            board,
-            camera,
+            rig,
             link,
             time_scale,
             trace,
-        } => serve_grbl(machine, board, camera, link, time_scale, trace)?,
+        } => serve_grbl(rig, link, time_scale, trace)?,
         Cmd::MakeCertificate {
             board,
             seed,

@@ -22,15 +22,8 @@ pub struct CanopenArgs {
     /// Also create a symlink to the port at this path (a stable name for clients).
     #[arg(long)]
     pub link: Option<PathBuf>,
-    /// Simulated machine file.
-    #[arg(long, default_value = "config/machines/c5-stage.toml")]
-    pub machine: PathBuf,
-    /// Board the camera sees (the rig's board).
-    #[arg(long, default_value = "config/boards/dot-grid-0.5mm.toml")]
-    pub board: PathBuf,
-    /// Camera optics file.
-    #[arg(long, default_value = "config/cameras/mono-1.3mp.toml")]
-    pub camera: PathBuf,
+    #[command(flatten)]
+    pub rig: crate::rig_files::RigFiles,
     /// Simulated seconds per wall second, or `unconstrained` (a motion completes right
     /// after the frames that reported its start).
     #[arg(long, default_value = "1")]
@@ -79,10 +72,7 @@ pub fn serve(args: CanopenArgs) -> anyhow::Result<()> {
         ),
         None => (DRIVE_EDS_NAME.to_string(), DRIVE_EDS.to_string()),
     };
-    let m = world::machine::MachineConfig::load(&args.machine)?;
-    let b = protocol::Board::load(&args.board)?;
-    let c = world::camera::CameraModel::load(&args.camera)?;
-    let rig = world::rig::SimRig::new(world::machine::SimMachine::new(m), b, c);
+    let rig = args.rig.rig()?;
     let rig = Arc::new(Mutex::new(rig));
     let trace_rig = rig.clone();
     let set = DriveSet::new(rig, &DriveSetConfig { clock, nodes, eds }, 0.0)?;

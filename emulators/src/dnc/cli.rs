@@ -17,15 +17,8 @@ use std::sync::{Arc, Mutex};
 
 #[derive(clap::Args, Debug)]
 pub struct DncArgs {
-    /// Simulated machine file.
-    #[arg(long, default_value = "config/machines/c5-stage.toml")]
-    pub machine: PathBuf,
-    /// Board the camera sees.
-    #[arg(long, default_value = "config/boards/dot-grid-0.5mm.toml")]
-    pub board: PathBuf,
-    /// Camera optics file.
-    #[arg(long, default_value = "config/cameras/mono-1.3mp.toml")]
-    pub camera: PathBuf,
+    #[command(flatten)]
+    pub rig: crate::rig_files::RigFiles,
     /// Also serve the GigE Vision camera on the same machine at this GVCP address.
     #[arg(long)]
     pub gige: Option<SocketAddr>,
@@ -111,10 +104,7 @@ impl DncArgs {
 
 pub fn serve(a: DncArgs) -> anyhow::Result<()> {
     let cfg = a.config()?;
-    let m = world::machine::MachineConfig::load(&a.machine)?;
-    let b = protocol::Board::load(&a.board)?;
-    let c = world::camera::CameraModel::load(&a.camera)?;
-    let rig = world::rig::SimRig::new(world::machine::SimMachine::new(m), b, c);
+    let rig = a.rig.rig()?;
     let rig = Arc::new(Mutex::new(rig));
     let mut dev = DncDevice::new(rig.clone(), cfg.clone());
     for path in &a.store {

@@ -66,15 +66,8 @@ pub struct GigeArgs {
     /// Simulated seconds per wall second of the stage, or `unconstrained`.
     #[arg(long, default_value = "1")]
     pub time_scale: String,
-    /// Simulated machine file.
-    #[arg(long, default_value = "config/machines/c5-stage.toml")]
-    pub machine: PathBuf,
-    /// Board the camera sees.
-    #[arg(long, default_value = "config/boards/dot-grid-0.5mm.toml")]
-    pub board: PathBuf,
-    /// Camera optics file (sensor size and bit depth: Mono8 or Mono16).
-    #[arg(long, default_value = "config/cameras/mono-1.3mp.toml")]
-    pub camera: PathBuf,
+    #[command(flatten)]
+    pub rig: crate::rig_files::RigFiles,
 }
 
 pub fn serve(a: GigeArgs) -> anyhow::Result<()> {
@@ -82,10 +75,7 @@ pub fn serve(a: GigeArgs) -> anyhow::Result<()> {
         .time_scale
         .parse::<world::Clock>()
         .context("--time-scale")?;
-    let m = world::machine::MachineConfig::load(&a.machine)?;
-    let b = protocol::Board::load(&a.board)?;
-    let c = world::camera::CameraModel::load(&a.camera)?;
-    let rig = world::rig::SimRig::new(world::machine::SimMachine::new(m), b, c);
+    let rig = a.rig.rig()?;
     let rig = Arc::new(Mutex::new(rig));
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()

@@ -30,15 +30,8 @@ pub struct ModbusArgs {
     /// Units as ID=AXIS (axis x or y); repeat for several drives on the line.
     #[arg(long = "unit", default_values_t = ["1=x".to_string(), "2=y".to_string()])]
     pub units: Vec<String>,
-    /// Simulated machine file.
-    #[arg(long, default_value = "config/machines/c5-stage.toml")]
-    pub machine: PathBuf,
-    /// Board the camera sees (the rig's board).
-    #[arg(long, default_value = "config/boards/dot-grid-0.5mm.toml")]
-    pub board: PathBuf,
-    /// Camera optics file.
-    #[arg(long, default_value = "config/cameras/mono-1.3mp.toml")]
-    pub camera: PathBuf,
+    #[command(flatten)]
+    pub rig: crate::rig_files::RigFiles,
     /// Simulated seconds per wall second, or `unconstrained` (motion completes right
     /// after a status read has reported it).
     #[arg(long, default_value = "1")]
@@ -129,10 +122,7 @@ pub fn serve(a: ModbusArgs) -> anyhow::Result<()> {
         ),
         None => None,
     };
-    let m = world::machine::MachineConfig::load(&a.machine)?;
-    let b = protocol::Board::load(&a.board)?;
-    let c = world::camera::CameraModel::load(&a.camera)?;
-    let rig = world::rig::SimRig::new(world::machine::SimMachine::new(m), b, c);
+    let rig = a.rig.rig()?;
     let rig = Arc::new(Mutex::new(rig));
     let trace_rig = rig.clone();
     let device = ModbusDevice::new(DriveSet::new(rig, profile.clone(), &units, clock));
