@@ -225,6 +225,26 @@ mod tests {
         let cut: procedure::request::CutRequest =
             serde_json::from_value(json!({ "partition": layout })).unwrap();
         assert_eq!(request, cut);
+        let Cmd::Rewrite(a) = parse(&["rewrite", "p.nc", "--map", "m", "--out", "o"]) else {
+            panic!()
+        };
+        let api: procedure::rewrite::RewriteRequest =
+            serde_json::from_value(json!({"program": ""})).unwrap();
+        assert_eq!(a.request, api);
+        let Cmd::Rotary {
+            cmd: rotary::RotaryCmd::Rewrite { request, .. },
+        } = parse(&["rotary", "rewrite", "p.nc", "--errors", "e", "--out", "o"])
+        else {
+            panic!()
+        };
+        let api: procedure::rotary::RotaryRewriteRequest =
+            serde_json::from_value(json!({"program": "", "errors": ""})).unwrap();
+        assert_eq!(request, api);
+        let Cmd::Proxy(a) = parse(&["proxy", "--config", "j", "--map", "m"]) else {
+            panic!()
+        };
+        let api: procedure::proxy::ProxyRequest = serde_json::from_value(json!({})).unwrap();
+        assert_eq!(a.request, api);
         let Cmd::Localize(a) = parse(&["localize", "f.png", "--board", "b", "--near", "-1,2"])
         else {
             panic!()

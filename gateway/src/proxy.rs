@@ -28,28 +28,15 @@ pub struct ProxyArgs {
     /// The controller's serial port, with `--rotary`.
     #[arg(long)]
     pub controller: Option<String>,
-    #[arg(long, default_value_t = 115_200)]
-    pub baud: u32,
     /// Also create a symlink to the sender's port at this path.
     #[arg(long)]
     pub link: Option<PathBuf>,
-    #[arg(long, default_value_t = 0.5)]
-    pub tolerance_um: f64,
-    /// The largest correction a move may get (default 200 um with a map, 2000 um for
-    /// a rotary table, whose A-axis offsets reach tenths of a millimetre).
-    #[arg(long)]
-    pub max_correction_um: Option<f64>,
-    /// An emulated controller's clock: simulated seconds per wall second, or
-    /// `unconstrained`.
-    #[arg(long, default_value = "1")]
-    pub time_scale: String,
-    /// Serve one sender session and exit.
-    #[arg(long)]
-    pub once: bool,
     /// With --map: apply the map as scanned, without its recorded reference
     /// (MAP.reference.json, written by `gateway reference` after a homing).
     #[arg(long, requires = "map")]
     pub no_reference: bool,
+    #[command(flatten)]
+    pub request: ProxyRequest,
 }
 
 /// Prints the ready message and each session but the last as they come.
@@ -103,13 +90,7 @@ impl ProxyFront for Printer {
 }
 
 pub fn proxy(args: ProxyArgs, json: bool) -> anyhow::Result<ExitCode> {
-    let request = ProxyRequest {
-        tolerance_um: args.tolerance_um,
-        max_correction_um: args.max_correction_um,
-        baud: args.baud,
-        time_scale: args.time_scale,
-        once: args.once,
-    };
+    let request = args.request;
     request.check().map_err(|e| anyhow::anyhow!(e.for_cli()))?;
     let inputs = procedure::proxy::inputs(args.config, args.map, args.rotary, args.controller)
         .map_err(|e| anyhow::anyhow!(e))?;

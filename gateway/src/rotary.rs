@@ -44,13 +44,8 @@ pub enum RotaryCmd {
         /// (else the built-in ones). Refused where they differ from the recorded ones.
         #[arg(long)]
         machine: Option<PathBuf>,
-        /// Use --machine even where it differs from the constants recorded in the
-        /// errors file.
-        #[arg(long, requires = "machine")]
-        force_machine: bool,
-        /// Largest distance (X Y Z) of a piece's middle from the compensated path, um.
-        #[arg(long, default_value_t = 0.5)]
-        tolerance_um: f64,
+        #[command(flatten)]
+        request: procedure::rotary::RotaryRewriteRequest,
     },
     /// Run the paper's measurement cycle with the touch probe on the simulated 5-axis
     /// machine (C in 12 steps of 30°, A in 6 steps of 15°, 6 points per ball, each
@@ -107,33 +102,44 @@ pub fn run(cmd: RotaryCmd, json: bool) -> anyhow::Result<ExitCode> {
             errors,
             out,
             machine,
-            force_machine,
-            tolerance_um,
-        } => {
-            // The program as a bounded stream of lines (64 KiB a line).
-            let mut program = String::new();
-            for line in protocol::config::open_lines(&input, DataKind::Program)?.keep_endings() {
-                program.push_str(&line?.1);
-            }
-            let request = procedure::rotary::RotaryRewriteRequest {
-                program,
-                program_name: input.display().to_string(),
-                errors: procedure::rotary::read_errors_file(&errors).map_err(anyhow::Error::msg)?,
-                errors_name: errors.display().to_string(),
-                machine: machine
-                    .as_deref()
-                    .map(|p| load_constants(Some(p)))
-                    .transpose()?,
-                force_machine,
-                tolerance_um,
-            };
-            let mut sink = CliSink::new("", true)
-                .inputs(&[&input, &errors])
-                .artifact_to("program.nc", out.clone());
-            let wrote = format!("wrote {}", out.display());
-            crate::front::run_kind_then("rotary-rewrite", &request, &mut sink, json, &wrote, |f| f)
-        }
+            request,
+        } => rewrite(
+            &input,
+            &errors,
+            &out,
+            machine.as_deref(),
+            request.force_machine,
+            request.tolerance_um,
+            json,
+        ),
     }
+}
+
+/// `gateway rotary rewrite` (and `gateway rewrite --rotary`): the program, errors and
+/// machine files read into the request, the program written to `out`.
+pub fn rewrite(
+    input: &Path,
+    errors: &Path,
+    out: &Path,
+    machine: Option<&Path>,
+    force_machine: bool,
+    tolerance_um: f64,
+    json: bool,
+) -> anyhow::Result<ExitCode> {
+    let request = procedure::rotary::RotaryRewriteRequest {
+        program: procedure::rewrite::read_program(input).map_err(anyhow::Error::msg)?,
+        program_name: input.display().to_string(),
+        errors: procedure::rotary::read_errors_file(errors).map_err(anyhow::Error::msg)?,
+        errors_name: errors.display().to_string(),
+        machine: machine.map(|p| load_constants(Some(p))).transpose()?,
+        force_machine,
+        tolerance_um,
+    };
+    let mut sink = CliSink::new("", true)
+        .inputs(&[input, errors])
+        .artifact_to("program.nc", out.to_path_buf());
+    let wrote = format!("wrote {}", out.display());
+    crate::front::run_kind_then("rotary-rewrite", &request, &mut sink, json, &wrote, |f| f)
 }
 
 /// The machine constants from a JSON file, or the defaults.

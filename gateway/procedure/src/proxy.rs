@@ -46,26 +46,32 @@ fn default_time_scale() -> String {
     "1".into()
 }
 
-/// How the pass-through rewrites and runs.
+/// How the pass-through rewrites and runs (on the command line, these are its flags).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct ProxyRequest {
     /// Largest distance of the executed path from the compensated path, um.
     #[serde(default = "default_tolerance")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_tolerance()))]
     pub tolerance_um: f64,
-    /// The largest correction a move may get, um (default [`MAP_MAX_CORRECTION_UM`]
-    /// with a map, [`ROTARY_MAX_CORRECTION_UM`] for a rotary table).
+    /// The largest correction a move may get, um (default 200 um with a map, 2000 um for
+    /// a rotary table, whose A-axis offsets reach tenths of a millimetre).
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long))]
     pub max_correction_um: Option<f64>,
     /// The rotary table's controller's baud rate (a job's controller has its own).
     #[serde(default = "default_baud")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_baud()))]
     pub baud: u32,
     /// An emulated controller's clock: simulated seconds per wall second, or
     /// `unconstrained`.
     #[serde(default = "default_time_scale")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_time_scale()))]
     pub time_scale: String,
     /// Serve one sender session, then end.
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long))]
     pub once: bool,
 }
 

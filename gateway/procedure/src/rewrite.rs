@@ -71,49 +71,89 @@ fn default_program_name() -> String {
     "program.nc".into()
 }
 
-/// A program rewrite.
+/// A program rewrite. On the command line its flags are these fields (the files, the
+/// program and `$#` reply, are read into them by the front end); none of them applies to
+/// the 5-axis `--rotary` rewrite, so each conflicts with it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct RewriteRequest {
     /// The program's text (G-code for GRBL 1.1).
     #[schema(format = Binary, max_length = 67108864)]
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub program: String,
     /// How messages name the program (its file name).
     #[serde(default = "default_program_name")]
     #[schema(default = default_program_name)]
+    #[cfg_attr(feature = "cli", arg(skip = default_program_name()))]
     pub program_name: String,
     /// Apply the map as scanned, without its recorded reference (the reference after
-    /// the last homing).
+    /// the last homing, MAP.reference.json written by `gateway reference`).
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, requires = "map"))]
     pub no_reference: bool,
     /// Largest distance of the executed path from the compensated path, um.
     #[serde(default = "default_tolerance")]
     #[schema(default = default_tolerance, minimum = 0.01, maximum = 1000.0)]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_tolerance()))]
     pub tolerance_um: f64,
     /// Largest correction accepted at any point, um.
     #[serde(default = "default_max_correction")]
     #[schema(default = default_max_correction, minimum = 0.001, maximum = 100000.0)]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_max_correction(), conflicts_with = "rotary"))]
     pub max_correction_um: f64,
     /// The controller's reply to `$#` (its `[G54:x,y,z]` ... `[G59:...]` lines).
     #[serde(default)]
     #[schema(format = Binary)]
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub offsets: Option<String>,
     /// Machine position when the program starts, `[x, y]` or `[x, y, z]` mm (else the
-    /// first moves must name every compensated axis).
+    /// first moves must name every compensated axis). Command line: `X,Y[,Z]`.
     #[serde(default)]
-    pub start: Option<Vec<f64>>,
+    #[cfg_attr(feature = "cli", arg(long, value_parser = pose_mm, conflicts_with = "rotary"))]
+    pub start: Option<::std::vec::Vec<f64>>,
     /// Soft limits, `[[xmin, xmax], [ymin, ymax]]` and optionally `[zmin, zmax]`,
-    /// machine mm (Z unbounded when left out).
+    /// machine mm (Z unbounded when left out). Command line:
+    /// `XMIN:XMAX,YMIN:YMAX[,ZMIN:ZMAX]`.
     #[serde(default)]
-    pub limits: Option<Vec<[f64; 2]>>,
+    #[cfg_attr(feature = "cli", arg(long, value_parser = limits_mm, conflicts_with = "rotary"))]
+    pub limits: Option<::std::vec::Vec<[f64; 2]>>,
     /// A volumetric model file's text (`volumetric identify`'s): X, Y and Z corrected
     /// by it instead of by the machine's error map.
     #[serde(default)]
     #[schema(format = Binary)]
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub volumetric: Option<String>,
     /// How messages name the volumetric model (its file name).
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub volumetric_name: Option<String>,
+}
+
+/// `X,Y[,Z]` (mm) as numbers (a command-line value); the count and the bounds are the
+/// request's to check.
+#[cfg(feature = "cli")]
+pub fn pose_mm(text: &str) -> Result<Vec<f64>, String> {
+    text.split(',')
+        .map(|p| p.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("`{text}`: expected X,Y or X,Y,Z in mm"))
+}
+
+/// `XMIN:XMAX,YMIN:YMAX[,ZMIN:ZMAX]` (mm) as ranges (a command-line value); the count and
+/// the bounds are the request's to check.
+#[cfg(feature = "cli")]
+pub fn limits_mm(text: &str) -> Result<Vec<[f64; 2]>, String> {
+    let bad = || format!("`{text}`: expected XMIN:XMAX,YMIN:YMAX[,ZMIN:ZMAX] in mm");
+    text.split(',')
+        .map(|part| {
+            let (a, b) = part.split_once(':').ok_or_else(bad)?;
+            Ok([
+                a.trim().parse().map_err(|_| bad())?,
+                b.trim().parse().map_err(|_| bad())?,
+            ])
+        })
+        .collect()
 }
 
 impl RewriteRequest {

@@ -454,35 +454,45 @@ fn default_rotary_tolerance() -> f64 {
     0.5
 }
 
-/// A 5-axis program rewritten for a rotary table's location errors.
+/// A 5-axis program rewritten for a rotary table's location errors. On the command
+/// line its flags are these fields (the program, errors and machine files are read into
+/// them by the front end).
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize, utoipa::ToSchema)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct RotaryRewriteRequest {
     /// The program (X Y Z A C, absolute, mm).
     #[schema(format = Binary, max_length = 67108864)]
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub program: String,
     /// How messages name it (its file name).
     #[serde(default = "default_program_name")]
     #[schema(default = default_program_name)]
+    #[cfg_attr(feature = "cli", arg(skip = default_program_name()))]
     pub program_name: String,
     /// The errors (the JSON the identification or the probing cycle writes).
     #[schema(format = Binary, max_length = 16777216)]
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub errors: String,
     /// How messages name the errors (their file name).
     #[serde(default = "default_errors_name")]
     #[schema(default = default_errors_name)]
+    #[cfg_attr(feature = "cli", arg(skip = default_errors_name()))]
     pub errors_name: String,
     /// The machine constants; default: those recorded with the errors. Refused where
     /// they differ from the recorded ones unless `force_machine`.
     #[serde(default)]
     #[schema(value_type = Option<Object>)]
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub machine: Option<MachineConstants>,
     /// Use `machine` even where it differs from the constants recorded with the errors.
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, requires = "machine"))]
     pub force_machine: bool,
     /// Largest distance (X Y Z) of a piece's middle from the compensated path, um.
     #[serde(default = "default_rotary_tolerance")]
     #[schema(default = default_rotary_tolerance, minimum = 0.001, maximum = 1000.0)]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_rotary_tolerance()))]
     pub tolerance_um: f64,
 }
 
