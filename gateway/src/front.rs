@@ -6,7 +6,7 @@
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 use procedure::files::Files;
-use procedure::{Artifact, Outcome, Sink, Stop};
+use procedure::{Artifact, LogRow, Outcome, Sink, Stop};
 use serde_json::Value;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -36,9 +36,6 @@ pub fn write_atomic(path: &Path, bytes: &[u8], inputs: &[PathBuf]) -> anyhow::Re
         .with_context(|| format!("writing {}", path.display()))
 }
 
-/// What the CLI does with each measurement as it comes (e.g. rewrite a file).
-type OnMeasurement = Box<dyn FnMut(&Value) -> Result<(), String>>;
-
 /// The command line's sink.
 pub struct CliSink {
     bar: ProgressBar,
@@ -46,7 +43,8 @@ pub struct CliSink {
     out: Option<PathBuf>,
     rename: Vec<(String, PathBuf)>,
     inputs: Vec<PathBuf>,
-    on_measurement: Option<OnMeasurement>,
+    /// The logs being grown ([`Sink::log_row`]), open for appending.
+    logs: Vec<(String, std::fs::File)>,
 }
 
 impl CliSink {
@@ -69,7 +67,7 @@ impl CliSink {
             out: None,
             rename: Vec::new(),
             inputs: Vec::new(),
-            on_measurement: None,
+            logs: Vec::new(),
         }
     }
 
@@ -89,6 +87,14 @@ impl CliSink {
         Ok(Some(dir))
     }
 
+    /// Where the artifact `name` goes (none: it is not written).
+    fn path_of(&self, name: &str) -> Result<Option<PathBuf>, String> {
+        Ok(match self.rename.iter().find(|(n, _)| *n == name) {
+            Some((_, p)) => Some(p.clone()),
+            None => self.folder()?.map(|dir| dir.join(name)),
+        })
+    }
+
     /// The artifact `name` is written to `path` instead (only those named, when no
     /// folder is given).
     pub fn artifact_to(mut self, name: &str, path: PathBuf) -> Self {
@@ -99,11 +105,6 @@ impl CliSink {
     /// Files the command reads: never written over.
     pub fn inputs(mut self, inputs: &[&Path]) -> Self {
         self.inputs = inputs.iter().map(|p| p.to_path_buf()).collect();
-        self
-    }
-
-    pub fn on_measurement(mut self, f: impl FnMut(&Value) -> Result<(), String> + 'static) -> Self {
-        self.on_measurement = Some(Box::new(f));
         self
     }
 
@@ -122,25 +123,38 @@ impl Sink for CliSink {
         }
     }
 
-    fn measurement(&mut self, measurement: &Value) -> Result<(), String> {
-        if self.on_measurement.is_some() {
-            // What it writes goes into the folder.
-            self.folder()?;
+    fn measurement(&mut self, _: &Value) -> Result<(), String> {
+        Ok(())
+    }
+
+    fn log_row(&mut self, row: &LogRow) -> Result<(), String> {
+        if let Some((_, file)) = self.logs.iter_mut().find(|(n, _)| n == row.log) {
+            return file
+                .write_all(row.row.as_bytes())
+                .and_then(|()| file.sync_data())
+                .map_err(|e| format!("{}: {e}", row.log));
         }
-        match &mut self.on_measurement {
-            Some(f) => f(measurement),
-            None => Ok(()),
-        }
+        // The header and the first row written whole (never over an input), then the
+        // file opened for the rows to come.
+        let Some(path) = self.path_of(row.log)? else {
+            return Ok(());
+        };
+        let first = format!("{}{}", row.header, row.row);
+        write_atomic(&path, first.as_bytes(), &self.inputs).map_err(|e| format!("{e:#}"))?;
+        let file = std::fs::OpenOptions::new()
+            .append(true)
+            .open(&path)
+            .map_err(|e| format!("opening {}: {e}", path.display()))?;
+        self.logs.push((row.log.to_string(), file));
+        Ok(())
     }
 
     fn artifact(&mut self, artifact: Artifact) -> Result<(), String> {
-        let path = match self.rename.iter().find(|(n, _)| *n == artifact.name) {
-            Some((_, p)) => p.clone(),
-            None => match self.folder()? {
-                Some(dir) => dir.join(&artifact.name),
-                None => return Ok(()),
-            },
+        let Some(path) = self.path_of(&artifact.name)? else {
+            return Ok(());
         };
+        // A log grown so far is replaced whole.
+        self.logs.retain(|(n, _)| *n != artifact.name);
         write_atomic(&path, &artifact.bytes, &self.inputs).map_err(|e| format!("{e:#}"))
     }
 }
@@ -258,6 +272,42 @@ pub fn run_outcome(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A log grows row by row under one header (a stopped run keeps its rows), is
+    /// replaced whole by the artifact of its name, and is never written over an input.
+    #[test]
+    fn a_log_grows_a_row_at_a_time_and_the_artifact_replaces_it() {
+        let dir = std::env::temp_dir().join(format!("gateway-front-log-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let mut sink = CliSink::new("", true).into_folder(&dir).unwrap();
+        let row = |row| LogRow {
+            log: "m.csv",
+            header: "a,b\n",
+            row,
+        };
+        sink.log_row(&row("1,2\n")).unwrap();
+        sink.log_row(&row("3,4\n")).unwrap();
+        let text = std::fs::read_to_string(dir.join("m.csv")).unwrap();
+        assert_eq!(text, "a,b\n1,2\n3,4\n");
+        let whole = Artifact {
+            name: "m.csv".into(),
+            title: None,
+            media_type: "text/csv",
+            bytes: b"a,b\n9,9\n".to_vec(),
+        };
+        sink.artifact(whole).unwrap();
+        assert_eq!(
+            std::fs::read_to_string(dir.join("m.csv")).unwrap(),
+            "a,b\n9,9\n"
+        );
+        let input = dir.join("in.csv");
+        std::fs::write(&input, "keep").unwrap();
+        let mut sink = CliSink::new("", true).artifact_to("m.csv", input.clone());
+        sink.inputs = vec![input.clone()];
+        assert!(sink.log_row(&row("1,2\n")).is_err());
+        assert_eq!(std::fs::read_to_string(&input).unwrap(), "keep");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn a_failed_outcomes_json_names_its_error() {

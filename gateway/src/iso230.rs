@@ -5,10 +5,7 @@
 
 use crate::front::CliSink;
 use anyhow::Context;
-use iso230::{csv_io, Direction, Measurement};
 use procedure::request::Iso230Request;
-use serde_json::Value;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -40,55 +37,6 @@ pub struct RunArgs {
     pub request: Iso230Request,
 }
 
-/// `measurements.csv` as the cycle goes: the header, then each measurement appended and
-/// synced as it is taken (a stopped cycle leaves its runs so far); the procedure's
-/// whole file replaces it atomically at the end.
-struct MeasurementLog {
-    path: PathBuf,
-    /// Files the command reads: the log is never one of them.
-    inputs: Vec<PathBuf>,
-    file: Option<std::fs::File>,
-}
-
-impl MeasurementLog {
-    fn append(&mut self, m: &Value) -> Result<(), String> {
-        let row = Measurement {
-            axis: m["axis"].as_str().unwrap_or("").to_string(),
-            position_index: m["position_index"].as_u64().unwrap_or(0) as usize,
-            target_mm: m["target_mm"].as_f64().unwrap_or(f64::NAN),
-            run: m["run"].as_u64().unwrap_or(0) as usize,
-            direction: if m["direction"] == "-" {
-                Direction::Down
-            } else {
-                Direction::Up
-            },
-            deviation_um: m["deviation_um"].as_f64().unwrap_or(f64::NAN),
-        };
-        let text = csv_io::write(&[row]);
-        let shown = self.path.display().to_string();
-        match &mut self.file {
-            Some(file) => {
-                let row = text.split_once('\n').map_or("", |(_, rows)| rows);
-                file.write_all(row.as_bytes())
-                    .and_then(|()| file.sync_data())
-                    .map_err(|e| format!("{shown}: {e}"))
-            }
-            None => {
-                // The header and the first row written whole (never over an input),
-                // then opened for the rows to come.
-                crate::front::write_atomic(&self.path, text.as_bytes(), &self.inputs)
-                    .map_err(|e| format!("{e:#}"))?;
-                let file = std::fs::OpenOptions::new()
-                    .append(true)
-                    .open(&self.path)
-                    .map_err(|e| format!("opening {shown}: {e}"))?;
-                self.file = Some(file);
-                Ok(())
-            }
-        }
-    }
-}
-
 pub fn run(args: RunArgs, json: bool) -> anyhow::Result<ExitCode> {
     let mut request = args.request;
     request.with_map = args.map.is_some();
@@ -105,15 +53,9 @@ pub fn run(args: RunArgs, json: bool) -> anyhow::Result<ExitCode> {
     .into_iter()
     .flatten()
     .collect();
-    let mut log = MeasurementLog {
-        path: args.out.join("measurements.csv"),
-        inputs: inputs.iter().map(|p| p.to_path_buf()).collect(),
-        file: None,
-    };
     let mut sink = CliSink::new("measurements", json)
         .inputs(&inputs)
-        .into_folder(&args.out)?
-        .on_measurement(move |m| log.append(m));
+        .into_folder(&args.out)?;
     let kind = procedure::kinds::kind("iso230").map_err(|e| anyhow::anyhow!("{e}"))?;
     let outcome = crate::front::run_outcome(kind, &request, &mut sink, |f| {
         let f = f.job_file(&args.config);

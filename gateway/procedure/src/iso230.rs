@@ -18,6 +18,10 @@ use std::cell::{Cell, RefCell};
 use std::future::Future;
 use std::time::Instant;
 
+/// The measurements file: grown a row at a time while the cycle runs
+/// ([`crate::LogRow`]), written whole at its end.
+pub const MEASUREMENTS_ARTIFACT: &str = "measurements.csv";
+
 /// A measurements file read through the bounded reader ([`DataKind::Iso230`]) and
 /// parsed: errors name the file, and the line and column where the parser fails.
 pub fn read_measurements_file(path: &std::path::Path) -> Result<Vec<Measurement>, String> {
@@ -187,8 +191,8 @@ fn figures_metrics(e: &Evaluation) -> serde_json::Map<String, Value> {
 /// Runs the test on the machine. With `map`, every target is commanded through it
 /// (refused before any motion if the map was measured on another machine); `before`
 /// is a test of the same axis without compensation, overlaid on the charts. Each
-/// measurement goes to the sink as it is taken (`measurements.csv` rewritten by the
-/// CLI's sink), then the evaluation, charts and report as artifacts.
+/// measurement goes to the sink as it is taken (and as a row of
+/// [`MEASUREMENTS_ARTIFACT`]'s log), then the evaluation, charts and report as artifacts.
 pub async fn run(
     request: &Iso230Request,
     job: &Job,
@@ -295,7 +299,15 @@ pub async fn run(
                 "axis": m.axis, "position_index": m.position_index, "target_mm": m.target_mm,
                 "run": m.run, "direction": m.direction.sign(), "deviation_um": m.deviation_um,
             });
-            if let Err(e) = shared_sink.borrow_mut().measurement(&row) {
+            let text = csv_io::write(std::slice::from_ref(m));
+            let (header, rows) = text.split_once('\n').unwrap_or((&text, ""));
+            let log = crate::LogRow {
+                log: MEASUREMENTS_ARTIFACT,
+                header: &format!("{header}\n"),
+                row: rows,
+            };
+            let mut sink = shared_sink.borrow_mut();
+            if let Err(e) = sink.measurement(&row).and_then(|()| sink.log_row(&log)) {
                 sink_error.get_or_insert(e);
             }
         },
@@ -368,7 +380,7 @@ pub async fn run(
         "machine_time_s": machine_time_s, "wall_time_s": started.elapsed().as_secs_f64(),
     });
     let csv = Artifact {
-        name: "measurements.csv".into(),
+        name: MEASUREMENTS_ARTIFACT.into(),
         title: None,
         media_type: "text/csv",
         bytes: csv_io::write(&run.measurements).into_bytes(),

@@ -136,6 +136,17 @@ pub struct Artifact {
     pub bytes: Vec<u8>,
 }
 
+/// One row of a growing log ([`Sink::log_row`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LogRow<'a> {
+    /// The log's file name (an artifact's name).
+    pub log: &'a str,
+    /// Its first line, written before the first row (with its line end).
+    pub header: &'a str,
+    /// The row (with its line end).
+    pub row: &'a str,
+}
+
 /// What a front end does with what a procedure produces while it runs.
 pub trait Sink {
     /// `done` of `total` steps (targets, frames, measurements, balls).
@@ -145,6 +156,13 @@ pub trait Sink {
     fn measurement(&mut self, measurement: &Value) -> Result<(), String>;
     /// A product of the procedure; an error fails it naming the artifact.
     fn artifact(&mut self, artifact: Artifact) -> Result<(), String>;
+    /// A row appended to a log that grows as the procedure goes (ISO 230-2's
+    /// `measurements.csv`), so that a run stopped half-way leaves its rows in a file; the
+    /// whole artifact of the same name replaces it at the end. Fronts that keep every
+    /// [`Sink::measurement`] anyway (the service's store) need not keep it.
+    fn log_row(&mut self, _row: &LogRow) -> Result<(), String> {
+        Ok(())
+    }
     /// A localized camera frame for a live view (a few a second at most; the runner
     /// skips the others). Kept or dropped at will: nothing depends on it.
     fn frame(&mut self, _frame: &FrameThumb) {}
