@@ -3,9 +3,7 @@
 //! procedure is `procedure::proxy`; here the flags become its request, the files are
 //! read, and what it reports is printed as it comes.
 
-use job::Job;
 use procedure::proxy::{Correction, Inputs, ProxyFront, ProxyRequest};
-use protocol::errormap::ErrorMap;
 use serde_json::Value;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -98,38 +96,8 @@ pub fn proxy(args: ProxyArgs, json: bool) -> anyhow::Result<ExitCode> {
         Inputs::Map { map, .. } => Some(procedure::reference::reference_path(map)),
         Inputs::Rotary { .. } => None,
     };
-    let correction = match inputs {
-        Inputs::Map { job, map } => {
-            let current =
-                procedure::reference::read_record(&procedure::reference::reference_path(&map));
-            Correction::Map {
-                job: Box::new(Job::load(&job)?),
-                job_source: job.display().to_string(),
-                map: Box::new(ErrorMap::load(&map)?),
-                map_source: map.display().to_string(),
-                reference: procedure::reference::choose(current, args.no_reference)
-                    .map_err(anyhow::Error::msg)?,
-            }
-        }
-        Inputs::Rotary { errors, controller } => {
-            let text = procedure::rotary::read_errors_file(&errors).map_err(anyhow::Error::msg)?;
-            let at = |e: String| anyhow::anyhow!("{}: {e}", errors.display());
-            // The constants recorded with the errors; a --machine that differs is refused.
-            let given = args
-                .machine
-                .as_deref()
-                .map(|p| crate::rotary::load_constants(Some(p)))
-                .transpose()?;
-            let stored = rotary::MachineConstants::from_errors_json(&text).map_err(at)?;
-            Correction::Rotary {
-                errors: rotary::LocationErrors::from_json(&text).map_err(|e| at(e.to_string()))?,
-                constants: rotary::MachineConstants::for_errors(stored, given, false)
-                    .map_err(at)?,
-                source: errors.display().to_string(),
-                controller,
-            }
-        }
-    };
+    let correction = Correction::from_files(inputs, args.machine.as_deref(), args.no_reference)
+        .map_err(anyhow::Error::msg)?;
     let mut printer = Printer {
         json,
         link: args.link.clone(),

@@ -166,6 +166,44 @@ pub enum Correction {
     },
 }
 
+impl Correction {
+    /// The correction the files given choose: the job, its map and the map's recorded
+    /// reference (unless `no_reference`: [`crate::reference::choose`]), or the rotary
+    /// table's errors with their recorded constants (`machine`, when given, must agree
+    /// with them). Every file goes through the bounded readers; errors name the file.
+    pub fn from_files(
+        inputs: Inputs<std::path::PathBuf>,
+        machine: Option<&std::path::Path>,
+        no_reference: bool,
+    ) -> Result<Self, String> {
+        match inputs {
+            Inputs::Map { job, map } => {
+                let record = crate::reference::reference_path(&map);
+                let current = crate::reference::read_record(&record);
+                Ok(Correction::Map {
+                    job: Box::new(Job::load(&job).map_err(|e| e.to_string())?),
+                    job_source: job.display().to_string(),
+                    map: Box::new(ErrorMap::load(&map).map_err(|e| e.to_string())?),
+                    map_source: map.display().to_string(),
+                    reference: crate::reference::choose(current, no_reference)?,
+                })
+            }
+            Inputs::Rotary { errors, controller } => {
+                let text = crate::rotary::read_errors_file(&errors)?;
+                let at = |e: String| format!("{}: {e}", errors.display());
+                let given = machine.map(crate::rotary::read_machine_file).transpose()?;
+                let stored = MachineConstants::from_errors_json(&text).map_err(at)?;
+                Ok(Correction::Rotary {
+                    errors: LocationErrors::from_json(&text).map_err(|e| at(e.to_string()))?,
+                    constants: MachineConstants::for_errors(stored, given, false).map_err(at)?,
+                    source: errors.display().to_string(),
+                    controller,
+                })
+            }
+        }
+    }
+}
+
 /// What a front end does while the pass-through runs.
 pub trait ProxyFront {
     /// The sender's port is ready (before any session): `sender_port`, `controller`,
