@@ -46,7 +46,7 @@ pub enum ContextError {
 pub struct ActiveMap {
     pub name: String,
     pub map: ErrorMap,
-    pub reference: Result<Option<MapReference>, String>,
+    pub reference: Result<Option<MapReference>, crate::Error>,
 }
 
 /// The calibration board a procedure works with and the name its artifacts take (a

@@ -503,7 +503,7 @@ pub fn run(request: &ExportRequest, map: ErrorMap, sink: &mut dyn Sink) -> Outco
 fn controller_tables(
     request: &ExportRequest,
     model: &MapModel,
-) -> Result<ControllerTables, String> {
+) -> Result<ControllerTables, crate::Error> {
     let c = &request.controller;
     let sign = c.value_sign;
     let out = match request.format {
@@ -528,7 +528,7 @@ fn controller_tables(
         ),
         other => unreachable!("{} is not a controller's own table", other.as_str()),
     };
-    out.map_err(|e| e.to_string())
+    out.map_err(|e| crate::Error::Refused(e.to_string()))
 }
 
 fn controller_result(format: ExportFormat, names: &[String], t: &ControllerTables) -> Value {

@@ -144,7 +144,7 @@ impl Context for Files<'_> {
             None => crate::identity_of_job(&job)
                 .await
                 .map(Some)
-                .map_err(ContextError::Devices),
+                .map_err(|e| ContextError::Devices(e.to_string())),
         }
     }
 

@@ -18,7 +18,7 @@ pub const THUMB_MAX_WIDTH: u32 = 320;
 /// centres at integers as in the frame), `centre_px` (the measured point: the image
 /// centre), `centre_mm` (its board coordinate), `target_mm`, `target_index`,
 /// `deviation_um` (measured minus target) and `sequence`.
-pub fn thumbnail(seen: &FrameSeen<'_>) -> Result<FrameThumb, String> {
+pub fn thumbnail(seen: &FrameSeen<'_>) -> Result<FrameThumb, crate::Error> {
     let img = seen.image;
     let k = img.width.div_ceil(THUMB_MAX_WIDTH).max(1);
     let (w, h) = ((img.width / k).max(1), (img.height / k).max(1));
@@ -26,7 +26,7 @@ pub fn thumbnail(seen: &FrameSeen<'_>) -> Result<FrameThumb, String> {
     let mut png = Vec::with_capacity((w * h) as usize / 2);
     PngEncoder::new_with_quality(&mut png, CompressionType::Fast, FilterType::Sub)
         .write_image(&grey, w, h, ExtendedColorType::L8)
-        .map_err(|e| format!("frame thumbnail: {e}"))?;
+        .map_err(|e| crate::Error::Output(format!("frame thumbnail: {e}")))?;
     let to_thumb = |p: f64| (p + 0.5) / k as f64 - 0.5;
     let round = |v: f64| (v * 100.0).round() / 100.0;
     let dots: Vec<[f64; 2]> = seen

@@ -24,10 +24,9 @@ pub const MEASUREMENTS_ARTIFACT: &str = "measurements.csv";
 
 /// A measurements file read through the bounded reader ([`DataKind::Iso230`]) and
 /// parsed: errors name the file, and the line and column where the parser fails.
-pub fn read_measurements_file(path: &std::path::Path) -> Result<Vec<Measurement>, String> {
-    let text = protocol::config::read_kind(path, protocol::config::DataKind::Iso230)
-        .map_err(|e| e.to_string())?;
-    csv_io::read(&text).map_err(|e| format!("{}: {e}", path.display()))
+pub fn read_measurements_file(path: &std::path::Path) -> Result<Vec<Measurement>, crate::Error> {
+    let text = protocol::config::read_kind(path, protocol::config::DataKind::Iso230)?;
+    csv_io::read(&text).map_err(|e| crate::Error::input(path.display(), e))
 }
 
 /// Still frames at the reference point for the localization's repeatability.
@@ -403,15 +402,15 @@ pub async fn run(
 }
 
 /// A measurements file's text parsed (`what` names it in errors).
-fn measurements_of(text: &str, what: &str) -> Result<Vec<Measurement>, String> {
+fn measurements_of(text: &str, what: &str) -> Result<Vec<Measurement>, crate::Error> {
     if text.len() as u64 > protocol::config::DataKind::Iso230.max_bytes() {
-        return Err(format!(
+        return Err(crate::Error::Refused(format!(
             "{what}: {} bytes; at most {} are accepted",
             text.len(),
             protocol::config::DataKind::Iso230.max_bytes()
-        ));
+        )));
     }
-    csv_io::read(text).map_err(|e| format!("{what}: {e}"))
+    csv_io::read(text).map_err(|e| crate::Error::input(what, e))
 }
 
 /// The ISO 230-2 test on the machine as a registered procedure (with the map when the

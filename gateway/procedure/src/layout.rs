@@ -10,21 +10,27 @@ use std::time::Instant;
 
 /// A layout file's text for a [`LayoutRequest`], through the bounded reader
 /// ([`protocol::config::DataKind::Layout`]); the error names the file.
-pub fn read_layout_file(path: &std::path::Path) -> Result<String, String> {
-    protocol::config::read_kind(path, protocol::config::DataKind::Layout).map_err(|e| e.to_string())
+pub fn read_layout_file(path: &std::path::Path) -> Result<String, crate::Error> {
+    Ok(protocol::config::read_kind(
+        path,
+        protocol::config::DataKind::Layout,
+    )?)
 }
 
 /// [`read_layout_file`] and the request's layout read as `format` with the request's
 /// chord tolerance, so that a file that is not a layout is refused naming the file (the
 /// procedure, which has only the text, names it "layout").
-pub fn load_layout_file(path: &std::path::Path, request: &LayoutRequest) -> Result<String, String> {
+pub fn load_layout_file(
+    path: &std::path::Path,
+    request: &LayoutRequest,
+) -> Result<String, crate::Error> {
     let text = read_layout_file(path)?;
     let options = ReadOptions {
         chord_tolerance_mm: request.chord_tolerance_mm,
         ..ReadOptions::default()
     };
     Layout::read(text.as_bytes(), request.format.format(), &options)
-        .map_err(|e| format!("layout {}: {e}", path.display()))?;
+        .map_err(|e| crate::Error::input(format!("layout {}", path.display()), e))?;
     Ok(text)
 }
 
@@ -41,14 +47,16 @@ pub struct Partitioned {
 
 /// Reads and partitions the request's layout, overlaps resolved (shared by the
 /// partition and the cut).
-pub fn partitioned(request: &LayoutRequest) -> Result<Partitioned, String> {
-    let forced = request.assignments().map_err(|e| e.to_string())?;
+pub fn partitioned(request: &LayoutRequest) -> Result<Partitioned, crate::Error> {
+    let forced = request
+        .assignments()
+        .map_err(|e| crate::Error::Input(e.to_string()))?;
     let options = ReadOptions {
         chord_tolerance_mm: request.chord_tolerance_mm,
         ..ReadOptions::default()
     };
     let doc = Layout::read(request.layout.as_bytes(), request.format.format(), &options)
-        .map_err(|e| format!("layout: {e}"))?;
+        .map_err(|e| crate::Error::input("layout", e))?;
     let params = Params {
         tools: request.tools as usize,
         window_mm: request.window_mm,
@@ -68,7 +76,10 @@ pub fn partitioned(request: &LayoutRequest) -> Result<Partitioned, String> {
         let material = layout::fit_material(&doc.parts, &partition, request.material_width_mm)?;
         Ok::<_, layout::PartitionError>((partition, resolution, material))
     })();
-    let (partition, resolution, material) = outcome.map_err(|e| e.to_string())?;
+    // What cannot be partitioned as asked (an overlap left, parts wider than the
+    // material) is refused before anything is written or cut.
+    let (partition, resolution, material) =
+        outcome.map_err(|e| crate::Error::Refused(e.to_string()))?;
     Ok(Partitioned {
         doc,
         partition,

@@ -13,6 +13,7 @@ pub mod compensate;
 pub mod context;
 pub mod cut;
 pub mod demo;
+pub mod error;
 pub mod export;
 pub mod files;
 pub mod frame;
@@ -38,6 +39,7 @@ use serde::Serialize;
 use serde_json::{Map, Value};
 
 pub use context::{ActiveMap, Bench, Context, ContextError, NamedBoard, Stop};
+pub use error::Error;
 pub use kinds::{summary, Request, KINDS};
 pub use registry::Procedure;
 pub use request::RequestError;
@@ -227,14 +229,16 @@ pub fn identity(job: &Job, devices: &Devices) -> Identity {
 /// a rewrite whose job is known, the service): the map must have been measured on this
 /// machine, controller, board certificate and camera; the error names the first field
 /// that differs and both values. `what` names the map (a file, a profile).
-pub fn check_identity(map: &ErrorMap, here: &Identity, what: &str) -> Result<(), String> {
+pub fn check_identity(map: &ErrorMap, here: &Identity, what: &str) -> Result<(), Error> {
     // No camera here (none could be opened): the map's is not compared.
     let mut here = here.clone();
     if here.camera.is_empty() {
         here.camera = map.identity.camera.clone();
     }
     map.check_identity(&here).map_err(|e| {
-        format!("{what}: {e}: refused (a map applies only to the machine it was measured on)")
+        Error::Mismatch(format!(
+            "{what}: {e}: refused (a map applies only to the machine it was measured on)"
+        ))
     })
 }
 
@@ -258,10 +262,10 @@ pub(crate) fn metrics_from(result: &Value, keys: &[&str]) -> Map<String, Value> 
 /// stage is required; a camera that cannot be opened (a machine whose map was measured
 /// once, so that programs run without the camera) leaves `camera` empty, and
 /// [`check_identity`] then does not compare it.
-pub async fn identity_of_job(job: &Job) -> Result<Identity, String> {
+pub async fn identity_of_job(job: &Job) -> Result<Identity, Error> {
     let (stage, rig) = devices::open_stage_async(job)
         .await
-        .map_err(|e| format!("reading the machine's identity: {e}"))?;
+        .map_err(|e| Error::Device(format!("reading the machine's identity: {e}")))?;
     let camera = devices::open_camera(&job.camera, rig.as_ref())
         .await
         .map(|c| c.info().model.clone())

@@ -130,16 +130,16 @@ pub fn inputs<P>(
     map: Option<P>,
     rotary: Option<P>,
     controller: Option<String>,
-) -> Result<Inputs<P>, String> {
+) -> Result<Inputs<P>, crate::Error> {
     match (job, map, rotary, controller) {
         (Some(job), Some(map), None, None) => Ok(Inputs::Map { job, map }),
         (None, None, Some(errors), Some(controller)) => Ok(Inputs::Rotary { errors, controller }),
-        _ => Err(
+        _ => Err(crate::Error::Input(
             "give `--config JOB --map MAP` (the error map, the job's GRBL controller) or \
              `--rotary ERRORS --controller PORT` (the rotary table's errors, a grblHAL \
              controller with A and C)"
                 .into(),
-        ),
+        )),
     }
 }
 
@@ -175,27 +175,32 @@ impl Correction {
         inputs: Inputs<std::path::PathBuf>,
         machine: Option<&std::path::Path>,
         no_reference: bool,
-    ) -> Result<Self, String> {
+    ) -> Result<Self, crate::Error> {
         match inputs {
             Inputs::Map { job, map } => {
                 let record = crate::reference::reference_path(&map);
                 let current = crate::reference::read_record(&record);
                 Ok(Correction::Map {
-                    job: Box::new(Job::load(&job).map_err(|e| e.to_string())?),
+                    job: Box::new(Job::load(&job).map_err(|e| crate::Error::Input(e.to_string()))?),
                     job_source: job.display().to_string(),
-                    map: Box::new(ErrorMap::load(&map).map_err(|e| e.to_string())?),
+                    map: Box::new(
+                        ErrorMap::load(&map).map_err(|e| crate::Error::Input(e.to_string()))?,
+                    ),
                     map_source: map.display().to_string(),
                     reference: crate::reference::choose(current, no_reference)?,
                 })
             }
             Inputs::Rotary { errors, controller } => {
                 let text = crate::rotary::read_errors_file(&errors)?;
-                let at = |e: String| format!("{}: {e}", errors.display());
+                let at = |e: String| crate::Error::input(errors.display(), e);
                 let given = machine.map(crate::rotary::read_machine_file).transpose()?;
                 let stored = MachineConstants::from_errors_json(&text).map_err(at)?;
+                let differs =
+                    |e: String| crate::Error::Mismatch(format!("{}: {e}", errors.display()));
                 Ok(Correction::Rotary {
                     errors: LocationErrors::from_json(&text).map_err(|e| at(e.to_string()))?,
-                    constants: MachineConstants::for_errors(stored, given, false).map_err(at)?,
+                    constants: MachineConstants::for_errors(stored, given, false)
+                        .map_err(differs)?,
                     source: errors.display().to_string(),
                     controller,
                 })
@@ -241,9 +246,9 @@ impl SharedMap {
     }
 
     /// Shifted by what the camera saw at the reference point now.
-    pub fn rereference(&self, seen_um: [f64; 2]) -> Result<(), String> {
+    pub fn rereference(&self, seen_um: [f64; 2]) -> Result<(), crate::Error> {
         let mut m = self.model.write().unwrap_or_else(|e| e.into_inner());
-        *m = m.clone().rereferenced(seen_um).map_err(|e| e.to_string())?;
+        *m = (m.clone().rereferenced(seen_um)).map_err(|e| crate::Error::Refused(e.to_string()))?;
         Ok(())
     }
 }

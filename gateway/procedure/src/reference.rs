@@ -5,7 +5,7 @@
 //! it ([`choose`], [`apply`]) and say which one they use and how old it is.
 
 use crate::request::ReferenceRequest;
-use crate::{Artifact, Outcome, Sink};
+use crate::{Artifact, Error, Outcome, Sink};
 use devices::Devices;
 use errormap::reference::{Circumstances, MapReference};
 use errormap::MapModel;
@@ -34,24 +34,24 @@ pub fn reference_path(map: &Path) -> PathBuf {
 }
 
 /// A record's text parsed and checked; `what` names it in errors.
-pub fn parse_record(text: &str, what: &str) -> Result<MapReference, String> {
+pub fn parse_record(text: &str, what: &str) -> Result<MapReference, Error> {
     // A byte-order mark is dropped, as every other reader does.
     let text = text.strip_prefix('\u{FEFF}').unwrap_or(text);
-    let r: MapReference =
-        serde_json::from_str(text).map_err(|e| format!("{what}: not a reference record: {e}"))?;
-    r.check().map_err(|e| format!("{what}: {e}"))?;
+    let r: MapReference = serde_json::from_str(text)
+        .map_err(|e| Error::input(what, format!("not a reference record: {e}")))?;
+    r.check().map_err(|e| Error::input(what, e))?;
     Ok(r)
 }
 
 /// The record at `path` through the bounded reader, or None when there is none.
-pub fn read_record(path: &Path) -> Result<Option<MapReference>, String> {
+pub fn read_record(path: &Path) -> Result<Option<MapReference>, Error> {
     if !path.exists() {
         return Ok(None);
     }
     let what = format!("reference {}", path.display());
     let bytes = protocol::config::read_bytes_bounded(path, MAX_RECORD_BYTES, "a reference record")
-        .map_err(|e| format!("{what}: {e}"))?;
-    let text = String::from_utf8(bytes).map_err(|_| format!("{what}: not UTF-8 text"))?;
+        .map_err(|e| Error::input(&what, e))?;
+    let text = String::from_utf8(bytes).map_err(|_| Error::input(&what, "not UTF-8 text"))?;
     parse_record(&text, &what).map(Some)
 }
 
@@ -83,9 +83,9 @@ pub enum Choice {
 /// but cannot be read (damaged, another map's) is an error: the operator records a new
 /// one, or asks for none.
 pub fn choose(
-    current: Result<Option<MapReference>, String>,
+    current: Result<Option<MapReference>, Error>,
     no_reference: bool,
-) -> Result<Choice, String> {
+) -> Result<Choice, Error> {
     Ok(match (current, no_reference) {
         (_, true) => Choice::NotWanted,
         (Ok(Some(r)), false) => Choice::Recorded(r),
@@ -105,14 +105,14 @@ pub struct Applied {
 }
 
 /// The map's model under `choice` (a record of another map refused).
-pub fn apply(map: ErrorMap, choice: &Choice, now: SystemTime) -> Result<Applied, String> {
+pub fn apply(map: ErrorMap, choice: &Choice, now: SystemTime) -> Result<Applied, Error> {
     let model = MapModel::new(map);
     let (now_s, _) = at(now);
     Ok(match choice {
         Choice::Recorded(r) => Applied {
             model: r
                 .apply(model, now_s)
-                .map_err(|e| format!("the map's reference record: {e}"))?,
+                .map_err(|e| Error::Mismatch(format!("the map's reference record: {e}")))?,
             describe: r.describe(now_s),
             warning: None,
             json: json!({
@@ -313,7 +313,7 @@ impl crate::registry::Procedure for Reference {
             Err(e) => return Outcome::failed(format!("recording the reference: {e}")),
         }
         if let Some(e) = replaced {
-            result["replaced_damaged_record"] = json!(e);
+            result["replaced_damaged_record"] = json!(e.to_string());
         }
         outcome
     }
@@ -344,7 +344,7 @@ mod tests {
         assert_eq!(choose(Ok(None), false), Ok(Choice::NoneRecorded));
         assert_eq!(choose(Ok(None), true), Ok(Choice::NotWanted));
         let e = parse_record("{}", "r").unwrap_err();
-        assert!(e.starts_with("r: not a reference record"), "{e}");
+        assert!(e.to_string().starts_with("r: not a reference record"), "{e}");
         // A record that cannot be read is an error, unless none is wanted.
         assert_eq!(choose(Err(e.clone()), false), Err(e.clone()));
         assert_eq!(choose(Err(e), true), Ok(Choice::NotWanted));

@@ -24,19 +24,18 @@ pub const MAX_PROGRAM_BYTES: usize = 16 << 20;
 /// ([`protocol::config::open_lines`]: regular files only, refused before opening, at
 /// most [`MAX_PROGRAM_BYTES`] in all and 64 KiB per line; line endings kept). Errors name
 /// the file and the line.
-pub fn read_program(path: &std::path::Path) -> Result<String, String> {
-    let lines = protocol::config::open_lines(path, protocol::config::DataKind::Program)
-        .map_err(|e| e.to_string())?
-        .keep_endings();
+pub fn read_program(path: &std::path::Path) -> Result<String, crate::Error> {
+    let lines =
+        protocol::config::open_lines(path, protocol::config::DataKind::Program)?.keep_endings();
     let mut text = String::new();
     for line in lines {
-        let (n, l) = line.map_err(|e| e.to_string())?;
+        let (n, l) = line?;
         if text.len() + l.len() > MAX_PROGRAM_BYTES {
-            return Err(format!(
+            return Err(crate::Error::Refused(format!(
                 "program {}: line {n}: the program passes {} MiB, the most a rewrite takes",
                 path.display(),
                 MAX_PROGRAM_BYTES >> 20
-            ));
+            )));
         }
         text.push_str(&l);
     }
@@ -44,9 +43,11 @@ pub fn read_program(path: &std::path::Path) -> Result<String, String> {
 }
 
 /// A saved `$#` reply's text, bounded ([`protocol::config::DataKind::Parameters`]).
-pub fn read_offsets_file(path: &std::path::Path) -> Result<String, String> {
-    protocol::config::read_kind(path, protocol::config::DataKind::Parameters)
-        .map_err(|e| e.to_string())
+pub fn read_offsets_file(path: &std::path::Path) -> Result<String, crate::Error> {
+    Ok(protocol::config::read_kind(
+        path,
+        protocol::config::DataKind::Parameters,
+    )?)
 }
 
 /// The largest `$#` reply accepted.

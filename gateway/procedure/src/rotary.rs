@@ -4,6 +4,7 @@
 //! (`rewrite`).
 
 use crate::request::RotaryRequest;
+use crate::Error;
 use crate::{Artifact, Outcome, Sink};
 use job::rotary::RotaryJob;
 use protocol::config::DataKind;
@@ -198,34 +199,34 @@ pub fn identify(
 
 /// A rotary input file's text through the bounded reader (regular files only, its
 /// kind's size cap); the error names the kind and the file.
-fn read_input(path: &std::path::Path, kind: DataKind) -> Result<String, String> {
-    protocol::config::read_kind(path, kind).map_err(|e| e.to_string())
+fn read_input(path: &std::path::Path, kind: DataKind) -> Result<String, Error> {
+    Ok(protocol::config::read_kind(path, kind)?)
 }
 
 /// The centres file at `path` read (bounded, [`DataKind::Centres`]) and parsed: errors
 /// name the file, and the line and column where the parser fails.
-pub fn read_centres_file(path: &std::path::Path) -> Result<Vec<CentreRow>, String> {
+pub fn read_centres_file(path: &std::path::Path) -> Result<Vec<CentreRow>, Error> {
     let text = read_input(path, DataKind::Centres)?;
-    rotary::parse_centres(&text).map_err(|e| format!("{}: {e}", path.display()))
+    rotary::parse_centres(&text).map_err(|e| Error::input(path.display(), e))
 }
 
 /// An errors file (or machine constants) at `path` as text, bounded
 /// ([`DataKind::RotaryJson`]).
-pub fn read_errors_file(path: &std::path::Path) -> Result<String, String> {
+pub fn read_errors_file(path: &std::path::Path) -> Result<String, Error> {
     read_input(path, DataKind::RotaryJson)
 }
 
 /// Machine constants (JSON: `a_axis_y_mm`, ... `tool_length_mm`) from the file at
 /// `path`, read bounded, one document, checked; every error names the file.
-pub fn read_machine_file(path: &std::path::Path) -> Result<MachineConstants, String> {
+pub fn read_machine_file(path: &std::path::Path) -> Result<MachineConstants, Error> {
     let text = read_errors_file(path)?;
     let name = path.display();
     let de = &mut serde_json::Deserializer::from_str(&text);
     let k: MachineConstants = serde_path_to_error::deserialize(&mut *de)
-        .map_err(|e| format!("{name}: {} (at {})", e.inner(), e.path()))?;
+        .map_err(|e| Error::input(&name, format!("{} (at {})", e.inner(), e.path())))?;
     de.end()
-        .map_err(|e| format!("{name}: after the constants: {e}"))?;
-    k.check().map_err(|e| format!("{name}: {e}"))?;
+        .map_err(|e| Error::input(&name, format!("after the constants: {e}")))?;
+    k.check().map_err(|e| Error::input(&name, e))?;
     Ok(k)
 }
 
@@ -693,7 +694,7 @@ mod tests {
             .status()
             .unwrap()
             .success());
-        type Reader = fn(&Path) -> Result<(), String>;
+        type Reader = fn(&Path) -> Result<(), crate::Error>;
         let readers: [(&str, Reader); 8] = [
             ("centres file", |p| read_centres_file(p).map(|_| ())),
             ("rotary errors or machine file", |p| {
@@ -712,16 +713,17 @@ mod tests {
             }),
             ("program", |p| {
                 let out = rewrite_files(p, p, None, false, 0.5, &mut Collect::default());
-                out.error().map_or(Ok(()), |e| Err(e.to_string()))
+                out.error()
+                    .map_or(Ok(()), |e| Err(crate::Error::Input(e.to_string())))
             }),
         ];
         for (kind, read) in readers {
-            let e = read(&fifo).unwrap_err();
+            let e = read(&fifo).unwrap_err().to_string();
             assert!(
                 e.contains(&format!("{}: not a regular file (a FIFO)", fifo.display())),
                 "{kind}: {e}"
             );
-            let e = read(Path::new("/dev/zero")).unwrap_err();
+            let e = read(Path::new("/dev/zero")).unwrap_err().to_string();
             assert!(
                 e.contains("/dev/zero: not a regular file (a character device)"),
                 "{kind}: {e}"

@@ -27,9 +27,11 @@ use volumetric::Model;
 
 /// A volumetric model or campaign file's text through the bounded reader
 /// ([`protocol::config::DataKind::Volumetric`]); the error names the file.
-pub fn read_file(path: &std::path::Path) -> Result<String, String> {
-    protocol::config::read_kind(path, protocol::config::DataKind::Volumetric)
-        .map_err(|e| e.to_string())
+pub fn read_file(path: &std::path::Path) -> Result<String, crate::Error> {
+    Ok(protocol::config::read_kind(
+        path,
+        protocol::config::DataKind::Volumetric,
+    )?)
 }
 
 /// The largest file text a request carries (a model, a points file, a campaign file).
@@ -469,9 +471,9 @@ pub fn identify_summary(r: &Value) -> String {
 }
 
 /// Reads and checks a model file; `name` names it in messages.
-pub fn read_model(name: &str, text: &str) -> Result<Model, String> {
-    let file = parse_model(text).map_err(|e| format!("{name}: {e}"))?;
-    Model::new(file).map_err(|e| format!("{name}: {e}"))
+pub fn read_model(name: &str, text: &str) -> Result<Model, crate::Error> {
+    let file = parse_model(text).map_err(|e| crate::Error::input(name, e))?;
+    Model::new(file).map_err(|e| crate::Error::input(name, e))
 }
 
 /// The volumetric error at each point of a points file (`x_mm,y_mm,z_mm`).

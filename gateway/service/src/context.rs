@@ -126,7 +126,7 @@ impl Context for StoreContext<'_> {
         let key = reference_key(&self.machine.id, &version.name, version.version);
         let reference = lock(&self.shared.store)
             .get_setting(&key)
-            .map_err(|e| e.to_string())
+            .map_err(|e| procedure::Error::Input(format!("the reference of {name}: {e}")))
             .and_then(|text| match text {
                 None => Ok(None),
                 Some(t) => {
