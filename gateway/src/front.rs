@@ -79,16 +79,17 @@ impl CliSink {
     }
 
     /// The output folder, created when it is not there yet.
-    fn folder(&self) -> Result<Option<&Path>, String> {
+    fn folder(&self) -> Result<Option<&Path>, procedure::Error> {
         let Some(dir) = &self.out else {
             return Ok(None);
         };
-        std::fs::create_dir_all(dir).map_err(|e| format!("creating {}: {e}", dir.display()))?;
+        std::fs::create_dir_all(dir)
+            .map_err(|e| procedure::Error::Output(format!("creating {}: {e}", dir.display())))?;
         Ok(Some(dir))
     }
 
     /// Where the artifact `name` goes (none: it is not written).
-    fn path_of(&self, name: &str) -> Result<Option<PathBuf>, String> {
+    fn path_of(&self, name: &str) -> Result<Option<PathBuf>, procedure::Error> {
         Ok(match self.rename.iter().find(|(n, _)| *n == name) {
             Some((_, p)) => Some(p.clone()),
             None => self.folder()?.map(|dir| dir.join(name)),
@@ -123,16 +124,16 @@ impl Sink for CliSink {
         }
     }
 
-    fn measurement(&mut self, _: &Value) -> Result<(), String> {
+    fn measurement(&mut self, _: &Value) -> Result<(), procedure::Error> {
         Ok(())
     }
 
-    fn log_row(&mut self, row: &LogRow) -> Result<(), String> {
+    fn log_row(&mut self, row: &LogRow) -> Result<(), procedure::Error> {
         if let Some((_, file)) = self.logs.iter_mut().find(|(n, _)| n == row.log) {
             return file
                 .write_all(row.row.as_bytes())
                 .and_then(|()| file.sync_data())
-                .map_err(|e| format!("{}: {e}", row.log));
+                .map_err(|e| procedure::Error::Output(format!("{}: {e}", row.log)));
         }
         // The header and the first row written whole (never over an input), then the
         // file opened for the rows to come.
@@ -140,23 +141,28 @@ impl Sink for CliSink {
             return Ok(());
         };
         let first = format!("{}{}", row.header, row.row);
-        write_atomic(&path, first.as_bytes(), &self.inputs).map_err(|e| format!("{e:#}"))?;
+        write_atomic(&path, first.as_bytes(), &self.inputs).map_err(not_written)?;
         let file = std::fs::OpenOptions::new()
             .append(true)
             .open(&path)
-            .map_err(|e| format!("opening {}: {e}", path.display()))?;
+            .map_err(|e| procedure::Error::Output(format!("opening {}: {e}", path.display())))?;
         self.logs.push((row.log.to_string(), file));
         Ok(())
     }
 
-    fn artifact(&mut self, artifact: Artifact) -> Result<(), String> {
+    fn artifact(&mut self, artifact: Artifact) -> Result<(), procedure::Error> {
         let Some(path) = self.path_of(&artifact.name)? else {
             return Ok(());
         };
         // A log grown so far is replaced whole.
         self.logs.retain(|(n, _)| *n != artifact.name);
-        write_atomic(&path, &artifact.bytes, &self.inputs).map_err(|e| format!("{e:#}"))
+        write_atomic(&path, &artifact.bytes, &self.inputs).map_err(not_written)
     }
+}
+
+/// An output the command could not write.
+fn not_written(e: anyhow::Error) -> procedure::Error {
+    procedure::Error::Output(format!("{e:#}"))
 }
 
 /// Writes `text` to stdout; a reader that has gone (`| head -1`) ends the output

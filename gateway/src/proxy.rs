@@ -46,33 +46,41 @@ struct Printer {
 }
 
 impl Printer {
-    fn show(&self, v: &Value, text: impl FnOnce(&Value) -> String) -> Result<(), String> {
+    fn show(&self, v: &Value, text: impl FnOnce(&Value) -> String) -> Result<(), procedure::Error> {
         let mut shown = if self.json { v.to_string() } else { text(v) };
         if !shown.ends_with('\n') {
             shown.push('\n');
         }
-        crate::front::emit(&shown).map_err(|e| format!("writing to stdout: {e}"))
+        crate::front::emit(&shown)
+            .map_err(|e| procedure::Error::Output(format!("writing to stdout: {e}")))
     }
 }
 
 impl ProxyFront for Printer {
-    fn ready(&mut self, hello: &Value) -> Result<(), String> {
+    fn ready(&mut self, hello: &Value) -> Result<(), procedure::Error> {
         self.show(hello, |h| {
             procedure::proxy::ready_summary(h, self.link.as_deref())
         })
     }
 
-    fn session(&mut self, account: &Value) -> Result<(), String> {
+    fn session(&mut self, account: &Value) -> Result<(), procedure::Error> {
         self.show(account, procedure::proxy::summary)
     }
 
-    fn reference(&mut self, record: &errormap::reference::MapReference) -> Result<(), String> {
+    fn reference(
+        &mut self,
+        record: &errormap::reference::MapReference,
+    ) -> Result<(), procedure::Error> {
         let Some(path) = &self.record_to else {
             return Ok(());
         };
         let text = procedure::reference::record_json(record);
-        protocol::config::replace_output(path, text.as_bytes(), &[])
-            .map_err(|e| format!("recording the reference in {}: {e}", path.display()))?;
+        protocol::config::replace_output(path, text.as_bytes(), &[]).map_err(|e| {
+            procedure::Error::Output(format!(
+                "recording the reference in {}: {e}",
+                path.display()
+            ))
+        })?;
         let v = serde_json::json!({"reference_recorded": path.display().to_string(),
             "reference_count": record.reference_count, "shift_um": record.shift_um});
         self.show(&v, |_| {

@@ -41,7 +41,7 @@ pub async fn run_with_report(
     let total = job.targets.len() as u64;
     sink.progress(0, total);
     let cancelled = Cell::new(false);
-    let mut sink_error: Option<String> = None;
+    let mut sink_error: Option<crate::Error> = None;
     let mut on_event = |e: &Event| match e {
         Event::Measured {
             target_index,

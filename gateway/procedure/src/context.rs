@@ -177,9 +177,9 @@ pub trait ScanJournal {
         &mut self,
         header: &journal::Header,
         plan: &ScanPlan,
-    ) -> Result<Vec<(usize, Sample)>, String>;
+    ) -> Result<Vec<(usize, Sample)>, crate::Error>;
     /// Keeps one sample (a failure stops the scan with the stage stopped).
-    fn append(&mut self, index: usize, sample: &Sample) -> Result<(), String>;
+    fn append(&mut self, index: usize, sample: &Sample) -> Result<(), crate::Error>;
     /// The map is kept: the journal has done its job.
     fn close(&mut self);
     /// Where resumed samples came from (the service: the stopped job), for the result.
@@ -191,16 +191,16 @@ pub trait ScanJournal {
 /// Where the finished map goes.
 pub trait MapShelf {
     /// The version the next map of `name` gets.
-    fn next_version(&mut self, name: &str) -> Result<u32, String>;
+    fn next_version(&mut self, name: &str) -> Result<u32, crate::Error>;
     /// Keeps the map; returns where it went (a path, a profile), for the result.
-    fn keep(&mut self, name: &str, map: &ErrorMap) -> Result<String, String>;
+    fn keep(&mut self, name: &str, map: &ErrorMap) -> Result<String, crate::Error>;
 }
 
 /// Where the identified errors are kept (the CLI: `errors.json` in its folder, written
 /// as an artifact; the service: the next version of a rotary profile).
 pub trait ErrorsShelf {
     /// Keeps the report; returns where it went, for the result.
-    fn keep(&mut self, name: &str, report: &Value) -> Result<String, String>;
+    fn keep(&mut self, name: &str, report: &Value) -> Result<String, crate::Error>;
 }
 
 /// The value of a context's answer, or the procedure ends failed with the context's

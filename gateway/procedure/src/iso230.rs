@@ -48,7 +48,7 @@ pub fn outputs(
     notes: &[String],
     extra: Value,
     sink: &mut dyn Sink,
-) -> Result<Value, String> {
+) -> Result<Value, crate::Error> {
     let mut result = result_json(evaluation, uncertainty);
     if let (Some(o), Value::Object(e)) = (result.as_object_mut(), extra) {
         o.extend(e);
@@ -84,8 +84,9 @@ pub fn outputs(
     }
     let mut svgs = Vec::new();
     for (name, chart) in &charts {
-        let svg = plot::render_svg(chart, 900, 520).map_err(|e| format!("{name}: {e}"))?;
-        let png = plot::render_png(chart, 900, 520).map_err(|e| format!("{name}: {e}"))?;
+        let failed = |e| crate::Error::Output(format!("{name}: {e}"));
+        let svg = plot::render_svg(chart, 900, 520).map_err(failed)?;
+        let png = plot::render_png(chart, 900, 520).map_err(failed)?;
         sink.artifact(Artifact {
             name: format!("{name}.svg"),
             title: Some(chart.title.clone()),
@@ -284,7 +285,7 @@ pub async fn run(
     sink.progress(0, total);
     let cancelled = Cell::new(false);
     let mut taken = 0usize;
-    let mut sink_error: Option<String> = None;
+    let mut sink_error: Option<crate::Error> = None;
     // Measurements and progress both go to the one sink, as they come.
     let shared_sink = RefCell::new(&mut *sink);
     let run = run_iso230(

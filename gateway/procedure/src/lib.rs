@@ -155,14 +155,14 @@ pub trait Sink {
     fn progress(&mut self, done: u64, total: u64);
     /// One measurement as it is taken, kept so nothing measured is lost. An error stops
     /// the procedure (with the stage stopped).
-    fn measurement(&mut self, measurement: &Value) -> Result<(), String>;
+    fn measurement(&mut self, measurement: &Value) -> Result<(), crate::Error>;
     /// A product of the procedure; an error fails it naming the artifact.
-    fn artifact(&mut self, artifact: Artifact) -> Result<(), String>;
+    fn artifact(&mut self, artifact: Artifact) -> Result<(), crate::Error>;
     /// A row appended to a log that grows as the procedure goes (ISO 230-2's
     /// `measurements.csv`), so that a run stopped half-way leaves its rows in a file; the
     /// whole artifact of the same name replaces it at the end. Fronts that keep every
     /// [`Sink::measurement`] anyway (the service's store) need not keep it.
-    fn log_row(&mut self, _row: &LogRow) -> Result<(), String> {
+    fn log_row(&mut self, _row: &LogRow) -> Result<(), crate::Error> {
         Ok(())
     }
     /// A localized camera frame for a live view (a few a second at most; the runner
@@ -187,10 +187,10 @@ pub struct Discard;
 
 impl Sink for Discard {
     fn progress(&mut self, _: u64, _: u64) {}
-    fn measurement(&mut self, _: &Value) -> Result<(), String> {
+    fn measurement(&mut self, _: &Value) -> Result<(), crate::Error> {
         Ok(())
     }
-    fn artifact(&mut self, _: Artifact) -> Result<(), String> {
+    fn artifact(&mut self, _: Artifact) -> Result<(), crate::Error> {
         Ok(())
     }
 }
@@ -202,10 +202,10 @@ pub struct Collect(pub Vec<Artifact>);
 
 impl Sink for Collect {
     fn progress(&mut self, _: u64, _: u64) {}
-    fn measurement(&mut self, _: &Value) -> Result<(), String> {
+    fn measurement(&mut self, _: &Value) -> Result<(), crate::Error> {
         Ok(())
     }
-    fn artifact(&mut self, artifact: Artifact) -> Result<(), String> {
+    fn artifact(&mut self, artifact: Artifact) -> Result<(), crate::Error> {
         self.0.push(artifact);
         Ok(())
     }

@@ -84,6 +84,7 @@ pub async fn run(
         &mut |i, s| {
             journal.append(i, s)?;
             shared_sink.borrow_mut().measurement(&json!({"index": i, "ex_um": s.error_um[0], "ey_um": s.error_um[1], "yaw_urad": s.yaw_urad}))
+                .map_err(String::from)
         },
         &mut |done, of| shared_sink.borrow_mut().progress(done as u64, of as u64),
         // A live view's frame: one that cannot be made is skipped.
@@ -208,17 +209,18 @@ impl ScanJournal for FileJournal {
         &mut self,
         header: &journal::Header,
         plan: &ScanPlan,
-    ) -> Result<Vec<(usize, Sample)>, String> {
+    ) -> Result<Vec<(usize, Sample)>, crate::Error> {
         let shown = self.path.display();
         let write = |bytes: &[u8]| {
             // The journal replaces the one it read (never a link to another file read).
             protocol::config::replace_output(&self.path, bytes, &[])
-                .map_err(|e| format!("writing {shown}: {e}"))
+                .map_err(|e| crate::Error::Output(format!("writing {shown}: {e}")))
         };
         let samples = match read_journal(&self.path, plan) {
             Ok(bytes) => {
-                let read = journal::read(header, plan, &bytes)
-                    .map_err(|e| format!("{shown}: {e} (remove it to start a new scan)"))?;
+                let read = journal::read(header, plan, &bytes).map_err(|e| {
+                    crate::Error::Input(format!("{shown}: {e} (remove it to start a new scan)"))
+                })?;
                 if read.whole_bytes == 0 {
                     // Not even the header was whole: nothing was kept.
                     write(header.line().as_bytes())?;
@@ -233,23 +235,24 @@ impl ScanJournal for FileJournal {
                 write(header.line().as_bytes())?;
                 Vec::new()
             }
-            Err(e) => return Err(format!("{shown}: {e}")),
+            Err(e) => return Err(crate::Error::input(shown, e)),
         };
         let file = std::fs::OpenOptions::new()
             .append(true)
             .open(&self.path)
-            .map_err(|e| format!("opening {shown}: {e}"))?;
+            .map_err(|e| crate::Error::Output(format!("opening {shown}: {e}")))?;
         self.file = Some(file);
         Ok(samples)
     }
 
-    fn append(&mut self, index: usize, sample: &Sample) -> Result<(), String> {
-        let file = self.file.as_mut().ok_or("the journal is not open")?;
+    fn append(&mut self, index: usize, sample: &Sample) -> Result<(), crate::Error> {
+        let file = (self.file.as_mut())
+            .ok_or_else(|| crate::Error::Output("the journal is not open".into()))?;
         // One write of the whole line, then to the disk: an interruption leaves whole
         // lines and at most one torn last line.
         file.write_all(journal::line(index, sample).as_bytes())
             .and_then(|()| file.sync_data())
-            .map_err(|e| format!("{}: {e}", self.path.display()))
+            .map_err(|e| crate::Error::Output(format!("{}: {e}", self.path.display())))
     }
 
     fn close(&mut self) {
@@ -281,15 +284,18 @@ impl FolderShelf {
 }
 
 impl MapShelf for FolderShelf {
-    fn next_version(&mut self, name: &str) -> Result<u32, String> {
-        let (v, path) = next_version_path(&self.dir, name).map_err(|e| e.to_string())?;
+    fn next_version(&mut self, name: &str) -> Result<u32, crate::Error> {
+        let (v, path) =
+            next_version_path(&self.dir, name).map_err(|e| crate::Error::Output(e.to_string()))?;
         self.next = Some((v, path));
         Ok(v)
     }
 
-    fn keep(&mut self, _: &str, map: &ErrorMap) -> Result<String, String> {
-        let (_, path) = self.next.take().ok_or("no version was reserved")?;
-        map.save_new(&path).map_err(|e| e.to_string())?;
+    fn keep(&mut self, _: &str, map: &ErrorMap) -> Result<String, crate::Error> {
+        let (_, path) = (self.next.take())
+            .ok_or_else(|| crate::Error::Output("no version was reserved".into()))?;
+        map.save_new(&path)
+            .map_err(|e| crate::Error::Output(e.to_string()))?;
         Ok(path.display().to_string())
     }
 }
@@ -533,6 +539,9 @@ mod tests {
         let e = FileJournal::new(path.clone())
             .resume(&other, &plan)
             .unwrap_err();
+        // Another scan's journal is an input refused, not an output that failed.
+        assert!(matches!(e, crate::Error::Input(_)), "{e:?}");
+        let e = e.to_string();
         assert!(
             e.contains("its camera is `cam`, this scan's is `another camera`")
                 && e.contains("remove it to start a new scan"),
@@ -548,7 +557,8 @@ mod tests {
         {
             let e = FileJournal::new(fifo)
                 .resume(&header(&plan), &plan)
-                .unwrap_err();
+                .unwrap_err()
+                .to_string();
             assert!(e.contains("not a regular file"), "{e}");
         }
         std::fs::remove_dir_all(&dir).ok();

@@ -213,13 +213,13 @@ impl Correction {
 pub trait ProxyFront {
     /// The sender's port is ready (before any session): `sender_port`, `controller`,
     /// `compensation` (and `map`, the same).
-    fn ready(&mut self, hello: &Value) -> Result<(), String>;
+    fn ready(&mut self, hello: &Value) -> Result<(), crate::Error>;
     /// A session ended and another follows: its account (as [`Outcome::result`] is for
     /// the last one).
-    fn session(&mut self, account: &Value) -> Result<(), String>;
+    fn session(&mut self, account: &Value) -> Result<(), crate::Error>;
     /// The pass-through re-referenced the map after the sender's homing: keep the record
     /// as the map's current reference (the CLI writes it beside the map).
-    fn reference(&mut self, record: &MapReference) -> Result<(), String> {
+    fn reference(&mut self, record: &MapReference) -> Result<(), crate::Error> {
         let _ = record;
         Ok(())
     }

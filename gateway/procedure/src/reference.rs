@@ -344,7 +344,10 @@ mod tests {
         assert_eq!(choose(Ok(None), false), Ok(Choice::NoneRecorded));
         assert_eq!(choose(Ok(None), true), Ok(Choice::NotWanted));
         let e = parse_record("{}", "r").unwrap_err();
-        assert!(e.to_string().starts_with("r: not a reference record"), "{e}");
+        assert!(
+            e.to_string().starts_with("r: not a reference record"),
+            "{e}"
+        );
         // A record that cannot be read is an error, unless none is wanted.
         assert_eq!(choose(Err(e.clone()), false), Err(e.clone()));
         assert_eq!(choose(Err(e), true), Ok(Choice::NotWanted));

@@ -489,24 +489,27 @@ fn rewrite_bounded(
     compensation: &dyn Compensation,
     options: Options,
     cap: usize,
-) -> Result<(String, rewrite::Report), String> {
-    let mut rewriter = Rewriter::new(compensation, options).map_err(|e| e.to_string())?;
+) -> Result<(String, rewrite::Report), crate::Error> {
+    // A line the controller would refuse, or a correction past its bound: nothing is
+    // written.
+    let refused = |e: rewrite::RewriteError| crate::Error::Refused(e.to_string());
+    let mut rewriter = Rewriter::new(compensation, options).map_err(refused)?;
     let mut out = String::with_capacity(text.len() + text.len() / 4);
     for (index, (line, ending)) in protocol::nc::split_lines(text).enumerate() {
         let ending = match ending {
             protocol::nc::LineEnding::None => "\n",
             e => e.as_str(),
         };
-        for piece in rewriter.line(line, index + 1).map_err(|e| e.to_string())? {
+        for piece in rewriter.line(line, index + 1).map_err(refused)? {
             out.push_str(&piece);
             out.push_str(ending);
         }
         if out.len() > cap {
-            return Err(format!(
+            return Err(crate::Error::Refused(format!(
                 "line {}: the rewritten program passes {} bytes, the most accepted (a larger tolerance gives fewer pieces)",
                 index + 1,
                 cap
-            ));
+            )));
         }
     }
     if !text.ends_with(['\n', '\r']) && out.ends_with('\n') {
@@ -795,6 +798,7 @@ mod tests {
         let (whole, _) = rewrite_bounded(&r.program, &wavy, options(), usize::MAX).unwrap();
         assert!(whole.lines().count() > 20, "{}", whole.lines().count());
         let e = rewrite_bounded(&r.program, &wavy, options(), whole.len() / 2).unwrap_err();
-        assert!(e.starts_with("line 2: the rewritten program passes"), "{e}");
+        assert!(matches!(e, crate::Error::Refused(_)), "{e:?}");
+        assert!(e.to_string().starts_with("line 2: the rewritten program passes"), "{e}");
     }
 }

@@ -20,24 +20,26 @@ pub use crate::context::ErrorsShelf;
 pub struct FolderShelf(pub std::path::PathBuf);
 
 impl ErrorsShelf for FolderShelf {
-    fn keep(&mut self, _: &str, report: &Value) -> Result<String, String> {
+    fn keep(&mut self, _: &str, report: &Value) -> Result<String, crate::Error> {
         let path = self.0.join("errors.json");
-        let text = serde_json::to_string_pretty(report).map_err(|e| e.to_string())?;
+        let text = serde_json::to_string_pretty(report)
+            .map_err(|e| crate::Error::Output(e.to_string()))?;
         protocol::config::write_output(&path, text.as_bytes(), &[])
-            .map_err(|e| format!("writing {}: {e}", path.display()))?;
+            .map_err(|e| crate::Error::Output(format!("writing {}: {e}", path.display())))?;
         Ok(path.display().to_string())
     }
 }
 
 /// The sweep chart (centres and fitted circles, deviations x1000) as SVG and PNG.
-fn sweep_chart(rows: &[CentreRow], id: &Identification, sink: &mut dyn Sink) -> Result<(), String> {
+fn sweep_chart(rows: &[CentreRow], id: &Identification, sink: &mut dyn Sink) -> Result<(), Error> {
     let chart = rotary::chart::SweepChart {
         rows,
         identification: id,
         magnification: 1000.0,
     };
-    let svg = plot::render_svg(&chart, 1000, 460).map_err(|e| format!("the sweep chart: {e}"))?;
-    let png = plot::render_png(&chart, 1000, 460).map_err(|e| format!("the sweep chart: {e}"))?;
+    let failed = |e| Error::Output(format!("the sweep chart: {e}"));
+    let svg = plot::render_svg(&chart, 1000, 460).map_err(failed)?;
+    let png = plot::render_png(&chart, 1000, 460).map_err(failed)?;
     sink.artifact(Artifact {
         name: "rotary-sweeps.svg".into(),
         title: Some("Ball centres and fitted circles (deviations x1000)".into()),

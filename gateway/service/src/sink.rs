@@ -32,6 +32,11 @@ impl StoreSink {
     }
 }
 
+/// What the store could not keep: the procedure stops (with the stage stopped).
+fn kept_not(e: impl std::fmt::Display) -> procedure::Error {
+    procedure::Error::Output(e.to_string())
+}
+
 impl Sink for StoreSink {
     fn progress(&mut self, done: u64, total: u64) {
         // The store's lock is released before the events (they read the store).
@@ -40,10 +45,10 @@ impl Sink for StoreSink {
         self.shared.publish_states();
     }
 
-    fn measurement(&mut self, measurement: &Value) -> Result<(), String> {
+    fn measurement(&mut self, measurement: &Value) -> Result<(), procedure::Error> {
         let row = lock(&self.shared.store)
             .add_measurement(self.job, measurement)
-            .map_err(|e| e.to_string())?;
+            .map_err(kept_not)?;
         // `row` orders it against a fetch of the measurements (their
         // `X-Last-Measurement-Row`): a page appends only the events after its fetch.
         self.shared.emit(json!({"type": "measurement", "job_id": self.job, "machine": self.machine, "row": row, "measurement": measurement}));
@@ -69,7 +74,7 @@ impl Sink for StoreSink {
 
     /// Every file the procedure writes is kept with the job (charts, tables, reports,
     /// the shifted layout) and served on its own (`/api/v1/jobs/{id}/files`).
-    fn artifact(&mut self, artifact: Artifact) -> Result<(), String> {
+    fn artifact(&mut self, artifact: Artifact) -> Result<(), procedure::Error> {
         if artifact.name.starts_with("layout.") {
             self.layout = Some(String::from_utf8_lossy(&artifact.bytes).into_owned());
         }
@@ -81,7 +86,7 @@ impl Sink for StoreSink {
                 artifact.media_type,
                 &artifact.bytes,
             )
-            .map_err(|e| e.to_string())
+            .map_err(kept_not)
     }
 }
 
@@ -111,7 +116,7 @@ pub const JOURNAL_HEADER_FILE: &str = "scan-journal-header.txt";
 impl StoreJournal {
     /// The latest map job of this name on this machine that did not finish (looked for
     /// among the machine's last `RESUME_WINDOW` jobs).
-    fn stopped_scan(&self) -> Result<Option<(JobId, Value)>, String> {
+    fn stopped_scan(&self) -> Result<Option<(JobId, Value)>, procedure::Error> {
         let store = lock(&self.shared.store);
         let jobs = store
             .jobs(&JobFilter {
@@ -120,7 +125,7 @@ impl StoreJournal {
                 limit: Some(RESUME_WINDOW),
                 before_id: Some(self.job),
             })
-            .map_err(|e| e.to_string())?;
+            .map_err(kept_not)?;
         let latest = jobs.into_iter().find(|j| {
             j.kind == "map"
                 && j.params.get("name").and_then(Value::as_str) == Some(self.name.as_str())
@@ -142,7 +147,7 @@ impl ScanJournal for StoreJournal {
         &mut self,
         header: &journal::Header,
         plan: &ScanPlan,
-    ) -> Result<Vec<(usize, Sample)>, String> {
+    ) -> Result<Vec<(usize, Sample)>, procedure::Error> {
         // This scan's header first: whoever resumes it checks it.
         lock(&self.shared.store)
             .add_job_file(
@@ -152,7 +157,7 @@ impl ScanJournal for StoreJournal {
                 "text/plain",
                 header.line().as_bytes(),
             )
-            .map_err(|e| e.to_string())?;
+            .map_err(kept_not)?;
         let Some((id, result)) = self.stopped_scan()? else {
             return Ok(Vec::new());
         };
@@ -160,7 +165,7 @@ impl ScanJournal for StoreJournal {
         // be this one's: a scan of another camera or board starts anew, saying why.
         let stored = lock(&self.shared.store)
             .job_file(id, JOURNAL_HEADER_FILE)
-            .map_err(|e| e.to_string())?;
+            .map_err(kept_not)?;
         let differs = match stored {
             Some((_, bytes)) => journal::read(header, plan, &bytes).err(),
             None => Some(format!("job {id} kept no journal header")),
@@ -180,29 +185,27 @@ impl ScanJournal for StoreJournal {
         }
         let rows = lock(&self.shared.store)
             .measurements(id)
-            .map_err(|e| e.to_string())?;
+            .map_err(kept_not)?;
         let mut samples = Vec::with_capacity(rows.len());
         for (k, row) in rows.iter().enumerate() {
             match sample_of(row).filter(|(i, _)| *i < plan.points.len()) {
                 Some(s) => samples.push(s),
                 None => {
-                    return Err(format!(
+                    return Err(procedure::Error::Input(format!(
                         "job {id}'s measurement #{k} is not a sample of this plan: {row}"
-                    ))
+                    )))
                 }
             }
         }
         let mut store = lock(&self.shared.store);
         for row in &rows {
-            store
-                .add_measurement(self.job, row)
-                .map_err(|e| e.to_string())?;
+            store.add_measurement(self.job, row).map_err(kept_not)?;
         }
         self.resumed_from = Some(json!(id));
         Ok(samples)
     }
 
-    fn append(&mut self, _: usize, _: &Sample) -> Result<(), String> {
+    fn append(&mut self, _: usize, _: &Sample) -> Result<(), procedure::Error> {
         // The sink keeps every sample as a measurement of the job already.
         Ok(())
     }
@@ -222,10 +225,10 @@ pub struct ProfileShelf {
 }
 
 impl MapShelf for ProfileShelf {
-    fn next_version(&mut self, name: &str) -> Result<u32, String> {
+    fn next_version(&mut self, name: &str) -> Result<u32, procedure::Error> {
         let versions = lock(&self.shared.store)
             .profiles(&self.machine)
-            .map_err(|e| e.to_string())?;
+            .map_err(kept_not)?;
         Ok(versions
             .iter()
             .filter(|p| p.name == name)
@@ -235,8 +238,8 @@ impl MapShelf for ProfileShelf {
             + 1)
     }
 
-    fn keep(&mut self, name: &str, map: &ErrorMap) -> Result<String, String> {
-        let body: Value = serde_json::from_str(&map.to_json()).map_err(|e| e.to_string())?;
+    fn keep(&mut self, name: &str, map: &ErrorMap) -> Result<String, procedure::Error> {
+        let body: Value = serde_json::from_str(&map.to_json()).map_err(kept_not)?;
         let note = format!("scanned by job {}", self.job);
         let p = lock(&self.shared.store)
             .add_profile(
@@ -247,7 +250,7 @@ impl MapShelf for ProfileShelf {
                 Some(self.job),
                 Some(&note),
             )
-            .map_err(|e| e.to_string())?;
+            .map_err(kept_not)?;
         Ok(format!("error_map profile {} v{}", p.name, p.version))
     }
 }
@@ -260,7 +263,7 @@ pub struct RotaryShelf {
 }
 
 impl procedure::rotary::ErrorsShelf for RotaryShelf {
-    fn keep(&mut self, name: &str, report: &Value) -> Result<String, String> {
+    fn keep(&mut self, name: &str, report: &Value) -> Result<String, procedure::Error> {
         let note = format!("measured by job {}", self.job);
         let p = lock(&self.shared.store)
             .add_profile(
@@ -271,7 +274,7 @@ impl procedure::rotary::ErrorsShelf for RotaryShelf {
                 Some(self.job),
                 Some(&note),
             )
-            .map_err(|e| e.to_string())?;
+            .map_err(kept_not)?;
         Ok(format!("rotary profile {} v{}", p.name, p.version))
     }
 }
