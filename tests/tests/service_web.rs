@@ -501,6 +501,22 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
     );
     for (k, want) in kinds.iter().zip(kind_jobs().as_array().unwrap()) {
         assert_eq!(k["state"], "succeeded", "{k}");
+        // The form offers no field the service would refuse (real ports: the command
+        // line's), and every field the walk filled.
+        let name = k["kind"].as_str().unwrap();
+        let fields: Vec<&str> = (k["fields"].as_array().unwrap().iter())
+            .map(|f| f.as_str().unwrap())
+            .collect();
+        let registered = procedure::kinds::find(name).unwrap();
+        for only in registered.command_line_only {
+            assert!(!fields.contains(only), "{name} offers {only}: {fields:?}");
+        }
+        for filled in want["params"].as_object().unwrap().keys() {
+            assert!(
+                fields.contains(&filled.as_str()),
+                "{name}: {filled} not in {fields:?}"
+            );
+        }
         let table = match k["kind"].as_str().unwrap() {
             "iso230" => "iso230-figures",
             "verify" => "verify-before-after",

@@ -175,6 +175,8 @@ impl crate::registry::Procedure for Cut {
     /// The service cuts on the emulated cutter: real controllers are named by their
     /// ports on the box that owns them (`gateway layout cut --conveyor PORT --head
     /// PORT ...`), never by a request from the network.
+    const COMMAND_LINE_ONLY: &'static [&'static str] = &["conveyor", "heads"];
+
     fn admit(
         request: &CutRequest,
         _facts: &crate::registry::Facts,

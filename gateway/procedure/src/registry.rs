@@ -99,6 +99,10 @@ pub trait Procedure {
     async fn run(request: Self::Request, cx: &mut dyn Context) -> Outcome;
     /// The result as a person reads it (the CLI's text, the page's summary).
     fn summary(result: &Value) -> String;
+    /// Request fields only the command line sets: real ports on the box the command runs
+    /// on. The service refuses them when queued ([`Self::admit`]) and its forms do not
+    /// show them (the schema marks them `x-command-line-only`).
+    const COMMAND_LINE_ONLY: &'static [&'static str] = &[];
     /// A refusal at queue time from what the machine knows (default: none).
     fn admit(_request: &Self::Request, _facts: &Facts) -> Result<(), RequestError> {
         Ok(())
@@ -117,6 +121,8 @@ pub struct Kind {
     pub title: &'static str,
     pub command: &'static str,
     pub uses: Uses,
+    /// [`Procedure::COMMAND_LINE_ONLY`].
+    pub command_line_only: &'static [&'static str],
     parse: fn(&Value) -> Result<Value, RequestError>,
     admit: fn(&Value, &Facts) -> Result<(), RequestError>,
     uses_map: fn(&Value) -> bool,
@@ -180,6 +186,7 @@ pub const fn entry<P: Procedure + 'static>() -> Kind {
         title: P::TITLE,
         command: P::COMMAND,
         uses: P::USES,
+        command_line_only: P::COMMAND_LINE_ONLY,
         parse: normalized::<P>,
         admit: admit_as::<P>,
         uses_map: uses_map_as::<P>,
@@ -215,8 +222,23 @@ impl Kind {
     }
 
     /// The JSON schema (OpenAPI 3.1) of its params: the page builds the form from it.
+    /// The fields only the command line sets are marked `x-command-line-only`.
     pub fn schema(&self) -> RefOr<Schema> {
-        (self.schema)()
+        let mut schema = (self.schema)();
+        if let RefOr::T(Schema::Object(object)) = &mut schema {
+            for name in self.command_line_only {
+                let mark = utoipa::openapi::extensions::ExtensionsBuilder::new()
+                    .add("x-command-line-only", true)
+                    .build();
+                let extensions = match object.properties.get_mut(*name) {
+                    Some(RefOr::T(Schema::Object(field))) => &mut field.extensions,
+                    Some(RefOr::T(Schema::Array(field))) => &mut field.extensions,
+                    _ => continue,
+                };
+                extensions.get_or_insert_with(Default::default).merge(mark);
+            }
+        }
+        schema
     }
 }
 
@@ -248,7 +270,27 @@ mod tests {
             );
             let _ = k.summary(&json!({}));
             assert_eq!(find(k.name), Some(k));
+            // A command-line-only field is a field, marked, and refused when queued.
+            for name in k.command_line_only {
+                let field = &schema["properties"][name];
+                assert_eq!(
+                    field["x-command-line-only"], true,
+                    "{}.{name}: {schema}",
+                    k.name
+                );
+            }
         }
+        let cut = find("cut").unwrap();
+        assert_eq!(cut.command_line_only, ["conveyor", "heads"]);
+        let layout = json!({"layout": "{}", "format": "json", "tools": 1, "window_mm": 100.0,
+            "gap_mm": 5.0});
+        let params = json!({"partition": layout, "conveyor": "/dev/ttyUSB0",
+            "heads": ["/dev/ttyUSB1"]});
+        let e = cut.admit(&params, &Facts::default()).unwrap_err();
+        assert!(cut.command_line_only.contains(&e.field.as_str()), "{e}");
+        assert!(cut
+            .admit(&json!({"partition": layout}), &Facts::default())
+            .is_ok());
         assert!(kind("nope").unwrap_err().message.contains("compensate"));
     }
 

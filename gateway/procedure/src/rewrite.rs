@@ -799,6 +799,10 @@ mod tests {
         assert!(whole.lines().count() > 20, "{}", whole.lines().count());
         let e = rewrite_bounded(&r.program, &wavy, options(), whole.len() / 2).unwrap_err();
         assert!(matches!(e, crate::Error::Refused(_)), "{e:?}");
-        assert!(e.to_string().starts_with("line 2: the rewritten program passes"), "{e}");
+        assert!(
+            e.to_string()
+                .starts_with("line 2: the rewritten program passes"),
+            "{e}"
+        );
     }
 }

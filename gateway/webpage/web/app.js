@@ -1267,6 +1267,8 @@ function fieldHelp(kind, name, spec) {
 function formFields(schema, prefix = '') {
   const required = new Set((schema && schema.required) || []);
   return Object.entries((schema && schema.properties) || {}).flatMap(([name, prop]) => {
+    // Real ports on the box a command runs on: the service refuses them, so no field.
+    if (prop['x-command-line-only']) return [];
     // An object field, inline (`oneOf` of one object when it has its own description).
     const inner = prop.oneOf && prop.oneOf.length === 1 ? prop.oneOf[0] : prop;
     return inner.type === 'object' && inner.properties ? formFields(inner, prefix + name + '.')

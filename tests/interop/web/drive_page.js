@@ -328,12 +328,15 @@ async function chartGeometry(page, url) {
 async function kindsWalk(page, spec) {
   const results = [];
   for (const job of spec.jobs) {
+    // The fields the form offers for this kind, as an operator sees them.
+    await page.selectOption('#job-kind', job.kind);
+    const fields = await page.$$eval('#job-fields [data-field]', (els) => els.map((e) => e.dataset.field));
     const id = await submitForm(page, job.kind, job.params);
     const row = page.locator(`#history-rows tr[data-job-id="${id}"]`);
     await row.and(page.locator('[data-state="succeeded"], [data-state="failed"], [data-state="cancelled"]'))
       .waitFor({ timeout: JOB_TIMEOUT_MS });
     const state = await row.getAttribute('data-state');
-    const seen = { kind: job.kind, id, state };
+    const seen = { kind: job.kind, id, state, fields };
     results.push(seen);
     if (state !== 'succeeded') {
       await page.click(`button.show-job[data-job-id="${id}"]`);
