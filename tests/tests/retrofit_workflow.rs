@@ -10,7 +10,7 @@
 //! test, as one real machine is for a shop: the map, the reference and the sessions each
 //! open the controller's port and close it again. Thermal drift is off (the scan takes
 //! simulated minutes; drift is what a later reference is for). A smaller camera window
-//! keeps the debug build's frames cheap. Skips, saying why, without python3/pyserial.
+//! keeps the debug build's frames cheap. Without python3/pyserial it fails, naming the install step.
 
 use devices::{spawn_grbl_emulator, Devices};
 use drivers::grbl::GrblOptions;
