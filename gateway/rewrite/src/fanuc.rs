@@ -656,7 +656,13 @@ impl<'a> Writer<'a> {
                 text.push_str(&gs);
             }
             text.push_str(if *rapid { "G00" } else { "G01" });
-            let origin = self.controller.origin();
+            // The origin under the block's own work system (a G54-G59 in it applies
+            // to its move).
+            let origin = {
+                let mut c = self.controller.clone();
+                c.modal.work = self.nominal.modal.work;
+                c.origin()
+            };
             for i in 0..3 {
                 let moved = (command[i] - self.controller.position[i]).abs() > increment / 2.0;
                 let name = k == 0 && named.contains(&i) && !arc;

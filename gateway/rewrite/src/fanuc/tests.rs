@@ -194,3 +194,10 @@ fn tv_padding_makes_every_block_even() {
         assert_eq!(l.len() % 2, 0, "`{l}`");
     }
 }
+
+#[test]
+fn a_work_system_chosen_in_the_moving_block_applies_to_its_move() {
+    let (out, _) = rewrite("G10L2P2X20.Y15.\nG55G90G00X20.Y20.\nG54G01X1.Y1.F100.\n").unwrap();
+    assert!(out.contains("G55G90G00X20.012Y19.995\n"), "{out}");
+    assert_eq!(ends(&out), vec![[40.012, 34.995, 0.0], [1.012, 0.995, 0.0]]);
+}
