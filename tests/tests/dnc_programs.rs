@@ -30,8 +30,8 @@ const BAUD: u32 = 921_600;
 /// The rewrite's tolerance (the default).
 const TOLERANCE_UM: f64 = 0.5;
 /// The controllers' least input increment: IS-C (0.1 um). On IS-B (1 um) the rounding
-/// of every command adds up to 0.5 um per axis: with 0.001 here the same programs end
-/// 1.41 to 1.60 um from the path (docs/dnc.md), too close to the bound to hold it.
+/// of every command adds up to 0.5 um per axis: with 0.001 here the hexagon and the arcs
+/// end 1.41 to 1.60 um from the path (docs/dnc.md), too close to the bound to hold it.
 const INCREMENT_MM: f64 = 0.0001;
 
 fn demo_machine() -> (Job, MachineConfig) {
