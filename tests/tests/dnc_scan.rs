@@ -88,7 +88,7 @@ fn a_grid_is_measured_through_the_tape_with_the_stops_found_from_the_frames() {
                 &targets,
                 &tape,
                 &stops,
-                &mut |_| {},
+                &mut |_| Ok(()),
             ),
         )
         .await
@@ -119,5 +119,105 @@ fn a_grid_is_measured_through_the_tape_with_the_stops_found_from_the_frames() {
         );
         assert!(largest > 0.005, "the stage is off by more than the bound");
         assert!(worst < 0.0015, "{:.3} um", worst * 1e3);
+    });
+}
+
+/// The map procedure's scan (`runner::scan::run_scan`) on a `tape_only` stage: a small
+/// plan (20 mm grid and lines over 40 x 30 mm, both approach sides) as one measurement
+/// tape, every point found from the frames; the samples taken from below in X and Y
+/// against the stage's true error relative to the reference point.
+#[test]
+fn the_map_scan_runs_through_the_tape_on_a_tape_only_stage() {
+    use errormap::scan::{MapBuilder, ScanPlan, ScanSpec};
+    use errormap::Approach;
+    let demo = Job::demo();
+    let StageSpec::Sim { machine } = &demo.stage else {
+        unreachable!("the demo job simulates its stage")
+    };
+    let mut machine = machine.clone();
+    machine.thermal = None;
+    let job = Job::load(&system_tests::config_dir().join("gateway/stepper-coded.toml"))
+        .expect("the coded job loads");
+    let rig = devices::new_rig(&job, &machine);
+    let dev = DncDevice::new(
+        rig.clone(),
+        DncConfig {
+            clock: Clock::Scaled(1.0),
+            ..DncConfig::default()
+        },
+    );
+    let plan = ScanPlan::new(
+        [60.0, 40.0],
+        [100.0, 70.0],
+        ScanSpec {
+            grid_step_mm: 20.0,
+            line_step_mm: 20.0,
+            passes: 1,
+        },
+    )
+    .expect("the plan");
+    runtime_two_workers().block_on(async {
+        let pty = DncPty::spawn(dev, None).expect("a pseudo-terminal");
+        let port = tokio_serial::new(pty.path(), BAUD)
+            .open_native_async()
+            .expect("the emulator's port opens");
+        let sender = DncSender::from_stream(port, "tape".into(), BAUD, DncOptions::default());
+        let axis = |axis, max_mm| DncAxis {
+            axis,
+            min_mm: 0.0,
+            max_mm,
+            max_feed_mm_min: 6000.0,
+        };
+        let stage = DncStage::new(
+            sender,
+            pty.path(),
+            vec![axis(drivers::Axis::X, 200.0), axis(drivers::Axis::Y, 150.0)],
+        );
+        let mut devices = devices::Devices {
+            stage: Box::new(stage),
+            camera: Box::new(drivers::sim::SimCamera::new(rig.clone())),
+            rig: Some(rig.clone()),
+        };
+        let mut builder = MapBuilder::new();
+        let mut samples = Vec::new();
+        let reference = tokio::time::timeout(
+            BOUND,
+            runner::scan::run_scan(
+                &job,
+                &mut devices,
+                &plan,
+                &mut builder,
+                &mut |i, s| {
+                    samples.push((i, *s));
+                    Ok(())
+                },
+                &mut |_, _| {},
+                std::future::pending(),
+            ),
+        )
+        .await
+        .expect("the scan ends within the bound")
+        .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(builder.done(), plan.points.len());
+        let m = lock(&rig).machine().clone();
+        let e0 = m.static_error_um(reference.command_mm);
+        let mut worst = 0.0f64;
+        let mut compared = 0;
+        for (i, s) in &samples {
+            let p = &plan.points[*i];
+            if p.dir.x != Approach::Forward || p.dir.y != Approach::Forward {
+                continue;
+            }
+            let e = m.static_error_um(p.command_mm);
+            let d = (s.error_um[0] - (e[0] - e0[0])).hypot(s.error_um[1] - (e[1] - e0[1]));
+            worst = worst.max(d);
+            compared += 1;
+        }
+        eprintln!(
+            "map scan through the tape: {} points, the {compared} approached from below within {worst:.3} um of the truth",
+            plan.points.len()
+        );
+        assert!(compared > 3);
+        assert!(worst < 1.5, "{worst:.3} um");
     });
 }

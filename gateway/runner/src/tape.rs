@@ -45,7 +45,7 @@ pub async fn measure_by_tape(
     targets: &[TapeTarget],
     tape_spec: &TapeSpec,
     stop_spec: &StopSpec,
-    on_stop: &mut (dyn FnMut(&TapeStop) + Send),
+    on_stop: &mut dyn FnMut(&TapeStop) -> Result<(), String>,
 ) -> TapeRun {
     let mut run = TapeRun::default();
     if !stage.capabilities().tape_only {
@@ -107,7 +107,7 @@ pub async fn measure_by_tape(
                             observation: o,
                             t_s: t,
                         };
-                        on_stop(&stop);
+                        on_stop(&stop)?;
                         run.machine_time_s = t - t0;
                         run.stops.push(stop);
                         if finder.done() {
@@ -135,3 +135,106 @@ pub async fn measure_by_tape(
     }
     run
 }
+
+/// Why a scan through the tape ended early (the points measured are kept).
+#[derive(Debug)]
+pub enum TapeScanError {
+    Cancelled,
+    /// The builder refused a sample of plan point `index` (not a stage's error).
+    Record {
+        index: usize,
+        message: String,
+    },
+    Journal(String),
+    /// The tape or the stops ended it: `measured` plan points were measured.
+    Tape {
+        measured: usize,
+        message: String,
+    },
+}
+
+/// The map scan on a `tape_only` stage (`crate::scan::run_scan` comes here with the
+/// targets: the reference point first, then the plan points `todo` not measured yet,
+/// each with its approach): one measurement tape, each target dwelt at
+/// ([`SCAN_DWELL_S`]), the stops found from the frames. The operator has done the
+/// reference return (the stage cannot home) and the camera's orientation is not checked
+/// by moves (the tape cannot wait for a frame): on a coded board every frame gives the
+/// absolute position. Returns the reference frame's error (um) and rotation (degrees).
+#[allow(clippy::too_many_arguments)]
+pub(crate) async fn scan_by_tape(
+    job: &Job,
+    stage: &mut dyn Stage,
+    camera: &mut dyn Camera,
+    plan: &errormap::scan::ScanPlan,
+    builder: &mut errormap::scan::MapBuilder,
+    targets: &[TapeTarget],
+    todo: &[usize],
+    on_sample: &mut dyn FnMut(usize, &errormap::scan::Sample) -> Result<(), String>,
+    progress: &mut dyn FnMut(usize, usize),
+    cancel: impl std::future::Future<Output = ()>,
+) -> Result<([f64; 2], f64), TapeScanError> {
+    let tape = TapeSpec {
+        feed_mm_min: job.feed_mm_min,
+        dwell_s: SCAN_DWELL_S,
+        increment_mm: 0.001,
+    };
+    let stops = StopSpec {
+        still_mm: 0.002,
+        min_still_s: SCAN_DWELL_S / 3.0,
+        bound_mm: job.policy.max_correction_mm.max(0.05),
+    };
+    let z = job.board_at_machine_zero_mm;
+    let total = plan.points.len();
+    let mut reference: Option<([f64; 2], f64)> = None;
+    let mut failed: Option<TapeScanError> = None;
+    let mut on_stop = |s: &TapeStop| -> Result<(), String> {
+        let hint = [s.command_mm[0] + z[0], s.command_mm[1] + z[1]];
+        let o = &s.observation;
+        let error_um = [(o.x_mm - hint[0]) * 1000.0, (o.y_mm - hint[1]) * 1000.0];
+        let Some((r_um, r_deg)) = reference else {
+            reference = Some((error_um, o.rotation_deg));
+            return Ok(());
+        };
+        let index = todo[s.index - 1];
+        let sample = errormap::scan::Sample {
+            error_um: [error_um[0] - r_um[0], error_um[1] - r_um[1]],
+            yaw_urad: (o.rotation_deg - r_deg).to_radians() * 1e6,
+        };
+        if let Err(e) = builder.record(plan, index, sample) {
+            let message = e.to_string();
+            failed = Some(TapeScanError::Record {
+                index,
+                message: message.clone(),
+            });
+            return Err(message);
+        }
+        if let Err(e) = on_sample(index, &sample) {
+            failed = Some(TapeScanError::Journal(e.clone()));
+            return Err(e);
+        }
+        progress(builder.done(), total);
+        Ok(())
+    };
+    let run = tokio::select! {
+        biased;
+        () = cancel => None,
+        r = measure_by_tape(job, stage, camera, targets, &tape, &stops, &mut on_stop) => Some(r),
+    };
+    let Some(run) = run else {
+        return Err(TapeScanError::Cancelled);
+    };
+    if let Some(e) = failed {
+        return Err(e);
+    }
+    match (run.error, reference) {
+        (None, Some(r)) => Ok(r),
+        (error, _) => Err(TapeScanError::Tape {
+            measured: run.stops.len().saturating_sub(1),
+            message: error.unwrap_or_else(|| "the reference point was not measured".into()),
+        }),
+    }
+}
+
+/// The dwell at each target of a scan's tape, s (the camera needs frames spanning a
+/// third of it while the machine is still).
+pub const SCAN_DWELL_S: f64 = 3.0;
