@@ -7,6 +7,7 @@ use std::process::ExitCode;
 
 mod board;
 mod compensate;
+mod dnc;
 mod export;
 mod front;
 mod iso230;
@@ -108,6 +109,10 @@ enum Cmd {
         #[command(subcommand)]
         cmd: board::BoardCmd,
     },
+    /// Drip-feed a Fanuc program to a closed controller through its tape port (DNC,
+    /// DC1/DC3), rewritten with the error map; what cannot be rewritten exactly is
+    /// refused naming the block.
+    Dnc(dnc::DncArgs),
 }
 
 fn main() -> ExitCode {
@@ -144,6 +149,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Cmd::Export(a) => export::export(a, json),
         Cmd::Localize(a) => localize::localize(a, json),
         Cmd::Board { cmd } => board::run(cmd, json),
+        Cmd::Dnc(a) => dnc::dnc(a, json),
     }
 }
 

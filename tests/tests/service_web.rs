@@ -127,6 +127,9 @@ fn kind_jobs() -> serde_json::Value {
         {"kind": "board-make", "params": {}, "chart": false},
         {"kind": "localize", "params": {"image": demo_frame([60.25, 40.5]), "near": "60.22; 40.48"},
             "chart": false},
+        {"kind": "dnc", "params": {"program": {"name": "part.nc",
+            "text": "%\nO1\nG90G21\nG00X60.Y60.\nG01X90.Y75.F600.\nM30\n%\n"}, "send": false},
+            "chart": false},
     ])
 }
 

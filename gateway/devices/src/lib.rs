@@ -77,5 +77,16 @@ pub async fn open_stage_async(job: &Job) -> Result<OpenedStage, OpenError> {
         StageSpec::Modbus(spec) => modbus::open(job, spec).await?,
         StageSpec::Canopen(spec) => canopen::open(job, spec).await?,
         StageSpec::Linuxcnc(spec) => linuxcnc::open(job, spec).await?,
+        StageSpec::Dnc(spec) => (drivers::open_stage(&dnc_link(spec)).await?, None),
     })
+}
+
+/// The factory's link of a job's tape-port (DNC) stage.
+pub fn dnc_link(spec: &job::dnc::DncStageSpec) -> drivers::StageLink {
+    drivers::StageLink::Dnc {
+        port: spec.port.clone(),
+        baud: spec.baud,
+        options: spec.options.clone(),
+        axes: spec.axes.clone(),
+    }
 }

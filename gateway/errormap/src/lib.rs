@@ -39,6 +39,7 @@ pub mod export;
 pub mod heatmap;
 pub mod reference;
 pub mod scan;
+pub mod tape;
 
 use protocol::errormap::{ErrorMap, Measured, Node};
 

@@ -40,9 +40,10 @@ pub fn over_grbl(job: &mut Job) -> Result<(), DemoError> {
             Ok(())
         }
         StageSpec::Grbl { .. } => Ok(()),
-        StageSpec::Modbus(_) | StageSpec::Canopen(_) | StageSpec::Linuxcnc(_) => {
-            Err(DemoError::NotSimulated("grbl"))
-        }
+        StageSpec::Modbus(_)
+        | StageSpec::Canopen(_)
+        | StageSpec::Linuxcnc(_)
+        | StageSpec::Dnc(_) => Err(DemoError::NotSimulated("grbl")),
     }
 }
 

@@ -29,6 +29,7 @@
 pub mod camera;
 pub mod canopen;
 pub mod demo;
+pub mod dnc;
 pub mod linuxcnc;
 pub mod modbus;
 pub mod rotary;
@@ -112,6 +113,8 @@ enum RawStage {
     /// A LinuxCNC machine through its text remote shell linuxcncrsh (see
     /// module `linuxcnc`).
     Linuxcnc(crate::linuxcnc::RawLinuxcncStage),
+    /// A closed controller's tape port (DNC drip-feed; see module `dnc`).
+    Dnc(crate::dnc::RawDncStage),
 }
 
 fn default_baud() -> u32 {
@@ -180,6 +183,8 @@ pub enum StageSpec {
     Canopen(crate::canopen::CanopenStageSpec),
     /// A LinuxCNC machine through linuxcncrsh (TCP).
     Linuxcnc(crate::linuxcnc::LinuxcncStageSpec),
+    /// A closed controller through its tape port (DNC drip-feed, DC1/DC3).
+    Dnc(crate::dnc::DncStageSpec),
 }
 
 /// Where a GRBL controller is.
@@ -205,6 +210,7 @@ impl StageSpec {
                 matches!(spec.link, crate::canopen::CanopenLink::Emulate { .. })
             }
             StageSpec::Linuxcnc(spec) => spec.follow.is_some(),
+            StageSpec::Dnc(_) => false,
         }
     }
 }
@@ -276,6 +282,7 @@ impl Job {
             RawStage::Modbus(raw) => StageSpec::Modbus(crate::modbus::resolve(doc, raw)?),
             RawStage::Canopen(raw) => StageSpec::Canopen(crate::canopen::resolve(doc, raw)?),
             RawStage::Linuxcnc(raw) => StageSpec::Linuxcnc(crate::linuxcnc::resolve(doc, raw)?),
+            RawStage::Dnc(raw) => StageSpec::Dnc(crate::dnc::resolve(doc, raw)?),
         };
         let camera = raw.camera.resolve(doc)?;
         let pixel_axes = match &raw.camera.pixel_axes {

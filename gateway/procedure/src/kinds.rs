@@ -30,6 +30,7 @@ pub static KINDS: &[Kind] = &[
     entry::<crate::volumetric::VolumetricExportIsg>(),
     entry::<crate::board::BoardMake>(),
     entry::<crate::localize::Localize>(),
+    entry::<crate::dnc::Dnc>(),
 ];
 
 /// The kind named `name`.

@@ -13,6 +13,7 @@ pub mod compensate;
 pub mod context;
 pub mod cut;
 pub mod demo;
+pub mod dnc;
 pub mod error;
 pub mod export;
 pub mod files;

@@ -894,6 +894,7 @@ mod tests {
             "localize" => json!({"image": "iVBORw0K"}),
             "export" => json!({"format": "csv"}),
             "rewrite" => json!({"program": ""}),
+            "dnc" => json!({"program": ""}),
             "iso230-evaluate" => json!({"measurements": ""}),
             "rotary-identify" => json!({"centres": ""}),
             "rotary-rewrite" => json!({"program": "", "errors": ""}),

@@ -47,6 +47,7 @@
 //! becomes about 40 pieces at T = 0.5 um.
 
 pub mod dialect;
+pub mod fanuc;
 pub mod programs;
 mod rewriter;
 pub mod split;

@@ -12,6 +12,7 @@ pub mod measure;
 pub mod reference;
 pub mod rotary;
 pub mod scan;
+pub mod tape;
 pub mod verify;
 
 use compensation::correction::SoftLimits;

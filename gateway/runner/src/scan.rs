@@ -54,6 +54,10 @@ pub enum ScanError {
     Journal(String),
     #[error("cancelled by the operator; the stage was told to stop")]
     Cancelled,
+    /// A scan through a tape port ended early (`crate::tape`): the points measured are
+    /// kept.
+    #[error("the measurement tape: {message} ({measured} points measured and kept)")]
+    Tape { measured: usize, message: String },
 }
 
 /// Where the final move onto `p` starts from, for an approach from `a` on each axis.
@@ -141,6 +145,47 @@ pub async fn run_scan_frames(
                 message: e.to_string(),
             })?;
         }
+    }
+    if stage.capabilities().tape_only {
+        // A closed controller: the whole scan as one tape, the stops found from frames
+        // (`crate::tape`); the reference point first.
+        let reference_mm = [plan.y_line_at, plan.x_line_at];
+        let forward = errormap::Direction {
+            x: Approach::Forward,
+            y: Approach::Forward,
+        };
+        let todo: Vec<usize> = (0..plan.points.len())
+            .filter(|&i| !builder.is_done(i))
+            .collect();
+        let target = |command_mm, dir| errormap::tape::TapeTarget {
+            approach_mm: approach_point(command_mm, dir, a),
+            command_mm,
+        };
+        let mut targets = vec![target(reference_mm, forward)];
+        targets.extend(
+            todo.iter()
+                .map(|&i| target(plan.points[i].command_mm, plan.points[i].dir)),
+        );
+        use crate::tape::TapeScanError as E;
+        return crate::tape::scan_by_tape(
+            job, stage, camera, plan, builder, &targets, &todo, on_sample, progress, cancel,
+        )
+        .await
+        .map(|(error_um, rotation_deg)| Reference {
+            command_mm: reference_mm,
+            error_um,
+            rotation_deg,
+        })
+        .map_err(|e| match e {
+            E::Cancelled => ScanError::Cancelled,
+            E::Record { index, message } => ScanError::Impossible {
+                index,
+                at: plan.points[index].command_mm,
+                message,
+            },
+            E::Journal(m) => ScanError::Journal(m),
+            E::Tape { measured, message } => ScanError::Tape { measured, message },
+        });
     }
     // Homing, the orientation check and the reference frame: a compensation job of one
     // target and no correction.

@@ -36,6 +36,7 @@ pub fn describe(job: &Job) -> (String, String) {
         StageSpec::Modbus(_) => "modbus".to_string(),
         StageSpec::Canopen(_) => "canopen".to_string(),
         StageSpec::Linuxcnc(spec) => format!("linuxcnc:{}", spec.address),
+        StageSpec::Dnc(spec) => format!("dnc:{}", spec.port),
     };
     let camera = match &job.camera {
         CameraSpec::Sim { .. } => "sim".to_string(),

@@ -83,7 +83,7 @@ const KIND_LABELS = { compensate: 'Compensation run', iso230: 'ISO 230-2 axis te
   'rotary-rewrite': '5-axis program rewrite', cut: 'Layout cut', 'volumetric-identify': 'Volumetric model from a campaign',
   'volumetric-eval': 'Volumetric error at points', 'volumetric-contributions': 'Volumetric error contributions',
   'volumetric-campaign': 'Simulated volumetric campaign', 'volumetric-export-isg': 'Volumetric tables for the ISG kernel',
-  'board-make': 'Board artwork', localize: 'Localize a frame' };
+  'board-make': 'Board artwork', localize: 'Localize a frame', dnc: 'Program to a closed controller (DNC)' };
 const STATE_WORDS = { queued: 'queued', running: 'running', succeeded: 'done', failed: 'failed',
   cancelled: 'cancelled', interrupted: 'interrupted', idle: 'idle', busy: 'busy', opening: 'connecting',
   link_lost: 'link lost', stopped: 'stopped' };
@@ -111,6 +111,7 @@ const KIND_HELP = {
   cut: 'Splits the layout as a partition does and cuts it on the emulated conveyor cutter, every head\u2019s group at once.',
   'board-make': 'Draws the machine\u2019s calibration board for the lab that makes it (SVG, DXF, a PDF test print) and its certificate template.',
   localize: 'Finds where on the machine\u2019s board a camera frame was taken: the board position under the frame\u2019s centre.',
+  dnc: 'Rewrites a Fanuc program with the active error map and drip-feeds it to the machine\u2019s tape port (DNC). Select DNC mode and press CYCLE START on the controller when asked.',
 };
 const FIELD_HELP = {
   'compensate.targets': 'How many of the job\u2019s targets to visit, from the first. Empty: all of them.',

@@ -57,3 +57,72 @@ pub fn fanuc_tape(data: &[u8]) {
         }
     }
 }
+
+/// A smooth stand-in for a map (a 5 mm-period screw error in X, a squareness in Y),
+/// known on -300..300 mm.
+struct Smooth;
+
+impl rewrite::Compensation for Smooth {
+    fn describe(&self) -> String {
+        "smooth".into()
+    }
+    fn axes(&self) -> &[usize] {
+        &[0, 1]
+    }
+    fn feature_length_mm(&self) -> f64 {
+        1.0
+    }
+    fn command_for(
+        &self,
+        p: &rewrite::Pose,
+        _: &[rewrite::Approach; rewrite::N_AXIS],
+    ) -> Result<rewrite::Pose, String> {
+        if !(-300.0..=300.0).contains(&p[0]) || !(-300.0..=300.0).contains(&p[1]) {
+            return Err("outside".into());
+        }
+        let k = std::f64::consts::TAU / 5.0;
+        Ok([p[0] - 0.003 * (k * p[0]).sin(), p[1] - 40e-6 * p[0], p[2]])
+    }
+}
+
+/// Any text as a Fanuc program (its subprograms after M30) through
+/// `rewrite::fanuc::rewrite_fanuc` (start known, a smooth stand-in map): a refusal names
+/// a line of the program; an accepted tape is `%`-framed and every block on it reads and
+/// runs on the controller's interpreter in sequence, within the block length.
+pub fn fanuc_rewrite(data: &[u8]) {
+    use rewrite::fanuc::{rewrite_fanuc, FanucOptions};
+    let text = String::from_utf8_lossy(data);
+    if text.len() > 4000 {
+        return;
+    }
+    let options = FanucOptions {
+        start: Some([10.0, 10.0, 0.0]),
+        tolerance_mm: 0.005,
+        max_output_bytes: 1 << 20,
+        ..FanucOptions::default()
+    };
+    let max_block = options.max_block_chars;
+    match rewrite_fanuc(&text, None, &Smooth, options) {
+        Err(e) => assert!(e.line <= text.split('\n').count(), "{e}"),
+        Ok((out, report)) => {
+            assert!(out.starts_with("%\n") && out.ends_with("\n%\n"), "{out:?}");
+            let mut interp = Interpreter::new(Options::default(), [10.0, 10.0, 0.0]);
+            let mut blocks = 0;
+            for (n, line) in out.lines().enumerate() {
+                assert!(line.len() <= max_block, "{line:?}");
+                let block = match parse_line(line, n + 1) {
+                    Ok(Line::Block(b)) => b,
+                    Ok(_) => continue,
+                    Err(e) => panic!("the rewritten tape's line {}: {e}\n{out}", n + 1),
+                };
+                blocks += 1;
+                if block.program_number().is_none() {
+                    interp
+                        .execute(&block, n + 1, line)
+                        .unwrap_or_else(|e| panic!("{e}\n{out}"));
+                }
+            }
+            assert_eq!(blocks, report.blocks_out, "{out}");
+        }
+    }
+}

@@ -35,7 +35,7 @@ mod volumetric;
 pub use canopen::{canopen_eds, sdo_client, sdo_server};
 pub use config::{board_toml, camera_toml, job_toml, machine_toml, modbus_profile};
 pub use errormap::{error_map_json, scan_journal};
-pub use fanuc::fanuc_tape;
+pub use fanuc::{fanuc_rewrite, fanuc_tape};
 pub use gige::{genicam_xml, gige_url, gige_zip, gvcp, gvsp};
 pub use grbl::{grbl_gcode, grbl_response};
 pub use iso230::iso230_csv;
@@ -105,6 +105,7 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("reference_record", reference_record),
     ("linuxcnc_reply", linuxcnc_reply),
     ("fanuc_tape", fanuc_tape),
+    ("fanuc_rewrite", fanuc_rewrite),
 ];
 
 /// The fuzz crate's folder (corpora, regressions).

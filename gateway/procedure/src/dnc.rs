@@ -1,0 +1,557 @@
+//! A Fanuc program drip-fed to a closed controller through its tape port, rewritten with
+//! the error map on the way (`gateway dnc`; docs/dnc.md): the program (and the
+//! controller's stored subprograms, if any) in, the rewritten tape as an artifact
+//! ([`TAPE_ARTIFACT`]), then sent through the drivers' factory (a `dnc` stage: DC1/DC3
+//! honoured, NAK and SYN reported) to the port the request or the job names.
+//!
+//! The rewrite is sans-IO ([`prepare`]); only the sending touches a port.
+
+use crate::request::{number, RequestError};
+use crate::rewrite::{MAX_COORDINATE_MM, MAX_OUTPUT_BYTES, MAX_PROGRAM_BYTES};
+use crate::{Artifact, Outcome};
+use drivers::dnc::{DncAxis, DncOptions};
+use errormap::MapModel;
+use rewrite::fanuc::{rewrite_fanuc, FanucOptions, FanucReport};
+use rewrite::{Compensation, Identity as NoCompensation, N_AXIS};
+use serde::{Deserialize, Serialize};
+use serde_json::{json, Value};
+use std::fmt::Write;
+use std::time::Instant;
+
+/// The rewritten tape's artifact.
+pub const TAPE_ARTIFACT: &str = "tape.nc";
+
+fn default_program_name() -> String {
+    "program.nc".into()
+}
+fn default_tolerance() -> f64 {
+    0.5
+}
+fn default_max_correction() -> f64 {
+    200.0
+}
+fn default_baud() -> u32 {
+    9600
+}
+fn default_true() -> bool {
+    true
+}
+fn default_increment() -> f64 {
+    0.001
+}
+fn default_block_chars() -> usize {
+    128
+}
+
+/// A program for a closed controller, rewritten and drip-fed.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct DncRequest {
+    /// The program's text (Fanuc dialect, ISO code): `%`, the main program up to
+    /// M30/M02, then its subprograms (`O....` to `M99`), `%`.
+    #[schema(format = Binary, max_length = 16777216)]
+    pub program: String,
+    /// How messages name the program (its file name).
+    #[serde(default = "default_program_name")]
+    #[schema(default = default_program_name)]
+    pub program_name: String,
+    /// The subprograms stored in the controller that the program calls (M98), as a
+    /// tape of definitions: they are expanded where they run.
+    #[serde(default)]
+    #[schema(format = Binary)]
+    pub subprograms: Option<String>,
+    /// The serial port wired to the controller's tape port (the command line only);
+    /// none: the job's `[stage] driver = "dnc"`.
+    #[serde(default)]
+    pub port: Option<String>,
+    /// With `port`: the baud rate set on the controller.
+    #[serde(default = "default_baud")]
+    #[schema(default = default_baud, minimum = 50, maximum = 921600)]
+    pub baud: u32,
+    /// Send the tape (false: only rewrite it; the tape is the artifact).
+    #[serde(default = "default_true")]
+    #[schema(default = default_true)]
+    pub send: bool,
+    /// Send the program without correction (rewritten with decimal points, subprograms
+    /// expanded: the baseline to compare with).
+    #[serde(default)]
+    pub uncompensated: bool,
+    /// Apply the map as scanned, without its recorded reference.
+    #[serde(default)]
+    pub no_reference: bool,
+    /// Largest distance of the executed path from the compensated path, um.
+    #[serde(default = "default_tolerance")]
+    #[schema(default = default_tolerance, minimum = 0.01, maximum = 1000.0)]
+    pub tolerance_um: f64,
+    /// Largest correction accepted at any point, um.
+    #[serde(default = "default_max_correction")]
+    #[schema(default = default_max_correction, minimum = 0.001, maximum = 100000.0)]
+    pub max_correction_um: f64,
+    /// Machine position when the program starts, `[x, y]` or `[x, y, z]` mm (else the
+    /// first moves must name every compensated axis in G90).
+    #[serde(default)]
+    pub start: Option<Vec<f64>>,
+    /// The controller's stored work offsets G54, G55, ... (up to six `[x, y, z]`, machine
+    /// mm), as on its offset screen: a tape port cannot read them.
+    #[serde(default)]
+    pub work_offsets: Option<Vec<[f64; 3]>>,
+    /// The external work offset (added to every system), mm.
+    #[serde(default)]
+    pub external_offset: Option<[f64; 3]>,
+    /// Parameter 3401#0 DPI: a dimension without a decimal point is in whole mm/inches
+    /// (true) or in least input increments (false, the default).
+    #[serde(default)]
+    pub calculator_input: bool,
+    /// Least input increment, mm (IS-B 0.001, IS-C 0.0001); inches: a tenth of it.
+    #[serde(default = "default_increment")]
+    #[schema(default = default_increment, minimum = 0.00001, maximum = 0.01)]
+    pub increment_mm: f64,
+    /// The panel's block-skip switch: blocks starting with `/` are left out (true) or
+    /// rewritten as ordinary blocks (false).
+    #[serde(default = "default_true")]
+    #[schema(default = default_true)]
+    pub block_skip: bool,
+    /// Longest block the controller takes, characters (not found in the public
+    /// manuals: 128 by default).
+    #[serde(default = "default_block_chars")]
+    #[schema(default = default_block_chars, minimum = 16, maximum = 4096)]
+    pub max_block_chars: usize,
+    /// Pad blocks to an even length (the controller's TV check is on).
+    #[serde(default)]
+    pub tv_pad: bool,
+}
+
+impl DncRequest {
+    pub fn new(program: String) -> Self {
+        Self {
+            program,
+            program_name: default_program_name(),
+            subprograms: None,
+            port: None,
+            baud: default_baud(),
+            send: true,
+            uncompensated: false,
+            no_reference: false,
+            tolerance_um: default_tolerance(),
+            max_correction_um: default_max_correction(),
+            start: None,
+            work_offsets: None,
+            external_offset: None,
+            calculator_input: false,
+            increment_mm: default_increment(),
+            block_skip: true,
+            max_block_chars: default_block_chars(),
+            tv_pad: false,
+        }
+    }
+
+    pub fn check(&self) -> Result<(), RequestError> {
+        self.options().map(|_| ())
+    }
+
+    /// The rewrite's options, every field checked (the field named).
+    pub fn options(&self) -> Result<FanucOptions, RequestError> {
+        for (field, text) in [
+            ("program", Some(&self.program)),
+            ("subprograms", self.subprograms.as_ref()),
+        ] {
+            if let Some(t) = text {
+                if t.len() > MAX_PROGRAM_BYTES {
+                    return Err(RequestError::new(
+                        field,
+                        format!(
+                            "{} bytes; at most {MAX_PROGRAM_BYTES} are accepted",
+                            t.len()
+                        ),
+                    ));
+                }
+            }
+        }
+        if let Some(port) = &self.port {
+            if port.is_empty() || port.contains(char::is_whitespace) {
+                return Err(RequestError::new(
+                    "port",
+                    "must be a serial port (no blanks)",
+                ));
+            }
+        }
+        if !(50..=921_600).contains(&self.baud) {
+            return Err(RequestError::new("baud", "must be 50..=921600"));
+        }
+        number("tolerance_um", self.tolerance_um, 0.01, 1000.0)?;
+        number("max_correction_um", self.max_correction_um, 1e-3, 1e5)?;
+        number("increment_mm", self.increment_mm, 1e-5, 0.01)?;
+        if !(16..=4096).contains(&self.max_block_chars) {
+            return Err(RequestError::new("max_block_chars", "must be 16..=4096"));
+        }
+        let start = match &self.start {
+            Some(v) => {
+                if !(2..=N_AXIS).contains(&v.len()) {
+                    return Err(RequestError::new(
+                        "start",
+                        format!("expected X,Y or X,Y,Z in mm, got {} numbers", v.len()),
+                    ));
+                }
+                let mut p = [0.0; N_AXIS];
+                for (k, c) in v.iter().enumerate() {
+                    number(
+                        &format!("start[{k}]"),
+                        *c,
+                        -MAX_COORDINATE_MM,
+                        MAX_COORDINATE_MM,
+                    )?;
+                    p[k] = *c;
+                }
+                Some(p)
+            }
+            None => None,
+        };
+        let mut work_offsets = [[0.0; 3]; 7];
+        if let Some(v) = &self.work_offsets {
+            if v.len() > 6 {
+                return Err(RequestError::new(
+                    "work_offsets",
+                    format!("G54..G59 are six systems, got {}", v.len()),
+                ));
+            }
+            for (k, o) in v.iter().enumerate() {
+                for (a, c) in o.iter().enumerate() {
+                    number(
+                        &format!("work_offsets[{k}][{a}]"),
+                        *c,
+                        -MAX_COORDINATE_MM,
+                        MAX_COORDINATE_MM,
+                    )?;
+                }
+                work_offsets[k + 1] = *o;
+            }
+        }
+        if let Some(o) = &self.external_offset {
+            for (a, c) in o.iter().enumerate() {
+                number(
+                    &format!("external_offset[{a}]"),
+                    *c,
+                    -MAX_COORDINATE_MM,
+                    MAX_COORDINATE_MM,
+                )?;
+            }
+            work_offsets[0] = *o;
+        }
+        Ok(FanucOptions {
+            program: protocol::fanuc::Options {
+                calculator_input: self.calculator_input,
+                increment_mm: self.increment_mm,
+                increment_inch: self.increment_mm / 10.0,
+                block_skip: self.block_skip,
+                ..protocol::fanuc::Options::default()
+            },
+            tolerance_mm: self.tolerance_um / 1000.0,
+            max_correction_mm: self.max_correction_um / 1000.0,
+            limits: None,
+            start,
+            work_offsets,
+            max_block_chars: self.max_block_chars,
+            tv_pad: self.tv_pad,
+            max_output_bytes: MAX_OUTPUT_BYTES,
+        })
+    }
+}
+
+impl crate::registry::Checked for DncRequest {
+    fn check(&self) -> Result<(), RequestError> {
+        DncRequest::check(self)
+    }
+}
+
+/// The rewrite alone (sans-IO): the tape to send and what the rewrite did. Errors name
+/// the program and the block.
+pub fn prepare(
+    request: &DncRequest,
+    compensation: &dyn Compensation,
+) -> Result<(String, FanucReport), String> {
+    let options = request.options().map_err(|e| e.to_string())?;
+    rewrite_fanuc(
+        &request.program,
+        request.subprograms.as_deref(),
+        compensation,
+        options,
+    )
+    .map_err(|e| format!("{}: {e}", request.program_name))
+}
+
+fn report_json(r: &FanucReport) -> Value {
+    json!({
+        "program_number": r.program_number, "blocks_in": r.blocks_in,
+        "blocks_out": r.blocks_out, "moves_compensated": r.moves_compensated,
+        "segments_added": r.segments_added, "calls_expanded": r.calls_expanded,
+        "skipped_blocks": r.skipped_blocks,
+        "largest_correction_um": r.largest_correction_um,
+        "largest_correction_line": r.largest_correction_line,
+        "notes": r.notes.iter().map(|n| json!({"line": n.line, "note": n.text})).collect::<Vec<_>>(),
+    })
+}
+
+/// Where the tape goes: the request's port, else the job's `dnc` stage.
+fn link(request: &DncRequest, cx: &mut dyn crate::Context) -> Result<drivers::StageLink, String> {
+    if let Some(port) = &request.port {
+        // The travel is the job's business; a program only needs the port.
+        let axis = |axis| DncAxis {
+            axis,
+            min_mm: -MAX_COORDINATE_MM,
+            max_mm: MAX_COORDINATE_MM,
+            max_feed_mm_min: 1e6,
+        };
+        return Ok(drivers::StageLink::Dnc {
+            port: port.clone(),
+            baud: request.baud,
+            options: DncOptions::default(),
+            axes: vec![axis(drivers::Axis::X), axis(drivers::Axis::Y)],
+        });
+    }
+    let job = cx.job().map_err(|e| {
+        format!(
+            "no tape port: give the port (--port) or a job whose [stage] driver = \"dnc\" ({e})"
+        )
+    })?;
+    match &job.stage {
+        job::StageSpec::Dnc(spec) => Ok(devices::dnc_link(spec)),
+        _ => Err(format!(
+            "{}: the stage is not a tape port ([stage] driver = \"dnc\"); give the port (--port)",
+            job.source
+        )),
+    }
+}
+
+/// Rewrites and sends. Progress counts the tape's lines as they are written.
+pub async fn run(
+    request: &DncRequest,
+    compensation: &dyn Compensation,
+    cx: &mut dyn crate::Context,
+) -> Outcome {
+    let started = Instant::now();
+    let (tape, report) = match prepare(request, compensation) {
+        Ok(t) => t,
+        Err(e) => return Outcome::failed(e),
+    };
+    let lines = tape.lines().count();
+    let mut result = json!({
+        "input": request.program_name, "output": TAPE_ARTIFACT,
+        "compensation": compensation.describe(), "tolerance_um": request.tolerance_um,
+        "tape_lines": lines, "tape_bytes": tape.len(), "sent_lines": 0,
+        "port": Value::Null,
+    });
+    if let (Value::Object(m), Value::Object(r)) = (&mut result, report_json(&report)) {
+        m.extend(r);
+    }
+    if let Err(e) = cx.sink().artifact(Artifact {
+        name: TAPE_ARTIFACT.into(),
+        title: None,
+        media_type: "text/x-gcode",
+        bytes: tape.clone().into_bytes(),
+    }) {
+        return Outcome::failed(e);
+    }
+    if request.send {
+        let link = match link(request, cx) {
+            Ok(l) => l,
+            Err(e) => return Outcome::failed(e),
+        };
+        result["port"] = json!(link.to_string());
+        let stop = cx.stop();
+        let total = lines as u64;
+        let sink = cx.sink();
+        let sent = stop
+            .unless(async {
+                let mut stage = drivers::open_stage(&link)
+                    .await
+                    .map_err(|e| (format!("opening the tape port: {e}"), 0))?;
+                // The driver's callback must be Send (the sink is not): it counts, and
+                // the sink is told a few times a second.
+                let count = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+                let counter = count.clone();
+                let mut progress = move |p: protocol::grbl::stream::StreamProgress| {
+                    counter.store(p.sent, std::sync::atomic::Ordering::Relaxed);
+                };
+                let stream_options = drivers::StreamOptions::default();
+                let streaming = stage.stream_program(&tape, &stream_options, &mut progress);
+                tokio::pin!(streaming);
+                let mut tick = tokio::time::interval(std::time::Duration::from_millis(250));
+                let done = loop {
+                    tokio::select! {
+                        r = &mut streaming => break r,
+                        _ = tick.tick() => sink.progress(
+                            count.load(std::sync::atomic::Ordering::Relaxed) as u64,
+                            total,
+                        ),
+                    }
+                };
+                done.map(|r| r.progress.sent)
+                    .map_err(|e| (e.to_string(), e.progress.sent))
+            })
+            .await;
+        match sent {
+            None => {
+                let mut o = Outcome::failed(
+                    "stopped while sending: the controller keeps what it read; press RESET on its panel",
+                );
+                o.end = crate::End::Cancelled;
+                o.result = Some(result);
+                return o;
+            }
+            Some(Err((e, sent))) => {
+                result["sent_lines"] = json!(sent);
+                let mut o = Outcome::failed(e);
+                o.result = Some(result);
+                return o;
+            }
+            Some(Ok(sent)) => result["sent_lines"] = json!(sent),
+        }
+    }
+    result["elapsed_s"] = json!(started.elapsed().as_secs_f64());
+    let metrics = crate::metrics_from(
+        &result,
+        &[
+            "moves_compensated",
+            "segments_added",
+            "largest_correction_um",
+            "sent_lines",
+        ],
+    );
+    Outcome::succeeded(result, metrics)
+}
+
+/// The outcome as text.
+pub fn summary(r: &Value) -> String {
+    let mut t = String::new();
+    let s = |v: &Value| v.as_str().unwrap_or("").to_string();
+    let _ = writeln!(
+        t,
+        "{} -> {} with {}",
+        s(&r["input"]),
+        s(&r["output"]),
+        s(&r["compensation"])
+    );
+    let _ = writeln!(
+        t,
+        "{} blocks in, {} out ({} tape lines, {} bytes): {} moves rewritten, {} segments added, {} subprogram runs expanded, {} blocks skipped; largest correction {:.2} um (line {}); tolerance {} um",
+        r["blocks_in"],
+        r["blocks_out"],
+        r["tape_lines"],
+        r["tape_bytes"],
+        r["moves_compensated"],
+        r["segments_added"],
+        r["calls_expanded"],
+        r["skipped_blocks"],
+        r["largest_correction_um"].as_f64().unwrap_or(f64::NAN),
+        r["largest_correction_line"],
+        r["tolerance_um"].as_f64().unwrap_or(f64::NAN),
+    );
+    if let Some(port) = r["port"].as_str() {
+        let _ = writeln!(
+            t,
+            "sent {} of {} lines to the {port}",
+            r["sent_lines"], r["tape_lines"]
+        );
+    }
+    for n in r["notes"].as_array().into_iter().flatten() {
+        let _ = writeln!(t, "line {}: {}", n["line"], s(&n["note"]));
+    }
+    t
+}
+
+/// [`run`] as a registered kind: the map (under its current reference) unless
+/// `uncompensated`; refused when the map was measured on another machine.
+pub struct Dnc;
+
+impl crate::registry::Procedure for Dnc {
+    const KIND: &'static str = "dnc";
+    const TITLE: &'static str =
+        "Drip-feed a Fanuc program to a closed controller through its tape port, rewritten with the error map";
+    const COMMAND: &'static str = "dnc";
+    const USES: crate::registry::Uses = crate::registry::Uses {
+        map: crate::registry::MapUse::WhenAsked,
+        ..crate::registry::Uses::NOTHING
+    };
+    type Request = DncRequest;
+
+    fn uses_map(request: &DncRequest) -> bool {
+        !request.uncompensated
+    }
+
+    async fn run(request: DncRequest, cx: &mut dyn crate::Context) -> Outcome {
+        if request.uncompensated {
+            return run(&request, &NoCompensation, cx).await;
+        }
+        let active = crate::or_fail!(cx.map());
+        match cx.identity().await {
+            Ok(Some(here)) => {
+                if let Err(e) = crate::check_identity(&active.map, &here, &active.name) {
+                    return Outcome::failed(e);
+                }
+            }
+            Ok(None) => {}
+            Err(e) => return Outcome::failed(e.to_string()),
+        }
+        let reference = crate::or_fail!(crate::reference::choose(
+            active.reference,
+            request.no_reference
+        ));
+        let applied = match crate::reference::apply(active.map, &reference, cx.now()) {
+            Ok(a) => a,
+            Err(e) => return Outcome::failed(e),
+        };
+        let model: MapModel = applied.model;
+        run(&request, &model, cx).await
+    }
+
+    fn summary(result: &Value) -> String {
+        summary(result)
+    }
+
+    const COMMAND_LINE_ONLY: &'static [&'static str] = &["port"];
+
+    /// The service sends to the tape port of its machine's job: a port named by a
+    /// request from the network is refused.
+    fn admit(request: &DncRequest, _facts: &crate::registry::Facts) -> Result<(), RequestError> {
+        if request.port.is_some() {
+            return Err(RequestError::new(
+                "port",
+                "the service sends to the tape port of its machine's job ([stage] driver = \"dnc\"); a port of its own is given on the command line of the box it is on (gateway dnc PROGRAM --port PORT)",
+            ));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bounds_are_named_and_the_rewrite_is_sans_io() {
+        let mut r = DncRequest::new("%\nG90G00X1.Y1.\nM30\n%\n".into());
+        r.baud = 0;
+        assert_eq!(r.check().unwrap_err().field, "baud");
+        r.baud = 9600;
+        r.work_offsets = Some(vec![[0.0; 3]; 7]);
+        assert_eq!(r.check().unwrap_err().field, "work_offsets");
+        r.work_offsets = Some(vec![[10.0, 20.0, 0.0]]);
+        r.increment_mm = 1.0;
+        assert_eq!(r.check().unwrap_err().field, "increment_mm");
+        r.increment_mm = 0.001;
+        r.port = Some("a b".into());
+        assert_eq!(r.check().unwrap_err().field, "port");
+        r.port = Some("/dev/ttyUSB0".into());
+        let facts = crate::registry::Facts::default();
+        use crate::registry::Procedure;
+        assert_eq!(Dnc::admit(&r, &facts).unwrap_err().field, "port");
+        r.program = "%\nG54G90G00X1.Y1.\nM30\n%\n".into();
+        let (tape, report) = prepare(&r, &NoCompensation).unwrap();
+        // G54 is 10, 20: the controller adds it, the tape keeps the program's numbers.
+        assert!(tape.contains("G54G90G00X1.Y1.\n"), "{tape}");
+        assert_eq!(report.moves_compensated, 1);
+        r.program = "%\nG90G00X1.Y1.\nG41X2.\n%\n".into();
+        let e = prepare(&r, &NoCompensation).unwrap_err();
+        assert!(e.starts_with("program.nc: block 3 `G41X2.`"), "{e}");
+    }
+}

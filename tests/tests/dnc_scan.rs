@@ -1,0 +1,223 @@
+//! Measuring through the tape port with the camera as the only sensor (issue 40, item
+//! 3): `runner::tape::measure_by_tape` streams a measurement tape to `emulators dnc` on
+//! a pseudo-terminal (the demo's C5 stage, real time) while the simulated camera on the
+//! same stage grabs; every stop is found from the frames alone (no status, no position)
+//! and what the camera measured there is compared with the stage's true error (the
+//! simulator's static error model at each command). The machine runs in real time (the
+//! camera needs frames during each dwell): 9 targets take about 50 s.
+
+use drivers::dnc::{DncAxis, DncOptions, DncSender, DncStage};
+use emulators::dnc::{DncConfig, DncDevice, DncPty};
+use errormap::tape::{StopSpec, TapeSpec, TapeTarget};
+use job::{Job, StageSpec};
+use std::time::Duration;
+use system_tests::runtime_two_workers;
+use tokio_serial::SerialPortBuilderExt;
+use world::{lock, Clock};
+
+const BAUD: u32 = 115_200;
+/// A safety bound (never reached by a passing run).
+const BOUND: Duration = Duration::from_secs(900);
+
+#[test]
+fn a_grid_is_measured_through_the_tape_with_the_stops_found_from_the_frames() {
+    // The demo's C5 stage under the coded board (every frame says where it is: a
+    // plain grid would give the position only modulo its pitch, and a still camera
+    // would seem to stop at every target).
+    let demo = Job::demo();
+    let StageSpec::Sim { machine } = &demo.stage else {
+        unreachable!("the demo job simulates its stage")
+    };
+    let mut machine = machine.clone();
+    machine.thermal = None;
+    let job = Job::load(&system_tests::config_dir().join("gateway/stepper-coded.toml"))
+        .expect("the coded job loads");
+    assert!(job.board.code.is_some());
+    let rig = devices::new_rig(&job, &machine);
+    let dev = DncDevice::new(
+        rig.clone(),
+        DncConfig {
+            clock: Clock::Scaled(1.0),
+            ..DncConfig::default()
+        },
+    );
+    lock(&rig).machine_mut().start_trace();
+    runtime_two_workers().block_on(async {
+        let pty = DncPty::spawn(dev, None).expect("a pseudo-terminal");
+        let port = tokio_serial::new(pty.path(), BAUD)
+            .open_native_async()
+            .expect("the emulator's port opens");
+        let sender = DncSender::from_stream(port, "tape".into(), BAUD, DncOptions::default());
+        let axis = |axis, max_mm| DncAxis {
+            axis,
+            min_mm: 0.0,
+            max_mm,
+            max_feed_mm_min: 6000.0,
+        };
+        let mut stage = DncStage::new(
+            sender,
+            pty.path(),
+            vec![axis(drivers::Axis::X, 200.0), axis(drivers::Axis::Y, 150.0)],
+        );
+        let mut camera = drivers::sim::SimCamera::new(rig.clone());
+        let mut targets = Vec::new();
+        for y in [25.0, 75.0, 125.0] {
+            for x in [25.0, 100.0, 175.0] {
+                targets.push(TapeTarget {
+                    approach_mm: [x - 0.05, y - 0.05],
+                    command_mm: [x, y],
+                });
+            }
+        }
+        let tape = TapeSpec {
+            feed_mm_min: 3000.0,
+            dwell_s: 3.0,
+            increment_mm: 0.001,
+        };
+        let stops = StopSpec {
+            still_mm: 0.002,
+            min_still_s: 1.0,
+            bound_mm: 0.2,
+        };
+        let run = tokio::time::timeout(
+            BOUND,
+            runner::tape::measure_by_tape(
+                &job,
+                &mut stage,
+                &mut camera,
+                &targets,
+                &tape,
+                &stops,
+                &mut |_| Ok(()),
+            ),
+        )
+        .await
+        .expect("the run ends within the bound");
+        assert_eq!(run.error, None, "{} stops", run.stops.len());
+        assert_eq!(run.stops.len(), targets.len());
+        // The truth at each stop: the stage's error there, approached from below as
+        // the tape does (the simulator's static error model, noise aside), where the
+        // board's position under the camera is the command plus the board at home.
+        let home = machine.machine.board_at_home_mm;
+        let (mut worst, mut largest) = (0.0f64, 0.0f64);
+        for (k, s) in run.stops.iter().enumerate() {
+            assert_eq!(s.index, k, "in order");
+            let c = s.command_mm;
+            let e = lock(&rig).machine().static_error_um(c);
+            let truth = [home[0] + c[0] + e[0] / 1e3, home[1] + c[1] + e[1] / 1e3];
+            worst = worst.max((s.observation.x_mm - truth[0]).hypot(s.observation.y_mm - truth[1]));
+            largest = largest.max(e[0].hypot(e[1]) / 1e3);
+        }
+        eprintln!(
+            "{} targets through the tape: machine time {:.1} s, {} frames ({} localized); the camera at the stops within {:.3} um of the truth (the stage's own error up to {:.1} um)",
+            run.stops.len(),
+            run.machine_time_s,
+            run.frames,
+            run.localized,
+            worst * 1e3,
+            largest * 1e3
+        );
+        assert!(largest > 0.005, "the stage is off by more than the bound");
+        assert!(worst < 0.0015, "{:.3} um", worst * 1e3);
+    });
+}
+
+/// The map procedure's scan (`runner::scan::run_scan`) on a `tape_only` stage: a small
+/// plan (20 mm grid and lines over 40 x 30 mm, both approach sides) as one measurement
+/// tape, every point found from the frames; the samples taken from below in X and Y
+/// against the stage's true error relative to the reference point.
+#[test]
+fn the_map_scan_runs_through_the_tape_on_a_tape_only_stage() {
+    use errormap::scan::{MapBuilder, ScanPlan, ScanSpec};
+    use errormap::Approach;
+    let demo = Job::demo();
+    let StageSpec::Sim { machine } = &demo.stage else {
+        unreachable!("the demo job simulates its stage")
+    };
+    let mut machine = machine.clone();
+    machine.thermal = None;
+    let job = Job::load(&system_tests::config_dir().join("gateway/stepper-coded.toml"))
+        .expect("the coded job loads");
+    let rig = devices::new_rig(&job, &machine);
+    let dev = DncDevice::new(
+        rig.clone(),
+        DncConfig {
+            clock: Clock::Scaled(1.0),
+            ..DncConfig::default()
+        },
+    );
+    let plan = ScanPlan::new(
+        [60.0, 40.0],
+        [100.0, 70.0],
+        ScanSpec {
+            grid_step_mm: 20.0,
+            line_step_mm: 20.0,
+            passes: 1,
+        },
+    )
+    .expect("the plan");
+    runtime_two_workers().block_on(async {
+        let pty = DncPty::spawn(dev, None).expect("a pseudo-terminal");
+        let port = tokio_serial::new(pty.path(), BAUD)
+            .open_native_async()
+            .expect("the emulator's port opens");
+        let sender = DncSender::from_stream(port, "tape".into(), BAUD, DncOptions::default());
+        let axis = |axis, max_mm| DncAxis {
+            axis,
+            min_mm: 0.0,
+            max_mm,
+            max_feed_mm_min: 6000.0,
+        };
+        let stage = DncStage::new(
+            sender,
+            pty.path(),
+            vec![axis(drivers::Axis::X, 200.0), axis(drivers::Axis::Y, 150.0)],
+        );
+        let mut devices = devices::Devices {
+            stage: Box::new(stage),
+            camera: Box::new(drivers::sim::SimCamera::new(rig.clone())),
+            rig: Some(rig.clone()),
+        };
+        let mut builder = MapBuilder::new();
+        let mut samples = Vec::new();
+        let reference = tokio::time::timeout(
+            BOUND,
+            runner::scan::run_scan(
+                &job,
+                &mut devices,
+                &plan,
+                &mut builder,
+                &mut |i, s| {
+                    samples.push((i, *s));
+                    Ok(())
+                },
+                &mut |_, _| {},
+                std::future::pending(),
+            ),
+        )
+        .await
+        .expect("the scan ends within the bound")
+        .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(builder.done(), plan.points.len());
+        let m = lock(&rig).machine().clone();
+        let e0 = m.static_error_um(reference.command_mm);
+        let mut worst = 0.0f64;
+        let mut compared = 0;
+        for (i, s) in &samples {
+            let p = &plan.points[*i];
+            if p.dir.x != Approach::Forward || p.dir.y != Approach::Forward {
+                continue;
+            }
+            let e = m.static_error_um(p.command_mm);
+            let d = (s.error_um[0] - (e[0] - e0[0])).hypot(s.error_um[1] - (e[1] - e0[1]));
+            worst = worst.max(d);
+            compared += 1;
+        }
+        eprintln!(
+            "map scan through the tape: {} points, the {compared} approached from below within {worst:.3} um of the truth",
+            plan.points.len()
+        );
+        assert!(compared > 3);
+        assert!(worst < 1.5, "{worst:.3} um");
+    });
+}
