@@ -48,7 +48,8 @@ pub async fn run(
     if let Err(e) = request.check_area(lo, hi) {
         return Outcome::failed(e.to_string());
     }
-    let plan = match ScanPlan::new(lo, hi, request.spec()) {
+    // On the stage's own steps: the nodes' errors are then not off by its rounding.
+    let plan = match ScanPlan::on_steps(lo, hi, request.spec(), stage_steps_mm(devices)) {
         Ok(p) => p,
         Err(e) => return Outcome::failed(format!("the scan plan: {e}")),
     };
@@ -163,6 +164,12 @@ pub async fn run(
     obj.insert("wall_time_s".into(), json!(started.elapsed().as_secs_f64()));
     let metrics = crate::metrics_from(&result, &["frames", "uncertainty_um", "version"]);
     Outcome::succeeded(result, metrics)
+}
+
+/// The stage's smallest step on X and Y, mm (0 where it does not say).
+fn stage_steps_mm(devices: &Devices) -> [f64; 2] {
+    let info = devices.stage.info();
+    [drivers::Axis::X, drivers::Axis::Y].map(|a| info.axis(a).map_or(0.0, |i| i.resolution_mm))
 }
 
 /// The job as a journal names it: its file's name (where it is may change between a

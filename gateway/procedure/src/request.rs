@@ -984,7 +984,7 @@ mod tests {
         let ok = MapRequest::default()
             .check_area([0.05, 0.05], [199.95, 149.95])
             .unwrap();
-        assert_eq!(ok, 2752);
+        assert_eq!(ok, 1376);
     }
 
     #[test]

@@ -6,7 +6,8 @@
 //!
 //! Environment: `CODED_SWEEP_STEP_MM` (grid step of the sweep, default 5 mm: 41 x 31
 //! frames), `CODED_SWEEP_DAMAGE` (fraction of damaged dots, default 0.05),
-//! `CODED_SWEEP_RUNS` (timed runs per board, default 41).
+//! `CODED_SWEEP_RUNS` (timed runs per board, default 41), `CODED_SWEEP_SPEED_ONLY` (set:
+//! the speed line alone).
 //!
 //! Frames come from `world::render` with the camera file `config/cameras/mono-1.3mp.toml`
 //! and the board files `config/boards/coded-0.5mm.toml` (certified) and
@@ -253,6 +254,9 @@ fn main() {
         100.0 * (mc / mp - 1.0)
     );
 
+    if std::env::var_os("CODED_SWEEP_SPEED_ONLY").is_some() {
+        return;
+    }
     for flips in [0, 1, 2, 3, 4, 5] {
         code_sweep(&coded, 4, flips);
     }

@@ -162,11 +162,15 @@ pub fn decode_indexed(code: &BoardCode, obs: &[([i64; 2], bool)]) -> Result<Deco
     let limit = max_errors(bits);
     let cutoff = limit + MIN_MARGIN;
     let side = MAX_SIDE as usize + 1;
-    let mut cands: Vec<(usize, [i64; 2])> = Vec::new();
+    let half = MAX_SIDE / 2;
+    // Every key first, then every lookup: each lookup is a cache miss in the board's
+    // index (megabytes), and with nothing between them the processor has several in
+    // flight at once instead of one per window (the same keys in the same order, so
+    // the same candidates in the same order).
+    let mut keys: Vec<(usize, usize, usize, u64)> = Vec::new();
     for (o, axes) in ORIENTATIONS.iter().enumerate() {
         // The view in board-aligned cells: -1 not read, else the bit.
         let mut grid = vec![-1i8; side * side];
-        let half = MAX_SIDE / 2;
         for (ab, bit) in &obs {
             let q = [
                 ab[0] * axes[0][0] + ab[1] * axes[1][0] + half,
@@ -206,14 +210,18 @@ pub fn decode_indexed(code: &BoardCode, obs: &[([i64; 2], bool)]) -> Result<Deco
                     for (n, bit) in holes.iter().enumerate() {
                         k |= ((fill >> n) & 1) << bit;
                     }
-                    for corner in code.lookup(k) {
-                        // Board index of the view's cell (half, half), i.e. lattice (0, 0).
-                        let ij0 = [corner[0] - c0 as i64 + half, corner[1] - r0 as i64 + half];
-                        if !cands.contains(&(o, ij0)) {
-                            cands.push((o, ij0));
-                        }
-                    }
+                    keys.push((o, c0, r0, k));
                 }
+            }
+        }
+    }
+    let mut cands: Vec<(usize, [i64; 2])> = Vec::new();
+    for &(o, c0, r0, k) in &keys {
+        for corner in code.lookup(k) {
+            // Board index of the view's cell (half, half), i.e. lattice (0, 0).
+            let ij0 = [corner[0] - c0 as i64 + half, corner[1] - r0 as i64 + half];
+            if !cands.contains(&(o, ij0)) {
+                cands.push((o, ij0));
             }
         }
     }
@@ -221,6 +229,14 @@ pub fn decode_indexed(code: &BoardCode, obs: &[([i64; 2], bool)]) -> Result<Deco
     let mut second = cutoff + 1;
     for (o, ij0) in cands {
         let axes = ORIENTATIONS[o];
+        // Once a best within the cut-off is known, a candidate past the cut-off changes
+        // nothing (the second is counted only up to cutoff + 1): stop counting there.
+        // Most candidates are chance matches of one window in a wrong orientation and
+        // disagree in half the dots.
+        let stop_past = match best {
+            Some((b, _, _)) if b <= cutoff => cutoff,
+            _ => usize::MAX,
+        };
         let mut d = 0;
         for (ab, bit) in &obs {
             let ij = [
@@ -229,6 +245,9 @@ pub fn decode_indexed(code: &BoardCode, obs: &[([i64; 2], bool)]) -> Result<Deco
             ];
             if code.bit(ij[0], ij[1]) != Some(*bit) {
                 d += 1;
+                if d > stop_past {
+                    break;
+                }
             }
         }
         match best {
