@@ -246,6 +246,30 @@ mod tests {
         let api: procedure::rotary::RotaryRewriteRequest =
             serde_json::from_value(json!({"program": "", "errors": ""})).unwrap();
         assert_eq!(request, api);
+        let Cmd::Dnc(a) = parse(&["dnc", "p.nc", "--map", "m"]) else {
+            panic!()
+        };
+        let api: procedure::dnc::DncRequest =
+            serde_json::from_value(json!({"program": ""})).unwrap();
+        assert_eq!(a.request, api);
+        let Cmd::Dnc(a) = parse(&[
+            "dnc",
+            "p.nc",
+            "--uncompensated",
+            "--no-send",
+            "--out",
+            "o",
+            "--no-block-skip",
+            "--work-offsets",
+            "1,2,3;4,5,6",
+        ]) else {
+            panic!()
+        };
+        assert!(!a.request.send && !a.request.block_skip && a.request.uncompensated);
+        assert_eq!(
+            a.request.work_offsets,
+            Some(vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]])
+        );
         let Cmd::Proxy(a) = parse(&["proxy", "--config", "j", "--map", "m"]) else {
             panic!()
         };

@@ -185,6 +185,10 @@ impl DncDevice {
     pub fn new(rig: SharedRig, cfg: DncConfig) -> Self {
         let position = {
             let mut r = lock(&rig);
+            if matches!(cfg.clock, Clock::Scaled(_)) {
+                // The emulator advances the machine by the wall clock.
+                r.time_owned_by_wall_clock();
+            }
             let m = r.machine_mut();
             if cfg.home_at_power_on && !m.is_homed() {
                 m.home();

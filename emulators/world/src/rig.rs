@@ -47,6 +47,12 @@ pub struct SimRig {
     camera: CameraModel,
     noise_seed: u64,
     frames: u64,
+    /// Whether a frame's exposure advances the machine's time. It does when the rig's
+    /// time moves only by what is done to it (in-process, an unconstrained clock); not
+    /// when a controller emulator on a wall clock owns the time, which passes during
+    /// the exposure anyway: frames advancing it too would run the machine ahead of its
+    /// controller, faster the faster frames are rendered.
+    frames_advance_time: bool,
 }
 
 impl SimRig {
@@ -58,7 +64,14 @@ impl SimRig {
             camera,
             noise_seed,
             frames: 0,
+            frames_advance_time: true,
         }
+    }
+
+    /// A controller emulator on a wall clock owns the machine's time: frames no longer
+    /// advance it.
+    pub fn time_owned_by_wall_clock(&mut self) {
+        self.frames_advance_time = false;
     }
 
     /// The machine as its controllers see and drive it: commands, encoder counts, time.
@@ -98,7 +111,9 @@ impl SimRig {
             .wrapping_add(self.frames.wrapping_mul(0x9E37_79B9));
         let frame = render(&self.board, &self.camera, &pose, seed);
         self.frames += 1;
-        self.machine.advance(FRAME_TIME_S);
+        if self.frames_advance_time {
+            self.machine.advance(FRAME_TIME_S);
+        }
         (frame.image, info)
     }
 

@@ -133,8 +133,10 @@ pub fn machine_time_s(start_mm: [f64; 2], targets: &[TapeTarget], spec: &TapeSpe
 /// How stops are found in the frames.
 #[derive(Clone, Debug, PartialEq)]
 pub struct StopSpec {
-    /// Two frames this close (mm) show a still machine (the localization's noise is far
-    /// below: 2 um by default).
+    /// A frame this close (mm) to the first frame of a rest shows the machine still
+    /// (the localization's noise is far below: 2 um by default). Judged against the
+    /// rest's first frame, not the previous one, so that a slow move seen by a fast
+    /// camera (a few um between frames) is never taken for a rest.
     pub still_mm: f64,
     /// A stop lasts at least this long (s): longer than the instant a machine rests
     /// between two blocks, shorter than the dwell (half of it by default).
@@ -174,10 +176,10 @@ pub struct StopFinder {
     spec: StopSpec,
     targets: Vec<[f64; 2]>,
     next: usize,
-    /// The last frame: time and position.
-    last: Option<(f64, [f64; 2])>,
-    /// Since when the machine has been still, and whether this rest was judged.
-    still_since: Option<f64>,
+    /// The first frame of the current rest (or the last moving frame): time and
+    /// position.
+    anchor: Option<(f64, [f64; 2])>,
+    /// Whether this rest was judged.
     judged: bool,
 }
 
@@ -191,8 +193,7 @@ impl StopFinder {
             spec,
             targets,
             next: 0,
-            last: None,
-            still_since: None,
+            anchor: None,
             judged: false,
         }
     }
@@ -208,21 +209,15 @@ impl StopFinder {
 
     /// One frame at time `t_s` (any clock, increasing) seeing the board at `at`.
     pub fn push(&mut self, t_s: f64, at: [f64; 2]) -> Result<Seen, StopError> {
-        let still = self
-            .last
-            .is_some_and(|(_, p)| distance(p, at) <= self.spec.still_mm);
-        let since = match (still, self.still_since) {
-            (true, Some(s)) => s,
-            (true, None) => self.last.map_or(t_s, |(t, _)| t),
-            (false, _) => {
-                self.still_since = None;
+        let since = match self.anchor {
+            Some((since, p)) if distance(p, at) <= self.spec.still_mm => since,
+            _ => {
+                // Moved: this frame may be the first of a rest.
+                self.anchor = Some((t_s, at));
                 self.judged = false;
-                self.last = Some((t_s, at));
                 return Ok(Seen::Moving);
             }
         };
-        self.still_since = Some(since);
-        self.last = Some((t_s, at));
         if self.judged || t_s - since < self.spec.min_still_s {
             return Ok(Seen::Still);
         }
@@ -326,6 +321,35 @@ mod tests {
                 bound_mm: 0.2,
             },
         )
+    }
+
+    /// A camera at 100 frames a second sees a slow final approach (1 um between frames,
+    /// 6 mm/min) as a series of nearly equal positions: it is a move, not a rest, until
+    /// the machine really stands still at the target.
+    #[test]
+    fn a_slow_creep_seen_by_a_fast_camera_is_not_a_stop() {
+        let mut f = finder();
+        let mut t = 0.0;
+        let mut seen = Vec::new();
+        // From the approach point, 60 um off, creeping to the target in 1 um steps.
+        for k in 0..=60 {
+            t += 0.01;
+            let at = [9.94 + 0.001 * k as f64, 10.0];
+            seen.push(f.push(t, at).unwrap());
+        }
+        assert!(
+            !seen.iter().any(|s| matches!(s, Seen::Stop { .. })),
+            "{seen:?}"
+        );
+        // Then the dwell at the target: the stop is there.
+        let mut stop = None;
+        for _ in 0..100 {
+            t += 0.01;
+            if let Seen::Stop { at, .. } = f.push(t, [10.0, 10.0]).unwrap() {
+                stop = Some(at);
+            }
+        }
+        assert_eq!(stop, Some([10.0, 10.0]));
     }
 
     #[test]

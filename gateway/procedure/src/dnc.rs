@@ -43,82 +43,112 @@ fn default_block_chars() -> usize {
     128
 }
 
-/// A program for a closed controller, rewritten and drip-fed.
+/// A program for a closed controller, rewritten and drip-fed. On the command line its
+/// flags are these fields (the program and subprogram files are read into them by the
+/// front end; `--no-send` and `--no-block-skip` clear `send` and `block_skip`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct DncRequest {
     /// The program's text (Fanuc dialect, ISO code): `%`, the main program up to
     /// M30/M02, then its subprograms (`O....` to `M99`), `%`.
     #[schema(format = Binary, max_length = 16777216)]
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub program: String,
     /// How messages name the program (its file name).
     #[serde(default = "default_program_name")]
     #[schema(default = default_program_name)]
+    #[cfg_attr(feature = "cli", arg(skip = default_program_name()))]
     pub program_name: String,
     /// The subprograms stored in the controller that the program calls (M98), as a
     /// tape of definitions: they are expanded where they run.
     #[serde(default)]
     #[schema(format = Binary)]
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub subprograms: Option<String>,
     /// The serial port wired to the controller's tape port (the command line only);
     /// none: the job's `[stage] driver = "dnc"`.
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long))]
     pub port: Option<String>,
     /// With `port`: the baud rate set on the controller.
     #[serde(default = "default_baud")]
     #[schema(default = default_baud, minimum = 50, maximum = 921600)]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_baud(), requires = "port"))]
     pub baud: u32,
-    /// Send the tape (false: only rewrite it; the tape is the artifact).
+    /// Send the tape (false: only rewrite it; the tape is the artifact). Command line:
+    /// `--no-send` (with `--out`).
     #[serde(default = "default_true")]
     #[schema(default = default_true)]
+    #[cfg_attr(feature = "cli", arg(long = "no-send", action = clap::ArgAction::SetFalse, requires = "out"))]
     pub send: bool,
     /// Send the program without correction (rewritten with decimal points, subprograms
-    /// expanded: the baseline to compare with).
+    /// expanded: the baseline to compare with); no map.
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, conflicts_with = "map"))]
     pub uncompensated: bool,
     /// Apply the map as scanned, without its recorded reference.
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, requires = "map"))]
     pub no_reference: bool,
     /// Largest distance of the executed path from the compensated path, um.
     #[serde(default = "default_tolerance")]
     #[schema(default = default_tolerance, minimum = 0.01, maximum = 1000.0)]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_tolerance()))]
     pub tolerance_um: f64,
     /// Largest correction accepted at any point, um.
     #[serde(default = "default_max_correction")]
     #[schema(default = default_max_correction, minimum = 0.001, maximum = 100000.0)]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_max_correction()))]
     pub max_correction_um: f64,
     /// Machine position when the program starts, `[x, y]` or `[x, y, z]` mm (else the
-    /// first moves must name every compensated axis in G90).
+    /// first moves must name every compensated axis in G90). Command line: `X,Y[,Z]`.
     #[serde(default)]
-    pub start: Option<Vec<f64>>,
+    #[cfg_attr(feature = "cli", arg(long, value_parser = crate::rewrite::pose_mm))]
+    pub start: Option<::std::vec::Vec<f64>>,
     /// The controller's stored work offsets G54, G55, ... (up to six `[x, y, z]`, machine
-    /// mm), as on its offset screen: a tape port cannot read them.
+    /// mm), as on its offset screen: a tape port cannot read them. Command line:
+    /// `X,Y,Z[;X,Y,Z...]`.
     #[serde(default)]
-    pub work_offsets: Option<Vec<[f64; 3]>>,
-    /// The external work offset (added to every system), mm.
+    #[cfg_attr(feature = "cli", arg(long, value_parser = work_offsets_mm))]
+    pub work_offsets: Option<::std::vec::Vec<[f64; 3]>>,
+    /// The external work offset (added to every system), mm. Command line: `X,Y,Z`.
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, value_parser = crate::volumetric::xyz_mm))]
     pub external_offset: Option<[f64; 3]>,
     /// Parameter 3401#0 DPI: a dimension without a decimal point is in whole mm/inches
     /// (true) or in least input increments (false, the default).
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long))]
     pub calculator_input: bool,
     /// Least input increment, mm (IS-B 0.001, IS-C 0.0001); inches: a tenth of it.
     #[serde(default = "default_increment")]
     #[schema(default = default_increment, minimum = 0.00001, maximum = 0.01)]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_increment()))]
     pub increment_mm: f64,
     /// The panel's block-skip switch: blocks starting with `/` are left out (true) or
-    /// rewritten as ordinary blocks (false).
+    /// rewritten as ordinary blocks (false). Command line: `--no-block-skip`.
     #[serde(default = "default_true")]
     #[schema(default = default_true)]
+    #[cfg_attr(feature = "cli", arg(long = "no-block-skip", action = clap::ArgAction::SetFalse))]
     pub block_skip: bool,
     /// Longest block the controller takes, characters (not found in the public
     /// manuals: 128 by default).
     #[serde(default = "default_block_chars")]
     #[schema(default = default_block_chars, minimum = 16, maximum = 4096)]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_block_chars()))]
     pub max_block_chars: usize,
     /// Pad blocks to an even length (the controller's TV check is on).
     #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long))]
     pub tv_pad: bool,
+}
+
+/// `X,Y,Z[;X,Y,Z...]` (mm): work offsets G54, G55, ... as a command-line value; the
+/// count and the bounds are the request's to check.
+#[cfg(feature = "cli")]
+pub fn work_offsets_mm(text: &str) -> Result<Vec<[f64; 3]>, String> {
+    text.split(';').map(crate::volumetric::xyz_mm).collect()
 }
 
 impl DncRequest {

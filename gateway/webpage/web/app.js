@@ -1336,7 +1336,9 @@ async function readForm() {
     const unit = unitOf(name);
     const text = input.type === 'file' ? '' : String(input.value || '').trim();
     if (input.type === 'checkbox') {
-      if (input.checked) params[name] = true;
+      // Sent when it says something the default does not: a box that is on by default
+      // (a dnc job's `send`) and cleared is sent as false, not left to the default.
+      if (input.checked || spec.def === true) params[name] = input.checked;
       continue;
     }
     if (input.type === 'file') {
