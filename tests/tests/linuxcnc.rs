@@ -715,12 +715,113 @@ fn a_map_scanned_through_linuxcnc_improves_its_iso230_figures() {
     assert!(after.e < 0.2 * before.e, "E {} -> {}", before.e, after.e);
 }
 
-/// Held-out points at rest, LinuxCNC without and with the exported tables, the rig
-/// following it: the true error of the tool (the camera's centre on the board) at each,
-/// approached from below. What the tables take out, and what they cannot (the part of
-/// each axis's error that depends on the other axis).
+/// The held-out program: lines and arcs over the travel, off the map's nodes and the
+/// tables' entries, in machine coordinates (the peer's work offsets are zero). LinuxCNC
+/// runs it with `G64 P0.0001` (blending within 0.1 um of the programmed path, so the
+/// rewritten program's many pieces run at speed); the line is put before the program
+/// and its rewrite, which the rewriter reads in GRBL's dialect.
+const HELD_OUT_PROGRAM: &str = "(held-out program)
+G21 G90 G17
+G0 X23.3 Y17.1
+G1 X101.7 Y17.1 F3000
+G2 X101.7 Y77.3 I0 J30.1
+G1 X61.9 Y77.3
+G2 X31.9 Y107.3 I0 J30
+G1 X23.3 Y17.1
+M2
+";
+const PATH_CONTROL: &str = "G64 P0.0001\n";
+
+/// Distance of `q` from the segment a-b.
+fn segment_distance(q: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
+    let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+    let len2 = dx * dx + dy * dy;
+    let t = if len2 == 0.0 {
+        0.0
+    } else {
+        (((q[0] - a[0]) * dx + (q[1] - a[1]) * dy) / len2).clamp(0.0, 1.0)
+    };
+    (q[0] - a[0] - t * dx).hypot(q[1] - a[1] - t * dy)
+}
+
+/// The distance of each point from the path (both in travel order: each point matched
+/// within a window of segments around the last match), mm.
+fn path_distances(points: impl Iterator<Item = [f64; 2]>, path: &[[f64; 2]]) -> Vec<f64> {
+    let mut at = 0usize;
+    points
+        .map(|q| {
+            let (begin, end) = (at.saturating_sub(400), (at + 400).min(path.len() - 1));
+            let (k, d) = (begin..end)
+                .map(|k| (k, segment_distance(q, path[k], path[k + 1])))
+                .fold((at, f64::INFINITY), |b, x| if x.1 < b.1 { x } else { b });
+            at = k;
+            d
+        })
+        .collect()
+}
+
+/// The program's feed path from its start, and the trace from the tool's arrival there
+/// (the row whose true point is nearest the start, in the first half), at the rows
+/// where the follower put the simulated stage on a sample of LinuxCNC's command
+/// (`samples`: points of the path LinuxCNC commanded; the rows between two are the
+/// simulated stage's straight move between them, a chord that depends on when the
+/// samples fell): `(max, rms)` of the true tool point's distance from the program, um;
+/// the same max for the commanded (followed) position; and how many samples.
+fn program_path_error(
+    rows: &[world::machine::TraceRow],
+    samples: &[[f64; 2]],
+) -> ((f64, f64), f64, usize) {
+    let start = [23.3, 17.1];
+    let path = system_tests::program_path::programmed_path(HELD_OUT_PROGRAM, start);
+    let near = |p: [f64; 2]| (p[0] - start[0]).hypot(p[1] - start[1]);
+    let from = (0..rows.len() / 2)
+        .min_by(|&a, &b| near(rows[a].true_mm).total_cmp(&near(rows[b].true_mm)))
+        .expect("a trace");
+    let key = |p: [f64; 2]| [p[0].to_bits(), p[1].to_bits()];
+    let sampled: std::collections::HashSet<[u64; 2]> = samples.iter().map(|p| key(*p)).collect();
+    let feed: Vec<_> = rows[from..]
+        .iter()
+        .filter(|r| sampled.contains(&key(r.cmd_mm)))
+        .collect();
+    let d = path_distances(feed.iter().map(|r| r.true_mm), &path);
+    let max = d.iter().copied().fold(0.0, f64::max) * 1000.0;
+    let rms = (d.iter().map(|x| x * x).sum::<f64>() / d.len() as f64).sqrt() * 1000.0;
+    let cmd = path_distances(feed.iter().map(|r| r.cmd_mm), &path);
+    let cmd_max = cmd.iter().copied().fold(0.0, f64::max) * 1000.0;
+    ((max, rms), cmd_max, feed.len())
+}
+
+/// Run `program` in auto mode from (5, 5) (so that the trace has the rapid's arrival
+/// at the start) with the rig following; its path error ([`program_path_error`]).
+async fn run_held_out(
+    stage: &mut devices::FollowedLinuxcnc,
+    rig: &world::SharedRig,
+    program: &str,
+) -> ((f64, f64), f64, usize) {
+    stage
+        .move_to(AxisValues::xy(5.0, 5.0), 3000.0)
+        .await
+        .unwrap();
+    world::lock(rig).machine_mut().start_trace();
+    stage.follower().record_samples();
+    stage
+        .run_program(program)
+        .await
+        .expect("LinuxCNC runs the program in auto mode");
+    let samples = stage.follower().take_samples();
+    let rows = world::lock(rig).machine_mut().take_trace();
+    program_path_error(&rows, &samples)
+}
+
+/// Held-out points at rest and a held-out program in LinuxCNC's auto mode, LinuxCNC
+/// without and with the exported tables, the rig following it: the true error of the
+/// tool (the camera's centre on the board) at each point, approached from below, and
+/// the true path's distance from the program: uncompensated, LinuxCNC's tables only,
+/// and the program rewritten by the gateway from the map (on LinuxCNC without tables).
+/// What the tables take out, and what they cannot (the part of each axis's error that
+/// depends on the other axis).
 #[test]
-fn held_out_points_with_linuxcnc_tables_only_and_uncompensated() {
+fn held_out_points_and_program_with_linuxcnc_tables_rewritten_and_uncompensated() {
     let machine = world::machine::MachineConfig::load(
         &system_tests::config_dir().join("machines/c5-stage.toml"),
     )
@@ -738,14 +839,37 @@ fn held_out_points_with_linuxcnc_tables_only_and_uncompensated() {
     let mut request = ExportRequest::new(ExportFormat::Linuxcnc);
     request.name = "comp.txt".into();
     let mut sink = procedure::Collect(Vec::new());
-    procedure::export::run(&request, map, &mut sink);
+    procedure::export::run(&request, map.clone(), &mut sink);
     assert_eq!(sink.0.len(), 2);
     let src = config_with_tables(&sink.0[0].bytes, &sink.0[1].bytes);
 
+    // The gateway's rewrite of the program from the map.
+    let model = MapModel::new(map);
+    let (rewritten, report) =
+        rewrite::rewrite_program(HELD_OUT_PROGRAM, &model, rewrite::Options::default())
+            .expect("the held-out program rewrites");
+    assert!(report.output_lines > report.input_lines, "{report:?}");
+    let programs = tempfile::tempdir().unwrap();
+    let program_file = |name: &str, text: &str| {
+        let p = programs.path().join(name);
+        std::fs::write(&p, format!("{PATH_CONTROL}{text}")).unwrap();
+        p.display().to_string()
+    };
+    let plain = program_file("held-out.ngc", HELD_OUT_PROGRAM);
+    let rewritten = program_file("held-out-rewritten.ngc", &rewritten);
+
     let mut job = small_job_on_linuxcnc();
-    if let job::StageSpec::Linuxcnc(spec) = &mut job.stage {
-        spec.follow = Some(Box::new(machine.clone()));
+    // The spot check's random points reach the board's edge: a window of 2.6 x 2.0 mm
+    // sees enough dots there.
+    if let job::CameraSpec::Sim { model } = &mut job.camera {
+        model.width = 640;
+        model.height = 512;
     }
+    let job::StageSpec::Linuxcnc(spec) = &mut job.stage else {
+        unreachable!("a linuxcnc stage")
+    };
+    spec.follow = Some(Box::new(machine.clone()));
+    let spec = spec.clone();
     let zero = machine.machine.board_at_home_mm;
     // Held out: off the map's nodes and the tables' entries, over the travel.
     let points: Vec<[f64; 2]> = (0..5)
@@ -754,20 +878,24 @@ fn held_out_points_with_linuxcnc_tables_only_and_uncompensated() {
     let _one = lock();
     let rt = system_tests::runtime_two_workers();
     let mut figures = Vec::new();
-    for ini in [
-        "x.ini".to_string(),
-        src.path().join("comp.ini").display().to_string(),
+    let mut paths = Vec::new();
+    let mut after_homing = None;
+    for (ini, runs) in [
+        ("x.ini".to_string(), vec![&plain, &rewritten]),
+        (
+            src.path().join("comp.ini").display().to_string(),
+            vec![&plain],
+        ),
     ] {
         let _peer = Peer::start(&ini);
         let errors: Vec<[f64; 2]> = rt.block_on(async {
-            let mut devices = devices::open_devices_async(&job).await.unwrap();
-            devices.stage.home().await.unwrap();
-            let rig = devices.rig.clone().unwrap();
+            let rig = devices::new_rig(&job, &machine);
+            let mut stage = devices::open_followed(&spec, rig.clone()).await.unwrap();
+            stage.home().await.unwrap();
             let mut errors = Vec::new();
             for p in &points {
                 for q in [[p[0] - 0.5, p[1] - 0.5], *p] {
-                    devices
-                        .stage
+                    stage
                         .move_to(AxisValues::xy(q[0], q[1]), 3000.0)
                         .await
                         .unwrap();
@@ -777,6 +905,22 @@ fn held_out_points_with_linuxcnc_tables_only_and_uncompensated() {
                     (pose.centre_mm[0] - p[0] - zero[0]) * 1000.0,
                     (pose.centre_mm[1] - p[1] - zero[1]) * 1000.0,
                 ]);
+            }
+            for program in runs {
+                paths.push(run_held_out(&mut stage, &rig, program).await);
+            }
+            if after_homing.is_none() {
+                after_homing = Some(
+                    home_reference_verify_and_run(
+                        &job,
+                        &spec,
+                        stage,
+                        &rig,
+                        &model,
+                        programs.path(),
+                    )
+                    .await,
+                );
             }
             errors
         });
@@ -799,10 +943,115 @@ fn held_out_points_with_linuxcnc_tables_only_and_uncompensated() {
         "{} held-out points at rest, true error (um): uncompensated X max {:.2}, Y max {:.2}, XY max {:.2}, rms {:.2}; LinuxCNC tables only X max {:.2}, Y max {:.2}, XY max {:.2}, rms {:.2}",
         points.len(), u.0, u.1, u.2, u.3, t.0, t.1, t.2, t.3
     );
+    let [(plain, plain_cmd, plain_samples), (rewritten, _, _), (tables, _, _)] = paths[..] else {
+        panic!("three program runs: {paths:?}")
+    };
+    eprintln!(
+        "held-out program in auto mode, true path from the program at {plain_samples} samples of LinuxCNC's command (um): uncompensated max {:.2} rms {:.2}; LinuxCNC tables only max {:.2} rms {:.2}; rewritten by the gateway from the map max {:.3} rms {:.3} (the followed command's own distance from the program, uncompensated: {plain_cmd:.3} um)",
+        plain.0, plain.1, tables.0, tables.1, rewritten.0, rewritten.1
+    );
+    let (spot_max, (homed_path, _, _)) = after_homing.expect("homed again on x.ini");
+    eprintln!(
+        "homed again, `gateway reference`, a spot check (residual max {spot_max:.2} um) and the program rewritten from the referenced map: true path max {:.3} rms {:.3} um",
+        homed_path.0, homed_path.1
+    );
+    assert!(spot_max < 1.5, "spot check residual max {spot_max} um");
+    assert!(
+        homed_path.0 < 1.5,
+        "after the homing: max {} um",
+        homed_path.0
+    );
     // The tables take out the along-axis errors on their lines and part of the rest;
     // the cross-axis terms they cannot hold remain.
     assert!(t.3 < u.3, "rms {} -> {}", u.3, t.3);
     assert!(t.2 < u.2, "max {} -> {}", u.2, t.2);
+    // Uncompensated, the rig's command at each sample is a point of LinuxCNC's path
+    // (in counts of 0.5 um): the follower traced it, arcs included, along the way (end
+    // points alone would be 6 samples).
+    assert!(
+        plain_cmd < 0.4,
+        "the followed command strays {plain_cmd} um"
+    );
+    assert!(plain_samples > 100, "{plain_samples} samples");
+    assert!(tables.1 < plain.1, "rms {} -> {}", plain.1, tables.1);
+    assert!(rewritten.0 < 1.5, "rewritten: max {} um", rewritten.0);
+    assert!(rewritten.0 < tables.0, "{rewritten:?} vs {tables:?}");
+}
+
+/// On a homed LinuxCNC whose rig has run: home again (the simulated zero moves by a new
+/// homing error), `gateway reference` (one frame at the map's reference point), a spot
+/// check on that reference (`gateway verify --spot-check`), then the held-out program
+/// rewritten from the referenced map, run in auto mode. The spot check's residual max,
+/// and the true path's (max, rms) from the program, um.
+async fn home_reference_verify_and_run(
+    job: &job::Job,
+    spec: &job::linuxcnc::LinuxcncStageSpec,
+    stage: devices::FollowedLinuxcnc,
+    rig: &world::SharedRig,
+    model: &MapModel,
+    dir: &std::path::Path,
+) -> (f64, ((f64, f64), f64, usize)) {
+    use procedure::reference::{self as refer, Choice};
+    let now = std::time::SystemTime::now;
+    let mut devices = devices::Devices {
+        stage: Box::new(stage),
+        camera: Box::new(drivers::sim::SimCamera::new(rig.clone())),
+        rig: Some(rig.clone()),
+    };
+    // The map as measured on this machine (a perfect scan of it), named as the
+    // procedures name it.
+    let mut map = model.map().clone();
+    map.identity = procedure::identity(job, &devices);
+    let homings = world::lock(rig).machine().homings();
+    let mut artifacts = procedure::Collect::default();
+    let referenced = procedure::reference::run(
+        &procedure::request::ReferenceRequest::default(),
+        job,
+        &mut devices,
+        &map,
+        "the map",
+        None,
+        now(),
+        &mut artifacts,
+    )
+    .await;
+    assert!(referenced.is_success(), "{:?}", referenced.error());
+    assert!(
+        world::lock(rig).machine().homings() > homings,
+        "LinuxCNC homed again"
+    );
+    let record_path = dir.join("map.v1.reference.json");
+    protocol::config::write_output(&record_path, &artifacts.0[0].bytes, &[]).unwrap();
+    let record = refer::read_record(&record_path).unwrap().expect("recorded");
+    let spot = procedure::verify::check_map(
+        &procedure::request::VerifyRequest {
+            spot_check: true,
+            ..Default::default()
+        },
+        job,
+        &mut devices,
+        map.clone(),
+        "the map",
+        Some(&record),
+        now(),
+        &mut procedure::Discard,
+    )
+    .await;
+    assert!(spot.is_success(), "{:?}", spot.error());
+    let spot_max = spot.result.unwrap()["residual_um"]["max"].as_f64().unwrap();
+    drop(devices);
+    let applied = refer::apply(map, &Choice::Recorded(record), now()).unwrap();
+    let (text, _) = rewrite::rewrite_program(
+        HELD_OUT_PROGRAM,
+        &applied.model,
+        rewrite::Options::default(),
+    )
+    .expect("the held-out program rewrites with the reference");
+    let file = dir.join("held-out-referenced.ngc");
+    std::fs::write(&file, format!("{PATH_CONTROL}{text}")).unwrap();
+    let mut stage = devices::open_followed(spec, rig.clone()).await.unwrap();
+    let path = run_held_out(&mut stage, rig, &file.display().to_string()).await;
+    (spot_max, path)
 }
 
 /// The peer's configuration (`x.ini`, `x.hal`, `sim.tbl`) in a fresh folder as

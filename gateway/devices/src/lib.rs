@@ -23,6 +23,7 @@ pub use cutter::{open_cutter, open_emulated_cutter, Cutter};
 pub use emulated::{new_rig, EmulatedStage, OpenedStage};
 pub use error::OpenError;
 pub use grbl::spawn_grbl_emulator;
+pub use linuxcnc::{open_followed, FollowedLinuxcnc};
 pub use rotary::{open_rotary, LinkedTable, RotaryOpenError, RotaryTable, CYCLE_AXES};
 
 use drivers::sim::{SimCamera, SimStage};

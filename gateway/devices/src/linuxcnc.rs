@@ -1,31 +1,47 @@
 //! Opening a `linuxcnc` stage: the driver on linuxcncrsh, and with `follow` the rig's
 //! simulated stage slaved to LinuxCNC's joint motor commands (`emulators::linuxcnc`),
-//! so the simulated camera sees what the real controller commands.
+//! so the simulated camera sees what the real controller commands. The rig follows
+//! continuously while LinuxCNC moves (sampled; see `emulators::linuxcnc`), and settles
+//! on LinuxCNC's final command when each move, homing or program has ended.
 
 use crate::emulated::{new_rig, OpenedStage};
 use crate::error::OpenError;
 use async_trait::async_trait;
+use drivers::linuxcnc::LinuxcncStage;
 use drivers::{
     Axis, AxisValues, Capabilities, DriverError, Stage, StageInfo, StageLink, StageStatus,
 };
-use emulators::linuxcnc::LinuxcncFollower;
+use emulators::linuxcnc::{LinuxcncFollower, SAMPLE_PERIOD_MS};
 use job::linuxcnc::LinuxcncStageSpec;
 use job::Job;
+use world::SharedRig;
 
 /// The feed the simulated stage follows at (it moves on its own clock; the figure only
 /// sets its simulated time).
 const FOLLOW_FEED_MM_MIN: f64 = 3000.0;
 
 pub(crate) async fn open(job: &Job, spec: &LinuxcncStageSpec) -> Result<OpenedStage, OpenError> {
-    let stage = drivers::open_stage(&StageLink::Linuxcnc {
-        address: spec.address.clone(),
-        options: spec.options.clone(),
-        axes: spec.axes.clone(),
-    })
-    .await?;
     let Some(machine) = &spec.follow else {
+        let stage = drivers::open_stage(&StageLink::Linuxcnc {
+            address: spec.address.clone(),
+            options: spec.options.clone(),
+            axes: spec.axes.clone(),
+        })
+        .await?;
         return Ok((stage, None));
     };
+    let rig = new_rig(job, machine);
+    let stage = open_followed(spec, rig.clone()).await?;
+    Ok((Box::new(stage), Some(rig)))
+}
+
+/// The LinuxCNC stage of `spec` with `rig`'s simulated stage following it (a rig of
+/// the caller's, so that one simulated machine outlives several sessions, as a real
+/// machine does).
+pub async fn open_followed(
+    spec: &LinuxcncStageSpec,
+    rig: SharedRig,
+) -> Result<FollowedLinuxcnc, OpenError> {
     let joint = |a: Axis| spec.axes.iter().find(|c| c.axis == a).map(|c| c.joint);
     let (Some(jx), Some(jy)) = (joint(Axis::X), joint(Axis::Y)) else {
         return Err(OpenError::Emulator {
@@ -33,41 +49,66 @@ pub(crate) async fn open(job: &Job, spec: &LinuxcncStageSpec) -> Result<OpenedSt
             message: "the stage needs an x and a y axis".into(),
         });
     };
-    let rig = new_rig(job, machine);
-    let follower =
-        LinuxcncFollower::new(rig.clone(), [jx, jy]).map_err(|e| OpenError::Emulator {
+    let stage = LinuxcncStage::open(&spec.address, spec.options.clone(), spec.axes.clone()).await?;
+    let follower = LinuxcncFollower::new(rig, [jx, jy], FOLLOW_FEED_MM_MIN).map_err(|e| {
+        OpenError::Emulator {
             what: "LinuxCNC follower",
             message: e.to_string(),
-        })?;
-    Ok((Box::new(FollowedStage { stage, follower }), Some(rig)))
+        }
+    })?;
+    Ok(FollowedLinuxcnc { stage, follower })
 }
 
-/// A LinuxCNC stage whose moves the rig's simulated stage follows.
-struct FollowedStage {
-    stage: Box<dyn Stage>,
+/// A LinuxCNC stage whose motion the rig's simulated stage follows.
+pub struct FollowedLinuxcnc {
+    stage: LinuxcncStage,
     follower: LinuxcncFollower,
 }
 
-impl FollowedStage {
-    fn follow(&mut self, homed: bool) -> Result<(), DriverError> {
+fn follow_error(e: std::io::Error) -> DriverError {
+    DriverError::Transport {
+        device: "the rig following LinuxCNC".into(),
+        message: e.to_string(),
+    }
+}
+
+impl FollowedLinuxcnc {
+    fn start(&mut self) -> Result<(), DriverError> {
+        self.follower.start(SAMPLE_PERIOD_MS).map_err(follow_error)
+    }
+
+    /// LinuxCNC's motion has ended (or homing, with `homed`): the rig settles on its
+    /// final command.
+    fn settle(&mut self, homed: bool) -> Result<(), DriverError> {
         let follower = &mut self.follower;
         drivers::blocking(|| {
             if homed {
-                follower.homed(FOLLOW_FEED_MM_MIN)
+                follower.homed()
             } else {
-                follower.follow(FOLLOW_FEED_MM_MIN)
+                follower.settle()
             }
         })
         .map(|_| ())
-        .map_err(|e| DriverError::Transport {
-            device: "the rig following LinuxCNC".into(),
-            message: e.to_string(),
-        })
+        .map_err(follow_error)
+    }
+
+    /// The follower (to record the points of LinuxCNC's path it put the rig on).
+    pub fn follower(&mut self) -> &mut LinuxcncFollower {
+        &mut self.follower
+    }
+
+    /// Run a program file on the LinuxCNC machine in auto mode (`set mode auto`,
+    /// `set open`, `set run`, until the interpreter is idle), the rig following.
+    pub async fn run_program(&mut self, path: &str) -> Result<(), DriverError> {
+        self.start()?;
+        let ran = self.stage.run_program(path).await;
+        self.settle(false)?;
+        ran
     }
 }
 
 #[async_trait]
-impl Stage for FollowedStage {
+impl Stage for FollowedLinuxcnc {
     fn info(&self) -> &StageInfo {
         self.stage.info()
     }
@@ -76,12 +117,13 @@ impl Stage for FollowedStage {
     }
     async fn home(&mut self) -> Result<(), DriverError> {
         self.stage.home().await?;
-        self.follow(true)
+        self.settle(true)
     }
     async fn move_to(&mut self, target: AxisValues, feed_mm_min: f64) -> Result<(), DriverError> {
+        self.start()?;
         let moved = self.stage.move_to(target, feed_mm_min).await;
-        // Follow also after a refused move: LinuxCNC may have moved part of the way.
-        self.follow(false)?;
+        // Settle also after a refused move: LinuxCNC may have moved part of the way.
+        self.settle(false)?;
         moved
     }
     async fn position(&mut self) -> Result<AxisValues, DriverError> {
@@ -89,11 +131,11 @@ impl Stage for FollowedStage {
     }
     async fn wait_idle(&mut self) -> Result<(), DriverError> {
         self.stage.wait_idle().await?;
-        self.follow(false)
+        self.settle(false)
     }
     async fn stop(&mut self) -> Result<(), DriverError> {
         self.stage.stop().await?;
-        self.follow(false)
+        self.settle(false)
     }
     async fn status(&mut self) -> Result<StageStatus, DriverError> {
         self.stage.status().await
