@@ -76,8 +76,8 @@ pub struct DncRequest {
     #[schema(default = default_baud, minimum = 50, maximum = 921600)]
     #[cfg_attr(feature = "cli", arg(long, default_value_t = default_baud(), requires = "port"))]
     pub baud: u32,
-    /// Send the tape (false: only rewrite it; the tape is the artifact). Command line:
-    /// `--no-send` (with `--out`).
+    /// Whether the tape is sent; when not (`--no-send`, with `--out`), it is only
+    /// rewritten and the tape is the artifact.
     #[serde(default = "default_true")]
     #[schema(default = default_true)]
     #[cfg_attr(feature = "cli", arg(long = "no-send", action = clap::ArgAction::SetFalse, requires = "out"))]
@@ -126,8 +126,8 @@ pub struct DncRequest {
     #[schema(default = default_increment, minimum = 0.00001, maximum = 0.01)]
     #[cfg_attr(feature = "cli", arg(long, default_value_t = default_increment()))]
     pub increment_mm: f64,
-    /// The panel's block-skip switch: blocks starting with `/` are left out (true) or
-    /// rewritten as ordinary blocks (false). Command line: `--no-block-skip`.
+    /// Whether the panel's block-skip switch is on: blocks starting with `/` are then
+    /// left out; off (`--no-block-skip`), they are rewritten as ordinary blocks.
     #[serde(default = "default_true")]
     #[schema(default = default_true)]
     #[cfg_attr(feature = "cli", arg(long = "no-block-skip", action = clap::ArgAction::SetFalse))]
