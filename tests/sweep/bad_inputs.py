@@ -90,6 +90,14 @@ SURFACES = [
      ["board", "make", "{in}", "-o", "{out}/art"]),
     ("board image (localize)", "{tmp}/frame.png", ".png",
      ["localize", "--board", BOARD, "--near", "10,10", "--um-per-px", "4", "{in}"]),
+    # The job file, and the simulated machine's file it names (a job in the sweep's
+    # folder names `input.m.toml`, the crafted file), each through a one-target run.
+    ("job file (compensate)", "{tmp}/job.toml", ".job.toml",
+     ["compensate", "--config", "{in}", "--targets", "1"]),
+    ("machine file (compensate)", os.path.join(CONFIG, "machines", "c5-stage.toml"), ".m.toml",
+     ["compensate", "--config", "{tmp}/machine-job.toml", "--targets", "1"]),
+    ("Fanuc program (dnc --no-send)", "{tmp}/fanuc.nc", ".nc",
+     ["dnc", "{in}", "--map", MAP, "--no-send", "--out", "{out}/t.nc"]),
 ]
 
 
@@ -114,6 +122,16 @@ def seeds(tmp):
         # (G92 X+20, G55 Y-5.5).
         f.write("G21 G90\nG0 X10 Y10\nG1 X60 Y40 F1000\nG1 X20 Y10\n"
                 "G2 X30 Y10 I5 J0\nG1 X70 Y30\nG0 X10 Y10\nM2\n")
+    # The demo job with its files named absolutely (the crafted copies live elsewhere),
+    # and one naming the crafted machine file beside it.
+    with open(os.path.join(CONFIG, "gateway", "demo.toml")) as f:
+        job = f.read().replace('"../', '"' + CONFIG + "/")
+    with open(os.path.join(tmp, "job.toml"), "w") as f:
+        f.write(job)
+    with open(os.path.join(tmp, "machine-job.toml"), "w") as f:
+        f.write(job.replace(CONFIG + "/machines/c5-stage.toml", "input.m.toml"))
+    with open(os.path.join(tmp, "fanuc.nc"), "w") as f:
+        f.write("%\nO1\nG90G21G00X10.Y10.\nG01X60.Y40.F1000.\nX20.Y10.\nM30\n%\n")
     with open(os.path.join(tmp, "points.csv"), "w") as f:
         f.write("x_mm,y_mm,z_mm\n100,100,100\n250,200,150\n")
     # The dot grid (0.5 mm pitch, 0.25 mm dots, dark on light) at 4 um/px, a dot at the

@@ -1350,11 +1350,14 @@ async fn a_compensate_job_shows_its_last_frame_with_the_dots() {
         (c_px[0].as_f64().unwrap() - (w as f64 - 1.0) / 2.0).abs() < 1.0,
         "{c_px}"
     );
-    let dev = o["deviation_um"].as_array().unwrap();
-    assert!(dev[0].as_f64().unwrap().abs() < 2000.0, "{dev:?}");
-    assert!(
-        o["centre_mm"][0].is_number() && o["target_mm"][0].is_number(),
-        "{o}"
-    );
+    // Which frame was the last shown depends on wall time (one per FRAME_EVERY): one of
+    // a target carries its deviation, one of the orientation check has neither.
+    assert!(o["centre_mm"][0].is_number(), "{o}");
+    if o["target_mm"].is_null() {
+        assert!(o["deviation_um"].is_null(), "{o}");
+    } else {
+        let dev = o["deviation_um"].as_array().unwrap();
+        assert!(dev[0].as_f64().unwrap().abs() < 2000.0, "{dev:?}");
+    }
     s.shutdown().await;
 }
