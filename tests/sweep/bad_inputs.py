@@ -172,10 +172,12 @@ def variants(seed: bytes, suffix: str, rng: random.Random):
     if suffix.endswith(".json"):
         out.append(("JSON nested 100 000 deep", "bad", b"[" * 100_000 + b"]" * 100_000))
         out.append(("JSON of another type", "bad", b'"a string"'))
-    # Numbers in comments (`#` to the line's end) and in URLs are not data.
+    # Numbers in comments (`#` to the line's end), in URLs and in quoted strings (a
+    # machine's name) are not data.
     def is_data(m):
         line = seed[seed.rfind(b"\n", 0, m.start()) + 1: m.start()]
-        return b"#" not in line and b"http" not in line.split(b" ")[-1]
+        return (b"#" not in line and b"http" not in line.split(b" ")[-1]
+                and line.count(b'"') % 2 == 0)
     numbers = [m for m in NUMBER.finditer(seed) if is_data(m)]
     if numbers:
         picks = sorted(set(rng.randrange(len(numbers)) for _ in range(4)) | {0, len(numbers) - 1})

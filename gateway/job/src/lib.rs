@@ -75,6 +75,13 @@ pub const DEMO_JOB: &str = "config/gateway/demo.toml";
 pub const MIN_FEED_MM_MIN: f64 = 1.0;
 pub const MAX_FEED_MM_MIN: f64 = 100_000.0;
 /// The largest fit residual a job may accept, um.
+/// The largest board offset from machine zero, mm.
+pub const MAX_SETUP_OFFSET_MM: f64 = 10_000.0;
+
+/// The smallest hint tolerance: a hint is where the machine was sent, and no machine
+/// lands within less of it (a subnormal tolerance made every frame "unreadable").
+pub const MIN_HINT_TOLERANCE_MM: f64 = 0.001;
+
 pub const MAX_RESIDUAL_UM: f64 = 100.0;
 
 #[derive(Deserialize)]
@@ -304,8 +311,17 @@ impl Job {
             ));
         }
         let Xy(board_at_machine_zero_mm) = raw.setup.board_at_machine_zero_mm;
-        if !board_at_machine_zero_mm.iter().all(|v| v.is_finite()) {
-            return Err(doc.invalid("setup.board_at_machine_zero_mm", "must be finite"));
+        // Where the board sits when the machine is at zero: on the machine, so within
+        // the largest travel any stage here has (10 m), not a number that only fails
+        // at the first move.
+        if !board_at_machine_zero_mm
+            .iter()
+            .all(|v| v.is_finite() && v.abs() <= MAX_SETUP_OFFSET_MM)
+        {
+            return Err(doc.invalid(
+                "setup.board_at_machine_zero_mm",
+                format!("must be two numbers of at most {MAX_SETUP_OFFSET_MM} mm each"),
+            ));
         }
         if !(MIN_FEED_MM_MIN..=MAX_FEED_MM_MIN).contains(&raw.setup.feed_mm_min) {
             return Err(doc.invalid(
@@ -314,11 +330,13 @@ impl Job {
             ));
         }
         let l = &raw.localize;
-        if !(l.hint_tolerance_mm > 0.0 && l.hint_tolerance_mm < board.pitch_mm / 2.0) {
+        if !(l.hint_tolerance_mm >= MIN_HINT_TOLERANCE_MM
+            && l.hint_tolerance_mm < board.pitch_mm / 2.0)
+        {
             return Err(doc.invalid(
                 "localize.hint_tolerance_mm",
                 format!(
-                    "must be positive and below half the board pitch ({} mm), or dots could be mistaken for their neighbours",
+                    "must be at least {MIN_HINT_TOLERANCE_MM} mm (no machine is placed closer than that to where it was sent) and below half the board pitch ({} mm), or dots could be mistaken for their neighbours",
                     board.pitch_mm / 2.0
                 ),
             ));
@@ -350,8 +368,13 @@ impl Job {
             ));
         }
         let p = &raw.compensation;
-        if !(p.tolerance_um > 0.0 && p.tolerance_um.is_finite()) {
-            return Err(doc.invalid("compensation.tolerance_um", "must be positive"));
+        // The floor is the rewriters' (0.01 um: below it no stage's count converges);
+        // past a millimetre every uncorrected target would be declared converged.
+        if !(0.01..=1000.0).contains(&p.tolerance_um) {
+            return Err(doc.invalid(
+                "compensation.tolerance_um",
+                "must be 0.01 to 1000 um (the rewriters' floor; a tolerance past a millimetre compensates nothing)",
+            ));
         }
         if p.max_iterations > 100 {
             return Err(doc.invalid("compensation.max_iterations", "at most 100"));
@@ -532,6 +555,17 @@ mod tests {
             e.contains("localize.hint_tolerance_mm") && e.contains("half the board pitch"),
             "{e}"
         );
+        // A subnormal tolerance (the bad-input sweep's) is refused where it is read,
+        // not as "cannot tell which board points are in view" at the first frame.
+        let mut tiny = ConfigDoc::embedded(DEMO_JOB, EMBEDDED).unwrap();
+        tiny.text = tiny
+            .text
+            .replace("hint_tolerance_mm = 0.1", "hint_tolerance_mm = 4e-320");
+        let e = Job::from_doc(&tiny).unwrap_err().to_string();
+        assert!(
+            e.contains("localize.hint_tolerance_mm") && e.contains("at least 0.001 mm"),
+            "{e}"
+        );
         assert!(e.contains("demo.toml (built in):"), "{e}");
     }
 
@@ -593,6 +627,23 @@ mod tests {
     fn values_that_would_fail_only_after_homing_are_refused_at_load() {
         let e = demo_with("max_residual_um = 2.0", "max_residual_um = inf").unwrap_err();
         assert!(e.contains("localize.max_residual_um"), "{e}");
+        for offset in ["1e308", "-1e100", "inf"] {
+            let e = demo_with(
+                "board_at_machine_zero_mm = [5.0, 5.0]",
+                &format!("board_at_machine_zero_mm = [5.0, {offset}]"),
+            )
+            .unwrap_err();
+            assert!(
+                e.contains("setup.board_at_machine_zero_mm"),
+                "{offset}: {e}"
+            );
+        }
+        // A tolerance no stage reaches, or one that calls every target converged.
+        for tolerance in ["4e-320", "0.001", "1e308", "nan"] {
+            let e = demo_with("tolerance_um = 0.5", &format!("tolerance_um = {tolerance}"))
+                .unwrap_err();
+            assert!(e.contains("compensation.tolerance_um"), "{tolerance}: {e}");
+        }
         let e = demo_with("min_points = 12", "min_points = 1000000").unwrap_err();
         assert!(
             e.contains("localize.min_points") && e.contains("one frame of this camera"),
