@@ -59,8 +59,12 @@ pub fn dnc(args: DncArgs, json: bool) -> anyhow::Result<ExitCode> {
             None => f,
         }
     })?;
-    if let (Some(r), Some(out)) = (outcome.result.as_mut(), &args.out) {
-        r["output"] = serde_json::json!(out.display().to_string());
+    // Where the tape went: the --out file, or only the port (nothing written here).
+    if let Some(r) = outcome.result.as_mut() {
+        r["output"] = serde_json::json!(match &args.out {
+            Some(out) => out.display().to_string(),
+            None => "the tape port (the tape is not kept: no --out)".to_string(),
+        });
     }
     crate::front::print(&outcome, json, |r| kind.summary(r))
 }
