@@ -298,15 +298,16 @@ impl crate::registry::Checked for DncRequest {
 pub fn prepare(
     request: &DncRequest,
     compensation: &dyn Compensation,
-) -> Result<(String, FanucReport), String> {
-    let options = request.options().map_err(|e| e.to_string())?;
+) -> Result<(String, FanucReport), crate::Error> {
+    let options = (request.options()).map_err(|e| crate::Error::Input(e.to_string()))?;
     rewrite_fanuc(
         &request.program,
         request.subprograms.as_deref(),
         compensation,
         options,
     )
-    .map_err(|e| format!("{}: {e}", request.program_name))
+    // What the controller would not run as written: refused, nothing sent.
+    .map_err(|e| crate::Error::Refused(format!("{}: {e}", request.program_name)))
 }
 
 fn report_json(r: &FanucReport) -> Value {
@@ -322,7 +323,10 @@ fn report_json(r: &FanucReport) -> Value {
 }
 
 /// Where the tape goes: the request's port, else the job's `dnc` stage.
-fn link(request: &DncRequest, cx: &mut dyn crate::Context) -> Result<drivers::StageLink, String> {
+fn link(
+    request: &DncRequest,
+    cx: &mut dyn crate::Context,
+) -> Result<drivers::StageLink, crate::Error> {
     if let Some(port) = &request.port {
         // The travel is the job's business; a program only needs the port.
         let axis = |axis| DncAxis {
@@ -339,16 +343,16 @@ fn link(request: &DncRequest, cx: &mut dyn crate::Context) -> Result<drivers::St
         });
     }
     let job = cx.job().map_err(|e| {
-        format!(
+        crate::Error::Input(format!(
             "no tape port: give the port (--port) or a job whose [stage] driver = \"dnc\" ({e})"
-        )
+        ))
     })?;
     match &job.stage {
         job::StageSpec::Dnc(spec) => Ok(devices::dnc_link(spec)),
-        _ => Err(format!(
+        _ => Err(crate::Error::Input(format!(
             "{}: the stage is not a tape port ([stage] driver = \"dnc\"); give the port (--port)",
             job.source
-        )),
+        ))),
     }
 }
 
@@ -582,6 +586,8 @@ mod tests {
         assert_eq!(report.moves_compensated, 1);
         r.program = "%\nG90G00X1.Y1.\nG41X2.\n%\n".into();
         let e = prepare(&r, &NoCompensation).unwrap_err();
+        assert!(matches!(e, crate::Error::Refused(_)), "{e:?}");
+        let e = e.to_string();
         assert!(e.starts_with("program.nc: block 3 `G41X2.`"), "{e}");
     }
 }
