@@ -516,21 +516,9 @@ impl crate::registry::Procedure for Dnc {
         if request.uncompensated {
             return run(&request, &NoCompensation, cx).await;
         }
-        let active = crate::or_fail!(cx.map());
-        match cx.identity().await {
-            Ok(Some(here)) => {
-                if let Err(e) = crate::check_identity(&active.map, &here, &active.name) {
-                    return Outcome::failed(e);
-                }
-            }
-            Ok(None) => {}
-            Err(e) => return Outcome::failed(e.to_string()),
-        }
-        let reference = crate::or_fail!(crate::reference::choose(
-            active.reference,
-            request.no_reference
-        ));
-        let applied = match crate::reference::apply(active.map, &reference, cx.now()) {
+        let (map, reference) =
+            crate::or_fail!(crate::reference::active_map(cx, request.no_reference).await);
+        let applied = match crate::reference::apply(map, &reference, cx.now()) {
             Ok(a) => a,
             Err(e) => return Outcome::failed(e),
         };

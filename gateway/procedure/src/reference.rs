@@ -94,6 +94,21 @@ pub fn choose(
     })
 }
 
+/// The context's map and the reference that applies to it, for a kind that applies a
+/// map without measuring (rewrite, dnc): refused when the map was measured on another
+/// machine than the context's (when it knows one), the reference by [`choose`].
+pub async fn active_map(
+    cx: &mut dyn crate::Context,
+    no_reference: bool,
+) -> Result<(ErrorMap, Choice), Error> {
+    let active = cx.map().map_err(|e| Error::Input(e.to_string()))?;
+    if let Some(here) = (cx.identity().await).map_err(|e| Error::Device(e.to_string()))? {
+        crate::check_identity(&active.map, &here, &active.name)?;
+    }
+    let choice = choose(active.reference, no_reference)?;
+    Ok((active.map, choice))
+}
+
 /// What applying a choice gave: the model, one line saying which reference and how old
 /// (for a program's header, a log, a sender), a warning when there is none, and the
 /// record's fields for a result.

@@ -593,23 +593,9 @@ impl crate::registry::Procedure for Rewrite {
             let program = request.program_name.clone();
             return run(&request, model, &program, now, cx.sink());
         }
-        let active = crate::or_fail!(cx.map());
-        match cx.identity().await {
-            Ok(Some(here)) => {
-                if let Err(e) = crate::check_identity(&active.map, &here, &active.name) {
-                    return Outcome::failed(e);
-                }
-            }
-            Ok(None) => {}
-            Err(e) => return Outcome::failed(e.to_string()),
-        }
-        let model = RewriteModel::ReferencedMap {
-            map: active.map,
-            reference: crate::or_fail!(crate::reference::choose(
-                active.reference,
-                request.no_reference
-            )),
-        };
+        let (map, reference) =
+            crate::or_fail!(crate::reference::active_map(cx, request.no_reference).await);
+        let model = RewriteModel::ReferencedMap { map, reference };
         let now = cx.now();
         let name = request.program_name.clone();
         run(&request, model, &name, now, cx.sink())
