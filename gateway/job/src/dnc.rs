@@ -158,16 +158,8 @@ pub fn resolve(doc: &ConfigDoc, raw: RawDncStage) -> Result<DncStageSpec, Config
 
 #[cfg(test)]
 mod tests {
-    use crate::{Job, StageSpec, DEMO_JOB, EMBEDDED};
-    use protocol::config::ConfigDoc;
-
-    fn with_stage(stage: &str) -> Result<Job, String> {
-        let mut doc = ConfigDoc::embedded(DEMO_JOB, EMBEDDED).unwrap();
-        let old = "driver = \"sim\"\nmachine = \"../machines/c5-stage.toml\"";
-        assert!(doc.text.contains(old));
-        doc.text = doc.text.replace(old, stage);
-        Job::from_doc(&doc).map_err(|e| e.to_string())
-    }
+    use crate::test_support::with_stage;
+    use crate::{Job, StageSpec};
 
     const AXES: &str = "axes = [\n  { axis = \"x\", min_mm = 0.0, max_mm = 200.0, max_feed_mm_min = 6000.0 },\n  { axis = \"y\", min_mm = 0.0, max_mm = 150.0, max_feed_mm_min = 6000.0 },\n]";
 

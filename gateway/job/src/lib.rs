@@ -507,6 +507,22 @@ fn resolve_targets(
     Ok(out)
 }
 
+/// What the tests of the stage kinds share.
+#[cfg(test)]
+mod test_support {
+    use crate::{Job, DEMO_JOB, EMBEDDED};
+    use protocol::config::ConfigDoc;
+
+    /// The demo job with `stage` as its `[stage]` table.
+    pub fn with_stage(stage: &str) -> Result<Job, String> {
+        let mut doc = ConfigDoc::embedded(DEMO_JOB, EMBEDDED).unwrap();
+        let old = "driver = \"sim\"\nmachine = \"../machines/c5-stage.toml\"";
+        assert!(doc.text.contains(old));
+        doc.text = doc.text.replace(old, stage);
+        Job::from_doc(&doc).map_err(|e| e.to_string())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
