@@ -4,9 +4,32 @@
 //! 10 mm grid over the travel, 1 mm lines along each axis through the middle, every node
 //! approached from both sides.
 
+use job::{Job, StageSpec};
 use protocol::errormap::{ErrorMap, Grid, Identity, Line, Measured, Node, Stat, SCHEMA};
 use world::machine::{MachineConfig, SimMachine};
 use world::rig::SimRig;
+
+/// The demo job and its stage, thermal drift off (the map's spatial model alone).
+pub fn demo_machine() -> (Job, MachineConfig) {
+    let mut job = Job::demo();
+    let StageSpec::Sim { machine } = &mut job.stage else {
+        unreachable!("the demo job simulates its stage")
+    };
+    machine.thermal = None;
+    let machine = machine.clone();
+    (job, machine)
+}
+
+/// The identity of the demo job's simulated machine (what a scan of it records).
+pub fn sim_identity(job: &Job) -> Identity {
+    Identity {
+        machine: "sim".into(),
+        controller: "sim".into(),
+        board: job.board.name.clone(),
+        certificate_sha256: job.board.fingerprint_sha256(),
+        camera: "sim".into(),
+    }
+}
 
 fn stat(mean: f64) -> Stat {
     Stat {

@@ -14,12 +14,10 @@
 
 use drivers::dnc::{DncOptions, DncSender, Flow, Tape};
 use emulators::dnc::{DncConfig, DncDevice, DncPty, DncStats};
-use job::{Job, StageSpec};
-use protocol::errormap::Identity;
 use serde_json::json;
 use std::time::Duration;
 use system_tests::runtime_two_workers;
-use system_tests::truth_map::map_from_truth;
+use system_tests::truth_map::{demo_machine, map_from_truth, sim_identity as identity};
 use tokio_serial::SerialPortBuilderExt;
 use world::machine::{MachineConfig, TraceRow};
 use world::{lock, Clock, SharedRig};
@@ -33,26 +31,6 @@ const TOLERANCE_UM: f64 = 0.5;
 /// of every command adds up to 0.5 um per axis: with 0.001 here the hexagon and the arcs
 /// end 1.41 to 1.60 um from the path (docs/dnc.md), too close to the bound to hold it.
 const INCREMENT_MM: f64 = 0.0001;
-
-fn demo_machine() -> (Job, MachineConfig) {
-    let mut job = Job::demo();
-    let StageSpec::Sim { machine } = &mut job.stage else {
-        unreachable!("the demo job simulates its stage")
-    };
-    machine.thermal = None;
-    let machine = machine.clone();
-    (job, machine)
-}
-
-fn identity(job: &Job) -> Identity {
-    Identity {
-        machine: "sim".into(),
-        controller: "sim".into(),
-        board: job.board.name.clone(),
-        certificate_sha256: job.board.fingerprint_sha256(),
-        camera: "sim".into(),
-    }
-}
 
 fn rig(machine: &MachineConfig) -> SharedRig {
     let d = system_tests::config_dir();

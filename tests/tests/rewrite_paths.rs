@@ -12,34 +12,12 @@
 use emulators::grbl::{GrblConfig, GrblDevice};
 use errormap::MapModel;
 use job::{Job, StageSpec};
-use protocol::errormap::Identity;
 use protocol::grbl::gcode::{filter_line, Action, Interpreter, Rate};
 use rewrite::programs::{random_program, Program, ProgramSpec};
 use rewrite::{Compensation, Options, Pose, Rewriter, N_AXIS};
-use system_tests::truth_map::map_from_truth;
+use system_tests::truth_map::{demo_machine, map_from_truth, sim_identity as identity};
 use world::machine::{MachineConfig, TraceRow};
 use world::{lock, Clock, SharedRig};
-
-/// The demo job's stage, thermal drift off (the map's spatial model alone).
-fn demo_machine() -> (Job, MachineConfig) {
-    let mut job = Job::demo();
-    let StageSpec::Sim { machine } = &mut job.stage else {
-        unreachable!("the demo job simulates its stage")
-    };
-    machine.thermal = None;
-    let machine = machine.clone();
-    (job, machine)
-}
-
-fn identity(job: &Job) -> Identity {
-    Identity {
-        machine: "sim".into(),
-        controller: "sim".into(),
-        board: job.board.name.clone(),
-        certificate_sha256: job.board.fingerprint_sha256(),
-        camera: "sim".into(),
-    }
-}
 
 /// The GRBL emulator on a fresh copy of the machine, homed once (as the map's machine
 /// was), recording the trace.
