@@ -9,27 +9,23 @@
 use drivers::dnc::{DncAxis, DncOptions, DncSender, DncStage};
 use emulators::dnc::{DncConfig, DncDevice, DncPty};
 use errormap::tape::{StopSpec, TapeSpec, TapeTarget};
-use job::{Job, StageSpec};
+use job::Job;
 use std::time::Duration;
 use system_tests::runtime_two_workers;
 use tokio_serial::SerialPortBuilderExt;
-use world::{lock, Clock};
+use world::machine::MachineConfig;
+use world::{lock, Clock, SharedRig};
 
 const BAUD: u32 = 115_200;
 /// A safety bound (never reached by a passing run).
 const BOUND: Duration = Duration::from_secs(900);
 
-#[test]
-fn a_grid_is_measured_through_the_tape_with_the_stops_found_from_the_frames() {
-    // The demo's C5 stage under the coded board (every frame says where it is: a
-    // plain grid would give the position only modulo its pitch, and a still camera
-    // would seem to stop at every target).
-    let demo = Job::demo();
-    let StageSpec::Sim { machine } = &demo.stage else {
-        unreachable!("the demo job simulates its stage")
-    };
-    let mut machine = machine.clone();
-    machine.thermal = None;
+/// The demo's C5 stage (thermal drift off) under the coded board (every frame says
+/// where it is: a plain grid gives the position only modulo its pitch, and a still
+/// camera would seem to stop at every target), and the DNC emulator driving it on the
+/// wall clock.
+fn coded_rig() -> (Job, MachineConfig, SharedRig, DncDevice) {
+    let (_, machine) = system_tests::truth_map::demo_machine();
     let job = Job::load(&system_tests::config_dir().join("gateway/stepper-coded.toml"))
         .expect("the coded job loads");
     assert!(job.board.code.is_some());
@@ -41,24 +37,35 @@ fn a_grid_is_measured_through_the_tape_with_the_stops_found_from_the_frames() {
             ..DncConfig::default()
         },
     );
+    (job, machine, rig, dev)
+}
+
+/// The tape-only stage on the emulator's pseudo-terminal (the demo's 200 x 150 mm).
+fn tape_stage(pty: &DncPty) -> DncStage {
+    let port = tokio_serial::new(pty.path(), BAUD)
+        .open_native_async()
+        .expect("the emulator's port opens");
+    let sender = DncSender::from_stream(port, "tape".into(), BAUD, DncOptions::default());
+    let axis = |axis, max_mm| DncAxis {
+        axis,
+        min_mm: 0.0,
+        max_mm,
+        max_feed_mm_min: 6000.0,
+    };
+    DncStage::new(
+        sender,
+        pty.path(),
+        vec![axis(drivers::Axis::X, 200.0), axis(drivers::Axis::Y, 150.0)],
+    )
+}
+
+#[test]
+fn a_grid_is_measured_through_the_tape_with_the_stops_found_from_the_frames() {
+    let (job, machine, rig, dev) = coded_rig();
     lock(&rig).machine_mut().start_trace();
     runtime_two_workers().block_on(async {
         let pty = DncPty::spawn(dev, None).expect("a pseudo-terminal");
-        let port = tokio_serial::new(pty.path(), BAUD)
-            .open_native_async()
-            .expect("the emulator's port opens");
-        let sender = DncSender::from_stream(port, "tape".into(), BAUD, DncOptions::default());
-        let axis = |axis, max_mm| DncAxis {
-            axis,
-            min_mm: 0.0,
-            max_mm,
-            max_feed_mm_min: 6000.0,
-        };
-        let mut stage = DncStage::new(
-            sender,
-            pty.path(),
-            vec![axis(drivers::Axis::X, 200.0), axis(drivers::Axis::Y, 150.0)],
-        );
+        let mut stage = tape_stage(&pty);
         let mut camera = drivers::sim::SimCamera::new(rig.clone());
         let mut targets = Vec::new();
         for y in [25.0, 75.0, 125.0] {
@@ -130,22 +137,7 @@ fn a_grid_is_measured_through_the_tape_with_the_stops_found_from_the_frames() {
 fn the_map_scan_runs_through_the_tape_on_a_tape_only_stage() {
     use errormap::scan::{MapBuilder, ScanPlan, ScanSpec};
     use errormap::Approach;
-    let demo = Job::demo();
-    let StageSpec::Sim { machine } = &demo.stage else {
-        unreachable!("the demo job simulates its stage")
-    };
-    let mut machine = machine.clone();
-    machine.thermal = None;
-    let job = Job::load(&system_tests::config_dir().join("gateway/stepper-coded.toml"))
-        .expect("the coded job loads");
-    let rig = devices::new_rig(&job, &machine);
-    let dev = DncDevice::new(
-        rig.clone(),
-        DncConfig {
-            clock: Clock::Scaled(1.0),
-            ..DncConfig::default()
-        },
-    );
+    let (job, _, rig, dev) = coded_rig();
     let plan = ScanPlan::new(
         [60.0, 40.0],
         [100.0, 70.0],
@@ -158,21 +150,7 @@ fn the_map_scan_runs_through_the_tape_on_a_tape_only_stage() {
     .expect("the plan");
     runtime_two_workers().block_on(async {
         let pty = DncPty::spawn(dev, None).expect("a pseudo-terminal");
-        let port = tokio_serial::new(pty.path(), BAUD)
-            .open_native_async()
-            .expect("the emulator's port opens");
-        let sender = DncSender::from_stream(port, "tape".into(), BAUD, DncOptions::default());
-        let axis = |axis, max_mm| DncAxis {
-            axis,
-            min_mm: 0.0,
-            max_mm,
-            max_feed_mm_min: 6000.0,
-        };
-        let stage = DncStage::new(
-            sender,
-            pty.path(),
-            vec![axis(drivers::Axis::X, 200.0), axis(drivers::Axis::Y, 150.0)],
-        );
+        let stage = tape_stage(&pty);
         let mut devices = devices::Devices {
             stage: Box::new(stage),
             camera: Box::new(drivers::sim::SimCamera::new(rig.clone())),
