@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Runs every fuzz target (or those named after the seconds) for SECONDS each, in
-# sequence, with nightly and cargo-fuzz: `tests/fuzz/fuzz.sh 75 [target...]`.
+# Runs every fuzz target (or those named after the seconds) for SECONDS each,
+# with nightly and cargo-fuzz: `tests/fuzz/fuzz.sh 75 [target...]`, one target per core at a time.
 # New inputs go to a scratch corpus (FUZZ_SCRATCH, default a temporary folder); the
 # committed corpus/<target>/ is only read. Prints one line per target: total execs,
 # execs/s, cov and ft of libFuzzer's last line, and whether it crashed (the input is
@@ -23,11 +23,11 @@ if ! "${fuzz[@]}" build "${common[@]}" >"$scratch/build.log" 2>&1; then
   cat "$scratch/build.log"
   exit 1
 fi
-failed=0
-printf '%-16s %12s %9s %7s %8s  %s\n' target execs execs/s cov ft result
-for t in "${targets[@]}"; do
+# Targets run side by side, one per core (FUZZ_JOBS to change it): each is single-threaded.
+jobs=${FUZZ_JOBS:-$(nproc 2>/dev/null || echo 1)}
+run_one() { # target: runs it and writes its result line to $scratch/$t.result
+  local t=$1 log="$scratch/$1.log" rc execs rate last cov ft result
   mkdir -p "$scratch/$t"
-  log="$scratch/$t.log"
   "${fuzz[@]}" run "$t" "${common[@]}" "$scratch/$t" "tests/fuzz/corpus/$t" -- \
     -max_total_time="$seconds" -print_final_stats=1 -timeout=10 -rss_limit_mb=2048 >"$log" 2>&1
   rc=$?
@@ -37,10 +37,18 @@ for t in "${targets[@]}"; do
   cov=$(sed -n 's/.* cov: \([0-9]*\).*/\1/p' <<<"$last")
   ft=$(sed -n 's/.* ft: \([0-9]*\).*/\1/p' <<<"$last")
   result=ok
-  if [ $rc -ne 0 ]; then
-    result="CRASH (exit $rc; log $log)"
-    failed=1
-  fi
-  printf '%-16s %12s %9s %7s %8s  %s\n' "$t" "${execs:-?}" "${rate:-?}" "${cov:-?}" "${ft:-?}" "$result"
+  [ $rc -ne 0 ] && result="CRASH (exit $rc; log $log)"
+  printf '%-16s %12s %9s %7s %8s  %s\n' "$t" "${execs:-?}" "${rate:-?}" "${cov:-?}" "${ft:-?}" "$result" >"$scratch/$t.result"
+}
+for t in "${targets[@]}"; do
+  while [ "$(jobs -rp | wc -l)" -ge "$jobs" ]; do wait -n || true; done
+  run_one "$t" &
+done
+wait
+failed=0
+printf '%-16s %12s %9s %7s %8s  %s\n' target execs execs/s cov ft result
+for t in "${targets[@]}"; do
+  cat "$scratch/$t.result"
+  grep -q CRASH "$scratch/$t.result" && failed=1
 done
 exit $failed
