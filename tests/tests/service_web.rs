@@ -434,6 +434,30 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
     let newer = report["rolled_back_to"].as_u64().unwrap();
     assert_eq!(report["active_after_rollback"], serde_json::json!([newer]));
     assert_eq!(report["heatmap"]["version"], newer);
+    // Of the error maps with an active version, the page says which one jobs use (the one
+    // activated last: the kinds' walk activated the scanned map after the seeded one),
+    // and offers to put a displaced one back in use.
+    let rows = report["profile_rows"].as_array().unwrap();
+    let in_use = |kind: &str| {
+        rows.iter()
+            .filter(|r| r["kind"] == kind && r["in_use"] == true)
+            .count()
+    };
+    assert_eq!(in_use("error_map"), 1, "{rows:?}");
+    assert!(in_use("rotary") <= 1, "{rows:?}");
+    let displaced: Vec<&serde_json::Value> = rows
+        .iter()
+        .filter(|r| r["active"] == true && r["in_use"] == false)
+        .collect();
+    assert!(!displaced.is_empty(), "no displaced map: {rows:?}");
+    for r in rows {
+        let (shown, can) = (r["shown"].as_str().unwrap(), r["can_activate"] == true);
+        match (r["active"] == true, r["in_use"] == true) {
+            (_, true) => assert!(shown == "in use" && !can, "{r}"),
+            (true, false) => assert!(shown == "active, not in use" && can, "{r}"),
+            (false, _) => assert!(shown.is_empty() && can, "{r}"),
+        }
+    }
     // Each activation was confirmed by the operator, told which machine it affects.
     let dialogs = report["dialogs"].as_array().unwrap();
     assert!(!dialogs.is_empty(), "{report}");
@@ -513,6 +537,11 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
         let registered = procedure::kinds::find(name).unwrap();
         for only in registered.command_line_only {
             assert!(!fields.contains(only), "{name} offers {only}: {fields:?}");
+        }
+        // A file's name is sent with the file, never typed: no `program_name` field.
+        for field in &fields {
+            let file = field.strip_suffix("_name").unwrap_or("");
+            assert!(!fields.contains(&file), "{name} offers {field}: {fields:?}");
         }
         for filled in want["params"].as_object().unwrap().keys() {
             assert!(

@@ -74,6 +74,8 @@ impl crate::registry::Procedure for BoardMake {
     const TITLE: &'static str =
         "Make the calibration board's artwork (SVG, DXF, a PDF test print) and certificate template";
     const COMMAND: &'static str = "board make";
+    const LABEL: &'static str = "Board artwork";
+    const HELP: &'static str = "Draws the machine's calibration board for the lab that makes it (SVG, DXF, a PDF test print) and its certificate template.";
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = BoardMakeRequest;
 

@@ -111,6 +111,12 @@ impl crate::registry::Procedure for Compensate {
     const TITLE: &'static str =
         "Compensate: move to each target, measure with the camera, correct until on target";
     const COMMAND: &'static str = "compensate";
+    const LABEL: &'static str = "Compensation run";
+    const HELP: &'static str = "Visits the job's targets and measures each with the camera: the error before and after compensation.";
+    const FIELD_HELP: &'static [(&'static str, &'static str)] = &[
+        ("targets", "How many of the job's targets to visit, from the first. Empty: all of them."),
+        ("method", "How a position is worked out from the board: fit (all dots) or four-point. Empty: the job's own."),
+    ];
     const USES: crate::registry::Uses = crate::registry::Uses::DEVICES;
     type Request = CompensateRequest;
 

@@ -161,6 +161,8 @@ impl crate::registry::Procedure for Cut {
     const TITLE: &'static str =
         "Partition a layout and cut it on the conveyor cutter, every head's group at once";
     const COMMAND: &'static str = "layout cut";
+    const LABEL: &'static str = "Layout cut";
+    const HELP: &'static str = "Splits the layout as a partition does and cuts it on the emulated conveyor cutter, every head's group at once.";
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = CutRequest;
 

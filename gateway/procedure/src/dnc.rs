@@ -502,6 +502,8 @@ impl crate::registry::Procedure for Dnc {
     const TITLE: &'static str =
         "Drip-feed a Fanuc program to a closed controller through its tape port, rewritten with the error map";
     const COMMAND: &'static str = "dnc";
+    const LABEL: &'static str = "Program to a closed controller (DNC)";
+    const HELP: &'static str = "Rewrites a Fanuc program with the active error map and drip-feeds it to the machine's tape port (DNC). Select DNC mode and press CYCLE START on the controller when asked.";
     const USES: crate::registry::Uses = crate::registry::Uses {
         map: crate::registry::MapUse::WhenAsked,
         ..crate::registry::Uses::NOTHING

@@ -554,6 +554,12 @@ impl crate::registry::Procedure for Export {
     const KIND: &'static str = "export";
     const TITLE: &'static str = "Export the error map as the controller's own compensation tables";
     const COMMAND: &'static str = "export";
+    const LABEL: &'static str = "Controller tables";
+    const HELP: &'static str = "Writes the active error map as the controller's own compensation tables (LinuxCNC, Beckhoff, Siemens, Fanuc, Heidenhain, Haas or CSV), so that every program, jog and probing cycle is corrected inside the control. Each table says what its format cannot hold; none is handed over when one is further from the map than the tolerance.";
+    const FIELD_HELP: &'static [(&'static str, &'static str)] = &[(
+        "name",
+        "The table's file name; per-axis formats add _x and _y before its extension.",
+    )];
     const USES: crate::registry::Uses = crate::registry::Uses::MAP;
     type Request = ExportRequest;
 

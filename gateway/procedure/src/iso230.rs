@@ -423,6 +423,41 @@ impl crate::registry::Procedure for Iso230 {
     const TITLE: &'static str =
         "ISO 230-2 positioning test of one axis, with or without the error map";
     const COMMAND: &'static str = "iso230";
+    const LABEL: &'static str = "ISO 230-2 axis test";
+    const HELP: &'static str = "Positioning test of one axis to ISO 230-2: accuracy, repeatability and reversal, with the deviation chart.";
+    const FIELD_HELP: &'static [(&'static str, &'static str)] = &[
+        ("axis", "The axis to test."),
+        (
+            "positions",
+            "Target positions along the axis. Empty: the standard's minimum.",
+        ),
+        ("runs", "Runs in each direction."),
+        ("cycle", "Linear, or pilgrim-step."),
+        (
+            "overrun_mm",
+            "How far past the end targets the axis goes before turning back.",
+        ),
+        (
+            "from_mm",
+            "Start of the tested travel, machine coordinates. Empty: the usable travel's start.",
+        ),
+        (
+            "to_mm",
+            "End of the tested travel, machine coordinates. Empty: the usable travel's end.",
+        ),
+        (
+            "at_mm",
+            "Where the other axis stays, machine coordinates. Empty: chosen for you.",
+        ),
+        (
+            "certificate_uncertainty_um",
+            "The board certificate's uncertainty of a dot position.",
+        ),
+        (
+            "with_map",
+            "Test with the active error map correcting the moves.",
+        ),
+    ];
     const USES: crate::registry::Uses = crate::registry::Uses {
         devices: true,
         map: crate::registry::MapUse::WhenAsked,
@@ -518,6 +553,12 @@ impl crate::registry::Procedure for Iso230Evaluate {
     const TITLE: &'static str =
         "ISO 230-2 evaluation of measurements from any instrument (a laser, a probe)";
     const COMMAND: &'static str = "iso230 evaluate";
+    const LABEL: &'static str = "ISO 230-2 evaluation of a file";
+    const HELP: &'static str = "Evaluates a measurements file from any instrument (a laser, the camera) to ISO 230-2: accuracy, repeatability and reversal in each direction, with the deviation chart and a report. The machine does not move.";
+    const FIELD_HELP: &'static [(&'static str, &'static str)] = &[
+        ("measurements", "The measurements file: one row per reading (axis, position index, target, run, direction, deviation in µm)."),
+        ("before", "The same test before compensation, drawn on the charts for comparison (optional)."),
+    ];
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = Iso230EvaluateRequest;
 

@@ -188,6 +188,50 @@ impl crate::registry::Procedure for LayoutPartition {
     const TITLE: &'static str =
         "Partition a cutting layout into tool and window groups for a multi-tool cutter";
     const COMMAND: &'static str = "layout partition";
+    const LABEL: &'static str = "Layout partition";
+    const HELP: &'static str = "Splits a cutting layout into groups per tool and cutting window and shifts parts apart. The machine does not move.";
+    const FIELD_HELP: &'static [(&'static str, &'static str)] = &[
+        ("layout", "The layout file: JSON, DXF or SVG."),
+        (
+            "format",
+            "Set from the file's name; change it only if the name is wrong.",
+        ),
+        (
+            "tools",
+            "Number of cutting tools (equal lanes across the material).",
+        ),
+        ("window_mm", "Length of the cutting window along the feed."),
+        ("gap_mm", "Space between groups."),
+        (
+            "width_mm",
+            "Material width. Empty: the file's, else the layout's width.",
+        ),
+        (
+            "material_width_mm",
+            "Width of the material the result is cut from. Empty: the material width.",
+        ),
+        (
+            "clearance_mm",
+            "Parts of different groups closer than this overlap. Empty: the gap.",
+        ),
+        (
+            "assign",
+            "Put a part in a group: one per line, PART=GROUP (e.g. a=2).",
+        ),
+        (
+            "widen",
+            "When shifted parts still overlap, widen the gaps instead of stopping.",
+        ),
+        (
+            "chord_tolerance_mm",
+            "How closely straight pieces follow arcs and curves.",
+        ),
+        (
+            "out_format",
+            "Format of the shifted layout. Empty: the same as the file's.",
+        ),
+        ("picture", "Also draw the groups as a picture."),
+    ];
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = LayoutRequest;
 

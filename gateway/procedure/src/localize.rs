@@ -226,6 +226,8 @@ impl crate::registry::Procedure for Localize {
     const TITLE: &'static str =
         "Localize one frame of the board: the board position under its centre";
     const COMMAND: &'static str = "localize";
+    const LABEL: &'static str = "Localize a frame";
+    const HELP: &'static str = "Finds where on the machine's board a camera frame was taken: the board position under the frame's centre.";
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = LocalizeRequest;
 

@@ -352,6 +352,24 @@ impl crate::registry::Procedure for Map {
     const TITLE: &'static str =
         "Error map: scan the travel once, so programs run accurately without the camera";
     const COMMAND: &'static str = "map";
+    const LABEL: &'static str = "Error map scan";
+    const HELP: &'static str = "Scans the board over the travel and makes a new version of the error map (not used until you activate it). A stopped scan continues where it stopped when started again with the same settings.";
+    const FIELD_HELP: &'static [(&'static str, &'static str)] = &[
+        ("name", "The error map this scan makes a new version of."),
+        (
+            "grid_step_mm",
+            "Distance between map points: smaller is finer and slower.",
+        ),
+        (
+            "line_step_mm",
+            "Distance between pictures along each scanned line.",
+        ),
+        ("passes", "How often each point is measured from each side."),
+        (
+            "tool_offset_mm",
+            "Tool point minus camera centre on the machine axes: X and Y, e.g. 0; 0.",
+        ),
+    ];
     const USES: crate::registry::Uses = crate::registry::Uses::DEVICES;
     type Request = MapRequest;
 

@@ -285,6 +285,13 @@ impl crate::registry::Procedure for Reference {
     const KIND: &'static str = "reference";
     const TITLE: &'static str = "Reference after homing: one frame at the map's reference point records how far the zero moved";
     const COMMAND: &'static str = "reference";
+    const LABEL: &'static str = "Machine zero check";
+    const HELP: &'static str =
+        "Finds the machine zero on the board again after homing and checks how far it moved.";
+    const FIELD_HELP: &'static [(&'static str, &'static str)] = &[(
+        "max_shift_um",
+        "Largest accepted move of the machine zero; more means the board or the camera moved.",
+    )];
     const USES: crate::registry::Uses = crate::registry::Uses::DEVICES_AND_MAP;
     type Request = ReferenceRequest;
 

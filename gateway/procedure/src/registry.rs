@@ -91,6 +91,15 @@ pub trait Procedure {
     const TITLE: &'static str;
     /// The command line's words for it (`rotary identify`).
     const COMMAND: &'static str;
+    /// What an operator calls it, in lists and headings ("Error map scan"): the schema's
+    /// `title`.
+    const LABEL: &'static str;
+    /// What it does, written for the shop floor (no flags, no developers' terms): the
+    /// schema's `x-help`, shown above its form.
+    const HELP: &'static str;
+    /// Shop-floor help of its fields where their documentation speaks to developers
+    /// (`(field, help)`): each field's `x-help` in the schema, shown under it.
+    const FIELD_HELP: &'static [(&'static str, &'static str)] = &[];
     /// What it needs of the machine.
     const USES: Uses;
     /// Its request: the CLI's flags and the API's params, checked once.
@@ -120,6 +129,12 @@ pub struct Kind {
     pub name: &'static str,
     pub title: &'static str,
     pub command: &'static str,
+    /// [`Procedure::LABEL`].
+    pub label: &'static str,
+    /// [`Procedure::HELP`].
+    pub help: &'static str,
+    /// [`Procedure::FIELD_HELP`].
+    pub field_help: &'static [(&'static str, &'static str)],
     pub uses: Uses,
     /// [`Procedure::COMMAND_LINE_ONLY`].
     pub command_line_only: &'static [&'static str],
@@ -185,6 +200,9 @@ pub const fn entry<P: Procedure + 'static>() -> Kind {
         name: P::KIND,
         title: P::TITLE,
         command: P::COMMAND,
+        label: P::LABEL,
+        help: P::HELP,
+        field_help: P::FIELD_HELP,
         uses: P::USES,
         command_line_only: P::COMMAND_LINE_ONLY,
         parse: normalized::<P>,
@@ -222,20 +240,32 @@ impl Kind {
     }
 
     /// The JSON schema (OpenAPI 3.1) of its params: the page builds the form from it.
-    /// The fields only the command line sets are marked `x-command-line-only`.
+    /// Its `title` is the kind's label and its `x-help` the kind's help; the fields only
+    /// the command line sets are marked `x-command-line-only`, and fields with shop-floor
+    /// help carry it as `x-help`.
     pub fn schema(&self) -> RefOr<Schema> {
+        use utoipa::openapi::extensions::{Extensions, ExtensionsBuilder};
+        fn mark(extensions: &mut Option<Extensions>, key: &str, value: Value) {
+            let added = ExtensionsBuilder::new().add(key, value).build();
+            extensions.get_or_insert_with(Default::default).merge(added);
+        }
         let mut schema = (self.schema)();
         if let RefOr::T(Schema::Object(object)) = &mut schema {
-            for name in self.command_line_only {
-                let mark = utoipa::openapi::extensions::ExtensionsBuilder::new()
-                    .add("x-command-line-only", true)
-                    .build();
-                let extensions = match object.properties.get_mut(*name) {
+            object.title = Some(self.label.to_string());
+            mark(&mut object.extensions, "x-help", self.help.into());
+            let fields = (self.command_line_only.iter())
+                .map(|name| (*name, "x-command-line-only", Value::Bool(true)))
+                .chain(
+                    (self.field_help.iter()).map(|(name, help)| (*name, "x-help", (*help).into())),
+                );
+            for (name, key, value) in fields {
+                let extensions = match object.properties.get_mut(name) {
                     Some(RefOr::T(Schema::Object(field))) => &mut field.extensions,
                     Some(RefOr::T(Schema::Array(field))) => &mut field.extensions,
+                    Some(RefOr::T(Schema::OneOf(field))) => &mut field.extensions,
                     _ => continue,
                 };
-                extensions.get_or_insert_with(Default::default).merge(mark);
+                mark(extensions, key, value);
             }
         }
         schema
@@ -270,6 +300,27 @@ mod tests {
             );
             let _ = k.summary(&json!({}));
             assert_eq!(find(k.name), Some(k));
+            // A label and shop-floor help for the page, and every field help names a
+            // field that is there.
+            assert_eq!(schema["title"], k.label, "{}", k.name);
+            assert!(!k.label.is_empty() && k.help.len() > 20, "{}", k.name);
+            for text in [k.label, k.help]
+                .iter()
+                .chain(k.field_help.iter().map(|(_, h)| h))
+            {
+                assert!(
+                    !text.contains("--") && !text.to_lowercase().contains("command line"),
+                    "{}: {text:?} speaks of the command line",
+                    k.name
+                );
+            }
+            for (name, help) in k.field_help {
+                assert_eq!(
+                    schema["properties"][name]["x-help"], *help,
+                    "{}.{name}: no such field, or its help is not carried: {schema}",
+                    k.name
+                );
+            }
             // A command-line-only field is a field, marked, and refused when queued.
             for name in k.command_line_only {
                 let field = &schema["properties"][name];

@@ -567,6 +567,8 @@ impl crate::registry::Procedure for Rewrite {
     const TITLE: &'static str =
         "Rewrite a program: every move lands where it was programmed, without the camera";
     const COMMAND: &'static str = "rewrite";
+    const LABEL: &'static str = "Program rewrite";
+    const HELP: &'static str = "Rewrites a G-code program with the active error map (or a volumetric model) so that every move lands where it was programmed; download the rewritten program and run it on the machine. What the controller would refuse is refused here first, naming the line.";
     const USES: crate::registry::Uses = crate::registry::Uses {
         map: crate::registry::MapUse::WhenAsked,
         ..crate::registry::Uses::NOTHING

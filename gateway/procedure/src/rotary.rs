@@ -372,6 +372,12 @@ impl crate::registry::Procedure for RotaryMeasure {
     const TITLE: &'static str =
         "Rotary table: probe the A/C table and identify its eight location errors";
     const COMMAND: &'static str = "rotary measure";
+    const LABEL: &'static str = "Rotary table measurement";
+    const HELP: &'static str = "Probes the rotary table's balls and finds its eight errors; they become a new rotary profile version.";
+    const FIELD_HELP: &'static [(&'static str, &'static str)] = &[(
+        "name",
+        "The rotary profile the result becomes a new version of.",
+    )];
     const USES: crate::registry::Uses = crate::registry::Uses::ROTARY;
     type Request = RotaryRequest;
 
@@ -435,6 +441,12 @@ impl crate::registry::Procedure for RotaryIdentify {
     const TITLE: &'static str =
         "Rotary table: the eight location errors from ball centres measured elsewhere";
     const COMMAND: &'static str = "rotary identify";
+    const LABEL: &'static str = "Rotary errors from measured centres";
+    const HELP: &'static str = "Finds the rotary table's eight location errors from ball centres measured elsewhere (a CMM): the C sweep at A = 0 and the A sweep at C = 0, in machine coordinates. The machine does not move.";
+    const FIELD_HELP: &'static [(&'static str, &'static str)] = &[(
+        "centres",
+        "The centres file: one row per ball centre (axis, step, angle, ball, X, Y, Z in mm).",
+    )];
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = RotaryIdentifyRequest;
 
@@ -536,6 +548,8 @@ impl crate::registry::Procedure for RotaryRewrite {
     const TITLE: &'static str =
         "Rotary table: rewrite a 5-axis program so the tool tip lands where programmed";
     const COMMAND: &'static str = "rotary rewrite";
+    const LABEL: &'static str = "5-axis program rewrite";
+    const HELP: &'static str = "Rewrites a 5-axis program (X Y Z A C, absolute, mm) for the rotary table's identified errors, so that the tool tip and its direction land where programmed; download the rewritten program and run it on the machine.";
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = RotaryRewriteRequest;
 

@@ -135,6 +135,15 @@ impl crate::registry::Procedure for Verify {
     const TITLE: &'static str =
         "Verify the map: move to random points with the map and measure with the camera";
     const COMMAND: &'static str = "verify";
+    const LABEL: &'static str = "Error map check";
+    const HELP: &'static str =
+        "Checks random points with the active error map: the error without and with it.";
+    const FIELD_HELP: &'static [(&'static str, &'static str)] = &[
+        ("points", "How many random points to check. Empty: 20 (5 for a spot check)."),
+        ("seed", "Chooses the random points: the same seed checks the same points."),
+        ("spot_check", "A quick drift check: it asks for a new scan when a point is off by more than the threshold."),
+        ("drift_threshold_um", "Drift that asks for a new scan."),
+    ];
     const USES: crate::registry::Uses = crate::registry::Uses::DEVICES_AND_MAP;
     type Request = VerifyRequest;
 

@@ -871,7 +871,7 @@ pub fn export_isg(request: &VolumetricExportIsgRequest, sink: &mut dyn Sink) -> 
 /// Declares a registered kind for a file-to-file volumetric procedure.
 macro_rules! volumetric_kind {
     ($name:ident, $request:ty, $kind:literal, $title:literal, $command:literal,
-     |$r:ident, $sink:ident| $run:expr, $summary:expr) => {
+     $label:literal, $help:literal, |$r:ident, $sink:ident| $run:expr, $summary:expr) => {
         #[doc = concat!("`gateway ", $command, "` as a registered kind.")]
         pub struct $name;
 
@@ -879,6 +879,8 @@ macro_rules! volumetric_kind {
             const KIND: &'static str = $kind;
             const TITLE: &'static str = $title;
             const COMMAND: &'static str = $command;
+            const LABEL: &'static str = $label;
+            const HELP: &'static str = $help;
             const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
             type Request = $request;
 
@@ -906,6 +908,8 @@ volumetric_kind!(
     "volumetric-identify",
     "Identify the 21-error volumetric model from a measurement campaign",
     "volumetric identify",
+    "Volumetric model from a campaign",
+    "Identifies the machine's 21 geometric errors (positioning, straightness, pitch, yaw, roll and squareness of each axis) from a measurement campaign: laser, level, ball bar and camera files. Says whether the model is fit for compensation.",
     |r, sink| identify(&r, sink),
     identify_summary
 );
@@ -915,6 +919,8 @@ volumetric_kind!(
     "volumetric-eval",
     "The volumetric error at each point of a points file",
     "volumetric eval",
+    "Volumetric error at points",
+    "Computes the machine's volumetric error at each point of a points file (X, Y, Z in mm) from its model.",
     |r, _sink| eval(&r),
     |r: &Value| eval_lines(r).collect::<Vec<_>>().join("\n")
 );
@@ -924,6 +930,8 @@ volumetric_kind!(
     "volumetric-contributions",
     "Each volumetric error's contribution over the volume, and the middle planes' maps",
     "volumetric contributions",
+    "Volumetric error contributions",
+    "Ranks each of the 21 errors by its share of the volumetric error over the working volume, and maps the error on the three middle planes.",
     |r, sink| contributions(&r, sink),
     contributions_summary
 );
@@ -933,6 +941,8 @@ volumetric_kind!(
     "volumetric-campaign",
     "The emulated machine's measurement campaign (laser, level, ball bar, camera files)",
     "volumetric simulate-campaign",
+    "Simulated volumetric campaign",
+    "Writes the measurement files the emulated machine would give (laser, level, ball bar, camera), to try the volumetric identification without a machine.",
     |r, sink| simulate_campaign(&r, sink),
     campaign_summary
 );
@@ -942,6 +952,8 @@ volumetric_kind!(
     "volumetric-export-isg",
     "Export the volumetric model as the ISG kernel's tables (Beckhoff TF5280)",
     "volumetric export-isg",
+    "Volumetric tables for the ISG kernel",
+    "Writes the volumetric model as the ISG kernel's compensation tables (Beckhoff TwinCAT CNC, TF5280) and the list that names them.",
     |r, sink| export_isg(&r, sink),
     files_summary
 );

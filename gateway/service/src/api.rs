@@ -1282,7 +1282,8 @@ async fn heatmap(
     Ok(([(header::CONTENT_TYPE, "image/svg+xml")], svg).into_response())
 }
 
-/// Make a profile version the active one of its name.
+/// Make a profile version the active one of its name and the one in use for its kind
+/// (`in_use`: jobs apply it), also when it was active but displaced by another profile.
 #[utoipa::path(post, path = "/api/v1/machines/{machine}/profiles/{name}/{version}/activate",
     params(("machine" = String, Path), ("name" = String, Path), ("version" = u32, Path)),
     responses((status = 200, description = "ProfileVersion"), (status = 404, description = "unknown machine or profile")))]

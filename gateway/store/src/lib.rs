@@ -155,7 +155,11 @@ pub struct ProfileVersion {
     pub name: String,
     pub kind: ProfileKind,
     pub version: u32,
+    /// The active version of its name (each name has at most one).
     pub active: bool,
+    /// The version jobs use: of the active versions of its kind on the machine, the one
+    /// activated last ([`Store::active_profile`]).
+    pub in_use: bool,
     pub created_at: String,
     pub source_job: Option<JobId>,
     pub note: Option<String>,
@@ -292,11 +296,19 @@ const JOB_COLUMNS: &str =
      j.finished_at, j.progress_done, j.progress_total, j.profile_name, j.profile_version, \
      j.error, r.body";
 
+/// A profile's columns, then whether the version is its name's active one, then whether it
+/// is the one in use: of the active versions of its kind, the one activated last.
 const PROFILE_COLUMNS: &str =
     "p.machine, p.name, p.kind, p.version, p.created_at, p.source_job, p.note, \
      (SELECT a.version FROM profile_activations a \
       WHERE a.machine = p.machine AND a.name = p.name AND a.rolled_back_at IS NULL \
-      ORDER BY a.id DESC LIMIT 1) = p.version";
+      ORDER BY a.id DESC LIMIT 1) = p.version, \
+     (SELECT a.name = p.name AND a.version = p.version FROM profile_activations a \
+      JOIN profiles q ON q.machine = a.machine AND q.name = a.name AND q.version = a.version \
+      WHERE a.machine = p.machine AND q.kind = p.kind AND a.rolled_back_at IS NULL \
+      AND a.id = (SELECT MAX(b.id) FROM profile_activations b WHERE b.machine = a.machine \
+                  AND b.name = a.name AND b.rolled_back_at IS NULL) \
+      ORDER BY a.id DESC LIMIT 1)";
 
 impl Store {
     /// Opens (creating if needed) the database file, migrates it to the current schema,
@@ -747,8 +759,10 @@ impl Store {
         Ok(profile)
     }
 
-    /// Makes a version the active one of its profile. Activating the version that is
-    /// already active changes nothing (no new history entry).
+    /// Makes a version the active one of its profile and the one in use for its kind.
+    /// Activating the version that is already in use changes nothing (no new history
+    /// entry); activating the active version of a name that another profile of the kind
+    /// has displaced puts it back in use (a new history entry).
     pub fn activate(
         &mut self,
         machine: &str,
@@ -756,8 +770,7 @@ impl Store {
         version: u32,
     ) -> Result<ProfileVersion, StoreError> {
         let tx = self.connection.transaction()?;
-        load_profile(&tx, machine, name, version)?;
-        if current_activation(&tx, machine, name)?.map(|(_, v)| v) != Some(version) {
+        if !load_profile(&tx, machine, name, version)?.0.in_use {
             tx.execute(
                 &format!(
                     "INSERT INTO profile_activations (machine, name, version, activated_at) \
@@ -790,20 +803,26 @@ impl Store {
             machine: machine.into(),
             name: name.into(),
         };
-        let (current_row, _) = current_activation(&tx, machine, name)?.ok_or_else(nothing)?;
-        let previous: Option<u32> = tx
+        let (current_row, current_version) =
+            current_activation(&tx, machine, name)?.ok_or_else(nothing)?;
+        // The version active before the current one (a version activated again to put it
+        // back in use counts once: its earlier rows are rolled back with it).
+        let previous: Option<(i64, u32)> = tx
             .query_row(
-                "SELECT version FROM profile_activations \
+                "SELECT id, version FROM profile_activations \
                  WHERE machine = ?1 AND name = ?2 AND rolled_back_at IS NULL AND id < ?3 \
-                 ORDER BY id DESC LIMIT 1",
-                params![machine, name, current_row],
-                |row| row.get(0),
+                 AND version != ?4 ORDER BY id DESC LIMIT 1",
+                params![machine, name, current_row, current_version],
+                |row| Ok((row.get(0)?, row.get(1)?)),
             )
             .optional()?;
-        let previous = previous.ok_or_else(nothing)?;
+        let (previous_row, previous) = previous.ok_or_else(nothing)?;
         tx.execute(
-            &format!("UPDATE profile_activations SET rolled_back_at = {NOW} WHERE id = ?1"),
-            params![current_row],
+            &format!(
+                "UPDATE profile_activations SET rolled_back_at = {NOW} \
+                 WHERE machine = ?1 AND name = ?2 AND rolled_back_at IS NULL AND id > ?3"
+            ),
+            params![machine, name, previous_row],
         )?;
         let profile = load_profile(&tx, machine, name, previous)?.0;
         tx.commit()?;
@@ -1148,6 +1167,7 @@ fn profile_from_row(row: &rusqlite::Row<'_>) -> rusqlite::Result<ProfileVersion>
         kind,
         version: row.get(3)?,
         active: row.get::<_, Option<bool>>(7)?.unwrap_or(false),
+        in_use: row.get::<_, Option<bool>>(8)?.unwrap_or(false),
         created_at: row.get(4)?,
         source_job: row.get(5)?,
         note: row.get(6)?,
@@ -1167,7 +1187,7 @@ fn load_profile(
                  WHERE p.machine = ?1 AND p.name = ?2 AND p.version = ?3"
             ),
             params![machine, name, version],
-            |row| Ok((profile_from_row(row)?, row.get::<_, String>(8)?)),
+            |row| Ok((profile_from_row(row)?, row.get::<_, String>(9)?)),
         )
         .optional()?;
     let (profile, body) = found.ok_or_else(|| StoreError::UnknownProfile {

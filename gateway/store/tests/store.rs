@@ -393,6 +393,78 @@ fn profile_versions_count_up_and_rollback_walks_the_activation_history_back() {
     assert_eq!(store.rollback("demo", "xy").unwrap().version, 1);
 }
 
+/// Two error maps of one machine, each with its active version: the one activated last
+/// is in use (and only it shows so); activating the other's active version again puts
+/// it back in use, and rolling that back returns to the version before it, not to the
+/// same version once more.
+#[test]
+fn of_two_active_maps_the_one_activated_last_is_in_use_and_the_other_can_be_put_back() {
+    let mut store = Store::open_in_memory().unwrap();
+    for (name, n) in [("demo-map", 1), ("demo-map", 2), ("error_map", 1)] {
+        store
+            .add_profile(
+                "m",
+                name,
+                ProfileKind::ErrorMap,
+                &json!({"n": n}),
+                None,
+                None,
+            )
+            .unwrap();
+    }
+    store
+        .add_profile("m", "table", ProfileKind::Rotary, &json!({}), None, None)
+        .unwrap();
+    let in_use = |store: &Store| -> Vec<(String, u32)> {
+        store
+            .profiles("m")
+            .unwrap()
+            .into_iter()
+            .filter(|p| p.in_use)
+            .map(|p| (p.name, p.version))
+            .collect()
+    };
+    let applied = |store: &Store| {
+        let (p, _) = store
+            .active_profile("m", ProfileKind::ErrorMap)
+            .unwrap()
+            .unwrap();
+        (p.name, p.version)
+    };
+    store.activate("m", "demo-map", 1).unwrap();
+    store.activate("m", "demo-map", 2).unwrap();
+    store.activate("m", "table", 1).unwrap();
+    store.activate("m", "error_map", 1).unwrap();
+    assert_eq!(applied(&store), ("error_map".into(), 1));
+    // Both maps have an active version; one of each kind is in use.
+    let active: Vec<(String, u32)> = (store.profiles("m").unwrap().into_iter())
+        .filter(|p| p.active)
+        .map(|p| (p.name, p.version))
+        .collect();
+    assert_eq!(active.len(), 3, "{active:?}");
+    assert_eq!(
+        in_use(&store),
+        vec![("error_map".into(), 1), ("table".into(), 1)]
+    );
+
+    // demo-map v2 is active but displaced: activating it puts it back in use.
+    let again = store.activate("m", "demo-map", 2).unwrap();
+    assert!(again.active && again.in_use, "{again:?}");
+    assert_eq!(applied(&store), ("demo-map".into(), 2));
+    assert_eq!(
+        in_use(&store),
+        vec![("demo-map".into(), 2), ("table".into(), 1)]
+    );
+    // Activating what is in use adds nothing: one rollback returns to v1.
+    store.activate("m", "demo-map", 2).unwrap();
+    let back = store.rollback("m", "demo-map").unwrap();
+    assert_eq!((back.version, back.active), (1, true));
+    assert!(matches!(
+        store.rollback("m", "demo-map"),
+        Err(StoreError::NothingToRollBack { .. })
+    ));
+}
+
 #[test]
 fn profiles_are_per_machine_and_name_and_keep_their_kind() {
     let mut store = Store::open_in_memory().unwrap();

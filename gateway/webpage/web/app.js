@@ -6,7 +6,7 @@
 // .queue-down, .queue-cancel),
 // #history-rows tr[data-job-id][data-state][data-live-progress] (progress events seen), #job-charts img[data-chart],
 // #job-result table[data-result] (iso230-figures, verify-before-after, compensate-before-after, figures),
-// #profile-rows tr[data-profile][data-version][data-active], #heatmap-image img,
+// #profile-rows tr[data-profile][data-version][data-active][data-in-use], #heatmap-image img,
 // #machines li[data-machine] figure.live-frame[data-machine][data-job-id][data-dots] (img.frame-image,
 // svg.frame-overlay circle.frame-dot, .frame-centre), body[data-live] (false while the
 // event connection is down: nothing shown is current), #form-errors (every field's
@@ -76,14 +76,6 @@ const LABELS = {
   machine_time_s: 'Machine time', kept_as: 'Saved as', residual_rms_um: 'Residual rms', rms_um: 'rms', max_um: 'max',
   mean_um: 'mean', dx_um: 'dx', dy_um: 'dy', dx_mm: 'dx', dy_mm: 'dy', x_mm: 'X', y_mm: 'Y',
 };
-const KIND_LABELS = { compensate: 'Compensation run', iso230: 'ISO 230-2 axis test', map: 'Error map scan',
-  verify: 'Error map check', layout: 'Layout partition', rotary: 'Rotary table measurement',
-  reference: 'Machine zero check', export: 'Controller tables', rewrite: 'Program rewrite',
-  'iso230-evaluate': 'ISO 230-2 evaluation of a file', 'rotary-identify': 'Rotary errors from measured centres',
-  'rotary-rewrite': '5-axis program rewrite', cut: 'Layout cut', 'volumetric-identify': 'Volumetric model from a campaign',
-  'volumetric-eval': 'Volumetric error at points', 'volumetric-contributions': 'Volumetric error contributions',
-  'volumetric-campaign': 'Simulated volumetric campaign', 'volumetric-export-isg': 'Volumetric tables for the ISG kernel',
-  'board-make': 'Board artwork', localize: 'Localize a frame', dnc: 'Program to a closed controller (DNC)' };
 const STATE_WORDS = { queued: 'queued', running: 'running', succeeded: 'done', failed: 'failed',
   cancelled: 'cancelled', interrupted: 'interrupted', idle: 'idle', busy: 'busy', opening: 'connecting',
   link_lost: 'link lost', stopped: 'stopped' };
@@ -94,65 +86,18 @@ function labelOf(name) {
   const bare = (unit ? name.slice(0, -unit[0].length) : name).replace(/_/g, ' ').trim();
   return bare.charAt(0).toUpperCase() + bare.slice(1);
 }
-const kindLabel = (kind) => KIND_LABELS[kind] || labelOf(kind);
+// A job kind as the registry names it for operators (its schema's title).
+const kindLabel = (kind) => (view.schemas[kind] && view.schemas[kind].title) || labelOf(kind);
 const stateWord = (state) => STATE_WORDS[state] || String(state || '').replace(/_/g, ' ');
 
-// Help written for the shop floor; a kind or field not listed here shows its schema's
-// text, cleaned of the developers' references.
-const KIND_HELP = {
-  compensate: 'Visits the job\u2019s targets and measures each with the camera: the error before and after compensation.',
-  iso230: 'Positioning test of one axis to ISO 230-2: accuracy, repeatability and reversal, with the deviation chart.',
-  map: 'Scans the board over the travel and makes a new version of the error map (not used until you activate it). '
-    + 'A stopped scan continues where it stopped when started again with the same settings.',
-  verify: 'Checks random points with the active error map: the error without and with it.',
-  layout: 'Splits a cutting layout into groups per tool and cutting window and shifts parts apart. The machine does not move.',
-  rotary: 'Probes the rotary table\u2019s balls and finds its eight errors; they become a new rotary profile version.',
-  reference: 'Finds the machine zero on the board again after homing and checks how far it moved.',
-  cut: 'Splits the layout as a partition does and cuts it on the emulated conveyor cutter, every head\u2019s group at once.',
-  'board-make': 'Draws the machine\u2019s calibration board for the lab that makes it (SVG, DXF, a PDF test print) and its certificate template.',
-  localize: 'Finds where on the machine\u2019s board a camera frame was taken: the board position under the frame\u2019s centre.',
-  dnc: 'Rewrites a Fanuc program with the active error map and drip-feeds it to the machine\u2019s tape port (DNC). Select DNC mode and press CYCLE START on the controller when asked.',
-};
-const FIELD_HELP = {
-  'compensate.targets': 'How many of the job\u2019s targets to visit, from the first. Empty: all of them.',
-  'compensate.method': 'How a position is worked out from the board: fit (all dots) or four-point. Empty: the job\u2019s own.',
-  'iso230.axis': 'The axis to test.',
-  'iso230.positions': 'Target positions along the axis. Empty: the standard\u2019s minimum.',
-  'iso230.runs': 'Runs in each direction.',
-  'iso230.cycle': 'Linear, or pilgrim-step.',
-  'iso230.overrun_mm': 'How far past the end targets the axis goes before turning back.',
-  'iso230.from_mm': 'Start of the tested travel, machine coordinates. Empty: the usable travel\u2019s start.',
-  'iso230.to_mm': 'End of the tested travel, machine coordinates. Empty: the usable travel\u2019s end.',
-  'iso230.at_mm': 'Where the other axis stays, machine coordinates. Empty: chosen for you.',
-  'iso230.certificate_uncertainty_um': 'The board certificate\u2019s uncertainty of a dot position.',
-  'iso230.with_map': 'Test with the active error map correcting the moves.',
-  'map.name': 'The error map this scan makes a new version of.',
-  'map.grid_step_mm': 'Distance between map points: smaller is finer and slower.',
-  'map.line_step_mm': 'Distance between pictures along each scanned line.',
-  'map.passes': 'How often each point is measured from each side.',
-  'map.tool_offset_mm': 'Tool point minus camera centre on the machine axes: X and Y, e.g. 0; 0.',
-  'verify.points': 'How many random points to check. Empty: 20 (5 for a spot check).',
-  'verify.seed': 'Chooses the random points: the same seed checks the same points.',
-  'verify.spot_check': 'A quick drift check: it asks for a new scan when a point is off by more than the threshold.',
-  'verify.drift_threshold_um': 'Drift that asks for a new scan.',
-  'layout.layout': 'The layout file: JSON, DXF or SVG.',
-  'layout.format': 'Set from the file\u2019s name; change it only if the name is wrong.',
-  'layout.tools': 'Number of cutting tools (equal lanes across the material).',
-  'layout.window_mm': 'Length of the cutting window along the feed.',
-  'layout.gap_mm': 'Space between groups.',
-  'layout.width_mm': 'Material width. Empty: the file\u2019s, else the layout\u2019s width.',
-  'layout.material_width_mm': 'Width of the material the result is cut from. Empty: the material width.',
-  'layout.clearance_mm': 'Parts of different groups closer than this overlap. Empty: the gap.',
-  'layout.assign': 'Put a part in a group: one per line, PART=GROUP (e.g. a=2).',
-  'layout.widen': 'When shifted parts still overlap, widen the gaps instead of stopping.',
-  'layout.chord_tolerance_mm': 'How closely straight pieces follow arcs and curves.',
-  'layout.out_format': 'Format of the shifted layout. Empty: the same as the file\u2019s.',
-  'layout.picture': 'Also draw the groups as a picture.',
-  'rotary.name': 'The rotary profile the result becomes a new version of.',
-  'reference.max_shift_um': 'Largest accepted move of the machine zero; more means the board or the camera moved.',
-};
+// Help written for the shop floor comes with each kind's schema (`x-help` of the kind and
+// of its fields, from the registry); a field without it shows its documentation, cleaned
+// of the developers' references and of what only the command line does.
 function cleanHelp(text) {
   return String(text || '')
+    // Sentences and remarks about the command line's flags are not the page's.
+    .replace(/\s*\([^()]*(command line|--[a-z])[^()]*\)/gi, '')
+    .replace(/(^|\s)(?:[^.;]|[.;](?=\S))*(command line|--[a-z])(?:[^.;]|[.;](?=\S))*([.;](?=\s|$)|$)/gi, '$1')
     .replace(/\[`([^`\]]+)`\]/g, '$1').replace(/`/g, '')
     .replace(/\s*\((source [A-Z]|the CLI[^)]*|the paper[^)]*)\)/g, '')
     .replace(/\bS\d+'s\s*/g, 'the ').replace(/\bum\b/g, 'µm').trim();
@@ -869,18 +814,20 @@ async function loadProfiles() {
   if (!machine) return;
   const base = '/api/v1/machines/' + encodeURIComponent(machine) + '/profiles';
   const profiles = await api(base);
-  const activeByName = new Map();
-  for (const p of profiles) if (p.active) activeByName.set(p.name, p);
+  // Of several profiles of a kind with an active version, jobs use the one activated last
+  // (`in_use`); the others stay active for their name and can be put back in use.
+  const inUseByKind = new Map();
+  for (const p of profiles) if (p.in_use) inUseByKind.set(p.kind, p);
   const rows = profiles.map((p) => {
     const path = base + '/' + encodeURIComponent(p.name);
     const actions = el('td', { class: 'actions' },
-      el('button', { type: 'button', class: 'activate live-action', disabled: p.active ? '' : null,
+      el('button', { type: 'button', class: 'activate live-action', disabled: p.in_use ? '' : null,
         'aria-label': 'Activate ' + p.name + ' version ' + p.version, text: 'Activate',
         onclick: () => {
           // The operator confirms what it changes: the machine's next jobs use it.
-          const current = activeByName.get(p.name);
+          const current = inUseByKind.get(p.kind);
           const question = 'Activate ' + p.name + ' v' + p.version + ' on machine ' + machine + '?\n'
-            + 'Its next jobs use it' + (current ? ' instead of v' + current.version : '') + '.';
+            + 'Its next jobs use it' + (current ? ' instead of ' + current.name + ' v' + current.version : '') + '.';
           if (!window.confirm(question)) return;
           post(path + '/' + p.version + '/activate').then(loadProfiles).catch(reportError);
         } }));
@@ -901,7 +848,9 @@ async function loadProfiles() {
         onclick: () => {
           // As Activate: the operator confirms what the machine's next jobs will use.
           const question = 'Roll back ' + p.name + ' on machine ' + machine + '?\n'
-            + 'Its next jobs use the version that was active before v' + p.version + '.';
+            + p.name + ' goes back to the version that was active before v' + p.version
+            + '; the machine\u2019s next jobs use the ' + labelOf(p.kind).toLowerCase()
+            + ' activated last.';
           if (!window.confirm(question)) return;
           post(path + '/rollback').then(loadProfiles).catch(reportError);
         } }));
@@ -912,15 +861,16 @@ async function loadProfiles() {
         onclick: () => showHeatmap(machine, p).catch(reportError) }));
     }
     return el('tr', { 'data-profile': p.name, 'data-version': p.version, 'data-kind': p.kind,
-      'data-active': String(p.active) },
+      'data-active': String(p.active), 'data-in-use': String(p.in_use) },
       el('td', { text: p.name }), el('td', { text: labelOf(p.kind) }), el('td', { class: 'num', text: String(p.version) }),
-      el('td', { class: 'profile-active', text: p.active ? 'active' : '' }),
+      el('td', { class: 'profile-active', text: p.in_use ? 'in use' : p.active ? 'active, not in use' : '',
+        title: p.active && !p.in_use ? 'Jobs use ' + inUseByKind.get(p.kind)?.name + ' (activated later); Activate puts this one back in use.' : null }),
       el('td', {}, timeEl(p.created_at)), el('td', { text: p.note || '' }), actions);
   });
   $('profile-rows').replaceChildren(...rows);
-  // Show the heat map of the active error map (or the newest error map) by default.
+  // Show the heat map of the error map in use (or the newest error map) by default.
   const maps = profiles.filter((p) => p.kind === 'error_map');
-  const shown = maps.find((p) => p.active) || maps[maps.length - 1];
+  const shown = maps.find((p) => p.in_use) || maps[maps.length - 1];
   if (shown) await showHeatmap(machine, shown);
 }
 
@@ -1097,7 +1047,7 @@ function fieldSpec(schema) {
   return {
     type, nullable, choices: inner.enum, min: inner.minimum ?? schema.minimum,
     max: inner.maximum ?? schema.maximum, def: schema.default ?? inner.default,
-    help: schema.description || inner.description || '', format: inner.format,
+    help: schema.description || inner.description || '', shopHelp: schema['x-help'], format: inner.format,
     items: inner.items, pattern: inner.pattern ?? schema.pattern,
     minItems: inner.minItems ?? schema.minItems, maxItems: inner.maxItems ?? schema.maxItems,
   };
@@ -1213,10 +1163,6 @@ async function checkUpload(input, name, spec, kind) {
   }
   const ext = file.name.includes('.') ? file.name.split('.').pop().toLowerCase() : '';
   const layout = leafOf(name) === 'layout';
-  // A field that says how messages name the file (`program_name` for `program`) takes
-  // the chosen file's name.
-  const named = document.getElementById('field-' + name + '_name');
-  if (named) named.value = file.name;
   const format = document.getElementById('field-' + name.slice(0, -leafOf(name).length) + 'format'); // built with the form
   if (layout && format && LAYOUT_FORMATS.includes(ext)) format.value = ext;
   help.textContent = file.name + ', ' + fmtNumber(file.size / 1024, '') + ' kB';
@@ -1259,7 +1205,7 @@ async function uploadProblem(file, ext, layout) {
 function fieldHelp(kind, name, spec) {
   const unit = unitOf(name);
   const range = spec.type === 'integer' || spec.type === 'number' ? rangeWords(spec, unit) : '';
-  const text = FIELD_HELP[kind + '.' + name] || cleanHelp(spec.help);
+  const text = spec.shopHelp || cleanHelp(spec.help);
   return text + (range ? ' (' + range + ')' : '');
 }
 
@@ -1267,14 +1213,26 @@ function fieldHelp(kind, name, spec) {
 // (`partition.tools`): [name, schema, required].
 function formFields(schema, prefix = '') {
   const required = new Set((schema && schema.required) || []);
-  return Object.entries((schema && schema.properties) || {}).flatMap(([name, prop]) => {
+  const properties = (schema && schema.properties) || {};
+  return Object.entries(properties).flatMap(([name, prop]) => {
     // Real ports on the box a command runs on: the service refuses them, so no field.
     if (prop['x-command-line-only']) return [];
+    // How messages name a chosen file (`program_name` for `program`): the file's own
+    // name, sent with it (readForm), never typed.
+    if (fileNameField(properties, name)) return [];
     // An object field, inline (`oneOf` of one object when it has its own description).
     const inner = prop.oneOf && prop.oneOf.length === 1 ? prop.oneOf[0] : prop;
     return inner.type === 'object' && inner.properties ? formFields(inner, prefix + name + '.')
       : [[prefix + name, prop, required.has(name)]];
   });
+}
+
+// Whether `name` is the field that names the file of another (`program_name`).
+function fileNameField(properties, name) {
+  if (!name.endsWith('_name') || !properties[name]) return false;
+  const file = properties[name.slice(0, -'_name'.length)];
+  const format = file && fieldSpec(file).format;
+  return format === 'binary' || format === 'byte';
 }
 
 // `{'partition.tools': 2}` as `{partition: {tools: 2}}`.
@@ -1294,7 +1252,7 @@ const leafOf = (name) => name.split('.').pop();
 function renderForm() {
   const kind = $('job-kind').value;
   const schema = view.schemas[kind];
-  $('job-kind-help').textContent = schema ? KIND_HELP[kind] || cleanHelp(schema.description) : '';
+  $('job-kind-help').textContent = schema ? schema['x-help'] || cleanHelp(schema.description) : '';
   $('form-errors').replaceChildren();
   const rows = formFields(schema).map(([name, prop, required]) => {
     const spec = fieldSpec(prop);
@@ -1352,6 +1310,9 @@ async function readForm() {
         : await uploadProblem(file, file.name.split('.').pop().toLowerCase(), leafOf(name) === 'layout');
       if (problem) errors[name] = problem;
       else params[name] = picture ? await base64Of(file) : await file.text();
+      // Messages name it as the operator knows it.
+      const properties = name.includes('.') ? {} : schema.properties || {};
+      if (fileNameField(properties, name + '_name')) params[name + '_name'] = file.name;
       continue;
     }
     if (text === '') {

@@ -620,6 +620,13 @@ async function main() {
     if (walks.queue) out.queue = await queueWalk(page, walks.queue);
     if (walks.kinds) out.kinds = await kindsWalk(page, walks.kinds);
     if (walks.restart) out.restart = await restartWalk(page, walks.restart);
+    // Which profile versions the page says jobs use (one per kind at most), and which
+    // active versions it says are not in use.
+    out.profile_rows = await page.$$eval('#profile-rows tr', (rows) => rows.map((r) => ({
+      name: r.dataset.profile, version: Number(r.dataset.version), kind: r.dataset.kind,
+      active: r.dataset.active === 'true', in_use: r.dataset.inUse === 'true',
+      shown: r.querySelector('.profile-active').textContent,
+      can_activate: !r.querySelector('button.activate').disabled })));
 
     // The whole page on a desktop and on a phone (nothing wider than the screen), and
     // axe-core on the views shown (the job detail, the profiles and their heat map).
