@@ -27,15 +27,25 @@ pub fn programmed_path(program: &str, start: [f64; 2]) -> Vec<[f64; 2]> {
     path.split_off(at)
 }
 
-fn distance_to_segment(q: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
+/// The squared distance of `q` from the segment `a`-`b` (squared: the search compares
+/// them and takes one root at the end; this runs for every row against hundreds of
+/// segments in an unoptimized test build).
+fn distance2_to_segment(q: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
     let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+    let (qx, qy) = (q[0] - a[0], q[1] - a[1]);
     let len2 = dx * dx + dy * dy;
-    let t = if len2 == 0.0 {
+    let mut t = if len2 == 0.0 {
         0.0
     } else {
-        (((q[0] - a[0]) * dx + (q[1] - a[1]) * dy) / len2).clamp(0.0, 1.0)
+        (qx * dx + qy * dy) / len2
     };
-    (q[0] - a[0] - t * dx).hypot(q[1] - a[1] - t * dy)
+    if t < 0.0 {
+        t = 0.0;
+    } else if t > 1.0 {
+        t = 1.0;
+    }
+    let (ex, ey) = (qx - t * dx, qy - t * dy);
+    ex * ex + ey * ey
 }
 
 /// Largest distance of the points from the path, both in travel order: each point is
@@ -49,12 +59,14 @@ pub fn worst_distance(points: impl Iterator<Item = [f64; 2]>, path: &[[f64; 2]])
         // A window both ways: near a corner the next element (an arc leaving the corner
         // along the same line) can be as close as the current one.
         let (begin, end) = (at.saturating_sub(400), (at + 400).min(path.len() - 1));
-        let (k, d) = (begin..end)
-            .map(|k| (k, distance_to_segment(q, path[k], path[k + 1])))
-            .fold(
-                (at, f64::INFINITY),
-                |best, x| if x.1 < best.1 { x } else { best },
-            );
+        let (mut k, mut d2) = (at, f64::INFINITY);
+        for j in begin..end {
+            let e2 = distance2_to_segment(q, path[j], path[j + 1]);
+            if e2 < d2 {
+                (k, d2) = (j, e2);
+            }
+        }
+        let d = d2.sqrt();
         at = k;
         if d > worst && std::env::var_os("PATH_DEBUG").is_some() {
             eprintln!(
