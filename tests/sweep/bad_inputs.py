@@ -340,7 +340,7 @@ PROXY_CASES = [
     ("`G0 XNaN`", "bad", [b"G0 XNaN Y1"]),
     ("`G0 X99999999999999999999999`", "bad", [b"G0 X99999999999999999999999"]),
     ("`G1 F4e-320 X10`", "bad", [b"G1 F4e-320 X10"]),
-    ("`G2` with R and I/J", "bad", [b"G2 X60 Y50 I5 J5 R5 F600"]),
+    ("`G2` with R and I/J (error:36)", "bad", [b"G2 X60 Y50 I5 J5 R50 F600"]),
     ("`G91 G0 X1e6`", "bad", [b"G91 G0 X1000000", b"G90"]),
     ("`%` (program delimiter)", "bad", [b"%"]),
     ("`M30` then a move", "bad", [b"M30", b"G0 X10 Y10"]),
