@@ -181,7 +181,7 @@ pub fn resolve(doc: &ConfigDoc, raw: RawCanopenStage) -> Result<CanopenStageSpec
             "counts/mm",
         )?;
         doc.in_range(&key("accel_mm_s2"), a.accel_mm_s2, 1.0, 100_000.0, "mm/s²")?;
-        crate::check_axis(doc, &key, a.min_mm, a.max_mm, Some(a.max_feed_mm_min))?;
+        crate::bounds::check_axis(doc, &key, a.min_mm, a.max_mm, Some(a.max_feed_mm_min))?;
         axes.push(AxisConfig {
             axis,
             node: a.node,

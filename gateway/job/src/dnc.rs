@@ -125,7 +125,7 @@ pub fn resolve(doc: &ConfigDoc, raw: RawDncStage) -> Result<DncStageSpec, Config
         if axes.iter().any(|o| o.axis == axis) {
             return Err(doc.invalid(&key("axis"), format!("axis {axis} is given twice")));
         }
-        crate::check_axis(doc, &key, a.min_mm, a.max_mm, Some(a.max_feed_mm_min))?;
+        crate::bounds::check_axis(doc, &key, a.min_mm, a.max_mm, Some(a.max_feed_mm_min))?;
         axes.push(DncAxis {
             axis,
             min_mm: a.min_mm,

@@ -44,6 +44,10 @@ use std::path::Path;
 use vision::localize::{LocalizeParams, LocalizeSettings, PixelAxes};
 use world::machine::MachineConfig;
 
+mod bounds;
+use bounds::check_baud;
+pub use bounds::{MAX_BAUD, MAX_FEED_MM_MIN, MAX_SETUP_OFFSET_MM, MIN_BAUD, MIN_FEED_MM_MIN};
+
 /// The files of the embedded default job (the demo), compiled in.
 pub static EMBEDDED: &[(&str, &str)] = &[
     (
@@ -70,65 +74,15 @@ pub static EMBEDDED: &[(&str, &str)] = &[
 
 pub const DEMO_JOB: &str = "config/gateway/demo.toml";
 
-/// Feeds a job may ask for, mm/min: below, a move of a millimetre takes over ten
-/// minutes; above, no stage of this class moves.
-pub const MIN_FEED_MM_MIN: f64 = 1.0;
-pub const MAX_FEED_MM_MIN: f64 = 100_000.0;
-/// The largest fit residual a job may accept, um.
-/// The largest board offset from machine zero, mm.
-pub const MAX_SETUP_OFFSET_MM: f64 = 10_000.0;
-
 /// The smallest hint tolerance: a hint is where the machine was sent, and no machine
 /// lands within less of it (a subnormal tolerance made every frame "unreadable").
 pub const MIN_HINT_TOLERANCE_MM: f64 = 0.001;
 
+/// The largest fit residual a job may accept, um.
 pub const MAX_RESIDUAL_UM: f64 = 100.0;
 /// The smallest fit residual limit, um: a sub-pixel fit is never better than this
 /// (a subnormal limit refused every frame).
 pub const MIN_RESIDUAL_UM: f64 = 0.01;
-
-/// Serial rates a job may ask for, baud (termios' lowest to the fastest USB adapters').
-pub const MIN_BAUD: u32 = 50;
-pub const MAX_BAUD: u32 = 4_000_000;
-
-/// A serial stage's `stage.baud`, named when outside [`MIN_BAUD`]..=[`MAX_BAUD`].
-pub(crate) fn check_baud(doc: &ConfigDoc, baud: u32) -> Result<(), ConfigError> {
-    if !(MIN_BAUD..=MAX_BAUD).contains(&baud) {
-        return Err(doc.invalid(
-            "stage.baud",
-            format!("{baud}: must be {MIN_BAUD}..={MAX_BAUD} baud"),
-        ));
-    }
-    Ok(())
-}
-
-/// An axis of a drive stage (Modbus, CANopen, LinuxCNC, DNC): its soft limits each
-/// within [`MAX_SETUP_OFFSET_MM`] of zero and apart (`min_mm < max_mm`), its feed (when
-/// given) [`MIN_FEED_MM_MIN`] to [`MAX_FEED_MM_MIN`]; `key` makes the axis's dotted key.
-pub(crate) fn check_axis(
-    doc: &ConfigDoc,
-    key: &dyn Fn(&str) -> String,
-    min_mm: f64,
-    max_mm: f64,
-    max_feed_mm_min: Option<f64>,
-) -> Result<(), ConfigError> {
-    for (k, v) in [("min_mm", min_mm), ("max_mm", max_mm)] {
-        doc.in_range(&key(k), v, -MAX_SETUP_OFFSET_MM, MAX_SETUP_OFFSET_MM, "mm")?;
-    }
-    if !(min_mm < max_mm) {
-        return Err(doc.invalid(&key("max_mm"), "soft limits need min_mm < max_mm"));
-    }
-    if let Some(f) = max_feed_mm_min {
-        doc.in_range(
-            &key("max_feed_mm_min"),
-            f,
-            MIN_FEED_MM_MIN,
-            MAX_FEED_MM_MIN,
-            "mm/min",
-        )?;
-    }
-    Ok(())
-}
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -135,7 +135,7 @@ pub fn resolve(doc: &ConfigDoc, raw: RawLinuxcncStage) -> Result<LinuxcncStageSp
         if axes.iter().any(|o| o.joint == joint) {
             return Err(doc.invalid(&key("joint"), format!("joint {joint} is given twice")));
         }
-        crate::check_axis(doc, &key, a.min_mm, a.max_mm, Some(a.max_feed_mm_min))?;
+        crate::bounds::check_axis(doc, &key, a.min_mm, a.max_mm, Some(a.max_feed_mm_min))?;
         axes.push(LinuxcncAxis {
             axis,
             joint,

@@ -136,7 +136,7 @@ pub fn resolve(doc: &ConfigDoc, raw: RawModbusStage) -> Result<ModbusStageSpec, 
             ))
         }
     };
-    crate::check_baud(doc, raw.baud)?;
+    crate::bounds::check_baud(doc, raw.baud)?;
     if raw.timeout_ms == 0 || raw.timeout_ms > 60_000 {
         return Err(doc.invalid("stage.timeout_ms", "must be 1..=60000 ms"));
     }
@@ -163,7 +163,7 @@ pub fn resolve(doc: &ConfigDoc, raw: RawModbusStage) -> Result<ModbusStageSpec, 
         if axes.iter().any(|o| o.unit == a.unit) {
             return Err(doc.invalid(&key("unit"), format!("unit {} is given twice", a.unit)));
         }
-        crate::check_axis(doc, &key, a.min_mm, a.max_mm, a.max_feed_mm_min)?;
+        crate::bounds::check_axis(doc, &key, a.min_mm, a.max_mm, a.max_feed_mm_min)?;
         axes.push(ModbusAxisConfig {
             axis,
             unit: a.unit,

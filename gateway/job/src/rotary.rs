@@ -266,8 +266,8 @@ impl RotaryJob {
             add(
                 "link.grbl.baud",
                 f64::from(port.baud),
-                f64::from(crate::MIN_BAUD),
-                f64::from(crate::MAX_BAUD),
+                f64::from(crate::bounds::MIN_BAUD),
+                f64::from(crate::bounds::MAX_BAUD),
                 "baud",
             );
             if let Some(ms) = port.poll_ms {
@@ -444,7 +444,8 @@ mod tests {
                 );
             }
         }
-        let link = r#"{"link": {"grbl": {"port": "/dev/ttyUSB0", "poll_ms": 1000000000000000000}}}"#;
+        let link =
+            r#"{"link": {"grbl": {"port": "/dev/ttyUSB0", "poll_ms": 1000000000000000000}}}"#;
         let e = RotaryJob::from_json(link).unwrap_err();
         assert!(e.starts_with("link.grbl.poll_ms"), "{e}");
         let link = r#"{"link": {"grbl": {"port": "/dev/ttyUSB0", "baud": 0}}}"#;
