@@ -158,6 +158,20 @@ impl Sink for CliSink {
         self.logs.retain(|(n, _)| *n != artifact.name);
         write_atomic(&path, &artifact.bytes, &self.inputs).map_err(not_written)
     }
+
+    fn artifact_streamed(
+        &mut self,
+        name: String,
+        _: &'static str,
+        write: &mut dyn FnMut(&mut dyn Write) -> std::io::Result<()>,
+    ) -> Result<(), procedure::Error> {
+        let Some(path) = self.path_of(&name)? else {
+            return Ok(());
+        };
+        let inputs: Vec<&Path> = self.inputs.iter().map(PathBuf::as_path).collect();
+        protocol::config::write_output_with(&path, &inputs, write)
+            .map_err(|e| procedure::Error::Output(format!("writing {}: {e}", path.display())))
+    }
 }
 
 /// An output the command could not write.

@@ -78,6 +78,18 @@ pub struct Board {
     pub code: Option<BoardCode>,
 }
 
+/// The pitch a board file may give, mm: below 10 um no camera of this gateway resolves
+/// the dots; past a metre the board is no calibration board.
+pub const MIN_PITCH_MM: f64 = 0.01;
+pub const MAX_PITCH_MM: f64 = 1000.0;
+/// The smallest dot, mm: below a micrometre no process makes a dot.
+pub const MIN_DOT_MM: f64 = 0.001;
+/// The most points a board file may have: each point's true position is held
+/// (16 bytes), 64 MB at most; the largest board here has 135 000.
+pub const MAX_POINTS: u64 = 4_000_000;
+/// How far from zero a board's corners may lie, mm (as a job's board offset).
+pub const MAX_ORIGIN_MM: f64 = 10_000.0;
+
 /// Largest certificate deviation from nominal that is believed, as a fraction of pitch:
 /// anything larger is a typo or a certificate for another board.
 const MAX_CERT_DEVIATION_OF_PITCH: f64 = 0.1;
@@ -119,15 +131,19 @@ impl Board {
     pub fn from_doc(doc: &ConfigDoc) -> Result<Self, ConfigError> {
         let f: BoardFile = doc.parse()?;
         let s = f.board;
-        if !(s.pitch_mm.is_finite() && s.pitch_mm > 0.0) {
-            return Err(doc.invalid("board.pitch_mm", "must be a positive number of mm"));
-        }
-        if !(s.dot_diameter_mm > 0.0 && s.dot_diameter_mm < s.pitch_mm) {
+        doc.in_range(
+            "board.pitch_mm",
+            s.pitch_mm,
+            MIN_PITCH_MM,
+            MAX_PITCH_MM,
+            "mm",
+        )?;
+        if !(s.dot_diameter_mm >= MIN_DOT_MM && s.dot_diameter_mm < s.pitch_mm) {
             return Err(doc.invalid(
                 "board.dot_diameter_mm",
                 format!(
-                    "must be positive and smaller than the pitch ({} mm)",
-                    s.pitch_mm
+                    "`{}`: must be at least {MIN_DOT_MM} mm (no process makes a smaller dot) and smaller than the pitch ({} mm)",
+                    s.dot_diameter_mm, s.pitch_mm
                 ),
             ));
         }
@@ -139,11 +155,46 @@ impl Board {
             };
             return Err(doc.invalid(key, "a board needs at least 2 x 2 points"));
         }
-        if (s.cols as u64) * (s.rows as u64) > 50_000_000 {
-            return Err(doc.invalid("board.cols", "more than 50 million points"));
+        let points = u64::from(s.cols) * u64::from(s.rows);
+        if points > MAX_POINTS {
+            return Err(doc.invalid(
+                "board.cols",
+                format!(
+                    "{} x {} = {points} points, more than the {MAX_POINTS} a board may have (each point's true position is held: {} MB)",
+                    s.cols,
+                    s.rows,
+                    points * 16 / 1_000_000
+                ),
+            ));
         }
-        if !s.origin_mm.0.iter().all(|v| v.is_finite()) {
-            return Err(doc.invalid("board.origin_mm", "must be finite"));
+        for (i, v) in s.origin_mm.0.iter().enumerate() {
+            doc.in_range(
+                &format!("board.origin_mm[{i}]"),
+                *v,
+                -MAX_ORIGIN_MM,
+                MAX_ORIGIN_MM,
+                "mm",
+            )
+            .map_err(|_| {
+                doc.invalid(
+                    "board.origin_mm",
+                    format!("`{v}`: each coordinate must be a finite number within -{MAX_ORIGIN_MM}..={MAX_ORIGIN_MM} mm"),
+                )
+            })?;
+        }
+        // The far corner too: on a machine, not only its origin.
+        let far = [
+            s.origin_mm.0[0] + f64::from(s.cols - 1) * s.pitch_mm,
+            s.origin_mm.0[1] + f64::from(s.rows - 1) * s.pitch_mm,
+        ];
+        if !far.iter().all(|v| v.abs() <= MAX_ORIGIN_MM) {
+            return Err(doc.invalid(
+                "board.cols",
+                format!(
+                    "the board's far corner ({:.0}, {:.0}) mm lies beyond {MAX_ORIGIN_MM} mm from zero: no machine holds it",
+                    far[0], far[1]
+                ),
+            ));
         }
         let mut board = Board::nominal(
             &s.name,
@@ -406,8 +457,11 @@ fn check_code(
     };
     let [d0, d1] = c.dot_diameters_mm;
     let key = "board.code.dot_diameters_mm";
-    if !(d0.is_finite() && d1.is_finite() && d0 > 0.0 && d1 > 0.0) {
-        return Err(doc.invalid(key, "both diameters must be positive numbers of mm"));
+    if !(d0.is_finite() && d1.is_finite() && d0 >= MIN_DOT_MM && d1 >= MIN_DOT_MM) {
+        return Err(doc.invalid(
+            key,
+            format!("both diameters must be numbers of at least {MIN_DOT_MM} mm (no process makes a smaller dot)"),
+        ));
     }
     if !(d1 >= MIN_SIZE_RATIO * d0) {
         return Err(doc.invalid(
@@ -446,6 +500,90 @@ mod tests {
     }
 
     const GOOD: &str = "[board]\npitch_mm = 0.5\ndot_diameter_mm = 0.25\npolarity = \"dark-on-light\"\ncols = 10\nrows = 8\norigin_mm = [1.0, 2.0]\n";
+
+    /// Issue 38: every number of a board file has a floor and a ceiling that make
+    /// physical sense; NaN, inf, subnormal, negative and absurd values are refused
+    /// naming the key (a 1e300 mm pitch made an infinite page, a 1e-300 mm dot circles
+    /// of radius 0, 7071 x 7071 points took gigabytes, a 1e308 origin a vague error).
+    #[test]
+    fn every_number_of_a_board_file_is_bounded_and_named() {
+        let cases: &[(&str, &str, &str)] = &[
+            ("pitch_mm = 0.5", "pitch_mm = nan", "board.pitch_mm"),
+            ("pitch_mm = 0.5", "pitch_mm = inf", "board.pitch_mm"),
+            ("pitch_mm = 0.5", "pitch_mm = -0.5", "board.pitch_mm"),
+            ("pitch_mm = 0.5", "pitch_mm = 4e-320", "board.pitch_mm"),
+            ("pitch_mm = 0.5", "pitch_mm = 1e300", "board.pitch_mm"),
+            ("pitch_mm = 0.5", "pitch_mm = 0.005", "board.pitch_mm"),
+            (
+                "dot_diameter_mm = 0.25",
+                "dot_diameter_mm = 1e-300",
+                "board.dot_diameter_mm",
+            ),
+            (
+                "dot_diameter_mm = 0.25",
+                "dot_diameter_mm = nan",
+                "board.dot_diameter_mm",
+            ),
+            (
+                "dot_diameter_mm = 0.25",
+                "dot_diameter_mm = -0.25",
+                "board.dot_diameter_mm",
+            ),
+            (
+                "dot_diameter_mm = 0.25",
+                "dot_diameter_mm = 0.5",
+                "board.dot_diameter_mm",
+            ),
+            ("cols = 10", "cols = 7071", "board.cols"), // with rows = 7071 below
+            ("cols = 10", "cols = 1", "board.cols"),
+            (
+                "origin_mm = [1.0, 2.0]",
+                "origin_mm = [1e308, 2.0]",
+                "board.origin_mm",
+            ),
+            (
+                "origin_mm = [1.0, 2.0]",
+                "origin_mm = [1.0, nan]",
+                "board.origin_mm",
+            ),
+            (
+                "origin_mm = [1.0, 2.0]",
+                "origin_mm = [-1e5, 2.0]",
+                "board.origin_mm",
+            ),
+            (
+                "origin_mm = [1.0, 2.0]",
+                "origin_mm = [9999.0, 2.0]",
+                "board.cols",
+            ),
+        ];
+        for (from, to, key) in cases {
+            let mut text = GOOD.replace(from, to);
+            if to.contains("7071") {
+                text = text.replace("rows = 8", "rows = 7071");
+            }
+            let e = Board::from_doc(&doc(&text)).unwrap_err();
+            let loc = e.location().and_then(|l| l.key.clone()).unwrap_or_default();
+            assert!(loc.starts_with(key), "{to}: {e}");
+        }
+        // At the bounds: accepted.
+        for (from, to) in [
+            ("pitch_mm = 0.5", "pitch_mm = 0.01"),
+            ("dot_diameter_mm = 0.25", "dot_diameter_mm = 0.001"),
+            ("origin_mm = [1.0, 2.0]", "origin_mm = [-10000.0, 9000.0]"),
+        ] {
+            let text = GOOD.replace(from, to).replace(
+                "pitch_mm = 0.01\ndot_diameter_mm = 0.25",
+                "pitch_mm = 0.01\ndot_diameter_mm = 0.005",
+            );
+            Board::from_doc(&doc(&text)).unwrap_or_else(|e| panic!("{to}: {e}"));
+        }
+        // The code's sizes: a subnormal dot refused naming them.
+        let coded = GOOD.to_string()
+            + "[board.code]\nscheme = \"keyed-two-size\"\nseed = 1\ndot_diameters_mm = [4e-320, 0.3]\n";
+        let e = Board::from_doc(&doc(&coded)).unwrap_err().to_string();
+        assert!(e.contains("board.code.dot_diameters_mm"), "{e}");
+    }
 
     const CODED: &str = "[board]\npitch_mm = 0.5\ndot_diameter_mm = 0.25\npolarity = \"dark-on-light\"\ncols = 10\nrows = 8\norigin_mm = [1.0, 2.0]\n[board.code]\nscheme = \"random-two-size\"\nseed = 28\ndot_diameters_mm = [0.2, 0.3]\n";
 

@@ -307,8 +307,20 @@ fn number(v: f64) -> String {
 /// module (board, certificate, job, map, its reference record, program: [`was_read`]),
 /// so an output never replaces what the run reads, whatever the command forgot to list.
 pub fn write_output(path: &Path, bytes: &[u8], inputs: &[&Path]) -> std::io::Result<()> {
+    write_output_with(path, inputs, |w| w.write_all(bytes))
+}
+
+/// [`write_output`] streamed: `write` writes the file's bytes (buffered) into the new
+/// file beside `path`, so an output never needs to be whole in memory; checked before
+/// anything is written, synced and renamed as [`write_output`] does. An error from
+/// `write` leaves nothing behind (the temporary file is removed, `path` untouched).
+pub fn write_output_with(
+    path: &Path,
+    inputs: &[&Path],
+    write: impl FnOnce(&mut dyn std::io::Write) -> std::io::Result<()>,
+) -> std::io::Result<()> {
     check_output(path, inputs)?;
-    write_beside(path, bytes)
+    write_beside(path, write)
 }
 
 /// [`write_output`] for an output that replaces its own previous version, which the run
@@ -318,7 +330,7 @@ pub fn write_output(path: &Path, bytes: &[u8], inputs: &[&Path]) -> std::io::Res
 /// its content.)
 pub fn replace_output(path: &Path, bytes: &[u8], inputs: &[&Path]) -> std::io::Result<()> {
     check(path, inputs, true)?;
-    write_beside(path, bytes)
+    write_beside(path, |w| w.write_all(bytes))
 }
 
 /// What [`write_output`] checks before it writes: a command with several outputs checks
@@ -361,7 +373,10 @@ fn check(path: &Path, inputs: &[&Path], replacing: bool) -> std::io::Result<()> 
     Ok(())
 }
 
-fn write_beside(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+fn write_beside(
+    path: &Path,
+    write: impl FnOnce(&mut dyn std::io::Write) -> std::io::Result<()>,
+) -> std::io::Result<()> {
     use std::io::{Error, ErrorKind, Write};
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
@@ -380,13 +395,21 @@ fn write_beside(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
         std::process::id()
     ));
     let written = (|| {
-        let mut f = std::fs::OpenOptions::new()
+        let f = std::fs::OpenOptions::new()
             .write(true)
             .create_new(true)
             .open(&tmp)?;
-        f.write_all(bytes)?;
+        let mut buffered = std::io::BufWriter::with_capacity(1 << 16, f);
+        write(&mut buffered)?;
+        buffered.flush()?;
+        let f = buffered.into_inner().map_err(|e| e.into_error())?;
         f.sync_all()?;
-        std::fs::rename(&tmp, path)
+        std::fs::rename(&tmp, path)?;
+        // The rename made durable too (the folder's entry), where the folder opens.
+        if let Ok(d) = std::fs::File::open(dir) {
+            let _ = d.sync_all();
+        }
+        Ok(())
     })();
     if written.is_err() {
         let _ = std::fs::remove_file(&tmp);
@@ -1331,6 +1354,40 @@ mod tests {
             .filter(|e| e.file_name().to_string_lossy().ends_with(".tmp"))
             .collect();
         assert!(left.is_empty());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// The streaming writer: the bytes go in pieces into the file beside the name;
+    /// a writer that fails half-way leaves the old file as it was and nothing beside it.
+    #[test]
+    fn a_streamed_output_is_written_whole_or_not_at_all() {
+        let dir = std::env::temp_dir().join(format!("write-stream-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let out = dir.join("art.svg");
+        write_output_with(&out, &[], |w| {
+            (0..100_000).try_for_each(|i| writeln!(w, "<circle n=\"{i}\"/>"))
+        })
+        .unwrap();
+        let text = std::fs::read_to_string(&out).unwrap();
+        assert_eq!(text.lines().count(), 100_000);
+        assert!(text.ends_with("<circle n=\"99999\"/>\n"));
+        let e = write_output_with(&out, &[], |w| {
+            w.write_all(b"half")?;
+            Err(std::io::Error::other("the disk is full"))
+        })
+        .unwrap_err();
+        assert!(e.to_string().contains("disk is full"), "{e}");
+        assert_eq!(std::fs::read_to_string(&out).unwrap(), text);
+        assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1);
+        // An input is refused before `write` runs.
+        let mut ran = false;
+        assert!(write_output_with(&out, &[&out], |_| {
+            ran = true;
+            Ok(())
+        })
+        .is_err());
+        assert!(!ran);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

@@ -19,6 +19,9 @@ runs the command on each with a time limit. Each outcome is one of:
 and the peak memory (max RSS of the child, from wait4). Benign variants (CRLF line
 ends, a byte-order mark) are expected to be accepted and are counted apart.
 
+The G-code lines a sender streams through `gateway proxy` are a surface too
+(`proxy_surface`: hostile lines in a live session, see PROXY_CASES).
+
 Usage: python3 tests/sweep/bad_inputs.py [--gateway target/debug/gateway]
            [--timeout 20] [--report sweep-report.md]
 Prints the per-surface table (markdown) and writes every input's outcome to the
@@ -294,6 +297,215 @@ def is_clear(err, path):
     )
 
 
+# --- the pass-through: G-code lines from a sender through `gateway proxy` -------------
+# Each case runs a fresh `gateway proxy --once` on the GRBL demo job (the emulated
+# controller, its clock unconstrained) with a small map scanned in `proxy_seed`; the
+# sweep opens the sender's port (`--link`), homes (`$H`, the gateway re-references),
+# sends one move, then the case's lines, then a plain move that must still be answered
+# `ok` (the session survived). A hostile line answered `error:N` is a clear error (GRBL's
+# code, what a sender shows; most come with a `[MSG:gateway: ...]` naming the line); `ok`
+# is accepted (listed for review); a soft reset (0x18) in a line is answered, as GRBL does,
+# by `ALARM:3` and the banner (counted clear; the session is unlocked with `$X` before its
+# last move); no answer within the time limit, or the port closed, is a hang; exit 101
+# or "panicked" a panic.
+PROXY_CASES = [
+    ("a 8 KiB line", "bad", [b"G0 X1" + b"0" * 8192]),
+    ("a 1 MiB line", "bad", [b"G1 X" + b"1" * (1 << 20) + b" F100"]),
+    ("random bytes (no line ends)", "bad", None),  # filled from the seed in proxy_cases
+    ("bytes not UTF-8", "bad", [b"G0 X\xff\xfe10 Y\xc3\x28"]),
+    ("NUL bytes inside a line", "bad", [b"G0 X1\x00\x00Y2"]),
+    ("a line of NUL bytes", "bad", [b"\x00" * 64]),
+    ("an unterminated comment", "bad", [b"G1 X30 Y20 F500 (never closed"]),
+    ("a comment never closed, then a move", "bad", [b"(open", b"G0 X12 Y12"]),
+    ("nested comments", "bad", [b"G0 X10 (a (b) c) Y10"]),
+    ("`$$` (settings)", "bad", [b"$$"]),
+    ("`$I`, `$#`, `$G`", "bad", [b"$I", b"$#", b"$G"]),
+    ("`$100=1e308`", "bad", [b"$100=1e308"]),
+    ("`$100=nan`", "bad", [b"$100=nan"]),
+    ("`$N0=G0 X1` (a startup line)", "bad", [b"$N0=G0 X1"]),
+    ("`$J=G91 X1 F100` (a jog)", "bad", [b"$J=G91 X1 F100"]),
+    ("`$C` (check mode) twice", "bad", [b"$C", b"G0 X50 Y50", b"$C"]),
+    ("`$X` (unlock)", "bad", [b"$X"]),
+    ("`$SLP` (sleep)", "bad", [b"$SLP"]),
+    ("`$RST=#`", "bad", [b"$RST=#"]),
+    ("`$` with 5000 characters", "bad", [b"$" + b"9" * 5000]),
+    ("`?` mid-line (status)", "bad", [b"G0 X15?Y15"]),
+    ("`!` mid-line (feed hold), then `~`", "bad", [b"G0 X16!Y16"]),
+    ("`~` mid-line (cycle start)", "bad", [b"G0 X17~Y17"]),
+    ("0x85 mid-line (jog cancel)", "bad", [b"G0 X18\x85Y18"]),
+    ("0x90-0x9D mid-line (overrides)", "bad", [b"G1 X19 Y19 F900\x90\x91\x93\x95\x96\x99\x9d"]),
+    ("0x18 mid-line (soft reset)", "bad", [b"G0 X21\x18Y21"]),
+    ("0xA0 0xA1 mid-line (coolant)", "bad", [b"G0 X22\xa0\xa1Y22"]),
+    ("`G0 X1e308`", "bad", [b"G0 X1e308"]),
+    ("`G0 XNaN`", "bad", [b"G0 XNaN Y1"]),
+    ("`G0 X99999999999999999999999`", "bad", [b"G0 X99999999999999999999999"]),
+    ("`G1 F4e-320 X10`", "bad", [b"G1 F4e-320 X10"]),
+    ("`G2` with R and I/J (error:36)", "bad", [b"G2 X60 Y50 I5 J5 R50 F600"]),
+    ("`G91 G0 X1e6`", "bad", [b"G91 G0 X1000000", b"G90"]),
+    ("`%` (program delimiter)", "bad", [b"%"]),
+    ("`M30` then a move", "bad", [b"M30", b"G0 X10 Y10"]),
+    ("a CR alone as line end", "bad", [b"G0 X23 Y23\rG0 X24 Y24"]),
+    ("10^5 lines (send-response)", "bad", "many"),
+    ("CRLF line ends", "benign", [b"G0 X25 Y25\r"]),
+    ("lower case and blanks", "benign", [b"g0  x26 y 26"]),
+    ("a comment-only line", "benign", [b"(just a comment)"]),
+    ("a `;` comment", "benign", [b"G0 X27 Y27 ; to the corner"]),
+    ("an empty line", "benign", [b""]),
+]
+
+MANY_LINES = 100_000
+
+
+def proxy_seed(gateway, tmp):
+    """The GRBL demo job (its files named absolutely) and a small map of its emulated
+    machine, scanned once (about 3 s)."""
+    with open(os.path.join(CONFIG, "gateway", "grbl-demo.toml")) as f:
+        job = f.read().replace('"../', '"' + CONFIG + "/")
+    path = os.path.join(tmp, "grbl-job.toml")
+    with open(path, "w") as f:
+        f.write(job)
+    maps = os.path.join(tmp, "proxy-map")
+    r = subprocess.run([gateway, "map", "--config", path, "--out", maps, "--grid-step-mm", "50",
+                        "--line-step-mm", "50"], capture_output=True, timeout=600)
+    if r.returncode != 0:
+        sys.exit(f"proxy: the seed map could not be scanned: {r.stderr.decode()[-300:]}")
+    return path, os.path.join(maps, "grbl-job.v1.json")
+
+
+def proxy_session(gateway, tmp, job, seed_map, lines, timeout):
+    """(outcome per hostile line, survived, exit, stderr, peak KiB, seconds)."""
+    import select
+    import termios
+    import tty
+    run_dir = tempfile.mkdtemp(dir=tmp)
+    the_map = os.path.join(run_dir, "m.v1.json")
+    shutil.copy(seed_map, the_map)  # its reference record is written beside it
+    link = os.path.join(run_dir, "tty")
+    t0 = time.monotonic()
+    p = subprocess.Popen([gateway, "proxy", "--config", job, "--map", the_map, "--link", link,
+                          "--once", "--time-scale", "unconstrained"],
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                         stdin=subprocess.DEVNULL, start_new_session=True)
+    answers, survived, fd = [], False, None
+    try:
+        while not os.path.exists(link):
+            if p.poll() is not None or time.monotonic() - t0 > timeout:
+                raise TimeoutError("the sender's port never appeared")
+            time.sleep(0.02)  # polling for the port the child makes
+        fd = os.open(link, os.O_RDWR | os.O_NOCTTY)
+        tty.setraw(fd)
+        pending = b""
+
+        def answer(line):
+            """Send one line, read to its `ok` or `error:N` (status reports and
+            messages skipped), or to GRBL's banner after a soft reset (0x18) in it. A
+            feed hold (`!`) in a line is followed by a cycle start (`~`), as a sender
+            would send: the hold keeps the answer until then."""
+            nonlocal pending
+            os.write(fd, line + b"\n")
+            if b"!" in line and line.rfind(b"~") < line.rfind(b"!"):
+                os.write(fd, b"~")
+            deadline = time.monotonic() + timeout
+            while True:
+                while b"\n" in pending:
+                    got, pending = pending.split(b"\n", 1)
+                    got = got.strip()
+                    if got == b"ok" or got.startswith(b"error:"):
+                        return got.decode()
+                    if got.startswith(b"Grbl ") and b"\x18" in line:
+                        return "reset"
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return "hang"
+                r, _, _ = select.select([fd], [], [], min(left, 0.5))
+                if r:
+                    try:
+                        data = os.read(fd, 1 << 16)
+                    except OSError:
+                        return "closed"
+                    if not data:
+                        return "closed"
+                    pending += data
+
+        for setup in (b"$H", b"G0 X20 Y20"):
+            got = answer(setup)
+            if got != "ok":
+                raise RuntimeError(f"the session's set-up `{setup.decode()}` was answered {got}")
+        if lines == "many":
+            outcomes = {}
+            for k in range(MANY_LINES):
+                got = answer(b"G1 X%d Y%d F6000" % (20 + k % 2, 20 + (k // 2) % 2))
+                outcomes[got] = outcomes.get(got, 0) + 1
+                if got in ("hang", "closed"):
+                    break
+            answers.append(" ".join(f"{v} x {k}" for k, v in sorted(outcomes.items())))
+            answers[-1] = "ok" if list(outcomes) == ["ok"] else answers[-1]
+        else:
+            for line in lines:
+                answers.append(answer(line))
+                if answers[-1] in ("hang", "closed"):
+                    break
+        if answers and answers[-1] not in ("hang", "closed"):
+            # After a reset GRBL is locked (ALARM): a sender unlocks it first.
+            if "reset" in answers and answer(b"$X") != "ok":
+                survived = False
+            else:
+                survived = answer(b"G0 X10 Y10") == "ok"
+    except (TimeoutError, RuntimeError, OSError) as e:
+        answers.append(f"set-up failed: {e}")
+    finally:
+        if fd is not None:
+            os.close(fd)
+        try:
+            os.killpg(p.pid, signal.SIGTERM)
+        except ProcessLookupError:
+            pass
+        try:
+            _, status, usage = os.wait4(p.pid, 0)
+        except ChildProcessError:
+            status, usage = 0, None
+        err = p.stderr.read().decode("utf-8", "replace")
+        p.returncode = 0
+        shutil.rmtree(run_dir, ignore_errors=True)
+    code = os.waitstatus_to_exitcode(status)
+    return answers, survived, code, err, usage.ru_maxrss if usage else 0, time.monotonic() - t0
+
+
+def proxy_surface(gateway, tmp, timeout, rng, details):
+    name = "G-code lines through `gateway proxy`"
+    job, seed_map = proxy_seed(gateway, tmp)
+    tally = {"clear error": 0, "vague error": 0, "accepted": 0, "panic": 0,
+             "hang": 0, "benign accepted": 0, "benign refused": 0}
+    peak = 0
+    for case, kind, lines in PROXY_CASES:
+        if lines is None:
+            lines = [bytes(b for b in (rng.getrandbits(8) for _ in range(4096)) if b not in b"\r\n")]
+        answers, survived, code, err, kib, secs = proxy_session(
+            gateway, tmp, job, seed_map, lines, timeout)
+        peak = max(peak, kib)
+        hostile = answers[-1] if answers else "no answer"
+        if "panicked" in err or code == 101:
+            label = "panic"
+        elif not survived:
+            label = "hang" if kind == "bad" or "hang" in answers or "closed" in answers else "benign refused"
+        elif kind == "benign":
+            label = "benign accepted" if all(a == "ok" for a in answers) else "benign refused"
+        elif any(a.startswith("error:") or a == "reset" for a in answers):
+            label = "clear error"
+        else:
+            label = "accepted"
+        tally[label] += 1
+        said = "; ".join(answers)[:120] + ("" if survived else "; the session did not answer after it")
+        last = err.strip().splitlines()[-1][:160] if err.strip() else ""
+        last = "".join(c if c.isprintable() else "?" for c in last)
+        details.append(f"| {name} | {case} | {label} | {code} | {kib // 1024} | {secs:.2f} | "
+                       f"{said.replace('|', '/')} / {last.replace('|', '/')} |")
+        print(f"  {case}: {label} ({said})", file=sys.stderr)
+    hangs = tally["hang"]
+    print(f"{name}: {len(PROXY_CASES)} inputs, {tally}, peak {peak // 1024} MiB", file=sys.stderr)
+    return name, len(PROXY_CASES), tally, peak, hangs
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--gateway", default=os.path.join(ROOT, "target", "debug", "gateway"))
@@ -351,6 +563,9 @@ def main():
                                f"{secs:.2f} | {first.replace('|', '/')} |")
             rows.append((name, len(cases), tally, peak))
             print(f"{name}: {len(cases)} inputs, {tally}, peak {peak // 1024} MiB", file=sys.stderr)
+        if not a.only or a.only in "G-code lines through `gateway proxy`":
+            name, n, tally, peak, _ = proxy_surface(a.gateway, tmp, a.timeout, rng, details)
+            rows.append((name, n, tally, peak))
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     table = ["| surface | inputs | clear errors | vague errors | accepted (review) | "

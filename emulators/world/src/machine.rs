@@ -244,21 +244,33 @@ impl MachineConfig {
         )?;
         for (name, a) in [("x", &cfg.axes.x), ("y", &cfg.axes.y)] {
             let key = |k: &str| format!("axes.{name}.{k}");
-            doc.positive(
+            // Floors: a stage moves at least a millimetre, counts at least once a
+            // millimetre, moves a millimetre within a minute, accelerates by 1 mm/s² at
+            // least; no ballscrew has a lead under 0.1 mm (a subnormal made every move
+            // infinite or every count zero).
+            doc.in_range(
                 &key("travel_mm"),
                 a.travel_mm,
+                1.0,
                 1600.0,
                 "mm (the ballscrew tolerance table's longest travel)",
             )?;
-            doc.positive(&key("counts_per_mm"), a.counts_per_mm, 1e6, "counts/mm")?;
-            doc.positive(
+            doc.in_range(
+                &key("counts_per_mm"),
+                a.counts_per_mm,
+                1.0,
+                1e6,
+                "counts/mm",
+            )?;
+            doc.in_range(
                 &key("max_feed_mm_min"),
                 a.max_feed_mm_min,
+                1.0,
                 200_000.0,
                 "mm/min",
             )?;
-            doc.positive(&key("accel_mm_s2"), a.accel_mm_s2, 100_000.0, "mm/s²")?;
-            doc.positive(&key("lead_mm"), a.lead_mm, 100.0, "mm")?;
+            doc.in_range(&key("accel_mm_s2"), a.accel_mm_s2, 1.0, 100_000.0, "mm/s²")?;
+            doc.in_range(&key("lead_mm"), a.lead_mm, 0.1, 100.0, "mm")?;
             doc.in_range(
                 &key("lead_tolerance_use"),
                 a.lead_tolerance_use,
@@ -285,11 +297,12 @@ impl MachineConfig {
             }
             doc.in_range(&key("abbe_arm_mm"), a.abbe_arm_mm, -1000.0, 1000.0, "mm")?;
             if let Some(stall) = &a.stall {
-                doc.positive(
+                doc.in_range(
                     &key("stall.step_mm"),
                     stall.step_mm,
+                    1e-4,
                     10.0,
-                    "mm (one full step of the motor)",
+                    "mm (one full step of the motor: at least 0.1 um)",
                 )?;
                 if !(stall.lost_mm() <= a.travel_mm) {
                     return Err(doc.invalid(
@@ -319,7 +332,7 @@ impl MachineConfig {
         }
         if let Some(t) = &cfg.thermal {
             doc.in_range("thermal.screw_rise_k", t.screw_rise_k, -50.0, 50.0, "K")?;
-            doc.positive("thermal.time_constant_s", t.time_constant_s, 1e6, "s")?;
+            doc.in_range("thermal.time_constant_s", t.time_constant_s, 1.0, 1e6, "s")?;
             doc.in_range(
                 "thermal.expansion_per_k",
                 t.expansion_per_k,
@@ -1127,6 +1140,151 @@ mod tests {
         assert!(text.contains(from), "{from}");
         let text = text.replacen(from, to, 1);
         MachineConfig::from_doc(&ConfigDoc::from_text("m.toml", &text, Path::new(".")))
+    }
+
+    /// Issue 38: every number of the machine file, each given a subnormal, a negative
+    /// value, NaN, inf and an absurd magnitude, is refused naming its key and range
+    /// (where zero means something, a subnormal is that zero to 1e-300 and accepted).
+    #[test]
+    fn every_number_of_the_machine_file_is_bounded_and_named() {
+        let keys: &[(&str, &str, &str, bool)] = &[
+            // (the seed's line, its key's prefix, the dotted key, zero allowed)
+            ("travel_mm = 200.0", "travel_mm", "axes.x.travel_mm", false),
+            (
+                "counts_per_mm = 2000.0",
+                "counts_per_mm",
+                "axes.x.counts_per_mm",
+                false,
+            ),
+            (
+                "max_feed_mm_min = 6000.0",
+                "max_feed_mm_min",
+                "axes.x.max_feed_mm_min",
+                false,
+            ),
+            (
+                "accel_mm_s2 = 800.0",
+                "accel_mm_s2",
+                "axes.x.accel_mm_s2",
+                false,
+            ),
+            ("lead_mm = 5.0", "lead_mm", "axes.x.lead_mm", false),
+            (
+                "lead_tolerance_use = 0.9",
+                "lead_tolerance_use",
+                "axes.x.lead_tolerance_use",
+                true,
+            ),
+            (
+                "periodic_um = 2.0",
+                "periodic_um",
+                "axes.x.periodic_um",
+                true,
+            ),
+            (
+                "straightness_um = 5.0",
+                "straightness_um",
+                "axes.x.straightness_um",
+                true,
+            ),
+            ("yaw_arcsec = 8.0", "yaw_arcsec", "axes.x.yaw_arcsec", true),
+            (
+                "pitch_arcsec = 6.0",
+                "pitch_arcsec",
+                "axes.x.pitch_arcsec",
+                true,
+            ),
+            (
+                "abbe_arm_mm = 45.0",
+                "abbe_arm_mm",
+                "axes.x.abbe_arm_mm",
+                true,
+            ),
+            (
+                "backlash_um = 8.0",
+                "backlash_um",
+                "axes.x.backlash_um",
+                true,
+            ),
+            (
+                "homing_repeatability_um = 3.0",
+                "homing_repeatability_um",
+                "axes.x.homing_repeatability_um",
+                true,
+            ),
+            (
+                "settle_noise_um = 0.08",
+                "settle_noise_um",
+                "axes.x.settle_noise_um",
+                true,
+            ),
+            (
+                "squareness_arcsec = 25.0",
+                "squareness_arcsec",
+                "machine.squareness_arcsec",
+                true,
+            ),
+            (
+                "camera_height_mm = 60.0",
+                "camera_height_mm",
+                "machine.camera_height_mm",
+                true,
+            ),
+            (
+                "screw_rise_k = 2.0",
+                "screw_rise_k",
+                "thermal.screw_rise_k",
+                true,
+            ),
+            (
+                "time_constant_s = 1800.0",
+                "time_constant_s",
+                "thermal.time_constant_s",
+                false,
+            ),
+        ];
+        // Signed quantities (an arm, an angle, a rise) may be negative.
+        let signed = [
+            "abbe_arm_mm",
+            "squareness_arcsec",
+            "camera_height_mm",
+            "screw_rise_k",
+        ];
+        for (line, name, key, zero) in keys {
+            let mut bad = vec!["nan", "inf", "-inf", "1e308", "1e100"];
+            if !zero {
+                bad.extend(["4e-320", "0.0", "-1.0"]);
+            } else if !signed.contains(name) {
+                bad.push("-1.0");
+            }
+            for v in bad {
+                let e = load_with(line, &format!("{name} = {v}"))
+                    .map(|_| panic!("{name} = {v} accepted"))
+                    .unwrap_err()
+                    .to_string();
+                assert!(
+                    e.contains(&format!("key `{key}`")) && e.contains("..="),
+                    "{name} = {v}: {e}"
+                );
+            }
+        }
+        // The stall's step, its floor 0.1 um; the seed's numbers are each accepted.
+        let stall = "[axes.y]";
+        for v in ["4e-320", "-0.025", "1e-5", "nan", "20.0"] {
+            let e = load_with(
+                stall,
+                &format!("[axes.x.stall]\nfull_steps = 1\nstep_mm = {v}\nat_move = 3\n\n{stall}"),
+            )
+            .map(|_| panic!("step_mm = {v} accepted"))
+            .unwrap_err()
+            .to_string();
+            assert!(e.contains("axes.x.stall.step_mm"), "{v}: {e}");
+        }
+        load_with(
+            stall,
+            &format!("[axes.x.stall]\nfull_steps = 1\nstep_mm = 1e-4\nat_move = 3\n\n{stall}"),
+        )
+        .unwrap();
     }
 
     #[test]

@@ -172,18 +172,16 @@ pub fn resolve(doc: &ConfigDoc, raw: RawCanopenStage) -> Result<CanopenStageSpec
         if axes.iter().any(|o| o.node == a.node) {
             return Err(doc.invalid(&key("node"), format!("node {} is given twice", a.node)));
         }
-        for (k, v) in [
-            ("counts_per_mm", a.counts_per_mm),
-            ("max_feed_mm_min", a.max_feed_mm_min),
-            ("accel_mm_s2", a.accel_mm_s2),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(doc.invalid(&key(k), "must be a positive number"));
-            }
-        }
-        if !(a.min_mm.is_finite() && a.max_mm.is_finite() && a.min_mm < a.max_mm) {
-            return Err(doc.invalid(&key("max_mm"), "soft limits need min_mm < max_mm"));
-        }
+        // As the machine file's: at least a count and 1 mm/s² per mm, at most 10^6.
+        doc.in_range(
+            &key("counts_per_mm"),
+            a.counts_per_mm,
+            1.0,
+            1e6,
+            "counts/mm",
+        )?;
+        doc.in_range(&key("accel_mm_s2"), a.accel_mm_s2, 1.0, 100_000.0, "mm/s²")?;
+        crate::bounds::check_axis(doc, &key, a.min_mm, a.max_mm, Some(a.max_feed_mm_min))?;
         axes.push(AxisConfig {
             axis,
             node: a.node,

@@ -125,12 +125,7 @@ pub fn resolve(doc: &ConfigDoc, raw: RawDncStage) -> Result<DncStageSpec, Config
         if axes.iter().any(|o| o.axis == axis) {
             return Err(doc.invalid(&key("axis"), format!("axis {axis} is given twice")));
         }
-        if !(a.min_mm.is_finite() && a.max_mm.is_finite() && a.min_mm < a.max_mm) {
-            return Err(doc.invalid(&key("max_mm"), "soft limits need min_mm < max_mm"));
-        }
-        if !(a.max_feed_mm_min > 0.0 && a.max_feed_mm_min.is_finite()) {
-            return Err(doc.invalid(&key("max_feed_mm_min"), "must be a positive feed in mm/min"));
-        }
+        crate::bounds::check_axis(doc, &key, a.min_mm, a.max_mm, Some(a.max_feed_mm_min))?;
         axes.push(DncAxis {
             axis,
             min_mm: a.min_mm,

@@ -44,6 +44,10 @@ use std::path::Path;
 use vision::localize::{LocalizeParams, LocalizeSettings, PixelAxes};
 use world::machine::MachineConfig;
 
+mod bounds;
+use bounds::check_baud;
+pub use bounds::{MAX_BAUD, MAX_FEED_MM_MIN, MAX_SETUP_OFFSET_MM, MIN_BAUD, MIN_FEED_MM_MIN};
+
 /// The files of the embedded default job (the demo), compiled in.
 pub static EMBEDDED: &[(&str, &str)] = &[
     (
@@ -70,19 +74,15 @@ pub static EMBEDDED: &[(&str, &str)] = &[
 
 pub const DEMO_JOB: &str = "config/gateway/demo.toml";
 
-/// Feeds a job may ask for, mm/min: below, a move of a millimetre takes over ten
-/// minutes; above, no stage of this class moves.
-pub const MIN_FEED_MM_MIN: f64 = 1.0;
-pub const MAX_FEED_MM_MIN: f64 = 100_000.0;
-/// The largest fit residual a job may accept, um.
-/// The largest board offset from machine zero, mm.
-pub const MAX_SETUP_OFFSET_MM: f64 = 10_000.0;
-
 /// The smallest hint tolerance: a hint is where the machine was sent, and no machine
 /// lands within less of it (a subnormal tolerance made every frame "unreadable").
 pub const MIN_HINT_TOLERANCE_MM: f64 = 0.001;
 
+/// The largest fit residual a job may accept, um.
 pub const MAX_RESIDUAL_UM: f64 = 100.0;
+/// The smallest fit residual limit, um: a sub-pixel fit is never better than this
+/// (a subnormal limit refused every frame).
+pub const MIN_RESIDUAL_UM: f64 = 0.01;
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -269,9 +269,7 @@ impl Job {
                 baud,
                 emulate,
             } => {
-                if baud == 0 {
-                    return Err(doc.invalid("stage.baud", "must be a positive baud rate"));
-                }
+                check_baud(doc, baud)?;
                 let link = match (port, emulate) {
                     (Some(port), None) => GrblLink::Port(port),
                     (None, Some(rel)) => GrblLink::Emulate(Box::new(MachineConfig::from_doc(
@@ -299,9 +297,8 @@ impl Job {
             None => PixelAxes::default(),
         };
         if let Some(s) = raw.camera.um_per_px {
-            if !(s.is_finite() && s > 0.0) {
-                return Err(doc.invalid("camera.um_per_px", "must be a positive number"));
-            }
+            // From a microscope objective (0.01 um/px) to a wide view (1 mm/px).
+            doc.in_range("camera.um_per_px", s, 0.01, 1000.0, "um/px")?;
         }
         let board = Board::from_doc(&doc.read_relative("board.file", &raw.board.file)?)?;
         if !raw.setup.home && board.code.is_none() {
@@ -341,10 +338,10 @@ impl Job {
                 ),
             ));
         }
-        if !(l.max_residual_um > 0.0 && l.max_residual_um <= MAX_RESIDUAL_UM) {
+        if !(l.max_residual_um >= MIN_RESIDUAL_UM && l.max_residual_um <= MAX_RESIDUAL_UM) {
             return Err(doc.invalid(
                 "localize.max_residual_um",
-                format!("must be positive and at most {MAX_RESIDUAL_UM} um (a fit worse than that is no measurement)"),
+                format!("`{}`: must be {MIN_RESIDUAL_UM} to {MAX_RESIDUAL_UM} um (no fit is better than the first; a fit worse than the second is no measurement)", l.max_residual_um),
             ));
         }
         let on_board = board.cols as usize * board.rows as usize;
@@ -379,19 +376,19 @@ impl Job {
         if p.max_iterations > 100 {
             return Err(doc.invalid("compensation.max_iterations", "at most 100"));
         }
-        if !(p.max_correction_mm > 0.0 && p.max_correction_mm <= 1.0) {
+        if !(p.max_correction_mm >= 0.0001 && p.max_correction_mm <= 1.0) {
             return Err(doc.invalid(
                 "compensation.max_correction_mm",
-                "must be positive and at most 1 mm: it bounds every correction",
+                "must be 0.0001 to 1 mm: it bounds every correction (below 0.1 um nothing could be corrected)",
             ));
         }
         if !(p.approach_mm >= 0.0 && p.approach_mm < 5.0) {
             return Err(doc.invalid("compensation.approach_mm", "must be 0..5 mm"));
         }
-        if !(p.divergence_ratio > 0.0 && p.divergence_ratio <= 1.0) {
+        if !(p.divergence_ratio >= 0.01 && p.divergence_ratio <= 1.0) {
             return Err(doc.invalid(
                 "compensation.divergence_ratio",
-                "must be above 0 and at most 1 (the share of a deviation a correction may leave)",
+                "must be 0.01 to 1 (the share of a deviation a correction may leave; below 1 % every correction would count as diverging)",
             ));
         }
         let targets = resolve_targets(doc, &raw.targets, &board)?;
@@ -545,6 +542,133 @@ mod tests {
             v.clone().fold(f64::MIN, f64::max) - v.fold(f64::MAX, f64::min)
         };
         assert!(span(0) > 0.9 * tx && span(1) > 0.9 * ty);
+    }
+
+    /// Issue 38: every number of a job file has a floor and a ceiling that make
+    /// physical sense; subnormal, negative, NaN, inf and absurd values are refused
+    /// naming the key (a subnormal residual limit or correction bound, a 1e308 scale,
+    /// a drive axis's soft limit of 1e308 were accepted).
+    #[test]
+    fn every_number_of_a_job_file_is_bounded_and_named() {
+        let demo = ConfigDoc::embedded(DEMO_JOB, EMBEDDED).unwrap();
+        let with = |from: &str, to: &str| {
+            assert!(demo.text.contains(from), "{from}");
+            let mut doc = demo.clone();
+            doc.text = doc.text.replacen(from, to, 1);
+            Job::from_doc(&doc).map(|_| ()).map_err(|e| e.to_string())
+        };
+        let keys: &[(&str, &str, &str, &[&str])] = &[
+            (
+                "um_per_px = 4.0",
+                "um_per_px",
+                "camera.um_per_px",
+                &["4e-320", "0.001", "1e308"],
+            ),
+            (
+                "feed_mm_min = 3000.0",
+                "feed_mm_min",
+                "setup.feed_mm_min",
+                &["4e-320", "0.5", "1e6"],
+            ),
+            (
+                "hint_tolerance_mm = 0.1",
+                "hint_tolerance_mm",
+                "localize.hint_tolerance_mm",
+                &["4e-320", "0.3"],
+            ),
+            (
+                "max_residual_um = 2.0",
+                "max_residual_um",
+                "localize.max_residual_um",
+                &["4e-320", "0.001", "1e3"],
+            ),
+            (
+                "tolerance_um = 0.5",
+                "tolerance_um",
+                "compensation.tolerance_um",
+                &["4e-320", "1e308"],
+            ),
+            (
+                "max_correction_mm = 0.15",
+                "max_correction_mm",
+                "compensation.max_correction_mm",
+                &["4e-320", "1e-5", "2.0"],
+            ),
+            (
+                "approach_mm = 0.05",
+                "approach_mm",
+                "compensation.approach_mm",
+                &["-0.05", "5.0", "1e308"],
+            ),
+            (
+                "max_iterations = 5",
+                "max_iterations",
+                "compensation.max_iterations",
+                &["101"],
+            ),
+            (
+                "min_points = 12",
+                "min_points",
+                "localize.min_points",
+                &["3", "100000"],
+            ),
+        ];
+        for (line, name, key, values) in keys {
+            let every: Vec<&str> = ["nan", "inf", "-inf", "-1.0"]
+                .iter()
+                .chain(values.iter())
+                .copied()
+                .collect();
+            for v in every {
+                // Integers: TOML refuses a float by its type.
+                let integer = *name == "max_iterations" || *name == "min_points";
+                if integer && (v.contains('.') || v.contains('n')) {
+                    continue;
+                }
+                let e = with(line, &format!("{name} = {v}"))
+                    .map(|()| panic!("{name} = {v} accepted"))
+                    .unwrap_err();
+                assert!(e.contains(&format!("`{key}`")), "{name} = {v}: {e}");
+            }
+        }
+        let e = with(
+            "[compensation]",
+            "[compensation]\ndivergence_ratio = 4e-320",
+        )
+        .unwrap_err();
+        assert!(e.contains("compensation.divergence_ratio"), "{e}");
+        let e = with(
+            "board_at_machine_zero_mm = [5.0, 5.0]",
+            "board_at_machine_zero_mm = [1e308, 0.0]",
+        )
+        .unwrap_err();
+        assert!(e.contains("setup.board_at_machine_zero_mm"), "{e}");
+        // A drive stage's axis: soft limits within 10 m, a feed of 1 to 100 000 mm/min.
+        for (from, to, key) in [
+            ("max_mm = 200.0", "max_mm = 1e308", "stage.axes[0].max_mm"),
+            ("min_mm = 0.0", "min_mm = -1e5", "stage.axes[0].min_mm"),
+            (
+                "max_feed_mm_min = 6000.0",
+                "max_feed_mm_min = 4e-320",
+                "stage.axes[0].max_feed_mm_min",
+            ),
+            (
+                "max_feed_mm_min = 6000.0",
+                "max_feed_mm_min = 1e9",
+                "stage.axes[0].max_feed_mm_min",
+            ),
+        ] {
+            let stage = "driver = \"linuxcnc\"\nhost = \"10.0.0.5\"\naxes = [\n  { axis = \"x\", min_mm = 0.0, max_mm = 200.0, max_feed_mm_min = 6000.0 },\n  { axis = \"y\", joint = 1, min_mm = 0.0, max_mm = 150.0, max_feed_mm_min = 6000.0 },\n]";
+            let e = test_support::with_stage(&stage.replacen(from, to, 1))
+                .map(|_| panic!("{to} accepted"))
+                .unwrap_err();
+            assert!(e.contains(&format!("`{key}`")), "{to}: {e}");
+        }
+        let e =
+            test_support::with_stage("driver = \"grbl\"\nport = \"/dev/ttyUSB0\"\nbaud = 9000000")
+                .map(|_| panic!("accepted"))
+                .unwrap_err();
+        assert!(e.contains("`stage.baud`"), "{e}");
     }
 
     #[test]

@@ -135,12 +135,7 @@ pub fn resolve(doc: &ConfigDoc, raw: RawLinuxcncStage) -> Result<LinuxcncStageSp
         if axes.iter().any(|o| o.joint == joint) {
             return Err(doc.invalid(&key("joint"), format!("joint {joint} is given twice")));
         }
-        if !(a.min_mm.is_finite() && a.max_mm.is_finite() && a.min_mm < a.max_mm) {
-            return Err(doc.invalid(&key("max_mm"), "soft limits need min_mm < max_mm"));
-        }
-        if !(a.max_feed_mm_min > 0.0 && a.max_feed_mm_min.is_finite()) {
-            return Err(doc.invalid(&key("max_feed_mm_min"), "must be a positive feed in mm/min"));
-        }
+        crate::bounds::check_axis(doc, &key, a.min_mm, a.max_mm, Some(a.max_feed_mm_min))?;
         axes.push(LinuxcncAxis {
             axis,
             joint,

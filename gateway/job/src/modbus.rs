@@ -136,9 +136,7 @@ pub fn resolve(doc: &ConfigDoc, raw: RawModbusStage) -> Result<ModbusStageSpec, 
             ))
         }
     };
-    if raw.baud == 0 {
-        return Err(doc.invalid("stage.baud", "must be a positive baud rate"));
-    }
+    crate::bounds::check_baud(doc, raw.baud)?;
     if raw.timeout_ms == 0 || raw.timeout_ms > 60_000 {
         return Err(doc.invalid("stage.timeout_ms", "must be 1..=60000 ms"));
     }
@@ -165,17 +163,7 @@ pub fn resolve(doc: &ConfigDoc, raw: RawModbusStage) -> Result<ModbusStageSpec, 
         if axes.iter().any(|o| o.unit == a.unit) {
             return Err(doc.invalid(&key("unit"), format!("unit {} is given twice", a.unit)));
         }
-        if !(a.min_mm.is_finite() && a.max_mm.is_finite() && a.min_mm < a.max_mm) {
-            return Err(doc.invalid(&key("max_mm"), "soft limits need min_mm < max_mm"));
-        }
-        if let Some(f) = a.max_feed_mm_min {
-            if !(f > 0.0 && f.is_finite()) {
-                return Err(doc.invalid(
-                    &key("max_feed_mm_min"),
-                    "must be a positive feed in mm/min (leave it out for the profile's)",
-                ));
-            }
-        }
+        crate::bounds::check_axis(doc, &key, a.min_mm, a.max_mm, a.max_feed_mm_min)?;
         axes.push(ModbusAxisConfig {
             axis,
             unit: a.unit,

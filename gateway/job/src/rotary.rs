@@ -100,6 +100,7 @@ impl RotaryJob {
         if let Some(m) = &job.machine {
             m.check()?;
         }
+        job.check_numbers()?;
         if let Some(RotaryLink::Grbl(port)) = &job.link {
             let simulated = [
                 ("seed", job.seed != 0),
@@ -122,6 +123,163 @@ impl RotaryJob {
             }
         }
         Ok(job)
+    }
+
+    /// Every number of the job within a range that makes physical sense, refused naming
+    /// its field and the range (issue 38: a speed of 4e-320 made every move take
+    /// forever, a poll period of 10^18 ms never polled, errors of 1e300 mm were
+    /// simulated). Where zero means something (an error, a noise) it is allowed.
+    fn check_numbers(&self) -> Result<(), String> {
+        let mut numbers: Vec<(String, f64, f64, f64, &str)> = Vec::new();
+        let mut add = |key: &str, v: f64, lo: f64, hi: f64, unit: &'static str| {
+            numbers.push((key.to_string(), v, lo, hi, unit));
+        };
+        if let Some(e) = &self.errors {
+            for (k, v) in [
+                ("delta_xc_mm", e.delta_xc_mm),
+                ("delta_yc_mm", e.delta_yc_mm),
+                ("delta_ya_mm", e.delta_ya_mm),
+                ("delta_za_mm", e.delta_za_mm),
+            ] {
+                add(&format!("errors.{k}"), v, -10.0, 10.0, "mm");
+            }
+            for (k, v) in [
+                ("alpha_xc_deg", e.alpha_xc_deg),
+                ("alpha_yc_deg", e.alpha_yc_deg),
+                ("alpha_ya_deg", e.alpha_ya_deg),
+                ("alpha_za_deg", e.alpha_za_deg),
+            ] {
+                add(&format!("errors.{k}"), v, -1.0, 1.0, "deg");
+            }
+        }
+        if let Some(p) = &self.probe {
+            add(
+                "probe.stylus_radius_mm",
+                p.stylus_radius_mm,
+                0.1,
+                25.0,
+                "mm",
+            );
+            add("probe.pre_travel_mm", p.pre_travel_mm, 0.0, 1.0, "mm");
+            add("probe.noise_mm", p.noise_mm, 0.0, 0.1, "mm");
+        }
+        if let Some(s) = &self.speeds {
+            add(
+                "speeds.rapid_mm_min",
+                s.rapid_mm_min,
+                1.0,
+                100_000.0,
+                "mm/min",
+            );
+            add(
+                "speeds.rotary_deg_min",
+                s.rotary_deg_min,
+                1.0,
+                100_000.0,
+                "deg/min",
+            );
+        }
+        if let Some(p) = &self.plan {
+            for (k, b) in p.artifact.balls.iter().enumerate() {
+                add(
+                    &format!("plan.artifact.balls[{k}].radius_mm"),
+                    b.radius_mm,
+                    0.5,
+                    500.0,
+                    "mm",
+                );
+                for (c, v) in b.centre_mm.iter().enumerate() {
+                    add(
+                        &format!("plan.artifact.balls[{k}].centre_mm[{c}]"),
+                        *v,
+                        -10_000.0,
+                        10_000.0,
+                        "mm",
+                    );
+                }
+            }
+            add("plan.stylus_radius_mm", p.stylus_radius_mm, 0.1, 25.0, "mm");
+            add("plan.approach_mm", p.approach_mm, 0.01, 100.0, "mm");
+            add("plan.overtravel_mm", p.overtravel_mm, 0.01, 100.0, "mm");
+            add("plan.backoff_mm", p.backoff_mm, 0.01, 100.0, "mm");
+            add(
+                "plan.fast_feed_mm_min",
+                p.fast_feed_mm_min,
+                1.0,
+                100_000.0,
+                "mm/min",
+            );
+            add(
+                "plan.slow_feed_mm_min",
+                p.slow_feed_mm_min,
+                1.0,
+                100_000.0,
+                "mm/min",
+            );
+            add("plan.cone_deg", p.cone_deg, 1.0, 179.0, "deg");
+            add(
+                "plan.radius_tolerance_mm",
+                p.radius_tolerance_mm,
+                1e-4,
+                10.0,
+                "mm",
+            );
+            add(
+                "plan.residual_limit_mm",
+                p.residual_limit_mm,
+                1e-5,
+                10.0,
+                "mm",
+            );
+            add("plan.safe_z_mm", p.safe_z_mm, -10_000.0, 10_000.0, "mm");
+            let r = &p.rim;
+            add("plan.rim.radius_mm", r.radius_mm, 1.0, 5000.0, "mm");
+            add("plan.rim.depth_mm", r.depth_mm, 0.01, 1000.0, "mm");
+            for (k, v) in r.angles_deg.iter().enumerate() {
+                add(
+                    &format!("plan.rim.angles_deg[{k}]"),
+                    *v,
+                    -360.0,
+                    360.0,
+                    "deg",
+                );
+            }
+            add(
+                "plan.rim.radius_tolerance_mm",
+                r.radius_tolerance_mm,
+                1e-4,
+                100.0,
+                "mm",
+            );
+            add(
+                "plan.rim.max_offset_mm",
+                r.max_offset_mm,
+                1e-3,
+                1000.0,
+                "mm",
+            );
+            if let Some(d) = r.protected_descent_mm {
+                add("plan.rim.protected_descent_mm", d, 0.01, 1000.0, "mm");
+            }
+        }
+        if let Some(RotaryLink::Grbl(port)) = &self.link {
+            add(
+                "link.grbl.baud",
+                f64::from(port.baud),
+                f64::from(crate::bounds::MIN_BAUD),
+                f64::from(crate::bounds::MAX_BAUD),
+                "baud",
+            );
+            if let Some(ms) = port.poll_ms {
+                add("link.grbl.poll_ms", ms as f64, 1.0, 10_000.0, "ms");
+            }
+        }
+        for (key, v, lo, hi, unit) in numbers {
+            if !(v.is_finite() && v >= lo && v <= hi) {
+                return Err(format!("{key}: {v:e} {unit} is outside {lo}..={hi} {unit}"));
+            }
+        }
+        Ok(())
     }
 
     /// The simulated machine this job describes.
@@ -220,6 +378,80 @@ impl ProbingMachine for SimulatedTable {
 mod tests {
     use super::*;
     use rotary::measure::{measure, Action, MeasureError, MeasureSession};
+
+    /// Issue 38: every number of the rotary job file is bounded and named; the
+    /// defaults and the paper's plan, written out whole, read back.
+    #[test]
+    fn every_number_of_the_rotary_job_is_bounded_and_named() {
+        let whole = |plan: MeasurePlan| {
+            let job = RotaryJob {
+                seed: 3,
+                errors: Some(TableErrors::default()),
+                probe: Some(TouchProbe::default()),
+                plan: Some(plan),
+                machine: Some(MachineConstants::default()),
+                speeds: Some(Speeds::default()),
+                link: None,
+            };
+            serde_json::to_value(job).unwrap()
+        };
+        for plan in [MeasurePlan::default(), MeasurePlan::paper()] {
+            let text = whole(plan).to_string();
+            RotaryJob::from_json(&text).unwrap_or_else(|e| panic!("{e}: {text}"));
+        }
+        let base = whole(MeasurePlan::default());
+        let cases: &[(&[&str], &str)] = &[
+            (&["speeds", "rapid_mm_min"], "speeds.rapid_mm_min"),
+            (&["speeds", "rotary_deg_min"], "speeds.rotary_deg_min"),
+            (&["errors", "delta_xc_mm"], "errors.delta_xc_mm"),
+            (&["errors", "alpha_za_deg"], "errors.alpha_za_deg"),
+            (&["probe", "stylus_radius_mm"], "probe.stylus_radius_mm"),
+            (&["probe", "noise_mm"], "probe.noise_mm"),
+            (&["plan", "approach_mm"], "plan.approach_mm"),
+            (&["plan", "slow_feed_mm_min"], "plan.slow_feed_mm_min"),
+            (&["plan", "cone_deg"], "plan.cone_deg"),
+            (&["plan", "residual_limit_mm"], "plan.residual_limit_mm"),
+            (&["plan", "safe_z_mm"], "plan.safe_z_mm"),
+            (&["plan", "rim", "radius_mm"], "plan.rim.radius_mm"),
+            (&["plan", "rim", "max_offset_mm"], "plan.rim.max_offset_mm"),
+        ];
+        // Errors and noise may be zero, so only their magnitudes are absurd; the others
+        // also refuse a subnormal, zero and a negative value.
+        for (path, key) in cases {
+            let zero_ok =
+                key.starts_with("errors.") || *key == "probe.noise_mm" || *key == "plan.safe_z_mm";
+            let signed = key.starts_with("errors.") || *key == "plan.safe_z_mm";
+            let mut bad = vec![1e308, -1e308, 1e100];
+            if !zero_ok {
+                bad.extend([4e-320, 0.0]);
+            }
+            if !signed {
+                bad.push(-1.0);
+            }
+            for v in bad {
+                let mut job = base.clone();
+                let mut at = &mut job;
+                for p in *path {
+                    at = at.get_mut(*p).unwrap();
+                }
+                *at = serde_json::json!(v);
+                let e = RotaryJob::from_json(&job.to_string())
+                    .map(|_| panic!("{key} = {v:e} accepted"))
+                    .unwrap_err();
+                assert!(
+                    e.starts_with(&format!("{key}: ")) && e.contains("..="),
+                    "{key} = {v:e}: {e}"
+                );
+            }
+        }
+        let link =
+            r#"{"link": {"grbl": {"port": "/dev/ttyUSB0", "poll_ms": 1000000000000000000}}}"#;
+        let e = RotaryJob::from_json(link).unwrap_err();
+        assert!(e.starts_with("link.grbl.poll_ms"), "{e}");
+        let link = r#"{"link": {"grbl": {"port": "/dev/ttyUSB0", "baud": 0}}}"#;
+        let e = RotaryJob::from_json(link).unwrap_err();
+        assert!(e.starts_with("link.grbl.baud"), "{e}");
+    }
 
     /// The simulated table, failing call number `at` (1-based).
     struct FailAt {

@@ -2,46 +2,25 @@
 //! the certificate template, written by the formats crate `board_art` (sized there
 //! before anything is made) and handed to the sink.
 
-use crate::{Artifact, Outcome, Sink};
+use crate::{Outcome, Sink};
 pub use board_art::{dxf, pdf, svg, template};
 use protocol::Board;
 use serde_json::{json, Map, Value};
 
 /// `gateway board make`: the four files handed to the sink as artifacts named after
-/// the board file (`NAME.svg`, `NAME.dxf`, `NAME.pdf`, `NAME.certificate-template.csv`).
+/// the board file (`NAME.svg`, `NAME.dxf`, `NAME.pdf`, `NAME.certificate-template.csv`),
+/// each streamed ([`Sink::artifact_streamed`]): a front that writes files never holds
+/// one whole (issue 38: a 2000 x 2000 board took 1.5 GB).
 pub fn make(board: &Board, name: &str, sink: &mut dyn Sink) -> Outcome {
     // Sized before anything is made: refused naming the limit.
     if let Err(e) = board_art::check(board) {
         return Outcome::failed(format!("board `{}`: {e}", board.name));
     }
-    let files = [
-        (
-            format!("{name}.svg"),
-            "image/svg+xml",
-            svg(board).into_bytes(),
-        ),
-        (
-            format!("{name}.dxf"),
-            "image/vnd.dxf",
-            dxf(board).into_bytes(),
-        ),
-        (format!("{name}.pdf"), "application/pdf", pdf(board)),
-        (
-            format!("{name}.certificate-template.csv"),
-            "text/csv",
-            template(board).into_bytes(),
-        ),
-    ];
     let mut names = Vec::new();
-    for (file, media_type, bytes) in files {
+    for (ext, media_type, writer) in board_art::FILES {
+        let file = format!("{name}.{ext}");
         names.push(file.clone());
-        let artifact = Artifact {
-            name: file,
-            title: None,
-            media_type,
-            bytes,
-        };
-        if let Err(e) = sink.artifact(artifact) {
+        if let Err(e) = sink.artifact_streamed(file, media_type, &mut |out| writer(board, out)) {
             return Outcome::failed(e);
         }
     }
@@ -127,8 +106,72 @@ mod tests {
         assert_eq!(sink.0[0].bytes, svg(&b).into_bytes());
     }
 
-    /// Issue 38: a 7071 x 7071 board was made until memory ran out; it is refused
-    /// before anything is made or handed over.
+    /// Issue 38: `board make` streams each file to the sink (a front that writes files
+    /// never holds one whole): nothing comes through `Sink::artifact`, and each file
+    /// arrives in pieces far smaller than itself.
+    #[test]
+    fn make_streams_each_file_to_the_sink() {
+        #[derive(Default)]
+        struct Streams {
+            whole: usize,
+            files: Vec<(String, usize, usize)>,
+        }
+        impl Sink for Streams {
+            fn progress(&mut self, _: u64, _: u64) {}
+            fn measurement(&mut self, _: &Value) -> Result<(), crate::Error> {
+                Ok(())
+            }
+            fn artifact(&mut self, _: crate::Artifact) -> Result<(), crate::Error> {
+                self.whole += 1;
+                Ok(())
+            }
+            fn artifact_streamed(
+                &mut self,
+                name: String,
+                _: &'static str,
+                write: &mut dyn FnMut(&mut dyn std::io::Write) -> std::io::Result<()>,
+            ) -> Result<(), crate::Error> {
+                struct Largest(usize, usize);
+                impl std::io::Write for Largest {
+                    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+                        self.0 += buf.len();
+                        self.1 = self.1.max(buf.len());
+                        Ok(buf.len())
+                    }
+                    fn flush(&mut self) -> std::io::Result<()> {
+                        Ok(())
+                    }
+                }
+                let mut out = Largest(0, 0);
+                write(&mut out).unwrap();
+                self.files.push((name, out.0, out.1));
+                Ok(())
+            }
+        }
+        let b = Board::nominal(
+            "t",
+            0.5,
+            0.25,
+            protocol::Polarity::DarkOnLight,
+            300,
+            200,
+            [0.0, 0.0],
+        );
+        let mut sink = Streams::default();
+        assert!(make(&b, "t", &mut sink).is_success());
+        assert_eq!(sink.whole, 0);
+        assert_eq!(sink.files.len(), 4);
+        for (name, bytes, largest) in &sink.files {
+            assert!(
+                *largest <= 1 << 16 && *bytes > 8 * largest,
+                "{name}: {bytes} {largest}"
+            );
+        }
+    }
+
+    /// Issue 38: a 7071 x 7071 board was made until memory ran out (the board file now
+    /// refuses it); a board whose certificate could not be read back is refused before
+    /// anything is made or handed over.
     #[test]
     fn a_board_too_large_for_its_files_is_refused_before_anything_is_made() {
         let b = Board::nominal(
@@ -136,8 +179,8 @@ mod tests {
             0.5,
             0.25,
             protocol::Polarity::DarkOnLight,
-            7071,
-            7071,
+            1000,
+            1000,
             [0.0, 0.0],
         );
         let mut sink = crate::Collect(Vec::new());

@@ -159,6 +159,25 @@ pub trait Sink {
     fn measurement(&mut self, measurement: &Value) -> Result<(), crate::Error>;
     /// A product of the procedure; an error fails it naming the artifact.
     fn artifact(&mut self, artifact: Artifact) -> Result<(), crate::Error>;
+    /// A product too large to hold whole (a board's artwork), written by `write` as it is
+    /// made. A front that writes files streams it into the file (the command line:
+    /// `protocol::config::write_output_with`); by default it is collected and handed to
+    /// [`Sink::artifact`].
+    fn artifact_streamed(
+        &mut self,
+        name: String,
+        media_type: &'static str,
+        write: &mut dyn FnMut(&mut dyn std::io::Write) -> std::io::Result<()>,
+    ) -> Result<(), crate::Error> {
+        let mut bytes = Vec::new();
+        write(&mut bytes).map_err(|e| crate::Error::Output(format!("{name}: {e}")))?;
+        self.artifact(Artifact {
+            name,
+            title: None,
+            media_type,
+            bytes,
+        })
+    }
     /// A row appended to a log that grows as the procedure goes (ISO 230-2's
     /// `measurements.csv`), so that a run stopped half-way leaves its rows in a file; the
     /// whole artifact of the same name replaces it at the end. Fronts that keep every

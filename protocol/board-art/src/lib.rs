@@ -2,21 +2,31 @@
 //! millimetres, board +y up), a PDF for a test print at 1:1 on an office printer, and
 //! the certificate template the metrology lab fills in (`i,j,x_mm,y_mm`, nominal
 //! positions to be replaced by the measured ones). Coded boards (docs/coded-board.md)
-//! get each dot at its code size. Sans-IO: each writer returns the file's bytes;
-//! [`check`] sizes them before any is made and refuses what no file or format can hold.
+//! get each dot at its code size. Sans-IO: each writer streams its file into any
+//! `io::Write` a dot at a time (`board make` writes straight into the file beside its
+//! final name, so memory stays at [`WORKING_MEMORY_BYTES`] whatever the board's size);
+//! [`check`] sizes the files before any is made and refuses what no file or format can
+//! hold.
 
 use protocol::{Board, Polarity};
-use std::fmt::Write as _;
+use std::io::{self, Write};
 
-/// The most bytes all four files together may take (each is built in memory).
+/// The most bytes all four files together may take on disk.
 pub const MAX_OUTPUT_BYTES: u64 = 1 << 30;
+
+/// What the writers hold while they write, whatever the board's size: a piece of the
+/// PDF's content stream ([`PDF_DOTS_PER_PIECE`] dots of about 330 bytes), the deflate
+/// state (about 300 KiB) and the caller's write buffer (64 KiB in
+/// `protocol::config::write_output_with`), rounded up.
+pub const WORKING_MEMORY_BYTES: u64 = 1 << 20;
 
 /// The largest page side a PDF reader must open: 14 400 pt (200 in, 5 080 mm; PDF 1.7,
 /// annex C.2, without UserUnit).
 pub const MAX_PDF_PAGE_PT: f64 = 14_400.0;
 
-/// The smallest dot drawn, mm: below a micrometre no process makes a dot.
-pub const MIN_DOT_MM: f64 = 0.001;
+/// The smallest dot drawn, mm: below a micrometre no process makes a dot (the board
+/// file's own floor).
+pub const MIN_DOT_MM: f64 = protocol::board::MIN_DOT_MM;
 
 /// Why a board's artwork cannot be made (each names the limit).
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -36,14 +46,15 @@ pub enum ArtError {
 pub struct Sizes {
     pub svg: u64,
     pub dxf: u64,
-    /// The PDF's content stream before compression (built in memory).
+    /// The PDF's content stream before compression (an upper bound of the file: the
+    /// dots' operators deflate to a fraction of it).
     pub pdf: u64,
     pub template: u64,
 }
 
 impl Sizes {
     pub fn total(&self) -> u64 {
-        self.svg + self.dxf + 2 * self.pdf + self.template
+        self.svg + self.dxf + self.pdf + self.template
     }
 }
 
@@ -109,48 +120,78 @@ fn frame(board: &Board) -> ([f64; 2], [f64; 2]) {
     ([lo[0] - m, lo[1] - m], [hi[0] + m, hi[1] + m])
 }
 
-/// The artwork as SVG at 1:1 (mm), board +y up.
+/// The four files of a board, in the order `board make` writes them: the name's
+/// extension (after `NAME.`), the media type, and the writer that streams the file.
+pub const FILES: [(&str, &str, Writer); 4] = [
+    ("svg", "image/svg+xml", write_svg),
+    ("dxf", "image/vnd.dxf", write_dxf),
+    ("pdf", "application/pdf", write_pdf),
+    ("certificate-template.csv", "text/csv", write_template),
+];
+
+/// A file's writer: the file streamed into `out` a dot at a time (nothing of the size
+/// of the file is held in memory).
+pub type Writer = fn(&Board, &mut dyn Write) -> io::Result<()>;
+
+/// A writer's bytes collected in memory (small boards, tests, the service's store).
+fn collect(board: &Board, write: Writer) -> Vec<u8> {
+    let mut bytes = Vec::new();
+    write(board, &mut bytes).expect("writing into memory does not fail");
+    bytes
+}
+
+/// The artwork as SVG at 1:1 (mm), board +y up ([`write_svg`] in memory).
 pub fn svg(board: &Board) -> String {
+    String::from_utf8(collect(board, write_svg)).expect("the SVG is ASCII")
+}
+
+/// [`svg`] streamed into `out`.
+pub fn write_svg(board: &Board, out: &mut dyn Write) -> io::Result<()> {
     let (lo, hi) = frame(board);
     let (w, h) = (hi[0] - lo[0], hi[1] - lo[1]);
     let (fg, bg) = match board.polarity {
         Polarity::DarkOnLight => ("black", "white"),
         Polarity::BrightOnDark => ("white", "black"),
     };
-    let mut s = format!(
+    write!(
+        out,
         "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}mm\" height=\"{h}mm\" viewBox=\"0 0 {w} {h}\">\n<rect width=\"{w}\" height=\"{h}\" fill=\"{bg}\"/>\n<g fill=\"{fg}\">\n"
-    );
+    )?;
     for (c, d) in dots(board) {
         // SVG y runs down; the board's +y runs up.
-        let _ = writeln!(
-            s,
+        writeln!(
+            out,
             "<circle cx=\"{:.4}\" cy=\"{:.4}\" r=\"{:.4}\"/>",
             c[0] - lo[0],
             hi[1] - c[1],
             d / 2.0
-        );
+        )?;
     }
-    s.push_str("</g>\n</svg>\n");
-    s
+    out.write_all(b"</g>\n</svg>\n")
 }
 
-/// The artwork as DXF (R12 entities, mm: `$INSUNITS` 4), a CIRCLE per dot.
+/// The artwork as DXF (R12 entities, mm: `$INSUNITS` 4), a CIRCLE per dot
+/// ([`write_dxf`] in memory).
 pub fn dxf(board: &Board) -> String {
+    String::from_utf8(collect(board, write_dxf)).expect("the DXF is ASCII")
+}
+
+/// [`dxf`] streamed into `out`.
+pub fn write_dxf(board: &Board, out: &mut dyn Write) -> io::Result<()> {
     // AutoCAD R12 style: a header with millimetre units, one CIRCLE per dot on layer DOTS.
-    let mut s = String::from(
-        "0\nSECTION\n2\nHEADER\n9\n$INSUNITS\n70\n4\n0\nENDSEC\n0\nSECTION\n2\nENTITIES\n",
-    );
+    out.write_all(
+        b"0\nSECTION\n2\nHEADER\n9\n$INSUNITS\n70\n4\n0\nENDSEC\n0\nSECTION\n2\nENTITIES\n",
+    )?;
     for (c, d) in dots(board) {
-        let _ = write!(
-            s,
+        write!(
+            out,
             "0\nCIRCLE\n8\nDOTS\n10\n{:.4}\n20\n{:.4}\n30\n0.0\n40\n{:.4}\n",
             c[0],
             c[1],
             d / 2.0
-        );
+        )?;
     }
-    s.push_str("0\nENDSEC\n0\nEOF\n");
-    s
+    out.write_all(b"0\nENDSEC\n0\nEOF\n")
 }
 
 /// Millimetres to PDF points.
@@ -161,23 +202,65 @@ pub const CAPTION_MM: f64 = 8.0;
 /// A test print: one page the size of the artwork (plus a caption), dots at 1:1 in mm
 /// (the content is drawn in mm through one scale transform, so each coordinate keeps
 /// f32's precision, 0.01 um at 200 mm), Deflate-compressed. Printed at "actual size"
-/// it checks the optics and the code before a lab makes the glass.
+/// it checks the optics and the code before a lab makes the glass. ([`write_pdf`] in
+/// memory.)
 pub fn pdf(board: &Board) -> Vec<u8> {
-    use pdf_writer::{Content, Filter, Finish, Name, Pdf, Rect, Ref, Str};
+    collect(board, write_pdf)
+}
+
+/// Counts the bytes written through it: the PDF's cross-reference table needs each
+/// object's offset, and the content stream's length is known only once it is written.
+struct Counted<'a> {
+    out: &'a mut dyn Write,
+    at: u64,
+}
+
+impl Write for Counted<'_> {
+    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+        let n = self.out.write(buf)?;
+        self.at += n as u64;
+        Ok(n)
+    }
+    fn flush(&mut self) -> io::Result<()> {
+        self.out.flush()
+    }
+}
+
+/// Dots drawn into one piece of the content stream before it is compressed and
+/// written (a piece is about 300 bytes a dot).
+pub const PDF_DOTS_PER_PIECE: usize = 1024;
+
+/// [`pdf`] streamed into `out`: the objects written in order and their offsets counted,
+/// the content stream deflated as it is drawn, its `/Length` an indirect object written
+/// after it (PDF 1.7, 7.3.8.2), so no part of the file is held whole.
+pub fn write_pdf(board: &Board, out: &mut dyn Write) -> io::Result<()> {
+    use pdf_writer::{Content, Name, Str};
     let (lo, hi) = frame(board);
     let (w, h) = (hi[0] - lo[0], hi[1] - lo[1] + CAPTION_MM);
-    let (catalog, tree, page, content_id, font) = (
-        Ref::new(1),
-        Ref::new(2),
-        Ref::new(3),
-        Ref::new(4),
-        Ref::new(5),
-    );
-    let font_name = Name(b"F1");
     let (fg, bg) = match board.polarity {
         Polarity::DarkOnLight => (0.0, 1.0),
         Polarity::BrightOnDark => (1.0, 0.0),
     };
+    let mut out = Counted { out, at: 0 };
+    // A binary comment on the second line tells transfer programs the file is binary.
+    out.write_all(b"%PDF-1.7\n%\x80\x80\x80\x80\n")?;
+    // Objects 1 to 6: catalog, page tree, page, content, font, the content's length.
+    let mut offsets = [0u64; 6];
+    offsets[0] = out.at;
+    out.write_all(b"1 0 obj\n<<\n  /Type /Catalog\n  /Pages 2 0 R\n>>\nendobj\n")?;
+    offsets[1] = out.at;
+    out.write_all(b"2 0 obj\n<<\n  /Type /Pages\n  /Kids [3 0 R]\n  /Count 1\n>>\nendobj\n")?;
+    offsets[2] = out.at;
+    write!(
+        out,
+        "3 0 obj\n<<\n  /Type /Page\n  /MediaBox [0 0 {} {}]\n  /Parent 2 0 R\n  /Contents 4 0 R\n  /Resources <<\n    /Font <<\n      /F1 5 0 R\n    >>\n  >>\n>>\nendobj\n",
+        pdf_number(w as f32 * PT_PER_MM),
+        pdf_number(h as f32 * PT_PER_MM)
+    )?;
+    offsets[3] = out.at;
+    out.write_all(b"4 0 obj\n<<\n  /Length 6 0 R\n  /Filter /FlateDecode\n>>\nstream\n")?;
+    let stream_start = out.at;
+    let mut z = flate2::write::ZlibEncoder::new(&mut out, flate2::Compression::new(6));
     let mut c = Content::new();
     c.save_state();
     c.transform([PT_PER_MM, 0.0, 0.0, PT_PER_MM, 0.0, 0.0]);
@@ -186,8 +269,10 @@ pub fn pdf(board: &Board) -> Vec<u8> {
     c.rect(0.0, CAPTION_MM as f32, w as f32, (hi[1] - lo[1]) as f32);
     c.fill_nonzero();
     c.set_fill_gray(fg);
-    // A circle as four cubic Beziers (0.027 % radial error).
+    // A circle as four cubic Beziers (0.027 % radial error); the dots drawn a piece at
+    // a time, each piece deflated as soon as it is drawn.
     const K: f32 = 0.552_284_8;
+    let mut in_piece = 0;
     for (centre, d) in dots(board) {
         let x = (centre[0] - lo[0]) as f32;
         let y = (centre[1] - lo[1] + CAPTION_MM) as f32;
@@ -199,6 +284,12 @@ pub fn pdf(board: &Board) -> Vec<u8> {
         c.cubic_to(x - r, y - k, x - k, y - r, x, y - r);
         c.cubic_to(x + k, y - r, x + r, y - k, x + r, y);
         c.close_path();
+        in_piece += 1;
+        if in_piece == PDF_DOTS_PER_PIECE {
+            z.write_all(&std::mem::replace(&mut c, Content::new()).finish())?;
+            z.write_all(b"\n")?;
+            in_piece = 0;
+        }
     }
     c.fill_nonzero();
     c.restore_state();
@@ -212,7 +303,7 @@ pub fn pdf(board: &Board) -> Vec<u8> {
     );
     c.set_fill_gray(0.0);
     c.begin_text();
-    c.set_font(font_name, 9.0);
+    c.set_font(Name(b"F1"), 9.0);
     c.next_line(3.0 * PT_PER_MM, 3.0 * PT_PER_MM);
     // The base-14 fonts read single bytes: anything outside ASCII becomes '?'.
     let ascii: Vec<u8> = caption
@@ -221,41 +312,56 @@ pub fn pdf(board: &Board) -> Vec<u8> {
         .collect();
     c.show(Str(&ascii));
     c.end_text();
-    let raw = c.finish();
-    let packed = miniz_oxide::deflate::compress_to_vec_zlib(&raw, 6);
-
-    let mut pdf = Pdf::new();
-    pdf.catalog(catalog).pages(tree);
-    pdf.pages(tree).kids([page]).count(1);
-    let mut p = pdf.page(page);
-    p.media_box(Rect::new(
-        0.0,
-        0.0,
-        w as f32 * PT_PER_MM,
-        h as f32 * PT_PER_MM,
-    ));
-    p.parent(tree);
-    p.contents(content_id);
-    p.resources().fonts().pair(font_name, font);
-    p.finish();
-    pdf.type1_font(font).base_font(Name(b"Helvetica"));
-    pdf.stream(content_id, &packed).filter(Filter::FlateDecode);
-    pdf.finish()
+    z.write_all(&c.finish())?;
+    z.finish()?;
+    let length = out.at - stream_start;
+    out.write_all(b"\nendstream\nendobj\n")?;
+    offsets[4] = out.at;
+    out.write_all(
+        b"5 0 obj\n<<\n  /Type /Font\n  /Subtype /Type1\n  /BaseFont /Helvetica\n>>\nendobj\n",
+    )?;
+    offsets[5] = out.at;
+    write!(out, "6 0 obj\n{length}\nendobj\n")?;
+    // The cross-reference table: entries of exactly 20 bytes (7.5.4).
+    let xref = out.at;
+    out.write_all(b"xref\n0 7\n0000000000 65535 f\r\n")?;
+    for at in offsets {
+        write!(out, "{at:010} 00000 n\r\n")?;
+    }
+    write!(
+        out,
+        "trailer\n<<\n  /Size 7\n  /Root 1 0 R\n>>\nstartxref\n{xref}\n%%EOF"
+    )?;
+    out.flush()
 }
 
-/// The certificate template the metrology lab fills in (`i,j,x_mm,y_mm`).
+/// A number as PDF writes it: no exponent, at most 3 decimals, no trailing zeros.
+fn pdf_number(v: f32) -> String {
+    let s = format!("{v:.3}");
+    let s = s.trim_end_matches('0').trim_end_matches('.');
+    s.to_string()
+}
+
+/// The certificate template the metrology lab fills in (`i,j,x_mm,y_mm`)
+/// ([`write_template`] in memory).
 pub fn template(board: &Board) -> String {
-    let mut s = format!(
+    String::from_utf8(collect(board, write_template)).expect("the template is UTF-8")
+}
+
+/// [`template`] streamed into `out`.
+pub fn write_template(board: &Board, out: &mut dyn Write) -> io::Result<()> {
+    write!(
+        out,
         "# Certificate of `{}`: replace each nominal x_mm,y_mm by the measured position\n# (lines starting with # are ignored; unlisted points are taken as nominal)\ni,j,x_mm,y_mm\n",
         board.name
-    );
+    )?;
     for j in 0..board.rows as i64 {
         for i in 0..board.cols as i64 {
             let n = board.nominal_xy(i, j);
-            let _ = writeln!(s, "{i},{j},{:.6},{:.6}", n[0], n[1]);
+            writeln!(out, "{i},{j},{:.6},{:.6}", n[0], n[1])?;
         }
     }
-    s
+    Ok(())
 }
 
 #[cfg(test)]
@@ -376,6 +482,103 @@ mod tests {
         );
     }
 
+    /// The hand-written PDF's structure: every cross-reference entry points at its
+    /// object, `startxref` at the table, the indirect `/Length` is the stream's length
+    /// (what a reader checks before it opens the file).
+    #[test]
+    fn the_streamed_pdf_has_its_objects_where_its_cross_reference_says() {
+        let mut b = Board::nominal("t", 0.5, 0.25, Polarity::BrightOnDark, 90, 40, [0.0, 0.0]);
+        b.set_code(protocol::board_code::CodeScheme::Additive, 28, [0.2, 0.3]);
+        let pdf = pdf(&b);
+        assert!(pdf.starts_with(b"%PDF-1.7\n") && pdf.ends_with(b"%%EOF"));
+        let text = String::from_utf8_lossy(&pdf);
+        let startxref: usize = text
+            .rsplit("startxref\n")
+            .next()
+            .unwrap()
+            .lines()
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap();
+        assert!(pdf[startxref..].starts_with(b"xref\n0 7\n"));
+        let entries = &pdf[startxref + 9..];
+        for n in 1..=6 {
+            let entry = &entries[20 * n..20 * n + 20];
+            assert!(entry.ends_with(b" 00000 n\r\n"), "{n}");
+            let at: usize = std::str::from_utf8(&entry[..10]).unwrap().parse().unwrap();
+            assert!(
+                pdf[at..].starts_with(format!("{n} 0 obj\n").as_bytes()),
+                "object {n}"
+            );
+        }
+        let start = pdf.windows(7).position(|w| w == b"stream\n").unwrap() + 7;
+        let end = pdf.windows(10).position(|w| w == b"\nendstream").unwrap();
+        let length: usize = text
+            .split("6 0 obj\n")
+            .nth(1)
+            .unwrap()
+            .lines()
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap();
+        assert_eq!(end - start, length);
+        // Several pieces of the content stream: every dot still there, once.
+        let (_, ops) = read_pdf(&pdf);
+        const { assert!(90 * 40 > 3 * PDF_DOTS_PER_PIECE) };
+        assert_eq!(ops.iter().filter(|l| l.ends_with(" m")).count(), 90 * 40);
+        assert_eq!(ops.iter().filter(|l| l.as_str() == "f").count(), 2);
+    }
+
+    /// The writers stream: into a writer that takes at most 64 KiB at a time and counts
+    /// what it is given, each file arrives in pieces and whole, the same bytes as in
+    /// memory.
+    #[test]
+    fn each_file_is_written_as_a_stream_of_small_pieces() {
+        struct Pieces {
+            bytes: u64,
+            largest: usize,
+            pieces: u64,
+            all: Vec<u8>,
+        }
+        impl Write for Pieces {
+            fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+                let n = buf.len().min(1 << 16);
+                self.bytes += n as u64;
+                self.largest = self.largest.max(n);
+                self.pieces += 1;
+                self.all.extend_from_slice(&buf[..n]);
+                Ok(n)
+            }
+            fn flush(&mut self) -> io::Result<()> {
+                Ok(())
+            }
+        }
+        let b = Board::nominal("t", 0.5, 0.25, Polarity::DarkOnLight, 200, 100, [0.0, 0.0]);
+        let memory = [
+            svg(&b).into_bytes(),
+            dxf(&b).into_bytes(),
+            pdf(&b),
+            template(&b).into_bytes(),
+        ];
+        for ((ext, _, write), whole) in FILES.iter().zip(memory) {
+            let mut p = Pieces {
+                bytes: 0,
+                largest: 0,
+                pieces: 0,
+                all: Vec::new(),
+            };
+            write(&b, &mut p).unwrap();
+            assert_eq!(p.all, whole, "{ext}");
+            assert!(p.pieces > 100, "{ext}: {} pieces", p.pieces);
+            assert!(
+                p.bytes as usize == whole.len() && whole.len() > 4 * p.largest,
+                "{ext}"
+            );
+        }
+    }
+
     /// Issue 38: a 7071 x 7071 board aborted at 4.7 GB after 40 s; a 1e300 mm pitch made
     /// an infinite page, a 1e-300 mm dot a file of circles of radius 0. Each is refused
     /// before anything is made, naming the limit.
@@ -392,7 +595,8 @@ mod tests {
                 [0.0, 0.0],
             )
         };
-        let e = check(&board(0.5, 0.25, 7071, 7071)).unwrap_err();
+        // (The board file refuses 7071 x 7071 points itself: 1000 x 1000 is allowed.)
+        let e = check(&board(0.5, 0.25, 1000, 1000)).unwrap_err();
         assert!(matches!(e, ArtError::CertificateTooLarge { .. }), "{e}");
         assert!(e.to_string().contains("16777216"), "{e}");
         let e = check(&board(1e300, 0.25, 10, 10)).unwrap_err();
