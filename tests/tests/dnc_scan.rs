@@ -5,65 +5,20 @@
 //! the camera measured there is compared with the stage's true error (the simulator's
 //! static error model at each command). The same step under the map scan, ISO 230-2 and
 //! verify on a `tape_only` stage. The machine's time is paced by the camera's frames
-//! ([`SECONDS_PER_FRAME`] each), so the camera sees as many frames in each dwell on a
+//! (`system_tests::dnc_rig`), so the camera sees as many frames in each dwell on a
 //! loaded machine as on an idle one.
 
-use drivers::dnc::{DncAxis, DncOptions, DncSender, DncStage};
-use emulators::dnc::{DncConfig, DncDevice, DncPty, DncStats};
+use emulators::dnc::DncPty;
 use errormap::tape::{StopSpec, TapeSpec, TapeTarget};
 use job::Job;
 use std::time::Duration;
+use system_tests::dnc_rig::{coded_rig, paced_camera, tape_stage};
 use system_tests::runtime_two_workers;
-use tokio_serial::SerialPortBuilderExt;
+use world::lock;
 use world::machine::MachineConfig;
-use world::{lock, SharedRig};
 
-const BAUD: u32 = 115_200;
-/// Machine seconds per camera frame (the emulator's clock paced by the frames, not the
-/// wall): a dwell of 3 s spans 6 frames or more, a stop needs 3 (1 s still), whatever
-/// the load on the machine running the test.
-const SECONDS_PER_FRAME: f64 = 0.5;
 /// A safety bound (never reached by a passing run).
 const BOUND: Duration = Duration::from_secs(900);
-
-/// The demo's C5 stage (thermal drift off) under the coded board (every frame says
-/// where it is: a plain grid gives the position only modulo its pitch, and a still
-/// camera would seem to stop at every target), and the DNC emulator driving it on the
-/// camera's frames.
-fn coded_rig() -> (Job, MachineConfig, SharedRig, DncDevice) {
-    let (_, machine) = system_tests::truth_map::demo_machine();
-    let job = Job::load(&system_tests::config_dir().join("gateway/stepper-coded.toml"))
-        .expect("the coded job loads");
-    assert!(job.board.code.is_some());
-    let rig = devices::new_rig(&job, &machine);
-    let dev = DncDevice::new(
-        rig.clone(),
-        DncConfig {
-            seconds_per_frame: Some(SECONDS_PER_FRAME),
-            ..DncConfig::default()
-        },
-    );
-    (job, machine, rig, dev)
-}
-
-/// The tape-only stage on the emulator's pseudo-terminal (the demo's 200 x 150 mm).
-fn tape_stage(pty: &DncPty) -> DncStage {
-    let port = tokio_serial::new(pty.path(), BAUD)
-        .open_native_async()
-        .expect("the emulator's port opens");
-    let sender = DncSender::from_stream(port, "tape".into(), BAUD, DncOptions::default());
-    let axis = |axis, max_mm| DncAxis {
-        axis,
-        min_mm: 0.0,
-        max_mm,
-        max_feed_mm_min: 6000.0,
-    };
-    DncStage::new(
-        sender,
-        pty.path(),
-        vec![axis(drivers::Axis::X, 200.0), axis(drivers::Axis::Y, 150.0)],
-    )
-}
 
 #[test]
 fn a_grid_is_measured_through_the_tape_with_the_stops_found_from_the_frames() {
@@ -206,36 +161,6 @@ fn the_map_scan_runs_through_the_tape_on_a_tape_only_stage() {
     });
 }
 
-/// The simulated camera in lockstep with the emulator's clock paced by its frames: each
-/// frame waits (on the emulator's counters, not on the wall clock) until the emulator
-/// has run the time of the frames before it, so every slice of machine time is seen.
-struct PacedCamera {
-    inner: drivers::sim::SimCamera,
-    rig: SharedRig,
-    run: tokio::sync::watch::Receiver<DncStats>,
-}
-
-#[async_trait::async_trait]
-impl drivers::Camera for PacedCamera {
-    fn info(&self) -> &drivers::CameraInfo {
-        drivers::Camera::info(&self.inner)
-    }
-    async fn grab(&mut self) -> Result<drivers::Frame, drivers::DriverError> {
-        let grabbed = lock(&self.rig).frames();
-        // A closed channel (the emulator ended) lets the frame go: the tape fails then.
-        let _ = self.run.wait_for(|s| s.frames_run >= grabbed).await;
-        drivers::Camera::grab(&mut self.inner).await
-    }
-}
-
-fn paced_camera(pty: &DncPty, rig: &SharedRig) -> PacedCamera {
-    PacedCamera {
-        inner: drivers::sim::SimCamera::new(rig.clone()),
-        rig: rig.clone(),
-        run: pty.watch(),
-    }
-}
-
 /// The map of the demo stage from the simulator's truth (as a perfect scan would make
 /// it), for the jobs that apply one.
 fn truth_model(job: &Job, machine: &MachineConfig) -> errormap::MapModel {
@@ -363,4 +288,29 @@ fn verify_runs_through_the_tape_and_the_residual_is_far_below_the_error() {
     // The same bounds as over GRBL (tests/tests/errormap_verify.rs).
     assert!(raw > 10.0, "the stage's own error: {raw} um");
     assert!(worst < 1.5, "residual {worst} um");
+}
+
+/// The compensation loop through the tape (`runner::run_job` on a `tape_only` stage):
+/// every positioning, the first and each correction, is a short tape of its own whose
+/// end the camera sees; the first six targets of the coded job (no homing: the coded
+/// board says where the machine is) end on target as over GRBL.
+#[test]
+fn compensate_runs_each_move_as_a_short_tape_and_ends_on_target() {
+    let (mut job, _, rig, dev) = coded_rig();
+    job.targets.truncate(6);
+    let report = runtime_two_workers().block_on(async {
+        let pty = DncPty::spawn(dev, None).expect("a pseudo-terminal");
+        let mut devices = devices::Devices {
+            stage: Box::new(tape_stage(&pty)),
+            camera: Box::new(paced_camera(&pty, &rig)),
+            rig: Some(rig.clone()),
+        };
+        tokio::time::timeout(BOUND, runner::run_job(&job, &mut devices, &mut |_, _| {}))
+            .await
+            .expect("the job ends within the bound")
+    });
+    eprintln!("compensate through the tape:\n{}", report.to_text());
+    // The demo's figure over GRBL (tests/tests/compensation.rs): every target converged,
+    // within 1 um of the truth, on a stage off by more than 10 um there.
+    system_tests::assert_demo_figure(&report, 10.0);
 }

@@ -350,15 +350,54 @@ pub async fn reference_by_tape(
     let mut still = Vec::with_capacity(still_frames);
     for frame_no in 0..still_frames {
         let frame = camera.grab().await.map_err(|e| e.to_string())?;
-        let at = crate::measure::At {
-            path: &[],
-            target_mm: hint,
-            index: 0,
-            measurement: frame_no,
-            free_on_coded_board: false,
-        };
-        let o = crate::measure::localize_frame(job, &frame, at).map_err(|e| e.to_string())?;
+        let params = job.localize_params(hint);
+        let o = drivers::blocking(|| localize(&frame.image, &job.board, &params))
+            .map_err(|e| format!("still frame {frame_no} at the reference point: {e}"))?;
         still.push([o.x_mm, o.y_mm]);
     }
     Ok((stop, error_um, still))
+}
+
+/// One positioning of the compensation loop on a `tape_only` stage (each corrective move
+/// a short tape of its own), returning once the camera has seen the machine stop there,
+/// so the frame grabbed next is of the machine at rest. A correction may be a fraction of
+/// a micrometre, which no camera sees as a move, and the trip to the approach point
+/// 0.05 mm away is too short to be sure a frame falls in it; so the tape first goes to a
+/// point twice the stops' bound away on both axes (below, or above where the travel
+/// ends), dwells there (a stop of its own, not the target's), then the approach point
+/// (0.05 mm below when the policy gives none), the command, the dwell.
+pub async fn position_by_tape(
+    job: &Job,
+    stage: &mut dyn Stage,
+    camera: &mut dyn Camera,
+    positioning: &compensation::correction::Positioning,
+    limits: &compensation::correction::SoftLimits,
+) -> Result<(), String> {
+    let (tape, stops) = job_specs(job);
+    let c = positioning.command_mm;
+    let away = 2.0 * stops.bound_mm;
+    let far = [0, 1].map(|k| {
+        if c[k] - away >= limits.min_mm[k] {
+            c[k] - away
+        } else {
+            c[k] + away
+        }
+    });
+    let targets = [
+        TapeTarget {
+            approach_mm: far,
+            command_mm: far,
+        },
+        TapeTarget {
+            approach_mm: positioning
+                .approach_from_mm
+                .unwrap_or([c[0] - 0.05, c[1] - 0.05]),
+            command_mm: c,
+        },
+    ];
+    let run = measure_by_tape(job, stage, camera, &targets, &tape, &stops, &mut |_| Ok(())).await;
+    match run.error {
+        None => Ok(()),
+        Some(e) => Err(e),
+    }
 }
