@@ -12,9 +12,11 @@ use world::{lock, SharedRig};
 
 pub const BAUD: u32 = 115_200;
 /// Machine seconds per camera frame (the emulator's clock paced by the frames, not the
-/// wall): a dwell of 3 s spans 6 frames or more, a stop needs 3 (1 s still), whatever
-/// the load on the machine running the test.
-pub const SECONDS_PER_FRAME: f64 = 0.5;
+/// wall, in lockstep: frame times are multiples of it). A target's dwell of 3 s holds 4
+/// frames; the first at rest comes at most 0.75 s after the machine arrives, the stop
+/// (1 s still) two frames later, 2.25 s after: whatever the load on the machine running
+/// the test.
+pub const SECONDS_PER_FRAME: f64 = 0.75;
 
 /// The demo's C5 stage (thermal drift off) under the coded board (every frame says
 /// where it is: a plain grid gives the position only modulo its pitch, and a still

@@ -47,6 +47,28 @@ fn a_grid_is_measured_through_the_tape_with_the_stops_found_from_the_frames() {
             min_still_s: 1.0,
             bound_mm: 0.2,
         };
+        // Two targets in a row within the bound (one point from both sides): refused
+        // before the tape goes, nothing grabbed.
+        let twice = [
+            targets[0],
+            TapeTarget {
+                approach_mm: [25.05, 25.05],
+                command_mm: [25.0, 25.0],
+            },
+        ];
+        let refused = runner::tape::measure_by_tape(
+            &job,
+            &mut stage,
+            &mut camera,
+            &twice,
+            &tape,
+            &stops,
+            &mut |_| Ok(()),
+        )
+        .await;
+        let e = refused.error.expect("refused");
+        assert!(e.contains("targets #0 and #1"), "{e}");
+        assert_eq!(refused.frames, 0);
         let run = tokio::time::timeout(
             BOUND,
             runner::tape::measure_by_tape(
