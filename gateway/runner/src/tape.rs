@@ -2,16 +2,19 @@
 //! 3): the targets go to the controller as one measurement tape
 //! ([`errormap::tape::measurement_tape`]) streamed by the stage (a `tape_only` stage:
 //! nothing comes back), while the camera grabs without pause; each frame is localized
-//! and [`errormap::tape::StopFinder`] finds the stops (still for half the dwell, at the
-//! next target). A target missed, out of order or never stopping ends the run with the
-//! stops found so far. Time is the frames' (the machine's clock for a simulated one).
+//! and [`errormap::tape::StopFinder`] finds the stops (still for a third of the dwell,
+//! at the next target). A target missed, out of order or never stopping ends the run
+//! with the stops found so far. Time is the frames' (the machine's clock for a
+//! simulated one).
 //!
 //! [`measure_by_tape`] is the one step every job measuring through a tape takes: the map
-//! scan ([`scan_by_tape`]), ISO 230-2 (`crate::iso230`) and verify (`crate::verify`)
-//! only say which targets, in which order, and what a stop means to them. The reference point is measured first on a tape of its own
-//! ([`reference_by_tape`]) where the later commands depend on it (a map re-referenced to
-//! this reference return), and the camera's orientation is not checked by moves (a tape
-//! cannot wait for a frame): on a coded board every frame gives the absolute position.
+//! scan ([`scan_by_tape`]), ISO 230-2 (`crate::iso230`), verify (`crate::verify`) and
+//! each positioning of the compensation loop ([`position_by_tape`]) only say which
+//! targets, in which order, and what a stop means to them. The reference point is
+//! measured first on a tape of its own ([`reference_by_tape`]) where the later commands
+//! depend on it (a map re-referenced to this reference return), and the camera's
+//! orientation is not checked by moves (a tape cannot wait for a frame): on a coded
+//! board every frame gives the absolute position.
 
 use drivers::{Camera, Stage};
 use errormap::tape::{

@@ -234,14 +234,11 @@ async fn verify_by_tape(
     job: &Job,
     stage: &mut dyn drivers::Stage,
     camera: &mut dyn drivers::Camera,
-    model: &errormap::MapModel,
-    points: &[([f64; 2], errormap::Direction)],
+    model: &MapModel,
+    points: &[([f64; 2], Direction)],
     recorded: Option<[f64; 2]>,
     limits: &compensation::correction::SoftLimits,
-) -> Result<
-    crate::verify::Verification,
-    (crate::verify::VerifyError, Vec<crate::verify::CheckedPoint>),
-> {
+) -> Result<Verification, (VerifyError, Vec<CheckedPoint>)> {
     use VerifyError as E;
     let tape_error = |measured, message| E::Tape { measured, message };
     let (_, reference_um, _) =
