@@ -132,14 +132,7 @@ fn open_iso_port(port: &str, baud: u32, device: &str) -> Result<SerialStream, Dr
 }
 
 /// The gateway as a controller to a DNC sender (the operator's DNC software) on a port
-/// of its own: the sender's tape is read line by line, each line handed to `on_line`,
-/// whose lines go on to `tape` (a controller's drip-feed, [`DncSender::send_live`]),
-/// until the closing `%`. Flow control as a controller applies it: DC1 on opening; DC3
-/// when fewer than `low` lines of room are left in `tape`, DC1 when `high` are free
-/// again (the characters the sender wrote meanwhile wait on its line). A line
-/// `on_line` refuses ends the reading as a controller's alarm does: DC3 NAK to the
-/// sender (its DNC software reports the controller's alarm), the error names the line;
-/// nothing of it reaches `tape`. Returns the lines read.
+/// of its own (ISO code framing, as [`DncSender::open`]).
 pub struct DncReceiver {
     port: SerialStream,
     device: String,
@@ -170,6 +163,14 @@ impl DncReceiver {
             })
     }
 
+    /// Reads the sender's tape line by line, each line handed to `on_line`, whose lines
+    /// go on to `tape` (a controller's drip-feed, [`DncSender::send_live`]), until the
+    /// closing `%`. Flow control as a controller applies it: DC1 first; DC3 when fewer
+    /// than `low` lines of room are left in `tape`, DC1 when `high` are free again (what
+    /// the sender wrote meanwhile waits on its line). A line `on_line` refuses ends the
+    /// reading as a controller's alarm does: DC3 NAK to the sender (its DNC software
+    /// reports the controller's alarm), the error names the line; nothing of it reaches
+    /// `tape`. Returns the lines read.
     pub async fn receive(
         &mut self,
         tape: &tokio::sync::mpsc::Sender<String>,
