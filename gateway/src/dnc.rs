@@ -23,8 +23,8 @@ pub struct DncArgs {
     /// The subprograms stored in the controller that the program calls (M98).
     #[arg(long)]
     pub subprograms: Option<PathBuf>,
-    /// Write the rewritten tape here (never over an input).
-    #[arg(long)]
+    /// Write the rewritten tape here (never over an input; not with `--from-port`).
+    #[arg(long, conflicts_with = "from_port")]
     pub out: Option<PathBuf>,
     #[command(flatten)]
     pub request: DncRequest,
