@@ -9,8 +9,10 @@ use std::process::ExitCode;
 
 #[derive(clap::Args)]
 pub struct DncArgs {
-    /// The program (Fanuc dialect, ISO code; its subprograms after M30).
-    pub input: PathBuf,
+    /// The program (Fanuc dialect, ISO code; its subprograms after M30); none with
+    /// `--from-port` (the program comes from a DNC sender).
+    #[arg(required_unless_present = "from_port")]
+    pub input: Option<PathBuf>,
     /// The error map (a version file written by `gateway map`).
     #[arg(long, required_unless_present = "uncompensated")]
     pub map: Option<PathBuf>,
@@ -21,8 +23,8 @@ pub struct DncArgs {
     /// The subprograms stored in the controller that the program calls (M98).
     #[arg(long)]
     pub subprograms: Option<PathBuf>,
-    /// Write the rewritten tape here (never over an input).
-    #[arg(long)]
+    /// Write the rewritten tape here (never over an input; not with `--from-port`).
+    #[arg(long, conflicts_with = "from_port")]
     pub out: Option<PathBuf>,
     #[command(flatten)]
     pub request: DncRequest,
@@ -31,11 +33,13 @@ pub struct DncArgs {
 pub fn dnc(args: DncArgs, json: bool) -> anyhow::Result<ExitCode> {
     let read = |p: &Path| procedure::rewrite::read_program(p).map_err(anyhow::Error::msg);
     let mut request = args.request;
-    request.program = read(&args.input)?;
-    request.program_name = args.input.display().to_string();
+    if let Some(input) = &args.input {
+        request.program = read(input)?;
+        request.program_name = input.display().to_string();
+    }
     request.subprograms = args.subprograms.as_deref().map(read).transpose()?;
     let inputs: Vec<&Path> = [
-        Some(args.input.as_path()),
+        args.input.as_deref(),
         args.map.as_deref(),
         args.config.as_deref(),
         args.subprograms.as_deref(),
@@ -49,7 +53,10 @@ pub fn dnc(args: DncArgs, json: bool) -> anyhow::Result<ExitCode> {
     }
     let kind = procedure::kinds::kind("dnc")?;
     let mut outcome = crate::front::run_outcome(kind, &request, &mut sink, |f| {
-        let f = f.input(&args.input);
+        let f = match &args.input {
+            Some(input) => f.input(input),
+            None => f,
+        };
         let f = match &args.map {
             Some(map) => f.map_file(map),
             None => f,

@@ -1,6 +1,7 @@
 //! Helpers shared by the system tests in `tests/tests/` (interoperation tests that run
 //! the stand-alone `emulators` binary and independent peers as separate processes).
 
+pub mod dnc_rig;
 pub mod faulty_serial;
 pub mod faulty_tcp;
 pub mod firmware;

@@ -295,3 +295,115 @@ fn a_block_that_cannot_be_rewritten_is_refused_naming_it_and_nothing_is_sent() {
         assert_eq!(received, 0);
     });
 }
+
+/// `gateway dnc --from-port`: the operator's DNC sender on a second pseudo-terminal
+/// (`tests/interop/dnc_sender.py`, an independent sender honouring DC1/DC3 and stopping
+/// on NAK as DNC software does) drip-feeds `program` into the `dnc` kind, which rewrites
+/// each line as it arrives and drip-feeds the controller. Returns the kind's outcome
+/// (result or error), what the sender saw, and the controller with its machine.
+async fn run_from_sender(
+    machine: &MachineConfig,
+    program: &str,
+    map_file: &std::path::Path,
+) -> (
+    Result<serde_json::Value, String>,
+    serde_json::Value,
+    DncPty,
+    SharedRig,
+) {
+    use std::io::BufRead;
+    let (pty, rig) = controller(machine, None);
+    let dir = tempfile::tempdir().expect("a temporary folder");
+    let tape = dir.path().join("part.nc");
+    std::fs::write(&tape, program).expect("the tape is written");
+    let script = system_tests::workspace().join("tests/interop/dnc_sender.py");
+    let mut child = std::process::Command::new("python3")
+        .arg(&script)
+        .arg(&tape)
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .expect("python3 runs (tests/install-peers.sh)");
+    let mut out = std::io::BufReader::new(child.stdout.take().expect("its output"));
+    let mut from = String::new();
+    out.read_line(&mut from).expect("the sender says its port");
+    let params = json!({
+        "program": "", "from_port": from.trim(), "from_baud": BAUD, "port": pty.path(),
+        "baud": BAUD, "no_reference": true, "tolerance_um": TOLERANCE_UM,
+        "increment_mm": INCREMENT_MM,
+    });
+    let mut sink = procedure::Collect(Vec::new());
+    let (_raise, stop) = procedure::Stop::new();
+    let mut files = procedure::files::Files::new(&mut sink, stop).map_file(map_file);
+    let outcome = tokio::time::timeout(
+        BOUND,
+        procedure::kinds::kind("dnc")
+            .unwrap()
+            .run(params, &mut files),
+    )
+    .await
+    .expect("the relay ends within the bound");
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut out, &mut rest).expect("the sender's report");
+    let _ = child.wait();
+    let seen: serde_json::Value =
+        serde_json::from_str(rest.trim()).unwrap_or_else(|e| panic!("{e}: {rest}"));
+    let result = if outcome.is_success() {
+        Ok(outcome.result.unwrap_or_default())
+    } else {
+        Err(outcome.error().unwrap_or_default().to_string())
+    };
+    (result, seen, pty, rig)
+}
+
+#[test]
+fn a_live_sender_on_a_second_port_is_rewritten_block_by_block_with_flow_control_both_ways() {
+    let (job, machine) = demo_machine();
+    let dir = tempfile::tempdir().expect("a temporary folder");
+    let map_file = dir.path().join("stage.v1.json");
+    map_from_truth(&machine, identity(&job))
+        .save_new(&map_file)
+        .expect("the map is written");
+    runtime_two_workers().block_on(async {
+        // A zigzag of 3 000 short moves (60 kB): the sender writes faster than the
+        // controller reads the rewritten tape, so the gateway's buffer fills.
+        let mut program = String::from("%\nO2006(ZIGZAG)\nG90G21G17\nG01X40.Y40.F3000.\n");
+        for k in 1..=3000 {
+            let x = if k % 2 == 1 { 41.0 } else { 40.0 };
+            program += &format!("X{x:.1}Y{:.2}\n", 40.0 + 0.03 * f64::from(k));
+        }
+        program += "M30\n%\n";
+        let start = [40.0, 40.0];
+        let raw = run_raw(&machine, &program, None).await;
+        let raw = from_start(&raw, start, |r| r.cmd_mm);
+        let path: Vec<[f64; 2]> = raw.iter().map(|r| r.cmd_mm).collect();
+        let (result, sent, mut pty, rig) = run_from_sender(&machine, &program, &map_file).await;
+        let result = result.unwrap_or_else(|e| panic!("{e} (the sender: {sent})"));
+        assert_eq!(sent["ok"], true, "{sent}");
+        let s = finished(&mut pty).await;
+        assert!(s.alarms.is_empty(), "{:?}", s.alarms);
+        let trace = lock(&rig).machine_mut().take_trace();
+        let rows = from_start(&trace, start, |r| r.true_mm);
+        let points: Vec<[f64; 2]> = rows.iter().map(|r| r.true_mm).collect();
+        let (after, at) = worst_along(&points, &path);
+        eprintln!(
+            "from a live sender: {} lines received, {} sent to the controller, the sender paused {} times by the gateway's DC3; {:.3} um off the path",
+            result["lines_received"], result["sent_lines"], sent["pauses"], after * 1e3
+        );
+        assert_eq!(sent["sent_lines"], program.lines().count(), "the sender's tape went whole");
+        assert!(sent["pauses"].as_u64().unwrap() > 0, "the gateway's buffer filled: DC3, then DC1");
+        assert_eq!(result["blocks_in"], 3004);
+        assert!(result["sent_lines"].as_u64().unwrap() > 3000);
+        assert!(after <= 0.0015, "{:.3} um off the path at {:?}", after * 1e3, points[at]);
+
+        // A block the rewrite cannot take: the sender sees the controller's alarm (DC3
+        // NAK), the controller has the blocks before it and nothing wrong.
+        let program = "%\nO2005\nG90G01X50.Y50.F3000.\nN40G41D1X60.\nG01X70.\nM30\n%\n";
+        let (result, sent, pty, _) = run_from_sender(&machine, program, &map_file).await;
+        let e = result.expect_err("G41 cannot be rewritten");
+        assert!(e.contains("block 4 `N40G41D1X60.`") && e.contains("G41"), "{e}");
+        assert_eq!(sent["alarm"], "NAK", "{sent}");
+        let s = pty.stats();
+        assert!(s.alarms.is_empty(), "{:?}", s.alarms);
+        assert!(s.position[0] > 49.0 && s.position[0] < 51.0, "{:?}", s.position);
+    });
+}

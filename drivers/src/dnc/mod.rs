@@ -116,6 +116,164 @@ pub struct TapeError {
     pub progress: TapeProgress,
 }
 
+/// A tape port as ISO code runs on it: 7 data bits, even parity, 2 stop bits, no
+/// hardware flow control (DC1/DC3 only).
+fn open_iso_port(port: &str, baud: u32, device: &str) -> Result<SerialStream, DriverError> {
+    tokio_serial::new(port, baud)
+        .data_bits(tokio_serial::DataBits::Seven)
+        .parity(tokio_serial::Parity::Even)
+        .stop_bits(tokio_serial::StopBits::Two)
+        .flow_control(tokio_serial::FlowControl::None)
+        .open_native_async()
+        .map_err(|e| DriverError::Transport {
+            device: device.into(),
+            message: format!("opening {port} at {baud} baud: {e}"),
+        })
+}
+
+/// The gateway as a controller to a DNC sender (the operator's DNC software) on a port
+/// of its own (ISO code framing, as [`DncSender::open`]).
+pub struct DncReceiver {
+    port: SerialStream,
+    device: String,
+}
+
+/// The longest line a sender may send, characters (a block, its comments, CR).
+pub const MAX_LIVE_LINE: usize = 4096;
+
+impl DncReceiver {
+    pub async fn open(port: &str, baud: u32) -> Result<Self, DriverError> {
+        let device = format!("DNC sender port {port}");
+        let port = open_iso_port(port, baud, &device)?;
+        Ok(Self { port, device })
+    }
+
+    pub fn from_stream(port: SerialStream, device: String) -> Self {
+        Self { port, device }
+    }
+
+    async fn code(&mut self, codes: &[u8]) -> Result<(), DriverError> {
+        let device = self.device.clone();
+        self.port
+            .write_all(codes)
+            .await
+            .map_err(|e| DriverError::Transport {
+                device,
+                message: e.to_string(),
+            })
+    }
+
+    /// Reads the sender's tape line by line, each line handed to `on_line`, whose lines
+    /// go on to `tape` (a controller's drip-feed, [`DncSender::send_live`]), until the
+    /// closing `%`. Flow control as a controller applies it: DC1 first; DC3 when fewer
+    /// than `low` lines of room are left in `tape`, DC1 when `high` are free again (what
+    /// the sender wrote meanwhile waits on its line). A line `on_line` refuses ends the
+    /// reading as a controller's alarm does: DC3 NAK to the sender (its DNC software
+    /// reports the controller's alarm), the error names the line; nothing of it reaches
+    /// `tape`. Returns the lines read.
+    pub async fn receive(
+        &mut self,
+        tape: &tokio::sync::mpsc::Sender<String>,
+        low: usize,
+        high: usize,
+        on_line: &mut dyn FnMut(&str) -> Result<Vec<String>, String>,
+    ) -> Result<usize, DriverError> {
+        let gone = |device: &str| DriverError::InvalidState {
+            device: device.into(),
+            message: "the controller's side stopped taking the tape".into(),
+        };
+        self.code(&[DC1]).await?;
+        let (mut line, mut lines, mut percents) = (Vec::new(), 0usize, 0usize);
+        let mut buf = [0u8; 256];
+        loop {
+            if tape.capacity() < low {
+                self.code(&[DC3]).await?;
+                // Wait for room, taking nothing meanwhile; then the sender may go on.
+                let room = tape
+                    .reserve_many(high.min(tape.max_capacity()))
+                    .await
+                    .map_err(|_| gone(&self.device))?;
+                drop(room);
+                self.code(&[DC1]).await?;
+            }
+            let n = self
+                .port
+                .read(&mut buf)
+                .await
+                .map_err(|e| DriverError::Transport {
+                    device: self.device.clone(),
+                    message: e.to_string(),
+                })?;
+            if n == 0 {
+                // A port opened raw (VMIN 0) reads nothing when nothing waits; a line that
+                // is gone reads an error (EIO). Look again a moment later.
+                tokio::time::sleep(Duration::from_millis(1)).await;
+                continue;
+            }
+            for &b in &buf[..n] {
+                match b {
+                    // The leader, and flow-control codes a sender may echo.
+                    0 | DC1 | DC3 => continue,
+                    b'\n' => {}
+                    _ => {
+                        if line.len() >= MAX_LIVE_LINE {
+                            self.code(&[DC3, NAK]).await?;
+                            return Err(DriverError::InvalidState {
+                                device: self.device.clone(),
+                                message: format!(
+                                    "line {}: longer than {MAX_LIVE_LINE} characters (the gateway sent DC3 NAK: the sender sees the controller's alarm)",
+                                    lines + 1
+                                ),
+                            });
+                        }
+                        line.push(b);
+                        continue;
+                    }
+                }
+                lines += 1;
+                let text = String::from_utf8_lossy(&line).into_owned();
+                line.clear();
+                let out = match on_line(&text) {
+                    Ok(out) => out,
+                    Err(message) => {
+                        self.code(&[DC3, NAK]).await?;
+                        return Err(DriverError::InvalidState {
+                            device: self.device.clone(),
+                            message: format!(
+                                "{message} (the gateway sent DC3 NAK: the sender sees the controller's alarm; the controller has the blocks before it: press RESET on its panel)"
+                            ),
+                        });
+                    }
+                };
+                for l in out {
+                    tape.send(l).await.map_err(|_| gone(&self.device))?;
+                }
+                if text.trim_end_matches('\r') == "%" {
+                    percents += 1;
+                    if percents == 2 {
+                        return Ok(lines);
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Where a tape's lines come from: all at hand, or arriving one by one.
+enum Lines<'a> {
+    Tape(std::slice::Iter<'a, String>),
+    Live(&'a mut tokio::sync::mpsc::Receiver<String>),
+}
+
+impl Lines<'_> {
+    async fn next(&mut self) -> Option<String> {
+        match self {
+            Lines::Tape(lines) => lines.next().cloned(),
+            Lines::Live(rx) => rx.recv().await,
+        }
+    }
+}
+
 /// The drip-feed sender on one serial port.
 pub struct DncSender {
     port: SerialStream,
@@ -141,16 +299,7 @@ impl DncSender {
                 message: "chunk must be at least 1 character".into(),
             });
         }
-        let stream = tokio_serial::new(port, baud)
-            .data_bits(tokio_serial::DataBits::Seven)
-            .parity(tokio_serial::Parity::Even)
-            .stop_bits(tokio_serial::StopBits::Two)
-            .flow_control(tokio_serial::FlowControl::None)
-            .open_native_async()
-            .map_err(|e| DriverError::Transport {
-                device: device.clone(),
-                message: format!("opening {port} at {baud} baud: {e}"),
-            })?;
+        let stream = open_iso_port(port, baud, &device)?;
         Ok(Self::from_stream(stream, device, baud, options))
     }
 
@@ -315,7 +464,26 @@ impl DncSender {
             total: tape.lines.len(),
             ..TapeProgress::default()
         };
-        match self.send_lines(tape, &mut p, progress).await {
+        match self
+            .send_lines(Lines::Tape(tape.lines.iter()), &mut p, progress)
+            .await
+        {
+            Ok(()) => Ok(p),
+            Err(cause) => Err(TapeError { cause, progress: p }),
+        }
+    }
+
+    /// Send a tape whose lines arrive on `lines` (each without its end of block, `%`
+    /// first and last: the source checks them; a live DNC sender's program rewritten
+    /// through the gateway) until the channel closes; flow control as [`Self::send_tape`].
+    /// `TapeProgress::total` counts the lines arrived so far.
+    pub async fn send_live(
+        &mut self,
+        lines: &mut tokio::sync::mpsc::Receiver<String>,
+        progress: &mut (dyn FnMut(&TapeProgress) -> Flow + Send),
+    ) -> Result<TapeProgress, TapeError> {
+        let mut p = TapeProgress::default();
+        match self.send_lines(Lines::Live(lines), &mut p, progress).await {
             Ok(()) => Ok(p),
             Err(cause) => Err(TapeError { cause, progress: p }),
         }
@@ -323,7 +491,7 @@ impl DncSender {
 
     async fn send_lines(
         &mut self,
-        tape: &Tape,
+        mut lines: Lines<'_>,
         p: &mut TapeProgress,
         progress: &mut (dyn FnMut(&TapeProgress) -> Flow + Send),
     ) -> Result<(), DriverError> {
@@ -346,7 +514,12 @@ impl DncSender {
         };
         let leader = vec![0u8; self.options.leader_nuls];
         let mut pending: Vec<u8> = leader;
-        for (i, line) in tape.lines.iter().enumerate() {
+        let live = matches!(lines, Lines::Live(_));
+        let mut i = 0;
+        while let Some(line) = lines.next().await {
+            if live {
+                p.total = i + 1;
+            }
             pending.extend_from_slice(line.as_bytes());
             pending.extend_from_slice(eob);
             let mut at = 0;
@@ -380,17 +553,18 @@ impl DncSender {
             }
             pending.clear();
             p.sent = i + 1;
-            if progress(p) == Flow::Stop && i + 1 < tape.lines.len() {
+            if progress(p) == Flow::Stop && (live || i + 1 < p.total) {
                 return Err(DriverError::InvalidState {
                     device: self.device.clone(),
                     message: format!(
                         "the tape was stopped after line {} of {}: the controller keeps what it \
                          read; press RESET on its panel to end the program",
                         i + 1,
-                        tape.lines.len()
+                        p.total
                     ),
                 });
             }
+            i += 1;
         }
         self.port.flush().await.map_err(|e| self.transport(e))?;
         // A NAK for the last characters may already be here.

@@ -63,6 +63,11 @@ pub struct DncConfig {
     pub home_at_power_on: bool,
     /// Arcs run as chords within this, mm (the simulated stage moves in straight lines).
     pub arc_tolerance_mm: f64,
+    /// Tests' pacing: machine seconds granted per frame the simulated camera grabs,
+    /// in place of the wall clock (`clock` then only says the time is the emulator's).
+    /// The camera sees the same frames in each dwell however loaded the machine is and
+    /// however fast it renders. None (the default): the clock.
+    pub seconds_per_frame: Option<f64>,
 }
 
 impl Default for DncConfig {
@@ -77,6 +82,7 @@ impl Default for DncConfig {
             auto_start: true,
             home_at_power_on: true,
             arc_tolerance_mm: 0.0001,
+            seconds_per_frame: None,
         }
     }
 }
@@ -108,6 +114,9 @@ pub struct DncStats {
     pub position: [f64; 3],
     /// Motion and dwells still to run.
     pub busy: bool,
+    /// With [`DncConfig::seconds_per_frame`]: the camera's frames whose time has run
+    /// (a camera that waits for this before its next frame sees every slice of time).
+    pub frames_run: u64,
 }
 
 const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
@@ -177,6 +186,8 @@ pub struct DncDevice {
     line_no: usize,
     budget_s: f64,
     last_wall: Option<f64>,
+    /// The camera's frames counted so far (`seconds_per_frame`).
+    last_frames: u64,
     out: Vec<u8>,
     stats: DncStats,
 }
@@ -185,7 +196,7 @@ impl DncDevice {
     pub fn new(rig: SharedRig, cfg: DncConfig) -> Self {
         let position = {
             let mut r = lock(&rig);
-            if matches!(cfg.clock, Clock::Scaled(_)) {
+            if matches!(cfg.clock, Clock::Scaled(_)) || cfg.seconds_per_frame.is_some() {
                 // The emulator advances the machine by the wall clock.
                 r.time_owned_by_wall_clock();
             }
@@ -211,6 +222,7 @@ impl DncDevice {
             line_no: 0,
             budget_s: 0.0,
             last_wall: None,
+            last_frames: 0,
             out: Vec::new(),
             stats: DncStats {
                 position,
@@ -409,6 +421,14 @@ impl DncDevice {
     fn catch_up(&mut self, now: f64) {
         let dt = self.last_wall.map_or(0.0, |t| (now - t).max(0.0));
         self.last_wall = Some(now);
+        if let Some(per_frame) = self.cfg.seconds_per_frame {
+            let frames = lock(&self.rig).frames();
+            let new = frames.saturating_sub(self.last_frames);
+            self.last_frames = frames;
+            self.budget_s += new as f64 * per_frame;
+            self.stats.frames_run = frames;
+            return;
+        }
         if let Clock::Scaled(k) = self.cfg.clock {
             self.budget_s += dt * k;
         }

@@ -61,6 +61,12 @@ impl DncPty {
     }
 
     /// Wait until the counters satisfy `done` (or the controller has ended).
+    /// The counters as they change (for a task that waits on them while the test
+    /// holds the controller).
+    pub fn watch(&self) -> watch::Receiver<DncStats> {
+        self.stats.clone()
+    }
+
     pub async fn wait_for(&mut self, done: impl Fn(&DncStats) -> bool) -> DncStats {
         let seen = self.stats.wait_for(|s| done(s)).await.map(|s| s.clone());
         seen.unwrap_or_else(|_| self.stats.borrow().clone())

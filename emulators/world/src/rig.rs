@@ -74,6 +74,11 @@ impl SimRig {
         self.frames_advance_time = false;
     }
 
+    /// Frames exposed so far.
+    pub fn frames(&self) -> u64 {
+        self.frames
+    }
+
     /// The machine as its controllers see and drive it: commands, encoder counts, time.
     pub fn machine(&self) -> &SimMachine {
         &self.machine

@@ -4,8 +4,8 @@
 //! dwell long enough to settle and grab) and finds each stop from the frames alone
 //! ([`StopFinder`]: the board's position read from each frame, still for at least
 //! [`StopSpec::min_still_s`], within [`StopSpec::bound_mm`] of the next expected
-//! target). The executor that streams the tape while the camera grabs is not written
-//! yet (docs/dnc.md).
+//! target). The executor that streams the tape while the camera grabs is
+//! `runner::tape` (docs/dnc.md).
 //!
 //! Conventions (*ours*; the manuals fix none of them):
 //! * The tape sets G59 to the machine zero (`G10 L2 P6 X0. Y0. Z0.`) and moves in G59, so
@@ -91,8 +91,11 @@ pub fn measurement_tape(
     ));
     let dwell = number(spec.dwell_s, 3).unwrap_or_default();
     let mut expected = Vec::with_capacity(targets.len());
+    // The block last written: an approach point where the tape already is (a sequence
+    // of targets, each approached from the one before) is not written again.
+    let mut last = String::new();
     for (index, t) in targets.iter().enumerate() {
-        let mut xy = |p: [f64; 2]| -> Result<[f64; 2], TapeError> {
+        let mut xy = |p: [f64; 2], skip_if_there: bool| -> Result<[f64; 2], TapeError> {
             let (Some(x), Some(y)) = (number(p[0], decimals), number(p[1], decimals)) else {
                 return Err(TapeError::Target {
                     index,
@@ -105,11 +108,15 @@ pub fn measurement_tape(
                     message: format!("X{x} Y{y} has more digits than the controller takes"),
                 });
             }
-            tape.push_str(&format!("X{x}Y{y}\n"));
+            let block = format!("X{x}Y{y}\n");
+            if !(skip_if_there && block == last) {
+                tape.push_str(&block);
+            }
+            last = block;
             Ok([x.parse().unwrap_or(f64::NAN), y.parse().unwrap_or(f64::NAN)])
         };
-        xy(t.approach_mm)?;
-        expected.push(xy(t.command_mm)?);
+        xy(t.approach_mm, true)?;
+        expected.push(xy(t.command_mm, false)?);
         tape.push_str(&format!("G04X{dwell}\n"));
     }
     tape.push_str("M30\n%\n");
@@ -170,7 +177,8 @@ pub enum StopError {
 
 /// Finds the stops of a measurement tape in a stream of localized frames (sans-IO: the
 /// caller grabs, localizes and passes each frame's time and board position, in board
-/// mm, with the expected targets in board mm).
+/// mm, with the expected targets in board mm). The rest the machine is in at the first
+/// frame is not a stop: it began before the tape.
 #[derive(Clone, Debug)]
 pub struct StopFinder {
     spec: StopSpec,
@@ -181,6 +189,10 @@ pub struct StopFinder {
     anchor: Option<(f64, [f64; 2])>,
     /// Whether this rest was judged.
     judged: bool,
+    /// Whether the machine has moved since the first frame: the rest it was in then
+    /// began before the tape (it stood there), so it is no stop, even where a later
+    /// target is (a cycle starting where the previous tape left the machine).
+    moved: bool,
 }
 
 fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
@@ -195,6 +207,7 @@ impl StopFinder {
             next: 0,
             anchor: None,
             judged: false,
+            moved: false,
         }
     }
 
@@ -213,12 +226,13 @@ impl StopFinder {
             Some((since, p)) if distance(p, at) <= self.spec.still_mm => since,
             _ => {
                 // Moved: this frame may be the first of a rest.
+                self.moved |= self.anchor.is_some();
                 self.anchor = Some((t_s, at));
                 self.judged = false;
                 return Ok(Seen::Moving);
             }
         };
-        if self.judged || t_s - since < self.spec.min_still_s {
+        if !self.moved || self.judged || t_s - since < self.spec.min_still_s {
             return Ok(Seen::Still);
         }
         self.judged = true;
@@ -278,6 +292,14 @@ mod tests {
             "%\nO9001(GATEWAY MEASUREMENT TAPE - SETS G59 TO MACHINE ZERO)\nG10L2P6X0.Y0.Z0.\nG90G17G21G59G01F3000.\nX9.95Y19.95\nX10.Y20.\nG04X1.5\nM30\n%\n"
         );
         assert_eq!(expected, vec![[10.0, 20.0]]);
+        // A target approached from where the tape already is: no block to go there.
+        let next = TapeTarget {
+            approach_mm: [10.0, 20.0],
+            command_mm: [11.0, 20.0],
+        };
+        let (two, _) = measurement_tape(&[t, next], &spec()).unwrap();
+        assert_eq!(two.matches("X10.Y20.\n").count(), 1, "{two}");
+        assert!(two.contains("G04X1.5\nX11.Y20.\nG04X1.5\n"), "{two}");
         // The controller's interpreter runs it: the target, then a dwell of 1.5 s.
         use protocol::fanuc::{parse_line, Action, Interpreter, Line, Options};
         let mut i = Interpreter::new(Options::default(), [0.0; 3]);
@@ -396,6 +418,7 @@ mod tests {
     fn a_missed_target_ends_the_stops_keeping_what_was_measured() {
         let mut f = finder();
         let mut t = 0.0;
+        f.push(t, [5.0, 5.0]).unwrap();
         for at in [[10.0, 10.0]; 10] {
             t += 0.1;
             f.push(t, at).unwrap();
@@ -420,6 +443,27 @@ mod tests {
         );
         assert!(e.to_string().contains("target #1 was missed"), "{e}");
         assert_eq!(f.measured(), 1);
+        // The rest the machine is in when the frames begin is not a stop, even at a
+        // target (the previous tape left it there): the target is reached again.
+        let mut h = finder();
+        for k in 0..10 {
+            assert_eq!(
+                h.push(f64::from(k), [20.0, 10.0]).unwrap() == Seen::Moving,
+                k == 0
+            );
+        }
+        h.push(10.5, [15.0, 10.0]).unwrap();
+        let stops: Vec<Seen> = (11..15)
+            .map(|k| h.push(f64::from(k), [10.0, 10.0]).unwrap())
+            .filter(|s| matches!(s, Seen::Stop { .. }))
+            .collect();
+        assert_eq!(
+            stops,
+            [Seen::Stop {
+                index: 0,
+                at: [10.0, 10.0]
+            }]
+        );
         // A stop away from every target (a feed hold) is not one.
         let mut g = finder();
         for k in 0..10 {

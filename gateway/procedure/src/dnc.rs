@@ -142,6 +142,19 @@ pub struct DncRequest {
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(long))]
     pub tv_pad: bool,
+    /// The serial port the operator's DNC sender is wired to (the command line only):
+    /// the program comes from it, each block rewritten and drip-fed to the controller
+    /// as it arrives, instead of from `program`; the gateway answers the sender as a
+    /// controller does (DC1, DC3 when its buffer is full, DC1 when it drained; DC3 NAK,
+    /// an alarm, on a block it cannot rewrite). Its subprograms must be the stored ones.
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub from_port: Option<String>,
+    /// With `from_port`: the baud rate its sender is set to.
+    #[serde(default = "default_baud")]
+    #[schema(default = default_baud, minimum = 50, maximum = 921600)]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_baud(), requires = "from_port"))]
+    pub from_baud: u32,
 }
 
 /// `X,Y,Z[;X,Y,Z...]` (mm): work offsets G54, G55, ... as a command-line value; the
@@ -172,6 +185,8 @@ impl DncRequest {
             block_skip: true,
             max_block_chars: default_block_chars(),
             tv_pad: false,
+            from_port: None,
+            from_baud: default_baud(),
         }
     }
 
@@ -207,6 +222,23 @@ impl DncRequest {
         }
         if !(50..=921_600).contains(&self.baud) {
             return Err(RequestError::new("baud", "must be 50..=921600"));
+        }
+        if !(50..=921_600).contains(&self.from_baud) {
+            return Err(RequestError::new("from_baud", "must be 50..=921600"));
+        }
+        if let Some(port) = &self.from_port {
+            if port.is_empty() || port.contains(char::is_whitespace) {
+                return Err(RequestError::new(
+                    "from_port",
+                    "must be a serial port (no blanks)",
+                ));
+            }
+            if !self.send {
+                return Err(RequestError::new(
+                    "from_port",
+                    "a live sender's program is drip-fed as it arrives: it cannot be kept without sending",
+                ));
+            }
         }
         number("tolerance_um", self.tolerance_um, 0.01, 1000.0)?;
         number("max_correction_um", self.max_correction_um, 1e-3, 1e5)?;
@@ -356,12 +388,133 @@ fn link(
     }
 }
 
+/// The rewritten tape's room between the sender and the controller, lines: DC3 to the
+/// sender when fewer than a quarter are free, DC1 when three quarters are.
+pub const LIVE_BUFFER_LINES: usize = 256;
+
+/// A live sender's program (`from_port`): each line rewritten as it arrives
+/// (`rewrite::fanuc::FanucStream`) and drip-fed to the controller while the sender still
+/// sends, flow control both ways (drivers' `DncReceiver` and `DncSender::send_live`).
+async fn run_live(
+    request: &DncRequest,
+    from_port: &str,
+    compensation: &dyn Compensation,
+    cx: &mut dyn crate::Context,
+) -> Outcome {
+    let started = Instant::now();
+    let options = match request.options() {
+        Ok(o) => o,
+        Err(e) => return Outcome::failed(crate::Error::Input(e.to_string())),
+    };
+    let link = match link(request, cx) {
+        Ok(l) => l,
+        Err(e) => return Outcome::failed(e),
+    };
+    let drivers::StageLink::Dnc {
+        port,
+        baud,
+        options: dnc_options,
+        ..
+    } = &link
+    else {
+        return Outcome::failed("the controller's link is not a tape port");
+    };
+    let mut stream = match rewrite::fanuc::FanucStream::new(
+        request.subprograms.as_deref(),
+        compensation,
+        &options,
+    ) {
+        Ok(s) => s,
+        Err(e) => return Outcome::failed(crate::Error::Refused(format!("subprograms: {e}"))),
+    };
+    let mut result = json!({
+        "input": format!("the DNC sender on {from_port}"), "output": link.to_string(),
+        "compensation": compensation.describe(), "tolerance_um": request.tolerance_um,
+        "port": link.to_string(), "sent_lines": 0, "lines_received": 0,
+    });
+    let stop = cx.stop();
+    let relayed = stop
+        .unless(async {
+            let mut receiver = drivers::dnc::DncReceiver::open(from_port, request.from_baud)
+                .await
+                .map_err(|e| e.to_string())?;
+            let mut sender = drivers::dnc::DncSender::open(port, *baud, dnc_options.clone())
+                .await
+                .map_err(|e| format!("opening the tape port: {e}"))?;
+            let (tx, mut rx) = tokio::sync::mpsc::channel::<String>(LIVE_BUFFER_LINES);
+            let mut on_line = |line: &str| -> Result<Vec<String>, String> {
+                stream
+                    .push_line(line)
+                    .map(|text| text.lines().map(str::to_string).collect())
+                    .map_err(|e| format!("the sender's tape: {e}"))
+            };
+            let receiving = async {
+                let r = receiver
+                    .receive(
+                        &tx,
+                        LIVE_BUFFER_LINES / 4,
+                        LIVE_BUFFER_LINES * 3 / 4,
+                        &mut on_line,
+                    )
+                    .await;
+                drop(tx);
+                r
+            };
+            let mut going_on = |_: &drivers::dnc::TapeProgress| drivers::dnc::Flow::Continue;
+            let sending = sender.send_live(&mut rx, &mut going_on);
+            let (received, sent) = tokio::join!(receiving, sending);
+            // The sender's refusal first: it is why the controller's tape ended short.
+            let received = received.map_err(|e| e.to_string())?;
+            let sent = sent.map_err(|e| e.to_string())?;
+            Ok::<_, String>((received, sent.sent))
+        })
+        .await;
+    match relayed {
+        None => {
+            let mut o = Outcome::failed(
+                "stopped while relaying: the controller keeps what it read; press RESET on its panel",
+            );
+            o.end = crate::End::Cancelled;
+            o.result = Some(result);
+            o
+        }
+        Some(Err(e)) => {
+            let mut o = Outcome::failed(e);
+            o.result = Some(result);
+            o
+        }
+        Some(Ok((received, sent))) => {
+            result["lines_received"] = json!(received);
+            result["sent_lines"] = json!(sent);
+            if let (Value::Object(m), Value::Object(r)) =
+                (&mut result, report_json(&stream.finish()))
+            {
+                m.extend(r);
+            }
+            result["elapsed_s"] = json!(started.elapsed().as_secs_f64());
+            let metrics = crate::metrics_from(
+                &result,
+                &[
+                    "moves_compensated",
+                    "segments_added",
+                    "largest_correction_um",
+                    "sent_lines",
+                ],
+            );
+            Outcome::succeeded(result, metrics)
+        }
+    }
+}
+
 /// Rewrites and sends. Progress counts the tape's lines as they are written.
 pub async fn run(
     request: &DncRequest,
     compensation: &dyn Compensation,
     cx: &mut dyn crate::Context,
 ) -> Outcome {
+    if let Some(from) = &request.from_port {
+        return run_live(request, from, compensation, cx).await;
+    }
     let started = Instant::now();
     let (tape, report) = match prepare(request, compensation) {
         Ok(t) => t,
@@ -532,11 +685,17 @@ impl crate::registry::Procedure for Dnc {
         summary(result)
     }
 
-    const COMMAND_LINE_ONLY: &'static [&'static str] = &["port"];
+    const COMMAND_LINE_ONLY: &'static [&'static str] = &["port", "from_port"];
 
     /// The service sends to the tape port of its machine's job: a port named by a
     /// request from the network is refused.
     fn admit(request: &DncRequest, _facts: &crate::registry::Facts) -> Result<(), RequestError> {
+        if request.from_port.is_some() {
+            return Err(RequestError::new(
+                "from_port",
+                "a DNC sender's port is given on the command line of the box it is wired to (gateway dnc --from-port PORT)",
+            ));
+        }
         if request.port.is_some() {
             return Err(RequestError::new(
                 "port",

@@ -808,5 +808,93 @@ fn canonical_line(motion: &Action, from: [f64; 3], named: &[usize]) -> Option<St
     Some(text)
 }
 
+/// The rewrite of a tape as it arrives, line by line (a DNC sender drip-feeding
+/// through the gateway): each line's rewritten text comes back at once, so the
+/// controller can run the first blocks while the sender still sends. Subprograms must
+/// be the controller's stored ones (`stored`): the definitions after a live tape's M30
+/// come after the calls that need them, so a block after M30/M02 other than `%` is
+/// refused naming it. The output is as [`rewrite_fanuc`]'s (its `%` lines included).
+pub struct FanucStream<'a> {
+    writer: Writer<'a>,
+    stored: Tape,
+    line: usize,
+    percents: usize,
+    ended: bool,
+}
+
+impl<'a> FanucStream<'a> {
+    pub fn new(
+        stored: Option<&str>,
+        compensation: &'a dyn Compensation,
+        options: &'a FanucOptions,
+    ) -> Result<Self, FanucError> {
+        let stored = match stored {
+            Some(text) => read_tape(text, true, "subprograms")?,
+            None => Tape {
+                main: Vec::new(),
+                subprograms: BTreeMap::new(),
+            },
+        };
+        Ok(Self {
+            writer: Writer::new(compensation, options)?,
+            stored,
+            line: 0,
+            percents: 0,
+            ended: false,
+        })
+    }
+
+    /// One line of the tape (without its end of block): what to send for it (empty for
+    /// a blank line, else whole lines each ending in LF).
+    pub fn push_line(&mut self, raw: &str) -> Result<String, FanucError> {
+        self.line += 1;
+        let line = self.line;
+        let raw = raw.strip_suffix('\r').unwrap_or(raw);
+        let block = match parse_line(raw, line)? {
+            Line::Blank => return Ok(String::new()),
+            Line::Percent => {
+                self.percents += 1;
+                if self.percents > 2 {
+                    return Err(FanucError::new(
+                        line,
+                        raw,
+                        "a third `%`: one tape at a time",
+                    ));
+                }
+                return Ok("%\n".into());
+            }
+            Line::Block(b) => b,
+        };
+        let refuse = |m: &str| Err(FanucError::new(line, raw, m));
+        if self.percents >= 2 {
+            return refuse("a block after the closing `%`");
+        }
+        if self.ended {
+            return refuse(
+                "a block after M30/M02 on a live tape: subprograms sent after the program cannot be expanded where it calls them; give them as the controller's stored subprograms",
+            );
+        }
+        let source = Source {
+            line,
+            text: raw.to_string(),
+            block,
+        };
+        self.ended =
+            self.writer
+                .run_blocks(std::slice::from_ref(&source), &self.stored, &[], None)?;
+        Ok(std::mem::take(&mut self.writer.out))
+    }
+
+    /// The tape has ended: what the rewrite did.
+    pub fn finish(self) -> FanucReport {
+        let mut report = self.writer.report;
+        let grbl = self.writer.rewriter.into_report();
+        report.largest_correction_um = grbl.largest_correction_um;
+        report.largest_correction_line = grbl.largest_correction_line;
+        report.notes.extend(grbl.notes);
+        report
+    }
+}
+
 #[cfg(test)]
 mod tests;

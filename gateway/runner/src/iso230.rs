@@ -73,6 +73,10 @@ pub enum Iso230Error {
     Move(JobError),
     #[error("cancelled by the operator; the stage was told to stop")]
     Cancelled,
+    /// On a tape port (`crate::tape`): the tape or its stops ended the cycle; the
+    /// measurements taken before went to `on_measurement`.
+    #[error("the measurement tape: {message} ({measured} measurements taken and kept)")]
+    Tape { measured: usize, message: String },
 }
 
 pub const AXIS_NAMES: [&str; 2] = ["X", "Y"];
@@ -94,7 +98,7 @@ pub fn test_area(job: &Job, limits: &SoftLimits, overrun_mm: f64) -> ([f64; 2], 
     (lo, hi)
 }
 
-fn point(axis: usize, along: f64, across: f64) -> [f64; 2] {
+pub(crate) fn point(axis: usize, along: f64, across: f64) -> [f64; 2] {
     if axis == 0 {
         [along, across]
     } else {
@@ -102,7 +106,7 @@ fn point(axis: usize, along: f64, across: f64) -> [f64; 2] {
     }
 }
 
-fn map_direction(axis: usize, d: Direction) -> MapDirection {
+pub(crate) fn map_direction(axis: usize, d: Direction) -> MapDirection {
     let along = match d {
         Direction::Up => Approach::Forward,
         Direction::Down => Approach::Reverse,
@@ -158,6 +162,28 @@ pub async fn run_iso230(
                 .camera_command_for(point(axis, t, spec.across_mm), MapDirection::FORWARD)
                 .map_err(Iso230Error::Map)?;
         }
+    }
+    if stage.capabilities().tape_only {
+        // A closed controller: the cycle as one tape, the stops found from the frames.
+        let cycle = iso230_by_tape(
+            job,
+            stage,
+            camera,
+            spec,
+            map,
+            &limits,
+            on_measurement,
+            progress,
+        );
+        let result = tokio::select! {
+            biased;
+            () = cancel => Err(Iso230Error::Cancelled),
+            r = cycle => r,
+        };
+        if result.is_err() {
+            let _ = devices.stage.stop().await;
+        }
+        return result;
     }
     // Homing, the orientation check and the reference frame: a compensation job of one
     // target and no correction (the map's reference point, else the first target).
@@ -303,5 +329,138 @@ pub async fn run_iso230(
             let _ = devices.stage.stop().await;
             Err(e)
         }
+    }
+}
+
+/// ISO 230-2 on a `tape_only` stage ([`run_iso230`] comes here; its checks
+/// of the limits and the map are done): the reference point on a tape of its own (the
+/// map re-referenced by it, the still frames taken there), then the whole cycle as one
+/// tape: the held axis approached from below, then every step, each target approached
+/// from the step before it. Every point of the cycle is dwelt at, the overrun points
+/// too (their stops are not measurements): a target measured twice in a row on the way
+/// back (the last of a run up, the first of the run down) would otherwise be one rest to
+/// a camera that missed the short trip to the overrun point between them.
+#[allow(clippy::too_many_arguments)]
+async fn iso230_by_tape(
+    job: &Job,
+    stage: &mut dyn drivers::Stage,
+    camera: &mut dyn drivers::Camera,
+    spec: &Iso230Spec,
+    map: Option<&errormap::MapModel>,
+    limits: &compensation::correction::SoftLimits,
+    on_measurement: &mut dyn FnMut(&iso230::Measurement),
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<Iso230Run, Iso230Error> {
+    use iso230::plan::Step;
+    use Iso230Error as E;
+    let axis = spec.axis;
+    let (_, stops) = crate::tape::job_specs(job);
+    let (below, _) = spec.cycle.span_mm();
+    if spec.cycle.overrun_mm <= 2.0 * stops.bound_mm {
+        return Err(E::Tape {
+            measured: 0,
+            message: format!(
+                "the overrun ({} mm) must be more than twice the stops' bound ({} mm): a stop at an overrun point would read as its target's",
+                spec.cycle.overrun_mm, stops.bound_mm
+            ),
+        });
+    }
+    let reference_mm = match map {
+        Some(m) => m.map().reference_mm,
+        None => point(axis, spec.cycle.targets_mm[0], spec.across_mm),
+    };
+    let (_, seen_um, still) =
+        crate::tape::reference_by_tape(job, stage, camera, reference_mm, spec.still_frames)
+            .await
+            .map_err(|message| E::Tape {
+                measured: 0,
+                message,
+            })?;
+    let model = match map {
+        Some(m) => Some(m.clone().rereferenced(seen_um).map_err(E::Map)?),
+        None => None,
+    };
+    // Every command of the cycle, checked against the limits before the tape goes.
+    let start = point(axis, below, spec.across_mm - spec.cycle.overrun_mm);
+    let mut at = start;
+    let mut across_cmd = spec.across_mm;
+    let mut targets = Vec::new();
+    // Per target: the measurement it is (position, run, direction, nominal), or none.
+    let mut legs = Vec::new();
+    for step in spec.cycle.steps() {
+        let (c, leg) = match step {
+            Step::Travel { at_mm } => (point(axis, at_mm, across_cmd), None),
+            Step::Measure {
+                position,
+                run,
+                direction,
+                at_mm,
+            } => {
+                let nominal = point(axis, at_mm, spec.across_mm);
+                let c = match &model {
+                    Some(m) => m
+                        .camera_command_for(nominal, map_direction(axis, direction))
+                        .map_err(E::Map)?,
+                    None => nominal,
+                };
+                limits
+                    .check("a compensated target", c)
+                    .map_err(|e| E::OutOfLimits {
+                        what: format!("position {} compensated", position + 1),
+                        at: c,
+                        message: e.to_string(),
+                    })?;
+                across_cmd = c[1 - axis];
+                (c, Some((position, run, direction, at_mm, nominal)))
+            }
+        };
+        targets.push(errormap::tape::TapeTarget {
+            approach_mm: at,
+            command_mm: c,
+        });
+        legs.push(leg);
+        at = c;
+    }
+    let total = legs.iter().flatten().count();
+    let z = job.board_at_machine_zero_mm;
+    let (tape, stop_spec) = crate::tape::job_specs(job);
+    let mut measurements = Vec::with_capacity(total);
+    let mut on_stop = |s: &crate::tape::TapeStop| -> Result<(), String> {
+        let Some((position, run, direction, at_mm, nominal)) = legs[s.index] else {
+            return Ok(());
+        };
+        let seen = [s.observation.x_mm, s.observation.y_mm][axis];
+        let m = iso230::Measurement {
+            axis: AXIS_NAMES[axis].into(),
+            position_index: position + 1,
+            target_mm: at_mm,
+            run,
+            direction,
+            deviation_um: (seen - (nominal[axis] + z[axis])) * 1000.0,
+        };
+        on_measurement(&m);
+        measurements.push(m);
+        progress(measurements.len(), total);
+        Ok(())
+    };
+    let run = crate::tape::measure_by_tape(
+        job,
+        stage,
+        camera,
+        &targets,
+        &tape,
+        &stop_spec,
+        &mut on_stop,
+    )
+    .await;
+    match run.error {
+        None => Ok(Iso230Run {
+            measurements,
+            still_um: still.iter().map(|p| p[axis] * 1000.0).collect(),
+        }),
+        Some(message) => Err(E::Tape {
+            measured: measurements.len(),
+            message,
+        }),
     }
 }

@@ -163,6 +163,9 @@ pub enum JobError {
     /// homing enabled) in a job that skips homing.
     #[error("{0}; this job skips homing (`setup.home = false` in the job file), but the controller is locked in Alarm (GRBL locks at power-up when homing is enabled, `$22=1`): home it (`$H`) or unlock it (`$X`) before the job, or set `setup.home = true`")]
     LockedWithoutHoming(DriverError),
+    /// On a tape port (`tape::position_by_tape`): the tape or its stop.
+    #[error("the positioning tape: {0}")]
+    Tape(String),
     /// A bug in this crate: it performed an action the session did not ask for.
     #[error("internal: {0}")]
     Session(SessionError),
@@ -421,6 +424,13 @@ impl Orchestrator<'_> {
     }
 
     async fn position(&mut self, p: &Positioning) -> Result<(), JobError> {
+        if self.stage.capabilities().tape_only {
+            // A closed controller: each move a short tape, its end seen by the camera.
+            let limits = self.limits()?;
+            return tape::position_by_tape(self.job, self.stage, self.camera, p, &limits)
+                .await
+                .map_err(JobError::Tape);
+        }
         let feed = self.job.feed_mm_min;
         if let Some(a) = p.approach_from_mm {
             // Wait at the approach point: not every controller queues moves, and the

@@ -57,6 +57,38 @@ pub enum VerifyError {
         at: [f64; 2],
         message: String,
     },
+    /// On a tape port (`crate::tape`): the tape or its stops ended the check.
+    #[error("the measurement tape: {message} ({measured} points checked and kept)")]
+    Tape { measured: usize, message: String },
+}
+
+/// The map's command for each point, it and its approach point checked against the
+/// limits (before anything moves).
+pub(crate) fn commands_within_limits(
+    job: &Job,
+    model: &MapModel,
+    points: &[([f64; 2], Direction)],
+    limits: &compensation::correction::SoftLimits,
+) -> Result<Vec<[f64; 2]>, VerifyError> {
+    let a = job.policy.approach_mm;
+    let mut commands = Vec::with_capacity(points.len());
+    for (index, &(p, dir)) in points.iter().enumerate() {
+        let c = model.camera_command_for(p, dir)?;
+        for (what, at) in [
+            ("the command", c),
+            ("the approach point", approach_point(c, dir, a)),
+        ] {
+            limits
+                .check(what, at)
+                .map_err(|e| VerifyError::OutOfLimits {
+                    index,
+                    at: p,
+                    message: e.to_string(),
+                })?;
+        }
+        commands.push(c);
+    }
+    Ok(commands)
 }
 
 /// `n` points spread over the map (1 mm in from its edge), each with a random approach
@@ -130,6 +162,10 @@ pub async fn run_verify_with(
     let camera = devices.camera.as_mut();
     let limits =
         crate::soft_limits(stage.info()).map_err(|e| (VerifyError::Reference(e), vec![]))?;
+    if stage.capabilities().tape_only {
+        // A closed controller: the points as one tape, the stops found from the frames.
+        return verify_by_tape(job, stage, camera, model, points, recorded, &limits).await;
+    }
     let a = job.policy.approach_mm;
     let z = job.board_at_machine_zero_mm;
     // Homing, the orientation check and the reference frame (shared with `gateway
@@ -152,28 +188,7 @@ pub async fn run_verify_with(
         .rereferenced(recorded.unwrap_or(reference_um))
         .map_err(|e| (VerifyError::Map(e), vec![]))?;
     // Every command and approach point inside the limits before anything else moves.
-    let mut commands = Vec::with_capacity(points.len());
-    for (index, &(p, dir)) in points.iter().enumerate() {
-        let c = model
-            .camera_command_for(p, dir)
-            .map_err(|e| (VerifyError::Map(e), vec![]))?;
-        for (what, at) in [
-            ("the command", c),
-            ("the approach point", approach_point(c, dir, a)),
-        ] {
-            limits.check(what, at).map_err(|e| {
-                (
-                    VerifyError::OutOfLimits {
-                        index,
-                        at: p,
-                        message: e.to_string(),
-                    },
-                    vec![],
-                )
-            })?;
-        }
-        commands.push(c);
-    }
+    let commands = commands_within_limits(job, &model, points, &limits).map_err(|e| (e, vec![]))?;
     let mut checked = Vec::with_capacity(points.len());
     for (index, (&(p, dir), &c)) in points.iter().zip(&commands).enumerate() {
         let fail = |source: JobError| VerifyError::Point {
@@ -208,4 +223,76 @@ pub async fn run_verify_with(
         reference_um,
         points: checked,
     })
+}
+
+/// Verify on a `tape_only` stage ([`run_verify_with`] comes here): the
+/// reference point on a tape of its own (the map re-referenced by it, or by `recorded`
+/// when given: then the frame only says how far the zero drifted), then every check
+/// point on one tape, approached from its side with the map's command. On an error the
+/// points checked so far come back with it.
+async fn verify_by_tape(
+    job: &Job,
+    stage: &mut dyn drivers::Stage,
+    camera: &mut dyn drivers::Camera,
+    model: &MapModel,
+    points: &[([f64; 2], Direction)],
+    recorded: Option<[f64; 2]>,
+    limits: &compensation::correction::SoftLimits,
+) -> Result<Verification, (VerifyError, Vec<CheckedPoint>)> {
+    use VerifyError as E;
+    let tape_error = |measured, message| E::Tape { measured, message };
+    let (_, reference_um, _) =
+        crate::tape::reference_by_tape(job, stage, camera, model.map().reference_mm, 0)
+            .await
+            .map_err(|m| (tape_error(0, m), vec![]))?;
+    let model = model
+        .clone()
+        .rereferenced(recorded.unwrap_or(reference_um))
+        .map_err(|e| (E::Map(e), vec![]))?;
+    let commands = commands_within_limits(job, &model, points, limits).map_err(|e| (e, vec![]))?;
+    let a = job.policy.approach_mm;
+    let targets: Vec<errormap::tape::TapeTarget> = points
+        .iter()
+        .zip(&commands)
+        .map(|(&(_, dir), &c)| errormap::tape::TapeTarget {
+            approach_mm: approach_point(c, dir, a),
+            command_mm: c,
+        })
+        .collect();
+    let (tape, stops) = crate::tape::job_specs(job);
+    let mut checked = Vec::with_capacity(points.len());
+    let mut failed = None;
+    let mut on_stop = |s: &crate::tape::TapeStop| -> Result<(), String> {
+        let (p, dir) = points[s.index];
+        match model.camera_error_um(p, dir) {
+            Ok(uncompensated_um) => {
+                checked.push(CheckedPoint {
+                    nominal_mm: p,
+                    dir,
+                    command_mm: commands[s.index],
+                    residual_um: crate::tape::stop_error_um(job, s, p),
+                    uncompensated_um,
+                });
+                Ok(())
+            }
+            Err(e) => {
+                let message = e.to_string();
+                failed = Some(E::Map(e));
+                Err(message)
+            }
+        }
+    };
+    let run =
+        crate::tape::measure_by_tape(job, stage, camera, &targets, &tape, &stops, &mut on_stop)
+            .await;
+    if let Some(e) = failed {
+        return Err((e, checked));
+    }
+    match run.error {
+        None => Ok(Verification {
+            reference_um,
+            points: checked,
+        }),
+        Some(message) => Err((tape_error(checked.len(), message), checked)),
+    }
 }

@@ -88,7 +88,8 @@ impl rewrite::Compensation for Smooth {
 /// Any text as a Fanuc program (its subprograms after M30) through
 /// `rewrite::fanuc::rewrite_fanuc` (start known, a smooth stand-in map): a refusal names
 /// a line of the program; an accepted tape is `%`-framed and every block on it reads and
-/// runs on the controller's interpreter in sequence, within the block length.
+/// runs on the controller's interpreter in sequence, within the block length. The same
+/// text line by line through `FanucStream` (a live sender's tape) gives the same blocks.
 pub fn fanuc_rewrite(data: &[u8]) {
     use rewrite::fanuc::{rewrite_fanuc, FanucOptions};
     let text = String::from_utf8_lossy(data);
@@ -102,6 +103,37 @@ pub fn fanuc_rewrite(data: &[u8]) {
         ..FanucOptions::default()
     };
     let max_block = options.max_block_chars;
+    // The same text as a live sender sends it, line by line (`FanucStream`): a refusal
+    // names one of its lines; a tape taken whole both ways is the same tape.
+    let mut stream =
+        rewrite::fanuc::FanucStream::new(None, &Smooth, &options).expect("the options are valid");
+    let mut live = Some(String::new());
+    for line in text.split('\n') {
+        match stream.push_line(line) {
+            Ok(out) => {
+                if let Some(l) = live.as_mut() {
+                    l.push_str(&out);
+                }
+            }
+            Err(e) => {
+                assert!(e.line <= text.split('\n').count(), "{e}");
+                live = None;
+                break;
+            }
+        }
+    }
+    // The whole rewrite frames its tape with `%` whatever the text has.
+    let blocks = |t: &str| -> Vec<String> {
+        t.lines()
+            .filter(|l| *l != "%")
+            .map(str::to_string)
+            .collect()
+    };
+    if let (Some(live), Ok((whole, _))) =
+        (&live, rewrite_fanuc(&text, None, &Smooth, options.clone()))
+    {
+        assert_eq!(blocks(live), blocks(&whole));
+    }
     match rewrite_fanuc(&text, None, &Smooth, options) {
         Err(e) => assert!(e.line <= text.split('\n').count(), "{e}"),
         Ok((out, report)) => {

@@ -201,3 +201,37 @@ fn a_work_system_chosen_in_the_moving_block_applies_to_its_move() {
     assert!(out.contains("G55G90G00X20.012Y19.995\n"), "{out}");
     assert_eq!(ends(&out), vec![[40.012, 34.995, 0.0], [1.012, 0.995, 0.0]]);
 }
+
+/// A tape rewritten line by line as it arrives is the tape rewritten whole (stored
+/// subprograms expanded the same way); a block after M30 on a live tape is refused
+/// naming it, and a refused block names its line.
+#[test]
+fn a_live_tape_rewritten_line_by_line_is_the_whole_rewrite() {
+    let program = "%\nO1234\nN10G90G00X10Y10.\nN20G01X50.F600\nN30G02X60.Y20.R10.\nM98P28001\nN40G91G01X-5.Y2.5\nM30\n%\n";
+    let stored = "O8001\nG91G01X1.Y-1.\nM99\n";
+    let options = FanucOptions::default();
+    let (whole, report) = rewrite_fanuc(program, Some(stored), &Shift, options.clone()).unwrap();
+    let mut stream = FanucStream::new(Some(stored), &Shift, &options).unwrap();
+    let mut live = String::new();
+    for line in program.lines() {
+        live.push_str(&stream.push_line(line).unwrap());
+    }
+    assert_eq!(live, whole);
+    let streamed = stream.finish();
+    assert_eq!(streamed.blocks_out, report.blocks_out);
+    assert_eq!(streamed.calls_expanded, 2);
+    assert_eq!(streamed.largest_correction_um, report.largest_correction_um);
+
+    let mut stream = FanucStream::new(None, &Shift, &options).unwrap();
+    for line in ["%", "G90G00X1.Y1.", "M30"] {
+        stream.push_line(line).unwrap();
+    }
+    let e = stream.push_line("O8001").unwrap_err();
+    assert_eq!((e.line, e.text.as_str()), (4, "O8001"));
+    assert!(e.message.contains("stored subprograms"), "{e:?}");
+    let mut stream = FanucStream::new(None, &Shift, &options).unwrap();
+    stream.push_line("%").unwrap();
+    stream.push_line("G90G00X1.Y1.").unwrap();
+    let e = stream.push_line("G41X2.").unwrap_err();
+    assert_eq!((e.line, e.text.as_str()), (3, "G41X2."));
+}
