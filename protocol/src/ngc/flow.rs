@@ -252,8 +252,12 @@ fn structure(source: &Source) -> Result<Structure, NgcError> {
                 } else {
                     "continue"
                 };
-                let Some(at) = find(&open, &["while", "do", "repeat"]) else {
-                    return Err(fail(format!("o{name} {what} outside an o{name} loop")));
+                // LinuxCNC: `break` and `continue` belong to a while or do loop
+                // (`interp_o_word.cc`: "no matching while/do label"), not to repeat.
+                let Some(at) = find(&open, &["while", "do"]) else {
+                    return Err(fail(format!(
+                        "o{name} {what} outside an o{name} while or do loop (LinuxCNC refuses it, in a repeat too)"
+                    )));
                 };
                 s.owner.insert(i, at);
             }
@@ -511,10 +515,8 @@ impl Run<'_> {
             OKind::Continue => {
                 let open = st.owner[&pc];
                 Ok(match &self.source.lines[open].2.statement {
-                    // The repeat's end counts the pass; a do's while tests.
-                    Statement::O(_, OKind::Repeat(_)) | Statement::O(_, OKind::Do) => {
-                        Next::Jump(st.close_of[&open])
-                    }
+                    // A do's while tests.
+                    Statement::O(_, OKind::Do) => Next::Jump(st.close_of[&open]),
                     _ => Next::Jump(open),
                 })
             }

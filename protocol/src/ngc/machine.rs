@@ -226,6 +226,7 @@ impl Machine {
         let mut gs: Vec<f64> = Vec::new();
         let mut ms: Vec<f64> = Vec::new();
         let mut passed = String::new();
+        let mut compensation_word = None;
         for &(l, v) in words {
             match l {
                 'g' => gs.push((v * 10.0).round() / 10.0),
@@ -236,10 +237,13 @@ impl Machine {
                         return Err(format!("two {} words in one block", l.to_ascii_uppercase()));
                     }
                     if l != 's' && l != 't' {
-                        return Err(format!(
-                            "{}{v}: only with cutter or tool length compensation, which the rewrite refuses",
-                            l.to_ascii_uppercase()
+                        // Named after the G codes (a G43 says more than its H).
+                        compensation_word.get_or_insert(format!(
+                            "{}{}: only with cutter or tool length compensation, which the rewrite refuses",
+                            l.to_ascii_uppercase(),
+                            fmt(v)
                         ));
+                        continue;
                     }
                     passed.push_str(&format!(" {}{}", l.to_ascii_uppercase(), fmt(v)));
                 }
@@ -301,6 +305,9 @@ impl Machine {
                     fmt(g)
                 ));
             }
+        }
+        if let Some(e) = compensation_word {
+            return Err(e);
         }
         let has = |g: f64| gs.contains(&g);
         for &m in &ms {
