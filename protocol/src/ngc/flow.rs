@@ -259,6 +259,15 @@ fn structure(source: &Source) -> Result<Structure, NgcError> {
                         "o{name} {what} outside an o{name} while or do loop (LinuxCNC refuses it, in a repeat too)"
                     )));
                 };
+                // LinuxCNC 2.9 does not loop again after `continue` in a do-while
+                // (its manual says it should): seen running the corpus in LinuxCNC.
+                if matches!(kind, OKind::Continue)
+                    && matches!(source.lines[at].2.statement, Statement::O(_, OKind::Do))
+                {
+                    return Err(fail(format!(
+                        "o{name} continue in a do-while loop: LinuxCNC 2.9 leaves the loop there, not as its manual says; not rewritten (use a while loop)"
+                    )));
+                }
                 s.owner.insert(i, at);
             }
         }
@@ -622,6 +631,11 @@ impl Run<'_> {
                     "#{k} is a system parameter: setting it changes the machine's state (offsets, stored positions), not rewritten"
                 ))
             }
+            Target::Named(name) if is_predefined(&name) => {
+                return Err(format!(
+                    "#<{name}> is one of LinuxCNC's predefined parameters, read-only (LinuxCNC: cannot assign to read-only parameter)"
+                ))
+            }
             Target::Named(name) if name.starts_with('_') => {
                 self.globals.insert(name, v);
             }
@@ -631,6 +645,78 @@ impl Run<'_> {
         }
         Ok(())
     }
+}
+
+/// LinuxCNC 2.9's predefined named parameters (`interp_namedparams.cc`,
+/// `init_readonly_param`), and its `_ini[...]` and `_hal[...]` reads: read-only, and
+/// read from the machine's state.
+const PREDEFINED: [&str; 58] = [
+    "_line",
+    "_motion_mode",
+    "_plane",
+    "_ccomp",
+    "_metric",
+    "_imperial",
+    "_absolute",
+    "_incremental",
+    "_inverse_time",
+    "_units_per_minute",
+    "_units_per_rev",
+    "_coord_system",
+    "_tool_offset",
+    "_retract_r_plane",
+    "_retract_old_z",
+    "_control_mode",
+    "_spindle_rpm_mode",
+    "_spindle_css_mode",
+    "_ijk_absolute_mode",
+    "_lathe_diameter_mode",
+    "_lathe_radius_mode",
+    "_spindle_on",
+    "_spindle_cw",
+    "_mist",
+    "_flood",
+    "_speed_override",
+    "_feed_override",
+    "_adaptive_feed",
+    "_feed_hold",
+    "_feed",
+    "_rpm",
+    "_current_tool",
+    "_current_pocket",
+    "_selected_pocket",
+    "_selected_tool",
+    "_x",
+    "_y",
+    "_z",
+    "_a",
+    "_b",
+    "_c",
+    "_u",
+    "_v",
+    "_w",
+    "_abs_x",
+    "_abs_y",
+    "_abs_z",
+    "_abs_a",
+    "_abs_b",
+    "_abs_c",
+    "_abs_u",
+    "_abs_v",
+    "_abs_w",
+    "_value",
+    "_value_returned",
+    "_task",
+    "_call_level",
+    "_remap_level",
+];
+
+fn is_predefined(name: &str) -> bool {
+    PREDEFINED.contains(&name)
+        || name.starts_with("_ini[")
+        || name.starts_with("_hal[")
+        || name == "_vmajor"
+        || name == "_vminor"
 }
 
 #[derive(Clone, Debug)]
