@@ -38,8 +38,10 @@
 //! and arc centre mode start as LinuxCNC's defaults (G90, G17, G91.1), the work system
 //! and G92 from the parameter file (none given: G54 and every offset zero).
 //!
-//! Worked example (map: the tool lands 12 um short in X near X=50, G54 zero, tolerance
-//! 0.5 um): `#1=50` / `G1 X#1 Y20 F600` becomes `G1 X50.012 Y20 F600`.
+//! Worked example (a compensation commanding 10 um more X per 100 mm of X, G54 zero,
+//! tolerance 0.5 um; the test `the_docs_worked_example`): `o10 sub` / `G1 X#1 Y20
+//! F600` / `o10 endsub` / `G0 X0 Y20` / `o10 call [25 * 2]` becomes `G0 X0 Y20` /
+//! `G1 X50.005 Y20 F600`, after the line `G21 G90 G64 P0.0005 Q0`.
 
 use crate::{Compensation, Limits, Note, Options, Pose, RewriteError, Rewriter};
 use protocol::grbl::gcode::{
@@ -518,6 +520,17 @@ mod tests {
         let e = ends(&out);
         assert!(e.iter().any(|p| (p[0] - 30.003).abs() < 1e-9), "{out}");
         assert!((e.last().unwrap()[0] - 15.0015).abs() < 1e-9, "{out}");
+    }
+
+    /// The worked example of docs/compensation.md, exactly.
+    #[test]
+    fn the_docs_worked_example() {
+        let program = "G21 G90 G64 P0.0001\no10 sub\n  G1 X#1 Y20 F600\no10 endsub\nG0 X0 Y20\no10 call [25 * 2]\nM2\n";
+        let (out, _) = rewrite_ngc(program, &Stretch, &NgcOptions::default()).unwrap();
+        assert_eq!(
+            out,
+            "G21 G90 G64 P0.0005 Q0\nG64 P0.0001 Q0\nG0 X0 Y20\nG1 X50.005 Y20 F600\nM2\n"
+        );
     }
 
     #[test]
