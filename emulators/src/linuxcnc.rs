@@ -13,7 +13,10 @@
 //!
 //! Following: while LinuxCNC moves (an MDI move, a program in auto mode), the reader
 //! samples the joints' motor commands at a steady rate ([`LinuxcncFollower::start`],
-//! every `period_ms` of wall time, a sample only when the command changed) and the
+//! every `period_ms` of wall time, a sample only when the command changed; between
+//! samples it polls every 0.5 ms, and where a joint's command turns back it sends the
+//! turning point as a sample at once: a backlash take-up of a few um lasts a few ms,
+//! and a stage that never saw the turn would stay in its backlash) and the
 //! simulated machine moves straight from each sample to the next, so its trace is the
 //! path LinuxCNC really commands (arcs, blends, its compensation as it ramps), within
 //! the chord of one period (at 3000 mm/min and 4 ms: 0.2 mm of path, 0.17 um of chord
@@ -61,14 +64,18 @@ const READER: &str = r#"
 import hal, os, select, sys, time
 c = hal.component("xygw_rig_follower_%d" % os.getpid())
 g = hal.get_value
-def cmd(js):
+def values(js):
     # one servo period: the first joint read again unchanged after the others
     for _ in range(50):
         a = g("joint.%d.motor-pos-cmd" % js[0])
         v = [a] + [g("joint.%d.motor-pos-cmd" % j) for j in js[1:]]
         if g("joint.%d.motor-pos-cmd" % js[0]) == a:
             break
-    return " ".join(repr(x - g("joint.%d.motor-offset" % j)) for x, j in zip(v, js))
+    return [x - g("joint.%d.motor-offset" % j) for x, j in zip(v, js)]
+def text(v):
+    return " ".join(repr(x) for x in v)
+def cmd(js):
+    return text(values(js))
 def settled(js):
     for _ in range(5000):
         if all(g("joint.%d.backlash-filt" % j) == g("joint.%d.backlash-corr" % j) for j in js):
@@ -78,19 +85,36 @@ def settled(js):
 buf = b""
 stream = None
 last = None
+# Between two samples the joints are polled every TURN_POLL s: where a joint turns
+# back (a backlash take-up of a few um lasts a few ms), the turning point is sent at
+# once as a sample, so the simulated stage reverses where LinuxCNC did.
+TURN_POLL = 0.0005
+def send(s):
+    global last
+    if s != last:
+        sys.stdout.write("P " + s + "\n")
+        sys.stdout.flush()
+        last = s
 while True:
-    wait = None if stream is None else max(0.0, due - time.monotonic())
+    wait = None if stream is None else max(0.0, min(due, poll_due) - time.monotonic())
     ready, _, _ = select.select([0], [], [], wait)
     if not ready:
-        s = cmd(stream)
-        if s != last:
-            sys.stdout.write("P " + s + "\n")
-            sys.stdout.flush()
-            last = s
-        due += period
         now = time.monotonic()
-        if due < now:
-            due = now
+        v = values(stream)
+        if prev is not None:
+            for k in range(len(v)):
+                d = v[k] - prev[k]
+                if d != 0.0:
+                    if heading[k] != 0.0 and (d > 0.0) != (heading[k] > 0.0):
+                        send(text(prev))
+                    heading[k] = d
+        prev = v
+        poll_due = now + TURN_POLL
+        if now >= due:
+            send(text(v))
+            due += period
+            if due < now:
+                due = now
         continue
     data = os.read(0, 4096)
     if not data:
@@ -103,7 +127,10 @@ while True:
             stream = [int(j) for j in w[1:-1]]
             period = float(w[-1]) / 1000.0
             due = time.monotonic()
+            poll_due = due
             last = None
+            prev = None
+            heading = [0.0] * len(stream)
         elif w and w[0] == "E":
             stream = None
             sys.stdout.write("R " + settled([int(j) for j in w[1:]]) + "\n")

@@ -17,6 +17,7 @@ pub mod grbl;
 pub mod image;
 pub mod modbus;
 pub mod nc;
+pub mod ngc;
 pub mod slcan;
 pub mod text;
 pub mod volumetric;

@@ -46,6 +46,11 @@ struct Peer {
 impl Peer {
     /// Start LinuxCNC on `ini` (a file of the peers folder, or a path).
     fn start(ini: &str) -> Peer {
+        Peer::start_with(ini, None)
+    }
+
+    /// The same, LinuxCNC's parameter file (`sim.var`, its offsets) written first.
+    fn start_with(ini: &str, parameters: Option<&str>) -> Peer {
         let found = Command::new("sh")
             .args(["-c", "command -v linuxcnc"])
             .output()
@@ -53,6 +58,9 @@ impl Peer {
             .unwrap_or(false);
         assert!(found, "LinuxCNC is not installed: {INSTALL}");
         let run = tempfile::tempdir().expect("a temporary folder");
+        if let Some(text) = parameters {
+            std::fs::write(run.path().join("sim.var"), text).unwrap();
+        }
         let out = Command::new("bash")
             .arg(peers().join("start.sh"))
             .arg(ini)
@@ -581,6 +589,20 @@ fn demo_on_linuxcnc() -> job::Job {
     assert!(spec.follow.is_some() && job.stage.is_simulated());
     // The same targets as the demo's.
     assert_eq!(job.targets, job::Job::demo().targets);
+    fast(job)
+}
+
+/// The job moving at LinuxCNC's top speed (the peer's 200 mm/s, 12 000 mm/min) rather
+/// than the demo's 3 000 mm/min: every measurement is taken at rest and the simulated
+/// stage follows on its own clock, so only the test's time changes.
+fn fast(mut job: job::Job) -> job::Job {
+    const TOP_MM_MIN: f64 = 12_000.0;
+    job.feed_mm_min = TOP_MM_MIN;
+    if let job::StageSpec::Linuxcnc(spec) = &mut job.stage {
+        for a in &mut spec.axes {
+            a.max_feed_mm_min = TOP_MM_MIN;
+        }
+    }
     job
 }
 
@@ -715,13 +737,13 @@ fn a_map_scanned_through_linuxcnc_improves_its_iso230_figures() {
     assert!(after.e < 0.2 * before.e, "E {} -> {}", before.e, after.e);
 }
 
-/// The held-out program: lines and arcs over the travel, off the map's nodes and the
-/// tables' entries, in machine coordinates (the peer's work offsets are zero). LinuxCNC
-/// runs it with `G64 P0.0001` (blending within 0.1 um of the programmed path, so the
-/// rewritten program's many pieces run at speed); the line is put before the program
-/// and its rewrite, which the rewriter reads in GRBL's dialect.
+/// The held-out program, in LinuxCNC's dialect: lines and arcs over the travel, off the
+/// map's nodes and the tables' entries, in machine coordinates (the peer's G54 is
+/// zero), with `G64 P0.0001` (blending within 0.1 um of the programmed path). Its
+/// rewrite (`--dialect linuxcnc`) keeps that path control (the smaller of the
+/// program's P and the rewrite's tolerance, see rewrite::ngc).
 const HELD_OUT_PROGRAM: &str = "(held-out program)
-G21 G90 G17
+G21 G90 G17 G64 P0.0001
 G0 X23.3 Y17.1
 G1 X101.7 Y17.1 F3000
 G2 X101.7 Y77.3 I0 J30.1
@@ -730,7 +752,6 @@ G2 X31.9 Y107.3 I0 J30
 G1 X23.3 Y17.1
 M2
 ";
-const PATH_CONTROL: &str = "G64 P0.0001\n";
 
 /// Distance of `q` from the segment a-b.
 fn segment_distance(q: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
@@ -772,7 +793,12 @@ fn program_path_error(
     samples: &[[f64; 2]],
 ) -> ((f64, f64), f64, usize) {
     let start = [23.3, 17.1];
-    let path = system_tests::program_path::programmed_path(HELD_OUT_PROGRAM, start);
+    let path = ngc_path(HELD_OUT_PROGRAM, [5.0, 5.0, 0.0]);
+    let at = path
+        .iter()
+        .position(|p| *p == start)
+        .expect("the program passes through its start");
+    let path = path[at..].to_vec();
     let near = |p: [f64; 2]| (p[0] - start[0]).hypot(p[1] - start[1]);
     let from = (0..rows.len() / 2)
         .min_by(|&a, &b| near(rows[a].true_mm).total_cmp(&near(rows[b].true_mm)))
@@ -845,14 +871,13 @@ fn held_out_points_and_program_with_linuxcnc_tables_rewritten_and_uncompensated(
 
     // The gateway's rewrite of the program from the map.
     let model = MapModel::new(map);
-    let (rewritten, report) =
-        rewrite::rewrite_program(HELD_OUT_PROGRAM, &model, rewrite::Options::default())
-            .expect("the held-out program rewrites");
-    assert!(report.output_lines > report.input_lines, "{report:?}");
+    let (rewritten, report) = rewrite_for_linuxcnc(HELD_OUT_PROGRAM, &model);
+    assert!(report.output_lines > 20, "{report:?}");
+    assert!(rewritten.contains("G64 P0.0001 Q0\n"), "{rewritten}");
     let programs = tempfile::tempdir().unwrap();
     let program_file = |name: &str, text: &str| {
         let p = programs.path().join(name);
-        std::fs::write(&p, format!("{PATH_CONTROL}{text}")).unwrap();
+        std::fs::write(&p, text).unwrap();
         p.display().to_string()
     };
     let plain = program_file("held-out.ngc", HELD_OUT_PROGRAM);
@@ -880,6 +905,7 @@ fn held_out_points_and_program_with_linuxcnc_tables_rewritten_and_uncompensated(
     let mut figures = Vec::new();
     let mut paths = Vec::new();
     let mut after_homing = None;
+    let parameters = corpus_parameters();
     for (ini, runs) in [
         ("x.ini".to_string(), vec![&plain, &rewritten]),
         (
@@ -887,7 +913,9 @@ fn held_out_points_and_program_with_linuxcnc_tables_rewritten_and_uncompensated(
             vec![&plain],
         ),
     ] {
-        let _peer = Peer::start(&ini);
+        // LinuxCNC starts with the corpus's parameter file (G54 zero), which the
+        // rewrite is given.
+        let _peer = Peer::start_with(&ini, after_homing.is_none().then_some(&parameters[..]));
         let errors: Vec<[f64; 2]> = rt.block_on(async {
             let rig = devices::new_rig(&job, &machine);
             let mut stage = devices::open_followed(&spec, rig.clone()).await.unwrap();
@@ -1041,14 +1069,9 @@ async fn home_reference_verify_and_run(
     let spot_max = spot.result.unwrap()["residual_um"]["max"].as_f64().unwrap();
     drop(devices);
     let applied = refer::apply(map, &Choice::Recorded(record), now()).unwrap();
-    let (text, _) = rewrite::rewrite_program(
-        HELD_OUT_PROGRAM,
-        &applied.model,
-        rewrite::Options::default(),
-    )
-    .expect("the held-out program rewrites with the reference");
+    let (text, _) = rewrite_for_linuxcnc(HELD_OUT_PROGRAM, &applied.model);
     let file = dir.join("held-out-referenced.ngc");
-    std::fs::write(&file, format!("{PATH_CONTROL}{text}")).unwrap();
+    std::fs::write(&file, text).unwrap();
     let mut stage = devices::open_followed(spec, rig.clone()).await.unwrap();
     let path = run_held_out(&mut stage, rig, &file.display().to_string()).await;
     (spot_max, path)
@@ -1076,4 +1099,318 @@ fn config_with_tables(x: &[u8], y: &[u8]) -> tempfile::TempDir {
     std::fs::write(src.path().join("comp_x.txt"), x).unwrap();
     std::fs::write(src.path().join("comp_y.txt"), y).unwrap();
     src
+}
+
+/// `program` rewritten in LinuxCNC's dialect (`gateway rewrite --dialect linuxcnc`)
+/// with `model`, the default tolerance (0.5 um), the corpus's parameter file.
+fn rewrite_for_linuxcnc(
+    program: &str,
+    model: &dyn rewrite::Compensation,
+) -> (String, rewrite::ngc::NgcReport) {
+    let options = rewrite::ngc::NgcOptions {
+        start: protocol::ngc::read_var_file(&corpus_parameters()).unwrap(),
+        ..Default::default()
+    };
+    rewrite::ngc::rewrite_ngc(program, model, &options)
+        .unwrap_or_else(|e| panic!("the program rewrites: {e}"))
+}
+
+/// The corpus's parameter file (`tests/ngc/sim.var`).
+fn corpus_parameters() -> String {
+    std::fs::read_to_string(system_tests::workspace().join("tests/ngc/sim.var")).unwrap()
+}
+
+/// The XY path of an RS274/NGC program as the rewrite reads it (`protocol::ngc`, the
+/// corpus's offsets), from `from` (machine mm): straight moves and arcs as chords
+/// within 0.01 um (Z, which the rig does not follow, left out).
+fn ngc_path(program: &str, from: [f64; 3]) -> Vec<[f64; 2]> {
+    ngc_feed_path(program, from)
+        .into_iter()
+        .map(|(p, _)| p)
+        .collect()
+}
+
+/// [`ngc_path`] with, for each point, whether the move arriving there is a feed move
+/// (G1-G3; a rapid's path is not controlled, on LinuxCNC as on any CNC, and the
+/// rewrite corrects only its end).
+fn ngc_feed_path(program: &str, from: [f64; 3]) -> Vec<([f64; 2], bool)> {
+    use protocol::ngc::{interpret, Action, Bounds};
+    let mut start = protocol::ngc::read_var_file(&corpus_parameters()).unwrap();
+    start.position = from;
+    let mut at = from;
+    let mut path = vec![([from[0], from[1]], false)];
+    for step in interpret(program, &start, Bounds::default()).expect("the program reads") {
+        for a in step.actions {
+            match a {
+                Action::Rapid { to } => {
+                    path.push(([to[0], to[1]], false));
+                    at = to;
+                }
+                Action::Linear { to, .. } => {
+                    path.push(([to[0], to[1]], true));
+                    at = to;
+                }
+                Action::Arc {
+                    to,
+                    centre,
+                    clockwise,
+                    plane,
+                    ..
+                } => {
+                    let (a, b, c) = plane.axes();
+                    let r = (at[a] - centre[a]).hypot(at[b] - centre[b]);
+                    let t0 = (at[b] - centre[b]).atan2(at[a] - centre[a]);
+                    let t1 = (to[b] - centre[b]).atan2(to[a] - centre[a]);
+                    let tau = std::f64::consts::TAU;
+                    let mut sweep = t1 - t0;
+                    let full = (to[a] - at[a]).hypot(to[b] - at[b]) < 1e-9;
+                    if full {
+                        sweep = if clockwise { -tau } else { tau };
+                    } else if clockwise {
+                        while sweep >= 0.0 {
+                            sweep -= tau;
+                        }
+                    } else {
+                        while sweep <= 0.0 {
+                            sweep += tau;
+                        }
+                    }
+                    let step = 2.0 * (1.0 - 1e-5 / r).acos();
+                    let n = (sweep.abs() / step).ceil().max(1.0) as usize;
+                    for k in 1..=n {
+                        let t = t0 + sweep * k as f64 / n as f64;
+                        let mut p = at;
+                        p[a] = centre[a] + r * t.cos();
+                        p[b] = centre[b] + r * t.sin();
+                        p[c] = at[c] + (to[c] - at[c]) * k as f64 / n as f64;
+                        if k == n {
+                            p = to;
+                        }
+                        path.push(([p[0], p[1]], true));
+                    }
+                    at = to;
+                }
+                _ => {}
+            }
+        }
+    }
+    path.dedup_by(|b, a| b.0 == a.0);
+    path
+}
+
+/// The distance of each point (in travel order) from `path`, matched among the
+/// segments within 2 mm back and 30 mm ahead (path length in XY) of the last match, so
+/// that a path crossing itself is not matched out of order; `None` where the nearest
+/// segment is a rapid's.
+fn feed_distances(
+    points: impl Iterator<Item = [f64; 2]>,
+    path: &[([f64; 2], bool)],
+) -> Vec<Option<f64>> {
+    let mut cum = vec![0.0];
+    for w in path.windows(2) {
+        let l = (w[1].0[0] - w[0].0[0]).hypot(w[1].0[1] - w[0].0[1]);
+        cum.push(cum.last().unwrap() + l);
+    }
+    let mut at = 0usize;
+    points
+        .map(|q| {
+            // Segments starting within 2 mm back and 30 mm ahead.
+            let mut lo = at;
+            while lo > 0 && cum[at] - cum[lo] < 2.0 {
+                lo -= 1;
+            }
+            let mut hi = at;
+            while hi + 2 < path.len() && cum[hi + 1] - cum[at] < 30.0 {
+                hi += 1;
+            }
+            hi = (hi + 1).min(path.len() - 2);
+            let (k, d) = (lo..=hi.min(path.len() - 2))
+                .map(|k| (k, segment_distance(q, path[k].0, path[k + 1].0)))
+                .fold((at, f64::INFINITY), |b, x| if x.1 < b.1 { x } else { b });
+            at = k;
+            path[k + 1].1.then_some(d)
+        })
+        .collect()
+}
+
+/// One corpus program in LinuxCNC: the (max, rms) distance, um, of LinuxCNC's command
+/// from the path the rewrite read (LinuxCNC's reading against the rewrite's), the
+/// uncompensated true path's, and the rewritten program's true path's (max, rms); the
+/// XY length the rewritten run's samples cover over the path's length.
+#[derive(Debug)]
+struct CorpusRun {
+    name: String,
+    command: (f64, f64),
+    uncompensated: (f64, f64),
+    rewritten: (f64, f64),
+    covered: f64,
+    samples: usize,
+}
+
+/// Runs `program` in auto mode from (5, 5) with the rig following: the rows at the
+/// samples of LinuxCNC's command.
+async fn run_traced(
+    stage: &mut devices::FollowedLinuxcnc,
+    rig: &world::SharedRig,
+    program: &std::path::Path,
+) -> Vec<world::machine::TraceRow> {
+    stage
+        .move_to(AxisValues::xy(5.0, 5.0), 6000.0)
+        .await
+        .unwrap();
+    world::lock(rig).machine_mut().start_trace();
+    stage.follower().record_samples();
+    stage
+        .run_program(&program.display().to_string())
+        .await
+        .unwrap_or_else(|e| panic!("LinuxCNC runs {}: {e}", program.display()));
+    let samples = stage.follower().take_samples();
+    let key = |p: [f64; 2]| [p[0].to_bits(), p[1].to_bits()];
+    let sampled: std::collections::HashSet<[u64; 2]> = samples.iter().map(|p| key(*p)).collect();
+    world::lock(rig)
+        .machine_mut()
+        .take_trace()
+        .into_iter()
+        .filter(|r| sampled.contains(&key(r.cmd_mm)))
+        .collect()
+}
+
+fn max_rms(d: &[f64]) -> (f64, f64) {
+    let max = d.iter().copied().fold(0.0, f64::max) * 1000.0;
+    let rms = (d.iter().map(|x| x * x).sum::<f64>() / d.len().max(1) as f64).sqrt() * 1000.0;
+    (max, rms)
+}
+
+/// Every program of `tests/ngc` whose first line says `(expect: rewritten)`: run as
+/// written, then rewritten from `model` (`--dialect linuxcnc`, the corpus's parameter
+/// file, which this LinuxCNC started with).
+async fn run_corpus(
+    stage: &mut devices::FollowedLinuxcnc,
+    rig: &world::SharedRig,
+    model: &MapModel,
+    dir: &std::path::Path,
+) -> Vec<CorpusRun> {
+    let corpus = system_tests::workspace().join("tests/ngc");
+    let mut names: Vec<String> = std::fs::read_dir(&corpus)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".ngc"))
+        .collect();
+    names.sort();
+    let mut runs = Vec::new();
+    for name in names {
+        let text = std::fs::read_to_string(corpus.join(&name)).unwrap();
+        if !text.starts_with("(expect: rewritten)") {
+            continue;
+        }
+        if std::env::var("CORPUS").is_ok_and(|c| !c.split(',').any(|n| n == name)) {
+            continue;
+        }
+        let path = ngc_feed_path(&text, [5.0, 5.0, 0.0]);
+        let feed = |d: Vec<Option<f64>>| d.into_iter().flatten().collect::<Vec<_>>();
+        let original = dir.join(&name);
+        std::fs::write(&original, &text).unwrap();
+        let rows = run_traced(stage, rig, &original).await;
+        // LinuxCNC's reading: all of its path, rapids too (its command is on the
+        // straight line of a rapid, corrected or not).
+        let all = |d: Vec<Option<f64>>| d.into_iter().map(|d| d.unwrap_or(0.0)).collect::<Vec<_>>();
+        let plain: Vec<([f64; 2], bool)> = path.iter().map(|(p, _)| (*p, true)).collect();
+        let command = max_rms(&all(feed_distances(rows.iter().map(|r| r.cmd_mm), &plain)));
+        let uncompensated = max_rms(&feed(feed_distances(rows.iter().map(|r| r.true_mm), &path)));
+        let (out, _) = rewrite_for_linuxcnc(&text, model);
+        let rewritten_file = dir.join(format!("rewritten-{name}"));
+        std::fs::write(&rewritten_file, out).unwrap();
+        let rows = run_traced(stage, rig, &rewritten_file).await;
+        let rewritten = max_rms(&feed(feed_distances(rows.iter().map(|r| r.true_mm), &path)));
+        if std::env::var_os("CORPUS").is_some() {
+            let d = feed_distances(rows.iter().map(|r| r.true_mm), &path);
+            for (r, d) in rows.iter().zip(d) {
+                if d.is_some_and(|d| d > 0.0015) {
+                    eprintln!("{name}: true {:?} cmd {:?} {:?}", r.true_mm, r.cmd_mm, d);
+                }
+            }
+        }
+        let length = |p: &mut dyn Iterator<Item = [f64; 2]>| {
+            let v: Vec<[f64; 2]> = p.collect();
+            v.windows(2)
+                .map(|w| (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]))
+                .sum::<f64>()
+        };
+        let covered =
+            length(&mut rows.iter().map(|r| r.true_mm)) / length(&mut path.iter().map(|(p, _)| *p));
+        runs.push(CorpusRun {
+            name,
+            command,
+            uncompensated,
+            rewritten,
+            covered,
+            samples: rows.len(),
+        });
+    }
+    runs
+}
+
+/// LinuxCNC reads every rewritten corpus program as the rewrite does (its command on
+/// the read path within one 0.5 um count), and the rewritten program's true feed path
+/// (rapids are not controlled) is on that path within 1.5 um, all of it (the samples'
+/// polyline as long as the path within 2 %). `CORPUS=a.ngc,b.ngc` runs only those and
+/// prints the samples past 1.5 um.
+fn check_corpus(runs: &[CorpusRun]) {
+    for r in runs {
+        eprintln!(
+            "corpus {}: LinuxCNC's command from the path read by the rewrite max {:.3} um; true path uncompensated max {:.2} rms {:.2} um, rewritten max {:.3} rms {:.3} um; {} samples covering {:.4} of the path",
+            r.name, r.command.0, r.uncompensated.0, r.uncompensated.1, r.rewritten.0, r.rewritten.1, r.samples, r.covered
+        );
+    }
+    assert_eq!(runs.len(), 4, "{runs:?}");
+    for r in runs {
+        assert!(r.samples > 100, "{r:?}");
+        // One motor count (0.5 um): LinuxCNC's command is on the path the rewrite read.
+        assert!(
+            r.command.0 < 0.5,
+            "LinuxCNC reads {} otherwise: {r:?}",
+            r.name
+        );
+        assert!(r.rewritten.0 < 1.5, "{r:?}");
+        assert!(r.rewritten.0 < r.uncompensated.0, "{r:?}");
+        assert!((0.98..=1.01).contains(&r.covered), "{r:?}");
+    }
+}
+
+/// The RS274/NGC corpus (`tests/ngc`) in the real LinuxCNC: every program that the
+/// rewrite takes is run as written and rewritten from the machine's map, the rig
+/// following (LinuxCNC started with the corpus's parameter file, G55 and G59.3 set).
+#[test]
+fn every_rewritten_corpus_program_runs_in_linuxcnc_on_its_path() {
+    let machine = world::machine::MachineConfig::load(
+        &system_tests::config_dir().join("machines/c5-stage.toml"),
+    )
+    .unwrap();
+    let mut machine = machine;
+    machine.thermal = None;
+    let id = Identity {
+        machine: "sim".into(),
+        controller: "linuxcnc".into(),
+        board: "dot-grid-0.5mm".into(),
+        certificate_sha256: String::new(),
+        camera: "sim".into(),
+    };
+    let model = MapModel::new(map_from_truth(&machine, id));
+    let mut job = small_job_on_linuxcnc();
+    let job::StageSpec::Linuxcnc(spec) = &mut job.stage else {
+        unreachable!("a linuxcnc stage")
+    };
+    spec.follow = Some(Box::new(machine.clone()));
+    let spec = spec.clone();
+    let dir = tempfile::tempdir().unwrap();
+    let _one = lock();
+    let _peer = Peer::start_with("x.ini", Some(&corpus_parameters()));
+    let rt = system_tests::runtime_two_workers();
+    let runs = rt.block_on(async {
+        let rig = devices::new_rig(&job, &machine);
+        let mut stage = devices::open_followed(&spec, rig.clone()).await.unwrap();
+        stage.home().await.unwrap();
+        run_corpus(&mut stage, &rig, &model, dir.path()).await
+    });
+    check_corpus(&runs);
 }

@@ -129,6 +129,25 @@ pub struct RewriteRequest {
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(skip))]
     pub volumetric_name: Option<String>,
+    /// The program's dialect: `grbl` (GRBL 1.1) or `linuxcnc` (RS274/NGC, LinuxCNC
+    /// 2.9: parameters, expressions, O-word subroutines and loops expanded, canned
+    /// cycles G81/G82/G85/G89 expanded, the rest refused naming the line; `offsets` is
+    /// then LinuxCNC's parameter file, its `.var`). See docs/compensation.md.
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value_t = Dialect::Grbl, conflicts_with = "rotary"))]
+    pub dialect: Dialect,
+}
+
+/// The dialect a program is read in.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
+pub enum Dialect {
+    /// GRBL 1.1 G-code (and grblHAL).
+    #[default]
+    Grbl,
+    /// LinuxCNC's RS274/NGC.
+    Linuxcnc,
 }
 
 /// `X,Y[,Z]` (mm) as numbers (a command-line value); the count and the bounds are the
@@ -170,6 +189,7 @@ impl RewriteRequest {
             limits: None,
             volumetric: None,
             volumetric_name: None,
+            dialect: Dialect::Grbl,
         }
     }
 
@@ -254,9 +274,15 @@ impl RewriteRequest {
             }
             None => None,
         };
-        let (work_offsets, g92_offset) = match &self.offsets {
-            Some(text) => read_parameters(text)?,
-            None => ([[0.0; N_AXIS]; 6], [0.0; N_AXIS]),
+        let (work_offsets, g92_offset) = match (&self.offsets, self.dialect) {
+            (Some(text), Dialect::Grbl) => read_parameters(text)?,
+            (Some(text), Dialect::Linuxcnc) => {
+                protocol::ngc::read_var_file(text).map_err(|e| {
+                    RequestError::new("offsets", format!("LinuxCNC parameter file: {e}"))
+                })?;
+                ([[0.0; N_AXIS]; 6], [0.0; N_AXIS])
+            }
+            (None, _) => ([[0.0; N_AXIS]; 6], [0.0; N_AXIS]),
         };
         Ok(Options {
             tolerance_mm: self.tolerance_um / 1000.0,
@@ -428,12 +454,15 @@ pub fn run(
         }
     };
     let started = Instant::now();
-    let rewritten = rewrite_bounded(
-        &request.program,
-        compensation.as_ref(),
-        options,
-        MAX_OUTPUT_BYTES,
-    );
+    let rewritten = match request.dialect {
+        Dialect::Grbl => rewrite_bounded(
+            &request.program,
+            compensation.as_ref(),
+            options,
+            MAX_OUTPUT_BYTES,
+        ),
+        Dialect::Linuxcnc => rewrite_linuxcnc(request, compensation.as_ref(), &options),
+    };
     let (mut out, report) = match rewritten {
         Ok(r) => r,
         Err(e) => return Outcome::failed(format!("{source}: {e}")),
@@ -469,6 +498,7 @@ pub fn run(
         "largest_correction_um": report.largest_correction_um,
         "largest_correction_line": report.largest_correction_line,
         "offsets_given": request.offsets.is_some(), "notes": notes, "elapsed_s": elapsed_s,
+        "dialect": request.dialect,
         "reference": reference,
     });
     let metrics = crate::metrics_from(
@@ -480,6 +510,42 @@ pub fn run(
         ],
     );
     Outcome::succeeded(result, metrics)
+}
+
+/// A LinuxCNC program ([`rewrite::ngc`]) with the request's options and its parameter
+/// file; the report in the GRBL rewrite's terms (lines in: the blocks run).
+fn rewrite_linuxcnc(
+    request: &RewriteRequest,
+    compensation: &dyn Compensation,
+    options: &Options,
+) -> Result<(String, rewrite::Report), crate::Error> {
+    let start = match &request.offsets {
+        Some(text) => protocol::ngc::read_var_file(text)
+            .map_err(|e| crate::Error::Refused(format!("LinuxCNC parameter file: {e}")))?,
+        None => protocol::ngc::Start::default(),
+    };
+    let ngc = rewrite::ngc::NgcOptions {
+        tolerance_mm: options.tolerance_mm,
+        max_correction_mm: options.max_correction_mm,
+        limits: options.limits,
+        position: options.start,
+        start,
+        max_output_bytes: MAX_OUTPUT_BYTES,
+        ..Default::default()
+    };
+    let (out, r) = rewrite::ngc::rewrite_ngc(&request.program, compensation, &ngc)
+        .map_err(|e| crate::Error::Refused(e.to_string()))?;
+    let report = rewrite::Report {
+        input_lines: protocol::nc::split_lines(&request.program).count(),
+        output_lines: r.output_lines,
+        moves_compensated: r.moves_compensated,
+        segments_added: r.segments_added,
+        largest_correction_um: r.largest_correction_um,
+        largest_correction_line: r.largest_correction_line,
+        notes: r.notes,
+        ..Default::default()
+    };
+    Ok((out, report))
 }
 
 /// `rewrite::rewrite_program`, line by line, stopped when the output passes `cap` bytes
@@ -547,7 +613,9 @@ pub fn summary(r: &Value) -> String {
     if let Some(w) = r["reference"]["warning"].as_str() {
         let _ = writeln!(t, "warning: {w}");
     }
-    if r["offsets_given"] != true {
+    if r["offsets_given"] != true && r["dialect"] == "linuxcnc" {
+        let _ = writeln!(t, "work offsets: none given (--offsets FILE with LinuxCNC's parameter file, its .var); G54 and G92 are taken as zero");
+    } else if r["offsets_given"] != true {
         let _ = writeln!(t, "work offsets: none given (--offsets FILE with the controller's `$#` reply); the program's coordinates are taken as machine coordinates");
     }
     for n in r["notes"].as_array().into_iter().flatten() {
@@ -769,6 +837,44 @@ mod tests {
             out.error()
         );
         assert!(sink.0.is_empty());
+    }
+
+    /// A LinuxCNC program: its loop expanded, its parameter file's G54 applied, each
+    /// move corrected (10 um of X per 100 mm of X); what reads the machine is refused
+    /// naming the line.
+    #[test]
+    fn a_linuxcnc_program_in_its_dialect() {
+        let program = "G21\n#1 = 100\nG0 X0 Y0 Z0\no1 repeat [2]\n  G91 G1 X[#1 / 2] F500\no1 endrepeat\nM2\n";
+        let mut r = RewriteRequest::new(program.into());
+        r.dialect = Dialect::Linuxcnc;
+        r.offsets = Some("5220 1\n5221 100.0\n5222 0\n5223 0\n".into());
+        let go = |r: &RewriteRequest| {
+            let mut sink = Keep::default();
+            let m = RewriteModel::Volumetric {
+                model: model(),
+                name: "m".into(),
+            };
+            let out = run(r, m, "in.ngc", std::time::SystemTime::now(), &mut sink);
+            (out, sink)
+        };
+        let (out, sink) = go(&r);
+        assert!(out.is_success(), "{:?}", out.error());
+        let text = String::from_utf8(sink.0[0].bytes.clone()).unwrap();
+        // X0 is machine X100 (G54): 10 um; X50 machine 150: 15 um; X100: 20 um.
+        assert!(text.contains("G0 X0.01 Y0 Z0\n"), "{text}");
+        assert!(text.contains("X50.015"), "{text}");
+        assert!(text.contains("X100.02"), "{text}");
+        assert_eq!(out.result.unwrap()["dialect"], "linuxcnc");
+        r.program = "G21\nG0 X0 Y0 Z0\nG1 X#5420 F100\n".into();
+        let (out, sink) = go(&r);
+        let e = out.error().unwrap();
+        assert!(
+            e.starts_with("in.ngc: line 3: `G1 X#5420 F100`: #5420 is a system parameter"),
+            "{e}"
+        );
+        assert!(sink.0.is_empty());
+        r.offsets = Some("5221 x\n".into());
+        assert_eq!(r.check().unwrap_err().field, "offsets");
     }
 
     #[test]

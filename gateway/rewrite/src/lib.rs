@@ -48,6 +48,7 @@
 
 pub mod dialect;
 pub mod fanuc;
+pub mod ngc;
 pub mod programs;
 mod rewriter;
 pub mod split;

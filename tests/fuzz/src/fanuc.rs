@@ -60,7 +60,7 @@ pub fn fanuc_tape(data: &[u8]) {
 
 /// A smooth stand-in for a map (a 5 mm-period screw error in X, a squareness in Y),
 /// known on -300..300 mm.
-struct Smooth;
+pub(crate) struct Smooth;
 
 impl rewrite::Compensation for Smooth {
     fn describe(&self) -> String {

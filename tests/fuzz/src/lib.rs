@@ -24,6 +24,7 @@ mod linuxcnc;
 mod media;
 mod modbus;
 mod nc;
+mod ngc;
 mod outside;
 mod rewrite;
 mod rotary;
@@ -44,6 +45,7 @@ pub use linuxcnc::linuxcnc_reply;
 pub use media::{localize, png_load};
 pub use modbus::modbus_frame;
 pub use nc::nc_program;
+pub use ngc::ngc_rewrite;
 pub use outside::{
     dollar_hash, gcode_dialect, program_lines, reference_record, rotary_errors, volumetric_campaign,
 };
@@ -106,6 +108,7 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("linuxcnc_reply", linuxcnc_reply),
     ("fanuc_tape", fanuc_tape),
     ("fanuc_rewrite", fanuc_rewrite),
+    ("ngc_rewrite", ngc_rewrite),
 ];
 
 /// The fuzz crate's folder (corpora, regressions).
