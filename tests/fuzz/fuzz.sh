@@ -13,6 +13,10 @@ scratch=${FUZZ_SCRATCH:-$(mktemp -d)}
 target_dir=${FUZZ_TARGET_DIR:-target/fuzz}
 fuzz=(cargo +nightly fuzz)
 common=(--fuzz-dir tests/fuzz --features libfuzzer --sanitizer none --target-dir "$target_dir")
+# FUZZ_DEV=1: the targets built unoptimized (`cargo fuzz --dev`), which builds in a
+# fraction of the release build's time: for a smoke run of a few seconds per target,
+# where executions per second matter less than the build (CI). Campaigns use release.
+if [ "${FUZZ_DEV:-0}" = 1 ]; then common+=(--dev); fi
 if [ $# -gt 0 ]; then
   targets=("$@")
 else
