@@ -279,6 +279,7 @@ fn default_interval() -> f64 {
 pub struct ExportRequest {
     /// The controller's table format.
     #[cfg_attr(feature = "cli", arg(long, value_enum))]
+    #[schema(inline)]
     pub format: ExportFormat,
     /// The table's file name; the per-axis formats add `_x`/`_y` before its extension
     /// (on the command line, the name of `--out`).

@@ -314,6 +314,10 @@ mod tests {
                     k.name
                 );
             }
+            // The page reads each field's schema as it is: no field is a bare `$ref`.
+            for (name, field) in schema["properties"].as_object().into_iter().flatten() {
+                assert!(field.get("$ref").is_none(), "{}.{name}: inline it", k.name);
+            }
             for (name, help) in k.field_help {
                 assert_eq!(
                     schema["properties"][name]["x-help"], *help,

@@ -135,6 +135,7 @@ pub struct RewriteRequest {
     /// then LinuxCNC's parameter file, its `.var`). See docs/compensation.md.
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(long, value_enum, default_value_t = Dialect::Grbl, conflicts_with = "rotary"))]
+    #[schema(inline)]
     pub dialect: Dialect,
 }
 
@@ -637,6 +638,15 @@ impl crate::registry::Procedure for Rewrite {
     const COMMAND: &'static str = "rewrite";
     const LABEL: &'static str = "Program rewrite";
     const HELP: &'static str = "Rewrites a G-code program with the active error map (or a volumetric model) so that every move lands where it was programmed; download the rewritten program and run it on the machine. What the controller would refuse is refused here first, naming the line.";
+    const FIELD_HELP: &'static [(&'static str, &'static str)] = &[
+        ("program", "The program to rewrite, as the controller reads it."),
+        ("dialect", "The controller's language: grbl (GRBL 1.1) or linuxcnc (LinuxCNC 2.9, RS274/NGC, with its subroutines and loops written out)."),
+        ("no_reference", "Use the map as scanned, without the machine zero recorded after the last homing."),
+        ("offsets", "The controller's work offsets: for GRBL its answer to $# saved as a file, for LinuxCNC its parameter file (.var). Empty: the program's coordinates are taken as machine coordinates."),
+        ("start", "Where the machine stands when the program starts, X; Y (or X; Y; Z) in mm. Empty: the first moves must name every axis."),
+        ("limits", "The machine's travel, to refuse a corrected move outside it. Empty: the controller's own soft limits apply."),
+        ("volumetric", "A volumetric model file: X, Y and Z corrected by it instead of by the error map."),
+    ];
     const USES: crate::registry::Uses = crate::registry::Uses {
         map: crate::registry::MapUse::WhenAsked,
         ..crate::registry::Uses::NOTHING
