@@ -34,16 +34,11 @@ fn distance2_to_segment(q: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
     let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
     let (qx, qy) = (q[0] - a[0], q[1] - a[1]);
     let len2 = dx * dx + dy * dy;
-    let mut t = if len2 == 0.0 {
+    let t = if len2 == 0.0 {
         0.0
     } else {
-        (qx * dx + qy * dy) / len2
+        ((qx * dx + qy * dy) / len2).clamp(0.0, 1.0)
     };
-    if t < 0.0 {
-        t = 0.0;
-    } else if t > 1.0 {
-        t = 1.0;
-    }
     let (ex, ey) = (qx - t * dx, qy - t * dy);
     ex * ex + ey * ey
 }
