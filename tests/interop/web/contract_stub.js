@@ -76,7 +76,8 @@ function makeFrame(jobId, step) {
 
 function profileView(p) {
   const active = activations.length > 0 && activations[activations.length - 1] === p.version;
-  return { machine: 'demo', name: 'xy', kind: 'error_map', version: p.version, active,
+  // One profile name here: its active version is the one in use.
+  return { machine: 'demo', name: 'xy', kind: 'error_map', version: p.version, active, in_use: active,
     created_at: p.created_at, source_job: p.source_job, note: null };
 }
 
