@@ -491,17 +491,7 @@ async fn run_live(
             {
                 m.extend(r);
             }
-            result["elapsed_s"] = json!(started.elapsed().as_secs_f64());
-            let metrics = crate::metrics_from(
-                &result,
-                &[
-                    "moves_compensated",
-                    "segments_added",
-                    "largest_correction_um",
-                    "sent_lines",
-                ],
-            );
-            Outcome::succeeded(result, metrics)
+            succeeded(result, started)
         }
     }
 }
@@ -594,6 +584,11 @@ pub async fn run(
             Some(Ok(sent)) => result["sent_lines"] = json!(sent),
         }
     }
+    succeeded(result, started)
+}
+
+/// A run that ended well, from a file or a live sender: its time and the plant's metrics.
+fn succeeded(mut result: Value, started: std::time::Instant) -> Outcome {
     result["elapsed_s"] = json!(started.elapsed().as_secs_f64());
     let metrics = crate::metrics_from(
         &result,
