@@ -32,27 +32,7 @@ fn env_f64(name: &str) -> Option<f64> {
     std::env::var(name).ok().and_then(|s| s.parse().ok())
 }
 
-#[derive(Default)]
-struct Stat {
-    max: f64,
-    sum2: f64,
-    n: usize,
-}
-
-impl Stat {
-    fn add(&mut self, e: f64) {
-        self.max = self.max.max(e);
-        self.sum2 += e * e;
-        self.n += 1;
-    }
-    fn text(&self) -> String {
-        format!(
-            "max {:.3} um, rms {:.3} um",
-            self.max,
-            (self.sum2 / self.n.max(1) as f64).sqrt()
-        )
-    }
-}
+use system_tests::truth_map::ErrorStat;
 
 fn main() {
     let n: usize = std::env::args()
@@ -157,7 +137,7 @@ fn main() {
         (s >> 11) as f64 / (1u64 << 53) as f64
     };
     let (mlo, mhi) = model.extent();
-    let (mut compensated, mut raw) = (Stat::default(), Stat::default());
+    let (mut compensated, mut raw) = (ErrorStat::default(), ErrorStat::default());
     for _ in 0..n {
         let p = [
             mlo[0] + 1.0 + (mhi[0] - mlo[0] - 2.0) * next(),

@@ -179,32 +179,17 @@ fn main() {
             (c[1] - nominal[1] - z[1]) * 1000.0,
         ]
     };
-    #[derive(Default)]
-    struct Stat {
-        max: f64,
-        sum2: f64,
-        n: usize,
-    }
-    impl Stat {
-        fn add(&mut self, e: f64) {
-            self.max = self.max.max(e);
-            self.sum2 += e * e;
-            self.n += 1;
-        }
-        fn text(&self) -> String {
-            format!(
-                "max {:.3} um, rms {:.3} um",
-                self.max,
-                (self.sum2 / self.n.max(1) as f64).sqrt()
-            )
-        }
-    }
-    let (mut raw, mut left, mut left_ideal) = (Stat::default(), Stat::default(), Stat::default());
-    let (mut left_x, mut left_y) = (Stat::default(), Stat::default());
+    use system_tests::truth_map::ErrorStat;
+    let (mut raw, mut left, mut left_ideal) = (
+        ErrorStat::default(),
+        ErrorStat::default(),
+        ErrorStat::default(),
+    );
+    let (mut left_x, mut left_y) = (ErrorStat::default(), ErrorStat::default());
     let check_t0 = world::lock(&rig).machine().now_s();
     // The first fifth of the check separately: the thermal drift since the reference
     // grows with the check's own machine time.
-    let mut early = Stat::default();
+    let mut early = ErrorStat::default();
     for point in 0..n {
         let p = [
             mlo[0] + (mhi[0] - mlo[0]) * next(),
