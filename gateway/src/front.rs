@@ -45,6 +45,12 @@ pub struct CliSink {
     inputs: Vec<PathBuf>,
     /// The logs being grown ([`Sink::log_row`]), open for appending.
     logs: Vec<(String, std::fs::File)>,
+    /// What was written where: `(artifact name, path)`.
+    written: Vec<(String, PathBuf)>,
+    /// How a partial result is printed as it comes: `--json` (one object a line), else
+    /// the kind's summary.
+    partial: Option<(bool, &'static procedure::registry::Kind)>,
+    partials: usize,
 }
 
 impl CliSink {
@@ -68,14 +74,17 @@ impl CliSink {
             rename: Vec::new(),
             inputs: Vec::new(),
             logs: Vec::new(),
+            written: Vec::new(),
+            partial: None,
+            partials: 0,
         }
     }
 
     /// Artifacts are written into `dir`, created with the first thing written into it
     /// (a run refused before that leaves no folder behind).
-    pub fn into_folder(mut self, dir: &Path) -> anyhow::Result<Self> {
+    pub fn into_folder(mut self, dir: &Path) -> Self {
         self.out = Some(dir.to_path_buf());
-        Ok(self)
+        self
     }
 
     /// The output folder, created when it is not there yet.
@@ -112,6 +121,23 @@ impl CliSink {
     pub fn finish(&self) {
         self.bar.finish_and_clear();
     }
+
+    /// Partial results ([`Sink::partial_result`]) printed as they come.
+    pub fn print_partials(mut self, json: bool, kind: &'static procedure::registry::Kind) -> Self {
+        self.partial = Some((json, kind));
+        self
+    }
+
+    /// What was written where, `(artifact name, path)`, in order.
+    pub fn written(&self) -> Vec<(String, PathBuf)> {
+        self.written.clone()
+    }
+
+    fn wrote(&mut self, name: &str, path: &Path) {
+        if !self.written.iter().any(|(n, _)| n == name) {
+            self.written.push((name.to_string(), path.to_path_buf()));
+        }
+    }
 }
 
 impl Sink for CliSink {
@@ -142,6 +168,7 @@ impl Sink for CliSink {
         };
         let first = format!("{}{}", row.header, row.row);
         write_atomic(&path, first.as_bytes(), &self.inputs).map_err(not_written)?;
+        self.wrote(row.log, &path);
         let file = std::fs::OpenOptions::new()
             .append(true)
             .open(&path)
@@ -156,7 +183,37 @@ impl Sink for CliSink {
         };
         // A log grown so far is replaced whole.
         self.logs.retain(|(n, _)| *n != artifact.name);
-        write_atomic(&path, &artifact.bytes, &self.inputs).map_err(not_written)
+        write_atomic(&path, &artifact.bytes, &self.inputs).map_err(not_written)?;
+        self.wrote(&artifact.name, &path);
+        Ok(())
+    }
+
+    fn partial_result(&mut self, result: &Value) {
+        let Some((json, kind)) = self.partial else {
+            return;
+        };
+        self.partials += 1;
+        let text = if json {
+            format!("{result}\n")
+        } else {
+            format!("check {}:\n{}", self.partials, kind.summary(result))
+        };
+        self.bar.suspend(|| {
+            let _ = emit(&text);
+        });
+    }
+
+    fn check_outputs(&mut self, names: &[String]) -> Result<(), procedure::Error> {
+        let inputs: Vec<&Path> = self.inputs.iter().map(PathBuf::as_path).collect();
+        for name in names {
+            let Some(path) = self.path_of(name)? else {
+                continue;
+            };
+            protocol::config::check_output(&path, &inputs).map_err(|e| {
+                procedure::Error::Output(format!("writing {}: {e}", path.display()))
+            })?;
+        }
+        Ok(())
     }
 
     fn artifact_streamed(
@@ -170,7 +227,9 @@ impl Sink for CliSink {
         };
         let inputs: Vec<&Path> = self.inputs.iter().map(PathBuf::as_path).collect();
         protocol::config::write_output_with(&path, &inputs, write)
-            .map_err(|e| procedure::Error::Output(format!("writing {}: {e}", path.display())))
+            .map_err(|e| procedure::Error::Output(format!("writing {}: {e}", path.display())))?;
+        self.wrote(&name, &path);
+        Ok(())
     }
 }
 
@@ -235,32 +294,7 @@ fn json_shown(outcome: &Outcome, result: &Value) -> String {
 
 /// Runs the registered procedure `kind` on `request` (checked once here: an error names
 /// the flag) in the files context `configure` makes of the command's files, with Ctrl-C
-/// as the stop signal, and prints its outcome with the kind's summary.
-pub fn run_kind(
-    kind: &str,
-    request: &impl serde::Serialize,
-    sink: &mut CliSink,
-    json: bool,
-    configure: impl for<'s> FnOnce(Files<'s>) -> Files<'s>,
-) -> anyhow::Result<ExitCode> {
-    run_kind_then(kind, request, sink, json, "", configure)
-}
-
-/// [`run_kind`], the summary followed by `then` (what the command wrote where).
-pub fn run_kind_then(
-    kind: &str,
-    request: &impl serde::Serialize,
-    sink: &mut CliSink,
-    json: bool,
-    then: &str,
-    configure: impl for<'s> FnOnce(Files<'s>) -> Files<'s>,
-) -> anyhow::Result<ExitCode> {
-    let kind = procedure::kinds::kind(kind).map_err(|e| anyhow::anyhow!("{e}"))?;
-    let outcome = run_outcome(kind, request, sink, configure)?;
-    print(&outcome, json, |r| format!("{}{then}", kind.summary(r)))
-}
-
-/// [`run_kind`] without printing: the outcome.
+/// as the stop signal: its outcome.
 pub fn run_outcome(
     kind: &procedure::registry::Kind,
     request: &impl serde::Serialize,
@@ -299,7 +333,7 @@ mod tests {
     fn a_log_grows_a_row_at_a_time_and_the_artifact_replaces_it() {
         let dir = std::env::temp_dir().join(format!("gateway-front-log-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
-        let mut sink = CliSink::new("", true).into_folder(&dir).unwrap();
+        let mut sink = CliSink::new("", true).into_folder(&dir);
         let row = |row| LogRow {
             log: "m.csv",
             header: "a,b\n",

@@ -1,75 +1,29 @@
-//! `gateway`: the command line of the compensation gateway.
+//! `gateway`: the command line of the compensation gateway. Every registered kind is a
+//! command built from the registry ([`commands`]); the service, the pass-through and the
+//! demo's built-in job are the only commands of their own.
 
-use clap::{Parser, Subcommand};
-
+use clap::{Arg, ArgAction, Command, FromArgMatches, Subcommand};
 use serde_json::json;
+use std::ffi::OsString;
 use std::process::ExitCode;
 
-mod board;
-mod compensate;
-mod dnc;
-mod export;
+mod commands;
 mod front;
-mod iso230;
-mod layout;
-mod localize;
 mod proxy;
-mod reference;
-mod rewrite;
-mod rotary;
-mod scan;
 mod serve;
-mod verify;
-mod volumetric;
 
-#[derive(Parser)]
-#[command(
-    name = "gateway",
-    version,
-    about = "Camera + calibration board compensation gateway for X-Y stages and CNC machines"
-)]
-struct Cli {
-    /// Print the outcome's result as one JSON object (the object the service stores)
-    /// instead of text; errors as `{"error": ...}`.
-    #[arg(long, global = true)]
-    json: bool,
-    #[command(subcommand)]
-    cmd: Cmd,
-}
-
+// The commands that are not a registered kind.
 #[derive(Subcommand)]
-enum Cmd {
+enum Special {
     /// Run the compensation job on the embedded default: a simulated C5 stage, camera and
     /// certified board, all in-process. Reports the error against the truth.
-    Demo(compensate::DemoArgs),
-    /// Run the compensation job described by a configuration file.
-    Compensate(compensate::CompensateArgs),
-    /// Scan the machine into an error map: a grid over the travel and dense lines along
-    /// each axis, every point approached from both sides, `--passes` times. Written as a
-    /// new version OUT/NAME.vN.json (never over an older one); a stopped scan resumes
-    /// from its journal OUT/NAME.scan.jsonl.
-    Map(scan::MapArgs),
-    /// Rewrite a G-code program so that every move lands where it was programmed: moves
-    /// split against the tolerance, arcs as chords, each point replaced by the command
-    /// the error map gives for it. The controller's dialect is GRBL 1.1: what it would
-    /// refuse is refused here first, naming the line.
-    Rewrite(rewrite::RewriteArgs),
-    /// The A/C tilting rotary table (source B): identify its eight location errors.
-    Rotary {
-        #[command(subcommand)]
-        cmd: rotary::RotaryCmd,
-    },
+    Demo(DemoArgs),
     /// Run the gateway as a service: machines, job queues, the HTTP/WebSocket API and
     /// the web page, as configured in BOX.toml. SIGTERM/SIGINT stop it cleanly.
     Serve {
         /// The box's configuration (see config/box/demo.toml).
         #[arg(long)]
         config: std::path::PathBuf,
-    },
-    /// Cutting layouts for a multi-tool conveyor cutter (Source C).
-    Layout {
-        #[command(subcommand)]
-        cmd: layout::LayoutCmd,
     },
     /// The live pass-through: a pseudo-terminal that answers as a GRBL 1.1 controller to
     /// the G-code sender you already use (UGS, CNCjs, bCNC), rewriting every line and
@@ -78,47 +32,74 @@ enum Cmd {
     /// --controller PORT`, X Y Z A C on a grblHAL six-axis build). Status reports show
     /// the programmed position. Ctrl-C stops.
     Proxy(proxy::ProxyArgs),
-    /// ISO 230-2 positioning test of one axis (A, B, R, E, M), or `evaluate FILE`.
-    Iso230(iso230::Iso230Args),
-    /// The 21-error volumetric model of a 3-axis machine: identify, eval, contributions,
-    /// simulate-campaign, export-isg.
-    Volumetric {
-        #[command(subcommand)]
-        cmd: volumetric::VolumetricCmd,
-    },
-    /// Check the error map with the camera: home, re-reference the map at its reference
-    /// point (each homing moves the zero by a few um), then move to random points with
-    /// the map's command and measure where the camera really is. `--spot-check`: a few
-    /// points; exit code 2 when any point is off by more than `--drift-threshold-um` (re-scan).
-    Verify(verify::VerifyArgs),
-    /// After every homing: home (when the job homes), one frame at the map's reference
-    /// point, and the machine zero's shift recorded beside the map as its current
-    /// reference (MAP.reference.json), which rewrite, proxy and verify --spot-check apply.
-    Reference(reference::ReferenceArgs),
-    /// Write the map as a controller's own compensation table: `linuxcnc` (a COMP_FILE
-    /// per joint, nominal/forward/reverse, at most 256 entries), `beckhoff` (a TwinCAT
-    /// CNC plane compensation list per axis over X and Y) or `csv` (the model on the
-    /// map's grid). Each says what the format cannot hold and refuses a table further
-    /// from the map than the tolerance.
-    Export(export::ExportArgs),
-    /// Localize one image of the board: the board coordinate under the image centre.
-    Localize(localize::LocalizeArgs),
-    /// Calibration boards: `make` writes a board's artwork (DXF, SVG at 1:1, a PDF test
-    /// print) and its certificate template.
-    Board {
-        #[command(subcommand)]
-        cmd: board::BoardCmd,
-    },
-    /// Drip-feed a Fanuc program to a closed controller through its tape port (DNC,
-    /// DC1/DC3), rewritten with the error map; what cannot be rewritten exactly is
-    /// refused naming the block.
-    Dnc(dnc::DncArgs),
+}
+
+#[derive(clap::Args)]
+struct DemoArgs {
+    #[command(flatten)]
+    request: procedure::request::CompensateRequest,
+    /// Stage backend: `sim` (in-process) or `grbl` (the GRBL emulator on a real
+    /// pseudo-terminal, driven by the GRBL serial driver); `modbus` (the Modbus
+    /// drive emulator); `canopen` (CiA 402 drive emulator behind an SLCAN adapter
+    /// on a real pseudo-terminal, driven by the CANopen driver).
+    #[arg(long, default_value = "sim")]
+    stage: String,
+    /// With `--stage modbus`: `tcp` (drive emulator on a loopback port) or `rtu`
+    /// (on a real pseudo-terminal).
+    #[arg(long, default_value = "tcp")]
+    transport: String,
+    /// Camera link: `sim` (in-process) or `gige` (the GigE Vision emulator on a
+    /// loopback UDP port, rendering the same machine, read by the GigE driver).
+    #[arg(long, default_value = "sim")]
+    camera: String,
+}
+
+fn cli() -> Command {
+    let root = Command::new("gateway")
+        .version(env!("CARGO_PKG_VERSION"))
+        .about("Camera + calibration board compensation gateway for X-Y stages and CNC machines")
+        .subcommand_required(true)
+        .arg(
+            Arg::new("json")
+                .long("json")
+                .global(true)
+                .action(ArgAction::SetTrue)
+                .help(
+                    "Print the outcome's result as one JSON object (the object the service \
+                     stores) instead of text; errors as `{\"error\": ...}`.",
+                ),
+        );
+    commands::add_kinds(Special::augment_subcommands(root))
+}
+
+/// `gateway rewrite IN --rotary ERRORS ...` is `gateway rotary rewrite IN --errors ERRORS ...`.
+fn with_aliases(mut args: Vec<OsString>) -> Vec<OsString> {
+    let command = args
+        .iter()
+        .skip(1)
+        .position(|a| !a.to_string_lossy().starts_with('-'));
+    let rotary = |a: &OsString| {
+        let a = a.to_string_lossy();
+        a == "--rotary" || a.starts_with("--rotary=")
+    };
+    if let Some(at) = command.map(|i| i + 1) {
+        if args[at] == "rewrite" && args.iter().any(rotary) {
+            args.splice(at..=at, ["rotary".into(), "rewrite".into()]);
+            for a in args.iter_mut().filter(|a| rotary(a)) {
+                *a = a
+                    .to_string_lossy()
+                    .replacen("--rotary", "--errors", 1)
+                    .into();
+            }
+        }
+    }
+    args
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
-    let json_mode = cli.json;
-    match run(cli) {
+    let matches = cli().get_matches_from(with_aliases(std::env::args_os().collect()));
+    let json_mode = matches.get_flag("json");
+    match run(&matches, json_mode) {
         Ok(code) => code,
         Err(e) => {
             let msg = format!("{e:#}");
@@ -131,156 +112,103 @@ fn main() -> ExitCode {
     }
 }
 
-fn run(cli: Cli) -> anyhow::Result<ExitCode> {
-    let json = cli.json;
-    match cli.cmd {
-        Cmd::Volumetric { cmd } => volumetric::run(cmd, json),
-        Cmd::Demo(a) => compensate::demo(a, json),
-        Cmd::Compensate(a) => compensate::compensate(a, json),
-        Cmd::Map(a) => scan::map(a, json),
-        Cmd::Rewrite(a) => rewrite::rewrite(a, json),
-        Cmd::Layout { cmd } => layout::run(cmd, json),
-        Cmd::Serve { config } => serve::serve(&config),
-        Cmd::Proxy(a) => proxy::proxy(a, json),
-        Cmd::Rotary { cmd } => rotary::run(cmd, json),
-        Cmd::Iso230(a) => iso230::dispatch(a, json),
-        Cmd::Verify(a) => verify::verify(a, json),
-        Cmd::Reference(a) => reference::reference(a, json),
-        Cmd::Export(a) => export::export(a, json),
-        Cmd::Localize(a) => localize::localize(a, json),
-        Cmd::Board { cmd } => board::run(cmd, json),
-        Cmd::Dnc(a) => dnc::dnc(a, json),
+fn run(matches: &clap::ArgMatches, json: bool) -> anyhow::Result<ExitCode> {
+    if let Some((kind, own)) = commands::matched(matches) {
+        return commands::run(kind, own, json);
+    }
+    match Special::from_arg_matches(matches)? {
+        Special::Serve { config } => serve::serve(&config),
+        Special::Proxy(a) => proxy::proxy(a, json),
+        Special::Demo(a) => {
+            let job = procedure::demo::demo_job(&a.stage, &a.transport, &a.camera)
+                .map_err(|e| anyhow::anyhow!(e.for_cli()))?;
+            let kind = procedure::kinds::kind("compensate")?;
+            let mut sink = front::CliSink::new(kind.steps, json);
+            let outcome = front::run_outcome(kind, &a.request, &mut sink, |f| f.job(job))?;
+            front::print(&outcome, json, |r| kind.summary(r))
+        }
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use procedure::Request;
-    use serde_json::Value;
 
-    fn parse(args: &[&str]) -> Cmd {
-        let mut all = vec!["gateway"];
-        all.extend_from_slice(args);
-        Cli::try_parse_from(all).unwrap().cmd
-    }
-
-    fn api(kind: &str, params: Value) -> Value {
-        Request::parse(kind, &params).unwrap().params()
-    }
-
-    /// Every registered procedure is a command of this binary (the registry's
-    /// `COMMAND` words name it).
+    /// The command line is well formed (clap's own checks: no flag declared twice, every
+    /// `requires` and `conflicts_with` naming an argument).
     #[test]
-    fn every_registered_kind_is_a_command() {
-        use clap::CommandFactory;
-        let cli = Cli::command();
+    fn the_command_line_is_well_formed() {
+        cli().debug_assert();
+    }
+
+    /// Every registered kind is a command under its words, and its flags are the
+    /// request's fields: each one left out on the command line takes the API's default
+    /// for it (the defaults are declared once).
+    #[test]
+    fn the_command_line_and_the_api_default_every_parameter_alike() {
         for k in procedure::KINDS {
-            let mut cmd = &cli;
-            for word in k.command.split(' ') {
-                cmd = cmd.find_subcommand(word).unwrap_or_else(|| {
-                    panic!("kind {}: no command `gateway {}`", k.name, k.command)
-                });
+            let mut args: Vec<String> = vec!["gateway".into()];
+            args.extend(k.command.split(' ').map(String::from));
+            for file in k.files.iter().filter(|f| f.required) {
+                if !file.positional {
+                    args.push(format!("--{}", file.name));
+                }
+                args.push("f".into());
+            }
+            // A flag with no default (ISO 230-2's axis, a layout's tools).
+            const LAYOUT: &[&str] = &["--tools", "2", "--window-mm", "100", "--gap-mm", "5"];
+            let needed = [
+                ("iso230", &["--axis", "x"][..]),
+                ("layout", LAYOUT),
+                ("cut", LAYOUT),
+                ("export", &["--format", "csv"]),
+                ("volumetric-identify", &["--structure", "XYZF"]),
+            ];
+            for (_, flags) in needed.iter().filter(|(n, _)| *n == k.name) {
+                args.extend(flags.iter().map(|f| f.to_string()));
+            }
+            if k.name == "dnc" {
+                args.extend(["p.nc".into(), "--uncompensated".into()]);
+            }
+            let matches = cli()
+                .try_get_matches_from(&args)
+                .unwrap_or_else(|e| panic!("{args:?}: {e}"));
+            let (kind, own) = commands::matched(&matches).unwrap();
+            assert_eq!(kind.name, k.name);
+            let flags = kind.from_flags(own).unwrap();
+            for (key, value) in flags.as_object().unwrap() {
+                let mut without = flags.clone();
+                without.as_object_mut().unwrap().remove(key);
+                // A field the API requires (the program, the layout) has no default.
+                if let Ok(api) = kind.parse(&without) {
+                    let given = [("dnc", "uncompensated")].contains(&(k.name, key.as_str()))
+                        || needed.iter().any(|(n, f)| {
+                            *n == k.name
+                                && f.contains(&format!("--{}", key.replace('_', "-")).as_str())
+                        });
+                    if !given {
+                        assert_eq!(api[key], *value, "{}.{key}: {flags}", k.name);
+                    }
+                }
             }
         }
     }
 
-    /// The flags are the request's fields: with no flag given, the CLI's request is the
-    /// API's request with no param given (the defaults are declared once).
     #[test]
-    fn the_command_line_and_the_api_default_every_parameter_alike() {
-        let Cmd::Demo(a) = parse(&["demo"]) else {
-            panic!()
-        };
-        assert_eq!(json!(a.request), api("compensate", json!({})));
-        let Cmd::Map(a) = parse(&["map", "--config", "j", "--out", "o"]) else {
-            panic!()
-        };
-        assert_eq!(json!(a.request), api("map", json!({})));
-        let Cmd::Verify(a) = parse(&["verify", "--config", "j", "--map", "m"]) else {
-            panic!()
-        };
-        assert_eq!(json!(a.request), api("verify", json!({})));
-        let Cmd::Reference(a) = parse(&["reference", "--config", "j", "--map", "m"]) else {
-            panic!()
-        };
-        let from_api = procedure::request::ReferenceRequest::parse(&json!({})).unwrap();
-        assert_eq!(a.request, from_api);
-        let Cmd::Iso230(a) = parse(&["iso230", "--config", "j", "--out", "o", "--axis", "X"])
-        else {
-            panic!()
-        };
-        assert_eq!(json!(a.request), api("iso230", json!({"axis": "x"})));
-        let layout = json!({"layout": "", "format": "json", "tools": 2, "window_mm": 100.0,
-            "gap_mm": 5.0});
-        let flags = [
-            "l.json",
-            "--tools",
-            "2",
-            "--window-mm",
-            "100",
-            "--gap-mm",
-            "5",
-        ];
-        let Cmd::Layout {
-            cmd: layout::LayoutCmd::Cut { request, .. },
-        } = parse(&[&["layout", "cut"][..], &flags].concat())
-        else {
-            panic!()
-        };
-        let cut: procedure::request::CutRequest =
-            serde_json::from_value(json!({ "partition": layout })).unwrap();
-        assert_eq!(request, cut);
-        let Cmd::Rewrite(a) = parse(&["rewrite", "p.nc", "--map", "m", "--out", "o"]) else {
-            panic!()
-        };
-        let api: procedure::rewrite::RewriteRequest =
-            serde_json::from_value(json!({"program": ""})).unwrap();
-        assert_eq!(a.request, api);
-        let Cmd::Rotary {
-            cmd: rotary::RotaryCmd::Rewrite { request, .. },
-        } = parse(&["rotary", "rewrite", "p.nc", "--errors", "e", "--out", "o"])
-        else {
-            panic!()
-        };
-        let api: procedure::rotary::RotaryRewriteRequest =
-            serde_json::from_value(json!({"program": "", "errors": ""})).unwrap();
-        assert_eq!(request, api);
-        let Cmd::Dnc(a) = parse(&["dnc", "p.nc", "--map", "m"]) else {
-            panic!()
-        };
-        let api: procedure::dnc::DncRequest =
-            serde_json::from_value(json!({"program": ""})).unwrap();
-        assert_eq!(a.request, api);
-        let Cmd::Dnc(a) = parse(&[
-            "dnc",
-            "p.nc",
-            "--uncompensated",
-            "--no-send",
-            "--out",
-            "o",
-            "--no-block-skip",
-            "--work-offsets",
-            "1,2,3;4,5,6",
-        ]) else {
-            panic!()
-        };
-        assert!(!a.request.send && !a.request.block_skip && a.request.uncompensated);
+    fn rewrite_with_rotary_is_the_rotary_rewrite() {
+        let args = |a: &[&str]| a.iter().map(OsString::from).collect::<Vec<_>>();
         assert_eq!(
-            a.request.work_offsets,
-            Some(vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]])
+            with_aliases(args(&[
+                "gateway", "--json", "rewrite", "p.nc", "--rotary", "e.json", "--out", "o"
+            ])),
+            args(&[
+                "gateway", "--json", "rotary", "rewrite", "p.nc", "--errors", "e.json", "--out",
+                "o"
+            ])
         );
-        let Cmd::Proxy(a) = parse(&["proxy", "--config", "j", "--map", "m"]) else {
-            panic!()
-        };
-        let api: procedure::proxy::ProxyRequest = serde_json::from_value(json!({})).unwrap();
-        assert_eq!(a.request, api);
-        let Cmd::Localize(a) = parse(&["localize", "f.png", "--board", "b", "--near", "-1,2"])
-        else {
-            panic!()
-        };
-        let api: procedure::localize::LocalizeRequest =
-            serde_json::from_value(json!({"near": [-1.0, 2.0]})).unwrap();
-        assert_eq!(a.request, api);
+        assert_eq!(
+            with_aliases(args(&["gateway", "rewrite", "p.nc", "--map", "m"])),
+            args(&["gateway", "rewrite", "p.nc", "--map", "m"])
+        );
     }
 }

@@ -61,6 +61,17 @@ fn rewrite(map: &Path, program: &Path, out: &Path) -> Output {
     ])
 }
 
+/// `text` without the reference's age (`(3 s old)`).
+fn without_age(text: &str) -> String {
+    text.lines()
+        .map(|l| match (l.find(" ("), l.find(" old)")) {
+            (Some(a), Some(b)) if a < b => format!("{}{}", &l[..a], &l[b + 5..]),
+            _ => l.to_string(),
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
 #[test]
 fn a_record_that_contradicts_itself_is_refused_naming_the_field_and_a_bom_is_dropped() {
     let dir = scratch("contradicts");
@@ -75,7 +86,11 @@ fn a_record_that_contradicts_itself_is_refused_naming_the_field_and_a_bom_is_dro
     std::fs::write(&record_path, format!("\u{FEFF}{json}")).unwrap();
     let o = rewrite(&map, &program, &out);
     assert!(o.status.success(), "{}", stderr(&o));
-    assert_eq!(std::fs::read_to_string(&out).unwrap(), text);
+    // The same program, but for the record's age in its header (a second may pass).
+    assert_eq!(
+        without_age(&std::fs::read_to_string(&out).unwrap()),
+        without_age(&text)
+    );
     // Issue 38: `seen_um` edited to 110 um printed the record's shift and applied another.
     let mut edited = record;
     edited.seen_um = [110.0, 0.0];

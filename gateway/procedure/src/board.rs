@@ -2,6 +2,7 @@
 //! the certificate template, written by the formats crate `board_art` (sized there
 //! before anything is made) and handed to the sink.
 
+use crate::command_line::{self, FileArg};
 use crate::{Outcome, Sink};
 pub use board_art::{dxf, pdf, svg, template};
 use protocol::Board;
@@ -16,10 +17,15 @@ pub fn make(board: &Board, name: &str, sink: &mut dyn Sink) -> Outcome {
     if let Err(e) = board_art::check(board) {
         return Outcome::failed(format!("board `{}`: {e}", board.name));
     }
-    let mut names = Vec::new();
-    for (ext, media_type, writer) in board_art::FILES {
-        let file = format!("{name}.{ext}");
-        names.push(file.clone());
+    // Every output checked before any is written: a refused run leaves nothing behind.
+    let names: Vec<String> = (board_art::FILES.iter())
+        .map(|(ext, _, _)| format!("{name}.{ext}"))
+        .collect();
+    if let Err(e) = sink.check_outputs(&names) {
+        return Outcome::failed(e);
+    }
+    for ((_, media_type, writer), file) in board_art::FILES.iter().zip(&names) {
+        let (file, media_type) = (file.clone(), *media_type);
         if let Err(e) = sink.artifact_streamed(file, media_type, &mut |out| writer(board, out)) {
             return Outcome::failed(e);
         }
@@ -36,6 +42,7 @@ pub fn make(board: &Board, name: &str, sink: &mut dyn Sink) -> Outcome {
 #[derive(
     Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize, utoipa::ToSchema,
 )]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct BoardMakeRequest {}
 
@@ -57,6 +64,10 @@ impl crate::registry::Procedure for BoardMake {
     const HELP: &'static str = "Draws the machine's calibration board for the lab that makes it (SVG, DXF, a PDF test print) and its certificate template.";
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = BoardMakeRequest;
+    const FILES: &'static [FileArg] = &[
+        FileArg::positional("board", "The board file (TOML).", command_line::board),
+        FileArg::required("out", "The output folder.", command_line::artifacts_folder).short('o'),
+    ];
 
     async fn run(_request: BoardMakeRequest, cx: &mut dyn crate::Context) -> Outcome {
         let board = crate::or_fail!(cx.board());

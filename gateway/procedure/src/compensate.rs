@@ -1,5 +1,6 @@
 //! Compensation of the job's targets: the session's loop on the devices, the report.
 
+use crate::command_line::{self, FileArg};
 use crate::request::CompensateRequest;
 use crate::{Outcome, Sink};
 use compensation::report::Report;
@@ -119,6 +120,12 @@ impl crate::registry::Procedure for Compensate {
     ];
     const USES: crate::registry::Uses = crate::registry::Uses::DEVICES;
     type Request = CompensateRequest;
+    const FILES: &'static [FileArg] = &[FileArg::required(
+        "config",
+        "The job file (stage, camera, board, targets).",
+        command_line::job,
+    )];
+    const STEPS: &'static str = "targets";
 
     async fn run(request: CompensateRequest, cx: &mut dyn crate::Context) -> Outcome {
         let stop = cx.stop();

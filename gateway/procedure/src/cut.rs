@@ -3,6 +3,7 @@
 //! by stop and every head's group cut at once, on the emulated cutter (whose stroke log
 //! is an artifact) or on real GRBL controllers.
 
+use crate::command_line::FileArg;
 use crate::request::CutRequest;
 use crate::{Artifact, Outcome, Sink};
 use drivers::grbl::{GrblOptions, StreamOptions};
@@ -165,6 +166,23 @@ impl crate::registry::Procedure for Cut {
     const HELP: &'static str = "Splits the layout as a partition does and cuts it on the emulated conveyor cutter, every head's group at once.";
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = CutRequest;
+    const FILES: &'static [FileArg] = &[
+        FileArg::positional(
+            "layout",
+            "The layout (.dxf, .svg or .json).",
+            |path, plan| crate::layout::layout_file(path, "partition/", plan),
+        ),
+        FileArg::flag(
+            "log",
+            "The emulated cutter's stroke log (JSON lines: one stroke each, then the feeds).",
+            |path, plan| {
+                plan.artifacts
+                    .push(("strokes.jsonl".into(), path.to_path_buf()));
+                Ok(())
+            },
+        ),
+    ];
+    const STEPS: &'static str = "stops";
 
     async fn run(request: CutRequest, cx: &mut dyn crate::Context) -> Outcome {
         run(&request, cx.sink()).await

@@ -6,6 +6,7 @@
 //!
 //! The rewrite is sans-IO ([`prepare`]); only the sending touches a port.
 
+use crate::command_line::{self, FileArg};
 use crate::request::{number, RequestError};
 use crate::rewrite::{MAX_COORDINATE_MM, MAX_OUTPUT_BYTES, MAX_PROGRAM_BYTES};
 use crate::{Artifact, Outcome};
@@ -657,6 +658,40 @@ impl crate::registry::Procedure for Dnc {
         ..crate::registry::Uses::NOTHING
     };
     type Request = DncRequest;
+    const FILES: &'static [FileArg] = &[
+        FileArg::positional(
+            "input",
+            "The program (Fanuc dialect, ISO code; its subprograms after M30); none with `--from-port` (the program comes from a DNC sender).",
+            |path, plan| plan.text(path, "program", Some("program_name"), crate::rewrite::read_program),
+        )
+        .required_unless(&["from_port"]),
+        FileArg::flag(
+            "map",
+            "The error map (a version file written by `gateway map`).",
+            command_line::map,
+        )
+        .required_unless(&["uncompensated"]),
+        FileArg::flag(
+            "config",
+            "The job of the machine: its `[stage] driver = \"dnc\"` names the tape port, and the map is refused unless it was measured on that machine.",
+            command_line::job,
+        ),
+        FileArg::flag(
+            "subprograms",
+            "The subprograms stored in the controller that the program calls (M98).",
+            |path, plan| plan.text(path, "subprograms", None, crate::rewrite::read_program),
+        ),
+        FileArg::flag(
+            "out",
+            "Write the rewritten tape here (never over an input; not with `--from-port`).",
+            |path, plan| {
+                plan.artifacts.push((TAPE_ARTIFACT.into(), path.to_path_buf()));
+                Ok(())
+            },
+        )
+        .conflicts(&["from_port"]),
+    ];
+    const STEPS: &'static str = "tape lines";
 
     fn uses_map(request: &DncRequest) -> bool {
         !request.uncompensated

@@ -7,6 +7,7 @@
 //! first is handed to the sink, so a refused export leaves no new `_x` table beside a
 //! stale `_y`.
 
+use crate::command_line::{self, FileArg};
 use crate::request::{count, number, RequestError};
 use crate::{Artifact, Outcome, Sink};
 use errormap::export::{
@@ -563,6 +564,22 @@ impl crate::registry::Procedure for Export {
     )];
     const USES: crate::registry::Uses = crate::registry::Uses::MAP;
     type Request = ExportRequest;
+    const FILES: &'static [FileArg] = &[
+        FileArg::required("map", "The error map to export.", command_line::map),
+        FileArg::required(
+            "out",
+            "Output file (`_x`/`_y` are added for the per-axis formats).",
+            |path, plan| {
+                // The tables are named after --out and written beside it.
+                let name = path.file_name().ok_or_else(|| {
+                    crate::Error::Input(format!("--out {}: must name a file", path.display()))
+                })?;
+                plan.set("name", name.to_string_lossy().into_owned());
+                let beside = path.parent().filter(|p| !p.as_os_str().is_empty());
+                command_line::artifacts_folder(beside.unwrap_or(std::path::Path::new(".")), plan)
+            },
+        ),
+    ];
 
     async fn run(request: ExportRequest, cx: &mut dyn crate::Context) -> Outcome {
         let active = crate::or_fail!(cx.map());

@@ -2,6 +2,7 @@
 //! (compensated by a map when one is given), evaluated, charted and reported; and the
 //! evaluation of a measurements file from any instrument.
 
+use crate::command_line::{self, FileArg};
 use crate::request::Iso230Request;
 use crate::{Artifact, Outcome, Sink};
 use devices::Devices;
@@ -464,6 +465,32 @@ impl crate::registry::Procedure for Iso230 {
         rotary: false,
     };
     type Request = Iso230Request;
+    const FILES: &'static [FileArg] = &[
+        FileArg::required(
+            "config",
+            "The job (stage, camera, board) to test.",
+            command_line::job,
+        ),
+        FileArg::flag(
+            "map",
+            "Test with this error map active (the same test, compensated).",
+            |path, plan| {
+                plan.set("with_map", true);
+                command_line::map(path, plan)
+            },
+        ),
+        FileArg::required(
+            "out",
+            "Output folder: measurements.csv, result.json, charts (SVG, PNG), report.html.",
+            command_line::out_folder,
+        ),
+        FileArg::flag(
+            "before",
+            "A measurements file of the same test before compensation, overlaid on the charts.",
+            |path, plan| plan.text(path, "before", None, read_measurements),
+        ),
+    ];
+    const STEPS: &'static str = "measurements";
 
     async fn run(request: Iso230Request, cx: &mut dyn crate::Context) -> Outcome {
         let stop = cx.stop();
@@ -506,20 +533,32 @@ impl crate::registry::Procedure for Iso230 {
     }
 }
 
+/// A measurements file's text, bounded.
+fn read_measurements(path: &std::path::Path) -> Result<String, crate::Error> {
+    Ok(protocol::config::read_kind(
+        path,
+        protocol::config::DataKind::Iso230,
+    )?)
+}
+
 /// An evaluation of measurements from any instrument.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize, utoipa::ToSchema)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct Iso230EvaluateRequest {
     /// The measurements file (`axis,position_index,target_mm,run,direction,deviation_um`).
     #[schema(format = Binary, max_length = 16777216)]
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub measurements: String,
     /// How messages name it (its file name).
     #[serde(default = "default_measurements_name")]
     #[schema(default = default_measurements_name)]
+    #[cfg_attr(feature = "cli", arg(skip = default_measurements_name()))]
     pub measurements_name: String,
     /// A test of the same axis before compensation, overlaid on the charts.
     #[serde(default)]
     #[schema(format = Binary, max_length = 16777216)]
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub before: Option<String>,
 }
 
@@ -561,6 +600,30 @@ impl crate::registry::Procedure for Iso230Evaluate {
     ];
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = Iso230EvaluateRequest;
+    const FILES: &'static [FileArg] = &[
+        FileArg::positional(
+            "file",
+            "The measurements file (axis,position_index,target_mm,run,direction,deviation_um).",
+            |path, plan| {
+                plan.text(
+                    path,
+                    "measurements",
+                    Some("measurements_name"),
+                    read_measurements,
+                )
+            },
+        ),
+        FileArg::flag(
+            "out",
+            "Write result.json, the charts and report.html here.",
+            command_line::artifacts_folder,
+        ),
+        FileArg::flag(
+            "before",
+            "A measurements file of the test before compensation, overlaid on the charts.",
+            |path, plan| plan.text(path, "before", None, read_measurements),
+        ),
+    ];
 
     async fn run(request: Iso230EvaluateRequest, cx: &mut dyn crate::Context) -> Outcome {
         let name = &request.measurements_name;

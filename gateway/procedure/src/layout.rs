@@ -1,6 +1,7 @@
 //! A cutting layout partitioned (source C): read, grouped per tool and window, shifted,
 //! overlaps resolved, the shifted layout and its picture as artifacts.
 
+use crate::command_line::{self, FileArg, Plan};
 use crate::request::{LayoutFormat, LayoutRequest, PictureFormat};
 use crate::{Artifact, Outcome, Sink};
 use layout::{MaterialFit, Params, Partition, Resolution};
@@ -17,21 +18,28 @@ pub fn read_layout_file(path: &std::path::Path) -> Result<String, crate::Error> 
     )?)
 }
 
-/// [`read_layout_file`] and the request's layout read as `format` with the request's
-/// chord tolerance, so that a file that is not a layout is refused naming the file (the
-/// procedure, which has only the text, names it "layout").
-pub fn load_layout_file(
-    path: &std::path::Path,
-    request: &LayoutRequest,
-) -> Result<String, crate::Error> {
+/// A layout file's format from its extension.
+fn format_of(path: &std::path::Path) -> Result<LayoutFormat, crate::Error> {
+    let format = layout_io::Format::from_path(&path.to_string_lossy()).ok_or_else(|| {
+        crate::Error::Input(format!(
+            "{}: the extension must be .dxf, .svg or .json",
+            path.display()
+        ))
+    })?;
+    Ok(LayoutFormat::of(format))
+}
+
+/// The layout file read into the request at `at` (`""` or `partition/`), its format
+/// from its extension; a file that is not a layout is refused naming it.
+pub fn layout_file(path: &std::path::Path, at: &str, plan: &mut Plan) -> Result<(), crate::Error> {
+    let format = format_of(path)?;
     let text = read_layout_file(path)?;
-    let options = ReadOptions {
-        chord_tolerance_mm: request.chord_tolerance_mm,
-        ..ReadOptions::default()
-    };
-    Layout::read(text.as_bytes(), request.format.format(), &options)
+    Layout::read(text.as_bytes(), format.format(), &ReadOptions::default())
         .map_err(|e| crate::Error::input(format!("layout {}", path.display()), e))?;
-    Ok(text)
+    plan.set(&format!("{at}format"), format);
+    plan.set(&format!("{at}layout"), text);
+    plan.inputs.push(path.to_path_buf());
+    Ok(())
 }
 
 /// A partitioned layout: what the report and the cut are made from.
@@ -234,6 +242,37 @@ impl crate::registry::Procedure for LayoutPartition {
     ];
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = LayoutRequest;
+    const FILES: &'static [FileArg] = &[
+        FileArg::positional("layout", "The layout (.dxf, .svg or .json).", |path, plan| {
+            layout_file(path, "", plan)
+        }),
+        FileArg::required(
+            "out",
+            "Where to write the shifted layout (its format from the extension: .dxf, .svg or .json).",
+            |path, plan| {
+                plan.set("out_format", format_of(path)?);
+                let name = format!("layout.{}", command_line::extension(path));
+                plan.artifacts.push((name, path.to_path_buf()));
+                Ok(())
+            },
+        ),
+        FileArg::flag(
+            "picture",
+            "Also draw the result (.svg or .png), coloured by group.",
+            |path, plan| {
+                let ext = command_line::extension(path);
+                if ext != "svg" && ext != "png" {
+                    return Err(crate::Error::Input(format!(
+                        "--picture {}: the extension must be .svg or .png",
+                        path.display()
+                    )));
+                }
+                plan.set("picture", ext.clone());
+                plan.artifacts.push((format!("picture.{ext}"), path.to_path_buf()));
+                Ok(())
+            },
+        ),
+    ];
 
     async fn run(request: LayoutRequest, cx: &mut dyn crate::Context) -> Outcome {
         partition(&request, cx.sink())

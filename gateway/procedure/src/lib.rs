@@ -9,6 +9,7 @@
 //! request) and out (files and a progress bar, or the store and events).
 
 pub mod board;
+pub mod command_line;
 pub mod compensate;
 pub mod context;
 pub mod cut;
@@ -185,6 +186,15 @@ pub trait Sink {
     fn log_row(&mut self, _row: &LogRow) -> Result<(), crate::Error> {
         Ok(())
     }
+    /// Whether the artifacts `names` can all be kept, asked before the first is made
+    /// when a refusal half-way would leave some written (a front writing files refuses
+    /// one that would go over an input).
+    fn check_outputs(&mut self, _names: &[String]) -> Result<(), crate::Error> {
+        Ok(())
+    }
+    /// One result of a series as it ends (a repeated check's each check), before the
+    /// series' own result: the command line prints it at once.
+    fn partial_result(&mut self, _result: &Value) {}
     /// A localized camera frame for a live view (a few a second at most; the runner
     /// skips the others). Kept or dropped at will: nothing depends on it.
     fn frame(&mut self, _frame: &FrameThumb) {}

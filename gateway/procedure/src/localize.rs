@@ -5,6 +5,7 @@
 //! coded board (issue 28) the hint is optional and only checked against the position
 //! the board's code gives; a plain dot grid needs it.
 
+use crate::command_line::{self, FileArg};
 use crate::request::{count, number, RequestError};
 use crate::Outcome;
 use protocol::{Board, MonoImage};
@@ -230,6 +231,31 @@ impl crate::registry::Procedure for Localize {
     const HELP: &'static str = "Finds where on the machine's board a camera frame was taken: the board position under the frame's centre.";
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = LocalizeRequest;
+    const FILES: &'static [FileArg] = &[
+        FileArg::positional(
+            "image",
+            "PNG file, 8- or 16-bit greyscale.",
+            |path, plan| {
+                use base64::Engine;
+                let bytes = protocol::config::read_bytes_bounded(
+                    path,
+                    vision::image_io::MAX_IMAGE_BYTES,
+                    "an image file",
+                )
+                .map_err(|e| {
+                    crate::Error::Input(format!("{}: cannot open: {e}", path.display()))
+                })?;
+                plan.set(
+                    "image",
+                    base64::engine::general_purpose::STANDARD.encode(bytes),
+                );
+                plan.set("image_name", path.display().to_string());
+                plan.inputs.push(path.to_path_buf());
+                Ok(())
+            },
+        ),
+        FileArg::required("board", "Board file (TOML).", command_line::board),
+    ];
 
     async fn run(request: LocalizeRequest, cx: &mut dyn crate::Context) -> Outcome {
         let board = crate::or_fail!(cx.board());

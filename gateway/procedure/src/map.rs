@@ -7,6 +7,7 @@
 //! samples are taken back only for the same job, machine, camera, board and plan (the
 //! journal's [`journal::Header`]), and the map is written only when every frame is in.
 
+use crate::command_line::{self, FileArg, Plan};
 use crate::request::MapRequest;
 use crate::{Outcome, Sink};
 use devices::Devices;
@@ -372,6 +373,29 @@ impl crate::registry::Procedure for Map {
     ];
     const USES: crate::registry::Uses = crate::registry::Uses::DEVICES;
     type Request = MapRequest;
+    const FILES: &'static [FileArg] = &[
+        FileArg::required("config", "The job file of the machine.", |path, plan| {
+            // The map is named after the job file unless --name says otherwise.
+            if let Some(stem) = path.file_stem() {
+                plan.set("name", stem.to_string_lossy().into_owned());
+            }
+            command_line::job(path, plan)
+        }),
+        FileArg::required(
+            "out",
+            "Folder of the map versions (and the scan's journal).",
+            command_line::out_folder,
+        ),
+        FileArg::flag(
+            "name",
+            "Map name (default: the job file's name).",
+            |name, plan: &mut Plan| {
+                plan.set("name", name.to_string_lossy().into_owned());
+                Ok(())
+            },
+        ),
+    ];
+    const STEPS: &'static str = "frames";
 
     async fn run(request: MapRequest, cx: &mut dyn crate::Context) -> Outcome {
         let stop = cx.stop();

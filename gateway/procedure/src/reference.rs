@@ -4,6 +4,7 @@
 //! `MAP.reference.json` by the CLI). `rewrite`, `proxy` and `verify --spot-check` apply
 //! it ([`choose`], [`apply`]) and say which one they use and how old it is.
 
+use crate::command_line::{self, FileArg};
 use crate::request::ReferenceRequest;
 use crate::{Artifact, Error, Outcome, Sink};
 use devices::Devices;
@@ -294,6 +295,14 @@ impl crate::registry::Procedure for Reference {
     )];
     const USES: crate::registry::Uses = crate::registry::Uses::DEVICES_AND_MAP;
     type Request = ReferenceRequest;
+    const FILES: &'static [FileArg] = &[
+        FileArg::required("config", "The job file of the machine.", command_line::job),
+        FileArg::required(
+            "map",
+            "The error map (a version file written by `gateway map`).",
+            command_line::map,
+        ),
+    ];
 
     async fn run(request: ReferenceRequest, cx: &mut dyn crate::Context) -> Outcome {
         let stop = cx.stop();

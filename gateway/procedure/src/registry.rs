@@ -5,6 +5,7 @@
 //! the front ends fail when a registered kind lacks a schema, a summary, a command or a
 //! job kind.
 
+use crate::command_line::FileArg;
 use crate::context::Context;
 use crate::request::{from_json, RequestError};
 use crate::Outcome;
@@ -15,6 +16,18 @@ use std::future::Future;
 use std::pin::Pin;
 use utoipa::openapi::schema::Schema;
 use utoipa::openapi::RefOr;
+
+/// A request's command-line flags: its fields (`clap::Args`) in the `gateway` binary
+/// (the `cli` feature); nothing elsewhere.
+#[cfg(feature = "cli")]
+pub trait Flags: clap::Args {}
+#[cfg(feature = "cli")]
+impl<T: clap::Args> Flags for T {}
+/// A request's command-line flags (none without the `cli` feature).
+#[cfg(not(feature = "cli"))]
+pub trait Flags {}
+#[cfg(not(feature = "cli"))]
+impl<T> Flags for T {}
 
 /// A request whose bounds are checked once, where it is parsed.
 pub trait Checked {
@@ -103,7 +116,17 @@ pub trait Procedure {
     /// What it needs of the machine.
     const USES: Uses;
     /// Its request: the CLI's flags and the API's params, checked once.
-    type Request: Serialize + DeserializeOwned + utoipa::PartialSchema + Checked;
+    type Request: Serialize + DeserializeOwned + utoipa::PartialSchema + Checked + Flags;
+    /// The command line's file arguments: each read into the request or named for the
+    /// files context ([`crate::command_line`]).
+    const FILES: &'static [FileArg] = &[];
+    /// What the command line's progress bar counts ("frames"); empty: no bar.
+    const STEPS: &'static str = "";
+    /// The command's exit code for a result: 0, or 2 for a verdict the shop acts on (a
+    /// drifted map, a model unfit for compensation).
+    fn exit_code(_result: &Value) -> u8 {
+        0
+    }
     /// Runs it; the outcome's result is what `--json` prints and the store keeps.
     async fn run(request: Self::Request, cx: &mut dyn Context) -> Outcome;
     /// The result as a person reads it (the CLI's text, the page's summary).
@@ -144,6 +167,17 @@ pub struct Kind {
     run: Run,
     summary: fn(&Value) -> String,
     schema: fn() -> RefOr<Schema>,
+    /// [`Procedure::FILES`].
+    pub files: &'static [FileArg],
+    /// [`Procedure::STEPS`].
+    pub steps: &'static str,
+    exit_code: fn(&Value) -> u8,
+    /// The request's flags added to a command.
+    #[cfg(feature = "cli")]
+    flags: fn(clap::Command) -> clap::Command,
+    /// The request the flags give, as params.
+    #[cfg(feature = "cli")]
+    from_flags: fn(&clap::ArgMatches) -> Result<Value, clap::Error>,
 }
 
 impl std::fmt::Debug for Kind {
@@ -211,7 +245,21 @@ pub const fn entry<P: Procedure + 'static>() -> Kind {
         run: run_as::<P>,
         summary: P::summary,
         schema: <P::Request as utoipa::PartialSchema>::schema,
+        files: P::FILES,
+        steps: P::STEPS,
+        exit_code: P::exit_code,
+        #[cfg(feature = "cli")]
+        flags: <P::Request as clap::Args>::augment_args,
+        #[cfg(feature = "cli")]
+        from_flags: from_flags_as::<P>,
     }
+}
+
+#[cfg(feature = "cli")]
+fn from_flags_as<P: Procedure>(matches: &clap::ArgMatches) -> Result<Value, clap::Error> {
+    let request = <P::Request as clap::FromArgMatches>::from_arg_matches(matches)?;
+    serde_json::to_value(&request)
+        .map_err(|e| clap::Error::raw(clap::error::ErrorKind::InvalidValue, e))
 }
 
 impl Kind {
@@ -237,6 +285,23 @@ impl Kind {
 
     pub fn summary(&self, result: &Value) -> String {
         (self.summary)(result)
+    }
+
+    /// [`Procedure::exit_code`].
+    pub fn exit_code(&self, result: &Value) -> u8 {
+        (self.exit_code)(result)
+    }
+
+    /// The request's flags added to `command`.
+    #[cfg(feature = "cli")]
+    pub fn flags(&self, command: clap::Command) -> clap::Command {
+        (self.flags)(command)
+    }
+
+    /// The params the flags of `matches` give (before the files are read into them).
+    #[cfg(feature = "cli")]
+    pub fn from_flags(&self, matches: &clap::ArgMatches) -> Result<Value, clap::Error> {
+        (self.from_flags)(matches)
     }
 
     /// The JSON schema (OpenAPI 3.1) of its params: the page builds the form from it.

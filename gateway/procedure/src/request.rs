@@ -298,7 +298,29 @@ pub struct VerifyRequest {
     #[cfg_attr(feature = "cli", arg(skip))]
     #[schema(minimum = 0, maximum = 1000000)]
     pub round: u64,
+    /// Checks in a row, each on fresh points (a periodic spot check: the result says
+    /// `rescan` when any check was past the threshold).
+    #[serde(default = "default_repeat")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_repeat()))]
+    #[schema(default = default_repeat, minimum = 1, maximum = 1000000)]
+    pub repeat: u64,
+    /// Seconds between two checks of `repeat`.
+    #[serde(default = "default_every_s")]
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = default_every_s()))]
+    #[schema(default = default_every_s, minimum = 0.0, maximum = 604800.0)]
+    pub every_s: f64,
 }
+
+fn default_repeat() -> u64 {
+    1
+}
+
+fn default_every_s() -> f64 {
+    600.0
+}
+
+/// At most a week between two checks of a series (a longer pause is a mistyped value).
+const WEEK_S: f64 = 7.0 * 24.0 * 3600.0;
 
 impl Default for VerifyRequest {
     fn default() -> Self {
@@ -309,6 +331,8 @@ impl Default for VerifyRequest {
             drift_threshold_um: default_drift_threshold(),
             no_reference: false,
             round: 0,
+            repeat: default_repeat(),
+            every_s: default_every_s(),
         }
     }
 }
@@ -320,6 +344,8 @@ impl VerifyRequest {
         }
         number("drift_threshold_um", self.drift_threshold_um, 1e-3, 1000.0)?;
         count("round", self.round, 0, 1_000_000)?;
+        count("repeat", self.repeat, 1, 1_000_000)?;
+        number("every_s", self.every_s, 0.0, WEEK_S)?;
         Ok(())
     }
 
@@ -815,11 +841,13 @@ fn default_rotary_name() -> String {
 
 /// A measurement of the A/C table through the machine's rotary link.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct RotaryRequest {
     /// The rotary profile the identified errors become a version of.
     #[serde(default = "default_rotary_name")]
     #[schema(default = default_rotary_name, pattern = "^[A-Za-z0-9_-]{1,64}$")]
+    #[cfg_attr(feature = "cli", arg(skip = default_rotary_name()))]
     pub name: String,
 }
 

@@ -3,6 +3,7 @@
 //! the rewritten program as an artifact ([`PROGRAM_ARTIFACT`]), the report as the result.
 //! (The 5-axis rewrite for a rotary table is `rotary`'s.)
 
+use crate::command_line::{self, FileArg};
 use crate::request::{number, RequestError};
 use crate::{Artifact, Outcome, Sink};
 use errormap::MapModel;
@@ -652,6 +653,45 @@ impl crate::registry::Procedure for Rewrite {
         ..crate::registry::Uses::NOTHING
     };
     type Request = RewriteRequest;
+    const FILES: &'static [FileArg] = &[
+        FileArg::positional("input", "The program to rewrite (never overwritten).", |path, plan| {
+            plan.text(path, "program", Some("program_name"), read_program)
+        }),
+        FileArg::flag(
+            "map",
+            "The error map (a version file written by `gateway map`).",
+            command_line::map,
+        )
+        .conflicts(&["volumetric"]),
+        FileArg::flag(
+            "config",
+            "With --map: the job of the machine the program is for; the map is refused unless it was measured on that machine, controller, board and camera.",
+            command_line::job,
+        )
+        .requires(&["map"]),
+        FileArg::flag(
+            "volumetric",
+            "A volumetric model file (`gateway volumetric identify`): X, Y and Z corrected.",
+            |path, plan| {
+                plan.text(path, "volumetric", Some("volumetric_name"), crate::volumetric::read_file)
+            },
+        ),
+        FileArg::required("out", "The rewritten program (never over an input).", |path, plan| {
+            plan.artifacts.push((PROGRAM_ARTIFACT.into(), path.to_path_buf()));
+            Ok(())
+        }),
+        FileArg::flag(
+            "offsets",
+            "The controller's `$#` reply saved to a file: its G54..G59 offsets.",
+            |path, plan| plan.text(path, "offsets", None, read_offsets_file),
+        ),
+        FileArg::flag(
+            "rotary",
+            "The location errors of an A/C tilting table: a 5-axis program (X Y Z A C) rewritten so the tool tip and direction land where programmed; the same as `gateway rotary rewrite INPUT --errors FILE` (with its --machine and --force-machine).",
+            |_, _| Err(crate::Error::Input("--rotary is `gateway rotary rewrite --errors`".into())),
+        )
+        .conflicts(&["map", "volumetric", "offsets", "config"]),
+    ];
 
     /// The machine's map, unless a volumetric model is given.
     fn uses_map(request: &RewriteRequest) -> bool {

@@ -3,6 +3,7 @@
 //! from centres measured elsewhere (`identify`), and a 5-axis program rewritten for them
 //! (`rewrite`).
 
+use crate::command_line::{self, FileArg};
 use crate::request::RotaryRequest;
 use crate::Error;
 use crate::{Artifact, Outcome, Sink};
@@ -220,6 +221,13 @@ pub fn read_errors_file(path: &std::path::Path) -> Result<String, Error> {
 
 /// Machine constants (JSON: `a_axis_y_mm`, ... `tool_length_mm`) from the file at
 /// `path`, read bounded, one document, checked; every error names the file.
+/// The machine constants file read into the request's `machine`.
+fn machine_file(path: &std::path::Path, plan: &mut command_line::Plan) -> Result<(), Error> {
+    plan.set("machine", read_machine_file(path)?);
+    plan.inputs.push(path.to_path_buf());
+    Ok(())
+}
+
 pub fn read_machine_file(path: &std::path::Path) -> Result<MachineConstants, Error> {
     let text = read_errors_file(path)?;
     let name = path.display();
@@ -380,6 +388,19 @@ impl crate::registry::Procedure for RotaryMeasure {
     )];
     const USES: crate::registry::Uses = crate::registry::Uses::ROTARY;
     type Request = RotaryRequest;
+    const FILES: &'static [FileArg] = &[
+        FileArg::required(
+            "config",
+            "The rotary job (JSON: seed, errors, probe, plan, machine, speeds; all optional, defaults are the paper's table).",
+            command_line::rotary_job,
+        ),
+        FileArg::required(
+            "out",
+            "Output folder: centres.csv, points.csv, errors.json and the sweep chart.",
+            command_line::out_folder,
+        ),
+    ];
+    const STEPS: &'static str = "balls";
 
     async fn run(request: RotaryRequest, cx: &mut dyn crate::Context) -> Outcome {
         let stop = cx.stop();
@@ -395,20 +416,24 @@ impl crate::registry::Procedure for RotaryMeasure {
 
 /// An identification from ball centres measured elsewhere.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize, utoipa::ToSchema)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct RotaryIdentifyRequest {
     /// The centres file (`axis,step,angle_deg,ball,x_mm,y_mm,z_mm`: the C sweep at A = 0
     /// and the A sweep at C = 0, machine coordinates).
     #[schema(format = Binary, max_length = 16777216)]
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub centres: String,
     /// How messages name it (its file name).
     #[serde(default = "default_centres_name")]
     #[schema(default = default_centres_name)]
+    #[cfg_attr(feature = "cli", arg(skip = default_centres_name()))]
     pub centres_name: String,
     /// The machine constants (`a_axis_y_mm`, `a_axis_z_mm`, `ac_offset_y_mm`,
     /// `ac_offset_z_mm`, `tool_length_mm`); default: the built-in 340A-style mill.
     #[serde(default)]
     #[schema(value_type = Option<Object>)]
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub machine: Option<MachineConstants>,
 }
 
@@ -449,6 +474,25 @@ impl crate::registry::Procedure for RotaryIdentify {
     )];
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = RotaryIdentifyRequest;
+    const FILES: &'static [FileArg] = &[
+        FileArg::required("centres", "The centres file.", |path, plan| {
+            let text = protocol::config::read_kind(path, protocol::config::DataKind::Centres)?;
+            plan.set("centres", text);
+            plan.set("centres_name", path.display().to_string());
+            plan.inputs.push(path.to_path_buf());
+            Ok(())
+        }),
+        FileArg::flag(
+            "machine",
+            "The machine constants (JSON: a_axis_y_mm, a_axis_z_mm, ac_offset_y_mm, ac_offset_z_mm, tool_length_mm); default: the built-in 340A-style mill.",
+            machine_file,
+        ),
+        FileArg::flag(
+            "plot",
+            "Write the chart of centres and fitted circles (rotary-sweeps.svg and .png) into this folder.",
+            command_line::artifacts_folder,
+        ),
+    ];
 
     async fn run(request: RotaryIdentifyRequest, cx: &mut dyn crate::Context) -> Outcome {
         let constants = request.machine.unwrap_or_default();
@@ -552,6 +596,25 @@ impl crate::registry::Procedure for RotaryRewrite {
     const HELP: &'static str = "Rewrites a 5-axis program (X Y Z A C, absolute, mm) for the rotary table's identified errors, so that the tool tip and its direction land where programmed; download the rewritten program and run it on the machine.";
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = RotaryRewriteRequest;
+    const FILES: &'static [FileArg] = &[
+        FileArg::positional("input", "The program (never overwritten).", |path, plan| {
+            plan.text(path, "program", Some("program_name"), crate::rewrite::read_program)
+        }),
+        FileArg::required(
+            "errors",
+            "The errors (the JSON `gateway rotary identify` or `measure` writes).",
+            |path, plan| plan.text(path, "errors", Some("errors_name"), read_errors_file),
+        ),
+        FileArg::required("out", "The rewritten program (never over an input).", |path, plan| {
+            plan.artifacts.push(("program.nc".into(), path.to_path_buf()));
+            Ok(())
+        }),
+        FileArg::flag(
+            "machine",
+            "The machine constants (JSON); default: those recorded in the errors file (else the built-in ones). Refused where they differ from the recorded ones.",
+            machine_file,
+        ),
+    ];
 
     async fn run(r: RotaryRewriteRequest, cx: &mut dyn crate::Context) -> Outcome {
         rewrite_with_errors_file(

@@ -1,6 +1,7 @@
 //! Verification of an error map with the camera: home, re-reference the map at its
 //! reference point, move to random points with the map's command, measure.
 
+use crate::command_line::{self, FileArg};
 use crate::request::VerifyRequest;
 use crate::{Outcome, Sink};
 use devices::Devices;
@@ -168,26 +169,80 @@ impl crate::registry::Procedure for Verify {
                 )
             });
         let bench = crate::or_fail!(cx.bench().await);
-        let checked = stop
-            .unless(check_map(
-                &request,
-                bench.job,
-                bench.devices,
-                active.map,
-                &active.name,
-                reference.as_ref(),
-                now,
-                bench.sink,
-            ))
-            .await;
-        let Some(mut outcome) = checked else {
-            let _ = bench.devices.stage.stop().await;
-            return Outcome::cancelled("stopped during the check");
-        };
-        if let (Some(w), Some(r)) = (warning, outcome.result.as_mut()) {
-            r["warning"] = json!(w);
+        // A series of checks (`repeat`), each on fresh points, `every_s` apart; the
+        // devices stay open between them.
+        let mut rounds: Vec<Value> = Vec::new();
+        let mut outcome = Outcome::cancelled("stopped before the first check");
+        for round in 0..request.repeat {
+            if round > 0 {
+                let pause = std::time::Duration::from_secs_f64(request.every_s);
+                if stop
+                    .clone()
+                    .unless(tokio::time::sleep(pause))
+                    .await
+                    .is_none()
+                {
+                    break;
+                }
+            }
+            let this = VerifyRequest {
+                round: request.round + round,
+                ..request.clone()
+            };
+            let checked = stop
+                .clone()
+                .unless(check_map(
+                    &this,
+                    bench.job,
+                    bench.devices,
+                    active.map.clone(),
+                    &active.name,
+                    reference.as_ref(),
+                    now,
+                    &mut *bench.sink,
+                ))
+                .await;
+            let Some(checked) = checked else {
+                let _ = bench.devices.stage.stop().await;
+                return Outcome::cancelled("stopped during the check");
+            };
+            outcome = checked;
+            if let Some(r) = outcome.result.as_mut() {
+                if let Some(w) = &warning {
+                    r["warning"] = json!(w);
+                }
+                if request.repeat > 1 {
+                    bench.sink.partial_result(r);
+                }
+                rounds.push(r.clone());
+            }
+            if !outcome.is_success() {
+                break;
+            }
+        }
+        // A series: every check kept, and a re-scan asked when any check asked it.
+        if let (Some(r), true) = (outcome.result.as_mut(), request.repeat > 1) {
+            r["rescan"] = json!(rounds.iter().any(|c| c["rescan"] == true));
+            r["checks"] = json!(rounds);
         }
         outcome
+    }
+
+    const FILES: &'static [FileArg] = &[
+        FileArg::required("config", "The job file of the machine.", command_line::job),
+        FileArg::required(
+            "map",
+            "The error map (a version file written by `gateway map`).",
+            command_line::map,
+        ),
+    ];
+
+    fn exit_code(result: &Value) -> u8 {
+        if result["rescan"] == true {
+            2
+        } else {
+            0
+        }
     }
 
     fn summary(result: &Value) -> String {
@@ -197,6 +252,25 @@ impl crate::registry::Procedure for Verify {
 
 /// The result as text (the CLI's output without `--json`).
 pub fn summary(r: &Value) -> String {
+    if let Some(checks) = r["checks"].as_array() {
+        let worst = (checks.iter())
+            .filter_map(|c| c["residual_um"]["max"].as_f64())
+            .fold(0.0, f64::max);
+        return format!(
+            "{} checks: worst residual {worst:.2} um{}",
+            checks.len(),
+            if r["rescan"] == true {
+                "; re-scan the machine (gateway map)"
+            } else {
+                ""
+            }
+        );
+    }
+    check_summary(r)
+}
+
+/// One check as text.
+fn check_summary(r: &Value) -> String {
     use std::fmt::Write;
     let mut t = String::new();
     let f = |v: &Value| v.as_f64().unwrap_or(f64::NAN);

@@ -10,6 +10,7 @@
 //! Paths are the front end's: a result names its artifacts (`model`: [`MODEL_ARTIFACT`]),
 //! and the CLI replaces the name with the path it wrote or adds the folder (`out`).
 
+use crate::command_line::{self, FileArg};
 use crate::request::{count, number, RequestError};
 use crate::{Artifact, Outcome, Sink};
 use protocol::volumetric::{
@@ -823,14 +824,17 @@ pub const ISG_FILES: [&str; 2] = ["volcomp.csv", "volcomp.lis"];
 
 /// The model for the ISG kernel.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct VolumetricExportIsgRequest {
     /// The model file's text (`gateway volumetric identify`'s).
     #[schema(format = Binary)]
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub model: String,
     /// How messages name the model (its file name).
     #[serde(default = "default_model_name")]
     #[schema(default = default_model_name)]
+    #[cfg_attr(feature = "cli", arg(skip = default_model_name()))]
     pub model_name: String,
 }
 
@@ -868,10 +872,31 @@ pub fn export_isg(request: &VolumetricExportIsgRequest, sink: &mut dyn Sink) -> 
     )
 }
 
+/// `--model FILE`: the model's text and name.
+const MODEL_FILE: FileArg = FileArg::required("model", "The model file.", |path, plan| {
+    plan.text(path, "model", Some("model_name"), read_file)
+});
+
+/// `--campaign DIR`: each file a campaign may hold, when the folder has it.
+fn campaign_folder(
+    dir: &std::path::Path,
+    plan: &mut command_line::Plan,
+) -> Result<(), crate::Error> {
+    for name in CAMPAIGN_FILES {
+        let path = dir.join(name);
+        if path.exists() {
+            plan.text(&path, &field_of(name), None, read_file)?;
+        }
+    }
+    plan.set("campaign_name", dir.display().to_string());
+    Ok(())
+}
+
 /// Declares a registered kind for a file-to-file volumetric procedure.
 macro_rules! volumetric_kind {
     ($name:ident, $request:ty, $kind:literal, $title:literal, $command:literal,
-     $label:literal, $help:literal, |$r:ident, $sink:ident| $run:expr, $summary:expr) => {
+     $label:literal, $help:literal, |$r:ident, $sink:ident| $run:expr, $summary:expr,
+     files: $files:expr, exit: $exit:expr) => {
         #[doc = concat!("`gateway ", $command, "` as a registered kind.")]
         pub struct $name;
 
@@ -883,6 +908,11 @@ macro_rules! volumetric_kind {
             const HELP: &'static str = $help;
             const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
             type Request = $request;
+            const FILES: &'static [FileArg] = $files;
+
+            fn exit_code(result: &Value) -> u8 {
+                $exit(result)
+            }
 
             async fn run($r: $request, cx: &mut dyn crate::Context) -> Outcome {
                 let $sink = cx.sink();
@@ -911,7 +941,20 @@ volumetric_kind!(
     "Volumetric model from a campaign",
     "Identifies the machine's 21 geometric errors (positioning, straightness, pitch, yaw, roll and squareness of each axis) from a measurement campaign: laser, level, ball bar and camera files. Says whether the model is fit for compensation.",
     |r, sink| identify(&r, sink),
-    identify_summary
+    identify_summary,
+    files: &[
+        FileArg::required("campaign", "The campaign directory (laser_X.csv, level_X.csv, ..., ballbar_XY.csv ... or squareness.csv, camera.csv if measured).", campaign_folder),
+        FileArg::required("out", "The model file.", |path, plan| {
+            plan.artifacts.push((MODEL_ARTIFACT.into(), path.to_path_buf()));
+            Ok(())
+        }),
+        FileArg::flag("plots", "Write the ball-bar plots (ballbar_XY.svg/.png, ...) into this directory.", |path, plan| {
+            plan.set("plots", true);
+            command_line::artifacts_folder(path, plan)
+        }),
+    ],
+    // Identified but unfit for compensation: the shop must not apply it.
+    exit: |r: &Value| if r["fit_for_compensation"] == false { 2 } else { 0 }
 );
 volumetric_kind!(
     VolumetricEval,
@@ -922,7 +965,11 @@ volumetric_kind!(
     "Volumetric error at points",
     "Computes the machine's volumetric error at each point of a points file (X, Y, Z in mm) from its model.",
     |r, _sink| eval(&r),
-    |r: &Value| eval_lines(r).collect::<Vec<_>>().join("\n")
+    |r: &Value| eval_lines(r).collect::<Vec<_>>().join("\n"),
+    files: &[MODEL_FILE, FileArg::required("points", "The points (`x_mm,y_mm,z_mm`).", |path, plan| {
+        plan.text(path, "points", Some("points_name"), read_file)
+    })],
+    exit: |_| 0
 );
 volumetric_kind!(
     VolumetricContributions,
@@ -933,7 +980,9 @@ volumetric_kind!(
     "Volumetric error contributions",
     "Ranks each of the 21 errors by its share of the volumetric error over the working volume, and maps the error on the three middle planes.",
     |r, sink| contributions(&r, sink),
-    contributions_summary
+    contributions_summary,
+    files: &[MODEL_FILE, FileArg::required("out", "The output folder.", command_line::artifacts_folder)],
+    exit: |_| 0
 );
 volumetric_kind!(
     VolumetricCampaign,
@@ -944,7 +993,9 @@ volumetric_kind!(
     "Simulated volumetric campaign",
     "Writes the measurement files the emulated machine would give (laser, level, ball bar, camera), to try the volumetric identification without a machine.",
     |r, sink| simulate_campaign(&r, sink),
-    campaign_summary
+    campaign_summary,
+    files: &[FileArg::required("out", "The output folder.", command_line::artifacts_folder)],
+    exit: |_| 0
 );
 volumetric_kind!(
     VolumetricExportIsg,
@@ -955,7 +1006,9 @@ volumetric_kind!(
     "Volumetric tables for the ISG kernel",
     "Writes the volumetric model as the ISG kernel's compensation tables (Beckhoff TwinCAT CNC, TF5280) and the list that names them.",
     |r, sink| export_isg(&r, sink),
-    files_summary
+    files_summary,
+    files: &[MODEL_FILE, FileArg::required("out", "The output folder.", command_line::artifacts_folder)],
+    exit: |_| 0
 );
 
 /// The simulated campaign as text.
