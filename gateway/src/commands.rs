@@ -180,15 +180,18 @@ pub fn run(kind: &'static Kind, matches: &ArgMatches, json: bool) -> anyhow::Res
     })
 }
 
-/// The result's `file` fields (an artifact's name) become the path it was written to,
-/// and a run that wrote one file of its own names it as `output`.
+/// The result's `file` and `output` fields (an artifact's name) become the path it was
+/// written to, and a run that wrote one file of its own names it as `output`.
 fn name_written_files(result: &mut Value, written: &[(String, PathBuf)]) {
     fn walk(v: &mut Value, written: &[(String, PathBuf)]) {
         match v {
             Value::Object(o) => {
-                if let Some(Value::String(name)) = o.get("file") {
+                for key in ["file", "output"] {
+                    let Some(Value::String(name)) = o.get(key) else {
+                        continue;
+                    };
                     if let Some((_, path)) = written.iter().find(|(n, _)| n == name) {
-                        o.insert("file".into(), path.display().to_string().into());
+                        o.insert(key.into(), path.display().to_string().into());
                     }
                 }
                 o.values_mut().for_each(|v| walk(v, written));

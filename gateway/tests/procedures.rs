@@ -44,6 +44,51 @@ fn stripped(mut v: Value) -> Value {
     v
 }
 
+/// Every kind the tests below run through both front ends.
+const COMPARED: &[&str] = &[
+    "compensate",
+    "map",
+    "reference",
+    "verify",
+    "iso230",
+    "iso230-evaluate",
+    "export",
+    "rewrite",
+    "layout",
+    "rotary",
+    "rotary-identify",
+    "rotary-rewrite",
+    "cut",
+    "volumetric-identify",
+    "volumetric-eval",
+    "volumetric-contributions",
+    "volumetric-campaign",
+    "volumetric-export-isg",
+    "board-make",
+    "localize",
+    "dnc",
+];
+
+/// A registered kind is compared here, or this fails naming it: a new capability
+/// cannot join the registry without its front ends checked alike.
+#[test]
+fn every_registered_kind_is_compared() {
+    for kind in procedure::KINDS {
+        assert!(
+            COMPARED.contains(&kind.name),
+            "kind {} is not compared",
+            kind.name
+        );
+        // Its request is really run below (not only listed).
+        let source = include_str!("procedures.rs");
+        assert!(
+            source.matches(&format!("\"{}\"", kind.name)).count() >= 2,
+            "{}",
+            kind.name
+        );
+    }
+}
+
 fn demo_job() -> String {
     job_file("demo.toml")
 }
@@ -171,6 +216,26 @@ async fn map_verify_and_iso230_through_the_cli_and_the_api_give_one_outcome() {
         )
         .await;
     assert_eq!(job_record["state"], "succeeded", "{job_record}");
+    assert_same(from_cli, job_record["result"].clone());
+    // A Fanuc tape rewritten with it for a closed controller, kept rather than sent.
+    let tape = dir.join("O1000.nc");
+    let text = "%\nO1000\nG21 G90\nG0 X60. Y60.\nG1 X90. Y75. F600.\nM30\n%\n";
+    std::fs::write(&tape, text).unwrap();
+    let from_cli = cli(&[
+        "dnc",
+        &tape.display().to_string(),
+        "--map",
+        &map_file,
+        "--no-send",
+        "--out",
+        &dir.join("O1000.rewritten.nc").display().to_string(),
+        "--json",
+    ]);
+    let params = json!({"program": text, "program_name": tape.display().to_string(),
+        "send": false});
+    let job_record = api.run("dnc", params).await;
+    assert_eq!(job_record["state"], "succeeded", "{job_record}");
+    assert_eq!(from_cli["blocks_in"], 5, "{from_cli}");
     assert_same(from_cli, job_record["result"].clone());
 
     // The reference after homing, three times, then a spot check: the same rules on both
