@@ -176,6 +176,16 @@ impl FileArg {
     }
 }
 
+/// `--config JOB --map MAP`: the machine's job and the error map it checks.
+pub const JOB_AND_MAP: &[FileArg] = &[
+    FileArg::required("config", "The job file of the machine.", job),
+    FileArg::required(
+        "map",
+        "The error map (a version file written by `gateway map`).",
+        map,
+    ),
+];
+
 /// The job file: the files context loads it (and opens its devices on first use).
 pub fn job(path: &Path, plan: &mut Plan) -> Result<(), Error> {
     plan.job = Some(path.to_path_buf());

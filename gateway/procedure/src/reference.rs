@@ -295,14 +295,7 @@ impl crate::registry::Procedure for Reference {
     )];
     const USES: crate::registry::Uses = crate::registry::Uses::DEVICES_AND_MAP;
     type Request = ReferenceRequest;
-    const FILES: &'static [FileArg] = &[
-        FileArg::required("config", "The job file of the machine.", command_line::job),
-        FileArg::required(
-            "map",
-            "The error map (a version file written by `gateway map`).",
-            command_line::map,
-        ),
-    ];
+    const FILES: &'static [FileArg] = command_line::JOB_AND_MAP;
 
     async fn run(request: ReferenceRequest, cx: &mut dyn crate::Context) -> Outcome {
         let stop = cx.stop();

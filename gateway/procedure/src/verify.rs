@@ -228,14 +228,7 @@ impl crate::registry::Procedure for Verify {
         outcome
     }
 
-    const FILES: &'static [FileArg] = &[
-        FileArg::required("config", "The job file of the machine.", command_line::job),
-        FileArg::required(
-            "map",
-            "The error map (a version file written by `gateway map`).",
-            command_line::map,
-        ),
-    ];
+    const FILES: &'static [FileArg] = command_line::JOB_AND_MAP;
 
     fn exit_code(result: &Value) -> u8 {
         if result["rescan"] == true {
