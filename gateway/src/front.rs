@@ -50,7 +50,6 @@ pub struct CliSink {
     /// How a partial result is printed as it comes: `--json` (one object a line), else
     /// the kind's summary.
     partial: Option<(bool, &'static procedure::registry::Kind)>,
-    partials: usize,
 }
 
 impl CliSink {
@@ -76,7 +75,6 @@ impl CliSink {
             logs: Vec::new(),
             written: Vec::new(),
             partial: None,
-            partials: 0,
         }
     }
 
@@ -192,12 +190,14 @@ impl Sink for CliSink {
         let Some((json, kind)) = self.partial else {
             return;
         };
-        self.partials += 1;
-        let text = if json {
-            format!("{result}\n")
+        let mut text = if json {
+            result.to_string()
         } else {
-            format!("check {}:\n{}", self.partials, kind.summary(result))
+            kind.summary(result)
         };
+        if !text.ends_with('\n') {
+            text.push('\n');
+        }
         self.bar.suspend(|| {
             let _ = emit(&text);
         });

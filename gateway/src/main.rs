@@ -1,6 +1,6 @@
 //! `gateway`: the command line of the compensation gateway. Every registered kind is a
-//! command built from the registry ([`commands`]); the service, the pass-through and the
-//! demo's built-in job are the only commands of their own.
+//! command built from the registry ([`commands`]); the service and the demo's built-in
+//! job are the only commands of their own.
 
 use clap::{Arg, ArgAction, Command, FromArgMatches, Subcommand};
 use serde_json::json;
@@ -9,7 +9,6 @@ use std::process::ExitCode;
 
 mod commands;
 mod front;
-mod proxy;
 mod serve;
 
 // The commands that are not a registered kind.
@@ -25,13 +24,6 @@ enum Special {
         #[arg(long)]
         config: std::path::PathBuf,
     },
-    /// The live pass-through: a pseudo-terminal that answers as a GRBL 1.1 controller to
-    /// the G-code sender you already use (UGS, CNCjs, bCNC), rewriting every line and
-    /// streaming it to the GRBL controller: with an error map (`--config JOB --map MAP`,
-    /// the job's controller) or for a rotary table's location errors (`--rotary ERRORS
-    /// --controller PORT`, X Y Z A C on a grblHAL six-axis build). Status reports show
-    /// the programmed position. Ctrl-C stops.
-    Proxy(proxy::ProxyArgs),
 }
 
 #[derive(clap::Args)]
@@ -118,7 +110,6 @@ fn run(matches: &clap::ArgMatches, json: bool) -> anyhow::Result<ExitCode> {
     }
     match Special::from_arg_matches(matches)? {
         Special::Serve { config } => serve::serve(&config),
-        Special::Proxy(a) => proxy::proxy(a, json),
         Special::Demo(a) => {
             let job = procedure::demo::demo_job(&a.stage, &a.transport, &a.camera)
                 .map_err(|e| anyhow::anyhow!(e.for_cli()))?;

@@ -17,6 +17,9 @@ use common::{gateway, job_file, workspace};
 /// the service keeps charts and the shifted layout in the record): they differ.
 const VOLATILE: &[&str] = &[
     "wall_time_s",
+    "rewrite_ms",
+    "first_piece_out_ms",
+    "starvation_events",
     "partition_ms",
     "elapsed_ms",
     "elapsed_s",
@@ -653,4 +656,74 @@ fn render_frame(board: &std::path::Path, centre_mm: [f64; 2], png: &std::path::P
 fn base64_of(bytes: &[u8]) -> String {
     use base64::Engine;
     base64::engine::general_purpose::STANDARD.encode(bytes)
+}
+
+/// The pass-through on the GRBL demo job (its controller emulated on a pseudo-terminal)
+/// with a map of that machine: `gateway proxy --once` and a `proxy` job on a service whose
+/// machine is that job account for one sender session alike.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn proxy_through_the_cli_and_the_api_gives_one_outcome() {
+    use std::io::{BufRead, BufReader};
+    let dir = scratch("proxy");
+    let job_path = workspace().join("config/gateway/grbl-demo.toml");
+    let job = job::Job::load(&job_path).unwrap();
+    let job::StageSpec::Grbl {
+        link: job::GrblLink::Emulate(machine),
+        ..
+    } = &job.stage
+    else {
+        unreachable!("the GRBL demo job emulates its controller")
+    };
+    let here = procedure::identity_of_job(&job).await.unwrap();
+    let map = system_tests::truth_map::map_from_truth(machine, here);
+    let map_path = dir.join("m.v1.json");
+    map.save_new(&map_path).unwrap();
+
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_gateway"))
+        .args(["proxy", "--once", "--no-reference", "--json", "--config"])
+        .arg(&job_path)
+        .arg("--map")
+        .arg(&map_path)
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .expect("gateway runs");
+    let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
+    let hello: Value = serde_json::from_str(&lines.next().unwrap().unwrap()).unwrap();
+    system_tests::sender::unlock_and_move(hello["sender_port"].as_str().unwrap()).await;
+    let last = lines
+        .map(Result::unwrap)
+        .last()
+        .expect("the session's account");
+    assert!(child.wait().unwrap().success());
+    let from_cli: Value = serde_json::from_str(&last).unwrap();
+
+    let mut api = Api::start_with(|d| {
+        let mut config = service::BoxConfig::demo(d);
+        config.machines[0].job = service::config::JobSource::File(job_path.clone());
+        config
+    })
+    .await;
+    let body: Value = serde_json::from_str(&std::fs::read_to_string(&map_path).unwrap()).unwrap();
+    let (status, p) = api
+        .post(
+            "/api/v1/machines/demo/profiles/error_map",
+            json!({"kind": "error_map", "body": body}),
+        )
+        .await;
+    assert_eq!(status, StatusCode::CREATED, "{p}");
+    let activate = "/api/v1/machines/demo/profiles/error_map/1/activate";
+    assert_eq!(api.post(activate, json!({})).await.0, StatusCode::OK);
+    let (status, queued) = api
+        .queue("proxy", json!({"once": true, "no_reference": true}))
+        .await;
+    assert_eq!(status, StatusCode::ACCEPTED, "{queued}");
+    let ready = api
+        .until(|e| e["type"] == "measurement" && e["measurement"]["sender_port"].is_string())
+        .await;
+    system_tests::sender::unlock_and_move(ready["measurement"]["sender_port"].as_str().unwrap())
+        .await;
+    let record = api.finished(&queued["id"]).await;
+    assert_eq!(record["state"], "succeeded", "{record}");
+    assert_eq!(from_cli["lines_received"], 3, "{from_cli}");
+    assert_same(from_cli, record["result"].clone());
 }

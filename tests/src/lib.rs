@@ -7,6 +7,7 @@ pub mod faulty_tcp;
 pub mod firmware;
 pub mod netns;
 pub mod program_path;
+pub mod sender;
 pub mod service_client;
 pub mod truth_map;
 

@@ -17,14 +17,21 @@ pub struct Api {
     pub s: Running,
     c: Client,
     ws: Ws,
+    /// The machine jobs are queued on (the box's first).
+    machine: String,
 }
 
 impl Api {
     pub async fn start() -> Api {
+        Api::start_with(BoxConfig::demo).await
+    }
+
+    /// A service on the box `config` makes of a temporary data folder.
+    pub async fn start_with(config: impl FnOnce(&std::path::Path) -> BoxConfig) -> Api {
         let dir = tempfile::tempdir().unwrap();
-        let s = service::start(BoxConfig::demo(dir.path()))
-            .await
-            .expect("service starts");
+        let config = config(dir.path());
+        let machine = config.machines[0].id.clone();
+        let s = service::start(config).await.expect("service starts");
         let mut req = format!("ws://{}/api/v1/events", s.local_addr())
             .into_client_request()
             .unwrap();
@@ -38,6 +45,7 @@ impl Api {
             s,
             c: Client::new(),
             ws,
+            machine,
         }
     }
 
@@ -86,11 +94,9 @@ impl Api {
     }
 
     pub async fn queue(&self, kind: &str, params: Value) -> (StatusCode, Value) {
-        self.post(
-            "/api/v1/machines/demo/jobs",
-            json!({"kind": kind, "params": params}),
-        )
-        .await
+        let jobs = format!("/api/v1/machines/{}/jobs", self.machine);
+        self.post(&jobs, json!({"kind": kind, "params": params}))
+            .await
     }
 
     /// The job's final record.

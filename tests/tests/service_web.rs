@@ -130,7 +130,43 @@ fn kind_jobs() -> serde_json::Value {
         {"kind": "dnc", "params": {"program": {"name": "part.nc",
             "text": "%\nO1\nG90G21\nG00X60.Y60.\nG01X90.Y75.F600.\nM30\n%\n"}, "send": false},
             "chart": false},
+        // On the box's GRBL machine: the test's sender runs one session through the port
+        // the job opens (the driver asks for it), then the job ends.
+        {"kind": "proxy", "machine": GRBL_MACHINE, "params": {"once": true}, "sender": true,
+            "chart": false},
     ])
+}
+
+/// The box's second machine: the GRBL demo job (its controller emulated on a
+/// pseudo-terminal), for the pass-through.
+const GRBL_MACHINE: &str = "grbl";
+
+/// Its active error map: the truth of its simulated stage, as a scan would measure it.
+async fn seed_grbl_map(data_dir: &Path) {
+    let job = job::Job::load(&workspace().join("config/gateway/grbl-demo.toml")).unwrap();
+    let job::StageSpec::Grbl {
+        link: job::GrblLink::Emulate(machine),
+        ..
+    } = &job.stage
+    else {
+        unreachable!("the GRBL demo job emulates its controller")
+    };
+    let here = procedure::identity_of_job(&job).await.unwrap();
+    let map = system_tests::truth_map::map_from_truth(machine, here);
+    let mut store = store::Store::open(&data_dir.join("gateway.sqlite")).expect("the store opens");
+    let body = serde_json::to_value(&map).unwrap();
+    let v = (store.add_profile(
+        GRBL_MACHINE,
+        "error_map",
+        store::ProfileKind::ErrorMap,
+        &body,
+        None,
+        None,
+    ))
+    .expect("a profile version");
+    store
+        .activate(GRBL_MACHINE, "error_map", v.version)
+        .expect("activated");
 }
 
 /// The emulated machine's campaign as the identify form's uploads (one field per file).
@@ -180,6 +216,13 @@ fn corpus(path: &str) -> serde_json::Value {
 fn https_demo(data_dir: &Path) -> service::BoxConfig {
     let mut config = service::BoxConfig::demo(data_dir);
     config.service.tls = service::TlsSource::SelfSigned;
+    config.machines.push(service::MachineConfig {
+        id: GRBL_MACHINE.into(),
+        description: "The GRBL demo job: its controller emulated on a pseudo-terminal".into(),
+        job: service::JobSource::File(workspace().join("config/gateway/grbl-demo.toml")),
+        map_profile: "error_map".into(),
+        rotary: None,
+    });
     config
 }
 
@@ -218,6 +261,7 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
     let profile_dir = fresh_dir(artefacts.join("chromium-profile"));
     let screenshot = artefacts.join("page.png");
     seed_profiles(&data_dir);
+    seed_grbl_map(&data_dir).await;
 
     let first = service::start(https_demo(&data_dir))
         .await
@@ -290,6 +334,10 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
                         .expect("the service starts again"),
                 );
                 writeln!(answers, "started").unwrap();
+            }
+            Some(sender) if sender.starts_with("sender ") => {
+                system_tests::sender::unlock_and_move(&sender["sender ".len()..]).await;
+                writeln!(answers, "sent").unwrap();
             }
             _ => report_line = line,
         }

@@ -463,6 +463,7 @@ impl crate::registry::Procedure for Iso230 {
         devices: true,
         map: crate::registry::MapUse::WhenAsked,
         rotary: false,
+        link: false,
     };
     type Request = Iso230Request;
     const FILES: &'static [FileArg] = &[

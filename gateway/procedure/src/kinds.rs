@@ -31,6 +31,7 @@ pub static KINDS: &[Kind] = &[
     entry::<crate::board::BoardMake>(),
     entry::<crate::localize::Localize>(),
     entry::<crate::dnc::Dnc>(),
+    entry::<crate::proxy::PassThrough>(),
 ];
 
 /// The kind named `name`.

@@ -5,6 +5,7 @@
 //! rotary table's location errors (on a grblHAL controller with A and C). Sender
 //! sessions are served one after another; each ends with an account of its lines.
 
+use crate::command_line::{self, FileArg};
 use crate::request::{count, number, RequestError};
 use crate::Outcome;
 use errormap::reference::{Circumstances, MapReference};
@@ -47,7 +48,10 @@ fn default_time_scale() -> String {
 }
 
 /// How the pass-through rewrites and runs (on the command line, these are its flags).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// With an error map (the service's active one; on the command line `--config JOB --map
+/// MAP`) on the job's GRBL controller, or with a rotary table's errors on the grblHAL
+/// controller at `controller`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[cfg_attr(feature = "cli", derive(clap::Args))]
 #[serde(deny_unknown_fields)]
 pub struct ProxyRequest {
@@ -73,6 +77,42 @@ pub struct ProxyRequest {
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(long))]
     pub once: bool,
+    /// Apply the map as scanned, without its recorded reference (the reference after
+    /// the last homing).
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, requires = "map"))]
+    pub no_reference: bool,
+    /// Also create a symlink to the sender's port at this path.
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub link: Option<String>,
+    /// The rotary table's errors (the JSON `gateway rotary measure` or `identify`
+    /// writes): the pass-through corrects for them on the controller at `controller`.
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(skip))]
+    #[schema(format = Binary, max_length = 16777216)]
+    pub rotary: Option<String>,
+    /// How messages name the rotary errors (their file name).
+    #[serde(default = "default_rotary_name")]
+    #[cfg_attr(feature = "cli", arg(skip = default_rotary_name()))]
+    #[schema(default = default_rotary_name)]
+    pub rotary_name: String,
+    /// The rotary table's machine constants; default: those recorded with the errors.
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(skip))]
+    #[schema(value_type = Option<Object>)]
+    pub machine: Option<MachineConstants>,
+    /// The rotary table's controller's serial port (a grblHAL build with A and C).
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, requires = "rotary"))]
+    pub controller: Option<String>,
+}
+
+/// The largest rotary errors file a request carries.
+const MAX_ERRORS_BYTES: usize = 16 << 20;
+
+fn default_rotary_name() -> String {
+    "errors.json".into()
 }
 
 impl Default for ProxyRequest {
@@ -83,6 +123,12 @@ impl Default for ProxyRequest {
             baud: default_baud(),
             time_scale: default_time_scale(),
             once: false,
+            no_reference: false,
+            link: None,
+            rotary: None,
+            rotary_name: default_rotary_name(),
+            machine: None,
+            controller: None,
         }
     }
 }
@@ -96,6 +142,36 @@ impl ProxyRequest {
         }
         count("baud", self.baud.into(), 1200, 4_000_000)?;
         self.clock()?;
+        match (&self.rotary, &self.controller) {
+            (Some(_), None) => {
+                return Err(RequestError::new(
+                    "controller",
+                    "the rotary table's pass-through needs its grblHAL controller's port",
+                ));
+            }
+            (None, Some(_)) => {
+                return Err(RequestError::new(
+                    "controller",
+                    "a controller port is for the rotary table's errors (`rotary`)",
+                ))
+            }
+            _ => {}
+        }
+        if self
+            .rotary
+            .as_ref()
+            .is_some_and(|t| t.len() > MAX_ERRORS_BYTES)
+        {
+            return Err(RequestError::new("rotary", "more than 16 MiB of errors"));
+        }
+        if let Some(link) = &self.link {
+            if link.is_empty() || link.len() > 4096 || link.contains('\0') {
+                return Err(RequestError::new(
+                    "link",
+                    "must be a path (1 to 4096 bytes)",
+                ));
+            }
+        }
         Ok(())
     }
 
@@ -113,33 +189,6 @@ impl ProxyRequest {
 
     fn max_correction_mm(&self, default_um: f64) -> f64 {
         self.max_correction_um.unwrap_or(default_um) / 1000.0
-    }
-}
-
-/// Which inputs a pass-through was given: a job and its error map, or a rotary table's
-/// errors and its controller's port.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Inputs<P> {
-    Map { job: P, map: P },
-    Rotary { errors: P, controller: String },
-}
-
-/// The pass-through the given inputs choose; any other combination is refused.
-pub fn inputs<P>(
-    job: Option<P>,
-    map: Option<P>,
-    rotary: Option<P>,
-    controller: Option<String>,
-) -> Result<Inputs<P>, crate::Error> {
-    match (job, map, rotary, controller) {
-        (Some(job), Some(map), None, None) => Ok(Inputs::Map { job, map }),
-        (None, None, Some(errors), Some(controller)) => Ok(Inputs::Rotary { errors, controller }),
-        _ => Err(crate::Error::Input(
-            "give `--config JOB --map MAP` (the error map, the job's GRBL controller) or \
-             `--rotary ERRORS --controller PORT` (the rotary table's errors, a grblHAL \
-             controller with A and C)"
-                .into(),
-        )),
     }
 }
 
@@ -167,45 +216,33 @@ pub enum Correction {
 }
 
 impl Correction {
-    /// The correction the files given choose: the job, its map and the map's recorded
-    /// reference (unless `no_reference`: [`crate::reference::choose`]), or the rotary
-    /// table's errors with their recorded constants (`machine`, when given, must agree
-    /// with them). Every file goes through the bounded readers; errors name the file.
-    pub fn from_files(
-        inputs: Inputs<std::path::PathBuf>,
-        machine: Option<&std::path::Path>,
-        no_reference: bool,
-    ) -> Result<Self, crate::Error> {
-        match inputs {
-            Inputs::Map { job, map } => {
-                let record = crate::reference::reference_path(&map);
-                let current = crate::reference::read_record(&record);
-                Ok(Correction::Map {
-                    job: Box::new(Job::load(&job).map_err(|e| crate::Error::Input(e.to_string()))?),
-                    job_source: job.display().to_string(),
-                    map: Box::new(
-                        ErrorMap::load(&map).map_err(|e| crate::Error::Input(e.to_string()))?,
-                    ),
-                    map_source: map.display().to_string(),
-                    reference: crate::reference::choose(current, no_reference)?,
-                })
-            }
-            Inputs::Rotary { errors, controller } => {
-                let text = crate::rotary::read_errors_file(&errors)?;
-                let at = |e: String| crate::Error::input(errors.display(), e);
-                let given = machine.map(crate::rotary::read_machine_file).transpose()?;
-                let stored = MachineConstants::from_errors_json(&text).map_err(at)?;
-                let differs =
-                    |e: String| crate::Error::Mismatch(format!("{}: {e}", errors.display()));
-                Ok(Correction::Rotary {
-                    errors: LocationErrors::from_json(&text).map_err(|e| at(e.to_string()))?,
-                    constants: MachineConstants::for_errors(stored, given, false)
-                        .map_err(differs)?,
-                    source: errors.display().to_string(),
-                    controller,
-                })
-            }
+    /// The correction the request and the context choose: the rotary table's errors
+    /// (their recorded constants; `machine`, when given, must agree with them), or the
+    /// context's job, its error map and the map's recorded reference (unless
+    /// `no_reference`: [`crate::reference::choose`]).
+    pub fn of(request: &ProxyRequest, cx: &mut dyn crate::Context) -> Result<Self, crate::Error> {
+        if let Some(text) = &request.rotary {
+            let name = &request.rotary_name;
+            let at = |e: String| crate::Error::input(name, e);
+            let stored = MachineConstants::from_errors_json(text).map_err(at)?;
+            let differs = |e: String| crate::Error::Mismatch(format!("{name}: {e}"));
+            return Ok(Correction::Rotary {
+                errors: LocationErrors::from_json(text).map_err(|e| at(e.to_string()))?,
+                constants: MachineConstants::for_errors(stored, request.machine, false)
+                    .map_err(differs)?,
+                source: name.clone(),
+                controller: request.controller.clone().unwrap_or_default(),
+            });
         }
+        let job = cx.job().map_err(|e| crate::Error::Input(e.to_string()))?;
+        let active = cx.map().map_err(|e| crate::Error::Input(e.to_string()))?;
+        Ok(Correction::Map {
+            job_source: job.source.clone(),
+            job: Box::new(job),
+            map: Box::new(active.map),
+            map_source: active.name,
+            reference: crate::reference::choose(active.reference, request.no_reference)?,
+        })
     }
 }
 
@@ -654,6 +691,143 @@ fn session_json(proxy: &Proxy<'_>, ending: &Ending) -> (Value, Option<String>) {
     (account, lost)
 }
 
+/// The pass-through as a registered kind: the sender's port opens on the box running it
+/// (the command line's, or the service's box) and serves until stopped (Ctrl-C, the
+/// job's cancel) or, with `once`, after one session. Its partial results are the ready
+/// message (the sender's port), each session but the last, and each reference recorded
+/// after the sender's homing; its result is the last session's account.
+pub struct PassThrough;
+
+impl crate::registry::Checked for ProxyRequest {
+    fn check(&self) -> Result<(), RequestError> {
+        ProxyRequest::check(self)
+    }
+}
+
+impl crate::registry::Procedure for PassThrough {
+    const KIND: &'static str = "proxy";
+    const TITLE: &'static str = "Pass-through: a port that answers as a GRBL controller to the G-code sender you already use (UGS, CNCjs, bCNC), every line rewritten with the error map (or a rotary table's errors) and streamed to the controller. Status reports show the programmed position";
+    const COMMAND: &'static str = "proxy";
+    const LABEL: &'static str = "Pass-through for a G-code sender";
+    const HELP: &'static str = "Opens a port on the gateway box that answers as a GRBL controller to the G-code sender the shop already uses, and streams every line to the machine rewritten with the active error map, until the job is cancelled. Its first line names the port to point the sender at.";
+    const FIELD_HELP: &'static [(&'static str, &'static str)] = &[
+        ("once", "End after the sender's first session."),
+        (
+            "no_reference",
+            "Apply the map as scanned, without the reference recorded after the last homing.",
+        ),
+    ];
+    const USES: crate::registry::Uses = crate::registry::Uses::LINK;
+    const COMMAND_LINE_ONLY: &'static [&'static str] =
+        &["link", "controller", "rotary", "rotary_name", "machine"];
+    type Request = ProxyRequest;
+    const FILES: &'static [FileArg] = &[
+        FileArg::flag(
+            "config",
+            "The job file (its stage must be a GRBL controller, real or emulated); with --map.",
+            command_line::job,
+        )
+        .requires(&["map"]),
+        FileArg::flag(
+            "map",
+            "The error map (a version file written by `gateway map`).",
+            command_line::map,
+        )
+        .requires(&["config"]),
+        FileArg::flag(
+            "rotary",
+            "The rotary table's errors (the JSON `gateway rotary measure` or `identify` writes); with --controller.",
+            |path, plan| {
+                plan.text(path, "rotary", Some("rotary_name"), crate::rotary::read_errors_file)
+            },
+        )
+        .conflicts(&["config", "map"])
+        .requires(&["controller"]),
+        FileArg::flag(
+            "machine",
+            "The machine constants of the rotary table (JSON), default those recorded with the errors.",
+            |path, plan| {
+                plan.set("machine", crate::rotary::read_machine_file(path)?);
+                plan.inputs.push(path.to_path_buf());
+                Ok(())
+            },
+        )
+        .requires(&["rotary"]),
+    ];
+
+    async fn run(request: ProxyRequest, cx: &mut dyn crate::Context) -> Outcome {
+        let correction = match Correction::of(&request, cx) {
+            Ok(c) => c,
+            Err(e) => return Outcome::failed(e),
+        };
+        let stop = cx.stop();
+        let link = request.link.clone();
+        let mut front = ContextFront {
+            cx,
+            link: link.clone(),
+        };
+        run(
+            &request,
+            correction,
+            link.as_deref().map(Path::new),
+            &mut front,
+            stop.requested(),
+        )
+        .await
+    }
+
+    fn uses_map(request: &ProxyRequest) -> bool {
+        request.rotary.is_none()
+    }
+
+    fn summary(result: &Value) -> String {
+        if result.get("sender_port").is_some() {
+            ready_summary(result, result["link"].as_str().map(Path::new))
+        } else if let Some(kept) = result["reference_recorded"].as_str() {
+            format!(
+                "after the sender's homing: reference #{} recorded in {kept}, machine zero shift ({:+.2}, {:+.2}) um\n",
+                result["reference_count"],
+                result["shift_um"][0].as_f64().unwrap_or(f64::NAN),
+                result["shift_um"][1].as_f64().unwrap_or(f64::NAN)
+            )
+        } else {
+            summary(result)
+        }
+    }
+}
+
+/// The pass-through's front: its partial results go to the context's sink, the
+/// references it records to the context (beside the map, or the map's profile).
+struct ContextFront<'a> {
+    cx: &'a mut dyn crate::Context,
+    link: Option<String>,
+}
+
+impl ProxyFront for ContextFront<'_> {
+    fn ready(&mut self, hello: &Value) -> Result<(), crate::Error> {
+        let mut hello = hello.clone();
+        if let (Some(link), Some(o)) = (&self.link, hello.as_object_mut()) {
+            o.insert("link".into(), json!(link));
+        }
+        self.cx.sink().partial_result(&hello);
+        Ok(())
+    }
+
+    fn session(&mut self, account: &Value) -> Result<(), crate::Error> {
+        self.cx.sink().partial_result(account);
+        Ok(())
+    }
+
+    fn reference(&mut self, record: &MapReference) -> Result<(), crate::Error> {
+        let kept = (self.cx.keep_reference(record))
+            .map_err(|e| crate::Error::Output(format!("recording the reference: {e}")))?;
+        let v = json!({"reference_recorded": kept, "reference_count": record.reference_count,
+            "shift_um": record.shift_um});
+        self.cx.sink().partial_result(&v);
+        Ok(())
+    }
+}
+
 /// The ready message as text: the sender's port (and `link`, a symlink to it), the
 /// controller and the compensation.
 pub fn ready_summary(hello: &Value, link: Option<&Path>) -> String {
@@ -757,25 +931,30 @@ mod tests {
             .starts_with("--time-scale: "));
     }
 
+    /// The rotary table's pass-through needs its controller's port, and a port alone
+    /// (without the errors) is refused, each naming the field.
     #[test]
-    fn the_inputs_choose_the_pass_through() {
-        assert_eq!(
-            inputs(Some("job"), Some("map"), None, None),
-            Ok(Inputs::Map {
-                job: "job",
-                map: "map"
-            })
-        );
-        assert_eq!(
-            inputs(None, None, Some("errors"), Some("/dev/ttyACM0".into())),
-            Ok(Inputs::Rotary {
-                errors: "errors",
-                controller: "/dev/ttyACM0".into()
-            })
-        );
-        assert!(inputs(Some("job"), None, None, None).is_err());
-        assert!(inputs(Some("job"), Some("map"), Some("errors"), None).is_err());
-        assert!(inputs::<&str>(None, None, None, Some("port".into())).is_err());
+    fn the_request_chooses_the_pass_through() {
+        let rotary = ProxyRequest {
+            rotary: Some("{}".into()),
+            ..ProxyRequest::default()
+        };
+        assert_eq!(rotary.check().unwrap_err().field, "controller");
+        let both = ProxyRequest {
+            controller: Some("/dev/ttyACM0".into()),
+            ..rotary.clone()
+        };
+        assert!(both.check().is_ok());
+        let port_alone = ProxyRequest {
+            controller: Some("/dev/ttyACM0".into()),
+            ..ProxyRequest::default()
+        };
+        assert_eq!(port_alone.check().unwrap_err().field, "controller");
+        let link = ProxyRequest {
+            link: Some(String::new()),
+            ..ProxyRequest::default()
+        };
+        assert_eq!(link.check().unwrap_err().field, "link");
     }
 
     #[test]

@@ -43,6 +43,9 @@ pub struct Uses {
     pub map: MapUse,
     /// The rotary table's job file.
     pub rotary: bool,
+    /// The machine's controller link itself (the pass-through opens its port): the
+    /// service closes the machine's devices before the job and opens them after.
+    pub link: bool,
 }
 
 /// Whether a kind applies an error map.
@@ -60,30 +63,43 @@ impl Uses {
         devices: false,
         map: MapUse::Never,
         rotary: false,
+        link: false,
     };
     /// The stage and the camera.
     pub const DEVICES: Uses = Uses {
         devices: true,
         map: MapUse::Never,
         rotary: false,
+        link: false,
     };
     /// The stage, the camera and the error map.
     pub const DEVICES_AND_MAP: Uses = Uses {
         devices: true,
         map: MapUse::Always,
         rotary: false,
+        link: false,
     };
     /// The error map alone.
     pub const MAP: Uses = Uses {
         devices: false,
         map: MapUse::Always,
         rotary: false,
+        link: false,
+    };
+    /// The machine's controller link, opened by the kind itself; the error map when the
+    /// request asks for it.
+    pub const LINK: Uses = Uses {
+        devices: false,
+        map: MapUse::WhenAsked,
+        rotary: false,
+        link: true,
     };
     /// The rotary table.
     pub const ROTARY: Uses = Uses {
         devices: false,
         map: MapUse::Never,
         rotary: true,
+        link: false,
     };
 }
 

@@ -212,6 +212,7 @@ impl crate::registry::Procedure for Verify {
                     r["warning"] = json!(w);
                 }
                 if request.repeat > 1 {
+                    r["of"] = json!(request.repeat);
                     bench.sink.partial_result(r);
                 }
                 rounds.push(r.clone());
@@ -266,6 +267,9 @@ pub fn summary(r: &Value) -> String {
 fn check_summary(r: &Value) -> String {
     use std::fmt::Write;
     let mut t = String::new();
+    if let Some(of) = r["of"].as_u64() {
+        let _ = writeln!(t, "check {} of {of}:", r["round"]);
+    }
     let f = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
     if let Some(w) = r["warning"].as_str() {
         let _ = writeln!(t, "warning: {w}");

@@ -26,12 +26,20 @@ pub fn reference_key(machine: &str, profile: &str, version: u32) -> String {
     format!("reference/{machine}/{profile}/v{version}")
 }
 
+/// The devices are closed for a kind that opens the machine's link itself.
+fn closed() -> ContextError {
+    ContextError::Devices(
+        "this job's kind opens the machine's link itself; the devices are closed".into(),
+    )
+}
+
 /// One job's context.
 pub struct StoreContext<'a> {
     pub shared: Arc<Shared>,
     pub machine: Arc<Machine>,
     pub config: &'a MachineConfig,
-    pub devices: &'a mut Devices,
+    /// The machine's devices; none for a kind that opens the controller's link itself.
+    pub devices: Option<&'a mut Devices>,
     pub record: &'a JobRecord,
     /// The active map profile, resolved when the job started (its record names it).
     pub profile: Option<(ProfileVersion, Value)>,
@@ -46,7 +54,7 @@ impl<'a> StoreContext<'a> {
         shared: &Arc<Shared>,
         machine: &Arc<Machine>,
         config: &'a MachineConfig,
-        devices: &'a mut Devices,
+        devices: Option<&'a mut Devices>,
         record: &'a JobRecord,
         profile: Option<(ProfileVersion, Value)>,
         stop: Stop,
@@ -76,6 +84,10 @@ impl<'a> StoreContext<'a> {
         Ok(self.job.as_ref().expect("loaded"))
     }
 
+    fn devices(&mut self) -> Result<&mut Devices, ContextError> {
+        self.devices.as_deref_mut().ok_or_else(closed)
+    }
+
     fn profile(&self) -> Result<&(ProfileVersion, Value), ContextError> {
         self.profile.as_ref().ok_or_else(|| {
             ContextError::NoMap(format!(
@@ -96,14 +108,14 @@ impl Context for StoreContext<'_> {
         self.loaded_job()?;
         Ok(Bench {
             job: self.job.as_ref().expect("loaded"),
-            devices: &mut *self.devices,
+            devices: self.devices.as_deref_mut().ok_or_else(closed)?,
             sink: &mut self.sink,
         })
     }
 
     async fn identity(&mut self) -> Result<Option<Identity>, ContextError> {
         let job = self.loaded_job()?.clone();
-        Ok(Some(procedure::identity(&job, self.devices)))
+        Ok(Some(procedure::identity(&job, self.devices()?)))
     }
 
     fn sink(&mut self) -> &mut dyn Sink {

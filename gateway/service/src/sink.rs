@@ -55,6 +55,12 @@ impl Sink for StoreSink {
         Ok(())
     }
 
+    /// A partial result (the pass-through's port, a check of a series) is one of the
+    /// job's measurements: kept, and sent to the page as it comes.
+    fn partial_result(&mut self, result: &Value) {
+        let _ = self.measurement(result);
+    }
+
     /// The machine's last frame, in memory only (`/api/v1/machines/{machine}/frame`);
     /// the event says a new one is there, without the image.
     fn frame(&mut self, frame: &FrameThumb) {

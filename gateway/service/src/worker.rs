@@ -116,15 +116,14 @@ pub async fn run(shared: Arc<Shared>, machine: Arc<Machine>, config: MachineConf
         };
         let span =
             info_span!("job", job_id = record.id, machine = %machine.id, kind = %record.kind);
-        let lost = run_one(
-            &shared,
-            &machine,
-            &config,
-            devices.as_mut().expect("opened"),
-            record,
-        )
-        .instrument(span)
-        .await;
+        // A kind that opens the controller's link itself (the pass-through): the devices
+        // are closed for it and opened again after.
+        if procedure::kinds::find(&record.kind).is_some_and(|k| k.uses.link) {
+            devices = None;
+        }
+        let lost = run_one(&shared, &machine, &config, devices.as_mut(), record)
+            .instrument(span)
+            .await;
         if let Some(detail) = lost {
             // The link failed mid-job (or a procedure was dropped): reopen first.
             devices = None;
@@ -173,7 +172,7 @@ async fn run_one(
     shared: &Arc<Shared>,
     machine: &Arc<Machine>,
     config: &MachineConfig,
-    devices: &mut Devices,
+    mut devices: Option<&mut Devices>,
     record: JobRecord,
 ) -> Option<String> {
     let id = record.id;
@@ -222,7 +221,15 @@ async fn run_one(
             _ = shutdown.wait_for(|s| *s) => {}
         }
     };
-    let mut cx = StoreContext::new(shared, machine, config, devices, &record, profile, stop);
+    let mut cx = StoreContext::new(
+        shared,
+        machine,
+        config,
+        devices.as_deref_mut(),
+        &record,
+        profile,
+        stop,
+    );
     let job_future = async {
         match &request {
             Ok(r) => r.registered().run(r.params(), &mut cx).await,
@@ -238,7 +245,9 @@ async fn run_one(
         Supervised::Ended(outcome) => to_store(outcome, sink),
         Supervised::Panicked(message) => {
             warn!(panic = %message, "the job panicked");
-            let _ = devices.stage.stop().await;
+            if let Some(d) = devices {
+                let _ = d.stage.stop().await;
+            }
             (
                 Outcome::Failed {
                     error: format!("internal error: {message}; the stage was told to stop, the measurements so far are kept"),
@@ -249,7 +258,9 @@ async fn run_one(
             )
         }
         Supervised::Dropped => {
-            let _ = devices.stage.stop().await;
+            if let Some(d) = devices {
+                let _ = d.stage.stop().await;
+            }
             (
                 Outcome::Cancelled {
                     reason: None,

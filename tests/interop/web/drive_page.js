@@ -153,10 +153,10 @@ async function startJob(page) {
 
 // Fills the start form (every param of `params`; a param given as null is emptied, the
 // API's default) and submits it; returns the id of the queued job (the newest row).
-async function submitForm(page, formKind, params) {
+async function submitForm(page, formKind, params, onMachine = machine) {
   const before = await page.$$eval('#history-rows tr[data-job-id]', (rows) =>
     rows.reduce((max, row) => Math.max(max, Number(row.dataset.jobId)), 0));
-  await page.selectOption('#job-machine', machine);
+  await page.selectOption('#job-machine', onMachine);
   await page.selectOption('#job-kind', formKind);
   for (const [name, value] of Object.entries(params)) {
     const input = page.locator(`#job-fields [data-field-input="${name}"]`);
@@ -331,7 +331,28 @@ async function kindsWalk(page, spec) {
     // The fields the form offers for this kind, as an operator sees them.
     await page.selectOption('#job-kind', job.kind);
     const fields = await page.$$eval('#job-fields [data-field]', (els) => els.map((e) => e.dataset.field));
-    const id = await submitForm(page, job.kind, job.params);
+    const id = await submitForm(page, job.kind, job.params, job.machine || machine);
+    if (job.sender) {
+      // The pass-through's port, from the job's first measurement; the test's sender
+      // then runs a session through it.
+      // Its measurement events, subscribed before the measurements so far are read: the
+      // port is in one or the other, with no wait on the clock.
+      const port = await page.evaluate(([jobId, t]) => new Promise((resolve, reject) => {
+        const scheme = location.protocol === 'https:' ? 'wss:' : 'ws:';
+        const ws = new WebSocket(`${scheme}//${location.host}/api/v1/events`, ['gateway.v1', 'bearer.' + t]);
+        const found = (m) => { if (m && m.sender_port) { ws.close(); resolve(m.sender_port); } };
+        ws.onmessage = (e) => {
+          const ev = JSON.parse(e.data);
+          if (ev.type === 'measurement' && ev.job_id === jobId) found(ev.measurement);
+        };
+        ws.onerror = () => reject(new Error('the event stream failed'));
+        ws.onopen = async () => {
+          const r = await fetch(`/api/v1/jobs/${jobId}/measurements`, { headers: { Authorization: 'Bearer ' + t } });
+          for (const m of await r.json()) found(m);
+        };
+      }), [id, token]);
+      if (await ask('sender ' + port) !== 'sent') throw new Error('the sender did not run');
+    }
     const row = page.locator(`#history-rows tr[data-job-id="${id}"]`);
     await row.and(page.locator('[data-state="succeeded"], [data-state="failed"], [data-state="cancelled"]'))
       .waitFor({ timeout: JOB_TIMEOUT_MS });
