@@ -234,7 +234,13 @@ impl Correction {
                 controller: request.controller.clone().unwrap_or_default(),
             });
         }
-        let job = cx.job().map_err(|e| crate::Error::Input(e.to_string()))?;
+        let job = cx.job().map_err(|e| {
+            crate::Error::Input(format!(
+                "{e}: the pass-through runs with a job's GRBL controller and its error map \
+                 (`--config JOB --map MAP`), or with a rotary table's errors on its grblHAL \
+                 controller (`--rotary ERRORS --controller PORT`)"
+            ))
+        })?;
         let active = cx.map().map_err(|e| crate::Error::Input(e.to_string()))?;
         Ok(Correction::Map {
             job_source: job.source.clone(),
