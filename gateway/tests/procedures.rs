@@ -70,6 +70,7 @@ const COMPARED: &[&str] = &[
     "board-make",
     "localize",
     "dnc",
+    "proxy",
 ];
 
 /// A registered kind is compared here, or this fails naming it: a new capability

@@ -58,20 +58,24 @@ pub struct ProxyRequest {
     /// Largest distance of the executed path from the compensated path, um.
     #[serde(default = "default_tolerance")]
     #[cfg_attr(feature = "cli", arg(long, default_value_t = default_tolerance()))]
+    #[schema(default = default_tolerance, minimum = 0.01, maximum = 1000.0)]
     pub tolerance_um: f64,
     /// The largest correction a move may get, um (default 200 um with a map, 2000 um for
     /// a rotary table, whose A-axis offsets reach tenths of a millimetre).
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(long))]
+    #[schema(minimum = 0.001, maximum = 100000.0)]
     pub max_correction_um: Option<f64>,
     /// The rotary table's controller's baud rate (a job's controller has its own).
     #[serde(default = "default_baud")]
     #[cfg_attr(feature = "cli", arg(long, default_value_t = default_baud()))]
+    #[schema(default = default_baud, minimum = 1200, maximum = 4000000)]
     pub baud: u32,
     /// An emulated controller's clock: simulated seconds per wall second, or
     /// `unconstrained`.
     #[serde(default = "default_time_scale")]
     #[cfg_attr(feature = "cli", arg(long, default_value_t = default_time_scale()))]
+    #[schema(default = default_time_scale)]
     pub time_scale: String,
     /// Serve one sender session, then end.
     #[serde(default)]
