@@ -13,7 +13,7 @@ use crate::{Artifact, Outcome};
 use drivers::dnc::{DncAxis, DncOptions};
 use errormap::MapModel;
 use rewrite::fanuc::{rewrite_fanuc, FanucOptions, FanucReport};
-use rewrite::{Compensation, Identity as NoCompensation, N_AXIS};
+use rewrite::{Compensation, Identity as NoCompensation};
 use serde::{Deserialize, Serialize};
 use serde_json::{json, Value};
 use std::fmt::Write;
@@ -247,28 +247,7 @@ impl DncRequest {
         if !(16..=4096).contains(&self.max_block_chars) {
             return Err(RequestError::new("max_block_chars", "must be 16..=4096"));
         }
-        let start = match &self.start {
-            Some(v) => {
-                if !(2..=N_AXIS).contains(&v.len()) {
-                    return Err(RequestError::new(
-                        "start",
-                        format!("expected X,Y or X,Y,Z in mm, got {} numbers", v.len()),
-                    ));
-                }
-                let mut p = [0.0; N_AXIS];
-                for (k, c) in v.iter().enumerate() {
-                    number(
-                        &format!("start[{k}]"),
-                        *c,
-                        -MAX_COORDINATE_MM,
-                        MAX_COORDINATE_MM,
-                    )?;
-                    p[k] = *c;
-                }
-                Some(p)
-            }
-            None => None,
-        };
+        let start = crate::rewrite::start_point(self.start.as_deref())?;
         let mut work_offsets = [[0.0; 3]; 7];
         if let Some(v) = &self.work_offsets {
             if v.len() > 6 {

@@ -222,28 +222,7 @@ impl RewriteRequest {
         // The rewriter's own floor: 0.01 um.
         number("tolerance_um", self.tolerance_um, 0.01, 1000.0)?;
         number("max_correction_um", self.max_correction_um, 1e-3, 1e5)?;
-        let start = match &self.start {
-            Some(v) => {
-                if !(2..=N_AXIS).contains(&v.len()) {
-                    return Err(RequestError::new(
-                        "start",
-                        format!("expected X,Y or X,Y,Z in mm, got {} numbers", v.len()),
-                    ));
-                }
-                let mut p = [0.0; N_AXIS];
-                for (k, c) in v.iter().enumerate() {
-                    number(
-                        &format!("start[{k}]"),
-                        *c,
-                        -MAX_COORDINATE_MM,
-                        MAX_COORDINATE_MM,
-                    )?;
-                    p[k] = *c;
-                }
-                Some(p)
-            }
-            None => None,
-        };
+        let start = start_point(self.start.as_deref())?;
         let limits = match &self.limits {
             Some(v) => {
                 if !(2..=N_AXIS).contains(&v.len()) {
@@ -295,6 +274,30 @@ impl RewriteRequest {
             g92_offset,
         })
     }
+}
+
+/// Where the machine is when a program starts (`start`: X,Y or X,Y,Z in mm), checked.
+pub fn start_point(start: Option<&[f64]>) -> Result<Option<Pose>, RequestError> {
+    let Some(v) = start else {
+        return Ok(None);
+    };
+    if !(2..=N_AXIS).contains(&v.len()) {
+        return Err(RequestError::new(
+            "start",
+            format!("expected X,Y or X,Y,Z in mm, got {} numbers", v.len()),
+        ));
+    }
+    let mut p = [0.0; N_AXIS];
+    for (k, c) in v.iter().enumerate() {
+        number(
+            &format!("start[{k}]"),
+            *c,
+            -MAX_COORDINATE_MM,
+            MAX_COORDINATE_MM,
+        )?;
+        p[k] = *c;
+    }
+    Ok(Some(p))
 }
 
 /// The stored work offsets from a saved `$#` reply (`[G54:x,y,z]` lines); other lines
