@@ -66,6 +66,9 @@ need_cmd make make
 need_cmd cmake cmake
 need_cmd socat socat
 need_cmd flock util-linux
+# A C++ compiler: the fuzz targets' libFuzzer wrappers (libfuzzer-sys builds libFuzzer's
+# C++; CI checks that they build).
+need_cmd g++ g++
 # Python 3 and pip for the independent Python peers.
 need_cmd python3 python3
 if ! python3 -m pip --version >/dev/null 2>&1; then missing+=(python3-pip); fi
