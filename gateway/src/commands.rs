@@ -78,7 +78,7 @@ fn leaf(node: Command, kind: &'static Kind) -> Command {
 fn file_arg(file: &FileArg) -> Arg {
     let mut arg = Arg::new(file.name)
         .help(file.help)
-        .value_name("PATH")
+        .value_name(file.value_name)
         .value_parser(clap::value_parser!(PathBuf))
         .action(ArgAction::Set)
         .required(file.required);

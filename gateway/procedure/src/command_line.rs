@@ -102,6 +102,8 @@ pub struct FileArg {
     pub positional: bool,
     /// A one-letter flag too (`-o`).
     pub short: Option<char>,
+    /// What the help calls its value (`PATH`; a map's `NAME`).
+    pub value_name: &'static str,
     pub required: bool,
     /// The command's help for it.
     pub help: &'static str,
@@ -120,6 +122,7 @@ impl FileArg {
             name,
             positional: false,
             short: None,
+            value_name: "PATH",
             required: false,
             help,
             requires: &[],
@@ -149,6 +152,13 @@ impl FileArg {
     pub const fn short(self, letter: char) -> Self {
         Self {
             short: Some(letter),
+            ..self
+        }
+    }
+
+    pub const fn value_name(self, name: &'static str) -> Self {
+        Self {
+            value_name: name,
             ..self
         }
     }

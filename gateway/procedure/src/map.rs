@@ -393,7 +393,8 @@ impl crate::registry::Procedure for Map {
                 plan.set("name", name.to_string_lossy().into_owned());
                 Ok(())
             },
-        ),
+        )
+        .value_name("NAME"),
     ];
     const STEPS: &'static str = "frames";
 
