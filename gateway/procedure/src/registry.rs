@@ -442,5 +442,12 @@ mod tests {
         assert!(!iso.uses_map(&json!({"axis": "x"})));
         assert!(iso.uses_map(&json!({"axis": "x", "with_map": true})));
         assert!(find("reference").unwrap().uses_map(&json!({})));
+        // The pass-through opens the controller's port itself; with a rotary table's
+        // errors it applies no map.
+        let proxy = find("proxy").unwrap();
+        assert!(proxy.uses.link && !uses("compensate").link);
+        assert!(proxy.uses_map(&json!({})));
+        let rotary = json!({"rotary": "{}", "controller": "/dev/ttyACM0"});
+        assert!(!proxy.uses_map(&rotary));
     }
 }
