@@ -41,10 +41,14 @@ fn peers() -> PathBuf {
 /// drop.
 struct Peer {
     run: tempfile::TempDir,
+    /// The configuration it runs (the INI's folder with the follower's sampler).
+    _config: tempfile::TempDir,
 }
 
 impl Peer {
-    /// Start LinuxCNC on `ini` (a file of the peers folder, or a path).
+    /// Start LinuxCNC on `ini` (a file of the peers folder, or a path), its HAL with
+    /// the sampler the rig's follower reads
+    /// (`system_tests::linuxcnc::config_with_follower`).
     fn start(ini: &str) -> Peer {
         Peer::start_with(ini, None)
     }
@@ -57,13 +61,21 @@ impl Peer {
             .map(|o| o.status.success())
             .unwrap_or(false);
         assert!(found, "LinuxCNC is not installed: {INSTALL}");
+        let ini = if ini.contains('/') {
+            PathBuf::from(ini)
+        } else {
+            peers().join(ini)
+        };
+        let config = system_tests::linuxcnc::config_with_follower(&ini)
+            .unwrap_or_else(|e| panic!("LinuxCNC's configuration {}: {e}", ini.display()));
+        let ini = config.path().join(ini.file_name().unwrap());
         let run = tempfile::tempdir().expect("a temporary folder");
         if let Some(text) = parameters {
             std::fs::write(run.path().join("sim.var"), text).unwrap();
         }
         let out = Command::new("bash")
             .arg(peers().join("start.sh"))
-            .arg(ini)
+            .arg(&ini)
             .env("LCNC_DIR", run.path())
             .output()
             .expect("start.sh runs");
@@ -73,7 +85,10 @@ impl Peer {
             String::from_utf8_lossy(&out.stdout),
             String::from_utf8_lossy(&out.stderr)
         );
-        Peer { run }
+        Peer {
+            run,
+            _config: config,
+        }
     }
 }
 
@@ -1336,8 +1351,27 @@ async fn run_corpus(
                 .map(|w| (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]))
                 .sum::<f64>()
         };
-        let covered =
-            length(&mut rows.iter().map(|r| r.true_mm)) / length(&mut path.iter().map(|(p, _)| *p));
+        // The samples' polyline through points at least 50 um apart: a sample every
+        // servo period moves a few um where LinuxCNC is slow (a helix's XY, a ramp),
+        // and the true position's 0.5 um counts and settling noise would make such
+        // a polyline a staircase longer than the path it follows.
+        let spaced = |p: &mut dyn Iterator<Item = [f64; 2]>| {
+            let mut kept: Vec<[f64; 2]> = Vec::new();
+            let mut last = None;
+            for q in p {
+                last = Some(q);
+                if kept
+                    .last()
+                    .is_none_or(|k: &[f64; 2]| (q[0] - k[0]).hypot(q[1] - k[1]) >= 0.05)
+                {
+                    kept.push(q);
+                }
+            }
+            kept.extend(last.filter(|l| kept.last() != Some(l)));
+            kept
+        };
+        let covered = length(&mut spaced(&mut rows.iter().map(|r| r.true_mm)).into_iter())
+            / length(&mut path.iter().map(|(p, _)| *p));
         runs.push(CorpusRun {
             name,
             command,
