@@ -1290,6 +1290,19 @@ async fn run_traced(
         .collect()
 }
 
+/// Consecutive samples of LinuxCNC's command at most 1 mm apart (one servo period
+/// at LinuxCNC's 200 mm/s is 0.2 mm): the path is matched to the program's within
+/// 2 mm behind and 30 mm ahead of the last match (`feed_distances`), so a follower
+/// that skipped a stretch of path would make the figures the matcher's, not
+/// LinuxCNC's.
+fn assert_followed_closely(name: &str, rows: &[world::machine::TraceRow]) {
+    let step = rows
+        .windows(2)
+        .map(|w| (w[1].cmd_mm[0] - w[0].cmd_mm[0]).hypot(w[1].cmd_mm[1] - w[0].cmd_mm[1]))
+        .fold(0.0, f64::max);
+    assert!(step < 1.0, "{name}: two samples {step} mm apart");
+}
+
 fn max_rms(d: &[f64]) -> (f64, f64) {
     let max = d.iter().copied().fold(0.0, f64::max) * 1000.0;
     let rms = (d.iter().map(|x| x * x).sum::<f64>() / d.len().max(1) as f64).sqrt() * 1000.0;
@@ -1326,6 +1339,7 @@ async fn run_corpus(
         let original = dir.join(&name);
         std::fs::write(&original, &text).unwrap();
         let rows = run_traced(stage, rig, &original).await;
+        assert_followed_closely(&name, &rows);
         // LinuxCNC's reading: all of its path, rapids too (its command is on the
         // straight line of a rapid, corrected or not).
         let all = |d: Vec<Option<f64>>| d.into_iter().map(|d| d.unwrap_or(0.0)).collect::<Vec<_>>();
@@ -1336,6 +1350,7 @@ async fn run_corpus(
         let rewritten_file = dir.join(format!("rewritten-{name}"));
         std::fs::write(&rewritten_file, out).unwrap();
         let rows = run_traced(stage, rig, &rewritten_file).await;
+        assert_followed_closely(&name, &rows);
         let rewritten = max_rms(&feed(feed_distances(rows.iter().map(|r| r.true_mm), &path)));
         if std::env::var_os("CORPUS").is_some() {
             let d = feed_distances(rows.iter().map(|r| r.true_mm), &path);
@@ -1414,13 +1429,10 @@ fn check_corpus(runs: &[CorpusRun]) {
 /// The RS274/NGC corpus (`tests/ngc`) in the real LinuxCNC: every program that the
 /// rewrite takes is run as written and rewritten from the machine's map, the rig
 /// following (LinuxCNC started with the corpus's parameter file, G55 and G59.3 set).
-/// Not in the default run: the rig's follower (a process polling HAL every 0.5 ms) still
-/// misses a backlash take-up now and then, and the simulated stage then stays in its
-/// backlash (`flow.ngc`'s rewrite 8.2 um off once in the whole suite, 1.08 um when run
-/// again, LinuxCNC's command on the path within 0.32 um both times): the rig's artefact,
-/// which a CI run must not hang on (issue 35). Run it with `-- --ignored`.
+/// The rig follows every servo period (LinuxCNC's sampler; a lost sample fails the
+/// run), so no backlash take-up falls between two samples and no piece of the path is
+/// skipped (each sample is checked to be within 1 mm of the one before).
 #[test]
-#[ignore = "the rig's follower misses a backlash take-up now and then (issue 35); run with --ignored"]
 fn every_rewritten_corpus_program_runs_in_linuxcnc_on_its_path() {
     let machine = world::machine::MachineConfig::load(
         &system_tests::config_dir().join("machines/c5-stage.toml"),
