@@ -106,8 +106,12 @@ if isinstance(types, bytes):
 if types != CFG:
     out("X LinuxCNC's sampler channel %d samples %r, not %r (motor-pos-cmd and motor-offset of X, Y, Z)" % (CHANNEL, types, CFG))
     sys.exit(0)
-out("OK %d" % stream.maxdepth)
+# What the sampler wrote before the follower attached is not followed; the FIFO may
+# have been full (and overrunning) since LinuxCNC started: empty it first, then count.
+while stream.read() is not None:
+    pass
 overruns = stream.num_overruns
+out("OK %d" % stream.maxdepth)
 last_no = None
 failed = False
 def fail(message):
@@ -396,6 +400,11 @@ impl LinuxcncFollower {
     /// The positions recorded since [`LinuxcncFollower::record_samples`]; recording stops.
     pub fn take_samples(&mut self) -> Vec<[f64; 2]> {
         lock(&self.samples).take().unwrap_or_default()
+    }
+
+    /// The reader's process id (a test pauses it to see a lost sample caught).
+    pub fn reader_id(&self) -> u32 {
+        self.child.id()
     }
 
     /// LinuxCNC has homed: the simulated machine homes (a new homing error), then goes

@@ -6,9 +6,9 @@ use std::path::Path;
 /// A copy of the configuration folder of `ini` (its `*.ini`, `*.hal`, `*.tbl`, `*.txt`,
 /// as the peer's `start.sh` copies them) in a fresh folder, `ini`'s `[HAL]` given one
 /// more `HALFILE = follow.hal` after its own, and `follow.hal` the sampler the rig's
-/// follower reads (`emulators::linuxcnc::SAMPLER_HAL`: every servo period's motor
-/// commands of X, Y and Z). Returns the folder; the INI keeps its name in it.
-pub fn config_with_follower(ini: &Path) -> std::io::Result<tempfile::TempDir> {
+/// follower reads, `hal` (`emulators::linuxcnc::SAMPLER_HAL`: every servo period's
+/// motor commands of X, Y and Z). Returns the folder; the INI keeps its name in it.
+pub fn config_with_follower(ini: &Path, hal: &str) -> std::io::Result<tempfile::TempDir> {
     let from = ini
         .parent()
         .ok_or_else(|| std::io::Error::other(format!("{}: no folder", ini.display())))?;
@@ -30,10 +30,7 @@ pub fn config_with_follower(ini: &Path) -> std::io::Result<tempfile::TempDir> {
     let with = add_halfile(&text, "follow.hal")
         .ok_or_else(|| std::io::Error::other(format!("{}: no HALFILE in [HAL]", ini.display())))?;
     std::fs::write(dir.path().join(name), with)?;
-    std::fs::write(
-        dir.path().join("follow.hal"),
-        emulators::linuxcnc::SAMPLER_HAL,
-    )?;
+    std::fs::write(dir.path().join("follow.hal"), hal)?;
     Ok(dir)
 }
 

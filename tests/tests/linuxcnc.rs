@@ -55,6 +55,11 @@ impl Peer {
 
     /// The same, LinuxCNC's parameter file (`sim.var`, its offsets) written first.
     fn start_with(ini: &str, parameters: Option<&str>) -> Peer {
+        Peer::start_full(ini, parameters, emulators::linuxcnc::SAMPLER_HAL)
+    }
+
+    /// The same, `follow_hal` as the follower's HAL file.
+    fn start_full(ini: &str, parameters: Option<&str>, follow_hal: &str) -> Peer {
         let found = Command::new("sh")
             .args(["-c", "command -v linuxcnc"])
             .output()
@@ -66,7 +71,7 @@ impl Peer {
         } else {
             peers().join(ini)
         };
-        let config = system_tests::linuxcnc::config_with_follower(&ini)
+        let config = system_tests::linuxcnc::config_with_follower(&ini, follow_hal)
             .unwrap_or_else(|e| panic!("LinuxCNC's configuration {}: {e}", ini.display()));
         let ini = config.path().join(ini.file_name().unwrap());
         let run = tempfile::tempdir().expect("a temporary folder");
@@ -1465,4 +1470,57 @@ fn every_rewritten_corpus_program_runs_in_linuxcnc_on_its_path() {
         run_corpus(&mut stage, &rig, &model, dir.path()).await
     });
     check_corpus(&runs);
+}
+
+/// A servo period the follower did not read fails the follow, naming it: LinuxCNC's
+/// sampler with a FIFO of 1000 periods (1 s: homing is followed as usual), the reader
+/// paused until the FIFO is full (HAL's `sampler.0.full`), then a move: its settle
+/// reports the overrun instead of a path with a gap.
+#[test]
+fn a_lost_servo_period_fails_the_follow() {
+    let machine = world::machine::MachineConfig::load(
+        &system_tests::config_dir().join("machines/c5-stage.toml"),
+    )
+    .unwrap();
+    let mut job = small_job_on_linuxcnc();
+    let job::StageSpec::Linuxcnc(spec) = &mut job.stage else {
+        unreachable!("a linuxcnc stage")
+    };
+    spec.follow = Some(Box::new(machine.clone()));
+    let spec = spec.clone();
+    let small = emulators::linuxcnc::SAMPLER_HAL.replace("depth=16384", "depth=1000");
+    assert_ne!(small, emulators::linuxcnc::SAMPLER_HAL);
+    let _one = lock();
+    let _peer = Peer::start_full("x.ini", None, &small);
+    let rt = system_tests::runtime_two_workers();
+    rt.block_on(async {
+        let rig = devices::new_rig(&job, &machine);
+        let mut stage = devices::open_followed(&spec, rig.clone()).await.unwrap();
+        stage.home().await.unwrap();
+        let reader = stage.follower().reader_id().to_string();
+        let signal = |s: &str| {
+            let ok = Command::new("kill").args([s, &reader]).status().unwrap();
+            assert!(ok.success(), "kill {s} {reader}");
+        };
+        signal("-STOP");
+        let full = Command::new("/usr/bin/python3")
+            .args([
+                "-c",
+                "import hal, os, sys, time\n\
+                 c = hal.component('xygw_fifo_full_%d' % os.getpid())\n\
+                 for _ in range(20000):\n    \
+                     if hal.get_value('sampler.0.full'):\n        break\n    \
+                     time.sleep(0.001)\n\
+                 full = hal.get_value('sampler.0.full')\n\
+                 c.exit()\n\
+                 sys.exit(0 if full else 1)\n",
+            ])
+            .status()
+            .unwrap();
+        signal("-CONT");
+        assert!(full.success(), "the sampler's FIFO never filled");
+        let moved = stage.move_to(AxisValues::xy(10.0, 10.0), 3000.0).await;
+        let e = moved.expect_err("a follow that lost servo periods fails");
+        assert!(e.to_string().contains("overran"), "{e}");
+    });
 }
