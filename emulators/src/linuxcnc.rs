@@ -11,21 +11,21 @@
 //! home. Worked example: homed again at X 50, LinuxCNC says X 0, `motor-offset` 50,
 //! `motor-pos-cmd` 50.000012 (a 12 nm trim): the simulated X is commanded to 0.000012.
 //!
-//! Following: while LinuxCNC moves (an MDI move, a program in auto mode), the reader
-//! samples the joints' motor commands at a steady rate ([`LinuxcncFollower::start`],
-//! every `period_ms` of wall time, a sample only when the command changed; between
-//! samples it polls every 0.5 ms, and where a joint's command turns back it sends the
-//! turning point as a sample at once: a backlash take-up of a few um lasts a few ms,
-//! and a stage that never saw the turn would stay in its backlash) and the
-//! simulated machine moves straight from each sample to the next, so its trace is the
-//! path LinuxCNC really commands (arcs, blends, its compensation as it ramps), within
-//! the chord of one period (at 3000 mm/min and 4 ms: 0.2 mm of path, 0.17 um of chord
-//! error on a 30 mm radius; a period stretched by a loaded computer makes it longer). When the move has ended ([`LinuxcncFollower::settle`]) the
-//! reader stops sampling, waits until each joint's backlash filter has reached its
-//! correction (the motor command has settled) and the machine goes to that last
-//! command: the end point does not depend on when the samples fell. The two joints of
-//! a sample are read within one servo period (read X, Y, X again until X has not
-//! changed), so a sample is one point of LinuxCNC's path, not two halves of two.
+//! Following: LinuxCNC's realtime `sampler` component, in the servo thread after
+//! `motion-controller` ([`SAMPLER_HAL`]), puts every servo period's motor commands and
+//! motor offsets of X, Y and Z into a FIFO in shared memory; the reader (LinuxCNC's
+//! python3 `hal.stream`, the FIFO `halsampler` reads) takes every sample, in order,
+//! checks that none was lost (the sample numbers follow each other, the FIFO never
+//! overran: otherwise the follow fails, naming the lost samples), and while LinuxCNC
+//! moves (an MDI move, a program in auto mode: [`LinuxcncFollower::start`]) sends each
+//! sample whose command changed. The simulated machine moves straight from each sample
+//! to the next, so its trace is the path LinuxCNC really commands (arcs, blends, its
+//! compensation and backlash take-ups as they ramp), servo period by servo period
+//! (at 3000 mm/min and 1 ms: 0.05 mm of path, 0.01 um of chord error on a 30 mm
+//! radius), however loaded the computer is: the FIFO holds 16 s. When the move has
+//! ended ([`LinuxcncFollower::settle`]) the reader waits until each joint's backlash
+//! filter has reached its correction, takes the samples up to that settled command,
+//! and the machine goes there: the end point is LinuxCNC's last command.
 //!
 //! Simulated time: each sample is a straight move at the follower's feed, from rest at
 //! the stage's own acceleration; the simulated clock runs on by those moves, not by
@@ -50,91 +50,154 @@ pub const HAL_PYTHON: &str = "/usr/bin/python3";
 /// turns positive).
 pub const TRAVEL_SLACK_MM: f64 = 0.001;
 
-/// The sampling period while LinuxCNC moves, ms of wall time.
-pub const SAMPLE_PERIOD_MS: f64 = 4.0;
+/// The sampler channel the follower reads (`sampler.0`, HAL stream key
+/// `hal.sampler_base + 0`).
+pub const SAMPLER_CHANNEL: u32 = 0;
 
-/// The reader. Requests, one per line on stdin:
-/// * `S j0 j1 PERIOD_MS`: sample those joints every period from now on; each sample
-///   whose values changed is printed `P v0 v1`;
-/// * `E j0 j1`: stop sampling; once each joint's backlash filter has reached its
-///   correction, print `R v0 v1`.
+/// The sampler's pins, in order: `motor-pos-cmd` and `motor-offset` of the joints of X,
+/// Y and Z (`sampler.0.pin.0` .. `pin.5`; [`SAMPLER_HAL`] wires them).
+pub const SAMPLER_CFG: &str = "ffffff";
+
+/// The FIFO's depth, servo periods: 16 s at LinuxCNC's usual 1 ms, which the reader
+/// (draining every 2 ms) never comes near; an overrun is an error all the same.
+pub const SAMPLER_DEPTH: u32 = 16384;
+
+/// What LinuxCNC's HAL needs for the follower (a `HALFILE` after the machine's own):
+/// the realtime `sampler` in the servo thread after `motion-controller`, fed by the
+/// joints' `motor-pos-cmd` (here the test peer's `x.hal` signals `jN-motor-pos`, which
+/// carry them) and `motor-offset`.
+pub const SAMPLER_HAL: &str = "\
+# The rig's follower (emulators::linuxcnc): every servo period's motor commands.
+loadrt sampler depth=16384 cfg=ffffff
+addf sampler.0 servo-thread
+net j0-motor-pos sampler.0.pin.0
+net xygw-j0-motor-offset joint.0.motor-offset => sampler.0.pin.1
+net j1-motor-pos sampler.0.pin.2
+net xygw-j1-motor-offset joint.1.motor-offset => sampler.0.pin.3
+net j2-motor-pos sampler.0.pin.4
+net xygw-j2-motor-offset joint.2.motor-offset => sampler.0.pin.5
+";
+
+/// The reader: attaches to the sampler's FIFO (`hal.stream`, the FIFO `halsampler`
+/// reads; `halsampler` itself prints floats `%f`, 6 decimals, 1 nm, not the full
+/// double), says `OK DEPTH` or `X why`, and then takes requests, one per line on stdin:
+/// * `S k..`: follow the sampler's slots k (0 X, 1 Y, 2 Z) from now on: every sample
+///   whose command changed is printed `P v..`;
+/// * `E j..`: stop following; once joints j's backlash filters have reached their
+///   corrections, every sample up to the settled command is printed and then `R v..`.
 ///
-/// Values are `motor-pos-cmd - motor-offset`, repr (full precision).
+/// Values are `motor-pos-cmd - motor-offset`, repr (full precision). A lost sample (a
+/// gap in the sample numbers, an overrun of the FIFO) is said at once: `X why`.
 const READER: &str = r#"
 import hal, os, select, sys, time
 c = hal.component("xygw_rig_follower_%d" % os.getpid())
 g = hal.get_value
-def values(js):
-    # one servo period: the first joint read again unchanged after the others
-    for _ in range(50):
-        a = g("joint.%d.motor-pos-cmd" % js[0])
-        v = [a] + [g("joint.%d.motor-pos-cmd" % j) for j in js[1:]]
-        if g("joint.%d.motor-pos-cmd" % js[0]) == a:
+def out(s):
+    sys.stdout.write(s + "\n")
+    sys.stdout.flush()
+try:
+    stream = hal.stream(c, hal.sampler_base + CHANNEL)
+except OSError as e:
+    out("X LinuxCNC's HAL has no sampler channel %d (%s): load it in the servo thread as the follower's HAL file does (loadrt sampler depth=%d cfg=%s, addf sampler.%d servo-thread, each joint's motor-pos-cmd and motor-offset on its pins)" % (CHANNEL, e, DEPTH, CFG, CHANNEL))
+    sys.exit(0)
+types = stream.element_types
+if isinstance(types, bytes):
+    types = types.decode()
+if types != CFG:
+    out("X LinuxCNC's sampler channel %d samples %r, not %r (motor-pos-cmd and motor-offset of X, Y, Z)" % (CHANNEL, types, CFG))
+    sys.exit(0)
+# What the sampler wrote before the follower attached is not followed; the FIFO may
+# have been full (and overrunning) since LinuxCNC started: empty it first, then count.
+while stream.read() is not None:
+    pass
+overruns = stream.num_overruns
+out("OK %d" % stream.maxdepth)
+last_no = None
+failed = False
+def fail(message):
+    global failed
+    if not failed:
+        out("X " + message)
+    failed = True
+def read():
+    # One sample, or None when the FIFO is empty. Every servo period is one sample,
+    # numbered: a gap or an overrun is a lost period, said at once.
+    global last_no, overruns
+    v = stream.read()
+    if v is None:
+        return None
+    no = stream.sampleno
+    if last_no is not None and no != (last_no + 1) & 0xffffffff:
+        fail("samples %d..%d of LinuxCNC's servo thread were lost (the follower read too slowly)" % (last_no + 1, no - 1))
+    last_no = no
+    if stream.num_overruns != overruns:
+        fail("LinuxCNC's sampler FIFO overran %d times (depth %d): servo periods were lost" % (stream.num_overruns - overruns, stream.maxdepth))
+        overruns = stream.num_overruns
+    return v
+following = None
+sent = None
+def take(v):
+    # The sample's command of the followed joints; sent when it changed.
+    global sent
+    if following is None:
+        return None
+    w = [v[2 * k] - v[2 * k + 1] for k in following]
+    if w != sent:
+        out("P " + " ".join(repr(x) for x in w))
+        sent = w
+    return w
+def drain(n=None):
+    k = 0
+    while n is None or k < n:
+        v = read()
+        if v is None:
             break
-    return [x - g("joint.%d.motor-offset" % j) for x, j in zip(v, js)]
-def text(v):
-    return " ".join(repr(x) for x in v)
-def cmd(js):
-    return text(values(js))
-def settled(js):
+        take(v)
+        k += 1
+    return k
+def command(js):
+    return [g("joint.%d.motor-pos-cmd" % j) - g("joint.%d.motor-offset" % j) for j in js]
+def settle(js, slots):
+    global following, sent
+    # The move has ended: wait for the backlash filters to reach their corrections,
+    # then take every sample up to the settled command.
     for _ in range(5000):
         if all(g("joint.%d.backlash-filt" % j) == g("joint.%d.backlash-corr" % j) for j in js):
             break
         time.sleep(0.001)
-    return cmd(js)
+    target = command(js)
+    drain(stream.depth)
+    if following is not None:
+        for _ in range(5000):
+            if sent == target:
+                break
+            if drain(1) == 0:
+                time.sleep(0.001)
+        if sent != target:
+            fail("the sampled command never reached the settled one %r (is the sampler on the joints' motor-pos-cmd and motor-offset?)" % target)
+    following = None
+    sent = None
+    out("R " + " ".join(repr(x) for x in target))
 buf = b""
-stream = None
-last = None
-# Between two samples the joints are polled every TURN_POLL s: where a joint turns
-# back (a backlash take-up of a few um lasts a few ms), the turning point is sent at
-# once as a sample, so the simulated stage reverses where LinuxCNC did.
-TURN_POLL = 0.0005
-def send(s):
-    global last
-    if s != last:
-        sys.stdout.write("P " + s + "\n")
-        sys.stdout.flush()
-        last = s
 while True:
-    wait = None if stream is None else max(0.0, min(due, poll_due) - time.monotonic())
-    ready, _, _ = select.select([0], [], [], wait)
-    if not ready:
-        now = time.monotonic()
-        v = values(stream)
-        if prev is not None:
-            for k in range(len(v)):
-                d = v[k] - prev[k]
-                if d != 0.0:
-                    if heading[k] != 0.0 and (d > 0.0) != (heading[k] > 0.0):
-                        send(text(prev))
-                    heading[k] = d
-        prev = v
-        poll_due = now + TURN_POLL
-        if now >= due:
-            send(text(v))
-            due += period
-            if due < now:
-                due = now
-        continue
-    data = os.read(0, 4096)
-    if not data:
-        break
-    buf += data
-    while b"\n" in buf:
-        line, buf = buf.split(b"\n", 1)
-        w = line.decode().split()
-        if w and w[0] == "S":
-            stream = [int(j) for j in w[1:-1]]
-            period = float(w[-1]) / 1000.0
-            due = time.monotonic()
-            poll_due = due
-            last = None
-            prev = None
-            heading = [0.0] * len(stream)
-        elif w and w[0] == "E":
-            stream = None
-            sys.stdout.write("R " + settled([int(j) for j in w[1:]]) + "\n")
-            sys.stdout.flush()
+    ready, _, _ = select.select([0], [], [], 0.002)
+    if ready:
+        data = os.read(0, 4096)
+        if not data:
+            break
+        buf += data
+        while b"\n" in buf:
+            line, buf = buf.split(b"\n", 1)
+            w = line.decode().split()
+            if w and w[0] == "S":
+                # from now on: the samples before are the machine at rest
+                drain()
+                following = [int(k) for k in w[1:]]
+                sent = None
+            elif w and w[0] == "E":
+                settle([int(j) for j in w[1:]], following)
+                failed = False
+    drain()
 c.exit()
 "#;
 
@@ -199,8 +262,11 @@ impl LinuxcncFollower {
     /// Start the HAL reader for joints `joints` (X, Y); the simulated machine follows
     /// at `feed_mm_min` (its own clock's figure).
     pub fn new(rig: SharedRig, joints: [u8; 2], feed_mm_min: f64) -> std::io::Result<Self> {
+        let script = format!(
+            "CHANNEL = {SAMPLER_CHANNEL}\nCFG = {SAMPLER_CFG:?}\nDEPTH = {SAMPLER_DEPTH}\n{READER}"
+        );
         let mut child = Command::new(HAL_PYTHON)
-            .args(["-c", READER])
+            .args(["-c", &script])
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .spawn()
@@ -213,12 +279,23 @@ impl LinuxcncFollower {
             .stdin
             .take()
             .ok_or_else(|| io_error("no stdin".into()))?;
-        let stdout = BufReader::new(
+        let mut stdout = BufReader::new(
             child
                 .stdout
                 .take()
                 .ok_or_else(|| io_error("no stdout".into()))?,
         );
+        // The reader's first word: attached to the sampler's FIFO, or why not.
+        let mut first = String::new();
+        stdout.read_line(&mut first)?;
+        if !first.starts_with("OK ") {
+            let _ = child.kill();
+            let _ = child.wait();
+            return Err(io_error(match first.strip_prefix("X ") {
+                Some(why) => why.trim_end().to_string(),
+                None => "the HAL reader ended before attaching to LinuxCNC's sampler (is LinuxCNC running on this computer?)".into(),
+            }));
+        }
         let (tx, settled) = channel();
         let follow = rig.clone();
         let samples: SampleLog = Default::default();
@@ -239,6 +316,10 @@ impl LinuxcncFollower {
         let thread = std::thread::spawn(move || {
             let mut failed: Option<String> = None;
             for line in lines {
+                if let Some(why) = line.strip_prefix("X ") {
+                    failed.get_or_insert(why.to_string());
+                    continue;
+                }
                 let parsed = values(&line).ok_or_else(|| {
                     format!(
                         "the HAL reader said {}",
@@ -287,10 +368,10 @@ impl LinuxcncFollower {
     }
 
     /// LinuxCNC is about to move: from now on the simulated machine follows its joints'
-    /// motor commands, sampled every `period_ms`.
-    pub fn start(&mut self, period_ms: f64) -> std::io::Result<()> {
-        let [x, y] = self.joints;
-        self.request(format!("S {x} {y} {period_ms}"))
+    /// motor commands, every servo period.
+    pub fn start(&mut self) -> std::io::Result<()> {
+        // the sampler's slots of X and Y (SAMPLER_HAL wires the joints to them)
+        self.request("S 0 1".into())
     }
 
     /// LinuxCNC's move has ended: sampling stops, and the simulated machine goes to the
@@ -319,6 +400,11 @@ impl LinuxcncFollower {
     /// The positions recorded since [`LinuxcncFollower::record_samples`]; recording stops.
     pub fn take_samples(&mut self) -> Vec<[f64; 2]> {
         lock(&self.samples).take().unwrap_or_default()
+    }
+
+    /// The reader's process id (a test pauses it to see a lost sample caught).
+    pub fn reader_id(&self) -> u32 {
+        self.child.id()
     }
 
     /// LinuxCNC has homed: the simulated machine homes (a new homing error), then goes
@@ -354,7 +440,19 @@ impl Drop for LinuxcncFollower {
 
 #[cfg(test)]
 mod tests {
-    use super::values;
+    use super::{values, SAMPLER_CFG, SAMPLER_CHANNEL, SAMPLER_DEPTH, SAMPLER_HAL};
+
+    #[test]
+    fn the_sampler_hal_is_what_the_reader_attaches_to() {
+        let load = format!("loadrt sampler depth={SAMPLER_DEPTH} cfg={SAMPLER_CFG}\n");
+        assert!(SAMPLER_HAL.contains(&load), "{SAMPLER_HAL}");
+        let addf = format!("addf sampler.{SAMPLER_CHANNEL} servo-thread\n");
+        assert!(SAMPLER_HAL.contains(&addf), "{SAMPLER_HAL}");
+        for pin in 0..SAMPLER_CFG.len() {
+            let wired = format!("sampler.{SAMPLER_CHANNEL}.pin.{pin}\n");
+            assert_eq!(SAMPLER_HAL.matches(&wired).count(), 1, "{wired}");
+        }
+    }
 
     #[test]
     fn reader_lines() {

@@ -5,6 +5,7 @@ pub mod dnc_rig;
 pub mod faulty_serial;
 pub mod faulty_tcp;
 pub mod firmware;
+pub mod linuxcnc;
 pub mod netns;
 pub mod program_path;
 pub mod sender;

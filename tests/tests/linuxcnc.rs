@@ -41,29 +41,46 @@ fn peers() -> PathBuf {
 /// drop.
 struct Peer {
     run: tempfile::TempDir,
+    /// The configuration it runs (the INI's folder with the follower's sampler).
+    _config: tempfile::TempDir,
 }
 
 impl Peer {
-    /// Start LinuxCNC on `ini` (a file of the peers folder, or a path).
+    /// Start LinuxCNC on `ini` (a file of the peers folder, or a path), its HAL with
+    /// the sampler the rig's follower reads
+    /// (`system_tests::linuxcnc::config_with_follower`).
     fn start(ini: &str) -> Peer {
         Peer::start_with(ini, None)
     }
 
     /// The same, LinuxCNC's parameter file (`sim.var`, its offsets) written first.
     fn start_with(ini: &str, parameters: Option<&str>) -> Peer {
+        Peer::start_full(ini, parameters, emulators::linuxcnc::SAMPLER_HAL)
+    }
+
+    /// The same, `follow_hal` as the follower's HAL file.
+    fn start_full(ini: &str, parameters: Option<&str>, follow_hal: &str) -> Peer {
         let found = Command::new("sh")
             .args(["-c", "command -v linuxcnc"])
             .output()
             .map(|o| o.status.success())
             .unwrap_or(false);
         assert!(found, "LinuxCNC is not installed: {INSTALL}");
+        let ini = if ini.contains('/') {
+            PathBuf::from(ini)
+        } else {
+            peers().join(ini)
+        };
+        let config = system_tests::linuxcnc::config_with_follower(&ini, follow_hal)
+            .unwrap_or_else(|e| panic!("LinuxCNC's configuration {}: {e}", ini.display()));
+        let ini = config.path().join(ini.file_name().unwrap());
         let run = tempfile::tempdir().expect("a temporary folder");
         if let Some(text) = parameters {
             std::fs::write(run.path().join("sim.var"), text).unwrap();
         }
         let out = Command::new("bash")
             .arg(peers().join("start.sh"))
-            .arg(ini)
+            .arg(&ini)
             .env("LCNC_DIR", run.path())
             .output()
             .expect("start.sh runs");
@@ -73,7 +90,10 @@ impl Peer {
             String::from_utf8_lossy(&out.stdout),
             String::from_utf8_lossy(&out.stderr)
         );
-        Peer { run }
+        Peer {
+            run,
+            _config: config,
+        }
     }
 }
 
@@ -1275,6 +1295,19 @@ async fn run_traced(
         .collect()
 }
 
+/// Consecutive samples of LinuxCNC's command at most 1 mm apart (one servo period
+/// at LinuxCNC's 200 mm/s is 0.2 mm): the path is matched to the program's within
+/// 2 mm behind and 30 mm ahead of the last match (`feed_distances`), so a follower
+/// that skipped a stretch of path would make the figures the matcher's, not
+/// LinuxCNC's.
+fn assert_followed_closely(name: &str, rows: &[world::machine::TraceRow]) {
+    let step = rows
+        .windows(2)
+        .map(|w| (w[1].cmd_mm[0] - w[0].cmd_mm[0]).hypot(w[1].cmd_mm[1] - w[0].cmd_mm[1]))
+        .fold(0.0, f64::max);
+    assert!(step < 1.0, "{name}: two samples {step} mm apart");
+}
+
 fn max_rms(d: &[f64]) -> (f64, f64) {
     let max = d.iter().copied().fold(0.0, f64::max) * 1000.0;
     let rms = (d.iter().map(|x| x * x).sum::<f64>() / d.len().max(1) as f64).sqrt() * 1000.0;
@@ -1311,6 +1344,7 @@ async fn run_corpus(
         let original = dir.join(&name);
         std::fs::write(&original, &text).unwrap();
         let rows = run_traced(stage, rig, &original).await;
+        assert_followed_closely(&name, &rows);
         // LinuxCNC's reading: all of its path, rapids too (its command is on the
         // straight line of a rapid, corrected or not).
         let all = |d: Vec<Option<f64>>| d.into_iter().map(|d| d.unwrap_or(0.0)).collect::<Vec<_>>();
@@ -1321,6 +1355,7 @@ async fn run_corpus(
         let rewritten_file = dir.join(format!("rewritten-{name}"));
         std::fs::write(&rewritten_file, out).unwrap();
         let rows = run_traced(stage, rig, &rewritten_file).await;
+        assert_followed_closely(&name, &rows);
         let rewritten = max_rms(&feed(feed_distances(rows.iter().map(|r| r.true_mm), &path)));
         if std::env::var_os("CORPUS").is_some() {
             let d = feed_distances(rows.iter().map(|r| r.true_mm), &path);
@@ -1336,8 +1371,27 @@ async fn run_corpus(
                 .map(|w| (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]))
                 .sum::<f64>()
         };
-        let covered =
-            length(&mut rows.iter().map(|r| r.true_mm)) / length(&mut path.iter().map(|(p, _)| *p));
+        // The samples' polyline through points at least 50 um apart: a sample every
+        // servo period moves a few um where LinuxCNC is slow (a helix's XY, a ramp),
+        // and the true position's 0.5 um counts and settling noise would make such
+        // a polyline a staircase longer than the path it follows.
+        let spaced = |p: &mut dyn Iterator<Item = [f64; 2]>| {
+            let mut kept: Vec<[f64; 2]> = Vec::new();
+            let mut last = None;
+            for q in p {
+                last = Some(q);
+                if kept
+                    .last()
+                    .is_none_or(|k: &[f64; 2]| (q[0] - k[0]).hypot(q[1] - k[1]) >= 0.05)
+                {
+                    kept.push(q);
+                }
+            }
+            kept.extend(last.filter(|l| kept.last() != Some(l)));
+            kept
+        };
+        let covered = length(&mut spaced(&mut rows.iter().map(|r| r.true_mm)).into_iter())
+            / length(&mut path.iter().map(|(p, _)| *p));
         runs.push(CorpusRun {
             name,
             command,
@@ -1380,13 +1434,10 @@ fn check_corpus(runs: &[CorpusRun]) {
 /// The RS274/NGC corpus (`tests/ngc`) in the real LinuxCNC: every program that the
 /// rewrite takes is run as written and rewritten from the machine's map, the rig
 /// following (LinuxCNC started with the corpus's parameter file, G55 and G59.3 set).
-/// Not in the default run: the rig's follower (a process polling HAL every 0.5 ms) still
-/// misses a backlash take-up now and then, and the simulated stage then stays in its
-/// backlash (`flow.ngc`'s rewrite 8.2 um off once in the whole suite, 1.08 um when run
-/// again, LinuxCNC's command on the path within 0.32 um both times): the rig's artefact,
-/// which a CI run must not hang on (issue 35). Run it with `-- --ignored`.
+/// The rig follows every servo period (LinuxCNC's sampler; a lost sample fails the
+/// run), so no backlash take-up falls between two samples and no piece of the path is
+/// skipped (each sample is checked to be within 1 mm of the one before).
 #[test]
-#[ignore = "the rig's follower misses a backlash take-up now and then (issue 35); run with --ignored"]
 fn every_rewritten_corpus_program_runs_in_linuxcnc_on_its_path() {
     let machine = world::machine::MachineConfig::load(
         &system_tests::config_dir().join("machines/c5-stage.toml"),
@@ -1419,4 +1470,57 @@ fn every_rewritten_corpus_program_runs_in_linuxcnc_on_its_path() {
         run_corpus(&mut stage, &rig, &model, dir.path()).await
     });
     check_corpus(&runs);
+}
+
+/// A servo period the follower did not read fails the follow, naming it: LinuxCNC's
+/// sampler with a FIFO of 1000 periods (1 s: homing is followed as usual), the reader
+/// paused until the FIFO is full (HAL's `sampler.0.full`), then a move: its settle
+/// reports the overrun instead of a path with a gap.
+#[test]
+fn a_lost_servo_period_fails_the_follow() {
+    let machine = world::machine::MachineConfig::load(
+        &system_tests::config_dir().join("machines/c5-stage.toml"),
+    )
+    .unwrap();
+    let mut job = small_job_on_linuxcnc();
+    let job::StageSpec::Linuxcnc(spec) = &mut job.stage else {
+        unreachable!("a linuxcnc stage")
+    };
+    spec.follow = Some(Box::new(machine.clone()));
+    let spec = spec.clone();
+    let small = emulators::linuxcnc::SAMPLER_HAL.replace("depth=16384", "depth=1000");
+    assert_ne!(small, emulators::linuxcnc::SAMPLER_HAL);
+    let _one = lock();
+    let _peer = Peer::start_full("x.ini", None, &small);
+    let rt = system_tests::runtime_two_workers();
+    rt.block_on(async {
+        let rig = devices::new_rig(&job, &machine);
+        let mut stage = devices::open_followed(&spec, rig.clone()).await.unwrap();
+        stage.home().await.unwrap();
+        let reader = stage.follower().reader_id().to_string();
+        let signal = |s: &str| {
+            let ok = Command::new("kill").args([s, &reader]).status().unwrap();
+            assert!(ok.success(), "kill {s} {reader}");
+        };
+        signal("-STOP");
+        let full = Command::new("/usr/bin/python3")
+            .args([
+                "-c",
+                "import hal, os, sys, time\n\
+                 c = hal.component('xygw_fifo_full_%d' % os.getpid())\n\
+                 for _ in range(20000):\n    \
+                     if hal.get_value('sampler.0.full'):\n        break\n    \
+                     time.sleep(0.001)\n\
+                 full = hal.get_value('sampler.0.full')\n\
+                 c.exit()\n\
+                 sys.exit(0 if full else 1)\n",
+            ])
+            .status()
+            .unwrap();
+        signal("-CONT");
+        assert!(full.success(), "the sampler's FIFO never filled");
+        let moved = stage.move_to(AxisValues::xy(10.0, 10.0), 3000.0).await;
+        let e = moved.expect_err("a follow that lost servo periods fails");
+        assert!(e.to_string().contains("overran"), "{e}");
+    });
 }

@@ -1,7 +1,8 @@
 //! Opening a `linuxcnc` stage: the driver on linuxcncrsh, and with `follow` the rig's
 //! simulated stage slaved to LinuxCNC's joint motor commands (`emulators::linuxcnc`),
 //! so the simulated camera sees what the real controller commands. The rig follows
-//! continuously while LinuxCNC moves (sampled; see `emulators::linuxcnc`), and settles
+//! continuously while LinuxCNC moves (every servo period, through LinuxCNC's `sampler`
+//! in its HAL; see `emulators::linuxcnc`), and settles
 //! on LinuxCNC's final command when each move, homing or program has ended.
 
 use crate::emulated::{new_rig, OpenedStage};
@@ -11,7 +12,7 @@ use drivers::linuxcnc::LinuxcncStage;
 use drivers::{
     Axis, AxisValues, Capabilities, DriverError, Stage, StageInfo, StageLink, StageStatus,
 };
-use emulators::linuxcnc::{LinuxcncFollower, SAMPLE_PERIOD_MS};
+use emulators::linuxcnc::LinuxcncFollower;
 use job::linuxcnc::LinuxcncStageSpec;
 use job::Job;
 use world::SharedRig;
@@ -74,7 +75,7 @@ fn follow_error(e: std::io::Error) -> DriverError {
 
 impl FollowedLinuxcnc {
     fn start(&mut self) -> Result<(), DriverError> {
-        self.follower.start(SAMPLE_PERIOD_MS).map_err(follow_error)
+        self.follower.start().map_err(follow_error)
     }
 
     /// LinuxCNC's motion has ended (or homing, with `homed`): the rig settles on its
