@@ -114,9 +114,7 @@ async fn stream(
     std::fs::write(&program, PROGRAM).unwrap();
     let link = dir.join("ttyGATEWAY");
     lock(rig).machine_mut().start_trace();
-    let (mut controller, _) = open_controller(port, 115_200, NO_BANNER)
-        .await
-        .unwrap();
+    let (mut controller, _) = open_controller(port, 115_200, NO_BANNER).await.unwrap();
     let mut sender_port = SenderPort::create(Some(&link)).unwrap();
     let mut command = sender(&link, &program);
     let client = tokio::task::spawn_blocking(move || command.output().expect("run the sender"));
@@ -404,9 +402,7 @@ fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_prog
         let seen = std::cell::Cell::new(None);
         let homings = lock(&rig).machine().homings();
         lock(&rig).machine_mut().start_trace();
-        let (mut controller, _) = open_controller(&port, 115_200, NO_BANNER)
-            .await
-            .unwrap();
+        let (mut controller, _) = open_controller(&port, 115_200, NO_BANNER).await.unwrap();
         let link = dir.path().join("ttyHOMING");
         let mut sender_port = SenderPort::create(Some(&link)).unwrap();
         let mut proxy = Proxy::new(Rewriter::new(&shared, Options::default()).unwrap(), &shared);
