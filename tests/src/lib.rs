@@ -23,28 +23,22 @@ pub fn workspace() -> PathBuf {
         .expect("the workspace root exists")
 }
 
-/// The `emulators` binary next to the running test's executable, built if missing
-/// (`cargo test --workspace` builds it; a filtered run may not have).
+/// The `emulators` binary, as this package's `emulators-under-test` (the emulators
+/// package's main.rs, tests/Cargo.toml): cargo builds a package's binaries before it
+/// runs the package's integration tests, with the tests' features, so it is the
+/// emulator code under test. It lies next to the running test's `deps` folder.
 pub fn emulators_binary() -> PathBuf {
     let exe = std::env::current_exe().expect("the test knows its executable");
-    let dir = exe
+    let bin = exe
         .parent()
         .and_then(Path::parent)
         .expect("tests run from target/<profile>/deps")
-        .to_path_buf();
-    let bin = dir.join("emulators");
-    // Built once per test process, always: `cargo test` does not rebuild another
-    // package's binary, and a stale one tests old emulator code (a no-op when fresh).
-    static BUILT: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    let built = BUILT.get_or_init(|| {
-        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-        Command::new(cargo)
-            .args(["build", "-p", "emulators", "--bin", "emulators"])
-            .current_dir(workspace())
-            .status()
-            .is_ok_and(|s| s.success())
-    });
-    assert!(*built, "building the emulators binary failed");
+        .join("emulators-under-test");
+    assert!(
+        bin.is_file(),
+        "{} is missing: run the test through cargo test -p system-tests, which builds it",
+        bin.display()
+    );
     bin
 }
 

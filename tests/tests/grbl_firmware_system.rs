@@ -200,7 +200,7 @@ impl Compensation for Skewed {
     }
 }
 
-/// A short program (real time: about two seconds of motion).
+/// A short program (real time: about two seconds of motion at MACHINE_RATES).
 const PROGRAM: &str = "G21 G90
 G1 F3000
 G1 X10 Y0
@@ -270,17 +270,57 @@ async fn send_program(path: std::path::PathBuf, program: &str) -> Sent {
     sent
 }
 
-/// The pass-through between a plain sender and `fw` (first power-up), with the Skewed
-/// compensation: what the sender got and the session's end.
-fn stream_through_proxy(fw: &RunningFirmware, program: &'static str) -> (Sent, Ending, u64) {
+/// Rates and accelerations of a machine instead of a first power-up's 500 mm/min and
+/// 10 mm/s^2 ($110-$112, $120-$122): the firmware runs in real time, and the defaults
+/// (capping F3000 at 500 mm/min) made PROGRAM 12 s of motion. The blocks GRBL plans,
+/// which the test checks, are the same at any rate.
+const MACHINE_RATES: &[(u32, f64)] = &[
+    (110, 20_000.0),
+    (111, 20_000.0),
+    (112, 20_000.0),
+    (120, 2_000.0),
+    (121, 2_000.0),
+    (122, 2_000.0),
+];
+
+/// The pass-through between a plain sender and `fw` (first power-up, then `settings`
+/// sent on the controller's line before the session), with the Skewed compensation:
+/// what the sender got and the session's end.
+fn stream_through_proxy(
+    fw: &RunningFirmware,
+    settings: &[(u32, f64)],
+    program: &'static str,
+) -> (Sent, Ending, u64) {
     let rt = system_tests::runtime();
     let link = fw.workdir.join("ttyGATEWAY");
     rt.block_on(async {
+        use tokio::io::AsyncReadExt;
         let (mut controller, banner) =
             open_controller(&fw.path(), 115_200, Duration::from_secs(10))
                 .await
                 .expect("the controller's port");
         assert!(banner.contains("error:7"), "a first power-up: {banner}");
+        for (n, v) in settings {
+            controller
+                .write_all(format!("${n}={v}\n").as_bytes())
+                .await
+                .unwrap();
+            let mut answer = Vec::new();
+            let mut buf = [0u8; 64];
+            while !answer.ends_with(b"ok\r\n") {
+                let k = tokio::time::timeout(Duration::from_secs(60), controller.read(&mut buf))
+                    .await
+                    .expect("the firmware answers a setting")
+                    .unwrap();
+                assert!(k > 0, "the firmware's port closed");
+                answer.extend_from_slice(&buf[..k]);
+                assert!(
+                    !String::from_utf8_lossy(&answer).contains("error"),
+                    "${n}={v}: {}",
+                    String::from_utf8_lossy(&answer)
+                );
+            }
+        }
         let comp = Skewed;
         let rewriter = Rewriter::new(&comp, Options::default()).unwrap();
         let mut proxy = Proxy::new(rewriter, &comp);
@@ -301,7 +341,7 @@ fn stream_through_proxy(fw: &RunningFirmware, program: &'static str) -> (Sent, E
 #[test]
 fn the_pass_through_streams_to_real_grbl_and_the_firmware_plans_the_compensated_program() {
     let fw = start(Firmware::Grbl11h);
-    let (sent, ending, pieces) = stream_through_proxy(&fw, PROGRAM);
+    let (sent, ending, pieces) = stream_through_proxy(&fw, MACHINE_RATES, PROGRAM);
     assert!(matches!(ending, Ending::SenderLeft(_)), "{ending:?}");
     // Every line answered as GRBL would: `%` is GRBL 1.1h's error:1; the rest ok.
     let expected: Vec<&str> = PROGRAM
@@ -407,7 +447,7 @@ fn the_pass_through_streams_to_real_grbl_and_the_firmware_plans_the_compensated_
 fn the_pass_through_on_grblhal_passes_none_of_its_own_answers_to_the_sender() {
     let fw = start(Firmware::GrblHal3);
     const SHORT: &str = "G21 G90\nG1 X1 Y1 F1000\n$#\n";
-    let (sent, ending, _) = stream_through_proxy(&fw, SHORT);
+    let (sent, ending, _) = stream_through_proxy(&fw, &[], SHORT);
     assert!(matches!(ending, Ending::SenderLeft(_)), "{ending:?}");
     assert_eq!(sent.answers, ["ok", "ok", "ok"]);
     // The sender's own `$#`: every line of it (G59.1-G59.3 included); the gateway's
@@ -429,7 +469,10 @@ fn the_pass_through_on_grblhal_passes_none_of_its_own_answers_to_the_sender() {
 
 /// GRBL 1.1h to cut with: fresh (a first power-up), connected by the driver, set for a
 /// cutter (rates and acceleration of a cutting table instead of the defaults' 500
-/// mm/min and 10 mm/s^2, 400 mm of travel).
+/// mm/min and 10 mm/s^2, 400 mm of travel, and a junction deviation that lets the knife
+/// round a contour's many corners at speed: at the default 0.01 mm and 2 000 mm/s^2 a
+/// right angle slowed it to 7 mm/s, and three firmwares in real time took a minute).
+/// The blocks GRBL plans, which the test checks, are the same at any rate.
 async fn cutter_controller(fw: &RunningFirmware) -> GrblStage {
     let opts = GrblOptions {
         poll_interval: Duration::from_millis(5),
@@ -444,9 +487,10 @@ async fn cutter_controller(fw: &RunningFirmware) -> GrblStage {
         (110, 20_000.0),
         (111, 20_000.0),
         (112, 20_000.0),
-        (120, 2_000.0),
-        (121, 2_000.0),
-        (122, 2_000.0),
+        (11, 0.1),
+        (120, 10_000.0),
+        (121, 10_000.0),
+        (122, 10_000.0),
         (130, 400.0),
         (131, 400.0),
         (132, 400.0),

@@ -45,6 +45,13 @@ G1 X17.5 Y12.25 F2400
 G1 X172.5 Y12.25
 ";
 
+/// How long a session waits for the controller's banner when it opens the port: not
+/// at all. The emulator printed its banner once, at power-up, to the map's driver; a
+/// port opened again gets none (a real board would reset on DTR and print one, which
+/// `gateway proxy` waits up to 2.5 s for). Whatever the controller sent already is still
+/// read first: the wait polls the port before it looks at the clock.
+const NO_BANNER: Duration = Duration::ZERO;
+
 /// The programmed feed path, machine mm (arcs as chords within 1 nm), from (20, 20).
 fn nominal_path() -> Vec<[f64; 2]> {
     // Feed moves start where the rapid to (20, 20) ended.
@@ -107,9 +114,7 @@ async fn stream(
     std::fs::write(&program, PROGRAM).unwrap();
     let link = dir.join("ttyGATEWAY");
     lock(rig).machine_mut().start_trace();
-    let (mut controller, _) = open_controller(port, 115_200, Duration::from_secs(10))
-        .await
-        .unwrap();
+    let (mut controller, _) = open_controller(port, 115_200, NO_BANNER).await.unwrap();
     let mut sender_port = SenderPort::create(Some(&link)).unwrap();
     let mut command = sender(&link, &program);
     let client = tokio::task::spawn_blocking(move || command.output().expect("run the sender"));
@@ -397,9 +402,7 @@ fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_prog
         let seen = std::cell::Cell::new(None);
         let homings = lock(&rig).machine().homings();
         lock(&rig).machine_mut().start_trace();
-        let (mut controller, _) = open_controller(&port, 115_200, Duration::from_secs(10))
-            .await
-            .unwrap();
+        let (mut controller, _) = open_controller(&port, 115_200, NO_BANNER).await.unwrap();
         let link = dir.path().join("ttyHOMING");
         let mut sender_port = SenderPort::create(Some(&link)).unwrap();
         let mut proxy = Proxy::new(Rewriter::new(&shared, Options::default()).unwrap(), &shared);

@@ -68,20 +68,77 @@ fn dist(a: P, b: P) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
 
-/// Distance from `p` to the polyline `path`.
-fn to_path(p: P, path: &[P]) -> f64 {
-    path.windows(2)
-        .map(|w| {
-            let d: P = std::array::from_fn(|k| w[1][k] - w[0][k]);
-            let l2 = d.iter().map(|v| v * v).sum::<f64>();
-            let t = if l2 > 0.0 {
-                ((0..3).map(|k| (p[k] - w[0][k]) * d[k]).sum::<f64>() / l2).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            dist(p, std::array::from_fn(|k| w[0][k] + t * d[k]))
-        })
-        .fold(f64::INFINITY, f64::min)
+/// Distance from `p` to the segment `a`-`b`.
+fn to_segment(p: P, a: P, b: P) -> f64 {
+    let d: P = std::array::from_fn(|k| b[k] - a[k]);
+    let l2 = d.iter().map(|v| v * v).sum::<f64>();
+    let t = if l2 > 0.0 {
+        ((0..3).map(|k| (p[k] - a[k]) * d[k]).sum::<f64>() / l2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    dist(p, std::array::from_fn(|k| a[k] + t * d[k]))
+}
+
+/// Segments per block of the nearest-segment search.
+const BLOCK: usize = 16;
+
+/// A polyline with the bounding box of each `BLOCK` segments: the distance from a
+/// point to the polyline skips the blocks whose box is farther than a segment already
+/// measured (they hold no nearer one, so the distance is the minimum over every
+/// segment; it runs for every sampled point in an unoptimized test build).
+struct Polyline<'a> {
+    path: &'a [P],
+    boxes: Vec<(P, P)>,
+}
+
+impl<'a> Polyline<'a> {
+    fn new(path: &'a [P]) -> Polyline<'a> {
+        let segments = path.len().saturating_sub(1);
+        let boxes = (0..segments.div_ceil(BLOCK))
+            .map(|b| {
+                let last = (b * BLOCK + BLOCK).min(segments);
+                let mut lo = [f64::INFINITY; 3];
+                let mut hi = [f64::NEG_INFINITY; 3];
+                for q in &path[b * BLOCK..=last] {
+                    for k in 0..3 {
+                        lo[k] = lo[k].min(q[k]);
+                        hi[k] = hi[k].max(q[k]);
+                    }
+                }
+                (lo, hi)
+            })
+            .collect();
+        Polyline { path, boxes }
+    }
+
+    /// Distance from `p` to the polyline; `hint` is a segment likely near (the previous
+    /// point's nearest), updated to this point's nearest.
+    fn distance(&self, p: P, hint: &mut usize) -> f64 {
+        let segments = self.path.len().saturating_sub(1);
+        if segments == 0 {
+            return f64::INFINITY;
+        }
+        let h = (*hint).min(segments - 1);
+        // The hint's distance bounds the nearest from above (a margin for rounding: a
+        // block is skipped only when clearly farther).
+        let bound = to_segment(p, self.path[h], self.path[h + 1]) * (1.0 + 1e-9) + 1e-12;
+        let mut best = f64::INFINITY;
+        for (b, (lo, hi)) in self.boxes.iter().enumerate() {
+            let out: P = std::array::from_fn(|k| (lo[k] - p[k]).max(p[k] - hi[k]).max(0.0));
+            if dist(out, [0.0; 3]) > bound {
+                continue;
+            }
+            for j in b * BLOCK..(b * BLOCK + BLOCK).min(segments) {
+                let d = to_segment(p, self.path[j], self.path[j + 1]);
+                if d < best {
+                    best = d;
+                    *hint = j;
+                }
+            }
+        }
+        best
+    }
 }
 
 struct Figures {
@@ -115,6 +172,8 @@ fn run(
         pmax = pmax.max(e);
     }
     let (mut dss, mut dmax, mut n) = (0.0, 0.0f64, 0);
+    let path = Polyline::new(nominal);
+    let mut near = 0;
     let mut from = [0.0; 3];
     for &(to, cuts) in commands {
         if !cuts {
@@ -124,7 +183,7 @@ fn run(
         for s in 1..=8 {
             let t = s as f64 / 8.0;
             let c: P = std::array::from_fn(|k| from[k] + t * (to[k] - from[k]));
-            let d = to_path(machine.tool_in_work(c), nominal);
+            let d = path.distance(machine.tool_in_work(c), &mut near);
             dss += d * d;
             dmax = dmax.max(d);
             n += 1;
