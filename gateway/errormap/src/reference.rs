@@ -98,7 +98,9 @@ pub struct MapId {
 #[serde(deny_unknown_fields)]
 pub struct MapReference {
     pub schema: String,
-    pub map: MapId,
+    /// (Boxed, as `scale` is: a record travels in the front ends' choices beside
+    /// variants of a few bytes.)
+    pub map: Box<MapId>,
     /// The map's reference point, machine mm.
     pub reference_mm: [f64; 2],
     /// When it was measured: RFC 3339 UTC, and the same as seconds since 1970.
@@ -118,7 +120,7 @@ pub struct MapReference {
     /// Each axis's growth since the scan, when the reference measured it (issue 39;
     /// absent in older records, which apply the shift alone).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub scale: Option<AxisScale>,
+    pub scale: Option<Box<AxisScale>>,
 }
 
 /// Each axis's length scale since the scan, measured at one more point per axis.
@@ -147,6 +149,25 @@ impl AxisScale {
         let rate = self.ppm_per_h.unwrap_or([0.0; 2]);
         [self.ppm[0] + rate[0] * h, self.ppm[1] + rate[1] * h]
     }
+}
+
+/// Where a reference measures each axis's scale on `map` (`AxisScale::at_mm`): along
+/// each axis, the end of the map farther from the reference point, a grid node on the
+/// dense line through the reference point when the scan made one (the map is best
+/// there); X's point at the reference's Y, Y's at the reference's X. None when the map
+/// does not reach [`MIN_SCALE_BASELINE_MM`] from the reference point along an axis.
+pub fn scale_points_mm(map: &ErrorMap) -> Option<[f64; 2]> {
+    let g = &map.grid;
+    let r = map.reference_mm;
+    let mut at = [0.0; 2];
+    for (k, nodes) in [&g.xs, &g.ys].into_iter().enumerate() {
+        let (lo, hi) = (*nodes.first()?, *nodes.last()?);
+        at[k] = if hi - r[k] >= r[k] - lo { hi } else { lo };
+        if !((at[k] - r[k]).abs() >= MIN_SCALE_BASELINE_MM) {
+            return None;
+        }
+    }
+    Some(at)
 }
 
 /// The scale `seen_um` at the scale points `at_mm` implies on `model`'s map after
@@ -244,11 +265,11 @@ impl MapReference {
         check_shift(shift_um, bound_um)?;
         Ok(Self {
             schema: SCHEMA.into(),
-            map: MapId {
+            map: Box::new(MapId {
                 fingerprint: fingerprint(map),
                 created: map.created.clone(),
                 version: map.version,
-            },
+            }),
             reference_mm: map.reference_mm,
             measured_at: at.measured_at,
             measured_unix_s: at.measured_unix_s,
@@ -287,12 +308,12 @@ impl MapReference {
                 let h = dt as f64 / 3600.0;
                 Some([(ppm[0] - before[0]) / h, (ppm[1] - before[1]) / h])
             });
-        self.scale = Some(AxisScale {
+        self.scale = Some(Box::new(AxisScale {
             at_mm,
             seen_um,
             ppm,
             ppm_per_h,
-        });
+        }));
         self.check()?;
         Ok(self)
     }
@@ -990,7 +1011,10 @@ mod tests {
         assert!((predicted(600)[0] - 3.0).abs() < 1e-9);
         // Held past MAX_PREDICTION_S (30 min: +3 ppm on X).
         assert!((predicted(MAX_PREDICTION_S)[0] - 5.0).abs() < 1e-9);
-        assert_eq!(predicted(MAX_PREDICTION_S), predicted(10 * MAX_PREDICTION_S));
+        assert_eq!(
+            predicted(MAX_PREDICTION_S),
+            predicted(10 * MAX_PREDICTION_S)
+        );
         let model = second.apply(MapModel::new(m.clone()), T0 + 1200).unwrap();
         assert!((model.scale_ppm()[0] - 3.0).abs() < 1e-9);
         // Too soon after, too long after, or of another map: no rate.
@@ -1098,6 +1122,15 @@ mod tests {
             ),
             "{e}"
         );
+    }
+
+    #[test]
+    fn the_scale_points_are_the_far_ends_of_the_map_when_it_is_long_enough() {
+        let mut m = wide_map(0.0);
+        assert_eq!(scale_points_mm(&m), Some([200.0, 100.0]));
+        m.reference_mm = [150.0, 60.0];
+        assert_eq!(scale_points_mm(&m), Some([0.0, 0.0]));
+        assert_eq!(scale_points_mm(&map(0.0)), None);
     }
 
     #[test]

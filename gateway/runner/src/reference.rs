@@ -96,3 +96,20 @@ pub async fn measure_at_reference(
         seen_um: seen.error_um(target),
     })
 }
+
+/// The camera's error at each axis's scale point (`errormap::reference::scale_points_mm`):
+/// X's error at (`at_mm[0]`, the reference's Y), Y's at (the reference's X, `at_mm[1]`),
+/// each approached from below on both axes as the reference point is, without homing
+/// (right after [`measure_reference`] or [`measure_at_reference`]). What
+/// `MapReference::with_scale` records as each axis's growth since the scan.
+pub async fn measure_scale(
+    job: &Job,
+    stage: &mut dyn Stage,
+    camera: &mut dyn Camera,
+    reference_mm: [f64; 2],
+    at_mm: [f64; 2],
+) -> Result<[f64; 2], JobError> {
+    let x = measure_at_reference(job, stage, camera, [at_mm[0], reference_mm[1]]).await?;
+    let y = measure_at_reference(job, stage, camera, [reference_mm[0], at_mm[1]]).await?;
+    Ok([x.seen_um[0], y.seen_um[1]])
+}
