@@ -25,8 +25,9 @@
 //! the reference's other coordinate, as far as the map goes) and record each axis's
 //! scale since the scan, `ppm`, and with the previous record of the same map (between
 //! [`RATE_INTERVAL_S`] apart) its rate, `ppm_per_h`; the map is then applied with the
-//! scale predicted at the time it is applied, the rate held for at most
-//! [`MAX_PREDICTION_S`]. Worked example: the reference at X 105 sees +2.00 um, the X
+//! measured scale (the rate says how fast the machine is still warming; its prediction,
+//! [`MapReference::predicted_scale_ppm`], held for at most [`MAX_PREDICTION_S`], is
+//! not applied by default: see [`MapReference::scale_ppm`]). Worked example: the reference at X 105 sees +2.00 um, the X
 //! point at X 200 sees +2.38 um where the map says +0.10 um: X grew by
 //! (2.38 - 0.10 - 2.00) / 95 mm = +2.95 ppm since the scan, and a command at X 200 is
 //! 0.28 um smaller than with the shift alone. Records without `scale` (before issue 39)
@@ -501,12 +502,20 @@ impl MapReference {
             });
         }
         let model = model.rereferenced(self.seen_um)?;
-        Ok(model.rescaled(self.scale_ppm(now_unix_s))?)
+        Ok(model.rescaled(self.scale_ppm())?)
     }
 
-    /// Each axis's scale since the scan at `now_unix_s`, ppm: the measured one and its
-    /// rate's prediction ([`AxisScale::ppm_after`]); zero when none was measured.
-    pub fn scale_ppm(&self, now_unix_s: u64) -> [f64; 2] {
+    /// Each axis's scale since the scan as measured, ppm, what [`Self::apply`] applies;
+    /// zero when none was measured. The rate is not applied: on the demo stage its
+    /// prediction between references 3 to 10 minutes apart did not pay (the rate over
+    /// 5 minutes carries about 20 ppm/h of the frames' noise; docs/error-map.md).
+    pub fn scale_ppm(&self) -> [f64; 2] {
+        self.scale.as_ref().map_or([0.0; 2], |s| s.ppm)
+    }
+
+    /// The scale the rate predicts at `now_unix_s` ([`AxisScale::ppm_after`]): for a
+    /// front end that re-references often enough for the rate to pay.
+    pub fn predicted_scale_ppm(&self, now_unix_s: u64) -> [f64; 2] {
         self.scale
             .as_ref()
             .map_or([0.0; 2], |s| s.ppm_after(self.age_s(now_unix_s)))
@@ -1006,7 +1015,7 @@ mod tests {
             (rate[0] - 6.0).abs() < 1e-6 && (rate[1] - 3.0).abs() < 1e-6,
             "{rate:?}"
         );
-        let predicted = |s: u64| second.scale_ppm(T0 + 600 + s);
+        let predicted = |s: u64| second.predicted_scale_ppm(T0 + 600 + s);
         assert!((predicted(0)[0] - 2.0).abs() < 1e-9 && (predicted(0)[1] - 1.0).abs() < 1e-9);
         assert!((predicted(600)[0] - 3.0).abs() < 1e-9);
         // Held past MAX_PREDICTION_S (30 min: +3 ppm on X).
@@ -1016,7 +1025,9 @@ mod tests {
             predicted(10 * MAX_PREDICTION_S)
         );
         let model = second.apply(MapModel::new(m.clone()), T0 + 1200).unwrap();
-        assert!((model.scale_ppm()[0] - 3.0).abs() < 1e-9);
+        // Applied as measured: the rate is for people and for a front end that wants it.
+        assert!((model.scale_ppm()[0] - 2.0).abs() < 1e-9);
+        assert!((second.scale_ppm()[0] - 2.0).abs() < 1e-9);
         // Too soon after, too long after, or of another map: no rate.
         for (s, prev) in [(30, &first), (7201, &first)] {
             let r = scaled_record(&m, [2.0, 1.0], s, Some(prev));

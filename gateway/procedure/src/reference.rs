@@ -192,24 +192,44 @@ pub async fn run(
     };
     let t0 = crate::machine_time_s(devices);
     sink.progress(0, 1);
+    // Averaged frames at the reference point and the scale points when the map has
+    // them (the scale is a difference of tenths of a micrometre); one frame otherwise.
+    let scale_points = errormap::reference::scale_points_mm(map);
+    let frames = match scale_points {
+        Some(_) => runner::reference::FRAMES_PER_POINT,
+        None => 1,
+    };
     let stage = devices.stage.as_mut();
     let camera = devices.camera.as_mut();
-    let frame =
-        match runner::reference::measure_reference(job, stage, camera, map.reference_mm).await {
-            Ok(f) => f,
-            Err(e) => {
-                let lost = matches!(e, JobError::Driver(_));
-                let error = format!("the reference frame: {e}");
-                return Outcome::stopped(false, error, None, Default::default(), lost);
-            }
-        };
+    let frame = match runner::reference::measure_reference_mean(
+        job,
+        stage,
+        camera,
+        map.reference_mm,
+        frames,
+    )
+    .await
+    {
+        Ok(f) => f,
+        Err(e) => {
+            let lost = matches!(e, JobError::Driver(_));
+            let error = format!("the reference frame: {e}");
+            return Outcome::stopped(false, error, None, Default::default(), lost);
+        }
+    };
     // Each axis's growth since the scan (thermal), at the map's far end along each axis
     // (issue 39): two more frames, when the map is long enough.
-    let scale_points = errormap::reference::scale_points_mm(map);
     let scale_seen = match scale_points {
         Some(at_mm) => {
-            match runner::reference::measure_scale(job, stage, camera, map.reference_mm, at_mm)
-                .await
+            match runner::reference::measure_scale(
+                job,
+                stage,
+                camera,
+                map.reference_mm,
+                at_mm,
+                frames,
+            )
+            .await
             {
                 Ok(seen) => Some((at_mm, seen)),
                 Err(e) => {

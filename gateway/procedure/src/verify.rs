@@ -56,7 +56,7 @@ pub async fn check_map(
     // A recorded reference's axis scale (issue 39) applies as everywhere else; its shift
     // is applied by the check itself (`run_verify_with`).
     let model = match reference {
-        Some(r) => match MapModel::new(map).rescaled(r.scale_ppm(crate::context::unix_s(now))) {
+        Some(r) => match MapModel::new(map).rescaled(r.scale_ppm()) {
             Ok(m) => m,
             Err(e) => return Outcome::failed(format!("{what}: {e}")),
         },
