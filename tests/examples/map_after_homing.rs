@@ -21,8 +21,8 @@
 //! `NO_THERMAL=1` switches the stage's thermal drift off; `NO_SCALE=1` measures the
 //! reference point alone (as before issue 39: no axis scale); `REREF_S=S` re-references
 //! in use every S s of machine time (no homing: the reference point and the scale
-//! points, the rate since the previous reference predicting the scale in between;
-//! `NO_RATE=1` without the rate).
+//! points; `RATE=1` predicts the scale between them with the rate since the previous
+//! reference, as `MapReference::predicted_scale_ppm` does).
 
 use drivers::AxisValues;
 use errormap::reference::{scale_points_mm, Circumstances, MapReference};
@@ -129,7 +129,7 @@ fn main() {
         scale_points_mm(base.map())
     };
     let reref_s = env_f64("REREF_S").unwrap_or(0.0);
-    let no_rate = std::env::var_os("NO_RATE").is_some();
+    let with_rate = std::env::var_os("RATE").is_some();
     let machine_s = || world::lock(&rig).machine().now_s();
     // The records' clock: the simulated machine's time on a fixed epoch (the check runs
     // faster than real time; the prediction needs the machine's time).
@@ -225,7 +225,7 @@ fn main() {
                     base.map(),
                     false,
                     scale_at,
-                    (!no_rate).then_some(&record),
+                    Some(&record),
                     clock(t),
                 ))
                 .1;
@@ -234,10 +234,13 @@ fn main() {
             reref_machine_s += last_ref_s - t;
             rerefs += 1;
         }
-        // The scale as the record predicts it now (the rate since the previous one).
-        model = model
-            .rescaled(record.scale_ppm(clock(machine_s())))
-            .unwrap();
+        // RATE=1: the scale as the record's rate predicts it now (the gateway applies
+        // the measured scale).
+        if with_rate {
+            model = model
+                .rescaled(record.predicted_scale_ppm(clock(machine_s())))
+                .unwrap();
+        }
         // Uncompensated: what the map says the stage does there (no extra move, so the
         // check's machine time, and the drift during it, is one move per point).
         let u = model.camera_error_um(p, dir).unwrap();
@@ -331,10 +334,20 @@ async fn take_reference(
 ) -> (runner::reference::ReferenceFrame, MapReference) {
     let (stage, camera) = (devices.stage.as_mut(), devices.camera.as_mut());
     let r = map.reference_mm;
+    // FRAMES: arrivals averaged per point (the gateway's default with a scale).
+    let frames = match (scale_at, env_f64("FRAMES")) {
+        (None, _) => 1,
+        (Some(_), Some(f)) => f as usize,
+        (Some(_), None) => runner::reference::FRAMES_PER_POINT,
+    };
     let frame = if home {
-        runner::reference::measure_reference(job, stage, camera, r).await
+        runner::reference::measure_reference_mean(job, stage, camera, r, frames).await
     } else {
-        runner::reference::measure_at_reference(job, stage, camera, r).await
+        let seen = runner::reference::measure_mean_at(job, stage, camera, r, frames).await;
+        seen.map(|seen_um| runner::reference::ReferenceFrame {
+            command_mm: r,
+            seen_um,
+        })
     }
     .expect("the reference frame");
     let at = Circumstances {
@@ -345,7 +358,7 @@ async fn take_reference(
     };
     let mut record = MapReference::new(map, frame.seen_um, MAX_SHIFT_UM, at).unwrap();
     if let Some(at_mm) = scale_at {
-        let seen = runner::reference::measure_scale(job, stage, camera, r, at_mm)
+        let seen = runner::reference::measure_scale(job, stage, camera, r, at_mm, frames)
             .await
             .expect("the scale frames");
         record = record.with_scale(map, at_mm, seen, previous).unwrap();

@@ -212,7 +212,7 @@ pub fn reference_record(data: &[u8]) {
         for v in s.ppm_per_h.iter().flatten() {
             assert!(v.abs() <= errormap::reference::MAX_SCALE_RATE_PPM_PER_H);
         }
-        let ppm = r.scale_ppm(u64::MAX);
+        let ppm = r.predicted_scale_ppm(u64::MAX);
         assert!(ppm.iter().all(|v| v.abs() <= errormap::MAX_SCALE_PPM));
     }
     let again = serde_json::to_string(&r).expect("a record serializes");
