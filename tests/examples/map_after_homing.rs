@@ -18,16 +18,22 @@
 //!
 //! Environment: `GRID_MM`, `LINE_MM`, `PASSES` override the scan plan's defaults;
 //! `NO_SNAP=1` plans positions off the stage's steps (as before issue 39);
-//! `NO_THERMAL=1` switches the stage's thermal drift off.
+//! `NO_THERMAL=1` switches the stage's thermal drift off; `NO_SCALE=1` measures the
+//! reference point alone (as before issue 39: no axis scale); `REREF_S=S` re-references
+//! in use every S s of machine time (no homing: the reference point and the scale
+//! points; `RATE=1` predicts the scale between them with the rate since the previous
+//! reference, as `MapReference::predicted_scale_ppm` does).
 
 use drivers::AxisValues;
+use errormap::reference::{scale_points_mm, Circumstances, MapReference};
 use errormap::scan::{MapBuilder, ScanPlan, ScanSpec};
-use errormap::{Approach, Direction, MapModel};
+use errormap::{Approach, Direction, MapModel, MAX_SHIFT_UM};
 use job::Job;
+use protocol::errormap::ErrorMap;
 use protocol::errormap::Identity;
 use runner::scan::{run_scan, scan_area};
 use std::path::PathBuf;
-use std::time::Instant;
+use std::time::{Duration, Instant, UNIX_EPOCH};
 
 fn env_f64(name: &str) -> Option<f64> {
     std::env::var(name).ok().and_then(|s| s.parse().ok())
@@ -117,17 +123,32 @@ fn main() {
     let uncertainty = map.uncertainty_um;
     let reference_mm = map.reference_mm;
     let base = MapModel::new(map);
+    let scale_at = if std::env::var_os("NO_SCALE").is_some() {
+        None
+    } else {
+        scale_points_mm(base.map())
+    };
+    let reref_s = env_f64("REREF_S").unwrap_or(0.0);
+    let with_rate = std::env::var_os("RATE").is_some();
+    let machine_s = || world::lock(&rig).machine().now_s();
+    // The records' clock: the simulated machine's time on a fixed epoch (the check runs
+    // faster than real time; the prediction needs the machine's time).
+    let clock = |t: f64| EPOCH_S + t as u64;
 
-    // Home again and measure the reference point, as `gateway reference` does.
+    // Home again and measure the reference point (and the scale points), as `gateway
+    // reference` does.
     let homings = world::lock(&rig).machine().homings();
-    let frame = rt
-        .block_on(runner::reference::measure_reference(
-            &job,
-            devices.stage.as_mut(),
-            devices.camera.as_mut(),
-            reference_mm,
-        ))
-        .expect("the reference after homing");
+    let t_ref = machine_s();
+    let (frame, mut record) = rt.block_on(take_reference(
+        &job,
+        &mut devices,
+        base.map(),
+        true,
+        scale_at,
+        None,
+        clock(t_ref),
+    ));
+    let reference_machine_s = machine_s() - t_ref;
     assert!(
         world::lock(&rig).machine().homings() > homings,
         "the job did not home again"
@@ -137,14 +158,25 @@ fn main() {
         let pose = world::lock(&rig).truth();
         pose.centre_mm
     };
-    // The truth where the reference frame was taken: an ideal touch-off.
-    let at_reference = truth_error_um();
-    let ideal_seen = [
-        (at_reference[0] - reference_mm[0] - z[0]) * 1000.0,
-        (at_reference[1] - reference_mm[1] - z[1]) * 1000.0,
-    ];
-    let model = base.clone().rereferenced(frame.seen_um).unwrap();
-    let ideal = base.rereferenced(ideal_seen).unwrap();
+    // The truth where the reference frame was taken: an ideal touch-off. (With the
+    // scale points measured the stage is elsewhere now: the truth at the reference
+    // point is read by going back there, outside the check's clock.)
+    let ideal_seen = {
+        rt.block_on(goto(&job, &mut devices, reference_mm, Direction::FORWARD));
+        let c = truth_error_um();
+        [
+            (c[0] - reference_mm[0] - z[0]) * 1000.0,
+            (c[1] - reference_mm[1] - z[1]) * 1000.0,
+        ]
+    };
+    let first_record = record.clone();
+    let mut model = record.apply(base.clone(), clock(machine_s())).unwrap();
+    let ideal = base
+        .clone()
+        .rereferenced(ideal_seen)
+        .unwrap()
+        .rescaled(model.scale_ppm())
+        .unwrap();
 
     let mut s = 0x2545_F491_4F6C_DD1Du64;
     let mut next = || {
@@ -153,32 +185,7 @@ fn main() {
         s ^= s << 17;
         (s >> 11) as f64 / (1u64 << 53) as f64
     };
-    let approach = job.policy.approach_mm;
     let (mlo, mhi) = model.extent();
-    let mut error_at = |cmd: [f64; 2], dir: Direction, nominal: [f64; 2]| -> [f64; 2] {
-        let side = |a: Approach| {
-            if a == Approach::Forward {
-                -approach
-            } else {
-                approach
-            }
-        };
-        rt.block_on(async {
-            for at in [[cmd[0] + side(dir.x), cmd[1] + side(dir.y)], cmd] {
-                devices
-                    .stage
-                    .move_to(AxisValues::xy(at[0], at[1]), job.feed_mm_min)
-                    .await
-                    .unwrap();
-                devices.stage.wait_idle().await.unwrap();
-            }
-        });
-        let c = truth_error_um();
-        [
-            (c[0] - nominal[0] - z[0]) * 1000.0,
-            (c[1] - nominal[1] - z[1]) * 1000.0,
-        ]
-    };
     use system_tests::truth_map::ErrorStat;
     let (mut raw, mut left, mut left_ideal) = (
         ErrorStat::default(),
@@ -186,7 +193,8 @@ fn main() {
         ErrorStat::default(),
     );
     let (mut left_x, mut left_y) = (ErrorStat::default(), ErrorStat::default());
-    let check_t0 = world::lock(&rig).machine().now_s();
+    let check_t0 = machine_s();
+    let (mut last_ref_s, mut rerefs, mut reref_machine_s) = (check_t0, 0u32, 0.0);
     // The first fifth of the check separately: the thermal drift since the reference
     // grows with the check's own machine time.
     let mut early = ErrorStat::default();
@@ -206,11 +214,41 @@ fn main() {
             x: side(next()),
             y: side(next()),
         };
+        // In use, a re-reference every REREF_S of machine time (no homing: the zero's
+        // drift and the axes' growth since the scan, the rate since the previous one).
+        if reref_s > 0.0 && machine_s() - last_ref_s >= reref_s {
+            let t = machine_s();
+            record = rt
+                .block_on(take_reference(
+                    &job,
+                    &mut devices,
+                    base.map(),
+                    false,
+                    scale_at,
+                    Some(&record),
+                    clock(t),
+                ))
+                .1;
+            model = record.apply(base.clone(), clock(machine_s())).unwrap();
+            last_ref_s = machine_s();
+            reref_machine_s += last_ref_s - t;
+            rerefs += 1;
+        }
+        // RATE=1: the scale as the record's rate predicts it now (the gateway applies
+        // the measured scale).
+        if with_rate {
+            model = model
+                .rescaled(record.predicted_scale_ppm(clock(machine_s())))
+                .unwrap();
+        }
         // Uncompensated: what the map says the stage does there (no extra move, so the
         // check's machine time, and the drift during it, is one move per point).
         let u = model.camera_error_um(p, dir).unwrap();
         raw.add(u[0].hypot(u[1]));
-        let e = error_at(model.camera_command_for(p, dir).unwrap(), dir, p);
+        let c = model.camera_command_for(p, dir).unwrap();
+        rt.block_on(goto(&job, &mut devices, c, dir));
+        let t = truth_error_um();
+        let e = [(t[0] - p[0] - z[0]) * 1000.0, (t[1] - p[1] - z[1]) * 1000.0];
         left.add(e[0].hypot(e[1]));
         if point < n.div_ceil(5) {
             early.add(e[0].hypot(e[1]));
@@ -223,7 +261,7 @@ fn main() {
         let ei = [e[0] + a[0] - b[0], e[1] + a[1] - b[1]];
         left_ideal.add(ei[0].hypot(ei[1]));
     }
-    let check_machine_s = world::lock(&rig).machine().now_s() - check_t0;
+    let check_machine_s = machine_s() - check_t0;
     println!(
         "scan: {} frames, {:.1} s of machine time, {:.1} s wall; map uncertainty {:.3} um (k = 2); plan {}",
         plan.points.len(),
@@ -233,17 +271,97 @@ fn main() {
         plan.fingerprint()
     );
     println!(
-        "homed again, reference measured: seen ({:+.3}, {:+.3}) um, truth ({:+.3}, {:+.3}) um",
+        "homed again, reference measured in {reference_machine_s:.1} s of machine time: seen ({:+.3}, {:+.3}) um, truth ({:+.3}, {:+.3}) um",
         frame.seen_um[0], frame.seen_um[1], ideal_seen[0], ideal_seen[1]
     );
+    match &first_record.scale {
+        Some(sc) => println!(
+            "  axes' scale since the scan: ({:+.3}, {:+.3}) ppm, measured at X {:.3}, Y {:.3} mm",
+            sc.ppm[0], sc.ppm[1], sc.at_mm[0], sc.at_mm[1]
+        ),
+        None => println!("  no scale measured (NO_SCALE, or the map is too short)"),
+    }
+    if rerefs > 0 {
+        let sc = record.scale.as_ref();
+        println!(
+            "  re-referenced {rerefs} times in use, every {reref_s:.0} s: {reref_machine_s:.1} s of machine time; the last: scale {:?} ppm, rate {:?} ppm/h",
+            sc.map(|s| s.ppm),
+            sc.and_then(|s| s.ppm_per_h)
+        );
+    }
     println!("{n} random points, random approach side per axis ({check_machine_s:.0} s of machine time for the check):");
     println!("  uncompensated (the map's own figure): {}", raw.text());
     println!("  with the map and its reference: {}", left.text());
     println!("    per axis: X {}; Y {}", left_x.text(), left_y.text());
-    println!("  with an ideal touch-off:        {}", left_ideal.text());
+    if rerefs == 0 {
+        println!("  with an ideal touch-off:        {}", left_ideal.text());
+    }
     println!(
         "  the first {} points only (the drift since the reference smaller): {}",
         early.n,
         early.text()
     );
+}
+
+/// 2026-11-27T13:00:00Z: the records' epoch, the machine's time added to it.
+const EPOCH_S: u64 = 1_795_784_400;
+
+/// Moves onto `cmd` approached from `dir`'s side by the job's approach distance.
+async fn goto(job: &Job, devices: &mut devices::Devices, cmd: [f64; 2], dir: Direction) {
+    let a = job.policy.approach_mm;
+    let side = |s: Approach| if s == Approach::Forward { -a } else { a };
+    for at in [[cmd[0] + side(dir.x), cmd[1] + side(dir.y)], cmd] {
+        devices
+            .stage
+            .move_to(AxisValues::xy(at[0], at[1]), job.feed_mm_min)
+            .await
+            .unwrap();
+        devices.stage.wait_idle().await.unwrap();
+    }
+}
+
+/// A reference as `gateway reference` takes it (`home`: homing first), or in use
+/// without homing: the frame at the reference point, then each axis's scale point when
+/// `scale_at` names them, recorded with `previous` (its count and rate go on).
+async fn take_reference(
+    job: &Job,
+    devices: &mut devices::Devices,
+    map: &ErrorMap,
+    home: bool,
+    scale_at: Option<[f64; 2]>,
+    previous: Option<&MapReference>,
+    now_s: u64,
+) -> (runner::reference::ReferenceFrame, MapReference) {
+    let (stage, camera) = (devices.stage.as_mut(), devices.camera.as_mut());
+    let r = map.reference_mm;
+    // FRAMES: arrivals averaged per point (the gateway's default with a scale).
+    let frames = match (scale_at, env_f64("FRAMES")) {
+        (None, _) => 1,
+        (Some(_), Some(f)) => f as usize,
+        (Some(_), None) => runner::reference::FRAMES_PER_POINT,
+    };
+    let frame = if home {
+        runner::reference::measure_reference_mean(job, stage, camera, r, frames).await
+    } else {
+        let seen = runner::reference::measure_mean_at(job, stage, camera, r, frames).await;
+        seen.map(|seen_um| runner::reference::ReferenceFrame {
+            command_mm: r,
+            seen_um,
+        })
+    }
+    .expect("the reference frame");
+    let at = Circumstances {
+        measured_at: errormap::scan::rfc3339(UNIX_EPOCH + Duration::from_secs(now_s)),
+        measured_unix_s: now_s,
+        previous_count: previous.map_or(0, |p| p.reference_count),
+        ..Circumstances::default()
+    };
+    let mut record = MapReference::new(map, frame.seen_um, MAX_SHIFT_UM, at).unwrap();
+    if let Some(at_mm) = scale_at {
+        let seen = runner::reference::measure_scale(job, stage, camera, r, at_mm, frames)
+            .await
+            .expect("the scale frames");
+        record = record.with_scale(map, at_mm, seen, previous).unwrap();
+    }
+    (frame, record)
 }

@@ -336,8 +336,10 @@ fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_prog
              with the map as scanned",
             shift[0], shift[1]
         );
+        // Homing, the orientation check, the reference frame and (issue 39) one frame
+        // at the map's far end along each axis for the axes' thermal growth.
         assert!(
-            machine_time_s <= 10.0,
+            machine_time_s <= 12.0,
             "the reference took {machine_time_s} s"
         );
         assert!(

@@ -52,6 +52,11 @@ pub use rewrite::Approach;
 /// point, a moved board or a crash.
 pub const MAX_SHIFT_UM: f64 = 500.0;
 
+/// The largest growth of an axis a model applies, parts per million of the distance
+/// from the reference point: 200 ppm is 20 um per 100 mm, a steel screw 17 K warmer
+/// than at the scan. More is not thermal growth but a wrong measurement.
+pub const MAX_SCALE_PPM: f64 = 200.0;
+
 /// Micrometres as messages print them: `+6.27`, and never hundreds of digits for an
 /// absurd value (`+1.000e308`).
 pub fn um_text(v: f64) -> String {
@@ -110,6 +115,8 @@ pub enum ModelError {
     NoInverse { p: [f64; 2] },
     #[error("the machine's zero would be shifted by ({}, {}) um, more than the {bound_um} um a homing can move it: not applied", um_text(shift_um[0]), um_text(shift_um[1]))]
     ShiftTooLarge { shift_um: [f64; 2], bound_um: f64 },
+    #[error("the axes would be scaled by ({}, {}) ppm, more than the {bound_ppm} ppm thermal growth can: not applied", um_text(ppm[0]), um_text(ppm[1]))]
+    ScaleTooLarge { ppm: [f64; 2], bound_ppm: f64 },
 }
 
 /// The three measured quantities of a node, each from the side its axis came from:
@@ -176,6 +183,9 @@ pub struct MapModel {
     map: ErrorMap,
     /// Added to every camera error (re-reference after homing), um.
     offset_um: [f64; 2],
+    /// Each axis's growth since the scan about the reference point, ppm (a reference
+    /// that measured it): X's error grows by `scale_ppm[0] * (x - x_ref)`, Y's likewise.
+    scale_ppm: [f64; 2],
     /// Yaw at the reference point (forward), urad: the zero of the Abbe term.
     reference_yaw_urad: f64,
     /// The grid interpolated across to each dense line, per direction: for a line along
@@ -217,6 +227,7 @@ impl MapModel {
         let mut model = Self {
             map,
             offset_um: [0.0; 2],
+            scale_ppm: [0.0; 2],
             reference_yaw_urad: 0.0,
             x_line_rows: Vec::new(),
             y_line_rows: Vec::new(),
@@ -272,7 +283,8 @@ impl MapModel {
     /// homing (each homing moves the machine's zero by a few um): `seen_um` is the error
     /// measured there now, approached forward. The shift this applies is bounded here,
     /// where it is applied, whoever measured or recorded it: more than
-    /// [`MAX_SHIFT_UM`] (or not finite) is refused.
+    /// [`MAX_SHIFT_UM`] (or not finite) is refused. An axis scale ([`Self::rescaled`])
+    /// stays: it is zero at the reference point, and a homing does not cool a screw.
     pub fn rereferenced(mut self, seen_um: [f64; 2]) -> Result<Self, ModelError> {
         self.offset_um = [0.0; 2];
         let r = self.map.reference_mm;
@@ -288,6 +300,35 @@ impl MapModel {
 
     pub fn offset_um(&self) -> [f64; 2] {
         self.offset_um
+    }
+
+    /// The same map with each axis grown by `ppm` since the scan (thermal growth of the
+    /// screws, measured by a reference along each axis), about the reference point: a
+    /// command at `x` lands `ppm[0] * (x - x_ref) / 1000` um further than the map says
+    /// (ppm x mm = nm). Worked example: +3 ppm on X, reference at X 105: at X 205 the
+    /// camera is +0.30 um further in X, at X 5 -0.30 um. Keeps the shift (the growth is
+    /// zero at the reference point); replaces an earlier scale. Bounded here, where it
+    /// is applied: more than [`MAX_SCALE_PPM`] (or not finite) is refused.
+    pub fn rescaled(mut self, ppm: [f64; 2]) -> Result<Self, ModelError> {
+        let bound_ppm = MAX_SCALE_PPM;
+        if !ppm.iter().all(|v| v.abs() <= bound_ppm) {
+            return Err(ModelError::ScaleTooLarge { ppm, bound_ppm });
+        }
+        self.scale_ppm = ppm;
+        Ok(self)
+    }
+
+    pub fn scale_ppm(&self) -> [f64; 2] {
+        self.scale_ppm
+    }
+
+    /// The shift plus the axes' growth at `p`, um.
+    fn correction_um(&self, p: [f64; 2]) -> [f64; 2] {
+        let r = self.map.reference_mm;
+        [
+            self.offset_um[0] + self.scale_ppm[0] * (p[0] - r[0]) / 1000.0,
+            self.offset_um[1] + self.scale_ppm[1] * (p[1] - r[1]) / 1000.0,
+        ]
     }
 
     pub(crate) fn inside(&self, p: [f64; 2]) -> Result<(), ModelError> {
@@ -376,12 +417,24 @@ impl MapModel {
         v
     }
 
+    /// The map's own camera error at `p` (as scanned: no shift, no scale), um.
+    pub(crate) fn scanned_error_um(
+        &self,
+        p: [f64; 2],
+        dir: Direction,
+    ) -> Result<[f64; 2], ModelError> {
+        self.inside(p)?;
+        let v = self.values(dir, p);
+        Ok([v[0], v[1]])
+    }
+
     /// Where the camera really looks minus where it should, um, after a move onto
     /// command `p` (mm) approached from `dir`.
     pub fn camera_error_um(&self, p: [f64; 2], dir: Direction) -> Result<[f64; 2], ModelError> {
         self.inside(p)?;
         let v = self.values(dir, p);
-        Ok([v[0] + self.offset_um[0], v[1] + self.offset_um[1]])
+        let c = self.correction_um(p);
+        Ok([v[0] + c[0], v[1] + c[1]])
     }
 
     /// Yaw at `p` relative to the reference, microradians.
@@ -394,7 +447,8 @@ impl MapModel {
     pub fn tool_error_um(&self, p: [f64; 2], dir: Direction) -> Result<[f64; 2], ModelError> {
         self.inside(p)?;
         let v = self.values(dir, p);
-        let e = [v[0] + self.offset_um[0], v[1] + self.offset_um[1]];
+        let c = self.correction_um(p);
+        let e = [v[0] + c[0], v[1] + c[1]];
         let theta_urad = v[2] - self.reference_yaw_urad;
         let [ox, oy] = self.map.tool_offset_mm;
         // urad x mm = nm: / 1000 for um.

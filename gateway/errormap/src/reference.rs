@@ -18,8 +18,22 @@
 //! map says +0.40 um in X at the reference point, the camera now sees +7.10 um: the zero
 //! moved +6.70 um in X, and a point the map commanded at X 50.0120 is now commanded at
 //! X 50.0053.
+//!
+//! Thermal growth (issue 39): a warming screw grows in proportion to the distance from
+//! its nut's home, so after the shift is cancelled at the reference point an error
+//! `k (x - x_ref)` is left. A reference may measure one more point along each axis (at
+//! the reference's other coordinate, as far as the map goes) and record each axis's
+//! scale since the scan, `ppm`, and with the previous record of the same map (between
+//! [`RATE_INTERVAL_S`] apart) its rate, `ppm_per_h`; the map is then applied with the
+//! measured scale (the rate says how fast the machine is still warming; its prediction,
+//! [`MapReference::predicted_scale_ppm`], held for at most [`MAX_PREDICTION_S`], is
+//! not applied by default: see [`MapReference::scale_ppm`]). Worked example: the reference at X 105 sees +2.00 um, the X
+//! point at X 200 sees +2.38 um where the map says +0.10 um: X grew by
+//! (2.38 - 0.10 - 2.00) / 95 mm = +2.95 ppm since the scan, and a command at X 200 is
+//! 0.28 um smaller than with the shift alone. Records without `scale` (before issue 39)
+//! apply the shift alone, as before.
 
-use crate::{um_text, Direction, MapModel, ModelError};
+use crate::{um_text, Direction, MapModel, ModelError, MAX_SCALE_PPM};
 use protocol::errormap::ErrorMap;
 use serde::{Deserialize, Serialize};
 
@@ -45,6 +59,27 @@ pub const MAX_CLOCK_AHEAD_S: u64 = 300;
 /// there, um: the JSON round trip of the numbers, nothing a measurement could mean.
 pub const CONSISTENCY_UM: f64 = 1e-3;
 
+/// The most an axis's scale may be in a record, ppm: 10 um per 100 mm (a steel screw
+/// 8.7 K warmer than at the scan). With the prediction ([`MAX_SCALE_RATE_PPM_PER_H`]
+/// for [`MAX_PREDICTION_S`]) it stays within the model's own bound, [`MAX_SCALE_PPM`].
+pub const MAX_RECORDED_SCALE_PPM: f64 = 100.0;
+
+/// The fastest an axis's scale may grow in a record, ppm per hour (a steel screw
+/// warming 8.7 K an hour).
+pub const MAX_SCALE_RATE_PPM_PER_H: f64 = 100.0;
+
+/// How long after a reference its rate predicts the scale, s: past that the scale stays
+/// where the prediction got to (a warm machine settles; take a new reference).
+pub const MAX_PREDICTION_S: u64 = 1800;
+
+/// A rate is taken from the previous record only when it is this far apart, s: closer,
+/// the frames' noise dominates; further, the growth is not a straight line.
+pub const RATE_INTERVAL_S: std::ops::RangeInclusive<u64> = 60..=7200;
+
+/// The least distance from the reference point to an axis's scale point, mm: a frame's
+/// noise (about 0.1 um) is 5 ppm over 20 mm.
+pub const MIN_SCALE_BASELINE_MM: f64 = 20.0;
+
 /// A record's temperature must be one a machine works at, degrees C.
 const TEMPERATURE_C: std::ops::RangeInclusive<f64> = -50.0..=150.0;
 
@@ -64,7 +99,9 @@ pub struct MapId {
 #[serde(deny_unknown_fields)]
 pub struct MapReference {
     pub schema: String,
-    pub map: MapId,
+    /// (Boxed, as `scale` is: a record travels in the front ends' choices beside
+    /// variants of a few bytes.)
+    pub map: Box<MapId>,
     /// The map's reference point, machine mm.
     pub reference_mm: [f64; 2],
     /// When it was measured: RFC 3339 UTC, and the same as seconds since 1970.
@@ -81,6 +118,97 @@ pub struct MapReference {
     pub reference_count: u64,
     /// The machine's temperature, when known, degrees C.
     pub temperature_c: Option<f64>,
+    /// Each axis's growth since the scan, when the reference measured it (issue 39;
+    /// absent in older records, which apply the shift alone).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scale: Option<Box<AxisScale>>,
+}
+
+/// Each axis's length scale since the scan, measured at one more point per axis.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AxisScale {
+    /// Where it was measured, machine mm: X's point at (`at_mm[0]`, the reference's Y),
+    /// Y's at (the reference's X, `at_mm[1]`), each approached from below on both axes.
+    pub at_mm: [f64; 2],
+    /// The camera's error seen there, um: X's error at X's point, Y's at Y's.
+    pub seen_um: [f64; 2],
+    /// The scale, ppm (`seen` minus the map's error there minus the shift, over the
+    /// distance from the reference point): positive, the axis grew.
+    pub ppm: [f64; 2],
+    /// How fast it changed since the previous record of the same map, ppm per hour,
+    /// when that was [`RATE_INTERVAL_S`] before this one and measured a scale.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ppm_per_h: Option<[f64; 2]>,
+}
+
+impl AxisScale {
+    /// The scale predicted `age_s` after it was measured: the rate held for at most
+    /// [`MAX_PREDICTION_S`].
+    pub fn ppm_after(&self, age_s: u64) -> [f64; 2] {
+        let h = age_s.min(MAX_PREDICTION_S) as f64 / 3600.0;
+        let rate = self.ppm_per_h.unwrap_or([0.0; 2]);
+        [self.ppm[0] + rate[0] * h, self.ppm[1] + rate[1] * h]
+    }
+}
+
+/// Where a reference measures each axis's scale on `map` (`AxisScale::at_mm`): along
+/// each axis, the end of the map farther from the reference point, a grid node on the
+/// dense line through the reference point when the scan made one (the map is best
+/// there); X's point at the reference's Y, Y's at the reference's X. None when the map
+/// does not reach [`MIN_SCALE_BASELINE_MM`] from the reference point along an axis.
+pub fn scale_points_mm(map: &ErrorMap) -> Option<[f64; 2]> {
+    let g = &map.grid;
+    let r = map.reference_mm;
+    let mut at = [0.0; 2];
+    for (k, nodes) in [&g.xs, &g.ys].into_iter().enumerate() {
+        let (lo, hi) = (*nodes.first()?, *nodes.last()?);
+        at[k] = if hi - r[k] >= r[k] - lo { hi } else { lo };
+        if !((at[k] - r[k]).abs() >= MIN_SCALE_BASELINE_MM) {
+            return None;
+        }
+    }
+    Some(at)
+}
+
+/// The scale `seen_um` at the scale points `at_mm` implies on `model`'s map after
+/// `shift_um`, ppm; refused (naming `scale.at_mm`) when a point is too close to the
+/// reference point or outside the map.
+fn implied_ppm(
+    model: &MapModel,
+    shift_um: [f64; 2],
+    at_mm: [f64; 2],
+    seen_um: [f64; 2],
+) -> Result<[f64; 2], ReferenceError> {
+    let r = model.map().reference_mm;
+    let mut ppm = [0.0; 2];
+    for k in 0..2 {
+        let baseline_mm = at_mm[k] - r[k];
+        if !(baseline_mm.abs() >= MIN_SCALE_BASELINE_MM) {
+            return Err(ReferenceError::Field {
+                field: "scale.at_mm",
+                message: format!(
+                    "{} mm along {} is {} mm from the reference point, less than the {} mm \
+                     a scale is measured over",
+                    number_text(at_mm[k]),
+                    ["X", "Y"][k],
+                    number_text(baseline_mm.abs()),
+                    MIN_SCALE_BASELINE_MM
+                ),
+            });
+        }
+        let mut p = r;
+        p[k] = at_mm[k];
+        let mapped =
+            model
+                .scanned_error_um(p, Direction::FORWARD)
+                .map_err(|e| ReferenceError::Field {
+                    field: "scale.at_mm",
+                    message: e.to_string(),
+                })?;
+        ppm[k] = (seen_um[k] - mapped[k] - shift_um[k]) / baseline_mm * 1000.0;
+    }
+    Ok(ppm)
 }
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -138,11 +266,11 @@ impl MapReference {
         check_shift(shift_um, bound_um)?;
         Ok(Self {
             schema: SCHEMA.into(),
-            map: MapId {
+            map: Box::new(MapId {
                 fingerprint: fingerprint(map),
                 created: map.created.clone(),
                 version: map.version,
-            },
+            }),
             reference_mm: map.reference_mm,
             measured_at: at.measured_at,
             measured_unix_s: at.measured_unix_s,
@@ -152,7 +280,43 @@ impl MapReference {
             // A count at its bound stays there rather than wrap.
             reference_count: (at.previous_count.saturating_add(1)).min(MAX_REFERENCE_COUNT),
             temperature_c: at.temperature_c,
+            scale: None,
         })
+    }
+
+    /// The same record with each axis's scale since the scan: `seen_um` is the camera's
+    /// error at the scale points `at_mm` (X's error at (`at_mm[0]`, reference Y), Y's at
+    /// (reference X, `at_mm[1]`), approached from below on both axes). With `previous`
+    /// (the record this one replaces: of the same map, with a scale, [`RATE_INTERVAL_S`]
+    /// before) the rate too. Refused, naming the field, when a point is within
+    /// [`MIN_SCALE_BASELINE_MM`] of the reference point or outside the map, or the scale
+    /// or rate pass their bounds.
+    pub fn with_scale(
+        mut self,
+        map: &ErrorMap,
+        at_mm: [f64; 2],
+        seen_um: [f64; 2],
+        previous: Option<&MapReference>,
+    ) -> Result<Self, ReferenceError> {
+        let model = MapModel::new(map.clone());
+        let ppm = implied_ppm(&model, self.shift_um, at_mm, seen_um)?;
+        let ppm_per_h = previous
+            .filter(|p| p.map.fingerprint == self.map.fingerprint)
+            .and_then(|p| Some((self.measured_unix_s.checked_sub(p.measured_unix_s)?, p)))
+            .filter(|(dt, _)| RATE_INTERVAL_S.contains(dt))
+            .and_then(|(dt, p)| {
+                let before = p.scale.as_ref()?.ppm;
+                let h = dt as f64 / 3600.0;
+                Some([(ppm[0] - before[0]) / h, (ppm[1] - before[1]) / h])
+            });
+        self.scale = Some(Box::new(AxisScale {
+            at_mm,
+            seen_um,
+            ppm,
+            ppm_per_h,
+        }));
+        self.check()?;
+        Ok(self)
     }
 
     /// Everything a reader relies on without the map: the schema, each number finite
@@ -187,6 +351,9 @@ impl MapReference {
             );
         }
         check_shift(self.shift_um, MAX_SHIFT_UM)?;
+        if let Some(s) = &self.scale {
+            check_scale(s)?;
+        }
         if let Some(t) = self.temperature_c {
             if !TEMPERATURE_C.contains(&t) {
                 return field(
@@ -278,6 +445,25 @@ impl MapReference {
         let [ox, oy] = model.offset_um();
         let mapped = [ex - ox, ey - oy];
         let implied = [self.seen_um[0] - mapped[0], self.seen_um[1] - mapped[1]];
+        if let Some(s) = &self.scale {
+            // As for the shift: the scale applied is what `scale.seen_um` implies.
+            let ppm = implied_ppm(model, self.shift_um, s.at_mm, s.seen_um)?;
+            let r = map.reference_mm;
+            let apart_um = |k: usize| (s.ppm[k] - ppm[k]) * (s.at_mm[k] - r[k]) / 1000.0;
+            if (0..2).any(|k| !(apart_um(k).abs() <= CONSISTENCY_UM)) {
+                return Err(ReferenceError::Field {
+                    field: "scale.ppm",
+                    message: format!(
+                        "({}, {}) ppm, but `scale.seen_um` minus the map's own error there \
+                         and the shift is ({}, {}) ppm: the record contradicts itself",
+                        um_text(s.ppm[0]),
+                        um_text(s.ppm[1]),
+                        um_text(ppm[0]),
+                        um_text(ppm[1]),
+                    ),
+                });
+            }
+        }
         if (0..2).any(|i| !((self.shift_um[i] - implied[i]).abs() <= CONSISTENCY_UM)) {
             return Err(ReferenceError::Field {
                 field: "shift_um",
@@ -315,7 +501,24 @@ impl MapReference {
                 ),
             });
         }
-        Ok(model.rereferenced(self.seen_um)?)
+        let model = model.rereferenced(self.seen_um)?;
+        Ok(model.rescaled(self.scale_ppm())?)
+    }
+
+    /// Each axis's scale since the scan as measured, ppm, what [`Self::apply`] applies;
+    /// zero when none was measured. The rate is not applied: on the demo stage its
+    /// prediction between references 3 to 10 minutes apart did not pay (the rate over
+    /// 5 minutes carries about 20 ppm/h of the frames' noise; docs/error-map.md).
+    pub fn scale_ppm(&self) -> [f64; 2] {
+        self.scale.as_ref().map_or([0.0; 2], |s| s.ppm)
+    }
+
+    /// The scale the rate predicts at `now_unix_s` ([`AxisScale::ppm_after`]): for a
+    /// front end that re-references often enough for the rate to pay.
+    pub fn predicted_scale_ppm(&self, now_unix_s: u64) -> [f64; 2] {
+        self.scale
+            .as_ref()
+            .map_or([0.0; 2], |s| s.ppm_after(self.age_s(now_unix_s)))
     }
 
     /// Seconds since it was measured (0 for a clock behind the record's).
@@ -342,6 +545,16 @@ impl MapReference {
             um_text(self.shift_um[0]),
             um_text(self.shift_um[1])
         );
+        if let Some(s) = &self.scale {
+            t += &format!(
+                ", axes grown ({}, {}) ppm",
+                um_text(s.ppm[0]),
+                um_text(s.ppm[1])
+            );
+            if let Some(r) = s.ppm_per_h {
+                t += &format!(" and growing ({}, {}) ppm/h", um_text(r[0]), um_text(r[1]));
+            }
+        }
         if let Some(h) = self.homing_count {
             t += &format!(", after homing #{h}");
         }
@@ -359,6 +572,51 @@ fn number_text(v: f64) -> String {
     } else {
         format!("{v:.3e}")
     }
+}
+
+fn check_scale(s: &AxisScale) -> Result<(), ReferenceError> {
+    let field = |field, message: String| Err(ReferenceError::Field { field, message });
+    let pair = |v: [f64; 2]| format!("({}, {})", um_text(v[0]), um_text(v[1]));
+    let finite = |v: [f64; 2]| v.iter().all(|c| c.is_finite());
+    if !finite(s.at_mm) {
+        return field("scale.at_mm", "not a number".into());
+    }
+    if !s.seen_um.iter().all(|c| c.abs() <= MAX_SEEN_UM) {
+        return field(
+            "scale.seen_um",
+            format!(
+                "{} um, more than the {MAX_SEEN_UM} um the camera can be off there",
+                pair(s.seen_um)
+            ),
+        );
+    }
+    if !s.ppm.iter().all(|c| c.abs() <= MAX_RECORDED_SCALE_PPM) {
+        return field(
+            "scale.ppm",
+            format!(
+                "{} ppm, more than the {MAX_RECORDED_SCALE_PPM} ppm an axis grows by \
+                 warming (10 um per 100 mm)",
+                pair(s.ppm)
+            ),
+        );
+    }
+    if let Some(r) = s.ppm_per_h {
+        if !r.iter().all(|c| c.abs() <= MAX_SCALE_RATE_PPM_PER_H) {
+            return field(
+                "scale.ppm_per_h",
+                format!(
+                    "{} ppm/h, faster than the {MAX_SCALE_RATE_PPM_PER_H} ppm/h an axis \
+                     grows by warming",
+                    pair(r)
+                ),
+            );
+        }
+    }
+    debug_assert!(
+        MAX_RECORDED_SCALE_PPM + MAX_SCALE_RATE_PPM_PER_H * MAX_PREDICTION_S as f64 / 3600.0
+            <= MAX_SCALE_PPM
+    );
+    Ok(())
 }
 
 fn check_shift(shift_um: [f64; 2], bound_um: f64) -> Result<(), ReferenceError> {
@@ -664,6 +922,240 @@ mod tests {
         assert!(e.len() < 300, "{e}");
         let e = MapReference::new(&m, [1e308, 0.0], MAX_SHIFT_UM, at(0)).unwrap_err();
         assert!(e.to_string().len() < 300, "{e}");
+    }
+
+    /// A map of 200 x 100 mm with no error but `ex_um` everywhere, reference (100, 50).
+    fn wide_map(ex_um: f64) -> ErrorMap {
+        let mut m = map(ex_um);
+        m.grid.xs = vec![0.0, 100.0, 200.0];
+        m.grid.ys = vec![0.0, 100.0];
+        m.grid.nodes = vec![m.grid.nodes[0]; 6];
+        m.reference_mm = [100.0, 50.0];
+        m
+    }
+
+    /// The camera's error on a stage the map saw with `ex_um` everywhere, after the
+    /// zero moved by `shift` and the axes grew by `ppm` about a home at (0, 0).
+    fn grown(ex_um: f64, shift: [f64; 2], ppm: [f64; 2], p: [f64; 2]) -> [f64; 2] {
+        [
+            ex_um + shift[0] + ppm[0] * p[0] / 1000.0,
+            shift[1] + ppm[1] * p[1] / 1000.0,
+        ]
+    }
+
+    fn scaled_record(
+        m: &ErrorMap,
+        ppm: [f64; 2],
+        s: u64,
+        prev: Option<&MapReference>,
+    ) -> MapReference {
+        let (shift, r) = ([6.0, -4.0], m.reference_mm);
+        let seen = grown(0.4, shift, ppm, r);
+        let at_mm = [200.0, 100.0];
+        let sx = grown(0.4, shift, ppm, [200.0, r[1]])[0];
+        let sy = grown(0.4, shift, ppm, [r[0], 100.0])[1];
+        MapReference::new(m, seen, MAX_SHIFT_UM, at(s))
+            .unwrap()
+            .with_scale(m, at_mm, [sx, sy], prev)
+            .unwrap()
+    }
+
+    #[test]
+    fn a_record_with_a_measured_scale_corrects_a_grown_axis_everywhere() {
+        let m = wide_map(0.4);
+        let ppm = [3.0, -2.0];
+        let r = scaled_record(&m, ppm, 0, None);
+        let s = r.scale.as_ref().unwrap();
+        assert!(
+            (s.ppm[0] - 3.0).abs() < 1e-9 && (s.ppm[1] + 2.0).abs() < 1e-9,
+            "{s:?}"
+        );
+        assert_eq!(s.ppm_per_h, None);
+        assert!(
+            r.describe(T0).contains("axes grown (+3.00, -2.00) ppm"),
+            "{}",
+            r.describe(T0)
+        );
+        let applied = r.apply(MapModel::new(m.clone()), T0).unwrap();
+        let shifted_only = MapModel::new(m.clone()).rereferenced(r.seen_um).unwrap();
+        for p in [[0.0, 0.0], [200.0, 100.0], [37.0, 81.0], [100.0, 50.0]] {
+            let want = grown(0.4, [6.0, -4.0], ppm, p);
+            let got = applied.camera_error_um(p, Direction::FORWARD).unwrap();
+            assert!(
+                (got[0] - want[0]).abs() < 1e-9 && (got[1] - want[1]).abs() < 1e-9,
+                "{p:?}: {got:?} {want:?}"
+            );
+            // The shift alone leaves the growth about the reference point.
+            let left = shifted_only.camera_error_um(p, Direction::FORWARD).unwrap();
+            assert!((want[0] - left[0] - 3.0 * (p[0] - 100.0) / 1000.0).abs() < 1e-9);
+        }
+        // The command at X 200 is 0.30 um smaller than with the shift alone.
+        let c = applied
+            .command_for([200.0, 50.0], Direction::FORWARD)
+            .unwrap();
+        let c0 = shifted_only
+            .command_for([200.0, 50.0], Direction::FORWARD)
+            .unwrap();
+        assert!(((c0[0] - c[0]) * 1000.0 - 0.3).abs() < 1e-3, "{c:?} {c0:?}");
+        // A homing after it keeps the scale.
+        let before = applied.scale_ppm();
+        let again = applied.rereferenced([0.0, 0.0]).unwrap();
+        assert_eq!(again.scale_ppm(), before);
+        assert!((before[0] - 3.0).abs() < 1e-9, "{before:?}");
+    }
+
+    #[test]
+    fn the_scale_grows_at_the_rate_since_the_previous_record_for_a_bounded_time() {
+        let m = wide_map(0.0);
+        let first = scaled_record(&m, [1.0, 0.5], 0, None);
+        // 10 min later X grew 1 ppm more, Y 0.5: 6 and 3 ppm/h.
+        let second = scaled_record(&m, [2.0, 1.0], 600, Some(&first));
+        let rate = second.scale.as_ref().unwrap().ppm_per_h.unwrap();
+        assert!(
+            (rate[0] - 6.0).abs() < 1e-6 && (rate[1] - 3.0).abs() < 1e-6,
+            "{rate:?}"
+        );
+        let predicted = |s: u64| second.predicted_scale_ppm(T0 + 600 + s);
+        assert!((predicted(0)[0] - 2.0).abs() < 1e-9 && (predicted(0)[1] - 1.0).abs() < 1e-9);
+        assert!((predicted(600)[0] - 3.0).abs() < 1e-9);
+        // Held past MAX_PREDICTION_S (30 min: +3 ppm on X).
+        assert!((predicted(MAX_PREDICTION_S)[0] - 5.0).abs() < 1e-9);
+        assert_eq!(
+            predicted(MAX_PREDICTION_S),
+            predicted(10 * MAX_PREDICTION_S)
+        );
+        let model = second.apply(MapModel::new(m.clone()), T0 + 1200).unwrap();
+        // Applied as measured: the rate is for people and for a front end that wants it.
+        assert!((model.scale_ppm()[0] - 2.0).abs() < 1e-9);
+        assert!((second.scale_ppm()[0] - 2.0).abs() < 1e-9);
+        // Too soon after, too long after, or of another map: no rate.
+        for (s, prev) in [(30, &first), (7201, &first)] {
+            let r = scaled_record(&m, [2.0, 1.0], s, Some(prev));
+            assert_eq!(r.scale.unwrap().ppm_per_h, None, "{s}");
+        }
+        let mut other = first.clone();
+        other.map.fingerprint = "fnv1a64:0".into();
+        assert_eq!(
+            scaled_record(&m, [2.0, 1.0], 600, Some(&other))
+                .scale
+                .unwrap()
+                .ppm_per_h,
+            None
+        );
+        // A previous record without a scale gives none either.
+        let plain = MapReference::new(&m, [6.0, -4.0], MAX_SHIFT_UM, at(0)).unwrap();
+        assert_eq!(
+            scaled_record(&m, [2.0, 1.0], 600, Some(&plain))
+                .scale
+                .unwrap()
+                .ppm_per_h,
+            None
+        );
+    }
+
+    #[test]
+    fn a_record_before_issue_39_reads_and_applies_the_shift_alone() {
+        let m = wide_map(0.4);
+        let plain = MapReference::new(&m, [6.4, -4.0], MAX_SHIFT_UM, at(0)).unwrap();
+        let text = serde_json::to_string(&plain).unwrap();
+        assert!(!text.contains("scale"), "{text}");
+        let read: MapReference = serde_json::from_str(&text).unwrap();
+        assert_eq!(read, plain);
+        let model = read.apply(MapModel::new(m.clone()), T0).unwrap();
+        assert_eq!(model.scale_ppm(), [0.0; 2]);
+        assert_eq!(model.offset_um(), [6.0, -4.0]);
+        // And a record with one reads back the same.
+        let r = scaled_record(&m, [3.0, -2.0], 0, None);
+        let back: MapReference = serde_json::from_str(&serde_json::to_string(&r).unwrap()).unwrap();
+        back.apply(MapModel::new(m), T0).unwrap();
+        assert_eq!(back, r);
+    }
+
+    #[test]
+    fn a_bad_scale_in_a_record_is_refused_naming_the_field() {
+        let m = wide_map(0.4);
+        let r = scaled_record(&m, [3.0, -2.0], 0, None);
+        let field_of = |r: &MapReference| match r.apply(MapModel::new(m.clone()), T0) {
+            Err(ReferenceError::Field { field, .. }) => field,
+            other => panic!("{other:?}"),
+        };
+        let edit = |f: &dyn Fn(&mut AxisScale)| {
+            let mut e = r.clone();
+            f(e.scale.as_mut().unwrap());
+            e
+        };
+        // Edited to apply another scale than it measured.
+        assert_eq!(field_of(&edit(&|s| s.ppm[0] = 30.0)), "scale.ppm");
+        assert_eq!(field_of(&edit(&|s| s.seen_um[1] += 1.0)), "scale.ppm");
+        assert_eq!(field_of(&edit(&|s| s.ppm = [1e3, 0.0])), "scale.ppm");
+        assert_eq!(
+            field_of(&edit(&|s| s.seen_um = [f64::NAN, 0.0])),
+            "scale.seen_um"
+        );
+        assert_eq!(
+            field_of(&edit(&|s| s.at_mm = [f64::INFINITY, 0.0])),
+            "scale.at_mm"
+        );
+        assert_eq!(field_of(&edit(&|s| s.at_mm[0] = 110.0)), "scale.at_mm");
+        assert_eq!(field_of(&edit(&|s| s.at_mm[1] = 300.0)), "scale.at_mm");
+        assert_eq!(
+            field_of(&edit(&|s| s.ppm_per_h = Some([0.0, -500.0]))),
+            "scale.ppm_per_h"
+        );
+        let e = edit(&|s| s.ppm = [1e300, 0.0])
+            .check()
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("`scale.ppm`") && e.len() < 300, "{e}");
+        // Unknown fields inside are refused as elsewhere in the record.
+        let text = serde_json::to_string(&r)
+            .unwrap()
+            .replace("\"ppm\":", "\"ppmm\":1,\"ppm\":");
+        assert!(serde_json::from_str::<MapReference>(&text).is_err());
+        // Measuring one too close to the reference point is refused as it is taken.
+        let plain = MapReference::new(&m, [6.4, -4.0], MAX_SHIFT_UM, at(0)).unwrap();
+        let e = plain
+            .clone()
+            .with_scale(&m, [105.0, 100.0], [0.0; 2], None)
+            .unwrap_err();
+        assert!(e.to_string().contains("less than the 20 mm"), "{e}");
+        // A grown axis beyond the bound (a wrong frame) is refused, not applied.
+        let e = plain
+            .with_scale(&m, [200.0, 100.0], [6.4 + 20.0, -4.0], None)
+            .unwrap_err();
+        assert!(
+            matches!(
+                e,
+                ReferenceError::Field {
+                    field: "scale.ppm",
+                    ..
+                }
+            ),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn the_scale_points_are_the_far_ends_of_the_map_when_it_is_long_enough() {
+        let mut m = wide_map(0.0);
+        assert_eq!(scale_points_mm(&m), Some([200.0, 100.0]));
+        m.reference_mm = [150.0, 60.0];
+        assert_eq!(scale_points_mm(&m), Some([0.0, 0.0]));
+        assert_eq!(scale_points_mm(&map(0.0)), None);
+    }
+
+    #[test]
+    fn every_applied_scale_is_bounded_where_it_is_applied() {
+        let e = MapModel::new(wide_map(0.0))
+            .rescaled([250.0, 0.0])
+            .unwrap_err();
+        assert!(matches!(e, ModelError::ScaleTooLarge { .. }), "{e}");
+        assert!(MapModel::new(wide_map(0.0))
+            .rescaled([f64::NAN, 0.0])
+            .is_err());
+        assert!(MapModel::new(wide_map(0.0))
+            .rescaled([-200.0, 200.0])
+            .is_ok());
     }
 
     #[test]

@@ -163,7 +163,9 @@ pub fn apply(map: ErrorMap, choice: &Choice, now: SystemTime) -> Result<Applied,
 /// goes to the sink as [`REFERENCE_ARTIFACT`] only when the shift is sane. The result:
 /// `seen_um`, `shift_um`, `drift_since_previous_um`, `reference_mm`, `measured_at`,
 /// `reference_count`, `homing_count`, `temperature_c`, `machine_time_s` (simulated
-/// machines), `record`.
+/// machines), `scale` (each axis's growth since the scan, measured at the map's far end
+/// along each axis when the map reaches `MIN_SCALE_BASELINE_MM` from the reference
+/// point; with its rate since `previous`), `record`.
 #[allow(clippy::too_many_arguments)]
 pub async fn run(
     request: &ReferenceRequest,
@@ -191,17 +193,55 @@ pub async fn run(
     };
     let t0 = crate::machine_time_s(devices);
     sink.progress(0, 1);
+    // Averaged frames at the reference point and the scale points when the map has
+    // them (the scale is a difference of tenths of a micrometre); one frame otherwise.
+    let scale_points = errormap::reference::scale_points_mm(map);
+    let frames = match scale_points {
+        Some(_) => runner::reference::FRAMES_PER_POINT,
+        None => 1,
+    };
     let stage = devices.stage.as_mut();
     let camera = devices.camera.as_mut();
-    let frame =
-        match runner::reference::measure_reference(job, stage, camera, map.reference_mm).await {
-            Ok(f) => f,
-            Err(e) => {
-                let lost = matches!(e, JobError::Driver(_));
-                let error = format!("the reference frame: {e}");
-                return Outcome::stopped(false, error, None, Default::default(), lost);
+    let frame = match runner::reference::measure_reference_mean(
+        job,
+        stage,
+        camera,
+        map.reference_mm,
+        frames,
+    )
+    .await
+    {
+        Ok(f) => f,
+        Err(e) => {
+            let lost = matches!(e, JobError::Driver(_));
+            let error = format!("the reference frame: {e}");
+            return Outcome::stopped(false, error, None, Default::default(), lost);
+        }
+    };
+    // Each axis's growth since the scan (thermal), at the map's far end along each axis
+    // (issue 39): two more frames, when the map is long enough.
+    let scale_seen = match scale_points {
+        Some(at_mm) => {
+            match runner::reference::measure_scale(
+                job,
+                stage,
+                camera,
+                map.reference_mm,
+                at_mm,
+                frames,
+            )
+            .await
+            {
+                Ok(seen) => Some((at_mm, seen)),
+                Err(e) => {
+                    let lost = matches!(e, JobError::Driver(_));
+                    let error = format!("the scale frames: {e}");
+                    return Outcome::stopped(false, error, None, Default::default(), lost);
+                }
             }
-        };
+        }
+        None => None,
+    };
     sink.progress(1, 1);
     let machine_time_s = t0.zip(crate::machine_time_s(devices)).map(|(a, b)| b - a);
     let (now_s, now_text) = at(now);
@@ -217,7 +257,11 @@ pub async fn run(
             temperature_c: None,
             previous_count: previous.map_or(0, |p| p.reference_count),
         },
-    ) {
+    )
+    .and_then(|r| match scale_seen {
+        Some((at_mm, seen)) => r.with_scale(map, at_mm, seen, previous),
+        None => Ok(r),
+    }) {
         Ok(r) => r,
         Err(e) => return Outcome::failed(format!("{what}: {e}")),
     };
@@ -229,6 +273,7 @@ pub async fn run(
         "reference_mm": record.reference_mm, "measured_at": record.measured_at,
         "reference_count": record.reference_count, "homing_count": record.homing_count,
         "temperature_c": record.temperature_c, "machine_time_s": machine_time_s,
+        "scale": record.scale,
         "record": record,
     });
     if let Err(e) = sink.artifact(Artifact {
@@ -242,6 +287,10 @@ pub async fn run(
     let mut metrics = crate::metrics_from(&result, &["reference_count", "machine_time_s"]);
     metrics.insert("shift_x_um".into(), json!(record.shift_um[0]));
     metrics.insert("shift_y_um".into(), json!(record.shift_um[1]));
+    if let Some(s) = &record.scale {
+        metrics.insert("scale_x_ppm".into(), json!(s.ppm[0]));
+        metrics.insert("scale_y_ppm".into(), json!(s.ppm[1]));
+    }
     Outcome::succeeded(result, metrics)
 }
 
@@ -267,6 +316,23 @@ pub fn summary(r: &Value) -> String {
             f(&d[0]),
             f(&d[1])
         );
+    }
+    if let Some(s) = r["scale"].as_object() {
+        t += &format!(
+            "the axes grew by ({:+.2}, {:+.2}) ppm since the scan (seen at X {:.3} and Y {:.3} mm)",
+            f(&s["ppm"][0]),
+            f(&s["ppm"][1]),
+            f(&s["at_mm"][0]),
+            f(&s["at_mm"][1]),
+        );
+        if let Some(rate) = s.get("ppm_per_h").and_then(Value::as_array) {
+            t += &format!(
+                ", growing by ({:+.2}, {:+.2}) ppm/h since the previous reference",
+                f(&rate[0]),
+                f(&rate[1])
+            );
+        }
+        t += "\n";
     }
     if let Some(s) = r["machine_time_s"].as_f64() {
         t += &format!("machine time {s:.1} s\n");

@@ -54,7 +54,15 @@ pub async fn check_map(
             return Outcome::failed(format!("{what}: {e}"));
         }
     }
-    let model = MapModel::new(map);
+    // A recorded reference's axis scale (issue 39) applies as everywhere else; its shift
+    // is applied by the check itself (`run_verify_with`).
+    let model = match reference {
+        Some(r) => match MapModel::new(map).rescaled(r.scale_ppm()) {
+            Ok(m) => m,
+            Err(e) => return Outcome::failed(format!("{what}: {e}")),
+        },
+        None => MapModel::new(map),
+    };
     let points = check_points(
         &model,
         request.point_count(),

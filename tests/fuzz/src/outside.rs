@@ -198,6 +198,23 @@ pub fn reference_record(data: &[u8]) {
         .seen_um
         .iter()
         .all(|v| v.abs() <= errormap::reference::MAX_SEEN_UM));
+    // Issue 39: an axis scale within its bounds, its rate too.
+    if let Some(s) = &r.scale {
+        assert!(s.at_mm.iter().all(|v| v.is_finite()));
+        assert!(s
+            .seen_um
+            .iter()
+            .all(|v| v.abs() <= errormap::reference::MAX_SEEN_UM));
+        assert!(s
+            .ppm
+            .iter()
+            .all(|v| v.abs() <= errormap::reference::MAX_RECORDED_SCALE_PPM));
+        for v in s.ppm_per_h.iter().flatten() {
+            assert!(v.abs() <= errormap::reference::MAX_SCALE_RATE_PPM_PER_H);
+        }
+        let ppm = r.predicted_scale_ppm(u64::MAX);
+        assert!(ppm.iter().all(|v| v.abs() <= errormap::MAX_SCALE_PPM));
+    }
     let again = serde_json::to_string(&r).expect("a record serializes");
     procedure::reference::parse_record(&again, "again").expect("a written record reads back");
 }
