@@ -251,6 +251,7 @@ async fn map_verify_export_rewrite_and_reference_through_the_cli_and_the_api_giv
         assert_eq!(from["reference_count"], 3, "{from}");
         assert!(from["drift_since_previous_um"].is_array(), "{from}");
         assert!(from["written_to"].is_string(), "{from}");
+        assert_eq!(from["homed"], false, "{from}");
     };
     let spot = |from: &Value| {
         assert_eq!(from["spot_check"], true, "{from}");
@@ -264,9 +265,7 @@ async fn map_verify_export_rewrite_and_reference_through_the_cli_and_the_api_giv
         k
     };
     let _ = std::fs::remove_file(map_file.replace(".json", ".reference.json"));
-    for _ in 0..2 {
-        cli(&["reference", "--config", &job, "--map", &map_file, "--json"]);
-    }
+    cli(&["reference", "--config", &job, "--map", &map_file, "--json"]);
     // The CLI's context in this process (the binary's simulated machine lives only as
     // long as its process: a spot check needs the machine the reference was taken on).
     let (cli_reference, cli_spot) = {
@@ -276,7 +275,14 @@ async fn map_verify_export_rewrite_and_reference_through_the_cli_and_the_api_giv
             .job_file(std::path::Path::new(&job))
             .map_file(std::path::Path::new(&map_file));
         let run = |kind: &str| procedure::kinds::kind(kind).unwrap();
+        // The second after a homing, the third in use, without homing. A reference in use
+        // on a machine that has not homed is refused (the stage says so).
+        let no_home = json!({"no_home": true});
+        let r = run("reference").run(no_home.clone(), &mut files).await;
+        assert!(r.error().is_some_and(|e| e.contains("not homed")), "{r:?}");
         let r = run("reference").run(json!({}), &mut files).await;
+        assert!(r.is_success(), "{:?}", r.error());
+        let r = run("reference").run(no_home, &mut files).await;
         assert!(r.is_success(), "{:?}", r.error());
         let params = json!({"spot_check": true, "points": 2});
         let v = run("verify").run(params, &mut files).await;
@@ -284,8 +290,8 @@ async fn map_verify_export_rewrite_and_reference_through_the_cli_and_the_api_giv
         (r.result.unwrap(), v.result.unwrap())
     };
     let mut api_reference = Value::Null;
-    for _ in 0..3 {
-        let r = api.run("reference", json!({})).await;
+    for no_home in [false, false, true] {
+        let r = api.run("reference", json!({"no_home": no_home})).await;
         assert_eq!(r["state"], "succeeded", "{r}");
         api_reference = r["result"].clone();
     }

@@ -202,15 +202,20 @@ pub async fn run(
     };
     let stage = devices.stage.as_mut();
     let camera = devices.camera.as_mut();
-    let frame = match runner::reference::measure_reference_mean(
-        job,
-        stage,
-        camera,
-        map.reference_mm,
-        frames,
-    )
-    .await
-    {
+    let measured = match request.no_home {
+        // In use: where the machine is, no homing (it homed before).
+        true => runner::reference::measure_mean_at(job, stage, camera, map.reference_mm, frames)
+            .await
+            .map(|seen_um| runner::reference::ReferenceFrame {
+                command_mm: map.reference_mm,
+                seen_um,
+            }),
+        false => {
+            runner::reference::measure_reference_mean(job, stage, camera, map.reference_mm, frames)
+                .await
+        }
+    };
+    let frame = match measured {
         Ok(f) => f,
         Err(e) => {
             let lost = matches!(e, JobError::Driver(_));
@@ -273,7 +278,7 @@ pub async fn run(
         "reference_mm": record.reference_mm, "measured_at": record.measured_at,
         "reference_count": record.reference_count, "homing_count": record.homing_count,
         "temperature_c": record.temperature_c, "machine_time_s": machine_time_s,
-        "scale": record.scale,
+        "scale": record.scale, "homed": !request.no_home,
         "record": record,
     });
     if let Err(e) = sink.artifact(Artifact {
@@ -298,9 +303,14 @@ pub async fn run(
 pub fn summary(r: &Value) -> String {
     let f = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
     let mut t = format!(
-        "reference #{} at ({:.3}, {:.3}) mm, {}: the camera sees ({:+.2}, {:+.2}) um; \
+        "reference #{}{} at ({:.3}, {:.3}) mm, {}: the camera sees ({:+.2}, {:+.2}) um; \
          the machine's zero moved by ({:+.2}, {:+.2}) um since the scan\n",
         r["reference_count"],
+        if r["homed"] == false {
+            " (in use, no homing)"
+        } else {
+            ""
+        },
         f(&r["reference_mm"][0]),
         f(&r["reference_mm"][1]),
         r["measured_at"].as_str().unwrap_or("?"),
@@ -355,10 +365,16 @@ impl crate::registry::Procedure for Reference {
     const LABEL: &'static str = "Machine zero check";
     const HELP: &'static str =
         "Finds the machine zero on the board again after homing and checks how far it moved.";
-    const FIELD_HELP: &'static [(&'static str, &'static str)] = &[(
-        "max_shift_um",
-        "Largest accepted move of the machine zero; more means the board or the camera moved.",
-    )];
+    const FIELD_HELP: &'static [(&'static str, &'static str)] = &[
+        (
+            "max_shift_um",
+            "Largest accepted move of the machine zero; more means the board or the camera moved.",
+        ),
+        (
+            "no_home",
+            "Measure again where the machine is, without homing: every few minutes while the machine warms up.",
+        ),
+    ];
     const USES: crate::registry::Uses = crate::registry::Uses::DEVICES_AND_MAP;
     type Request = ReferenceRequest;
     const FILES: &'static [FileArg] = command_line::JOB_AND_MAP;

@@ -1069,12 +1069,20 @@ pub struct ReferenceRequest {
     #[cfg_attr(feature = "cli", arg(long, default_value_t = default_max_shift()))]
     #[schema(default = default_max_shift, minimum = 0.1, maximum = 500.0)]
     pub max_shift_um: f64,
+    /// Measure where the machine is, without homing first: a re-reference in use (every
+    /// few minutes while the screws warm), on a machine homed before. The shift and each
+    /// axis's scale are measured as after a homing; the orientation check of the homing
+    /// is not repeated.
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub no_home: bool,
 }
 
 impl Default for ReferenceRequest {
     fn default() -> Self {
         Self {
             max_shift_um: default_max_shift(),
+            no_home: false,
         }
     }
 }
