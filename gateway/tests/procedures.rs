@@ -677,17 +677,7 @@ fn base64_of(bytes: &[u8]) -> String {
 async fn proxy_through_the_cli_and_the_api_gives_one_outcome() {
     use std::io::{BufRead, BufReader};
     let dir = scratch("proxy");
-    let job_path = workspace().join("config/gateway/grbl-demo.toml");
-    let job = job::Job::load(&job_path).unwrap();
-    let job::StageSpec::Grbl {
-        link: job::GrblLink::Emulate(machine),
-        ..
-    } = &job.stage
-    else {
-        unreachable!("the GRBL demo job emulates its controller")
-    };
-    let here = procedure::identity_of_job(&job).await.unwrap();
-    let map = system_tests::truth_map::map_from_truth(machine, here);
+    let (job_path, map) = system_tests::truth_map::grbl_demo_map().await;
     let map_path = dir.join("m.v1.json");
     map.save_new(&map_path).unwrap();
 

@@ -48,6 +48,25 @@ fn steps(from: f64, to: f64, step: f64) -> Vec<f64> {
 
 /// The map of `machine` (its first homing, as a fresh machine with the same seed has
 /// it), identity as given.
+/// The GRBL demo job (`config/gateway/grbl-demo.toml`, its controller emulated) and a map
+/// of its simulated stage from the truth, with the identity the gateway reads of it: the
+/// map a scan of that machine would make, for the pass-through's tests.
+pub async fn grbl_demo_map() -> (std::path::PathBuf, ErrorMap) {
+    let path = crate::config_dir().join("gateway/grbl-demo.toml");
+    let job = Job::load(&path).expect("config/gateway/grbl-demo.toml loads");
+    let StageSpec::Grbl {
+        link: job::GrblLink::Emulate(machine),
+        ..
+    } = &job.stage
+    else {
+        unreachable!("the GRBL demo job emulates its controller")
+    };
+    let here = procedure::identity_of_job(&job)
+        .await
+        .expect("its identity");
+    (path.clone(), map_from_truth(machine, here))
+}
+
 pub fn map_from_truth(machine: &MachineConfig, identity: Identity) -> ErrorMap {
     let d = crate::config_dir();
     let camera = world::camera::CameraModel::load(&d.join("cameras/mono-1.3mp.toml"))

@@ -143,16 +143,7 @@ const GRBL_MACHINE: &str = "grbl";
 
 /// Its active error map: the truth of its simulated stage, as a scan would measure it.
 async fn seed_grbl_map(data_dir: &Path) {
-    let job = job::Job::load(&workspace().join("config/gateway/grbl-demo.toml")).unwrap();
-    let job::StageSpec::Grbl {
-        link: job::GrblLink::Emulate(machine),
-        ..
-    } = &job.stage
-    else {
-        unreachable!("the GRBL demo job emulates its controller")
-    };
-    let here = procedure::identity_of_job(&job).await.unwrap();
-    let map = system_tests::truth_map::map_from_truth(machine, here);
+    let (_, map) = system_tests::truth_map::grbl_demo_map().await;
     let mut store = store::Store::open(&data_dir.join("gateway.sqlite")).expect("the store opens");
     let body = serde_json::to_value(&map).unwrap();
     let v = (store.add_profile(
