@@ -22,7 +22,6 @@
 
 use errormap::scan::{MapBuilder, ScanPlan, ScanSpec};
 use errormap::{Approach, Direction, MapModel};
-use protocol::errormap::Identity;
 use runner::scan::{run_scan, scan_area};
 use std::time::Instant;
 use system_tests::dnc_rig::{coded_rig, paced_camera, tape_stage};
@@ -85,24 +84,8 @@ fn main() {
         (plan, builder, reference, machine_s, r.frames() - f0)
     });
     let scan_wall_s = started.elapsed().as_secs_f64();
-    let id = Identity {
-        machine: "sim".into(),
-        controller: "dnc".into(),
-        board: job.board.name.clone(),
-        certificate_sha256: job.board.fingerprint_sha256(),
-        camera: "sim".into(),
-    };
-    let map = builder
-        .finish(
-            &plan,
-            id,
-            1,
-            "now".into(),
-            [0.0; 2],
-            job.board_at_machine_zero_mm,
-            reference.command_mm,
-        )
-        .unwrap();
+    let map =
+        system_tests::truth_map::finish_sim_map(&builder, &plan, &job, "dnc", reference.command_mm);
     let uncertainty = map.uncertainty_um;
     let model = MapModel::new(map).rereferenced(reference.error_um).unwrap();
 

@@ -12,7 +12,6 @@ use drivers::AxisValues;
 use errormap::scan::{MapBuilder, ScanPlan, ScanSpec};
 use errormap::{Approach, Direction, MapModel};
 use job::Job;
-use protocol::errormap::Identity;
 use runner::scan::{run_scan, scan_area};
 use std::time::Instant;
 
@@ -52,24 +51,8 @@ fn main() {
     let scan_s = started.elapsed().as_secs_f64();
     let rig = devices.rig.clone().unwrap();
     let machine_s = world::lock(&rig).machine().now_s();
-    let id = Identity {
-        machine: "sim".into(),
-        controller: "sim".into(),
-        board: job.board.name.clone(),
-        certificate_sha256: job.board.fingerprint_sha256(),
-        camera: "sim".into(),
-    };
-    let map = builder
-        .finish(
-            &plan,
-            id,
-            1,
-            "now".into(),
-            [0.0; 2],
-            job.board_at_machine_zero_mm,
-            reference.command_mm,
-        )
-        .unwrap();
+    let map =
+        system_tests::truth_map::finish_sim_map(&builder, &plan, &job, "sim", reference.command_mm);
     let uncertainty = map.uncertainty_um;
     // The map is relative to the reference frame; this run's reference re-references it.
     let model = MapModel::new(map).rereferenced(reference.error_um).unwrap();

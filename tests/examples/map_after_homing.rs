@@ -30,7 +30,6 @@ use errormap::scan::{MapBuilder, ScanPlan, ScanSpec};
 use errormap::{Approach, Direction, MapModel, MAX_SHIFT_UM};
 use job::Job;
 use protocol::errormap::ErrorMap;
-use protocol::errormap::Identity;
 use runner::scan::{run_scan, scan_area};
 use std::path::PathBuf;
 use std::time::{Duration, Instant, UNIX_EPOCH};
@@ -102,24 +101,13 @@ fn main() {
         .unwrap();
     let scan_wall_s = started.elapsed().as_secs_f64();
     let scan_machine_s = world::lock(&rig).machine().now_s() - t0;
-    let id = Identity {
-        machine: "sim".into(),
-        controller: devices.stage.info().name.clone(),
-        board: job.board.name.clone(),
-        certificate_sha256: job.board.fingerprint_sha256(),
-        camera: "sim".into(),
-    };
-    let map = builder
-        .finish(
-            &plan,
-            id,
-            1,
-            "now".into(),
-            [0.0; 2],
-            job.board_at_machine_zero_mm,
-            reference.command_mm,
-        )
-        .unwrap();
+    let map = system_tests::truth_map::finish_sim_map(
+        &builder,
+        &plan,
+        &job,
+        &devices.stage.info().name,
+        reference.command_mm,
+    );
     let uncertainty = map.uncertainty_um;
     let reference_mm = map.reference_mm;
     let base = MapModel::new(map);

@@ -175,14 +175,12 @@ mod tests {
         };
         let mut points = Vec::new();
         for w in path.windows(2) {
-            {
-                let t = next();
-                let far = if next() < 0.01 { 5.0 } else { 0.05 };
-                points.push([
-                    w[0][0] + t * (w[1][0] - w[0][0]) + far * (next() - 0.5),
-                    w[0][1] + t * (w[1][1] - w[0][1]) + far * (next() - 0.5),
-                ]);
-            }
+            let t = next();
+            let far = if next() < 0.01 { 5.0 } else { 0.05 };
+            points.push([
+                w[0][0] + t * (w[1][0] - w[0][0]) + far * (next() - 0.5),
+                w[0][1] + t * (w[1][1] - w[0][1]) + far * (next() - 0.5),
+            ]);
         }
         let boxes = block_boxes(&path);
         let mut at = 0;

@@ -67,6 +67,36 @@ pub async fn grbl_demo_map() -> (std::path::PathBuf, ErrorMap) {
     (path.clone(), map_from_truth(machine, here))
 }
 
+/// The map a benchmark's scan of the simulated machine made (`builder` over `plan`, its
+/// reference frame commanded at `reference_mm`), named as a simulated machine's: the
+/// `controller` the scan ran through, version 1. Panics when a point has no sample.
+pub fn finish_sim_map(
+    builder: &errormap::scan::MapBuilder,
+    plan: &errormap::scan::ScanPlan,
+    job: &Job,
+    controller: &str,
+    reference_mm: [f64; 2],
+) -> ErrorMap {
+    let identity = Identity {
+        machine: "sim".into(),
+        controller: controller.into(),
+        board: job.board.name.clone(),
+        certificate_sha256: job.board.fingerprint_sha256(),
+        camera: "sim".into(),
+    };
+    builder
+        .finish(
+            plan,
+            identity,
+            1,
+            "now".into(),
+            [0.0; 2],
+            job.board_at_machine_zero_mm,
+            reference_mm,
+        )
+        .expect("every point of the plan has a sample")
+}
+
 pub fn map_from_truth(machine: &MachineConfig, identity: Identity) -> ErrorMap {
     let d = crate::config_dir();
     let camera = world::camera::CameraModel::load(&d.join("cameras/mono-1.3mp.toml"))
