@@ -64,6 +64,7 @@ impl crate::registry::Procedure for BoardMake {
     const HELP: &'static str = "Draws the machine's calibration board for the lab that makes it (SVG, DXF, a PDF test print) and its certificate template.";
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = BoardMakeRequest;
+    type Result = Value;
     const FILES: &'static [FileArg] = &[
         FileArg::positional("board", "The board file (TOML).", command_line::board),
         FileArg::required("out", "The output folder.", command_line::artifacts_folder).short('o'),

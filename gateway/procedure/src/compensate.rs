@@ -120,6 +120,7 @@ impl crate::registry::Procedure for Compensate {
     ];
     const USES: crate::registry::Uses = crate::registry::Uses::DEVICES;
     type Request = CompensateRequest;
+    type Result = serde_json::Value;
     const FILES: &'static [FileArg] = &[FileArg::required(
         "config",
         "The job file (stage, camera, board, targets).",

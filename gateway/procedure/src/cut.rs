@@ -166,6 +166,7 @@ impl crate::registry::Procedure for Cut {
     const HELP: &'static str = "Splits the layout as a partition does and cuts it on the emulated conveyor cutter, every head's group at once.";
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = CutRequest;
+    type Result = Value;
     const FILES: &'static [FileArg] = &[
         FileArg::positional(
             "layout",

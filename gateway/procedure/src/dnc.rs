@@ -637,6 +637,7 @@ impl crate::registry::Procedure for Dnc {
         ..crate::registry::Uses::NOTHING
     };
     type Request = DncRequest;
+    type Result = Value;
     const FILES: &'static [FileArg] = &[
         FileArg::positional(
             "input",

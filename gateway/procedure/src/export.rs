@@ -564,6 +564,7 @@ impl crate::registry::Procedure for Export {
     )];
     const USES: crate::registry::Uses = crate::registry::Uses::MAP;
     type Request = ExportRequest;
+    type Result = Value;
     const FILES: &'static [FileArg] = &[
         FileArg::required("map", "The error map to export.", command_line::map),
         FileArg::required(

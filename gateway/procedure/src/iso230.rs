@@ -466,6 +466,7 @@ impl crate::registry::Procedure for Iso230 {
         link: false,
     };
     type Request = Iso230Request;
+    type Result = Value;
     const FILES: &'static [FileArg] = &[
         FileArg::required(
             "config",
@@ -601,6 +602,7 @@ impl crate::registry::Procedure for Iso230Evaluate {
     ];
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = Iso230EvaluateRequest;
+    type Result = Value;
     const FILES: &'static [FileArg] = &[
         FileArg::positional(
             "file",

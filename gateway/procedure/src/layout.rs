@@ -242,6 +242,7 @@ impl crate::registry::Procedure for LayoutPartition {
     ];
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = LayoutRequest;
+    type Result = Value;
     const FILES: &'static [FileArg] = &[
         FileArg::positional("layout", "The layout (.dxf, .svg or .json).", |path, plan| {
             layout_file(path, "", plan)

@@ -55,20 +55,22 @@ pub enum End {
     Cancelled,
 }
 
-/// What a procedure gives back, however it ended.
+/// What a procedure gives back, however it ended: its typed result `R` (each kind's
+/// [`Procedure::Result`]); the registry hands it on as JSON (`Outcome<Value>`, the
+/// default), the object `--json` prints and the store keeps.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Outcome {
+pub struct Outcome<R = Value> {
     pub end: End,
     /// The procedure's result object (also when it stopped: what was done so far).
-    pub result: Option<Value>,
+    pub result: Option<R>,
     /// The summary figures the plant gets (numbers and flags taken from `result`).
     pub metrics: Map<String, Value>,
     /// Set when the device link failed: the front end reopens the devices first.
     pub link_lost: Option<String>,
 }
 
-impl Outcome {
-    pub fn succeeded(result: Value, metrics: Map<String, Value>) -> Self {
+impl<R> Outcome<R> {
+    pub fn succeeded(result: R, metrics: Map<String, Value>) -> Self {
         Self {
             end: End::Succeeded,
             result: Some(result),
@@ -98,7 +100,7 @@ impl Outcome {
     pub fn stopped(
         cancelled: bool,
         error: String,
-        result: Option<Value>,
+        result: Option<R>,
         metrics: Map<String, Value>,
         link_lost: bool,
     ) -> Self {
@@ -125,6 +127,16 @@ impl Outcome {
         match &self.end {
             End::Failed { error } => Some(error),
             _ => None,
+        }
+    }
+
+    /// The same outcome with its result turned by `f` (the registry: into JSON).
+    pub fn map_result<S>(self, f: impl FnOnce(R) -> S) -> Outcome<S> {
+        Outcome {
+            end: self.end,
+            result: self.result.map(f),
+            metrics: self.metrics,
+            link_lost: self.link_lost,
         }
     }
 }

@@ -231,6 +231,7 @@ impl crate::registry::Procedure for Localize {
     const HELP: &'static str = "Finds where on the machine's board a camera frame was taken: the board position under the frame's centre.";
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = LocalizeRequest;
+    type Result = Value;
     const FILES: &'static [FileArg] = &[
         FileArg::positional(
             "image",

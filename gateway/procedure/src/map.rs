@@ -373,6 +373,7 @@ impl crate::registry::Procedure for Map {
     ];
     const USES: crate::registry::Uses = crate::registry::Uses::DEVICES;
     type Request = MapRequest;
+    type Result = Value;
     const FILES: &'static [FileArg] = &[
         FileArg::required("config", "The job file of the machine.", |path, plan| {
             // The map is named after the job file unless --name says otherwise.

@@ -731,6 +731,7 @@ impl crate::registry::Procedure for PassThrough {
     const COMMAND_LINE_ONLY: &'static [&'static str] =
         &["link", "controller", "rotary", "rotary_name", "machine"];
     type Request = ProxyRequest;
+    type Result = Value;
     const FILES: &'static [FileArg] = &[
         FileArg::flag(
             "config",

@@ -377,6 +377,7 @@ impl crate::registry::Procedure for Reference {
     ];
     const USES: crate::registry::Uses = crate::registry::Uses::DEVICES_AND_MAP;
     type Request = ReferenceRequest;
+    type Result = Value;
     const FILES: &'static [FileArg] = command_line::JOB_AND_MAP;
 
     async fn run(request: ReferenceRequest, cx: &mut dyn crate::Context) -> Outcome {

@@ -138,15 +138,18 @@ pub trait Procedure {
     const FILES: &'static [FileArg] = &[];
     /// What the command line's progress bar counts ("frames"); empty: no bar.
     const STEPS: &'static str = "";
+    /// Its result: the object `--json` prints, the store keeps and the page shows (also
+    /// what was done so far when it stopped).
+    type Result: Serialize + DeserializeOwned + utoipa::PartialSchema;
     /// The command's exit code for a result: 0, or 2 for a verdict the shop acts on (a
     /// drifted map, a model unfit for compensation).
-    fn exit_code(_result: &Value) -> u8 {
+    fn exit_code(_result: &Self::Result) -> u8 {
         0
     }
-    /// Runs it; the outcome's result is what `--json` prints and the store keeps.
-    async fn run(request: Self::Request, cx: &mut dyn Context) -> Outcome;
+    /// Runs it.
+    async fn run(request: Self::Request, cx: &mut dyn Context) -> Outcome<Self::Result>;
     /// The result as a person reads it (the CLI's text, the page's summary).
-    fn summary(result: &Value) -> String;
+    fn summary(result: &Self::Result) -> String;
     /// Request fields only the command line sets: real ports on the box the command runs
     /// on. The service refuses them when queued ([`Self::admit`]) and its forms do not
     /// show them (the schema marks them `x-command-line-only`).
@@ -188,6 +191,7 @@ pub struct Kind {
     /// [`Procedure::STEPS`].
     pub steps: &'static str,
     exit_code: fn(&Value) -> u8,
+    result_schema: fn() -> RefOr<Schema>,
     /// The request's flags added to a command.
     #[cfg(feature = "cli")]
     flags: fn(clap::Command) -> clap::Command,
@@ -236,12 +240,33 @@ fn run_as<P: Procedure + 'static>(
 ) -> Pin<Box<dyn Future<Output = Outcome> + '_>> {
     Box::pin(async move {
         match parse_as::<P>(&params) {
-            Ok(request) => P::run(request, cx).await,
+            Ok(request) => P::run(request, cx).await.map_result(|result| {
+                // A result that cannot be JSON (a map key that is not a string) is a
+                // programming error the registry's tests catch.
+                serde_json::to_value(result).expect("a procedure's result serializes to JSON")
+            }),
             // A stored request that no longer parses (a database from an older version).
             Err(e) if e.field == "params" => Outcome::failed(format!("params: {}", e.message)),
             Err(e) => Outcome::failed(format!("params.{e}")),
         }
     })
+}
+
+/// A stored result as `P`'s result type, `None` when it is not one (a record written by
+/// an older version).
+fn result_as<P: Procedure>(result: &Value) -> Option<P::Result> {
+    serde_json::from_value(result.clone()).ok()
+}
+
+fn summary_as<P: Procedure>(result: &Value) -> String {
+    match result_as::<P>(result) {
+        Some(r) => P::summary(&r),
+        None => format!("(a result this version does not read: {result})"),
+    }
+}
+
+fn exit_code_as<P: Procedure>(result: &Value) -> u8 {
+    result_as::<P>(result).map_or(0, |r| P::exit_code(&r))
 }
 
 /// The registry's entry of `P`.
@@ -259,11 +284,12 @@ pub const fn entry<P: Procedure + 'static>() -> Kind {
         admit: admit_as::<P>,
         uses_map: uses_map_as::<P>,
         run: run_as::<P>,
-        summary: P::summary,
+        summary: summary_as::<P>,
         schema: <P::Request as utoipa::PartialSchema>::schema,
         files: P::FILES,
         steps: P::STEPS,
-        exit_code: P::exit_code,
+        exit_code: exit_code_as::<P>,
+        result_schema: <P::Result as utoipa::PartialSchema>::schema,
         #[cfg(feature = "cli")]
         flags: <P::Request as clap::Args>::augment_args,
         #[cfg(feature = "cli")]
@@ -318,6 +344,11 @@ impl Kind {
     #[cfg(feature = "cli")]
     pub fn from_flags(&self, matches: &clap::ArgMatches) -> Result<Value, clap::Error> {
         (self.from_flags)(matches)
+    }
+
+    /// The JSON schema (OpenAPI 3.1) of its result ([`Procedure::Result`]).
+    pub fn result_schema(&self) -> RefOr<Schema> {
+        (self.result_schema)()
     }
 
     /// The JSON schema (OpenAPI 3.1) of its params: the page builds the form from it.

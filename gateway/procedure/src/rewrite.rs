@@ -656,6 +656,7 @@ impl crate::registry::Procedure for Rewrite {
         ..crate::registry::Uses::NOTHING
     };
     type Request = RewriteRequest;
+    type Result = Value;
     const FILES: &'static [FileArg] = &[
         FileArg::positional("input", "The program to rewrite (never overwritten).", |path, plan| {
             plan.text(path, "program", Some("program_name"), read_program)

@@ -388,6 +388,7 @@ impl crate::registry::Procedure for RotaryMeasure {
     )];
     const USES: crate::registry::Uses = crate::registry::Uses::ROTARY;
     type Request = RotaryRequest;
+    type Result = Value;
     const FILES: &'static [FileArg] = &[
         FileArg::required(
             "config",
@@ -474,6 +475,7 @@ impl crate::registry::Procedure for RotaryIdentify {
     )];
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = RotaryIdentifyRequest;
+    type Result = Value;
     const FILES: &'static [FileArg] = &[
         FileArg::required("centres", "The centres file.", |path, plan| {
             let text = protocol::config::read_kind(path, protocol::config::DataKind::Centres)?;
@@ -596,6 +598,7 @@ impl crate::registry::Procedure for RotaryRewrite {
     const HELP: &'static str = "Rewrites a 5-axis program (X Y Z A C, absolute, mm) for the rotary table's identified errors, so that the tool tip and its direction land where programmed; download the rewritten program and run it on the machine.";
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = RotaryRewriteRequest;
+    type Result = Value;
     const FILES: &'static [FileArg] = &[
         FileArg::positional("input", "The program (never overwritten).", |path, plan| {
             plan.text(path, "program", Some("program_name"), crate::rewrite::read_program)

@@ -155,6 +155,7 @@ impl crate::registry::Procedure for Verify {
     ];
     const USES: crate::registry::Uses = crate::registry::Uses::DEVICES_AND_MAP;
     type Request = VerifyRequest;
+    type Result = Value;
 
     async fn run(request: VerifyRequest, cx: &mut dyn crate::Context) -> Outcome {
         let stop = cx.stop();

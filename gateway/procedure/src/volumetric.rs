@@ -908,6 +908,7 @@ macro_rules! volumetric_kind {
             const HELP: &'static str = $help;
             const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
             type Request = $request;
+            type Result = Value;
             const FILES: &'static [FileArg] = $files;
 
             fn exit_code(result: &Value) -> u8 {
