@@ -2,7 +2,7 @@
 //! bring-up, homing, moves, SDO aborts as typed errors, EMCY faults with their codes
 //! and recovery, heartbeat loss stopping the stage.
 
-mod canopen_common;
+use crate::canopen_common;
 
 use canopen_common::*;
 use drivers::{AxisValues, DriverError, Stage, StageState};

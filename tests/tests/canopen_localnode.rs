@@ -5,7 +5,7 @@
 //! its loss), EMCY. Fails, naming the missing peer and the install step
 //! (`tests/install-peers.sh`), when python3 or the packages are missing.
 
-mod canopen_common;
+use crate::canopen_common;
 
 use canopen_common::runtime;
 use drivers::can::slcan::SlcanBus;

@@ -9,7 +9,7 @@
 //! interface is checked everywhere: it is `NotAvailable` with the reason, never a panic
 //! or a hang.
 
-mod canopen_common;
+use crate::canopen_common;
 
 use canopen_common::*;
 use drivers::can::socketcan::{unavailable, SocketCanBus};

@@ -4,9 +4,9 @@
 //! description (`controller_tables_reader`), which evaluates the correction the control
 //! applies at random points approached from random sides and compares it with the map.
 //! The residual per format on the demo stage's map is printed for docs/error-map.md
-//! (`cargo test -p system-tests --test controller_tables -- --nocapture`).
+//! (`cargo test -p system-tests --test system controller_tables:: -- --nocapture`).
 
-mod controller_tables_reader;
+use crate::controller_tables_reader;
 
 use controller_tables_reader as reader;
 use errormap::export::{

@@ -2,7 +2,7 @@
 //! whose packets are lost for good (resends lost too) stops at the first grab with the
 //! incomplete-frame error, and after that grab the stage receives no command at all.
 
-mod gige_common;
+use crate::gige_common;
 
 use async_trait::async_trait;
 use devices::Devices;

@@ -3,7 +3,7 @@
 //! refused as incomplete; a camera that stops answering heartbeats, a second client,
 //! and a camera in another pixel format give clear errors.
 
-mod gige_common;
+use crate::gige_common;
 
 use drivers::{Camera, DriverError};
 use emulators::gige::GigeConfig;

@@ -8,7 +8,7 @@
 //! (`system_tests::netns`). A missing tool is reported and the test skips; it never
 //! fails for absence.
 
-mod gige_common;
+use crate::gige_common;
 
 use drivers::Camera;
 use emulators::gige::{GigeCameraServer, GigeConfig, GigeServerOptions};

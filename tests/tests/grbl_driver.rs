@@ -2,7 +2,7 @@
 //! home, moves, jog and cancel, hold and resume, alarms as errors, and clear errors
 //! for a wrong port or a device that is not GRBL.
 
-mod grbl_common;
+use crate::grbl_common;
 
 use drivers::grbl::GrblStage;
 use drivers::{Axis, AxisValues, DriverError, Stage, StageState};

@@ -2,7 +2,7 @@
 //! pseudo-terminal: thousands of lines with the planner full, a malformed line, an
 //! alarm mid-stream, and the port disappearing mid-stream.
 
-mod grbl_common;
+use crate::grbl_common;
 
 use drivers::grbl::StreamOptions;
 use drivers::{Axis, DriverError, Stage};

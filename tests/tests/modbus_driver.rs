@@ -2,7 +2,7 @@
 //! over RTU on a real pseudo-terminal, for each shipped profile; exceptions and alarms
 //! as typed errors naming the register.
 
-mod modbus_common;
+use crate::modbus_common;
 
 use drivers::modbus::{open_stage, Endpoint, Op};
 use drivers::{Axis, AxisDrive, AxisValues, DriverError, Stage, StageState};

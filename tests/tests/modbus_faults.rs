@@ -2,7 +2,7 @@
 //! bad CRC and late replies. Every move is started exactly once (the emulator counts
 //! triggers), none is lost, and failures that persist are reported within bounds.
 
-mod modbus_common;
+use crate::modbus_common;
 
 use drivers::modbus::{Endpoint, ModbusAxis};
 use drivers::{Axis, AxisDrive, DriverError};

@@ -4,7 +4,7 @@
 //! from a drive profile's register map. Fails, naming the missing peer and the install
 //! step (`tests/install-peers.sh`), when python3 or pymodbus is missing.
 
-mod modbus_common;
+use crate::modbus_common;
 
 use drivers::modbus::{open_stage, Endpoint};
 use drivers::{Axis, AxisValues, Stage};

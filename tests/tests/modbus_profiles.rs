@@ -1,7 +1,7 @@
 //! Drive profile files on disk: the shipped ones load, broken ones are refused with
 //! the file, the line and the key.
 
-mod modbus_common;
+use crate::modbus_common;
 
 use modbus_common::config_dir;
 use protocol::modbus::DriveProfile;

@@ -6,7 +6,7 @@
 //! a feed move compared with the programmed path of its line. The map is made from the
 //! simulator's truth at the scan's plan (`system_tests::truth_map`): a camera scan takes
 //! minutes in a debug build. The figures for the docs come from the ignored benchmark at
-//! the end (`cargo test --release -p system-tests --test rewrite_paths -- --ignored
+//! the end (`cargo test --release -p system-tests --test system rewrite_paths:: -- --ignored
 //! --nocapture`), which can also scan the map with the camera (`SCAN=1`).
 
 use emulators::grbl::{GrblConfig, GrblDevice};

@@ -210,8 +210,8 @@ fn compensated_five_axis_program_is_95_percent_better_against_the_truth() {
 /// one, over 40 seeds of the simulated machine: simulated machine time, probe points,
 /// the largest deviation of each identified error from the injected one, and the test
 /// program's tool tip and direction errors before and after compensation (worst seed).
-/// `cargo test --release -p system-tests --test rotary -- --ignored --nocapture
-/// cycle_figures` (docs/rotary.md, docs/performance.md).
+/// `cargo test --release -p system-tests --test system -- --ignored --nocapture
+/// rotary::cycle_figures` (docs/rotary.md, docs/performance.md).
 #[test]
 #[ignore = "a measurement: run in release with --nocapture"]
 fn cycle_figures() {
@@ -417,7 +417,7 @@ fn rewritten_five_axis_program_runs_on_the_programmed_path_in_the_truth() {
     );
 }
 
-mod grbl_common;
+use crate::grbl_common;
 
 /// The same machine behind the GRBL emulator on a real pseudo-terminal, driven by the
 /// GRBL driver: six axes found from `$$` and the status reports, rotary capabilities,
