@@ -2,9 +2,9 @@
 //! built from `../shared/peers` by `tests/firmware/build.sh`) and through our GRBL
 //! emulator (`emulators::grbl` on a pseudo-terminal, real-time clock), answers compared
 //! line by line. Timing-dependent values (positions and rates while something moves)
-//! are normalised; so is the `Pn:` field (the simulator's pins read constant: every
-//! limit, control and probe input shows as active). What else differs is listed, with
-//! its reason, in docs/grbl-firmware.md.
+//! are normalised; so is the `Pn:` field (the simulator's control and probe pins read
+//! constant and show as active; its limits follow the harness's switches). What else
+//! differs is listed, with its reason, in docs/grbl-firmware.md.
 //!
 //! Both controllers get the same settings first (the firmware's `$$`, sent to the
 //! emulator), so every case starts from the same state. A missing firmware or socat

@@ -638,3 +638,116 @@ fn layout_cut_on_three_real_grbl_controllers_plans_every_stroke_of_the_plan() {
         run.stops
     );
 }
+
+/// The `Pn:` field of a status report (empty when there is none).
+fn pins(status: &str) -> &str {
+    status
+        .trim_end()
+        .trim_end_matches('>')
+        .split('|')
+        .find_map(|f| f.strip_prefix("Pn:"))
+        .unwrap_or("")
+}
+
+/// Sends `line` and returns everything up to its answer (`ok`, `error:N` or `ALARM:N`).
+fn answer(c: &mut system_tests::firmware::TtyClient, line: &str) -> String {
+    c.send(format!("{line}\n").as_bytes());
+    c.read_through_line(Duration::from_secs(120), |l| {
+        l == "ok" || l.starts_with("error:") || l.starts_with("ALARM:")
+    })
+    .unwrap_or_else(|e| panic!("{line}: {e}"))
+}
+
+/// A status report (`?`), once the controller has answered it.
+fn status(c: &mut system_tests::firmware::TtyClient) -> String {
+    c.send(b"?");
+    c.read_through_line(Duration::from_secs(30), |l| l.starts_with('<'))
+        .unwrap_or_else(|e| panic!("`?`: {e}"))
+        .lines()
+        .rfind(|l| l.starts_with('<'))
+        .unwrap()
+        .to_string()
+}
+
+#[test]
+fn grbl_11h_powers_up_locked_with_homing_on_and_homes_to_the_harness_switches() {
+    let mut fw = start(Firmware::Grbl11h);
+    let mut c = fw.open().unwrap_or_else(|e| panic!("{e}"));
+    c.read_through_line(Duration::from_secs(60), |l| l.starts_with("Grbl 1.1h"))
+        .unwrap();
+    // A first power-up ($22=0): idle, and no limit switch pressed (the carriages start
+    // 1250 steps short of them).
+    let s = status(&mut c);
+    assert!(s.starts_with("<Idle|MPos:0.000,0.000,0.000|"), "{s}");
+    assert!(!pins(&s).contains(['X', 'Y', 'Z']), "{s}");
+    // Homing without `$22=1` is refused.
+    assert_eq!(answer(&mut c, "$H"), "error:5\r\n");
+    // Homing on, and quick: locate at 200 mm/min, seek at 1000, 10 ms debounce, and
+    // 100 mm/s² (the simulator runs slower than real time on a busy machine).
+    for setting in [
+        "$22=1", "$24=200", "$25=1000", "$26=10", "$120=100", "$121=100", "$122=100",
+    ] {
+        assert_eq!(answer(&mut c, setting), "ok\r\n", "{setting}");
+    }
+    drop(c);
+    let dir = fw.keep_workdir();
+    drop(fw);
+
+    // The next power-up with homing on: GRBL 1.1h (HOMING_INIT_LOCK) starts in Alarm
+    // and locks out motion until `$H` (or `$X`).
+    let fw = Firmware::Grbl11h
+        .start_in(&dir)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let mut c = fw.open().unwrap();
+    let boot = c
+        .read_through_line(Duration::from_secs(60), |l| {
+            l == "[MSG:'$H'|'$X' to unlock]"
+        })
+        .unwrap();
+    assert!(
+        boot.ends_with("Grbl 1.1h ['$' for help]\r\n[MSG:'$H'|'$X' to unlock]\r\n")
+            && !boot.contains("error:7"),
+        "a second power-up with a valid EEPROM: {boot:?}"
+    );
+    let s = status(&mut c);
+    assert!(s.starts_with("<Alarm|MPos:0.000,0.000,0.000|"), "{s}");
+    assert_eq!(answer(&mut c, "G0 X1"), "error:9\r\n");
+    // `$H`: Z, then X and Y, seek the switches in the positive direction ($23=0),
+    // locate them at $24, pull off $27 (1 mm) and set the machine position there.
+    assert_eq!(answer(&mut c, "$H"), "ok\r\n");
+    let s = status(&mut c);
+    assert!(s.starts_with("<Idle|MPos:-1.000,-1.000,-1.000|"), "{s}");
+    assert!(
+        !pins(&s).contains(['X', 'Y', 'Z']),
+        "pulled off every switch: {s}"
+    );
+    // The switches are 1 mm beyond: X at machine zero presses X's switch, only it.
+    for line in ["G0 X0 Y-0.5", "G4 P0"] {
+        assert_eq!(answer(&mut c, line), "ok\r\n", "{line}");
+    }
+    let s = status(&mut c);
+    assert!(s.starts_with("<Idle|MPos:0.000,-0.500,-1.000|"), "{s}");
+    assert!(
+        pins(&s).contains('X') && !pins(&s).contains(['Y', 'Z']),
+        "{s}"
+    );
+    for line in ["G0 X-0.5", "G4 P0"] {
+        assert_eq!(answer(&mut c, line), "ok\r\n", "{line}");
+    }
+    let s = status(&mut c);
+    assert!(
+        !pins(&s).contains(['X', 'Y', 'Z']),
+        "off the switch again: {s}"
+    );
+    // The firmware's own record of the homing: each cycle's first block seeks
+    // +1.5 x max travel ($130-$132 = 200 mm) on its axes, Z first.
+    let planned = blocks(&fw.blocks());
+    assert_eq!(
+        planned.first().map(|b| (b.steps[2], b.feed)),
+        Some((75_000, 1000.0)),
+        "{planned:?}"
+    );
+    drop(c);
+    drop(fw);
+    let _ = std::fs::remove_dir_all(dir);
+}
