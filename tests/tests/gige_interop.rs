@@ -32,7 +32,9 @@ static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 /// `system_tests::netns`).
 fn on_own_gvcp_port(name: &str, body: impl FnOnce()) {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|p| p.into_inner());
-    on_private_loopback(name, GVCP, body)
+    // The harness's full name: this module's path in the test binary, then the test.
+    let module = module_path!().split_once("::").map_or("", |(_, m)| m);
+    on_private_loopback(&format!("{module}::{name}"), GVCP, body)
 }
 
 /// An Aravis tool this test drives; a missing one fails the test naming the install
