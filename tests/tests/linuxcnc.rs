@@ -1112,7 +1112,7 @@ async fn home_reference_verify_and_run(
     )
     .await;
     assert!(spot.is_success(), "{:?}", spot.error());
-    let spot_max = spot.result.unwrap()["residual_um"]["max"].as_f64().unwrap();
+    let spot_max = spot.result.unwrap().residual_um.max;
     drop(devices);
     let applied = refer::apply(map, &Choice::Recorded(record), now()).unwrap();
     let (text, _) = rewrite_for_linuxcnc(HELD_OUT_PROGRAM, &applied.model);

@@ -248,10 +248,9 @@ fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_prog
         )
         .await;
         assert!(scanned.is_success(), "{:?}", scanned.error());
-        let kept = scanned.result.as_ref().unwrap()["kept_as"]
-            .as_str()
-            .unwrap()
-            .to_string();
+        let kept = (scanned.result.as_ref())
+            .and_then(|r| r.kept_as.clone())
+            .unwrap();
         let map_path = Path::new(&kept).to_path_buf();
         let map = ErrorMap::load(&map_path).unwrap();
 
@@ -276,7 +275,7 @@ fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_prog
         let record_path = refer::reference_path(&map_path);
         protocol::config::write_output(&record_path, &artifacts.0[0].bytes, &[&map_path]).unwrap();
         let record = refer::read_record(&record_path).unwrap().expect("recorded");
-        let machine_time_s = r["machine_time_s"].as_f64().unwrap();
+        let machine_time_s = r.machine_time_s.unwrap();
         let shift = record.shift_um;
 
         // A spot check right after: the recorded reference applies, no homing; the zero
@@ -297,16 +296,16 @@ fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_prog
         .await;
         assert!(spot.is_success(), "{:?}", spot.error());
         let spot = spot.result.unwrap();
-        let drift = &spot["drift_since_reference_um"];
-        let drift = drift[0].as_f64().unwrap().hypot(drift[1].as_f64().unwrap());
-        let spot_max = spot["residual_um"]["max"].as_f64().unwrap();
+        let drift = spot.drift_since_reference_um.unwrap();
+        let drift = drift[0].hypot(drift[1]);
+        let spot_max = spot.residual_um.max;
         eprintln!(
             "spot check on the recorded reference: drift since it {drift:.2} um, residual max \
              {spot_max:.2} um"
         );
-        assert!(drift < 0.5, "{spot}");
-        assert!(spot_max < 1.5, "{spot}");
-        assert_eq!(spot["rescan"], false);
+        assert!(drift < 0.5, "{spot:?}");
+        assert!(spot_max < 1.5, "{spot:?}");
+        assert!(!spot.rescan);
         drop(devices);
 
         // 3. The same program through the pass-through: with the map as scanned, then

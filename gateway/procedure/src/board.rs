@@ -6,13 +6,27 @@ use crate::command_line::{self, FileArg};
 use crate::{Outcome, Sink};
 pub use board_art::{dxf, pdf, svg, template};
 use protocol::Board;
-use serde_json::{json, Map, Value};
+use serde::{Deserialize, Serialize};
+use serde_json::Map;
+
+/// What `board make` made.
+#[derive(Debug, Clone, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct BoardMakeResult {
+    /// The board's name (its file's `name`).
+    pub board: String,
+    /// Its dots, columns times rows.
+    pub dots: u64,
+    /// Whether it carries a position code (issue 28).
+    pub coded: bool,
+    /// The files made, in the order written (artwork, test print, certificate template).
+    pub files: Vec<String>,
+}
 
 /// `gateway board make`: the four files handed to the sink as artifacts named after
 /// the board file (`NAME.svg`, `NAME.dxf`, `NAME.pdf`, `NAME.certificate-template.csv`),
 /// each streamed ([`Sink::artifact_streamed`]): a front that writes files never holds
 /// one whole (issue 38: a 2000 x 2000 board took 1.5 GB).
-pub fn make(board: &Board, name: &str, sink: &mut dyn Sink) -> Outcome {
+pub fn make(board: &Board, name: &str, sink: &mut dyn Sink) -> Outcome<BoardMakeResult> {
     // Sized before anything is made: refused naming the limit.
     if let Err(e) = board_art::check(board) {
         return Outcome::failed(format!("board `{}`: {e}", board.name));
@@ -31,10 +45,13 @@ pub fn make(board: &Board, name: &str, sink: &mut dyn Sink) -> Outcome {
         }
     }
     let dots = u64::from(board.cols) * u64::from(board.rows);
-    Outcome::succeeded(
-        json!({"board": board.name, "dots": dots, "coded": board.code.is_some(), "files": names}),
-        Map::new(),
-    )
+    let result = BoardMakeResult {
+        board: board.name.clone(),
+        dots,
+        coded: board.code.is_some(),
+        files: names,
+    };
+    Outcome::succeeded(result, Map::new())
 }
 
 /// Make the board's artwork: nothing to choose (the board is the context's: the CLI's
@@ -64,36 +81,40 @@ impl crate::registry::Procedure for BoardMake {
     const HELP: &'static str = "Draws the machine's calibration board for the lab that makes it (SVG, DXF, a PDF test print) and its certificate template.";
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = BoardMakeRequest;
-    type Result = Value;
+    type Result = BoardMakeResult;
     const FILES: &'static [FileArg] = &[
         FileArg::positional("board", "The board file (TOML).", command_line::board),
         FileArg::required("out", "The output folder.", command_line::artifacts_folder).short('o'),
     ];
 
-    async fn run(_request: BoardMakeRequest, cx: &mut dyn crate::Context) -> Outcome {
+    async fn run(
+        _request: BoardMakeRequest,
+        cx: &mut dyn crate::Context,
+    ) -> Outcome<BoardMakeResult> {
         let board = crate::or_fail!(cx.board());
         make(&board.board, &board.name, cx.sink())
     }
 
-    fn summary(result: &Value) -> String {
+    fn summary(result: &BoardMakeResult) -> String {
         summary(result)
     }
 }
 
 /// The result as text.
-pub fn summary(r: &Value) -> String {
+pub fn summary(r: &BoardMakeResult) -> String {
     format!(
         "{} ({} dots{}): {}",
-        r["board"].as_str().unwrap_or(""),
-        r["dots"],
-        if r["coded"] == true { ", coded" } else { "" },
-        crate::summary::files(r)
+        r.board,
+        r.dots,
+        if r.coded { ", coded" } else { "" },
+        r.files.join(", ")
     )
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use serde_json::Value;
 
     #[test]
     fn make_hands_over_the_four_files_named_after_the_board() {
@@ -116,6 +137,12 @@ mod tests {
             ["t.svg", "t.dxf", "t.pdf", "t.certificate-template.csv"]
         );
         assert_eq!(sink.0[0].bytes, svg(&b).into_bytes());
+        let result = outcome.result.unwrap();
+        assert_eq!(result.files, names);
+        assert_eq!(
+            summary(&result),
+            "t (24 dots, coded): t.svg, t.dxf, t.pdf, t.certificate-template.csv"
+        );
     }
 
     /// Issue 38: `board make` streams each file to the sink (a front that writes files

@@ -7,9 +7,28 @@ use compensation::report::Report;
 use devices::Devices;
 use job::Job;
 use runner::{Event, JobError};
-use serde_json::{json, Map};
+use serde::{Deserialize, Serialize};
+use serde_json::Map;
 use std::cell::Cell;
 use std::future::Future;
+
+/// A compensation run's result: the compensation report as it is (also what was done
+/// when it stopped). Its schema is an object: the report's fields are the pure crate's
+/// (`job`, `stage`, `camera`, `method`, `targets`, `targets_planned`, `converged`,
+/// `before_um`, `after_um`, `estimate_before_um`, `estimate_after_um` (each `max`,
+/// `rms`, `mean`, um), `iterations`, `wall_time_s`, `per_target`, ...), and that crate
+/// carries no schema derive.
+#[derive(Debug, Clone, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(transparent)]
+#[schema(value_type = Object)]
+pub struct CompensateResult(pub Report);
+
+/// One measurement as the sink gets it: the target's index and the measurement.
+#[derive(Serialize)]
+struct TargetMeasurement<'a, M> {
+    target_index: usize,
+    measurement: &'a M,
+}
 
 /// Runs the job's targets (the first `targets` of them) and reports them: the result is
 /// the compensation report (`compensation::report::Report`), truth figures only on a
@@ -20,18 +39,7 @@ pub async fn run(
     devices: &mut Devices,
     sink: &mut dyn Sink,
     stop: impl Future<Output = ()>,
-) -> Outcome {
-    run_with_report(request, job, devices, sink, stop).await.0
-}
-
-/// [`run`], with the typed report beside the outcome (the CLI prints it as text).
-pub async fn run_with_report(
-    request: &CompensateRequest,
-    job: &Job,
-    devices: &mut Devices,
-    sink: &mut dyn Sink,
-    stop: impl Future<Output = ()>,
-) -> (Outcome, Report) {
+) -> Outcome<CompensateResult> {
     let mut job = job.clone();
     if let Some(n) = request.targets {
         job.targets.truncate(n as usize);
@@ -48,8 +56,14 @@ pub async fn run_with_report(
             target_index,
             measurement,
         } => {
-            let m = json!({"target_index": target_index, "measurement": measurement});
-            if let Err(err) = sink.measurement(&m) {
+            let m = TargetMeasurement {
+                target_index: *target_index,
+                measurement: *measurement,
+            };
+            let sent = serde_json::to_value(&m)
+                .map_err(|e| crate::Error::Output(format!("a measurement: {e}")))
+                .and_then(|m| sink.measurement(&m));
+            if let Err(err) = sent {
                 sink_error.get_or_insert(err);
             }
         }
@@ -68,29 +82,28 @@ pub async fn run_with_report(
         cancelled.set(true);
     })
     .await;
-    let result = serde_json::to_value(&report).unwrap_or_default();
     let mut metrics = Map::new();
-    metrics.insert("targets_planned".into(), json!(report.targets_planned));
-    metrics.insert("targets_done".into(), json!(report.targets));
-    metrics.insert("targets_converged".into(), json!(report.converged));
+    metrics.insert("targets_planned".into(), report.targets_planned.into());
+    metrics.insert("targets_done".into(), report.targets.into());
+    metrics.insert("targets_converged".into(), report.converged.into());
+    let (targets, converged) = (report.targets, report.converged);
+    let result = CompensateResult(report);
     if let Some(e) = sink_error {
-        let o = Outcome::stopped(
+        return Outcome::stopped(
             false,
             format!("a measurement was not kept: {e}"),
             Some(result),
             metrics,
             false,
         );
-        return (o, report);
     }
-    let outcome = match error {
-        None if report.converged == report.targets => Outcome::succeeded(result, metrics),
+    match error {
+        None if converged == targets => Outcome::succeeded(result, metrics),
         None => Outcome::stopped(
             false,
             format!(
-                "{} of {} targets did not converge",
-                report.targets - report.converged,
-                report.targets
+                "{} of {targets} targets did not converge",
+                targets - converged
             ),
             Some(result),
             metrics,
@@ -100,8 +113,7 @@ pub async fn run_with_report(
             let lost = matches!(e, JobError::Driver(_));
             Outcome::stopped(cancelled.get(), e.to_string(), Some(result), metrics, lost)
         }
-    };
-    (outcome, report)
+    }
 }
 
 /// The compensation job as a registered procedure.
@@ -120,7 +132,7 @@ impl crate::registry::Procedure for Compensate {
     ];
     const USES: crate::registry::Uses = crate::registry::Uses::DEVICES;
     type Request = CompensateRequest;
-    type Result = serde_json::Value;
+    type Result = CompensateResult;
     const FILES: &'static [FileArg] = &[FileArg::required(
         "config",
         "The job file (stage, camera, board, targets).",
@@ -128,7 +140,10 @@ impl crate::registry::Procedure for Compensate {
     )];
     const STEPS: &'static str = "targets";
 
-    async fn run(request: CompensateRequest, cx: &mut dyn crate::Context) -> Outcome {
+    async fn run(
+        request: CompensateRequest,
+        cx: &mut dyn crate::Context,
+    ) -> Outcome<CompensateResult> {
         let stop = cx.stop();
         let bench = crate::or_fail!(cx.bench().await);
         run(
@@ -142,9 +157,7 @@ impl crate::registry::Procedure for Compensate {
     }
 
     /// The report's text (per target, then the figures).
-    fn summary(result: &serde_json::Value) -> String {
-        serde_json::from_value::<Report>(result.clone())
-            .map(|r| r.to_text())
-            .unwrap_or_else(|_| crate::summary::compensate_summary(result))
+    fn summary(result: &CompensateResult) -> String {
+        result.0.to_text()
     }
 }

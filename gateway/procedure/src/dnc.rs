@@ -15,7 +15,6 @@ use errormap::MapModel;
 use rewrite::fanuc::{rewrite_fanuc, FanucOptions, FanucReport};
 use rewrite::{Compensation, Identity as NoCompensation};
 use serde::{Deserialize, Serialize};
-use serde_json::{json, Value};
 use std::fmt::Write;
 use std::time::Instant;
 
@@ -161,8 +160,10 @@ pub struct DncRequest {
 /// `X,Y,Z[;X,Y,Z...]` (mm): work offsets G54, G55, ... as a command-line value; the
 /// count and the bounds are the request's to check.
 #[cfg(feature = "cli")]
-pub fn work_offsets_mm(text: &str) -> Result<Vec<[f64; 3]>, String> {
-    text.split(';').map(crate::volumetric::xyz_mm).collect()
+pub fn work_offsets_mm(text: &str) -> Result<Vec<[f64; 3]>, crate::Error> {
+    (text.split(';').map(crate::volumetric::xyz_mm))
+        .collect::<Result<_, _>>()
+        .map_err(crate::Error::Input)
 }
 
 impl DncRequest {
@@ -322,16 +323,80 @@ pub fn prepare(
     .map_err(|e| crate::Error::Refused(format!("{}: {e}", request.program_name)))
 }
 
-fn report_json(r: &FanucReport) -> Value {
-    json!({
-        "program_number": r.program_number, "blocks_in": r.blocks_in,
-        "blocks_out": r.blocks_out, "moves_compensated": r.moves_compensated,
-        "segments_added": r.segments_added, "calls_expanded": r.calls_expanded,
-        "skipped_blocks": r.skipped_blocks,
-        "largest_correction_um": r.largest_correction_um,
-        "largest_correction_line": r.largest_correction_line,
-        "notes": r.notes.iter().map(|n| json!({"line": n.line, "note": n.text})).collect::<Vec<_>>(),
-    })
+/// A program drip-fed (or only rewritten): what went in and out, what the rewrite did,
+/// how much of the tape reached the controller.
+#[derive(Debug, Clone, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct DncResult {
+    /// The program as the request names it (a live sender: its port).
+    pub input: String,
+    /// The tape's artifact ([`TAPE_ARTIFACT`]; a live sender: the controller's port).
+    pub output: String,
+    /// The compensation in one line.
+    pub compensation: String,
+    /// The chord tolerance, um.
+    pub tolerance_um: f64,
+    /// The tape port it was sent to (null: not sent).
+    pub port: Option<String>,
+    /// Tape lines the controller took.
+    pub sent_lines: usize,
+    /// A live sender: lines it sent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lines_received: Option<usize>,
+    /// Lines of the rewritten tape (absent for a live sender).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tape_lines: Option<usize>,
+    /// Its size, bytes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tape_bytes: Option<usize>,
+    /// What the rewrite did (absent: a live sender's relay that did not end).
+    #[serde(flatten)]
+    #[schema(inline)]
+    pub report: Option<DncReport>,
+    /// How long it took, s (absent: it did not end well).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub elapsed_s: Option<f64>,
+}
+
+/// What the Fanuc rewrite did.
+#[derive(Debug, Clone, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct DncReport {
+    /// The main program's `O` number, when it has one.
+    pub program_number: Option<u32>,
+    /// Blocks read and written.
+    pub blocks_in: usize,
+    pub blocks_out: usize,
+    /// Moves whose commands were corrected.
+    pub moves_compensated: usize,
+    /// Blocks added by splitting moves and turning arcs into chords.
+    pub segments_added: usize,
+    /// Subprogram runs written out where they run (M98).
+    pub calls_expanded: usize,
+    /// Blocks skipped by the block skip (`/`).
+    pub skipped_blocks: usize,
+    /// Largest |command - nominal| over the compensated axes, um.
+    pub largest_correction_um: f64,
+    /// Line of that largest correction.
+    pub largest_correction_line: usize,
+    /// What is worth telling that did not stop the rewrite, by line.
+    #[schema(inline)]
+    pub notes: Vec<crate::rewrite::LineNote>,
+}
+
+impl DncReport {
+    fn of(r: &FanucReport) -> Self {
+        Self {
+            program_number: r.program_number,
+            blocks_in: r.blocks_in,
+            blocks_out: r.blocks_out,
+            moves_compensated: r.moves_compensated,
+            segments_added: r.segments_added,
+            calls_expanded: r.calls_expanded,
+            skipped_blocks: r.skipped_blocks,
+            largest_correction_um: r.largest_correction_um,
+            largest_correction_line: r.largest_correction_line,
+            notes: r.notes.iter().map(crate::rewrite::LineNote::of).collect(),
+        }
+    }
 }
 
 /// Where the tape goes: the request's port, else the job's `dnc` stage.
@@ -380,7 +445,7 @@ async fn run_live(
     from_port: &str,
     compensation: &dyn Compensation,
     cx: &mut dyn crate::Context,
-) -> Outcome {
+) -> Outcome<DncResult> {
     let started = Instant::now();
     let options = match request.options() {
         Ok(o) => o,
@@ -407,21 +472,31 @@ async fn run_live(
         Ok(s) => s,
         Err(e) => return Outcome::failed(crate::Error::Refused(format!("subprograms: {e}"))),
     };
-    let mut result = json!({
-        "input": format!("the DNC sender on {from_port}"), "output": link.to_string(),
-        "compensation": compensation.describe(), "tolerance_um": request.tolerance_um,
-        "port": link.to_string(), "sent_lines": 0, "lines_received": 0,
-    });
+    let mut result = DncResult {
+        input: format!("the DNC sender on {from_port}"),
+        output: link.to_string(),
+        compensation: compensation.describe(),
+        tolerance_um: request.tolerance_um,
+        port: Some(link.to_string()),
+        sent_lines: 0,
+        lines_received: Some(0),
+        tape_lines: None,
+        tape_bytes: None,
+        report: None,
+        elapsed_s: None,
+    };
     let stop = cx.stop();
     let relayed = stop
         .unless(async {
+            let device = |e: drivers::DriverError| crate::Error::Device(e.to_string());
             let mut receiver = drivers::dnc::DncReceiver::open(from_port, request.from_baud)
                 .await
-                .map_err(|e| e.to_string())?;
+                .map_err(device)?;
             let mut sender = drivers::dnc::DncSender::open(port, *baud, dnc_options.clone())
                 .await
-                .map_err(|e| format!("opening the tape port: {e}"))?;
+                .map_err(|e| crate::Error::Device(format!("opening the tape port: {e}")))?;
             let (tx, mut rx) = tokio::sync::mpsc::channel::<String>(LIVE_BUFFER_LINES);
+            // (The receiver's callback answers a `String`: the drivers' signature.)
             let mut on_line = |line: &str| -> Result<Vec<String>, String> {
                 stream
                     .push_line(line)
@@ -444,9 +519,9 @@ async fn run_live(
             let sending = sender.send_live(&mut rx, &mut going_on);
             let (received, sent) = tokio::join!(receiving, sending);
             // The sender's refusal first: it is why the controller's tape ended short.
-            let received = received.map_err(|e| e.to_string())?;
-            let sent = sent.map_err(|e| e.to_string())?;
-            Ok::<_, String>((received, sent.sent))
+            let received = received.map_err(device)?;
+            let sent = sent.map_err(|e| crate::Error::Device(e.to_string()))?;
+            Ok::<_, crate::Error>((received, sent.sent))
         })
         .await;
     match relayed {
@@ -464,13 +539,9 @@ async fn run_live(
             o
         }
         Some(Ok((received, sent))) => {
-            result["lines_received"] = json!(received);
-            result["sent_lines"] = json!(sent);
-            if let (Value::Object(m), Value::Object(r)) =
-                (&mut result, report_json(&stream.finish()))
-            {
-                m.extend(r);
-            }
+            result.lines_received = Some(received);
+            result.sent_lines = sent;
+            result.report = Some(DncReport::of(&stream.finish()));
             succeeded(result, started)
         }
     }
@@ -481,7 +552,7 @@ pub async fn run(
     request: &DncRequest,
     compensation: &dyn Compensation,
     cx: &mut dyn crate::Context,
-) -> Outcome {
+) -> Outcome<DncResult> {
     if let Some(from) = &request.from_port {
         return run_live(request, from, compensation, cx).await;
     }
@@ -491,15 +562,19 @@ pub async fn run(
         Err(e) => return Outcome::failed(e),
     };
     let lines = tape.lines().count();
-    let mut result = json!({
-        "input": request.program_name, "output": TAPE_ARTIFACT,
-        "compensation": compensation.describe(), "tolerance_um": request.tolerance_um,
-        "tape_lines": lines, "tape_bytes": tape.len(), "sent_lines": 0,
-        "port": Value::Null,
-    });
-    if let (Value::Object(m), Value::Object(r)) = (&mut result, report_json(&report)) {
-        m.extend(r);
-    }
+    let mut result = DncResult {
+        input: request.program_name.clone(),
+        output: TAPE_ARTIFACT.into(),
+        compensation: compensation.describe(),
+        tolerance_um: request.tolerance_um,
+        port: None,
+        sent_lines: 0,
+        lines_received: None,
+        tape_lines: Some(lines),
+        tape_bytes: Some(tape.len()),
+        report: Some(DncReport::of(&report)),
+        elapsed_s: None,
+    };
     if let Err(e) = cx.sink().artifact(Artifact {
         name: TAPE_ARTIFACT.into(),
         title: None,
@@ -513,7 +588,7 @@ pub async fn run(
             Ok(l) => l,
             Err(e) => return Outcome::failed(e),
         };
-        result["port"] = json!(link.to_string());
+        result.port = Some(link.to_string());
         let stop = cx.stop();
         let total = lines as u64;
         let sink = cx.sink();
@@ -556,67 +631,65 @@ pub async fn run(
                 return o;
             }
             Some(Err((e, sent))) => {
-                result["sent_lines"] = json!(sent);
+                result.sent_lines = sent;
                 let mut o = Outcome::failed(e);
                 o.result = Some(result);
                 return o;
             }
-            Some(Ok(sent)) => result["sent_lines"] = json!(sent),
+            Some(Ok(sent)) => result.sent_lines = sent,
         }
     }
     succeeded(result, started)
 }
 
 /// A run that ended well, from a file or a live sender: its time and the plant's metrics.
-fn succeeded(mut result: Value, started: std::time::Instant) -> Outcome {
-    result["elapsed_s"] = json!(started.elapsed().as_secs_f64());
-    let metrics = crate::metrics_from(
-        &result,
-        &[
-            "moves_compensated",
-            "segments_added",
-            "largest_correction_um",
-            "sent_lines",
-        ],
-    );
+fn succeeded(mut result: DncResult, started: std::time::Instant) -> Outcome<DncResult> {
+    result.elapsed_s = Some(started.elapsed().as_secs_f64());
+    let mut metrics = serde_json::Map::new();
+    if let Some(r) = &result.report {
+        metrics.insert("moves_compensated".into(), r.moves_compensated.into());
+        metrics.insert("segments_added".into(), r.segments_added.into());
+        metrics.insert(
+            "largest_correction_um".into(),
+            r.largest_correction_um.into(),
+        );
+    }
+    metrics.insert("sent_lines".into(), result.sent_lines.into());
     Outcome::succeeded(result, metrics)
 }
 
 /// The outcome as text.
-pub fn summary(r: &Value) -> String {
+pub fn summary(r: &DncResult) -> String {
     let mut t = String::new();
-    let s = |v: &Value| v.as_str().unwrap_or("").to_string();
-    let _ = writeln!(
-        t,
-        "{} -> {} with {}",
-        s(&r["input"]),
-        s(&r["output"]),
-        s(&r["compensation"])
-    );
-    let _ = writeln!(
-        t,
-        "{} blocks in, {} out ({} tape lines, {} bytes): {} moves rewritten, {} segments added, {} subprogram runs expanded, {} blocks skipped; largest correction {:.2} um (line {}); tolerance {} um",
-        r["blocks_in"],
-        r["blocks_out"],
-        r["tape_lines"],
-        r["tape_bytes"],
-        r["moves_compensated"],
-        r["segments_added"],
-        r["calls_expanded"],
-        r["skipped_blocks"],
-        r["largest_correction_um"].as_f64().unwrap_or(f64::NAN),
-        r["largest_correction_line"],
-        r["tolerance_um"].as_f64().unwrap_or(f64::NAN),
-    );
-    if let Some(port) = r["port"].as_str() {
+    let _ = writeln!(t, "{} -> {} with {}", r.input, r.output, r.compensation);
+    let or_dash = |n: Option<usize>| n.map_or("-".to_string(), |n| n.to_string());
+    if let Some(f) = &r.report {
+        let _ = writeln!(
+            t,
+            "{} blocks in, {} out ({} tape lines, {} bytes): {} moves rewritten, {} segments added, {} subprogram runs expanded, {} blocks skipped; largest correction {:.2} um (line {}); tolerance {} um",
+            f.blocks_in,
+            f.blocks_out,
+            or_dash(r.tape_lines),
+            or_dash(r.tape_bytes),
+            f.moves_compensated,
+            f.segments_added,
+            f.calls_expanded,
+            f.skipped_blocks,
+            f.largest_correction_um,
+            f.largest_correction_line,
+            r.tolerance_um,
+        );
+    }
+    if let Some(port) = &r.port {
         let _ = writeln!(
             t,
             "sent {} of {} lines to the {port}",
-            r["sent_lines"], r["tape_lines"]
+            r.sent_lines,
+            or_dash(r.tape_lines.or(r.lines_received))
         );
     }
-    for n in r["notes"].as_array().into_iter().flatten() {
-        let _ = writeln!(t, "line {}: {}", n["line"], s(&n["note"]));
+    for n in r.report.iter().flat_map(|f| &f.notes) {
+        let _ = writeln!(t, "line {}: {}", n.line, n.note);
     }
     t
 }
@@ -637,7 +710,7 @@ impl crate::registry::Procedure for Dnc {
         ..crate::registry::Uses::NOTHING
     };
     type Request = DncRequest;
-    type Result = Value;
+    type Result = DncResult;
     const FILES: &'static [FileArg] = &[
         FileArg::positional(
             "input",
@@ -677,7 +750,7 @@ impl crate::registry::Procedure for Dnc {
         !request.uncompensated
     }
 
-    async fn run(request: DncRequest, cx: &mut dyn crate::Context) -> Outcome {
+    async fn run(request: DncRequest, cx: &mut dyn crate::Context) -> Outcome<DncResult> {
         if request.uncompensated {
             return run(&request, &NoCompensation, cx).await;
         }
@@ -691,7 +764,7 @@ impl crate::registry::Procedure for Dnc {
         run(&request, &model, cx).await
     }
 
-    fn summary(result: &Value) -> String {
+    fn summary(result: &DncResult) -> String {
         summary(result)
     }
 

@@ -8,13 +8,14 @@ use crate::{Artifact, Outcome, Sink};
 use devices::Devices;
 use errormap::MapModel;
 use iso230::plan::{targets, Cycle};
-use iso230::report::{html, result_json, DeviationChart, Series, Tested};
-use iso230::{csv_io, evaluate, Evaluation, Measurement, Uncertainty};
+use iso230::report::{html, DeviationChart, Series, Tested};
+use iso230::{csv_io, evaluate, AxisFigures, Evaluation, Measurement, Uncertainty};
 use job::Job;
 use protocol::errormap::ErrorMap;
 use runner::iso230::{run_iso230, test_area, Iso230Error, Iso230Spec, AXIS_NAMES};
 use runner::JobError;
-use serde_json::{json, Value};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
 use std::cell::{Cell, RefCell};
 use std::future::Future;
 use std::time::Instant;
@@ -33,6 +34,188 @@ pub fn read_measurements_file(path: &std::path::Path) -> Result<Vec<Measurement>
 /// Still frames at the reference point for the localization's repeatability.
 const STILL_FRAMES: usize = 10;
 
+/// An ISO 230-2 test on the machine: its evaluation, or (stopped) how far it got.
+#[derive(Debug, Clone, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(untagged)]
+pub enum Iso230Result {
+    /// The test ran to its end and was evaluated.
+    Evaluated(#[schema(inline)] Box<Iso230Report>),
+    /// It stopped: the measurements taken are kept.
+    Stopped(#[schema(inline)] Iso230Stopped),
+}
+
+/// How far a stopped test got.
+#[derive(Debug, Clone, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct Iso230Stopped {
+    /// Measurements taken (kept, and in the growing measurements file).
+    pub measurements_taken: usize,
+    /// Measurements the cycle plans.
+    pub measurements_planned: u64,
+}
+
+/// An evaluated ISO 230-2 test (also `result.json`): the evaluation, the test on the
+/// machine when it was measured here, and the `before` test overlaid.
+#[derive(Debug, Clone, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct Iso230Report {
+    #[serde(flatten)]
+    #[schema(inline)]
+    pub evaluation: Iso230Evaluation,
+    /// The test on the machine (absent: measurements from a file evaluated).
+    #[serde(flatten)]
+    #[schema(inline)]
+    pub test: Option<Iso230Test>,
+    /// The test before compensation, overlaid on the charts.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(inline)]
+    pub before: Option<Box<Iso230Evaluation>>,
+}
+
+/// The evaluation of one axis, named as in the standard (um; per target position
+/// `i` in order of increasing target).
+#[allow(non_snake_case)]
+#[derive(Debug, Clone, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct Iso230Evaluation {
+    /// `ISO 230-2`.
+    pub standard: String,
+    /// The axis name (`X`, `Y`, ...).
+    pub axis: String,
+    /// Target positions.
+    pub positions: usize,
+    /// i, from 1.
+    pub position_index: Vec<usize>,
+    /// P_i, mm.
+    pub target_mm: Vec<f64>,
+    /// Runs up and down at each position.
+    pub runs_up: Vec<usize>,
+    pub runs_down: Vec<usize>,
+    /// Mean deviation up, down and both ways.
+    pub mean_up_um: Vec<f64>,
+    pub mean_down_um: Vec<f64>,
+    pub mean_um: Vec<f64>,
+    /// Standard deviation up and down.
+    pub s_up_um: Vec<f64>,
+    pub s_down_um: Vec<f64>,
+    /// Reversal value B_i.
+    pub B_i_um: Vec<f64>,
+    /// Repeatability up, down and bidirectional.
+    pub R_up_i_um: Vec<f64>,
+    pub R_down_i_um: Vec<f64>,
+    pub R_i_um: Vec<f64>,
+    /// The measuring uncertainty of one deviation (`certificate_um`,
+    /// `localization_s_um`, `localization_frames`, `expanded_um`); null: measurements
+    /// from a file (their instrument's is not known here).
+    #[schema(value_type = Option<Object>)]
+    pub uncertainty: Option<Uncertainty>,
+    /// The axis figures.
+    #[serde(flatten)]
+    #[schema(inline)]
+    pub figures: Iso230Figures,
+}
+
+/// The axis figures, named as in the standard, um.
+#[allow(non_snake_case)]
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct Iso230Figures {
+    /// Accuracy A, up and down.
+    pub A_um: f64,
+    pub A_up_um: f64,
+    pub A_down_um: f64,
+    /// Largest reversal value B.
+    pub B_um: f64,
+    /// Mean reversal value.
+    pub mean_reversal_um: f64,
+    /// Repeatability R, up and down.
+    pub R_um: f64,
+    pub R_up_um: f64,
+    pub R_down_um: f64,
+    /// Systematic positioning error E, up and down.
+    pub E_um: f64,
+    pub E_up_um: f64,
+    pub E_down_um: f64,
+    /// Mean positioning error M.
+    pub M_um: f64,
+}
+
+/// How a test was run on the machine.
+#[derive(Debug, Clone, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct Iso230Test {
+    /// The error map it ran with (null: without compensation).
+    pub map: Option<String>,
+    /// The cycle: linear or pilgrim-step.
+    pub cycle: String,
+    /// Runs in each direction.
+    pub runs: usize,
+    /// How far past the end targets the axis went, mm.
+    pub overrun_mm: f64,
+    /// Where the other axis stood, mm.
+    pub across_mm: f64,
+    /// Measurements taken.
+    pub measurements: usize,
+    /// The simulated machine's time of the whole run, s (null on a real machine).
+    pub machine_time_s: Option<f64>,
+    /// The run's wall time, s.
+    pub wall_time_s: f64,
+}
+
+impl Iso230Evaluation {
+    /// `e` (with the uncertainty of its deviations when known) in the standard's names.
+    pub fn of(e: &Evaluation, uncertainty: Option<&Uncertainty>) -> Self {
+        let p = &e.positions;
+        let col = |f: fn(&iso230::PositionFigures) -> f64| p.iter().map(f).collect::<Vec<f64>>();
+        Self {
+            standard: "ISO 230-2".into(),
+            axis: e.axis.clone(),
+            positions: p.len(),
+            position_index: p.iter().map(|q| q.position_index).collect(),
+            target_mm: col(|q| q.target_mm),
+            runs_up: p.iter().map(|q| q.runs_up).collect(),
+            runs_down: p.iter().map(|q| q.runs_down).collect(),
+            mean_up_um: col(|q| q.mean_up_um),
+            mean_down_um: col(|q| q.mean_down_um),
+            mean_um: col(|q| q.mean_um),
+            s_up_um: col(|q| q.s_up_um),
+            s_down_um: col(|q| q.s_down_um),
+            B_i_um: col(|q| q.reversal_um),
+            R_up_i_um: col(|q| q.r_up_um),
+            R_down_i_um: col(|q| q.r_down_um),
+            R_i_um: col(|q| q.r_um),
+            uncertainty: uncertainty.copied(),
+            figures: Iso230Figures::of(&e.figures),
+        }
+    }
+}
+
+impl Iso230Figures {
+    pub fn of(f: &AxisFigures) -> Self {
+        Self {
+            A_um: f.a,
+            A_up_um: f.a_up,
+            A_down_um: f.a_down,
+            B_um: f.b,
+            mean_reversal_um: f.mean_reversal,
+            R_um: f.r,
+            R_up_um: f.r_up,
+            R_down_um: f.r_down,
+            E_um: f.e,
+            E_up_um: f.e_up,
+            E_down_um: f.e_down,
+            M_um: f.m,
+        }
+    }
+}
+
+/// One measurement as the sink gets it (a row of the measurements file).
+#[derive(Serialize)]
+struct MeasurementRow<'a> {
+    axis: &'a str,
+    position_index: usize,
+    target_mm: f64,
+    run: usize,
+    /// `+` or `-`.
+    direction: &'static str,
+    deviation_um: f64,
+}
+
 /// An error map given to a test: the map and how messages name it (a file, a profile).
 pub struct NamedMap {
     pub map: ErrorMap,
@@ -40,23 +223,22 @@ pub struct NamedMap {
 }
 
 /// The charts, `result.json` and `report.html` of an evaluation (and of the `before`
-/// test overlaid), as artifacts; returns the result object.
+/// test overlaid), as artifacts; returns the result object (with `test`, how it ran on
+/// the machine when it did).
 pub fn outputs(
     evaluation: &Evaluation,
     uncertainty: Option<&Uncertainty>,
     before: Option<&Evaluation>,
     label: &str,
     notes: &[String],
-    extra: Value,
+    test: Option<Iso230Test>,
     sink: &mut dyn Sink,
-) -> Result<Value, crate::Error> {
-    let mut result = result_json(evaluation, uncertainty);
-    if let (Some(o), Value::Object(e)) = (result.as_object_mut(), extra) {
-        o.extend(e);
-    }
-    if let (Some(o), Some(b)) = (result.as_object_mut(), before) {
-        o.insert("before".into(), result_json(b, None));
-    }
+) -> Result<Iso230Report, crate::Error> {
+    let result = Iso230Report {
+        evaluation: Iso230Evaluation::of(evaluation, uncertainty),
+        test,
+        before: before.map(|b| Box::new(Iso230Evaluation::of(b, None))),
+    };
     let axis = &evaluation.axis;
     let mut charts = vec![(
         format!("deviation_{}", axis.to_lowercase()),
@@ -142,7 +324,7 @@ pub fn evaluate_measurements(
     before: Option<&[Measurement]>,
     source: &str,
     sink: &mut dyn Sink,
-) -> Outcome {
+) -> Outcome<Iso230Report> {
     let evaluation = match evaluate(measurements) {
         Ok(e) => e,
         Err(e) => return Outcome::failed(format!("{source}: {e}")),
@@ -162,7 +344,7 @@ pub fn evaluate_measurements(
         before.as_ref(),
         label,
         &[format!("Evaluated from {source}.")],
-        json!({}),
+        None,
         sink,
     ) {
         Ok(result) => {
@@ -176,7 +358,7 @@ pub fn evaluate_measurements(
 fn figures_metrics(e: &Evaluation) -> serde_json::Map<String, Value> {
     let f = &e.figures;
     let mut metrics = serde_json::Map::new();
-    metrics.insert("axis".into(), json!(e.axis));
+    metrics.insert("axis".into(), e.axis.clone().into());
     for (k, v) in [
         ("A_um", f.a),
         ("B_um", f.b),
@@ -184,7 +366,7 @@ fn figures_metrics(e: &Evaluation) -> serde_json::Map<String, Value> {
         ("E_um", f.e),
         ("M_um", f.m),
     ] {
-        metrics.insert(k.into(), json!(v));
+        metrics.insert(k.into(), v.into());
     }
     metrics
 }
@@ -202,7 +384,7 @@ pub async fn run(
     before: Option<&[Measurement]>,
     sink: &mut dyn Sink,
     stop: impl Future<Output = ()>,
-) -> Outcome {
+) -> Outcome<Iso230Result> {
     let started = Instant::now();
     let axis = request.axis.index();
     if request.with_map != map.is_some() {
@@ -296,10 +478,14 @@ pub async fn run(
         model.as_ref(),
         &mut |m: &Measurement| {
             taken += 1;
-            let row = json!({
-                "axis": m.axis, "position_index": m.position_index, "target_mm": m.target_mm,
-                "run": m.run, "direction": m.direction.sign(), "deviation_um": m.deviation_um,
-            });
+            let row = MeasurementRow {
+                axis: &m.axis,
+                position_index: m.position_index,
+                target_mm: m.target_mm,
+                run: m.run,
+                direction: m.direction.sign(),
+                deviation_um: m.deviation_um,
+            };
             let text = csv_io::write(std::slice::from_ref(m));
             let (header, rows) = text.split_once('\n').unwrap_or((&text, ""));
             let log = crate::LogRow {
@@ -308,7 +494,11 @@ pub async fn run(
                 row: rows,
             };
             let mut sink = shared_sink.borrow_mut();
-            if let Err(e) = sink.measurement(&row).and_then(|()| sink.log_row(&log)) {
+            let kept = serde_json::to_value(&row)
+                .map_err(|e| crate::Error::Output(format!("a measurement: {e}")))
+                .and_then(|row| sink.measurement(&row))
+                .and_then(|()| sink.log_row(&log));
+            if let Err(e) = kept {
                 sink_error.get_or_insert(e);
             }
         },
@@ -331,7 +521,10 @@ pub async fn run(
                         ..
                     }
             );
-            let result = json!({"measurements_taken": taken, "measurements_planned": total});
+            let result = Iso230Result::Stopped(Iso230Stopped {
+                measurements_taken: taken,
+                measurements_planned: total,
+            });
             let error = format!("{e}; the {taken} measurements taken are kept");
             return Outcome::stopped(
                 cancelled.get(),
@@ -374,12 +567,16 @@ pub async fn run(
             "Simulated machine time of the whole run (homing included): {t:.1} s."
         ));
     }
-    let extra = json!({
-        "map": map_name, "cycle": request.cycle.as_str(),
-        "runs": cycle.runs, "overrun_mm": cycle.overrun_mm, "across_mm": across,
-        "measurements": run.measurements.len(),
-        "machine_time_s": machine_time_s, "wall_time_s": started.elapsed().as_secs_f64(),
-    });
+    let test = Iso230Test {
+        map: map_name,
+        cycle: request.cycle.as_str().into(),
+        runs: cycle.runs,
+        overrun_mm: cycle.overrun_mm,
+        across_mm: across,
+        measurements: run.measurements.len(),
+        machine_time_s,
+        wall_time_s: started.elapsed().as_secs_f64(),
+    };
     let csv = Artifact {
         name: MEASUREMENTS_ARTIFACT.into(),
         title: None,
@@ -395,10 +592,13 @@ pub async fn run(
         before.as_ref(),
         label,
         &notes,
-        extra,
+        Some(test),
         sink,
     ) {
-        Ok(result) => Outcome::succeeded(result, figures_metrics(&evaluation)),
+        Ok(result) => Outcome::succeeded(
+            Iso230Result::Evaluated(Box::new(result)),
+            figures_metrics(&evaluation),
+        ),
         Err(e) => Outcome::failed(e),
     }
 }
@@ -466,7 +666,7 @@ impl crate::registry::Procedure for Iso230 {
         link: false,
     };
     type Request = Iso230Request;
-    type Result = Value;
+    type Result = Iso230Result;
     const FILES: &'static [FileArg] = &[
         FileArg::required(
             "config",
@@ -494,7 +694,7 @@ impl crate::registry::Procedure for Iso230 {
     ];
     const STEPS: &'static str = "measurements";
 
-    async fn run(request: Iso230Request, cx: &mut dyn crate::Context) -> Outcome {
+    async fn run(request: Iso230Request, cx: &mut dyn crate::Context) -> Outcome<Iso230Result> {
         let stop = cx.stop();
         let map = match request.with_map {
             false => None,
@@ -526,8 +726,14 @@ impl crate::registry::Procedure for Iso230 {
         .await
     }
 
-    fn summary(result: &Value) -> String {
-        summary(result)
+    fn summary(result: &Iso230Result) -> String {
+        match result {
+            Iso230Result::Evaluated(r) => summary(r),
+            Iso230Result::Stopped(s) => format!(
+                "stopped after {} of {} measurements (kept)\n",
+                s.measurements_taken, s.measurements_planned
+            ),
+        }
     }
 
     fn uses_map(request: &Iso230Request) -> bool {
@@ -602,7 +808,7 @@ impl crate::registry::Procedure for Iso230Evaluate {
     ];
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = Iso230EvaluateRequest;
-    type Result = Value;
+    type Result = Iso230Report;
     const FILES: &'static [FileArg] = &[
         FileArg::positional(
             "file",
@@ -628,7 +834,10 @@ impl crate::registry::Procedure for Iso230Evaluate {
         ),
     ];
 
-    async fn run(request: Iso230EvaluateRequest, cx: &mut dyn crate::Context) -> Outcome {
+    async fn run(
+        request: Iso230EvaluateRequest,
+        cx: &mut dyn crate::Context,
+    ) -> Outcome<Iso230Report> {
         let name = &request.measurements_name;
         let measurements = match measurements_of(&request.measurements, name) {
             Ok(m) => m,
@@ -644,51 +853,45 @@ impl crate::registry::Procedure for Iso230Evaluate {
         evaluate_measurements(&measurements, before.as_deref(), name, cx.sink())
     }
 
-    fn summary(result: &Value) -> String {
+    fn summary(result: &Iso230Report) -> String {
         summary(result)
     }
 }
 
 /// The figures as text, the before test first (the CLI's output without `--json`).
-pub fn summary(r: &Value) -> String {
+pub fn summary(r: &Iso230Report) -> String {
     use std::fmt::Write;
     let mut t = String::new();
-    let figures = |t: &mut String, r: &Value, label: &str| {
-        let n = |k: &str| r[k].as_f64().unwrap_or(f64::NAN);
+    let figures = |t: &mut String, e: &Iso230Evaluation, label: &str| {
+        let f = &e.figures;
         let _ = writeln!(
             t,
             "axis {} ({label}), {} positions: A {:.3} um (up {:.3}, down {:.3}), B {:.3}, mean reversal {:.3}, R {:.3} (up {:.3}, down {:.3}), E {:.3} (up {:.3}, down {:.3}), M {:.3}",
-            r["axis"].as_str().unwrap_or("?"), r["positions"],
-            n("A_um"), n("A_up_um"), n("A_down_um"), n("B_um"), n("mean_reversal_um"), n("R_um"),
-            n("R_up_um"), n("R_down_um"), n("E_um"), n("E_up_um"), n("E_down_um"), n("M_um")
+            e.axis, e.positions,
+            f.A_um, f.A_up_um, f.A_down_um, f.B_um, f.mean_reversal_um, f.R_um,
+            f.R_up_um, f.R_down_um, f.E_um, f.E_up_um, f.E_down_um, f.M_um
         );
     };
-    let measured_here = r.get("cycle").is_some();
-    if let Some(b) = r.get("before") {
+    if let Some(b) = &r.before {
         figures(&mut t, b, "before");
     }
-    let label = match (
-        measured_here,
-        r.get("before").is_some(),
-        r["map"].is_string(),
-    ) {
-        (true, _, true) => "with the map",
-        (true, _, false) => "without compensation",
-        (false, true, _) => "after",
-        (false, false, _) => "measured",
+    let label = match (&r.test, r.before.is_some()) {
+        (Some(test), _) if test.map.is_some() => "with the map",
+        (Some(_), _) => "without compensation",
+        (None, true) => "after",
+        (None, false) => "measured",
     };
-    figures(&mut t, r, label);
-    if measured_here {
+    figures(&mut t, &r.evaluation, label);
+    if let Some(test) = &r.test {
+        let expanded = (r.evaluation.uncertainty.as_ref()).map_or(f64::NAN, |u| u.expanded_um);
         let _ = writeln!(
             t,
-            "uncertainty of one deviation {:.3} um (k = 2); {} measurements{}, {:.1} s",
-            r["uncertainty"]["expanded_um"].as_f64().unwrap_or(f64::NAN),
-            r["measurements"],
-            r["machine_time_s"]
-                .as_f64()
+            "uncertainty of one deviation {expanded:.3} um (k = 2); {} measurements{}, {:.1} s",
+            test.measurements,
+            test.machine_time_s
                 .map(|s| format!(", {s:.1} s of machine time"))
                 .unwrap_or_default(),
-            r["wall_time_s"].as_f64().unwrap_or(0.0),
+            test.wall_time_s,
         );
     }
     t

@@ -10,9 +10,50 @@ use crate::request::{count, number, RequestError};
 use crate::Outcome;
 use protocol::{Board, MonoImage};
 use serde::{Deserialize, Serialize};
-use serde_json::{json, Value};
 use std::time::Instant;
-use vision::localize::{localize, LocalizeParams, LocalizeSettings, Method, PixelAxes};
+use vision::localize::{localize, CodeRead, LocalizeParams, LocalizeSettings, Method, PixelAxes};
+
+/// A frame localized: the board coordinate under the image centre and how it was found.
+#[derive(Debug, Clone, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct LocalizeResult {
+    /// The board coordinate at the image centre, mm.
+    pub x_mm: f64,
+    pub y_mm: f64,
+    /// Identified on-board points used.
+    pub points: usize,
+    /// The localization method.
+    #[schema(value_type = crate::request::MethodName, inline)]
+    pub method: Method,
+    /// How long the localization took, ms.
+    pub elapsed_ms: f64,
+    /// The fit's RMS residual, um.
+    pub residual_rms_um: f64,
+    /// The measured scale, um per pixel.
+    pub um_per_px: f64,
+    /// The board's rotation in the image, degrees.
+    pub rotation_deg: f64,
+    /// The frame.
+    #[schema(inline)]
+    pub image: FrameInfo,
+    /// How a coded board's code was read (`bits`, `errors`, `second`, `i`, `j`); absent
+    /// on a plain dot grid.
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    #[schema(value_type = Option<Object>)]
+    pub code: Option<CodeRead>,
+}
+
+/// The frame a localization read.
+#[derive(Debug, Clone, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct FrameInfo {
+    /// Pixels.
+    pub width: u32,
+    pub height: u32,
+    /// 8 or 16.
+    pub bit_depth: u8,
+    /// How the request named it (its file name); absent from [`run`]'s own result.
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    pub name: Option<String>,
+}
 
 /// The largest board coordinate accepted as a hint, mm.
 pub const MAX_COORDINATE_MM: f64 = 1e5;
@@ -231,7 +272,7 @@ impl crate::registry::Procedure for Localize {
     const HELP: &'static str = "Finds where on the machine's board a camera frame was taken: the board position under the frame's centre.";
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = LocalizeRequest;
-    type Result = Value;
+    type Result = LocalizeResult;
     const FILES: &'static [FileArg] = &[
         FileArg::positional(
             "image",
@@ -258,18 +299,17 @@ impl crate::registry::Procedure for Localize {
         FileArg::required("board", "Board file (TOML).", command_line::board),
     ];
 
-    async fn run(request: LocalizeRequest, cx: &mut dyn crate::Context) -> Outcome {
+    async fn run(request: LocalizeRequest, cx: &mut dyn crate::Context) -> Outcome<LocalizeResult> {
         let board = crate::or_fail!(cx.board());
         let image = crate::or_fail!(frame(&request));
         let mut outcome = run(&request, &image, &board.board, &request.image_name);
-        if let Some(Value::Object(frame)) = outcome.result.as_mut().and_then(|r| r.get_mut("image"))
-        {
-            frame.insert("name".into(), json!(request.image_name));
+        if let Some(r) = outcome.result.as_mut() {
+            r.image.name = Some(request.image_name.clone());
         }
         outcome
     }
 
-    fn summary(result: &Value) -> String {
+    fn summary(result: &LocalizeResult) -> String {
         summary(result)
     }
 }
@@ -292,7 +332,12 @@ impl crate::registry::Checked for LocalizeRequest {
 /// `rotation_deg` and `image` {`width`, `height`, `bit_depth`} (a front end that read
 /// the frame from a file adds its `path`). A request out of bounds or a refused frame
 /// fails with the reason.
-pub fn run(request: &LocalizeRequest, image: &MonoImage, board: &Board, source: &str) -> Outcome {
+pub fn run(
+    request: &LocalizeRequest,
+    image: &MonoImage,
+    board: &Board,
+    source: &str,
+) -> Outcome<LocalizeResult> {
     if let Err(e) = request.check_for(board) {
         return Outcome::failed(e.to_string());
     }
@@ -302,46 +347,57 @@ pub fn run(request: &LocalizeRequest, image: &MonoImage, board: &Board, source: 
         Err(e) => return Outcome::failed(format!("{source}: {e}")),
     };
     let elapsed_ms = t0.elapsed().as_secs_f64() * 1000.0;
-    let result = json!({
-        "x_mm": obs.x_mm, "y_mm": obs.y_mm, "points": obs.points, "method": obs.method,
-        "elapsed_ms": elapsed_ms, "residual_rms_um": obs.residual_rms_um,
-        "um_per_px": obs.um_per_px, "rotation_deg": obs.rotation_deg,
-        "image": { "width": image.width, "height": image.height, "bit_depth": image.bit_depth() },
-    });
-    let mut result = result;
-    if let (Some(code), Value::Object(map)) = (&obs.code, &mut result) {
+    let result = LocalizeResult {
+        x_mm: obs.x_mm,
+        y_mm: obs.y_mm,
+        points: obs.points,
+        method: obs.method,
+        elapsed_ms,
+        residual_rms_um: obs.residual_rms_um,
+        um_per_px: obs.um_per_px,
+        rotation_deg: obs.rotation_deg,
+        image: FrameInfo {
+            width: image.width,
+            height: image.height,
+            bit_depth: image.bit_depth(),
+            name: None,
+        },
         // A coded board: how its code was read (plain grids keep their result as before).
-        map.insert("code".into(), json!(code));
-    }
-    let metrics = crate::metrics_from(&result, &["x_mm", "y_mm", "points", "residual_rms_um"]);
+        code: obs.code,
+    };
+    let metrics = [
+        ("x_mm", result.x_mm.into()),
+        ("y_mm", result.y_mm.into()),
+        ("points", result.points.into()),
+        ("residual_rms_um", result.residual_rms_um.into()),
+    ]
+    .into_iter()
+    .map(|(k, v)| (k.to_string(), v))
+    .collect();
     Outcome::succeeded(result, metrics)
 }
 
 /// The localization as text (the CLI's output without `--json`).
-pub fn summary(r: &Value) -> String {
-    let n = |k: &str| r[k].as_f64().unwrap_or(f64::NAN);
+pub fn summary(r: &LocalizeResult) -> String {
     // The method as the localizer names it (`Fit`, `FourPoint`).
-    let method = r["method"]
-        .as_str()
-        .and_then(|m| m.parse::<Method>().ok())
-        .map(|m| format!("{m:?}"))
-        .unwrap_or_else(|| r["method"].to_string());
     format!(
         "board coordinate at the image centre: X {:.5} mm  Y {:.5} mm\n\
-         method {method}, {} points, residual {:.3} um rms, scale {:.4} um/px, rotation {:.4} deg, {:.3} ms\n",
-        n("x_mm"),
-        n("y_mm"),
-        r["points"],
-        n("residual_rms_um"),
-        n("um_per_px"),
-        n("rotation_deg"),
-        n("elapsed_ms")
+         method {:?}, {} points, residual {:.3} um rms, scale {:.4} um/px, rotation {:.4} deg, {:.3} ms\n",
+        r.x_mm,
+        r.y_mm,
+        r.method,
+        r.points,
+        r.residual_rms_um,
+        r.um_per_px,
+        r.rotation_deg,
+        r.elapsed_ms
     )
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use serde_json::json;
 
     fn board() -> Board {
         let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
@@ -432,8 +488,9 @@ mod tests {
     #[test]
     fn the_summary_reads_the_result() {
         let r = json!({"x_mm": 1.0, "y_mm": 2.0, "points": 9, "method": "four-point",
-            "elapsed_ms": 3.0, "residual_rms_um": 0.1, "um_per_px": 4.0, "rotation_deg": 0.5});
-        let t = summary(&r);
+            "elapsed_ms": 3.0, "residual_rms_um": 0.1, "um_per_px": 4.0, "rotation_deg": 0.5,
+            "image": {"width": 640, "height": 480, "bit_depth": 8}});
+        let t = summary(&serde_json::from_value(r).unwrap());
         assert!(t.starts_with("board coordinate at the image centre: X 1.00000 mm  Y 2.00000 mm\n"));
         assert!(t.contains("method FourPoint, 9 points"), "{t}");
     }

@@ -17,7 +17,8 @@ use job::Job;
 use protocol::errormap::{next_version_path, ErrorMap};
 use runner::scan::ScanError;
 use runner::JobError;
-use serde_json::{json, Value};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
 use std::cell::{Cell, RefCell};
 use std::future::Future;
 use std::io::Write;
@@ -26,10 +27,70 @@ use std::time::{Instant, SystemTime};
 
 pub use crate::context::{MapShelf, ScanJournal};
 
-/// Runs (or resumes) a scan and keeps the map. The result: `name`, `version`, `kept_as`,
-/// `frames`, `resumed_frames`, `grid`, `lines`, `passes`, `uncertainty_um`,
-/// `machine_time_s` (simulated machines), `wall_time_s`; a stopped scan's result says
-/// how many frames are kept for the next run.
+/// A scan's result: the plan's shape, then the map kept, or (a stopped scan) how many
+/// frames are kept for the next run.
+#[derive(Debug, Clone, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct MapResult {
+    /// The map's name.
+    pub name: String,
+    /// The plan in one line (grid, lines, passes): a stopped scan resumes only for the
+    /// same plan.
+    pub plan: String,
+    /// Frames of the whole plan.
+    pub frames: usize,
+    /// Frames taken back from the journal of a stopped scan.
+    pub resumed_frames: usize,
+    /// Grid nodes along X and Y.
+    pub grid: [usize; 2],
+    /// Points of the dense line along X and of the one along Y.
+    pub lines: [usize; 2],
+    /// Passes over each point from each side.
+    pub passes: u32,
+    /// A stopped scan: frames taken (kept for the next scan of this plan).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frames_taken: Option<usize>,
+    /// Where the journal's samples came from (the front end's words: the service's job
+    /// id); free-form.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub resumed_from_job: Option<Value>,
+    /// Why a stopped scan's samples were not taken back (free-form, the front end's).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub not_resumed: Option<Value>,
+    /// The map's version (absent: the scan stopped).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub version: Option<u32>,
+    /// Where the map was kept (a file, a profile version).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub kept_as: Option<String>,
+    /// The map's expanded uncertainty (k = 2), um.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub uncertainty_um: Option<f64>,
+    /// The simulated machine's time of the scan, s (null on a real machine; absent: the
+    /// scan stopped).
+    #[serde(
+        default,
+        deserialize_with = "crate::summary::present",
+        skip_serializing_if = "Option::is_none"
+    )]
+    #[schema(value_type = Option<f64>)]
+    pub machine_time_s: Option<Option<f64>>,
+    /// The scan's wall time, s.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wall_time_s: Option<f64>,
+}
+
+/// One scan frame as the sink gets it ([`sample_of`] reads it back): the plan's point
+/// index and what the camera saw there.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct ScanMeasurement {
+    index: usize,
+    ex_um: f64,
+    ey_um: f64,
+    yaw_urad: f64,
+}
+
+/// Runs (or resumes) a scan and keeps the map ([`MapResult`]); a stopped scan's result
+/// says how many frames are kept for the next run.
 pub async fn run(
     request: &MapRequest,
     job: &Job,
@@ -38,7 +99,7 @@ pub async fn run(
     shelf: &mut dyn MapShelf,
     sink: &mut dyn Sink,
     stop: impl Future<Output = ()>,
-) -> Outcome {
+) -> Outcome<MapResult> {
     let started = Instant::now();
     let limits = match runner::soft_limits(devices.stage.info()) {
         Ok(l) => l,
@@ -69,11 +130,23 @@ pub async fn run(
         Err(e) => return Outcome::failed(format!("the scan journal: {e}")),
     };
     let total = plan.points.len();
-    let shape = json!({
-        "name": request.name, "plan": plan.fingerprint(), "frames": total, "resumed_frames": resumed,
-        "grid": [plan.xs.len(), plan.ys.len()],
-        "lines": [plan.x_line.len(), plan.y_line.len()], "passes": request.passes,
-    });
+    let shape = MapResult {
+        name: request.name.clone(),
+        plan: plan.fingerprint(),
+        frames: total,
+        resumed_frames: resumed,
+        grid: [plan.xs.len(), plan.ys.len()],
+        lines: [plan.x_line.len(), plan.y_line.len()],
+        passes: request.passes,
+        frames_taken: None,
+        resumed_from_job: None,
+        not_resumed: None,
+        version: None,
+        kept_as: None,
+        uncertainty_um: None,
+        machine_time_s: None,
+        wall_time_s: None,
+    };
     sink.progress(resumed as u64, total as u64);
     let cancelled = Cell::new(false);
     // Measurements and progress both go to the one sink.
@@ -85,7 +158,16 @@ pub async fn run(
         &mut builder,
         &mut |i, s| {
             journal.append(i, s)?;
-            shared_sink.borrow_mut().measurement(&json!({"index": i, "ex_um": s.error_um[0], "ey_um": s.error_um[1], "yaw_urad": s.yaw_urad}))
+            let m = ScanMeasurement {
+                index: i,
+                ex_um: s.error_um[0],
+                ey_um: s.error_um[1],
+                yaw_urad: s.yaw_urad,
+            };
+            let m = serde_json::to_value(m).map_err(|e| e.to_string())?;
+            shared_sink
+                .borrow_mut()
+                .measurement(&m)
                 .map_err(String::from)
         },
         &mut |done, of| shared_sink.borrow_mut().progress(done as u64, of as u64),
@@ -105,7 +187,7 @@ pub async fn run(
         Ok(r) => r,
         Err(e) => {
             let mut result = shape;
-            result["frames_taken"] = json!(builder.done());
+            result.frames_taken = Some(builder.done());
             note_resume(&mut result, journal.resumed_from());
             let lost = matches!(
                 e,
@@ -154,16 +236,17 @@ pub async fn run(
     journal.close();
     let mut result = shape;
     note_resume(&mut result, journal.resumed_from());
-    let obj = result.as_object_mut().expect("an object");
-    obj.insert("version".into(), json!(version));
-    obj.insert("kept_as".into(), json!(kept_as));
-    obj.insert("uncertainty_um".into(), json!(map.uncertainty_um));
-    obj.insert(
-        "machine_time_s".into(),
-        json!(crate::machine_time_s(devices)),
-    );
-    obj.insert("wall_time_s".into(), json!(started.elapsed().as_secs_f64()));
-    let metrics = crate::metrics_from(&result, &["frames", "uncertainty_um", "version"]);
+    result.version = Some(version);
+    result.kept_as = Some(kept_as);
+    result.uncertainty_um = Some(map.uncertainty_um);
+    result.machine_time_s = Some(crate::machine_time_s(devices));
+    result.wall_time_s = Some(started.elapsed().as_secs_f64());
+    let metrics = [
+        ("frames", result.frames.into()),
+        ("uncertainty_um", map.uncertainty_um.into()),
+        ("version", version.into()),
+    ];
+    let metrics = metrics.into_iter().map(|(k, v)| (k.into(), v)).collect();
     Outcome::succeeded(result, metrics)
 }
 
@@ -183,12 +266,12 @@ pub fn job_name(job: &Job) -> String {
 
 /// Where a scan's samples came from (`resumed_from_job`), or why a stopped scan was not
 /// resumed (`not_resumed`), in its result.
-fn note_resume(result: &mut Value, from: Option<Value>) {
+fn note_resume(result: &mut MapResult, from: Option<Value>) {
     match from {
         Some(Value::Object(o)) if o.contains_key("not_resumed") => {
-            result["not_resumed"] = o["not_resumed"].clone()
+            result.not_resumed = Some(o["not_resumed"].clone())
         }
-        Some(from) => result["resumed_from_job"] = from,
+        Some(from) => result.resumed_from_job = Some(from),
         None => {}
     }
 }
@@ -309,39 +392,38 @@ impl MapShelf for FolderShelf {
 }
 
 /// A scan sample from a measurement the map procedure handed to its sink.
+/// (The sink's measurements are JSON: [`crate::Sink::measurement`].)
 pub fn sample_of(measurement: &Value) -> Option<(usize, Sample)> {
-    let index = measurement.get("index")?.as_u64()? as usize;
-    let f = |k: &str| measurement.get(k)?.as_f64().filter(|v| v.is_finite());
-    Some((
-        index,
-        Sample {
-            error_um: [f("ex_um")?, f("ey_um")?],
-            yaw_urad: f("yaw_urad")?,
-        },
-    ))
+    let m = ScanMeasurement::deserialize(measurement).ok()?;
+    let sample = Sample {
+        error_um: [m.ex_um, m.ey_um],
+        yaw_urad: m.yaw_urad,
+    };
+    let finite = sample.error_um.iter().all(|v| v.is_finite()) && sample.yaw_urad.is_finite();
+    finite.then_some((m.index, sample))
 }
 
 /// The result as text (the CLI's output without `--json`).
-pub fn summary(r: &Value) -> String {
-    if r.get("version").is_none() {
+pub fn summary(r: &MapResult) -> String {
+    let Some(version) = r.version else {
+        let taken = r.frames_taken.map_or("-".into(), |n| n.to_string());
         return format!(
-            "{} of {} frames are kept for the next scan of this plan\n",
-            r["frames_taken"], r["frames"]
+            "{taken} of {} frames are kept for the next scan of this plan\n",
+            r.frames
         );
-    }
+    };
     format!(
-        "map {} (version {}): {} x {} grid, lines of {} and {} points, {} passes, {} frames ({} resumed), uncertainty {:.3} um (k = 2), {:.1} s\n",
-        r["kept_as"].as_str().unwrap_or(""),
-        r["version"],
-        r["grid"][0],
-        r["grid"][1],
-        r["lines"][0],
-        r["lines"][1],
-        r["passes"],
-        r["frames"],
-        r["resumed_frames"],
-        r["uncertainty_um"].as_f64().unwrap_or(f64::NAN),
-        r["wall_time_s"].as_f64().unwrap_or(0.0)
+        "map {} (version {version}): {} x {} grid, lines of {} and {} points, {} passes, {} frames ({} resumed), uncertainty {:.3} um (k = 2), {:.1} s\n",
+        r.kept_as.as_deref().unwrap_or(""),
+        r.grid[0],
+        r.grid[1],
+        r.lines[0],
+        r.lines[1],
+        r.passes,
+        r.frames,
+        r.resumed_frames,
+        r.uncertainty_um.unwrap_or(f64::NAN),
+        r.wall_time_s.unwrap_or(0.0)
     )
 }
 
@@ -373,7 +455,7 @@ impl crate::registry::Procedure for Map {
     ];
     const USES: crate::registry::Uses = crate::registry::Uses::DEVICES;
     type Request = MapRequest;
-    type Result = Value;
+    type Result = MapResult;
     const FILES: &'static [FileArg] = &[
         FileArg::required("config", "The job file of the machine.", |path, plan| {
             // The map is named after the job file unless --name says otherwise.
@@ -399,7 +481,7 @@ impl crate::registry::Procedure for Map {
     ];
     const STEPS: &'static str = "frames";
 
-    async fn run(request: MapRequest, cx: &mut dyn crate::Context) -> Outcome {
+    async fn run(request: MapRequest, cx: &mut dyn crate::Context) -> Outcome<MapResult> {
         let stop = cx.stop();
         let (mut journal, mut shelf) = match (cx.scan_journal(&request.name), cx.map_shelf()) {
             (Ok(j), Ok(s)) => (j, s),
@@ -418,7 +500,7 @@ impl crate::registry::Procedure for Map {
         .await
     }
 
-    fn summary(result: &Value) -> String {
+    fn summary(result: &MapResult) -> String {
         summary(result)
     }
 

@@ -19,7 +19,6 @@ use proxy::{
 use rewrite::{Approach, Compensation, Options, Pose, Rewriter, N_AXIS};
 use rotary::{LocationErrors, MachineConstants};
 use serde::{Deserialize, Serialize};
-use serde_json::{json, Value};
 use std::cell::{Cell, RefCell};
 use std::future::Future;
 use std::path::Path;
@@ -256,14 +255,106 @@ impl Correction {
     }
 }
 
+/// What the pass-through gives: its result is the last session's account; its partial
+/// results (the sink's) are the ready message, each earlier session's account and each
+/// reference recorded after the sender's homing. One type, so the summary reads each.
+#[derive(Debug, Clone, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(untagged)]
+pub enum ProxyResult {
+    /// The sender's port is ready.
+    Ready(#[schema(inline)] ProxyReady),
+    /// A reference recorded after the sender's homing.
+    Reference(#[schema(inline)] ProxyReference),
+    /// A session's account.
+    Session(#[schema(inline)] ProxySession),
+}
+
+/// The sender's port is ready (before any session).
+#[derive(Debug, Clone, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct ProxyReady {
+    /// The pseudo-terminal to point the G-code sender at.
+    pub sender_port: String,
+    /// The controller's port.
+    pub controller: String,
+    /// The compensation in one line.
+    pub compensation: String,
+    /// The same (older readers' name).
+    pub map: String,
+    /// Which reference the map runs with (null: no map).
+    pub reference: Option<String>,
+    /// What running without a recorded reference costs.
+    pub reference_warning: Option<String>,
+    /// What happens after the sender's homing (null: not applicable).
+    pub after_homing: Option<String>,
+    /// A symlink to `sender_port` (the command line's `--link`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub link: Option<String>,
+}
+
+/// A reference the pass-through recorded after the sender's homing.
+#[derive(Debug, Clone, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct ProxyReference {
+    /// Where it was kept (a file beside the map, the map's profile).
+    pub reference_recorded: String,
+    /// Its number since the scan.
+    pub reference_count: u64,
+    /// The machine zero's shift, um.
+    pub shift_um: [f64; 2],
+}
+
+/// A session's account.
+#[derive(Debug, Clone, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct ProxySession {
+    /// How it ended: `sender left`, `controller lost`, `stopped`.
+    pub ending: String,
+    /// The sender's lines by fate.
+    #[schema(inline)]
+    pub lines: LineFates,
+    /// Lines the sender sent.
+    pub lines_received: u64,
+    /// Pieces sent to the controller.
+    pub pieces_sent: u64,
+    /// Times the controller's buffer ran dry while lines waited.
+    pub starvation_events: u64,
+    /// The rewrite of one line, ms.
+    #[schema(inline)]
+    pub rewrite_ms: Quantiles,
+    /// From a line's arrival to its first piece out, ms.
+    #[schema(inline)]
+    pub first_piece_out_ms: Quantiles,
+    /// Largest |command - nominal|, um.
+    pub largest_correction_um: f64,
+    /// Pieces added by splitting moves.
+    pub segments_added: usize,
+}
+
+/// Line numbers of the sender's program as ranges (`1-3, 7`, or `none`).
+#[derive(Debug, Clone, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct LineFates {
+    /// Acknowledged by the controller.
+    pub acknowledged: String,
+    /// Refused by the controller.
+    pub refused: String,
+    /// In the controller when the session ended.
+    pub in_controller: String,
+    /// Never sent.
+    pub not_sent: String,
+}
+
+/// The median and the 99th percentile, ms.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct Quantiles {
+    pub median: f64,
+    pub p99: f64,
+}
+
 /// What a front end does while the pass-through runs.
 pub trait ProxyFront {
-    /// The sender's port is ready (before any session): `sender_port`, `controller`,
-    /// `compensation` (and `map`, the same).
-    fn ready(&mut self, hello: &Value) -> Result<(), crate::Error>;
+    /// The sender's port is ready (before any session).
+    fn ready(&mut self, hello: &ProxyReady) -> Result<(), crate::Error>;
     /// A session ended and another follows: its account (as [`Outcome::result`] is for
     /// the last one).
-    fn session(&mut self, account: &Value) -> Result<(), crate::Error>;
+    fn session(&mut self, account: &ProxySession) -> Result<(), crate::Error>;
     /// The pass-through re-referenced the map after the sender's homing: keep the record
     /// as the map's current reference (the CLI writes it beside the map).
     fn reference(&mut self, record: &MapReference) -> Result<(), crate::Error> {
@@ -370,7 +461,7 @@ pub async fn run(
     sender_link: Option<&Path>,
     front: &mut dyn ProxyFront,
     stop: impl Future<Output = ()>,
-) -> Outcome {
+) -> Outcome<ProxySession> {
     if let Err(e) = request.check() {
         return Outcome::failed(e.to_string());
     }
@@ -472,8 +563,8 @@ pub async fn run(
             let front = RefCell::new(front);
             let have_camera = frames.is_some();
             let make = || {
-                let rewriter =
-                    Rewriter::new(&shared, options.clone()).map_err(|e| e.to_string())?;
+                let rewriter = Rewriter::new(&shared, options.clone())
+                    .map_err(|e| crate::Error::Refused(e.to_string()))?;
                 let mut proxy = Proxy::new(rewriter, &shared);
                 proxy.greet(&format!("map {}", current.borrow()));
                 proxy.after_homing(match (wanted, have_camera) {
@@ -568,9 +659,9 @@ async fn sessions<'m>(
     s: Served<'_>,
     front: &RefCell<&mut dyn ProxyFront>,
     mut stop: std::pin::Pin<&mut impl Future<Output = ()>>,
-    mut make: impl FnMut() -> Result<Proxy<'m>, String>,
+    mut make: impl FnMut() -> Result<Proxy<'m>, crate::Error>,
     mut frames: Option<&mut dyn ReferenceFrames>,
-) -> Outcome {
+) -> Outcome<ProxySession> {
     let mut controller = match drivers::open_grbl_line(s.port, s.baud, BANNER_WAIT).await {
         Ok((c, _banner)) => c,
         Err(e) => return Outcome::failed(e.to_string()),
@@ -579,12 +670,16 @@ async fn sessions<'m>(
         Ok(p) => p,
         Err(e) => return Outcome::failed(format!("creating the sender's pseudo-terminal: {e}")),
     };
-    let hello = json!({
-        "sender_port": sender.path(), "controller": s.port,
-        "compensation": s.describe, "map": s.describe,
-        "reference": s.reference.map(|r| r.0), "reference_warning": s.reference.and_then(|r| r.1),
-        "after_homing": s.after_homing,
-    });
+    let hello = ProxyReady {
+        sender_port: sender.path().into(),
+        controller: s.port.into(),
+        compensation: s.describe.into(),
+        map: s.describe.into(),
+        reference: s.reference.map(|r| r.0.into()),
+        reference_warning: s.reference.and_then(|r| r.1).map(Into::into),
+        after_homing: s.after_homing.map(Into::into),
+        link: None,
+    };
     if let Err(e) = front.borrow_mut().ready(&hello) {
         return Outcome::failed(e);
     }
@@ -608,17 +703,18 @@ async fn sessions<'m>(
             frames_now,
         )
         .await;
-        let (account, lost) = session_json(&proxy, &ending);
-        let metrics = crate::metrics_from(
-            &account,
-            &[
-                "lines_received",
-                "pieces_sent",
-                "starvation_events",
+        let (account, lost) = session_account(&proxy, &ending);
+        let metrics = [
+            ("lines_received", account.lines_received.into()),
+            ("pieces_sent", account.pieces_sent.into()),
+            ("starvation_events", account.starvation_events.into()),
+            (
                 "largest_correction_um",
-                "segments_added",
-            ],
-        );
+                account.largest_correction_um.into(),
+            ),
+            ("segments_added", account.segments_added.into()),
+        ];
+        let metrics = metrics.into_iter().map(|(k, v)| (k.into(), v)).collect();
         if let Some(why) = lost {
             return Outcome::stopped(
                 false,
@@ -662,11 +758,25 @@ fn ranges(lines: &[u64]) -> String {
     }
 }
 
-fn account_json(a: &LineAccount) -> Value {
-    json!({
-        "acknowledged": ranges(&a.acknowledged), "refused": ranges(&a.refused),
-        "in_controller": ranges(&a.in_controller), "not_sent": ranges(&a.not_sent),
-    })
+impl LineFates {
+    fn of(a: &LineAccount) -> Self {
+        Self {
+            acknowledged: ranges(&a.acknowledged),
+            refused: ranges(&a.refused),
+            in_controller: ranges(&a.in_controller),
+            not_sent: ranges(&a.not_sent),
+        }
+    }
+}
+
+impl Quantiles {
+    /// Of seconds, in ms.
+    fn of_s(v: &[f64]) -> Self {
+        Self {
+            median: quantile_ms(v, 0.5),
+            p99: quantile_ms(v, 0.99),
+        }
+    }
 }
 
 /// The `q` quantile of seconds, in ms (0 for none).
@@ -681,7 +791,7 @@ fn quantile_ms(v: &[f64], q: f64) -> f64 {
 }
 
 /// A session's account, and why the controller was lost if it was.
-fn session_json(proxy: &Proxy<'_>, ending: &Ending) -> (Value, Option<String>) {
+fn session_account(proxy: &Proxy<'_>, ending: &Ending) -> (ProxySession, Option<String>) {
     let stats = proxy.stats();
     let (lat, work) = (&stats.latencies_s, &stats.processing_s);
     let (what, lines, lost) = match ending {
@@ -690,14 +800,17 @@ fn session_json(proxy: &Proxy<'_>, ending: &Ending) -> (Value, Option<String>) {
         Ending::Stopped(a) => ("stopped", a, None),
     };
     let (largest, added) = proxy.rewriter().summary();
-    let account = json!({
-        "ending": what, "lines": account_json(lines),
-        "lines_received": stats.lines, "pieces_sent": stats.pieces_sent,
-        "starvation_events": stats.starvation_events,
-        "rewrite_ms": { "median": quantile_ms(work, 0.5), "p99": quantile_ms(work, 0.99) },
-        "first_piece_out_ms": { "median": quantile_ms(lat, 0.5), "p99": quantile_ms(lat, 0.99) },
-        "largest_correction_um": largest, "segments_added": added,
-    });
+    let account = ProxySession {
+        ending: what.into(),
+        lines: LineFates::of(lines),
+        lines_received: stats.lines,
+        pieces_sent: stats.pieces_sent,
+        starvation_events: stats.starvation_events,
+        rewrite_ms: Quantiles::of_s(work),
+        first_piece_out_ms: Quantiles::of_s(lat),
+        largest_correction_um: largest,
+        segments_added: added,
+    };
     (account, lost)
 }
 
@@ -731,7 +844,7 @@ impl crate::registry::Procedure for PassThrough {
     const COMMAND_LINE_ONLY: &'static [&'static str] =
         &["link", "controller", "rotary", "rotary_name", "machine"];
     type Request = ProxyRequest;
-    type Result = Value;
+    type Result = ProxyResult;
     const FILES: &'static [FileArg] = &[
         FileArg::flag(
             "config",
@@ -766,7 +879,7 @@ impl crate::registry::Procedure for PassThrough {
         .requires(&["rotary"]),
     ];
 
-    async fn run(request: ProxyRequest, cx: &mut dyn crate::Context) -> Outcome {
+    async fn run(request: ProxyRequest, cx: &mut dyn crate::Context) -> Outcome<ProxyResult> {
         let correction = match Correction::of(&request, cx) {
             Ok(c) => c,
             Err(e) => return Outcome::failed(e),
@@ -785,24 +898,21 @@ impl crate::registry::Procedure for PassThrough {
             stop.requested(),
         )
         .await
+        .map_result(ProxyResult::Session)
     }
 
     fn uses_map(request: &ProxyRequest) -> bool {
         request.rotary.is_none()
     }
 
-    fn summary(result: &Value) -> String {
-        if result.get("sender_port").is_some() {
-            ready_summary(result, result["link"].as_str().map(Path::new))
-        } else if let Some(kept) = result["reference_recorded"].as_str() {
-            format!(
-                "after the sender's homing: reference #{} recorded in {kept}, machine zero shift ({:+.2}, {:+.2}) um\n",
-                result["reference_count"],
-                result["shift_um"][0].as_f64().unwrap_or(f64::NAN),
-                result["shift_um"][1].as_f64().unwrap_or(f64::NAN)
-            )
-        } else {
-            summary(result)
+    fn summary(result: &ProxyResult) -> String {
+        match result {
+            ProxyResult::Ready(hello) => ready_summary(hello, hello.link.as_deref().map(Path::new)),
+            ProxyResult::Reference(r) => format!(
+                "after the sender's homing: reference #{} recorded in {}, machine zero shift ({:+.2}, {:+.2}) um\n",
+                r.reference_count, r.reference_recorded, r.shift_um[0], r.shift_um[1]
+            ),
+            ProxyResult::Session(account) => summary(account),
         }
     }
 }
@@ -815,25 +925,34 @@ struct ContextFront<'a> {
 }
 
 impl ProxyFront for ContextFront<'_> {
-    fn ready(&mut self, hello: &Value) -> Result<(), crate::Error> {
-        let mut hello = hello.clone();
-        if let (Some(link), Some(o)) = (&self.link, hello.as_object_mut()) {
-            o.insert("link".into(), json!(link));
-        }
-        self.cx.sink().partial_result(&hello);
-        Ok(())
+    fn ready(&mut self, hello: &ProxyReady) -> Result<(), crate::Error> {
+        let hello = ProxyReady {
+            link: self.link.clone(),
+            ..hello.clone()
+        };
+        self.partial(&ProxyResult::Ready(hello))
     }
 
-    fn session(&mut self, account: &Value) -> Result<(), crate::Error> {
-        self.cx.sink().partial_result(account);
-        Ok(())
+    fn session(&mut self, account: &ProxySession) -> Result<(), crate::Error> {
+        self.partial(&ProxyResult::Session(account.clone()))
     }
 
     fn reference(&mut self, record: &MapReference) -> Result<(), crate::Error> {
         let kept = (self.cx.keep_reference(record))
             .map_err(|e| crate::Error::Output(format!("recording the reference: {e}")))?;
-        let v = json!({"reference_recorded": kept, "reference_count": record.reference_count,
-            "shift_um": record.shift_um});
+        self.partial(&ProxyResult::Reference(ProxyReference {
+            reference_recorded: kept,
+            reference_count: record.reference_count,
+            shift_um: record.shift_um,
+        }))
+    }
+}
+
+impl ContextFront<'_> {
+    /// A partial result to the sink (its JSON).
+    fn partial(&mut self, result: &ProxyResult) -> Result<(), crate::Error> {
+        let v = serde_json::to_value(result)
+            .map_err(|e| crate::Error::Output(format!("a partial result: {e}")))?;
         self.cx.sink().partial_result(&v);
         Ok(())
     }
@@ -841,55 +960,52 @@ impl ProxyFront for ContextFront<'_> {
 
 /// The ready message as text: the sender's port (and `link`, a symlink to it), the
 /// controller and the compensation.
-pub fn ready_summary(hello: &Value, link: Option<&Path>) -> String {
-    let s = |k: &str| hello[k].as_str().unwrap_or("?").to_string();
-    let mut t = format!("sender port: {}\n", s("sender_port"));
+pub fn ready_summary(hello: &ProxyReady, link: Option<&Path>) -> String {
+    let mut t = format!("sender port: {}\n", hello.sender_port);
     if let Some(l) = link {
         t += &format!("link: {}\n", l.display());
     }
     t += &format!(
         "controller: {}; compensation: {}\n",
-        s("controller"),
-        s("compensation")
+        hello.controller, hello.compensation
     );
-    if let Some(r) = hello["reference"].as_str() {
+    if let Some(r) = &hello.reference {
         t += &format!("map {r}\n");
     }
-    if let Some(w) = hello["reference_warning"].as_str() {
+    if let Some(w) = &hello.reference_warning {
         t += &format!("warning: {w}\n");
     }
-    if let Some(a) = hello["after_homing"].as_str() {
+    if let Some(a) = &hello.after_homing {
         t += &format!("{a}\n");
     }
     t
 }
 
 /// A session's account as text (the CLI's output without `--json`).
-pub fn summary(r: &Value) -> String {
-    let n = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
-    let lines = |k: &str| r["lines"][k].as_str().unwrap_or("?").to_string();
+pub fn summary(r: &ProxySession) -> String {
     format!(
         "session ended ({}): {} lines received, {} pieces sent, {} starvation events\n  \
          rewrite per line: median {:.3} ms, p99 {:.3} ms; arrival to first piece out: median {:.3} ms, p99 {:.3} ms\n  \
          acknowledged: {}\n  refused: {}\n  in the controller when it ended: {}\n  never sent: {}\n",
-        r["ending"].as_str().unwrap_or("?"),
-        r["lines_received"],
-        r["pieces_sent"],
-        r["starvation_events"],
-        n(&r["rewrite_ms"]["median"]),
-        n(&r["rewrite_ms"]["p99"]),
-        n(&r["first_piece_out_ms"]["median"]),
-        n(&r["first_piece_out_ms"]["p99"]),
-        lines("acknowledged"),
-        lines("refused"),
-        lines("in_controller"),
-        lines("not_sent"),
+        r.ending,
+        r.lines_received,
+        r.pieces_sent,
+        r.starvation_events,
+        r.rewrite_ms.median,
+        r.rewrite_ms.p99,
+        r.first_piece_out_ms.median,
+        r.first_piece_out_ms.p99,
+        r.lines.acknowledged,
+        r.lines.refused,
+        r.lines.in_controller,
+        r.lines.not_sent,
     )
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use serde_json::json;
 
     #[test]
     fn the_defaults_pass() {
@@ -978,6 +1094,10 @@ mod tests {
     fn the_texts_read_the_json() {
         let hello = json!({"sender_port": "/dev/pts/7", "controller": "/dev/ttyACM0",
             "compensation": "map m", "map": "map m"});
+        let hello: ProxyResult = serde_json::from_value(hello).unwrap();
+        let ProxyResult::Ready(hello) = hello else {
+            panic!("{hello:?}")
+        };
         assert_eq!(
             ready_summary(&hello, Some(Path::new("/tmp/ttyG"))),
             "sender port: /dev/pts/7\nlink: /tmp/ttyG\ncontroller: /dev/ttyACM0; compensation: map m\n"
@@ -988,10 +1108,21 @@ mod tests {
             "rewrite_ms": {"median": 0.1, "p99": 0.2},
             "first_piece_out_ms": {"median": 0.3, "p99": 0.4},
             "largest_correction_um": 5.0, "segments_added": 6});
+        let r: ProxyResult = serde_json::from_value(r).unwrap();
+        let ProxyResult::Session(r) = r else {
+            panic!("{r:?}")
+        };
         let t = summary(&r);
         assert!(t.starts_with(
             "session ended (sender left): 3 lines received, 9 pieces sent, 0 starvation events\n"
         ));
         assert!(t.contains("  acknowledged: 1-3\n  refused: none\n"), "{t}");
+        let recorded = json!({"reference_recorded": "m.v1.reference.json",
+            "reference_count": 2, "shift_um": [1.0, -2.0]});
+        let recorded: ProxyResult = serde_json::from_value(recorded).unwrap();
+        assert!(
+            matches!(recorded, ProxyResult::Reference(_)),
+            "{recorded:?}"
+        );
     }
 }

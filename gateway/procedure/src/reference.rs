@@ -8,12 +8,12 @@ use crate::command_line::{self, FileArg};
 use crate::request::ReferenceRequest;
 use crate::{Artifact, Error, Outcome, Sink};
 use devices::Devices;
-use errormap::reference::{Circumstances, MapReference};
+use errormap::reference::{AxisScale, Circumstances, MapReference};
 use errormap::MapModel;
 use job::Job;
 use protocol::errormap::ErrorMap;
 use runner::JobError;
-use serde_json::{json, Value};
+use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::SystemTime;
 
@@ -112,12 +112,70 @@ pub async fn active_map(
 
 /// What applying a choice gave: the model, one line saying which reference and how old
 /// (for a program's header, a log, a sender), a warning when there is none, and the
-/// record's fields for a result.
+/// record's fields for a result (none when no record applies).
 pub struct Applied {
     pub model: MapModel,
     pub describe: String,
     pub warning: Option<String>,
-    pub json: Value,
+    pub record: Option<AppliedReference>,
+}
+
+/// The recorded reference a map was applied with, as a result shows it (`rewrite`,
+/// `dnc`, `proxy`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct AppliedReference {
+    /// When it was recorded (RFC 3339).
+    pub measured_at: String,
+    /// Its age when applied, s.
+    pub age_s: u64,
+    /// Its number since the scan, from 1.
+    pub reference_count: u64,
+    /// The machine zero's shift it applies, um.
+    pub shift_um: [f64; 2],
+    /// The controller's homing count, when it reports one.
+    pub homing_count: Option<u64>,
+    /// The machine's temperature, when known, degrees C.
+    pub temperature_c: Option<f64>,
+}
+
+/// A reference after homing: the shift measured, the record kept.
+#[derive(Debug, Clone, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct ReferenceResult {
+    /// The camera's error at the reference point (observed - nominal), um.
+    pub seen_um: [f64; 2],
+    /// The machine zero's shift since the scan, um: what the map is shifted by.
+    pub shift_um: [f64; 2],
+    /// The zero's drift since the previous record, um (null: none).
+    pub drift_since_previous_um: Option<[f64; 2]>,
+    /// When the previous record was measured (null: none).
+    pub previous_measured_at: Option<String>,
+    /// The map's reference point, machine mm.
+    pub reference_mm: [f64; 2],
+    /// When it was measured (RFC 3339).
+    pub measured_at: String,
+    /// References of this map so far, this one included.
+    pub reference_count: u64,
+    /// The controller's homing count, when it reports one.
+    pub homing_count: Option<u64>,
+    /// The machine's temperature, when known, degrees C.
+    pub temperature_c: Option<f64>,
+    /// The simulated machine's time of the reference, s (null on a real machine).
+    pub machine_time_s: Option<f64>,
+    /// Each axis's growth since the scan (`at_mm`, `seen_um`, `ppm`, and `ppm_per_h`
+    /// when a previous record allows it); null when the map is too short to measure it.
+    #[schema(value_type = Option<Object>)]
+    pub scale: Option<Box<AxisScale>>,
+    /// Whether it homed first (false: measured in use, where the machine is).
+    pub homed: bool,
+    /// The record itself, as kept beside the map.
+    #[schema(value_type = Object)]
+    pub record: MapReference,
+    /// Where the record was kept (a file, the map's profile).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub written_to: Option<String>,
+    /// The map's previous record could not be read and was replaced: why.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub replaced_damaged_record: Option<String>,
 }
 
 /// The map's model under `choice` (a record of another map refused).
@@ -131,10 +189,13 @@ pub fn apply(map: ErrorMap, choice: &Choice, now: SystemTime) -> Result<Applied,
                 .map_err(|e| Error::Mismatch(format!("the map's reference record: {e}")))?,
             describe: r.describe(now_s),
             warning: None,
-            json: json!({
-                "measured_at": r.measured_at, "age_s": r.age_s(now_s),
-                "reference_count": r.reference_count, "shift_um": r.shift_um,
-                "homing_count": r.homing_count, "temperature_c": r.temperature_c,
+            record: Some(AppliedReference {
+                measured_at: r.measured_at.clone(),
+                age_s: r.age_s(now_s),
+                reference_count: r.reference_count,
+                shift_um: r.shift_um,
+                homing_count: r.homing_count,
+                temperature_c: r.temperature_c,
             }),
         },
         Choice::NoneRecorded => Applied {
@@ -146,13 +207,13 @@ pub fn apply(map: ErrorMap, choice: &Choice, now: SystemTime) -> Result<Applied,
                  reference` after every homing; --no-reference silences this)"
                     .into(),
             ),
-            json: Value::Null,
+            record: None,
         },
         Choice::NotWanted => Applied {
             model,
             describe: "no reference (--no-reference): the map applies as scanned".into(),
             warning: None,
-            json: Value::Null,
+            record: None,
         },
     })
 }
@@ -161,11 +222,9 @@ pub fn apply(map: ErrorMap, choice: &Choice, now: SystemTime) -> Result<Applied,
 /// machine, controller, board or camera (`what` names the map). `previous` is the
 /// record it replaces (its count goes on, the drift since it is reported). The record
 /// goes to the sink as [`REFERENCE_ARTIFACT`] only when the shift is sane. The result:
-/// `seen_um`, `shift_um`, `drift_since_previous_um`, `reference_mm`, `measured_at`,
-/// `reference_count`, `homing_count`, `temperature_c`, `machine_time_s` (simulated
-/// machines), `scale` (each axis's growth since the scan, measured at the map's far end
-/// along each axis when the map reaches `MIN_SCALE_BASELINE_MM` from the reference
-/// point; with its rate since `previous`), `record`.
+/// [`ReferenceResult`] (`scale`: each axis's growth since the scan, measured at the
+/// map's far end along each axis when the map reaches `MIN_SCALE_BASELINE_MM` from the
+/// reference point; with its rate since `previous`).
 #[allow(clippy::too_many_arguments)]
 pub async fn run(
     request: &ReferenceRequest,
@@ -176,7 +235,7 @@ pub async fn run(
     previous: Option<&MapReference>,
     now: SystemTime,
     sink: &mut dyn Sink,
-) -> Outcome {
+) -> Outcome<ReferenceResult> {
     if let Err(e) = request.check() {
         return Outcome::failed(e.to_string());
     }
@@ -271,16 +330,6 @@ pub async fn run(
         Err(e) => return Outcome::failed(format!("{what}: {e}")),
     };
     let drift = previous.map(|p| p.drift_um(frame.seen_um));
-    let result = json!({
-        "seen_um": record.seen_um, "shift_um": record.shift_um,
-        "drift_since_previous_um": drift,
-        "previous_measured_at": previous.map(|p| p.measured_at.clone()),
-        "reference_mm": record.reference_mm, "measured_at": record.measured_at,
-        "reference_count": record.reference_count, "homing_count": record.homing_count,
-        "temperature_c": record.temperature_c, "machine_time_s": machine_time_s,
-        "scale": record.scale, "homed": !request.no_home,
-        "record": record,
-    });
     if let Err(e) = sink.artifact(Artifact {
         name: REFERENCE_ARTIFACT.into(),
         title: None,
@@ -289,65 +338,75 @@ pub async fn run(
     }) {
         return Outcome::failed(format!("recording the reference: {e}"));
     }
-    let mut metrics = crate::metrics_from(&result, &["reference_count", "machine_time_s"]);
-    metrics.insert("shift_x_um".into(), json!(record.shift_um[0]));
-    metrics.insert("shift_y_um".into(), json!(record.shift_um[1]));
+    let mut metrics = serde_json::Map::new();
+    metrics.insert("reference_count".into(), record.reference_count.into());
+    metrics.insert("machine_time_s".into(), machine_time_s.into());
+    metrics.insert("shift_x_um".into(), record.shift_um[0].into());
+    metrics.insert("shift_y_um".into(), record.shift_um[1].into());
     if let Some(s) = &record.scale {
-        metrics.insert("scale_x_ppm".into(), json!(s.ppm[0]));
-        metrics.insert("scale_y_ppm".into(), json!(s.ppm[1]));
+        metrics.insert("scale_x_ppm".into(), s.ppm[0].into());
+        metrics.insert("scale_y_ppm".into(), s.ppm[1].into());
     }
+    let result = ReferenceResult {
+        seen_um: record.seen_um,
+        shift_um: record.shift_um,
+        drift_since_previous_um: drift,
+        previous_measured_at: previous.map(|p| p.measured_at.clone()),
+        reference_mm: record.reference_mm,
+        measured_at: record.measured_at.clone(),
+        reference_count: record.reference_count,
+        homing_count: record.homing_count,
+        temperature_c: record.temperature_c,
+        machine_time_s,
+        scale: record.scale.clone(),
+        homed: !request.no_home,
+        record,
+        written_to: None,
+        replaced_damaged_record: None,
+    };
     Outcome::succeeded(result, metrics)
 }
 
 /// The result as text (the CLI's output without `--json`).
-pub fn summary(r: &Value) -> String {
-    let f = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
+pub fn summary(r: &ReferenceResult) -> String {
     let mut t = format!(
         "reference #{}{} at ({:.3}, {:.3}) mm, {}: the camera sees ({:+.2}, {:+.2}) um; \
          the machine's zero moved by ({:+.2}, {:+.2}) um since the scan\n",
-        r["reference_count"],
-        if r["homed"] == false {
-            " (in use, no homing)"
-        } else {
-            ""
-        },
-        f(&r["reference_mm"][0]),
-        f(&r["reference_mm"][1]),
-        r["measured_at"].as_str().unwrap_or("?"),
-        f(&r["seen_um"][0]),
-        f(&r["seen_um"][1]),
-        f(&r["shift_um"][0]),
-        f(&r["shift_um"][1]),
+        r.reference_count,
+        if r.homed { "" } else { " (in use, no homing)" },
+        r.reference_mm[0],
+        r.reference_mm[1],
+        r.measured_at,
+        r.seen_um[0],
+        r.seen_um[1],
+        r.shift_um[0],
+        r.shift_um[1],
     );
-    if let Some(d) = r["drift_since_previous_um"].as_array() {
+    if let Some(d) = r.drift_since_previous_um {
         t += &format!(
             "since the previous reference ({}): ({:+.2}, {:+.2}) um\n",
-            r["previous_measured_at"].as_str().unwrap_or("?"),
-            f(&d[0]),
-            f(&d[1])
+            r.previous_measured_at.as_deref().unwrap_or("?"),
+            d[0],
+            d[1]
         );
     }
-    if let Some(s) = r["scale"].as_object() {
+    if let Some(s) = &r.scale {
         t += &format!(
             "the axes grew by ({:+.2}, {:+.2}) ppm since the scan (seen at X {:.3} and Y {:.3} mm)",
-            f(&s["ppm"][0]),
-            f(&s["ppm"][1]),
-            f(&s["at_mm"][0]),
-            f(&s["at_mm"][1]),
+            s.ppm[0], s.ppm[1], s.at_mm[0], s.at_mm[1],
         );
-        if let Some(rate) = s.get("ppm_per_h").and_then(Value::as_array) {
+        if let Some(rate) = s.ppm_per_h {
             t += &format!(
                 ", growing by ({:+.2}, {:+.2}) ppm/h since the previous reference",
-                f(&rate[0]),
-                f(&rate[1])
+                rate[0], rate[1]
             );
         }
         t += "\n";
     }
-    if let Some(s) = r["machine_time_s"].as_f64() {
+    if let Some(s) = r.machine_time_s {
         t += &format!("machine time {s:.1} s\n");
     }
-    if let Some(p) = r["written_to"].as_str() {
+    if let Some(p) = &r.written_to {
         t += &format!("recorded in {p}: rewrite, proxy and verify --spot-check use it\n");
     }
     t
@@ -377,10 +436,13 @@ impl crate::registry::Procedure for Reference {
     ];
     const USES: crate::registry::Uses = crate::registry::Uses::DEVICES_AND_MAP;
     type Request = ReferenceRequest;
-    type Result = Value;
+    type Result = ReferenceResult;
     const FILES: &'static [FileArg] = command_line::JOB_AND_MAP;
 
-    async fn run(request: ReferenceRequest, cx: &mut dyn crate::Context) -> Outcome {
+    async fn run(
+        request: ReferenceRequest,
+        cx: &mut dyn crate::Context,
+    ) -> Outcome<ReferenceResult> {
         let stop = cx.stop();
         let now = cx.now();
         let active = crate::or_fail!(cx.map());
@@ -411,21 +473,17 @@ impl crate::registry::Procedure for Reference {
         let Some(result) = outcome.result.as_mut() else {
             return outcome;
         };
-        let record: MapReference = match serde_json::from_value(result["record"].clone()) {
-            Ok(r) => r,
-            Err(e) => return Outcome::failed(format!("the new record: {e}")),
-        };
-        match cx.keep_reference(&record) {
-            Ok(kept) => result["written_to"] = json!(kept),
+        match cx.keep_reference(&result.record) {
+            Ok(kept) => result.written_to = Some(kept),
             Err(e) => return Outcome::failed(format!("recording the reference: {e}")),
         }
         if let Some(e) = replaced {
-            result["replaced_damaged_record"] = json!(e.to_string());
+            result.replaced_damaged_record = Some(e.to_string());
         }
         outcome
     }
 
-    fn summary(result: &Value) -> String {
+    fn summary(result: &ReferenceResult) -> String {
         summary(result)
     }
 }

@@ -11,7 +11,6 @@ use protocol::errormap::ErrorMap;
 use protocol::grbl::response::Response;
 use rewrite::{Compensation, Limits, Options, Pose, Rewriter, N_AXIS};
 use serde::{Deserialize, Serialize};
-use serde_json::{json, Value};
 use std::fmt::Write;
 use std::time::Instant;
 
@@ -399,6 +398,74 @@ pub fn read_parameters(text: &str) -> Result<([Pose; 6], Pose), RequestError> {
     Ok((stored, offsets[6]))
 }
 
+/// A program rewritten: what went in and out, and what the compensation did.
+#[derive(Debug, Clone, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct RewriteResult {
+    /// The program as the request names it (its file name).
+    pub input: String,
+    /// The rewritten program's artifact ([`PROGRAM_ARTIFACT`]; the CLI: its `--out`).
+    pub output: String,
+    /// The compensation in one line (the map or model, its extent).
+    pub compensation: String,
+    /// The chord tolerance, um.
+    pub tolerance_um: f64,
+    /// Lines of the program (LinuxCNC: blocks run).
+    pub input_lines: usize,
+    /// Lines of the rewritten program.
+    pub output_lines: usize,
+    /// Moves whose commands were corrected.
+    pub moves_compensated: usize,
+    /// Lines added by splitting moves and turning arcs into chords.
+    pub segments_added: usize,
+    /// Largest |command - nominal| over the compensated axes, um.
+    pub largest_correction_um: f64,
+    /// Line of that largest correction.
+    pub largest_correction_line: usize,
+    /// Whether the controller's work offsets were given.
+    pub offsets_given: bool,
+    /// What is worth telling that did not stop the rewrite, by line.
+    #[schema(inline)]
+    pub notes: Vec<LineNote>,
+    /// How long the rewrite took, s.
+    pub elapsed_s: f64,
+    /// The controller's language.
+    #[schema(inline)]
+    pub dialect: Dialect,
+    /// The reference the map applied under (null: a volumetric model or a map as
+    /// scanned without one asked for).
+    #[schema(inline)]
+    pub reference: Option<ReferenceUsed>,
+}
+
+/// A note on one line of a program.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct LineNote {
+    /// The line, from 1.
+    pub line: usize,
+    pub note: String,
+}
+
+impl LineNote {
+    pub fn of(n: &rewrite::Note) -> Self {
+        Self {
+            line: n.line,
+            note: n.text.clone(),
+        }
+    }
+}
+
+/// Which reference a map applied under, as a result says it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct ReferenceUsed {
+    /// Which reference and how old, in one line (also the program's first line).
+    pub describe: String,
+    /// What applying none costs, when none is recorded.
+    pub warning: Option<String>,
+    /// The record applied (null: none).
+    #[schema(inline)]
+    pub record: Option<crate::reference::AppliedReference>,
+}
+
 /// The compensation a program is rewritten with.
 pub enum RewriteModel {
     /// An error map as scanned (no reference, no header line).
@@ -418,23 +485,20 @@ pub enum RewriteModel {
 
 /// Rewrites the program (`source` names it in messages): the rewritten program goes to
 /// the sink as [`PROGRAM_ARTIFACT`] only when every line was rewritten. The result:
-/// `input` (`source`), `output` (the artifact), `compensation`, `tolerance_um`,
-/// `input_lines`, `output_lines`, `moves_compensated`, `segments_added`,
-/// `largest_correction_um`, `largest_correction_line`, `offsets_given`, `notes` (`line`,
-/// `note`), `elapsed_s`.
+/// [`RewriteResult`] (`input` is `source`).
 pub fn run(
     request: &RewriteRequest,
     model: RewriteModel,
     source: &str,
     now: std::time::SystemTime,
     sink: &mut dyn Sink,
-) -> Outcome {
+) -> Outcome<RewriteResult> {
     let options = match request.options() {
         Ok(o) => o,
         Err(e) => return Outcome::failed(e.to_string()),
     };
     let mut header = None;
-    let mut reference = Value::Null;
+    let mut reference = None;
     let compensation: Box<dyn Compensation> = match model {
         RewriteModel::Map(map) => Box::new(MapModel::new(map)),
         RewriteModel::ReferencedMap { map, reference: r } => {
@@ -443,9 +507,10 @@ pub fn run(
                 Err(e) => return Outcome::failed(e),
             };
             header = Some(format!("; gateway: {}", applied.describe));
-            reference = json!({
-                "describe": applied.describe, "warning": applied.warning,
-                "record": applied.json,
+            reference = Some(ReferenceUsed {
+                describe: applied.describe,
+                warning: applied.warning,
+                record: applied.record,
             });
             Box::new(applied.model)
         }
@@ -490,30 +555,29 @@ pub fn run(
     }) {
         return Outcome::failed(e);
     }
-    let notes: Vec<_> = report
-        .notes
-        .iter()
-        .map(|n| json!({ "line": n.line, "note": n.text }))
-        .collect();
-    let result = json!({
-        "input": source, "output": PROGRAM_ARTIFACT,
-        "compensation": compensation.describe(), "tolerance_um": request.tolerance_um,
-        "input_lines": report.input_lines, "output_lines": report.output_lines,
-        "moves_compensated": report.moves_compensated, "segments_added": report.segments_added,
-        "largest_correction_um": report.largest_correction_um,
-        "largest_correction_line": report.largest_correction_line,
-        "offsets_given": request.offsets.is_some(), "notes": notes, "elapsed_s": elapsed_s,
-        "dialect": request.dialect,
-        "reference": reference,
-    });
-    let metrics = crate::metrics_from(
-        &result,
-        &[
-            "moves_compensated",
-            "segments_added",
-            "largest_correction_um",
-        ],
-    );
+    let result = RewriteResult {
+        input: source.into(),
+        output: PROGRAM_ARTIFACT.into(),
+        compensation: compensation.describe(),
+        tolerance_um: request.tolerance_um,
+        input_lines: report.input_lines,
+        output_lines: report.output_lines,
+        moves_compensated: report.moves_compensated,
+        segments_added: report.segments_added,
+        largest_correction_um: report.largest_correction_um,
+        largest_correction_line: report.largest_correction_line,
+        offsets_given: request.offsets.is_some(),
+        notes: report.notes.iter().map(LineNote::of).collect(),
+        elapsed_s,
+        dialect: request.dialect,
+        reference,
+    };
+    let metrics = [
+        ("moves_compensated", result.moves_compensated.into()),
+        ("segments_added", result.segments_added.into()),
+        ("largest_correction_um", result.largest_correction_um.into()),
+    ];
+    let metrics = metrics.into_iter().map(|(k, v)| (k.into(), v)).collect();
     Outcome::succeeded(result, metrics)
 }
 
@@ -590,41 +654,34 @@ fn rewrite_bounded(
 }
 
 /// The report as text (`input` and `output` as the front end left them).
-pub fn summary(r: &Value) -> String {
+pub fn summary(r: &RewriteResult) -> String {
     let mut t = String::new();
-    let s = |v: &Value| v.as_str().unwrap_or("").to_string();
-    let _ = writeln!(
-        t,
-        "{} -> {} with {}",
-        s(&r["input"]),
-        s(&r["output"]),
-        s(&r["compensation"])
-    );
+    let _ = writeln!(t, "{} -> {} with {}", r.input, r.output, r.compensation);
     let _ = writeln!(
         t,
         "{} lines in, {} out: {} moves corrected, {} segments added; largest correction {:.2} um (line {}); tolerance {} um; {:.3} s",
-        r["input_lines"],
-        r["output_lines"],
-        r["moves_compensated"],
-        r["segments_added"],
-        r["largest_correction_um"].as_f64().unwrap_or(f64::NAN),
-        r["largest_correction_line"],
-        r["tolerance_um"].as_f64().unwrap_or(f64::NAN),
-        r["elapsed_s"].as_f64().unwrap_or(f64::NAN)
+        r.input_lines,
+        r.output_lines,
+        r.moves_compensated,
+        r.segments_added,
+        r.largest_correction_um,
+        r.largest_correction_line,
+        r.tolerance_um,
+        r.elapsed_s
     );
-    if let Some(d) = r["reference"]["describe"].as_str() {
-        let _ = writeln!(t, "map {d}");
+    if let Some(reference) = &r.reference {
+        let _ = writeln!(t, "map {}", reference.describe);
+        if let Some(w) = &reference.warning {
+            let _ = writeln!(t, "warning: {w}");
+        }
     }
-    if let Some(w) = r["reference"]["warning"].as_str() {
-        let _ = writeln!(t, "warning: {w}");
-    }
-    if r["offsets_given"] != true && r["dialect"] == "linuxcnc" {
+    if !r.offsets_given && r.dialect == Dialect::Linuxcnc {
         let _ = writeln!(t, "work offsets: none given (--offsets FILE with LinuxCNC's parameter file, its .var); G54 and G92 are taken as zero");
-    } else if r["offsets_given"] != true {
+    } else if !r.offsets_given {
         let _ = writeln!(t, "work offsets: none given (--offsets FILE with the controller's `$#` reply); the program's coordinates are taken as machine coordinates");
     }
-    for n in r["notes"].as_array().into_iter().flatten() {
-        let _ = writeln!(t, "line {}: {}", n["line"], s(&n["note"]));
+    for n in &r.notes {
+        let _ = writeln!(t, "line {}: {}", n.line, n.note);
     }
     t
 }
@@ -656,7 +713,7 @@ impl crate::registry::Procedure for Rewrite {
         ..crate::registry::Uses::NOTHING
     };
     type Request = RewriteRequest;
-    type Result = Value;
+    type Result = RewriteResult;
     const FILES: &'static [FileArg] = &[
         FileArg::positional("input", "The program to rewrite (never overwritten).", |path, plan| {
             plan.text(path, "program", Some("program_name"), read_program)
@@ -702,7 +759,7 @@ impl crate::registry::Procedure for Rewrite {
         request.volumetric.is_none()
     }
 
-    async fn run(request: RewriteRequest, cx: &mut dyn crate::Context) -> Outcome {
+    async fn run(request: RewriteRequest, cx: &mut dyn crate::Context) -> Outcome<RewriteResult> {
         if let Some(text) = &request.volumetric {
             // A volumetric model is not a map: the same rewrite, another compensation.
             let name = request
@@ -725,7 +782,7 @@ impl crate::registry::Procedure for Rewrite {
         run(&request, model, &name, now, cx.sink())
     }
 
-    fn summary(result: &Value) -> String {
+    fn summary(result: &RewriteResult) -> String {
         summary(result)
     }
 }
@@ -844,12 +901,9 @@ mod tests {
         let out = run(&r, m, "in.nc", std::time::SystemTime::now(), &mut sink);
         assert!(out.is_success(), "{:?}", out.error());
         let res = out.result.unwrap();
-        assert_eq!(res["input"], "in.nc");
-        assert_eq!(res["input_lines"], 3);
-        assert!(
-            res["largest_correction_um"].as_f64().unwrap() > 9.0,
-            "{res}"
-        );
+        assert_eq!(res.input, "in.nc");
+        assert_eq!(res.input_lines, 3);
+        assert!(res.largest_correction_um > 9.0, "{res:?}");
         assert_eq!(sink.0.len(), 1);
         assert_eq!(sink.0[0].name, PROGRAM_ARTIFACT);
         let text = String::from_utf8(sink.0[0].bytes.clone()).unwrap();
@@ -918,7 +972,7 @@ mod tests {
         assert!(text.contains("G0 X0.01 Y0 Z0\n"), "{text}");
         assert!(text.contains("X50.015"), "{text}");
         assert!(text.contains("X100.02"), "{text}");
-        assert_eq!(out.result.unwrap()["dialect"], "linuxcnc");
+        assert_eq!(out.result.unwrap().dialect, Dialect::Linuxcnc);
         r.program = "G21\nG0 X0 Y0 Z0\nG1 X#5420 F100\n".into();
         let (out, sink) = go(&r);
         let e = out.error().unwrap();

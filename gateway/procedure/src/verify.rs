@@ -11,16 +11,105 @@ use job::Job;
 use protocol::errormap::ErrorMap;
 use runner::verify::{check_points, max_rms, run_verify_with, CheckedPoint, VerifyError};
 use runner::JobError;
-use serde_json::{json, Value};
+use serde::{Deserialize, Serialize};
 
-fn point_json(p: &CheckedPoint) -> Value {
-    let side = |a: Approach| if a == Approach::Forward { "+" } else { "-" };
-    json!({
-        "x_mm": p.nominal_mm[0], "y_mm": p.nominal_mm[1],
-        "approach": format!("{}{}", side(p.dir.x), side(p.dir.y)),
-        "command_x_mm": p.command_mm[0], "command_y_mm": p.command_mm[1],
-        "residual_um": p.residual_um, "uncompensated_um": p.uncompensated_um,
-    })
+/// A map's check: the points checked, the figures, and (a spot check) whether the
+/// machine needs a new scan. A series of checks (`repeat`) is its last check with every
+/// check in `checks`.
+#[derive(Debug, Clone, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct VerifyResult {
+    /// Which check of a series, from 1.
+    pub round: u64,
+    /// The points checked (those done before it stopped, when it did).
+    #[schema(inline)]
+    pub points: Vec<VerifiedPoint>,
+    /// Where the camera was at the map's reference point after homing, um (the map is
+    /// shifted by it); null when it stopped before.
+    pub reference_um: Option<[f64; 2]>,
+    /// The map's recorded reference a spot check applied (null: it homed).
+    #[schema(inline)]
+    pub recorded_reference: Option<RecordedReference>,
+    /// The zero's drift since the recorded reference, um.
+    pub drift_since_reference_um: Option<[f64; 2]>,
+    /// The residuals' size with the map, um.
+    #[schema(inline)]
+    pub residual_um: MaxRms,
+    /// The error the map predicts without compensation at the points, um.
+    #[schema(inline)]
+    pub uncompensated_um: MaxRms,
+    /// The mean residual on X and Y, um.
+    pub drift_um: [f64; 2],
+    /// Whether it was a spot check.
+    pub spot_check: bool,
+    /// A residual beyond this asks for a new scan (spot check), um.
+    pub drift_threshold_um: f64,
+    /// A new scan is needed (in a series: any check asked it).
+    pub rescan: bool,
+    /// Why the spot check homed although one was asked without homing (no reference
+    /// recorded).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub warning: Option<String>,
+    /// In a series: how many checks it has.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub of: Option<u64>,
+    /// In a series: every check, in order (the last is this one).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(no_recursion)]
+    pub checks: Option<Vec<VerifyResult>>,
+}
+
+/// One checked point.
+#[derive(Debug, Clone, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct VerifiedPoint {
+    /// The point, machine mm.
+    pub x_mm: f64,
+    pub y_mm: f64,
+    /// The approach direction on X and Y: `++`, `+-`, `-+`, `--`.
+    pub approach: String,
+    /// The command the map gave, mm.
+    pub command_x_mm: f64,
+    pub command_y_mm: f64,
+    /// Where the camera really was minus the point, um.
+    pub residual_um: [f64; 2],
+    /// The error the map predicts there without compensation, um.
+    pub uncompensated_um: [f64; 2],
+}
+
+/// The largest and the RMS length of a set of errors, um.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct MaxRms {
+    pub max: f64,
+    pub rms: f64,
+}
+
+/// The recorded reference a spot check applied.
+#[derive(Debug, Clone, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct RecordedReference {
+    /// When it was recorded (RFC 3339).
+    pub measured_at: String,
+    /// Its age at the check, s.
+    pub age_s: u64,
+    /// Its number since the scan, from 1.
+    pub reference_count: u64,
+    /// The zero's shift it recorded, um.
+    pub shift_um: [f64; 2],
+    /// It in one line (which, when, the shift).
+    pub describe: String,
+}
+
+impl VerifiedPoint {
+    fn of(p: &CheckedPoint) -> Self {
+        let side = |a: Approach| if a == Approach::Forward { "+" } else { "-" };
+        Self {
+            x_mm: p.nominal_mm[0],
+            y_mm: p.nominal_mm[1],
+            approach: format!("{}{}", side(p.dir.x), side(p.dir.y)),
+            command_x_mm: p.command_mm[0],
+            command_y_mm: p.command_mm[1],
+            residual_um: p.residual_um,
+            uncompensated_um: p.uncompensated_um,
+        }
+    }
 }
 
 /// Checks `map` (named `what` in messages) on this machine: refused before any motion
@@ -30,9 +119,7 @@ fn point_json(p: &CheckedPoint) -> Value {
 /// reference, as `rewrite` and `proxy` do, and reports the zero's drift since it
 /// (`drift_since_reference_um`, with the record's `recorded_reference`: when, how old,
 /// the shift); a record of another map is refused. Otherwise it homes and
-/// re-references the map at its reference point. The result: `points`, `residual_um`
-/// and `uncompensated_um` (max, rms), `reference_um` (the zero's shift since the scan),
-/// `drift_um` (mean residual), `spot_check`, `drift_threshold_um`, `rescan`.
+/// re-references the map at its reference point. The result: [`VerifyResult`].
 #[allow(clippy::too_many_arguments)]
 pub async fn check_map(
     request: &VerifyRequest,
@@ -43,7 +130,7 @@ pub async fn check_map(
     reference: Option<&MapReference>,
     now: std::time::SystemTime,
     sink: &mut dyn Sink,
-) -> Outcome {
+) -> Outcome<VerifyResult> {
     let round = request.round;
     if let Err(e) = crate::check_identity(&map, &crate::identity(job, devices), what) {
         return Outcome::failed(e);
@@ -75,8 +162,11 @@ pub async fn check_map(
         Ok(v) => (Some(v.reference_um), v.points, None),
         Err((e, so_far)) => (None, so_far, Some(e)),
     };
-    for p in &checked {
-        let _ = sink.measurement(&point_json(p));
+    let checked_points: Vec<VerifiedPoint> = checked.iter().map(VerifiedPoint::of).collect();
+    for p in &checked_points {
+        if let Ok(m) = serde_json::to_value(p) {
+            let _ = sink.measurement(&m);
+        }
     }
     sink.progress(checked.len() as u64, points.len() as u64);
     let norm = |v: [f64; 2]| v[0].hypot(v[1]);
@@ -90,30 +180,44 @@ pub async fn check_map(
     // The map no longer holds where any point is off by more than the threshold.
     let rescan = request.spot_check && res_max > request.drift_threshold_um;
     let now_s = crate::context::unix_s(now);
-    let recorded_reference = reference.map(|r| {
-        json!({
-            "measured_at": r.measured_at, "age_s": r.age_s(now_s),
-            "reference_count": r.reference_count, "shift_um": r.shift_um,
-            "describe": r.describe(now_s),
-        })
+    let recorded_reference = reference.map(|r| RecordedReference {
+        measured_at: r.measured_at.clone(),
+        age_s: r.age_s(now_s),
+        reference_count: r.reference_count,
+        shift_um: r.shift_um,
+        describe: r.describe(now_s),
     });
     let drift_since_reference = reference.zip(seen).map(|(r, s)| r.drift_um(s));
-    let result = json!({
-        "round": round + 1,
-        "points": checked.iter().map(point_json).collect::<Vec<_>>(),
-        "reference_um": seen,
-        "recorded_reference": recorded_reference,
-        "drift_since_reference_um": drift_since_reference,
-        "residual_um": {"max": res_max, "rms": res_rms},
-        "uncompensated_um": {"max": unc_max, "rms": unc_rms},
-        "drift_um": drift, "spot_check": request.spot_check,
-        "drift_threshold_um": request.drift_threshold_um, "rescan": rescan,
-    });
-    let mut metrics = crate::metrics_from(&result, &["rescan"]);
-    metrics.insert("points".into(), json!(checked.len()));
-    metrics.insert("residual_max_um".into(), json!(res_max));
-    metrics.insert("residual_rms_um".into(), json!(res_rms));
-    metrics.insert("uncompensated_max_um".into(), json!(unc_max));
+    let result = VerifyResult {
+        round: round + 1,
+        points: checked_points,
+        reference_um: seen,
+        recorded_reference,
+        drift_since_reference_um: drift_since_reference,
+        residual_um: MaxRms {
+            max: res_max,
+            rms: res_rms,
+        },
+        uncompensated_um: MaxRms {
+            max: unc_max,
+            rms: unc_rms,
+        },
+        drift_um: drift,
+        spot_check: request.spot_check,
+        drift_threshold_um: request.drift_threshold_um,
+        rescan,
+        warning: None,
+        of: None,
+        checks: None,
+    };
+    let metrics = [
+        ("rescan", rescan.into()),
+        ("points", checked.len().into()),
+        ("residual_max_um", res_max.into()),
+        ("residual_rms_um", res_rms.into()),
+        ("uncompensated_max_um", unc_max.into()),
+    ];
+    let metrics = metrics.into_iter().map(|(k, v)| (k.into(), v)).collect();
     match error {
         None => Outcome::succeeded(result, metrics),
         Some(e) => {
@@ -155,9 +259,9 @@ impl crate::registry::Procedure for Verify {
     ];
     const USES: crate::registry::Uses = crate::registry::Uses::DEVICES_AND_MAP;
     type Request = VerifyRequest;
-    type Result = Value;
+    type Result = VerifyResult;
 
-    async fn run(request: VerifyRequest, cx: &mut dyn crate::Context) -> Outcome {
+    async fn run(request: VerifyRequest, cx: &mut dyn crate::Context) -> Outcome<VerifyResult> {
         let stop = cx.stop();
         let now = cx.now();
         let active = crate::or_fail!(cx.map());
@@ -180,7 +284,7 @@ impl crate::registry::Procedure for Verify {
         let bench = crate::or_fail!(cx.bench().await);
         // A series of checks (`repeat`), each on fresh points, `every_s` apart; the
         // devices stay open between them.
-        let mut rounds: Vec<Value> = Vec::new();
+        let mut rounds: Vec<VerifyResult> = Vec::new();
         let mut outcome = Outcome::cancelled("stopped before the first check");
         for round in 0..request.repeat {
             if round > 0 {
@@ -217,12 +321,12 @@ impl crate::registry::Procedure for Verify {
             };
             outcome = checked;
             if let Some(r) = outcome.result.as_mut() {
-                if let Some(w) = &warning {
-                    r["warning"] = json!(w);
-                }
+                r.warning.clone_from(&warning);
                 if request.repeat > 1 {
-                    r["of"] = json!(request.repeat);
-                    bench.sink.partial_result(r);
+                    r.of = Some(request.repeat);
+                    if let Ok(v) = serde_json::to_value(&*r) {
+                        bench.sink.partial_result(&v);
+                    }
                 }
                 rounds.push(r.clone());
             }
@@ -232,37 +336,37 @@ impl crate::registry::Procedure for Verify {
         }
         // A series: every check kept, and a re-scan asked when any check asked it.
         if let (Some(r), true) = (outcome.result.as_mut(), request.repeat > 1) {
-            r["rescan"] = json!(rounds.iter().any(|c| c["rescan"] == true));
-            r["checks"] = json!(rounds);
+            r.rescan = rounds.iter().any(|c| c.rescan);
+            r.checks = Some(rounds);
         }
         outcome
     }
 
     const FILES: &'static [FileArg] = command_line::JOB_AND_MAP;
 
-    fn exit_code(result: &Value) -> u8 {
-        if result["rescan"] == true {
+    fn exit_code(result: &VerifyResult) -> u8 {
+        if result.rescan {
             2
         } else {
             0
         }
     }
 
-    fn summary(result: &Value) -> String {
+    fn summary(result: &VerifyResult) -> String {
         summary(result)
     }
 }
 
 /// The result as text (the CLI's output without `--json`).
-pub fn summary(r: &Value) -> String {
-    if let Some(checks) = r["checks"].as_array() {
+pub fn summary(r: &VerifyResult) -> String {
+    if let Some(checks) = &r.checks {
         let worst = (checks.iter())
-            .filter_map(|c| c["residual_um"]["max"].as_f64())
+            .map(|c| c.residual_um.max)
             .fold(0.0, f64::max);
         return format!(
             "{} checks: worst residual {worst:.2} um{}",
             checks.len(),
-            if r["rescan"] == true {
+            if r.rescan {
                 "; re-scan the machine (gateway map)"
             } else {
                 ""
@@ -273,60 +377,56 @@ pub fn summary(r: &Value) -> String {
 }
 
 /// One check as text.
-fn check_summary(r: &Value) -> String {
+fn check_summary(r: &VerifyResult) -> String {
     use std::fmt::Write;
     let mut t = String::new();
-    if let Some(of) = r["of"].as_u64() {
-        let _ = writeln!(t, "check {} of {of}:", r["round"]);
+    if let Some(of) = r.of {
+        let _ = writeln!(t, "check {} of {of}:", r.round);
     }
-    let f = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
-    if let Some(w) = r["warning"].as_str() {
+    if let Some(w) = &r.warning {
         let _ = writeln!(t, "warning: {w}");
     }
-    if let Some(d) = r["drift_since_reference_um"].as_array() {
+    if let Some(d) = r.drift_since_reference_um {
         let _ = writeln!(
             t,
             "the map's {}; since it the zero drifted by ({:+.2}, {:+.2}) um (|{:.2}| um)",
-            r["recorded_reference"]["describe"]
-                .as_str()
-                .unwrap_or("reference"),
-            f(&d[0]),
-            f(&d[1]),
-            f(&d[0]).hypot(f(&d[1]))
+            (r.recorded_reference.as_ref()).map_or("reference", |x| x.describe.as_str()),
+            d[0],
+            d[1],
+            d[0].hypot(d[1])
         );
-    } else if let Some(reference) = r["reference_um"].as_array() {
+    } else if let Some(reference) = r.reference_um {
         let _ = writeln!(
             t,
             "after homing the camera is ({:+.2}, {:+.2}) um off at the map's reference point: the map is shifted by it",
-            f(&reference[0]),
-            f(&reference[1])
+            reference[0],
+            reference[1]
         );
     }
-    let points = r["points"].as_array().map(Vec::as_slice).unwrap_or(&[]);
-    for p in points {
+    for p in &r.points {
         let _ = writeln!(
             t,
             "  ({:8.3}, {:8.3}) mm: residual ({:+6.2}, {:+6.2}) um, uncompensated ({:+6.2}, {:+6.2}) um",
-            f(&p["x_mm"]), f(&p["y_mm"]), f(&p["residual_um"][0]), f(&p["residual_um"][1]),
-            f(&p["uncompensated_um"][0]), f(&p["uncompensated_um"][1])
+            p.x_mm, p.y_mm, p.residual_um[0], p.residual_um[1],
+            p.uncompensated_um[0], p.uncompensated_um[1]
         );
     }
-    let (res_max, res_rms) = (f(&r["residual_um"]["max"]), f(&r["residual_um"]["rms"]));
+    let (res_max, res_rms) = (r.residual_um.max, r.residual_um.rms);
     let _ = writeln!(
         t,
         "{} points: residual max {res_max:.2} um, rms {res_rms:.2} um; without the map max {:.2} um, rms {:.2} um",
-        points.len(),
-        f(&r["uncompensated_um"]["max"]),
-        f(&r["uncompensated_um"]["rms"])
+        r.points.len(),
+        r.uncompensated_um.max,
+        r.uncompensated_um.rms
     );
-    if r["spot_check"] == true {
-        let threshold = f(&r["drift_threshold_um"]);
+    if r.spot_check {
+        let threshold = r.drift_threshold_um;
         let _ = writeln!(
             t,
             "since the scan: mean residual ({:+.2}, {:+.2}) um, worst {res_max:.2} um{}",
-            f(&r["drift_um"][0]),
-            f(&r["drift_um"][1]),
-            if r["rescan"] == true {
+            r.drift_um[0],
+            r.drift_um[1],
+            if r.rescan {
                 format!(": beyond {threshold} um, re-scan the machine (gateway map)")
             } else {
                 format!(": within {threshold} um")
