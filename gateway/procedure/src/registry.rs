@@ -132,7 +132,7 @@ pub trait Procedure {
     /// What it needs of the machine.
     const USES: Uses;
     /// Its request: the CLI's flags and the API's params, checked once.
-    type Request: Serialize + DeserializeOwned + utoipa::PartialSchema + Checked + Flags;
+    type Request: Serialize + DeserializeOwned + utoipa::ToSchema + Checked + Flags;
     /// The command line's file arguments: each read into the request or named for the
     /// files context ([`crate::command_line`]).
     const FILES: &'static [FileArg] = &[];
@@ -140,7 +140,7 @@ pub trait Procedure {
     const STEPS: &'static str = "";
     /// Its result: the object `--json` prints, the store keeps and the page shows (also
     /// what was done so far when it stopped).
-    type Result: Serialize + DeserializeOwned + utoipa::PartialSchema;
+    type Result: Serialize + DeserializeOwned + utoipa::ToSchema;
     /// The command's exit code for a result: 0, or 2 for a verdict the shop acts on (a
     /// drifted map, a model unfit for compensation).
     fn exit_code(_result: &Self::Result) -> u8 {
@@ -192,6 +192,7 @@ pub struct Kind {
     pub steps: &'static str,
     exit_code: fn(&Value) -> u8,
     result_schema: fn() -> RefOr<Schema>,
+    referenced: fn(&mut Vec<(String, RefOr<Schema>)>),
     /// The request's flags added to a command.
     #[cfg(feature = "cli")]
     flags: fn(clap::Command) -> clap::Command,
@@ -269,6 +270,15 @@ fn exit_code_as<P: Procedure>(result: &Value) -> u8 {
     result_as::<P>(result).map_or(0, |r| P::exit_code(&r))
 }
 
+fn referenced_as<P: Procedure>(schemas: &mut Vec<(String, RefOr<Schema>)>) {
+    use utoipa::{PartialSchema, ToSchema};
+    <P::Request as ToSchema>::schemas(schemas);
+    <P::Result as ToSchema>::schemas(schemas);
+    // Under its own name too: a result may hold results of its own kind (a series of
+    // checks), which refer to it.
+    schemas.push((P::Result::name().into_owned(), P::Result::schema()));
+}
+
 /// The registry's entry of `P`.
 pub const fn entry<P: Procedure + 'static>() -> Kind {
     Kind {
@@ -290,6 +300,7 @@ pub const fn entry<P: Procedure + 'static>() -> Kind {
         steps: P::STEPS,
         exit_code: exit_code_as::<P>,
         result_schema: <P::Result as utoipa::PartialSchema>::schema,
+        referenced: referenced_as::<P>,
         #[cfg(feature = "cli")]
         flags: <P::Request as clap::Args>::augment_args,
         #[cfg(feature = "cli")]
@@ -349,6 +360,14 @@ impl Kind {
     /// The JSON schema (OpenAPI 3.1) of its result ([`Procedure::Result`]).
     pub fn result_schema(&self) -> RefOr<Schema> {
         (self.result_schema)()
+    }
+
+    /// The named schemas its params' and result's schemas refer to (`$ref`), `(name,
+    /// schema)`: an OpenAPI document that has these kinds' schemas has these too.
+    pub fn referenced_schemas(&self) -> Vec<(String, RefOr<Schema>)> {
+        let mut schemas = Vec::new();
+        (self.referenced)(&mut schemas);
+        schemas
     }
 
     /// The JSON schema (OpenAPI 3.1) of its params: the page builds the form from it.

@@ -375,13 +375,20 @@ pub fn router(shared: AppState, limits: BodyLimits, cors_origins: &[String]) -> 
 pub struct ApiDoc;
 
 /// Each job kind's params as `components.schemas["job.<kind>"]`: the request types the
-/// API checks (`procedure::kinds::schemas`), from which the page builds its forms.
+/// API checks (`procedure::kinds::schemas`), from which the page builds its forms; and
+/// its result, the job's `outcome.result`, as `job.<kind>.result`.
 struct JobParams;
 impl utoipa::Modify for JobParams {
     fn modify(&self, openapi: &mut utoipa::openapi::OpenApi) {
         let components = openapi.components.get_or_insert_with(Default::default);
         for (kind, schema) in procedure::kinds::schemas() {
             components.schemas.insert(format!("job.{kind}"), schema);
+        }
+        for kind in procedure::KINDS {
+            components
+                .schemas
+                .insert(format!("job.{}.result", kind.name), kind.result_schema());
+            components.schemas.extend(kind.referenced_schemas());
         }
     }
 }

@@ -80,3 +80,41 @@ fn the_docs_api_table_lists_exactly_the_openapi_routes_and_their_answers() {
     );
     assert!(api.len() >= 20, "{api:?}");
 }
+
+/// Every `$ref` of the OpenAPI document names a schema it has, and each job kind's params
+/// and result are among them (`job.<kind>`, `job.<kind>.result`).
+#[test]
+fn every_schema_reference_resolves_and_every_kind_has_its_params_and_result() {
+    let doc = serde_json::to_value(service::api::ApiDoc::openapi()).expect("the document");
+    let schemas = doc["components"]["schemas"].as_object().expect("schemas");
+    fn refs<'a>(v: &'a serde_json::Value, out: &mut Vec<&'a str>) {
+        match v {
+            serde_json::Value::Object(o) => {
+                if let Some(r) = o.get("$ref").and_then(|r| r.as_str()) {
+                    out.push(r);
+                }
+                o.values().for_each(|v| refs(v, out));
+            }
+            serde_json::Value::Array(a) => a.iter().for_each(|v| refs(v, out)),
+            _ => {}
+        }
+    }
+    let mut found = Vec::new();
+    refs(&doc, &mut found);
+    let unresolved: Vec<&str> = found
+        .into_iter()
+        .filter(|r| {
+            r.strip_prefix("#/components/schemas/")
+                .is_none_or(|name| !schemas.contains_key(name))
+        })
+        .collect();
+    assert!(unresolved.is_empty(), "unresolved: {unresolved:?}");
+    for kind in procedure::KINDS {
+        for name in [
+            format!("job.{}", kind.name),
+            format!("job.{}.result", kind.name),
+        ] {
+            assert!(schemas.contains_key(&name), "no schema {name}");
+        }
+    }
+}
