@@ -161,7 +161,7 @@ pub struct DncRequest {
 /// `X,Y,Z[;X,Y,Z...]` (mm): work offsets G54, G55, ... as a command-line value; the
 /// count and the bounds are the request's to check.
 #[cfg(feature = "cli")]
-pub fn work_offsets_mm(text: &str) -> Result<Vec<[f64; 3]>, String> {
+pub fn work_offsets_mm(text: &str) -> Result<Vec<[f64; 3]>, crate::Error> {
     text.split(';').map(crate::volumetric::xyz_mm).collect()
 }
 

@@ -187,16 +187,17 @@ pub struct VolumetricIdentifyRequest {
     pub camera: Option<String>,
 }
 
-/// `x,y,z` in mm (a command-line value).
+/// `x,y,z` in mm (a command-line value); the error is the value's
+/// ([`crate::Error::Input`]).
 #[cfg(feature = "cli")]
-pub fn xyz_mm(text: &str) -> Result<[f64; 3], String> {
+pub fn xyz_mm(text: &str) -> Result<[f64; 3], crate::Error> {
     let v: Vec<f64> = text
         .split(',')
         .map(|p| p.trim().parse::<f64>())
         .collect::<Result<_, _>>()
-        .map_err(|_| format!("`{text}`: expected x,y,z in mm"))?;
+        .map_err(|_| crate::Error::Input(format!("`{text}`: expected x,y,z in mm")))?;
     v.try_into()
-        .map_err(|_| format!("`{text}`: expected three numbers x,y,z in mm"))
+        .map_err(|_| crate::Error::Input(format!("`{text}`: expected three numbers x,y,z in mm")))
 }
 
 impl VolumetricIdentifyRequest {
