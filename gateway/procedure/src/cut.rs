@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 
 /// One head's reach on the cutter.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
-pub struct HeadReach {
+pub struct CutterHead {
     /// Material Y of the head's machine Y 0.
     pub origin_y_mm: f64,
     /// Its Y travel.
@@ -26,7 +26,8 @@ pub struct HeadReach {
 pub struct Cutter {
     /// The cutting area's length (normally the partition's window).
     pub window_mm: f64,
-    pub heads: Vec<HeadReach>,
+    #[schema(inline)]
+    pub heads: Vec<CutterHead>,
 }
 
 /// One head's group cut at a stop.
@@ -48,6 +49,7 @@ pub struct StopJob {
 pub struct CutStop {
     /// Material X under the cutting area's start edge.
     pub conveyor_mm: f64,
+    #[schema(inline)]
     pub jobs: Vec<StopJob>,
 }
 
@@ -85,11 +87,14 @@ pub struct CutResult {
     pub groups: usize,
     /// Parts moved to another group to resolve overlaps.
     pub moves: usize,
+    #[schema(inline)]
     pub cutter: Cutter,
     /// Whether it was cut on the emulated cutter (else on real controllers).
     pub emulated: bool,
+    #[schema(inline)]
     pub stops: Vec<CutStop>,
     /// Per head.
+    #[schema(inline)]
     pub heads: Vec<HeadCut>,
     /// The emulated cutter's strokes (null on real controllers).
     pub strokes: Option<usize>,
@@ -228,7 +233,7 @@ pub async fn run(request: &CutRequest, sink: &mut dyn Sink) -> Outcome<CutResult
         cutter: Cutter {
             window_mm: cutter.window_mm,
             heads: (cutter.heads.iter())
-                .map(|h| HeadReach {
+                .map(|h| CutterHead {
                     origin_y_mm: h.origin_y_mm,
                     reach_y_mm: h.reach_y_mm,
                 })

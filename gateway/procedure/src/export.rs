@@ -469,11 +469,13 @@ pub struct Residual {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct ControllerResult {
     /// The files, in the artifacts' order.
+    #[schema(inline)]
     pub tables: Vec<TableFile>,
     /// What was chosen for each table (points, spacing, reference), one line each.
     pub chosen: Vec<String>,
     /// The machine data to set on the control, one line each.
     pub settings: Vec<String>,
+    #[schema(inline)]
     pub residual: Residual,
     /// The map's error (X, Y) at the control's zero, which its tables hold as 0.
     pub zero_not_held_um: [f64; 2],
@@ -485,12 +487,16 @@ pub struct ControllerResult {
 pub enum ExportResult {
     /// A `COMP_FILE` per joint.
     #[serde(rename = "linuxcnc")]
-    Linuxcnc { tables: Vec<LinuxcncTable> },
+    Linuxcnc {
+        #[schema(inline)]
+        tables: Vec<LinuxcncTable>,
+    },
     /// A plane compensation list per axis over X and Y.
     #[serde(rename = "beckhoff")]
     Beckhoff {
         /// The grid interval.
         interval_mm: f64,
+        #[schema(inline)]
         tables: Vec<BeckhoffTable>,
     },
     /// The model at every node of the map's grid.
@@ -501,17 +507,17 @@ pub enum ExportResult {
         rows: usize,
     },
     #[serde(rename = "siemens-eec")]
-    SiemensEec(ControllerResult),
+    SiemensEec(#[schema(inline)] ControllerResult),
     #[serde(rename = "siemens-cec")]
-    SiemensCec(ControllerResult),
+    SiemensCec(#[schema(inline)] ControllerResult),
     #[serde(rename = "fanuc-pitch")]
-    FanucPitch(ControllerResult),
+    FanucPitch(#[schema(inline)] ControllerResult),
     #[serde(rename = "heidenhain")]
-    Heidenhain(ControllerResult),
+    Heidenhain(#[schema(inline)] ControllerResult),
     #[serde(rename = "heidenhain-64")]
-    Heidenhain64(ControllerResult),
+    Heidenhain64(#[schema(inline)] ControllerResult),
     #[serde(rename = "haas")]
-    Haas(ControllerResult),
+    Haas(#[schema(inline)] ControllerResult),
 }
 
 /// Builds every table, checks each against the tolerance, and only then hands them to

@@ -143,14 +143,19 @@ impl From<&rotary::identify::AxisLine> for AxisFit {
 pub struct RotaryIdentifyResult {
     /// The eight errors.
     #[serde(flatten)]
+    #[schema(inline)]
     pub errors: EightErrors,
     /// Their standard uncertainties.
+    #[schema(inline)]
     pub uncertainty: EightErrors,
     /// The uncertainties' coverage factor k (1).
     pub coverage_factor: u32,
     /// C ball 1, C ball 2, A ball 1, A ball 2.
+    #[schema(inline)]
     pub circles: Vec<FittedCircle>,
+    #[schema(inline)]
     pub c_axis: AxisFit,
+    #[schema(inline)]
     pub a_axis: AxisFit,
     /// The machine constants the errors belong to.
     #[schema(value_type = Object)]
@@ -224,20 +229,28 @@ pub struct AgainstTruth {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct TruthComparison {
     #[serde(rename = "delta_XC_mm")]
+    #[schema(inline)]
     pub delta_xc_mm: AgainstTruth,
     #[serde(rename = "delta_YC_mm")]
+    #[schema(inline)]
     pub delta_yc_mm: AgainstTruth,
     #[serde(rename = "alpha_XC_deg")]
+    #[schema(inline)]
     pub alpha_xc_deg: AgainstTruth,
     #[serde(rename = "alpha_YC_deg")]
+    #[schema(inline)]
     pub alpha_yc_deg: AgainstTruth,
     #[serde(rename = "delta_YA_mm")]
+    #[schema(inline)]
     pub delta_ya_mm: AgainstTruth,
     #[serde(rename = "delta_ZA_mm")]
+    #[schema(inline)]
     pub delta_za_mm: AgainstTruth,
     #[serde(rename = "alpha_YA_deg")]
+    #[schema(inline)]
     pub alpha_ya_deg: AgainstTruth,
     #[serde(rename = "alpha_ZA_deg")]
+    #[schema(inline)]
     pub alpha_za_deg: AgainstTruth,
 }
 
@@ -314,16 +327,21 @@ impl From<runner::rotary::CompensationCheck> for CompensationFigures {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct CycleReport {
     #[serde(flatten)]
+    #[schema(inline)]
     pub identification: RotaryIdentifyResult,
     /// Absent when the cycle's plan locates no centre on the rim.
     #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(inline)]
     pub c_centre: Option<RimCentre>,
+    #[schema(inline)]
     pub cycle: CycleFigures,
     /// A simulated table only.
     #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(inline)]
     pub truth: Option<TruthComparison>,
     /// A simulated table only.
     #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(inline)]
     pub compensation_check: Option<CompensationFigures>,
 }
 
@@ -379,6 +397,7 @@ pub struct RotaryMeasureResult {
     pub kept_as: Option<String>,
     /// The report (absent when the cycle stopped).
     #[serde(flatten)]
+    #[schema(inline)]
     pub report: Option<CycleReport>,
     /// A stopped cycle: the balls it measured.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -1301,6 +1320,31 @@ mod tests {
         let back: RotaryMeasureResult = serde_json::from_value(v).unwrap();
         assert_eq!(back, whole);
         assert!(measure_summary(&back).contains("cycle: 20 balls, 103 probe points"));
+    }
+
+    /// The typed results' schemas (rotary, volumetric, layout, cut, export) are whole:
+    /// their nested types inlined, no `$ref` to a component nobody carries.
+    #[test]
+    fn the_typed_results_schemas_are_whole() {
+        let typed = [
+            "rotary",
+            "rotary-identify",
+            "rotary-rewrite",
+            "volumetric-identify",
+            "volumetric-eval",
+            "volumetric-contributions",
+            "volumetric-campaign",
+            "volumetric-export-isg",
+            "layout",
+            "cut",
+            "export",
+        ];
+        for name in typed {
+            let kind = crate::kinds::find(name).unwrap();
+            let schema = serde_json::to_string(&kind.result_schema()).unwrap();
+            assert!(schema.len() > 100, "{name}: {schema}");
+            assert!(!schema.contains("$ref"), "{name}: {schema}");
+        }
     }
 
     fn errors_file(machine: Option<MachineConstants>) -> String {

@@ -355,6 +355,7 @@ pub struct CameraFigures {
     pub board_rotation_urad: Vec<f64>,
     /// Whether the camera is consistent with the model.
     pub fit: bool,
+    #[schema(inline)]
     pub angles: Vec<CameraAngle>,
 }
 
@@ -368,10 +369,13 @@ pub struct VolumetricIdentifyResult {
     /// Whether every error is within its stated uncertainty (else the CLI exits 2).
     pub fit_for_compensation: bool,
     /// The 21 errors.
+    #[schema(inline)]
     pub errors: Vec<IdentifiedError>,
     /// The ball-bar planes (none with `squareness.csv`).
+    #[schema(inline)]
     pub ballbar: Vec<BallbarPlane>,
     /// Null without `camera.csv`.
+    #[schema(inline)]
     pub camera: Option<CameraFigures>,
 }
 
@@ -632,6 +636,7 @@ pub struct VolumetricEvalResult {
     /// Whether the first-order closed form was used (else the full HTM product).
     pub first_order: bool,
     /// One per point of the points file, in its order.
+    #[schema(inline)]
     pub points: Vec<EvalPoint>,
 }
 
@@ -770,6 +775,7 @@ pub struct VolumetricContributionsResult {
     pub total_max_um: f64,
     pub total_rms_um: f64,
     /// The 21 errors, the largest first.
+    #[schema(inline)]
     pub contributions: Vec<Contribution>,
 }
 
