@@ -9,7 +9,6 @@ use crate::{Artifact, Outcome, Sink};
 use drivers::grbl::{GrblOptions, StreamOptions};
 use layout::cut::{plan, CutSettings, CutterSpec, HeadSpec, Stop};
 use serde::{Deserialize, Serialize};
-use serde_json::json;
 use std::time::{Duration, Instant};
 
 /// One head's reach on the cutter.
@@ -106,21 +105,44 @@ pub struct CutResult {
     pub wall_time_s: f64,
 }
 
+/// A stroke of the stroke log.
+#[derive(Serialize)]
+struct StrokeLine<'a> {
+    stroke: &'a world::cutter::Stroke,
+}
+
+/// The stroke log's last line: the feeds and the times.
+#[derive(Serialize)]
+struct LogEnd<'a> {
+    feeds: &'a [f64],
+    conveyor_s: f64,
+    /// `(feeds_before, head, seconds)`.
+    head_busy: &'a [(u64, usize, f64)],
+    machine_time_s: f64,
+}
+
 /// The stroke log as JSON lines: `{"stroke": ...}` for each stroke, then
-/// `{"feeds": [...], "conveyor_s": .., "machine_time_s": ..}`.
-fn log_lines(log: &world::cutter::CutLog) -> String {
-    let mut text = String::new();
-    for s in &log.strokes {
-        text.push_str(&json!({ "stroke": s }).to_string());
+/// `{"feeds": [...], "conveyor_s": .., "head_busy": [...], "machine_time_s": ..}`.
+fn log_lines(log: &world::cutter::CutLog) -> Result<String, crate::Error> {
+    fn line<T: Serialize>(text: &mut String, v: &T) -> Result<(), crate::Error> {
+        let json = serde_json::to_string(v)
+            .map_err(|e| crate::Error::Output(format!("strokes.jsonl: {e}")))?;
+        text.push_str(&json);
         text.push('\n');
+        Ok(())
     }
-    text.push_str(
-        &json!({"feeds": log.feeds, "conveyor_s": log.conveyor_s, "head_busy": log.head_busy,
-               "machine_time_s": log.machine_time_s()})
-        .to_string(),
-    );
-    text.push('\n');
-    text
+    let mut text = String::new();
+    for stroke in &log.strokes {
+        line(&mut text, &StrokeLine { stroke })?;
+    }
+    let end = LogEnd {
+        feeds: &log.feeds,
+        conveyor_s: log.conveyor_s,
+        head_busy: &log.head_busy,
+        machine_time_s: log.machine_time_s(),
+    };
+    line(&mut text, &end)?;
+    Ok(text)
 }
 
 /// Partitions the layout (as `layout::partition` does) and cuts it. Progress counts
@@ -208,11 +230,15 @@ pub async fn run(request: &CutRequest, sink: &mut dyn Sink) -> Outcome<CutResult
         }
     };
     if let Some(log) = &log {
+        let lines = match log_lines(log) {
+            Ok(l) => l,
+            Err(e) => return Outcome::failed(e),
+        };
         let a = Artifact {
             name: "strokes.jsonl".into(),
             title: None,
             media_type: "application/jsonl",
-            bytes: log_lines(log).into_bytes(),
+            bytes: lines.into_bytes(),
         };
         if let Err(e) = sink.artifact(a) {
             return Outcome::failed(e);
