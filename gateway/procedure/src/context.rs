@@ -200,11 +200,7 @@ pub trait MapShelf {
 /// as an artifact; the service: the next version of a rotary profile).
 pub trait ErrorsShelf {
     /// Keeps the report; returns where it went, for the result.
-    fn keep(
-        &mut self,
-        name: &str,
-        report: &crate::rotary::CycleReport,
-    ) -> Result<String, crate::Error>;
+    fn keep(&mut self, name: &str, report: &Value) -> Result<String, crate::Error>;
 }
 
 /// The value of a context's answer, or the procedure ends failed with the context's

@@ -12,6 +12,7 @@ use protocol::config::DataKind;
 use rotary::{identify as identify_errors, write_centres, CentreRow, Identification};
 use rotary::{LocationErrors, MachineConstants, RotaryMachine};
 use serde::{Deserialize, Serialize};
+use serde_json::Value;
 use std::cell::Cell;
 use std::future::Future;
 
@@ -21,7 +22,7 @@ pub use crate::context::ErrorsShelf;
 pub struct FolderShelf(pub std::path::PathBuf);
 
 impl ErrorsShelf for FolderShelf {
-    fn keep(&mut self, _: &str, report: &CycleReport) -> Result<String, crate::Error> {
+    fn keep(&mut self, _: &str, report: &Value) -> Result<String, crate::Error> {
         let path = self.0.join("errors.json");
         let text = serde_json::to_string_pretty(report)
             .map_err(|e| crate::Error::Output(e.to_string()))?;
@@ -581,7 +582,10 @@ pub async fn measure(
     if let Err(e) = sweep_chart(&rows, &identified, sink) {
         return Outcome::failed(e);
     }
-    let kept_as = match shelf.keep(&request.name, &report) {
+    let kept_as = serde_json::to_value(&report)
+        .map_err(|e| Error::Output(e.to_string()))
+        .and_then(|v| shelf.keep(&request.name, &v));
+    let kept_as = match kept_as {
         Ok(k) => k,
         Err(e) => return Outcome::failed(format!("the errors were identified but not kept: {e}")),
     };

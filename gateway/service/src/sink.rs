@@ -269,20 +269,14 @@ pub struct RotaryShelf {
 }
 
 impl procedure::rotary::ErrorsShelf for RotaryShelf {
-    fn keep(
-        &mut self,
-        name: &str,
-        report: &procedure::rotary::CycleReport,
-    ) -> Result<String, procedure::Error> {
+    fn keep(&mut self, name: &str, report: &Value) -> Result<String, procedure::Error> {
         let note = format!("measured by job {}", self.job);
-        let report =
-            serde_json::to_value(report).map_err(|e| procedure::Error::Output(e.to_string()))?;
         let p = lock(&self.shared.store)
             .add_profile(
                 &self.machine,
                 name,
                 ProfileKind::Rotary,
-                &report,
+                report,
                 Some(self.job),
                 Some(&note),
             )
