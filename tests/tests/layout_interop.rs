@@ -288,10 +288,7 @@ fn check_every_format(name: &str, req: &LayoutRequest, dxf_scale: f64, insunits:
                 // The written width is the partitioned width (from Y 0).
                 let w = read["width_mm"].as_f64().unwrap();
                 assert!(
-                    (w - (result["y0_mm"].as_f64().unwrap()
-                        + result["partitioned_width_mm"].as_f64().unwrap()))
-                    .abs()
-                        < 1e-9,
+                    (w - (result.report.y0_mm + result.partitioned_width_mm)).abs() < 1e-9,
                     "{what}: width {w}"
                 );
                 let top = expected

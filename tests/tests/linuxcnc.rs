@@ -502,7 +502,9 @@ fn exported_comp_tables_are_applied_by_linuxcnc_as_the_map_says() {
     request.name = "comp.txt".into();
     let mut sink = procedure::Collect(Vec::new());
     let outcome = procedure::export::run(&request, map, &mut sink);
-    let result = outcome.result.clone().expect("the export has a result");
+    // As the JSON `--json` prints (the export's result, tables by format).
+    let result =
+        serde_json::to_value(outcome.result.clone().expect("the export has a result")).unwrap();
     assert_eq!(sink.0.len(), 2, "two tables: {:?}", outcome.end);
     let text = |i: usize| String::from_utf8(sink.0[i].bytes.clone()).unwrap();
     let tables = [read_table(&text(0)), read_table(&text(1))];

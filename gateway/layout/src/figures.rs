@@ -14,12 +14,12 @@
 
 use geo::Area;
 use layout_io::Part;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::Partition;
 
 /// One way of laying the parts on the material.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Material {
     pub length_mm: f64,
     pub width_mm: f64,
@@ -27,7 +27,7 @@ pub struct Material {
     pub utilisation: f64,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Figures {
     pub parts_area_mm2: f64,
     pub no_gap: Material,

@@ -540,6 +540,29 @@ fn widen_once(partition: &mut Partition, left: &[Overlap], widenings: &mut Vec<W
     widenings.sort_by(|a, b| (a.between, a.from).cmp(&(b.between, b.from)));
 }
 
+/// A widening read back (a stored report); `between` is `window` or `lane`.
+impl<'de> serde::Deserialize<'de> for Widening {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        use serde::de::Error;
+        #[derive(serde::Deserialize)]
+        struct Stored {
+            between: String,
+            from: usize,
+            extra_mm: f64,
+        }
+        let s = Stored::deserialize(d)?;
+        let between = ["window", "lane"]
+            .into_iter()
+            .find(|b| *b == s.between)
+            .ok_or_else(|| D::Error::unknown_variant(&s.between, &["window", "lane"]))?;
+        Ok(Widening {
+            between,
+            from: s.from,
+            extra_mm: s.extra_mm,
+        })
+    }
+}
+
 /// What one resolution keeps from round to round: per part the groups it left (it never
 /// goes back to one), and the pairs found apart.
 struct Memory {

@@ -3,9 +3,9 @@
 
 use crate::{Figures, Partition, Resolution, Widening};
 use layout_io::Part;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Report {
     pub parts: usize,
     pub tools: usize,
@@ -25,7 +25,7 @@ pub struct Report {
     pub figures: Figures,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct GroupReport {
     pub id: usize,
     pub tool: usize,
@@ -35,7 +35,7 @@ pub struct GroupReport {
     pub parts: Vec<String>,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct MoveReport {
     pub part: String,
     pub from_group: usize,
@@ -48,7 +48,7 @@ pub struct MoveReport {
     pub overlaps_after: usize,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct OverlapReport {
     pub a: String,
     pub b: String,

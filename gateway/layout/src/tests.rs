@@ -440,6 +440,12 @@ fn widening_ends_an_overlap_no_group_can_take() {
     assert_eq!(r.widenings.len(), 1, "{:?}", r.widenings);
     let w = &r.widenings[0];
     assert_eq!((w.between, w.from), ("window", 1));
+    // A stored report's widening reads back; an unknown `between` is refused.
+    let stored = serde_json::to_value(w).unwrap();
+    assert_eq!(&serde_json::from_value::<Widening>(stored).unwrap(), w);
+    let e = serde_json::from_str::<Widening>(r#"{"between": "row", "from": 1, "extra_mm": 1}"#)
+        .unwrap_err();
+    assert!(e.to_string().contains("unknown variant `row`"), "{e}");
     // B must clear A2's far end so that hypot(dx, 2) >= 5: its X start 110 + 5 + e at
     // least 140 + sqrt(21); each round adds at most the 3 mm shortfall.
     let least = 140.0 + 21f64.sqrt() - 115.0;

@@ -161,9 +161,7 @@ pub struct DncRequest {
 /// count and the bounds are the request's to check.
 #[cfg(feature = "cli")]
 pub fn work_offsets_mm(text: &str) -> Result<Vec<[f64; 3]>, crate::Error> {
-    (text.split(';').map(crate::volumetric::xyz_mm))
-        .collect::<Result<_, _>>()
-        .map_err(crate::Error::Input)
+    text.split(';').map(crate::volumetric::xyz_mm).collect()
 }
 
 impl DncRequest {

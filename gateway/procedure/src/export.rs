@@ -18,7 +18,6 @@ use errormap::export::{
 use errormap::MapModel;
 use protocol::errormap::ErrorMap;
 use serde::{Deserialize, Serialize};
-use serde_json::{json, Value};
 use std::fmt::Write;
 
 /// The memory an export may ask for (see [`ExportRequest::check_map`]).
@@ -414,11 +413,118 @@ pub fn per_axis(name: &str, axis: &str) -> String {
     }
 }
 
+/// A LinuxCNC joint's `COMP_FILE`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct LinuxcncTable {
+    /// The table (the artifact; the CLI: the path it wrote).
+    pub file: String,
+    /// The joint: 0 (X) or 1 (Y).
+    pub joint: usize,
+    pub entries: usize,
+    /// The other axis's position the table was taken at.
+    pub taken_at_mm: f64,
+    /// The table's largest distance from the map along its line.
+    pub interpolation_error_um: f64,
+    /// The joint's error that depends on the other axis, which a joint's table cannot hold.
+    pub cross_terms_not_held_um: f64,
+}
+
+/// A Beckhoff/ISG plane compensation list of one axis.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct BeckhoffTable {
+    /// The table (the artifact; the CLI: the path it wrote).
+    pub file: String,
+    /// `x` or `y`.
+    pub axis: String,
+    pub points: usize,
+    /// The table's largest distance from the map.
+    pub interpolation_error_um: f64,
+    /// The backlash one table for both directions cannot hold.
+    pub backlash_not_held_um: f64,
+}
+
+/// A file of an industrial controller's tables.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct TableFile {
+    /// The artifact (the CLI: the path it wrote).
+    pub file: String,
+}
+
+/// What the controller's tables leave of the map.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct Residual {
+    /// The map's error less the tables', largest and RMS over the map's grid.
+    pub max_um: f64,
+    pub rms_um: f64,
+    /// The share of the map's error the tables express (0..1).
+    pub share: f64,
+    /// The map's own error, largest and RMS.
+    pub map_max_um: f64,
+    pub map_rms_um: f64,
+    /// Where the residual is largest (X, Y).
+    pub worst_at_mm: [f64; 2],
+}
+
+/// The tables of an industrial controller (Siemens, Fanuc, Heidenhain, Haas).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct ControllerResult {
+    /// The files, in the artifacts' order.
+    #[schema(inline)]
+    pub tables: Vec<TableFile>,
+    /// What was chosen for each table (points, spacing, reference), one line each.
+    pub chosen: Vec<String>,
+    /// The machine data to set on the control, one line each.
+    pub settings: Vec<String>,
+    #[schema(inline)]
+    pub residual: Residual,
+    /// The map's error (X, Y) at the control's zero, which its tables hold as 0.
+    pub zero_not_held_um: [f64; 2],
+}
+
+/// `export`'s result, by format (`format` names it).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(tag = "format")]
+pub enum ExportResult {
+    /// A `COMP_FILE` per joint.
+    #[serde(rename = "linuxcnc")]
+    Linuxcnc {
+        #[schema(inline)]
+        tables: Vec<LinuxcncTable>,
+    },
+    /// A plane compensation list per axis over X and Y.
+    #[serde(rename = "beckhoff")]
+    Beckhoff {
+        /// The grid interval.
+        interval_mm: f64,
+        #[schema(inline)]
+        tables: Vec<BeckhoffTable>,
+    },
+    /// The model at every node of the map's grid.
+    #[serde(rename = "csv")]
+    Csv {
+        /// The file (the artifact; the CLI: the path it wrote).
+        file: String,
+        rows: usize,
+    },
+    #[serde(rename = "siemens-eec")]
+    SiemensEec(#[schema(inline)] ControllerResult),
+    #[serde(rename = "siemens-cec")]
+    SiemensCec(#[schema(inline)] ControllerResult),
+    #[serde(rename = "fanuc-pitch")]
+    FanucPitch(#[schema(inline)] ControllerResult),
+    #[serde(rename = "heidenhain")]
+    Heidenhain(#[schema(inline)] ControllerResult),
+    #[serde(rename = "heidenhain-64")]
+    Heidenhain64(#[schema(inline)] ControllerResult),
+    #[serde(rename = "haas")]
+    Haas(#[schema(inline)] ControllerResult),
+}
+
 /// Builds every table, checks each against the tolerance, and only then hands them to
 /// the sink ([`ExportRequest::artifact_names`]). The result: `format` and `tables`
 /// (per table: `file` (the artifact), the figures, what the format does not hold) or,
 /// for the CSV, `file` and `rows`.
-pub fn run(request: &ExportRequest, map: ErrorMap, sink: &mut dyn Sink) -> Outcome {
+pub fn run(request: &ExportRequest, map: ErrorMap, sink: &mut dyn Sink) -> Outcome<ExportResult> {
     if let Err(e) = request.check() {
         return Outcome::failed(e.to_string());
     }
@@ -437,14 +543,17 @@ pub fn run(request: &ExportRequest, map: ErrorMap, sink: &mut dyn Sink) -> Outco
                     Ok(t) => t,
                     Err(e) => return Outcome::failed(e.to_string()),
                 };
-                joints.push(json!({
-                    "file": file, "joint": axis, "entries": t.entries,
-                    "taken_at_mm": t.taken_at_mm, "interpolation_error_um": t.interpolation_error_um,
-                    "cross_terms_not_held_um": t.cross_terms_um,
-                }));
+                joints.push(LinuxcncTable {
+                    file: file.clone(),
+                    joint: axis,
+                    entries: t.entries,
+                    taken_at_mm: t.taken_at_mm,
+                    interpolation_error_um: t.interpolation_error_um,
+                    cross_terms_not_held_um: t.cross_terms_um,
+                });
                 texts.push(t.text);
             }
-            json!({ "format": "linuxcnc", "tables": joints })
+            ExportResult::Linuxcnc { tables: joints }
         }
         ExportFormat::Beckhoff => {
             let mut tables = Vec::new();
@@ -453,15 +562,19 @@ pub fn run(request: &ExportRequest, map: ErrorMap, sink: &mut dyn Sink) -> Outco
                     Ok(t) => t,
                     Err(e) => return Outcome::failed(e.to_string()),
                 };
-                let name = ["x", "y"][axis];
-                tables.push(json!({
-                    "file": file, "axis": name, "points": t.points,
-                    "interpolation_error_um": t.interpolation_error_um,
-                    "backlash_not_held_um": t.backlash_lost_um,
-                }));
+                tables.push(BeckhoffTable {
+                    file: file.clone(),
+                    axis: ["x", "y"][axis].into(),
+                    points: t.points,
+                    interpolation_error_um: t.interpolation_error_um,
+                    backlash_not_held_um: t.backlash_lost_um,
+                });
                 texts.push(t.text);
             }
-            json!({ "format": "beckhoff", "interval_mm": request.interval_mm, "tables": tables })
+            ExportResult::Beckhoff {
+                interval_mm: request.interval_mm,
+                tables,
+            }
         }
         ExportFormat::Csv => {
             let text = match plain_csv(&model) {
@@ -470,7 +583,10 @@ pub fn run(request: &ExportRequest, map: ErrorMap, sink: &mut dyn Sink) -> Outco
             };
             let rows = text.lines().count().saturating_sub(1);
             texts.push(text);
-            json!({ "format": "csv", "file": names[0], "rows": rows })
+            ExportResult::Csv {
+                file: names[0].clone(),
+                rows,
+            }
         }
         f => {
             let tables = match controller_tables(request, &model) {
@@ -533,20 +649,33 @@ fn controller_tables(
     out.map_err(|e| crate::Error::Refused(e.to_string()))
 }
 
-fn controller_result(format: ExportFormat, names: &[String], t: &ControllerTables) -> Value {
+fn controller_result(format: ExportFormat, names: &[String], t: &ControllerTables) -> ExportResult {
     let f = &t.fit;
-    json!({
-        "format": format.as_str(),
-        "tables": names.iter().map(|n| json!({ "file": n })).collect::<Vec<_>>(),
-        "chosen": t.tables,
-        "settings": t.settings,
-        "residual": {
-            "max_um": f.max_um, "rms_um": f.rms_um, "share": f.share,
-            "map_max_um": f.map_max_um, "map_rms_um": f.map_rms_um,
-            "worst_at_mm": f.worst_at_mm,
+    let result = ControllerResult {
+        tables: (names.iter())
+            .map(|n| TableFile { file: n.clone() })
+            .collect(),
+        chosen: t.tables.clone(),
+        settings: t.settings.clone(),
+        residual: Residual {
+            max_um: f.max_um,
+            rms_um: f.rms_um,
+            share: f.share,
+            map_max_um: f.map_max_um,
+            map_rms_um: f.map_rms_um,
+            worst_at_mm: f.worst_at_mm,
         },
-        "zero_not_held_um": t.zero_not_held_um,
-    })
+        zero_not_held_um: t.zero_not_held_um,
+    };
+    match format {
+        ExportFormat::SiemensEec => ExportResult::SiemensEec(result),
+        ExportFormat::SiemensCec => ExportResult::SiemensCec(result),
+        ExportFormat::FanucPitch => ExportResult::FanucPitch(result),
+        ExportFormat::Heidenhain => ExportResult::Heidenhain(result),
+        ExportFormat::Heidenhain64 => ExportResult::Heidenhain64(result),
+        ExportFormat::Haas => ExportResult::Haas(result),
+        other => unreachable!("{} is not a controller's own table", other.as_str()),
+    }
 }
 
 /// The export of the error map as a registered procedure.
@@ -564,7 +693,7 @@ impl crate::registry::Procedure for Export {
     )];
     const USES: crate::registry::Uses = crate::registry::Uses::MAP;
     type Request = ExportRequest;
-    type Result = Value;
+    type Result = ExportResult;
     const FILES: &'static [FileArg] = &[
         FileArg::required("map", "The error map to export.", command_line::map),
         FileArg::required(
@@ -582,12 +711,12 @@ impl crate::registry::Procedure for Export {
         ),
     ];
 
-    async fn run(request: ExportRequest, cx: &mut dyn crate::Context) -> Outcome {
+    async fn run(request: ExportRequest, cx: &mut dyn crate::Context) -> Outcome<ExportResult> {
         let active = crate::or_fail!(cx.map());
         run(&request, active.map, cx.sink())
     }
 
-    fn summary(result: &Value) -> String {
+    fn summary(result: &ExportResult) -> String {
         summary(result)
     }
 }
@@ -599,70 +728,71 @@ impl crate::registry::Checked for ExportRequest {
 }
 
 /// The export as text, one line per table (its `file` as the front end left it).
-pub fn summary(r: &Value) -> String {
+pub fn summary(r: &ExportResult) -> String {
     let mut t = String::new();
-    let n = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
-    let file = |v: &Value| v["file"].as_str().unwrap_or("").to_string();
-    match r["format"].as_str() {
-        Some("linuxcnc") => {
-            for j in r["tables"].as_array().into_iter().flatten() {
-                let axis = j["joint"].as_u64().unwrap_or(0);
+    let (format, c) = match r {
+        ExportResult::Linuxcnc { tables } => {
+            for j in tables {
+                let axis = j.joint;
                 let (name, other) = if axis == 0 { ("X", "Y") } else { ("Y", "X") };
                 let _ = writeln!(
                     t,
                     "{}: joint {name} ([JOINT_{axis}] COMP_FILE = {}, COMP_FILE_TYPE = 0), {} entries taken at {other} = {:.3} mm; interpolation {:.2} um from the map; not held: {:.2} um of its error that depends on {other}",
-                    file(j), file(j), j["entries"], n(&j["taken_at_mm"]),
-                    n(&j["interpolation_error_um"]), n(&j["cross_terms_not_held_um"]),
+                    j.file, j.file, j.entries, j.taken_at_mm,
+                    j.interpolation_error_um, j.cross_terms_not_held_um,
                 );
             }
+            return t;
         }
-        Some("beckhoff") => {
-            for p in r["tables"].as_array().into_iter().flatten() {
+        ExportResult::Beckhoff {
+            interval_mm,
+            tables,
+        } => {
+            for p in tables {
                 let _ = writeln!(
                     t,
-                    "{}: plane compensation of {} over X and Y, {} points every {} mm; interpolation {:.2} um from the map; not held: {:.2} um of backlash (one table for both directions)",
-                    file(p), p["axis"].as_str().unwrap_or("").to_uppercase(), p["points"],
-                    n(&r["interval_mm"]), n(&p["interpolation_error_um"]), n(&p["backlash_not_held_um"]),
+                    "{}: plane compensation of {} over X and Y, {} points every {interval_mm} mm; interpolation {:.2} um from the map; not held: {:.2} um of backlash (one table for both directions)",
+                    p.file, p.axis.to_uppercase(), p.points,
+                    p.interpolation_error_um, p.backlash_not_held_um,
                 );
             }
+            return t;
         }
-        Some("csv") => {
+        ExportResult::Csv { file, .. } => {
             let _ = writeln!(
                 t,
-                "{}: the model at every node of the map's grid, both directions",
-                file(r)
+                "{file}: the model at every node of the map's grid, both directions"
             );
+            return t;
         }
-        Some(format) => {
-            let files: Vec<String> = r["tables"]
-                .as_array()
-                .into_iter()
-                .flatten()
-                .map(file)
-                .collect();
-            let _ = writeln!(t, "{format}: {}", files.join(", "));
-            for c in r["chosen"].as_array().into_iter().flatten() {
-                let _ = writeln!(t, "  {}", c.as_str().unwrap_or(""));
-            }
-            for s in r["settings"].as_array().into_iter().flatten() {
-                let _ = writeln!(t, "  set: {}", s.as_str().unwrap_or(""));
-            }
-            let f = &r["residual"];
-            let _ = writeln!(
-                t,
-                "  left of the map: max {:.2} um, rms {:.2} um (the map: max {:.2}, rms {:.2} um); the tables express {:.2} % of it",
-                n(&f["max_um"]), n(&f["rms_um"]), n(&f["map_max_um"]), n(&f["map_rms_um"]), 100.0 * n(&f["share"]),
-            );
-            let z = &r["zero_not_held_um"];
-            if n(&z[0]) != 0.0 || n(&z[1]) != 0.0 {
-                let _ = writeln!(
-                    t,
-                    "  not held: the map's ({:.2}, {:.2}) um at the control's zero, where its table is 0 (the reference sets it)",
-                    n(&z[0]), n(&z[1]),
-                );
-            }
-        }
-        None => {}
+        ExportResult::SiemensEec(c) => (ExportFormat::SiemensEec, c),
+        ExportResult::SiemensCec(c) => (ExportFormat::SiemensCec, c),
+        ExportResult::FanucPitch(c) => (ExportFormat::FanucPitch, c),
+        ExportResult::Heidenhain(c) => (ExportFormat::Heidenhain, c),
+        ExportResult::Heidenhain64(c) => (ExportFormat::Heidenhain64, c),
+        ExportResult::Haas(c) => (ExportFormat::Haas, c),
+    };
+    let files: Vec<&str> = c.tables.iter().map(|f| f.file.as_str()).collect();
+    let _ = writeln!(t, "{}: {}", format.as_str(), files.join(", "));
+    for line in &c.chosen {
+        let _ = writeln!(t, "  {line}");
+    }
+    for s in &c.settings {
+        let _ = writeln!(t, "  set: {s}");
+    }
+    let f = &c.residual;
+    let _ = writeln!(
+        t,
+        "  left of the map: max {:.2} um, rms {:.2} um (the map: max {:.2}, rms {:.2} um); the tables express {:.2} % of it",
+        f.max_um, f.rms_um, f.map_max_um, f.map_rms_um, 100.0 * f.share,
+    );
+    let z = c.zero_not_held_um;
+    if z[0] != 0.0 || z[1] != 0.0 {
+        let _ = writeln!(
+            t,
+            "  not held: the map's ({:.2}, {:.2}) um at the control's zero, where its table is 0 (the reference sets it)",
+            z[0], z[1],
+        );
     }
     t
 }
@@ -767,7 +897,10 @@ mod tests {
         assert!(sink.0.is_empty());
         let mut sink = Keep::default();
         let out = run(&ExportRequest::new(ExportFormat::Csv), map(40.0), &mut sink);
-        assert_eq!(out.result.unwrap()["rows"], 63);
+        assert!(matches!(
+            out.result,
+            Some(ExportResult::Csv { rows: 63, .. })
+        ));
         assert_eq!(sink.0[0].name, "table");
     }
 

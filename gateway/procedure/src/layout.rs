@@ -6,7 +6,7 @@ use crate::request::{LayoutFormat, LayoutRequest, PictureFormat};
 use crate::{Artifact, Outcome, Sink};
 use layout::{MaterialFit, Params, Partition, Resolution};
 use layout_io::{Layout, ReadOptions};
-use serde_json::{json, Value};
+use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
 /// A layout file's text for a [`LayoutRequest`], through the bounded reader
@@ -97,28 +97,36 @@ pub fn partitioned(request: &LayoutRequest) -> Result<Partitioned, crate::Error>
     })
 }
 
+/// `layout partition`'s result: the layout crate's report ([`layout::Report`]: parts,
+/// groups, moves, overlaps, widenings, figures) and the partition's time and widths.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct LayoutResult {
+    /// The partition's report, its fields at the top level.
+    #[serde(flatten)]
+    #[schema(value_type = Object)]
+    pub report: layout::Report,
+    /// The partition's (wall) time.
+    pub partition_ms: f64,
+    /// The material's width.
+    pub material_width_mm: f64,
+    /// The partitioned layout's width (the parts after the shifts).
+    pub partitioned_width_mm: f64,
+}
+
 /// The report of a partition: the layout crate's report and the partition's time.
-pub fn report(p: &Partitioned) -> Value {
-    let mut v = serde_json::to_value(layout::report(&p.doc.parts, &p.partition, &p.resolution))
-        .unwrap_or(Value::Null);
-    if let Some(o) = v.as_object_mut() {
-        o.insert("partition_ms".into(), json!(p.elapsed_ms));
-        o.insert(
-            "material_width_mm".into(),
-            json!(p.material.material_width_mm),
-        );
-        o.insert(
-            "partitioned_width_mm".into(),
-            json!(p.material.partitioned_width_mm),
-        );
+pub fn report(p: &Partitioned) -> LayoutResult {
+    LayoutResult {
+        report: layout::report(&p.doc.parts, &p.partition, &p.resolution),
+        partition_ms: p.elapsed_ms,
+        material_width_mm: p.material.material_width_mm,
+        partitioned_width_mm: p.material.partitioned_width_mm,
     }
-    v
 }
 
 /// Partitions the layout; the shifted layout (`layout.<ext>`, in `out_format` or the
 /// input's) and the picture (`picture.svg`/`.png`) go to the sink as artifacts. Nothing
 /// is produced when an overlap cannot be resolved.
-pub fn partition(request: &LayoutRequest, sink: &mut dyn Sink) -> Outcome {
+pub fn partition(request: &LayoutRequest, sink: &mut dyn Sink) -> Outcome<LayoutResult> {
     let p = match partitioned(request) {
         Ok(p) => p,
         Err(e) => return Outcome::failed(e),
@@ -174,17 +182,19 @@ pub fn partition(request: &LayoutRequest, sink: &mut dyn Sink) -> Outcome {
         }
     }
     let result = report(&p);
-    let mut metrics = crate::metrics_from(&result, &["parts", "overlaps_resolved"]);
-    metrics.insert("groups".into(), json!(p.partition.groups.len()));
-    metrics.insert("moves".into(), json!(p.resolution.moves.len()));
-    metrics.insert(
-        "length_mm".into(),
-        json!(result["figures"]["partitioned"]["length_mm"]),
-    );
-    metrics.insert(
-        "utilisation".into(),
-        json!(result["figures"]["partitioned"]["utilisation"]),
-    );
+    let (r, partitioned) = (&result.report, &result.report.figures.partitioned);
+    let metrics = [
+        ("parts", r.parts.into()),
+        ("overlaps_resolved", r.overlaps_resolved.into()),
+        ("groups", p.partition.groups.len().into()),
+        ("moves", p.resolution.moves.len().into()),
+        ("length_mm", partitioned.length_mm.into()),
+        ("utilisation", partitioned.utilisation.into()),
+    ];
+    let metrics = metrics
+        .into_iter()
+        .map(|(k, v)| (k.to_string(), v))
+        .collect();
     Outcome::succeeded(result, metrics)
 }
 
@@ -242,7 +252,7 @@ impl crate::registry::Procedure for LayoutPartition {
     ];
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = LayoutRequest;
-    type Result = Value;
+    type Result = LayoutResult;
     const FILES: &'static [FileArg] = &[
         FileArg::positional("layout", "The layout (.dxf, .svg or .json).", |path, plan| {
             layout_file(path, "", plan)
@@ -275,11 +285,11 @@ impl crate::registry::Procedure for LayoutPartition {
         ),
     ];
 
-    async fn run(request: LayoutRequest, cx: &mut dyn crate::Context) -> Outcome {
+    async fn run(request: LayoutRequest, cx: &mut dyn crate::Context) -> Outcome<LayoutResult> {
         partition(&request, cx.sink())
     }
 
-    fn summary(result: &Value) -> String {
+    fn summary(result: &LayoutResult) -> String {
         summary(result)
     }
 
@@ -310,91 +320,82 @@ impl crate::registry::Procedure for LayoutPartition {
 }
 
 /// The report as text, one line per figure (the CLI's output without `--json`).
-pub fn summary(r: &Value) -> String {
+pub fn summary(result: &LayoutResult) -> String {
     use std::fmt::Write;
     let mut t = String::new();
-    let n = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
+    let r = &result.report;
     let _ = writeln!(
         t,
-        "{} parts, {} tools, window {} mm, gap {} mm, width {} mm: {:.3} ms",
-        r["parts"],
-        r["tools"],
-        r["window_mm"],
-        r["gap_mm"],
-        r["width_mm"],
-        n(&r["partition_ms"])
+        "{} parts, {} tools, window {:?} mm, gap {:?} mm, width {:?} mm: {:.3} ms",
+        r.parts, r.tools, r.window_mm, r.gap_mm, r.width_mm, result.partition_ms
     );
     let _ = writeln!(t, "group  tool  window  dx_mm  dy_mm  parts");
-    for g in r["groups"].as_array().into_iter().flatten() {
+    for g in &r.groups {
         let _ = writeln!(
             t,
             "{:>5}  {:>4}  {:>6}  {:>5}  {:>5}  {}",
-            g["id"].to_string(),
-            g["tool"].to_string(),
-            g["window"].to_string(),
-            g["dx_mm"].to_string(),
-            g["dy_mm"].to_string(),
-            g["parts"].as_array().map_or(0, Vec::len)
+            g.id.to_string(),
+            g.tool.to_string(),
+            g.window.to_string(),
+            format!("{:?}", g.dx_mm),
+            format!("{:?}", g.dy_mm),
+            g.parts.len()
         );
     }
-    let found = r["overlaps_found"].as_array().map_or(0, Vec::len);
-    let _ = writeln!(t, "overlaps between groups after S8: {found}");
-    for m in r["moves"].as_array().into_iter().flatten() {
+    let _ = writeln!(
+        t,
+        "overlaps between groups after S8: {}",
+        r.overlaps_found.len()
+    );
+    for m in &r.moves {
         let _ = writeln!(
             t,
             "  moved `{}` from group {} to group {} (too close to `{}`: {:.3} mm; its overlaps {} -> {})",
-            m["part"].as_str().unwrap_or(""),
-            m["from_group"],
-            m["to_group"],
-            m["because_of"].as_str().unwrap_or("-"),
-            n(&m["distance_mm"]),
-            m["overlaps_before"],
-            m["overlaps_after"]
+            m.part,
+            m.from_group,
+            m.to_group,
+            m.because_of.as_deref().unwrap_or("-"),
+            m.distance_mm,
+            m.overlaps_before,
+            m.overlaps_after
         );
     }
-    for w in r["widenings"].as_array().into_iter().flatten() {
+    for w in &r.widenings {
         let _ = writeln!(
             t,
             "  widened: every {} from {} on moved {:.3} mm further",
-            w["between"].as_str().unwrap_or(""),
-            w["from"],
-            n(&w["extra_mm"])
+            w.between, w.from, w.extra_mm
         );
     }
-    let f = &r["figures"];
-    let row = |t: &mut String, name: &str, m: &Value| {
+    let f = &r.figures;
+    let row = |t: &mut String, name: &str, m: &layout::Material| {
         let _ = writeln!(t,
             "{name:<18} length {:>10.3} mm  width {:>9.3} mm  area {:>12.1} mm2  utilisation {:>6.2} %",
-            n(&m["length_mm"]),
-            n(&m["width_mm"]),
-            n(&m["area_mm2"]),
-            n(&m["utilisation"]) * 100.0
+            m.length_mm, m.width_mm, m.area_mm2, m.utilisation * 100.0
         );
     };
-    row(&mut t, "no gap", &f["no_gap"]);
-    row(&mut t, "partitioned", &f["partitioned"]);
-    row(&mut t, "gap every part", &f["gap_every_part"]);
+    row(&mut t, "no gap", &f.no_gap);
+    row(&mut t, "partitioned", &f.partitioned);
+    row(&mut t, "gap every part", &f.gap_every_part);
     let _ = writeln!(
         t,
         "material {:.3} mm wide; the partition adds {:.3} mm across (width {:.3} mm)",
-        n(&r["material_width_mm"]),
-        n(&f["added_width_partitioned_mm"]),
-        n(&r["partitioned_width_mm"])
+        result.material_width_mm, f.added_width_partitioned_mm, result.partitioned_width_mm
     );
-    let _ =
-        match f["added_length_fraction"].as_f64() {
-            Some(frac) => writeln!(t,
+    let _ = match f.added_length_fraction {
+        Some(frac) => writeln!(
+            t,
             "length added: {:.3} mm by the groups, {:.3} mm with a gap around every part ({:.1} %)",
-            n(&f["added_length_partitioned_mm"]),
-            n(&f["added_length_every_part_mm"]),
+            f.added_length_partitioned_mm,
+            f.added_length_every_part_mm,
             frac * 100.0
         ),
-            None => writeln!(
-                t,
-                "length added: {:.3} mm by the groups",
-                n(&f["added_length_partitioned_mm"])
-            ),
-        };
+        None => writeln!(
+            t,
+            "length added: {:.3} mm by the groups",
+            f.added_length_partitioned_mm
+        ),
+    };
     t
 }
 
@@ -402,6 +403,7 @@ pub fn summary(r: &Value) -> String {
 mod tests {
     use super::*;
     use crate::{Collect, End};
+    use serde_json::{json, Value};
 
     /// Two lanes of 50 mm on 100 mm material, a part of lane 1 touching the top edge:
     /// S8 moves lane 1 up by the gap.
@@ -447,12 +449,18 @@ mod tests {
         let out = partition(&request(Some(110.0)), &mut sink);
         assert!(matches!(out.end, End::Succeeded), "{:?}", out.end);
         let r = out.result.unwrap();
-        assert_eq!(r["material_width_mm"], json!(110.0));
-        assert_eq!(r["partitioned_width_mm"], json!(105.0));
-        assert_eq!(r["figures"]["added_width_partitioned_mm"], json!(5.0));
+        assert_eq!(r.material_width_mm, 110.0);
+        assert_eq!(r.partitioned_width_mm, 105.0);
+        assert_eq!(r.report.figures.added_width_partitioned_mm, 5.0);
         let written: Value = serde_json::from_slice(&sink.0[0].bytes).unwrap();
         assert_eq!(written["width_mm"], json!(105.0));
         assert!(summary(&r).contains("adds 5.000 mm across (width 105.000 mm)"));
+        // The report's fields at the top level, read back as the store keeps them.
+        let stored = serde_json::to_value(&r).unwrap();
+        assert_eq!(stored["figures"]["added_width_partitioned_mm"], json!(5.0));
+        assert_eq!(stored["parts"], 2);
+        let back: LayoutResult = serde_json::from_value(stored).unwrap();
+        assert_eq!(back, r);
         let e = request(Some(0.0)).check().unwrap_err();
         assert_eq!(e.field, "material_width_mm");
     }

@@ -292,13 +292,6 @@ pub fn machine_time_s(devices: &Devices) -> Option<f64> {
         .map(|rig| world::lock(rig).machine().now_s())
 }
 
-/// `{"name": value}` pairs from `result` into metrics.
-pub(crate) fn metrics_from(result: &Value, keys: &[&str]) -> Map<String, Value> {
-    keys.iter()
-        .filter_map(|k| result.get(*k).map(|v| (k.to_string(), v.clone())))
-        .collect()
-}
-
 /// The identity of the machine a job describes, read from its devices (opened, asked,
 /// closed): for a front end that applies a map without keeping the devices open. The
 /// stage is required; a camera that cannot be opened (a machine whose map was measured

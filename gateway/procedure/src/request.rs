@@ -173,16 +173,16 @@ pub struct MapRequest {
     pub tool_offset_mm: [f64; 2],
 }
 
-/// `X,Y` in mm (a command-line value).
+/// `X,Y` in mm (a command-line value); the error is the value's ([`crate::Error::Input`]).
 #[cfg(feature = "cli")]
-pub fn xy_mm(text: &str) -> Result<[f64; 2], String> {
+pub fn xy_mm(text: &str) -> Result<[f64; 2], crate::Error> {
     let parts: Vec<&str> = text.split(',').collect();
     match parts.as_slice() {
         [x, y] => match (x.trim().parse(), y.trim().parse()) {
             (Ok(x), Ok(y)) => Ok([x, y]),
-            _ => Err(format!("`{text}`: expected X,Y in mm")),
+            _ => Err(crate::Error::Input(format!("`{text}`: expected X,Y in mm"))),
         },
-        _ => Err(format!("`{text}`: expected X,Y in mm")),
+        _ => Err(crate::Error::Input(format!("`{text}`: expected X,Y in mm"))),
     }
 }
 
@@ -726,17 +726,18 @@ pub struct HeadReach {
     pub reach_y_mm: f64,
 }
 
-/// `ORIGIN:REACH` in mm (the command line's spelling).
+/// `ORIGIN:REACH` in mm (the command line's spelling); the error is the value's
+/// ([`crate::Error::Input`]).
 impl std::str::FromStr for HeadReach {
-    type Err = String;
-    fn from_str(text: &str) -> Result<Self, String> {
+    type Err = crate::Error;
+    fn from_str(text: &str) -> Result<Self, crate::Error> {
         let (origin, reach) = text
             .split_once(':')
-            .ok_or_else(|| format!("`{text}`: write ORIGIN:REACH in mm"))?;
+            .ok_or_else(|| crate::Error::Input(format!("`{text}`: write ORIGIN:REACH in mm")))?;
         let num = |v: &str, what: &str| {
             v.trim()
                 .parse::<f64>()
-                .map_err(|_| format!("`{text}`: the {what} is not a number"))
+                .map_err(|_| crate::Error::Input(format!("`{text}`: the {what} is not a number")))
         };
         Ok(HeadReach {
             origin_y_mm: num(origin, "origin")?,
@@ -905,6 +906,19 @@ mod tests {
     /// The schemas the page builds its forms from say what the checks do: each default
     /// is serde's, each required field is refused when absent, each bound is accepted and
     /// just past it refused naming the field.
+    /// A head's reach is `ORIGIN:REACH` in mm; what is not says which part and why, as
+    /// an input error (the command line's message).
+    #[test]
+    fn a_head_reach_is_origin_colon_reach() {
+        let h: HeadReach = "-2.5:20".parse().unwrap();
+        assert_eq!((h.origin_y_mm, h.reach_y_mm), (-2.5, 20.0));
+        let e = "1x".parse::<HeadReach>().unwrap_err();
+        assert!(matches!(e, crate::Error::Input(_)), "{e:?}");
+        assert_eq!(e.to_string(), "`1x`: write ORIGIN:REACH in mm");
+        let e = "a:2".parse::<HeadReach>().unwrap_err();
+        assert_eq!(e.to_string(), "`a:2`: the origin is not a number");
+    }
+
     #[test]
     fn the_schemas_bounds_and_defaults_are_the_checks() {
         let layout = json!({"layout": "", "format": "json", "tools": 2, "window_mm": 100.0,

@@ -11,7 +11,8 @@ use job::rotary::RotaryJob;
 use protocol::config::DataKind;
 use rotary::{identify as identify_errors, write_centres, CentreRow, Identification};
 use rotary::{LocationErrors, MachineConstants, RotaryMachine};
-use serde_json::{json, Value};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
 use std::cell::Cell;
 use std::future::Future;
 
@@ -29,6 +30,412 @@ impl ErrorsShelf for FolderShelf {
             .map_err(|e| crate::Error::Output(format!("writing {}: {e}", path.display())))?;
         Ok(path.display().to_string())
     }
+}
+
+/// The eight location errors under the paper's names (what `gateway rewrite --rotary`
+/// and `rotary rewrite` read at the top level of an errors file).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct EightErrors {
+    /// X offset of the C axis, mm.
+    #[serde(rename = "delta_XC_mm")]
+    pub delta_xc_mm: f64,
+    /// Y offset of the C axis, mm.
+    #[serde(rename = "delta_YC_mm")]
+    pub delta_yc_mm: f64,
+    /// Tilt of the C axis about X, degrees.
+    #[serde(rename = "alpha_XC_deg")]
+    pub alpha_xc_deg: f64,
+    /// Tilt of the C axis about Y, degrees.
+    #[serde(rename = "alpha_YC_deg")]
+    pub alpha_yc_deg: f64,
+    /// Y offset of the A axis, mm.
+    #[serde(rename = "delta_YA_mm")]
+    pub delta_ya_mm: f64,
+    /// Z offset of the A axis, mm.
+    #[serde(rename = "delta_ZA_mm")]
+    pub delta_za_mm: f64,
+    /// Tilt of the A axis about Y, degrees.
+    #[serde(rename = "alpha_YA_deg")]
+    pub alpha_ya_deg: f64,
+    /// Tilt of the A axis about Z, degrees.
+    #[serde(rename = "alpha_ZA_deg")]
+    pub alpha_za_deg: f64,
+}
+
+impl From<LocationErrors> for EightErrors {
+    fn from(e: LocationErrors) -> Self {
+        Self {
+            delta_xc_mm: e.delta_xc_mm,
+            delta_yc_mm: e.delta_yc_mm,
+            alpha_xc_deg: e.alpha_xc_deg,
+            alpha_yc_deg: e.alpha_yc_deg,
+            delta_ya_mm: e.delta_ya_mm,
+            delta_za_mm: e.delta_za_mm,
+            alpha_ya_deg: e.alpha_ya_deg,
+            alpha_za_deg: e.alpha_za_deg,
+        }
+    }
+}
+
+impl From<EightErrors> for LocationErrors {
+    fn from(e: EightErrors) -> Self {
+        Self {
+            delta_xc_mm: e.delta_xc_mm,
+            delta_yc_mm: e.delta_yc_mm,
+            alpha_xc_deg: e.alpha_xc_deg,
+            alpha_yc_deg: e.alpha_yc_deg,
+            delta_ya_mm: e.delta_ya_mm,
+            delta_za_mm: e.delta_za_mm,
+            alpha_ya_deg: e.alpha_ya_deg,
+            alpha_za_deg: e.alpha_za_deg,
+        }
+    }
+}
+
+/// A circle fitted to one ball's centres over a sweep.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct FittedCircle {
+    /// The swept axis: `A` or `C`.
+    pub axis: String,
+    /// The ball: 1 or 2.
+    pub ball: u8,
+    /// The circle's centre (machine frame), mm.
+    pub centre_mm: [f64; 3],
+    /// Its plane's unit normal.
+    pub normal: [f64; 3],
+    pub radius_mm: f64,
+    /// RMS distance of the centres from the circle's plane, um.
+    pub rms_plane_um: f64,
+    /// RMS of their in-plane distance from the circle, um.
+    pub rms_radial_um: f64,
+    /// How many centres it was fitted to.
+    pub points: usize,
+}
+
+/// One axis's identified line.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct AxisFit {
+    /// A point of the line (the mean of the two balls' circle centres), mm.
+    pub point: [f64; 3],
+    /// Its unit direction.
+    pub direction: [f64; 3],
+    /// The angle between that direction and the line through the two circle centres.
+    pub centre_line_deviation_deg: f64,
+    /// How far apart the two circle centres are.
+    pub centre_separation_mm: f64,
+}
+
+impl From<&rotary::identify::AxisLine> for AxisFit {
+    fn from(l: &rotary::identify::AxisLine) -> Self {
+        Self {
+            point: l.point,
+            direction: l.direction,
+            centre_line_deviation_deg: l.centre_line_deviation_deg,
+            centre_separation_mm: l.centre_separation_mm,
+        }
+    }
+}
+
+/// The identification (`rotary identify`'s result; the errors file): the eight errors
+/// at the top level under their paper names, their standard uncertainties (k = 1), the
+/// fitted circles and axis lines, and the machine constants.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct RotaryIdentifyResult {
+    /// The eight errors.
+    #[serde(flatten)]
+    #[schema(inline)]
+    pub errors: EightErrors,
+    /// Their standard uncertainties.
+    #[schema(inline)]
+    pub uncertainty: EightErrors,
+    /// The uncertainties' coverage factor k (1).
+    pub coverage_factor: u32,
+    /// C ball 1, C ball 2, A ball 1, A ball 2.
+    #[schema(inline)]
+    pub circles: Vec<FittedCircle>,
+    #[schema(inline)]
+    pub c_axis: AxisFit,
+    #[schema(inline)]
+    pub a_axis: AxisFit,
+    /// The machine constants the errors belong to.
+    #[schema(value_type = Object)]
+    pub machine: MachineConstants,
+}
+
+impl RotaryIdentifyResult {
+    fn new(id: &Identification, constants: &MachineConstants) -> Self {
+        Self {
+            errors: id.errors.into(),
+            uncertainty: id.uncertainty.into(),
+            coverage_factor: 1,
+            circles: (id.circles.iter())
+                .map(|(axis, ball, c)| FittedCircle {
+                    axis: axis.to_string(),
+                    ball: *ball,
+                    centre_mm: c.centre,
+                    normal: c.normal,
+                    radius_mm: c.radius_mm,
+                    rms_plane_um: c.rms_plane_mm * 1e3,
+                    rms_radial_um: c.rms_radial_mm * 1e3,
+                    points: c.points,
+                })
+                .collect(),
+            c_axis: (&id.c_axis).into(),
+            a_axis: (&id.a_axis).into(),
+            machine: *constants,
+        }
+    }
+}
+
+/// The C rotation centre found on the rim (machine frame, tool-tip coordinates).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct RimCentre {
+    pub x_mm: f64,
+    pub y_mm: f64,
+    /// The located centre minus the nominal C axis, X and Y.
+    pub offset_mm: [f64; 2],
+    /// The rim's radius from the fit (stylus radius taken off).
+    pub rim_radius_mm: f64,
+    /// The stylus centres at the three slow touches, mm.
+    pub points: Vec<[f64; 3]>,
+}
+
+/// The cycle's figures.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct CycleFigures {
+    /// Balls measured.
+    pub balls: usize,
+    /// Probe points (two touches each: fast, then slow).
+    pub probe_points: usize,
+    pub probe_touches: usize,
+    /// The cycle's time on the emulated machine's clock (a simulated link).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub simulated_time_s: Option<f64>,
+    /// The cycle's time on the wall clock (a real controller).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub wall_time_s: Option<f64>,
+}
+
+/// One error identified against the one the simulated table was given.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct AgainstTruth {
+    pub injected: f64,
+    pub identified: f64,
+    /// Identified minus injected.
+    pub difference: f64,
+}
+
+/// The eight errors against the truth, under their paper names.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct TruthComparison {
+    #[serde(rename = "delta_XC_mm")]
+    #[schema(inline)]
+    pub delta_xc_mm: AgainstTruth,
+    #[serde(rename = "delta_YC_mm")]
+    #[schema(inline)]
+    pub delta_yc_mm: AgainstTruth,
+    #[serde(rename = "alpha_XC_deg")]
+    #[schema(inline)]
+    pub alpha_xc_deg: AgainstTruth,
+    #[serde(rename = "alpha_YC_deg")]
+    #[schema(inline)]
+    pub alpha_yc_deg: AgainstTruth,
+    #[serde(rename = "delta_YA_mm")]
+    #[schema(inline)]
+    pub delta_ya_mm: AgainstTruth,
+    #[serde(rename = "delta_ZA_mm")]
+    #[schema(inline)]
+    pub delta_za_mm: AgainstTruth,
+    #[serde(rename = "alpha_YA_deg")]
+    #[schema(inline)]
+    pub alpha_ya_deg: AgainstTruth,
+    #[serde(rename = "alpha_ZA_deg")]
+    #[schema(inline)]
+    pub alpha_za_deg: AgainstTruth,
+}
+
+impl TruthComparison {
+    fn new(injected: LocationErrors, identified: LocationErrors) -> Self {
+        let c = |w: f64, g: f64| AgainstTruth {
+            injected: w,
+            identified: g,
+            difference: g - w,
+        };
+        let (w, g) = (injected, identified);
+        Self {
+            delta_xc_mm: c(w.delta_xc_mm, g.delta_xc_mm),
+            delta_yc_mm: c(w.delta_yc_mm, g.delta_yc_mm),
+            alpha_xc_deg: c(w.alpha_xc_deg, g.alpha_xc_deg),
+            alpha_yc_deg: c(w.alpha_yc_deg, g.alpha_yc_deg),
+            delta_ya_mm: c(w.delta_ya_mm, g.delta_ya_mm),
+            delta_za_mm: c(w.delta_za_mm, g.delta_za_mm),
+            alpha_ya_deg: c(w.alpha_ya_deg, g.alpha_ya_deg),
+            alpha_za_deg: c(w.alpha_za_deg, g.alpha_za_deg),
+        }
+    }
+
+    /// The eight in the paper's order, with their names.
+    pub fn named(&self) -> [(&'static str, AgainstTruth); 8] {
+        [
+            ("delta_XC_mm", self.delta_xc_mm),
+            ("delta_YC_mm", self.delta_yc_mm),
+            ("alpha_XC_deg", self.alpha_xc_deg),
+            ("alpha_YC_deg", self.alpha_yc_deg),
+            ("delta_YA_mm", self.delta_ya_mm),
+            ("delta_ZA_mm", self.delta_za_mm),
+            ("alpha_YA_deg", self.alpha_ya_deg),
+            ("alpha_ZA_deg", self.alpha_za_deg),
+        ]
+    }
+}
+
+/// A 5-axis test program run as programmed and as compensated, against the truth.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct CompensationFigures {
+    /// Poses of the program (A 2..90°, C all round).
+    pub poses: usize,
+    pub tip_max_before_mm: f64,
+    pub tip_max_after_mm: f64,
+    pub tip_mean_before_mm: f64,
+    pub tip_mean_after_mm: f64,
+    pub tip_improvement_pct: f64,
+    pub direction_max_before_rad: f64,
+    pub direction_max_after_rad: f64,
+    pub direction_improvement_pct: f64,
+}
+
+impl From<runner::rotary::CompensationCheck> for CompensationFigures {
+    fn from(c: runner::rotary::CompensationCheck) -> Self {
+        Self {
+            poses: c.poses,
+            tip_max_before_mm: c.tip_max_before_mm,
+            tip_max_after_mm: c.tip_max_after_mm,
+            tip_mean_before_mm: c.tip_mean_before_mm,
+            tip_mean_after_mm: c.tip_mean_after_mm,
+            tip_improvement_pct: c.tip_improvement_pct,
+            direction_max_before_rad: c.dir_max_before_rad,
+            direction_max_after_rad: c.dir_max_after_rad,
+            direction_improvement_pct: c.dir_improvement_pct,
+        }
+    }
+}
+
+/// The report of a measured cycle (the `errors.json` the shelf keeps): the
+/// identification, the C centre found on the rim, the cycle's figures and, when the
+/// truth is known (a simulated table), each error against the injected one and the
+/// compensation of a 5-axis program checked against the truth.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct CycleReport {
+    #[serde(flatten)]
+    #[schema(inline)]
+    pub identification: RotaryIdentifyResult,
+    /// Absent when the cycle's plan locates no centre on the rim.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(inline)]
+    pub c_centre: Option<RimCentre>,
+    #[schema(inline)]
+    pub cycle: CycleFigures,
+    /// A simulated table only.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(inline)]
+    pub truth: Option<TruthComparison>,
+    /// A simulated table only.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(inline)]
+    pub compensation_check: Option<CompensationFigures>,
+}
+
+impl CycleReport {
+    /// The report of `run`'s measurement `m` identified as `id`.
+    pub fn new(
+        run: &runner::rotary::CycleRun,
+        m: &rotary::measure::Measurement,
+        id: &Identification,
+        constants: &MachineConstants,
+    ) -> Result<Self, runner::rotary::RotaryError> {
+        let simulated = run.truth.is_some();
+        let (truth, compensation_check) = match &run.truth {
+            None => (None, None),
+            Some(table) => (
+                Some(TruthComparison::new(
+                    job::rotary::injected_errors(&table.errors),
+                    id.errors,
+                )),
+                Some(runner::rotary::compensation_check(table, constants, &id.errors)?.into()),
+            ),
+        };
+        Ok(Self {
+            identification: RotaryIdentifyResult::new(id, constants),
+            c_centre: m.c_centre.as_ref().map(|c| RimCentre {
+                x_mm: c.x_mm,
+                y_mm: c.y_mm,
+                offset_mm: c.offset_mm,
+                rim_radius_mm: c.rim_radius_mm,
+                points: c.points.clone(),
+            }),
+            cycle: CycleFigures {
+                balls: m.balls.len(),
+                probe_points: m.probe_touches / 2,
+                probe_touches: m.probe_touches,
+                simulated_time_s: simulated.then_some(run.time_s),
+                wall_time_s: (!simulated).then_some(run.time_s),
+            },
+            truth,
+            compensation_check,
+        })
+    }
+}
+
+/// `rotary measure`'s result: the report with the profile's name and where it was kept;
+/// a stopped cycle gives the name and what it measured instead of the report.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct RotaryMeasureResult {
+    /// The rotary profile the errors become a version of.
+    pub name: String,
+    /// Where the errors were kept (a file, a profile version).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub kept_as: Option<String>,
+    /// The report (absent when the cycle stopped).
+    #[serde(flatten)]
+    #[schema(inline)]
+    pub report: Option<CycleReport>,
+    /// A stopped cycle: the balls it measured.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub balls_measured: Option<usize>,
+    /// A stopped cycle: its probe touches.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub probe_touches: Option<usize>,
+}
+
+/// One ball's sphere as it is fitted (a measurement of the cycle).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct BallSphere {
+    /// The swept axis: `A` or `C`.
+    pub axis: String,
+    pub step: u32,
+    pub angle_deg: f64,
+    pub ball: u8,
+    pub centre_mm: [f64; 3],
+    pub radius_mm: f64,
+    /// RMS of the touches' distances from the sphere, um.
+    pub rms_um: f64,
+    /// The stylus centres at the slow touches (machine frame), mm.
+    pub points: Vec<[f64; 3]>,
+}
+
+/// `rotary rewrite`'s result: the rewritten program's figures.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct RotaryRewriteResult {
+    /// Lines of the program.
+    pub lines: usize,
+    /// Moves rewritten.
+    pub moves: usize,
+    /// Pieces added where a move was split to stay within the tolerance.
+    pub pieces_added: usize,
+    /// The largest change of a point's X Y Z.
+    pub max_correction_xyz_mm: f64,
+    /// The largest change of a point's A or C.
+    pub max_correction_ac_deg: f64,
 }
 
 /// The sweep chart (centres and fitted circles, deviations x1000) as SVG and PNG.
@@ -89,14 +496,14 @@ fn text_artifact(name: &str, media_type: &'static str, text: String) -> Artifact
 /// the GRBL emulator, or a real controller), each ball's sphere a measurement as it is
 /// fitted, `centres.csv` and `points.csv` as artifacts (also for a stopped cycle), then
 /// identifies the eight errors, keeps them on the shelf and draws the sweep chart. The
-/// result is the report (`runner::rotary::cycle_report`) with `name`, `kept_as`.
+/// result is the [`CycleReport`] with `name`, `kept_as`.
 pub async fn measure(
     request: &RotaryRequest,
     job: &RotaryJob,
     shelf: &mut dyn ErrorsShelf,
     sink: &mut dyn Sink,
     stop: impl Future<Output = ()>,
-) -> Outcome {
+) -> Outcome<RotaryMeasureResult> {
     let constants = job.machine.unwrap_or_default();
     let cancelled = Cell::new(false);
     let progress = std::cell::RefCell::new(&mut *sink);
@@ -118,10 +525,20 @@ pub async fn measure(
         Err(s) => (&s.so_far, Some(s.error.to_string())),
     };
     for b in &m.balls {
-        let v = json!({"axis": b.axis.to_string(), "step": b.step, "angle_deg": b.angle_deg,
-            "ball": b.ball, "centre_mm": b.sphere.centre, "radius_mm": b.sphere.radius_mm,
-            "rms_um": b.sphere.rms_mm * 1e3, "points": b.points});
-        if let Err(e) = sink.measurement(&v) {
+        let sphere = BallSphere {
+            axis: b.axis.to_string(),
+            step: b.step,
+            angle_deg: b.angle_deg,
+            ball: b.ball,
+            centre_mm: b.sphere.centre,
+            radius_mm: b.sphere.radius_mm,
+            rms_um: b.sphere.rms_mm * 1e3,
+            points: b.points.clone(),
+        };
+        let kept = serde_json::to_value(&sphere)
+            .map_err(|e| Error::Output(e.to_string()))
+            .and_then(|v| sink.measurement(&v));
+        if let Err(e) = kept {
             return Outcome::failed(format!("a ball's sphere was not kept: {e}"));
         }
     }
@@ -135,7 +552,13 @@ pub async fn measure(
         }
     }
     if let Some(error) = stopped {
-        let result = json!({"name": request.name, "balls_measured": m.balls.len(), "probe_touches": m.probe_touches});
+        let result = RotaryMeasureResult {
+            name: request.name.clone(),
+            kept_as: None,
+            report: None,
+            balls_measured: Some(m.balls.len()),
+            probe_touches: Some(m.probe_touches),
+        };
         let error = format!(
             "the measurement cycle stopped: {error} ({} balls measured, kept in centres.csv and points.csv)",
             m.balls.len()
@@ -152,26 +575,33 @@ pub async fn measure(
         Ok(i) => i,
         Err(e) => return Outcome::failed(format!("identification: {e}")),
     };
-    let mut report = match runner::rotary::cycle_report(&run, m, &identified, &constants) {
+    let report = match CycleReport::new(&run, m, &identified, &constants) {
         Ok(r) => r,
         Err(e) => return Outcome::failed(format!("the report: {e}")),
     };
     if let Err(e) = sweep_chart(&rows, &identified, sink) {
         return Outcome::failed(e);
     }
-    let kept_as = match shelf.keep(&request.name, &report) {
+    let kept_as = serde_json::to_value(&report)
+        .map_err(|e| Error::Output(e.to_string()))
+        .and_then(|v| shelf.keep(&request.name, &v));
+    let kept_as = match kept_as {
         Ok(k) => k,
         Err(e) => return Outcome::failed(format!("the errors were identified but not kept: {e}")),
     };
-    let obj = report.as_object_mut().expect("an object");
-    obj.insert("name".into(), json!(request.name));
-    obj.insert("kept_as".into(), json!(kept_as));
     let mut metrics = serde_json::Map::new();
     for (error, v) in identified.errors.named() {
-        metrics.insert(error.into(), json!(v));
+        metrics.insert(error.into(), v.into());
     }
-    metrics.insert("balls".into(), json!(m.balls.len()));
-    Outcome::succeeded(report, metrics)
+    metrics.insert("balls".into(), m.balls.len().into());
+    let result = RotaryMeasureResult {
+        name: request.name.clone(),
+        kept_as: Some(kept_as),
+        report: Some(report),
+        balls_measured: None,
+        probe_touches: None,
+    };
+    Outcome::succeeded(result, metrics)
 }
 
 /// The eight errors from ball centres measured elsewhere (a CMM, as in the paper): the
@@ -182,7 +612,7 @@ pub fn identify(
     source: &str,
     constants: &MachineConstants,
     sink: &mut dyn Sink,
-) -> Outcome {
+) -> Outcome<RotaryIdentifyResult> {
     let rows = match rotary::parse_centres(centres) {
         Ok(r) => r,
         Err(e) => return Outcome::failed(format!("{source}: {e}")),
@@ -195,7 +625,7 @@ pub fn identify(
         return Outcome::failed(e);
     }
     Outcome::succeeded(
-        runner::rotary::identification_json(&id, constants),
+        RotaryIdentifyResult::new(&id, constants),
         Default::default(),
     )
 }
@@ -256,7 +686,7 @@ pub fn rewrite_files(
     force_machine: bool,
     tolerance_um: f64,
     sink: &mut dyn Sink,
-) -> Outcome {
+) -> Outcome<RotaryRewriteResult> {
     let errors_text = match read_errors_file(errors) {
         Ok(t) => t,
         Err(e) => return Outcome::failed(e),
@@ -300,7 +730,7 @@ pub fn rewrite_with_errors_file(
     force_machine: bool,
     tolerance_um: f64,
     sink: &mut dyn Sink,
-) -> Outcome {
+) -> Outcome<RotaryRewriteResult> {
     let errors = match LocationErrors::from_json(errors_text) {
         Ok(e) => e,
         Err(e) => return Outcome::failed(format!("{errors_source}: {e}")),
@@ -325,7 +755,7 @@ pub fn rewrite(
     constants: MachineConstants,
     tolerance_um: f64,
     sink: &mut dyn Sink,
-) -> Outcome {
+) -> Outcome<RotaryRewriteResult> {
     if !(tolerance_um > 0.0 && tolerance_um.is_finite() && tolerance_um <= 1000.0) {
         return Outcome::failed(format!(
             "tolerance_um: must be a number from 0 (excluded) to 1000, got {tolerance_um}"
@@ -361,13 +791,13 @@ pub fn rewrite(
         return Outcome::failed(e);
     }
     Outcome::succeeded(
-        json!({
-            "lines": report.lines,
-            "moves": report.moves,
-            "pieces_added": report.pieces_added,
-            "max_correction_xyz_mm": max_xyz,
-            "max_correction_ac_deg": max_ac,
-        }),
+        RotaryRewriteResult {
+            lines: report.lines,
+            moves: report.moves,
+            pieces_added: report.pieces_added,
+            max_correction_xyz_mm: max_xyz,
+            max_correction_ac_deg: max_ac,
+        },
         Default::default(),
     )
 }
@@ -388,7 +818,7 @@ impl crate::registry::Procedure for RotaryMeasure {
     )];
     const USES: crate::registry::Uses = crate::registry::Uses::ROTARY;
     type Request = RotaryRequest;
-    type Result = Value;
+    type Result = RotaryMeasureResult;
     const FILES: &'static [FileArg] = &[
         FileArg::required(
             "config",
@@ -403,15 +833,18 @@ impl crate::registry::Procedure for RotaryMeasure {
     ];
     const STEPS: &'static str = "balls";
 
-    async fn run(request: RotaryRequest, cx: &mut dyn crate::Context) -> Outcome {
+    async fn run(
+        request: RotaryRequest,
+        cx: &mut dyn crate::Context,
+    ) -> Outcome<RotaryMeasureResult> {
         let stop = cx.stop();
         let job = crate::or_fail!(cx.rotary_job());
         let mut shelf = crate::or_fail!(cx.errors_shelf());
         measure(&request, &job, shelf.as_mut(), cx.sink(), stop.requested()).await
     }
 
-    fn summary(result: &Value) -> String {
-        summary(result)
+    fn summary(result: &RotaryMeasureResult) -> String {
+        measure_summary(result)
     }
 }
 
@@ -475,7 +908,7 @@ impl crate::registry::Procedure for RotaryIdentify {
     )];
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = RotaryIdentifyRequest;
-    type Result = Value;
+    type Result = RotaryIdentifyResult;
     const FILES: &'static [FileArg] = &[
         FileArg::required("centres", "The centres file.", |path, plan| {
             let text = protocol::config::read_kind(path, protocol::config::DataKind::Centres)?;
@@ -496,7 +929,10 @@ impl crate::registry::Procedure for RotaryIdentify {
         ),
     ];
 
-    async fn run(request: RotaryIdentifyRequest, cx: &mut dyn crate::Context) -> Outcome {
+    async fn run(
+        request: RotaryIdentifyRequest,
+        cx: &mut dyn crate::Context,
+    ) -> Outcome<RotaryIdentifyResult> {
         let constants = request.machine.unwrap_or_default();
         identify(
             &request.centres,
@@ -506,8 +942,8 @@ impl crate::registry::Procedure for RotaryIdentify {
         )
     }
 
-    fn summary(result: &Value) -> String {
-        summary(result)
+    fn summary(result: &RotaryIdentifyResult) -> String {
+        identification_summary(result, None)
     }
 }
 
@@ -598,7 +1034,7 @@ impl crate::registry::Procedure for RotaryRewrite {
     const HELP: &'static str = "Rewrites a 5-axis program (X Y Z A C, absolute, mm) for the rotary table's identified errors, so that the tool tip and its direction land where programmed; download the rewritten program and run it on the machine.";
     const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
     type Request = RotaryRewriteRequest;
-    type Result = Value;
+    type Result = RotaryRewriteResult;
     const FILES: &'static [FileArg] = &[
         FileArg::positional("input", "The program (never overwritten).", |path, plan| {
             plan.text(path, "program", Some("program_name"), crate::rewrite::read_program)
@@ -619,7 +1055,10 @@ impl crate::registry::Procedure for RotaryRewrite {
         ),
     ];
 
-    async fn run(r: RotaryRewriteRequest, cx: &mut dyn crate::Context) -> Outcome {
+    async fn run(
+        r: RotaryRewriteRequest,
+        cx: &mut dyn crate::Context,
+    ) -> Outcome<RotaryRewriteResult> {
         rewrite_with_errors_file(
             &r.program,
             &r.program_name,
@@ -632,38 +1071,26 @@ impl crate::registry::Procedure for RotaryRewrite {
         )
     }
 
-    fn summary(result: &Value) -> String {
-        summary(result)
+    fn summary(r: &RotaryRewriteResult) -> String {
+        format!(
+            "{} lines, {} moves rewritten, {} pieces added; largest correction {:.4} mm, {:.5} deg\n",
+            r.lines, r.moves, r.pieces_added, r.max_correction_xyz_mm, r.max_correction_ac_deg
+        )
     }
 }
 
-/// An identification or a cycle's report as text (the CLI's output without `--json`).
-pub fn summary(r: &Value) -> String {
+/// An identification as text (the CLI's output without `--json`): the eight errors and
+/// their uncertainties (against the truth when it is known), the circles and the axes.
+pub fn identification_summary(r: &RotaryIdentifyResult, truth: Option<&TruthComparison>) -> String {
     use std::fmt::Write;
     let mut t = String::new();
-    let n = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
-    if let Some(c) = r.get("c_centre") {
-        let _ = writeln!(
-            t,
-            "C centre on the rim: ({:.4}, {:.4}) mm, ({:+.4}, {:+.4}) mm from the nominal axis, rim radius {:.4} mm",
-            n(&c["x_mm"]), n(&c["y_mm"]), n(&c["offset_mm"][0]), n(&c["offset_mm"][1]), n(&c["rim_radius_mm"])
-        );
-    }
-    let names: Vec<&str> = LocationErrors::default()
-        .named()
-        .iter()
-        .map(|(name, _)| *name)
-        .collect();
-    match r.get("truth") {
+    let values = LocationErrors::from(r.errors).named();
+    let uncertainty = LocationErrors::from(r.uncertainty).named();
+    match truth {
         None => {
             let _ = writeln!(t, "{:<14} {:>12} {:>12}", "error", "value", "u (k=1)");
-            for name in &names {
-                let _ = writeln!(
-                    t,
-                    "{name:<14} {:>12.6} {:>12.6}",
-                    n(&r[*name]),
-                    n(&r["uncertainty"][*name])
-                );
+            for ((name, v), (_, u)) in values.iter().zip(uncertainty) {
+                let _ = writeln!(t, "{name:<14} {v:>12.6} {u:>12.6}");
             }
         }
         Some(truth) => {
@@ -672,83 +1099,90 @@ pub fn summary(r: &Value) -> String {
                 "{:<14} {:>12} {:>12} {:>12} {:>10}",
                 "error", "injected", "identified", "difference", "u (k=1)"
             );
-            for name in &names {
-                let c = &truth[*name];
+            for ((name, c), (_, u)) in truth.named().iter().zip(uncertainty) {
                 let _ = writeln!(
                     t,
-                    "{name:<14} {:>12.6} {:>12.6} {:>12.6} {:>10.6}",
-                    n(&c["injected"]),
-                    n(&c["identified"]),
-                    n(&c["difference"]),
-                    n(&r["uncertainty"][*name])
+                    "{name:<14} {:>12.6} {:>12.6} {:>12.6} {u:>10.6}",
+                    c.injected, c.identified, c.difference
                 );
             }
         }
     }
-    for c in r["circles"].as_array().into_iter().flatten() {
+    for c in &r.circles {
         let _ = writeln!(
             t,
             "circle {} ball {}: radius {:.4} mm, rms {:.3} um radial, {:.3} um out of plane, {} centres",
-            c["axis"].as_str().unwrap_or("?"), c["ball"], n(&c["radius_mm"]),
-            n(&c["rms_radial_um"]), n(&c["rms_plane_um"]), c["points"]
+            c.axis, c.ball, c.radius_mm, c.rms_radial_um, c.rms_plane_um, c.points
         );
     }
-    for (name, key) in [("C", "c_axis"), ("A", "a_axis")] {
-        if let Some(line) = r.get(key) {
-            let _ = writeln!(
-                t,
-                "{name} axis: circle centres {:.3} mm apart, their line {:.5} deg from the normals",
-                n(&line["centre_separation_mm"]),
-                n(&line["centre_line_deviation_deg"])
-            );
-        }
-    }
-    if let Some(cycle) = r.get("cycle") {
-        let (clock, time_s) = match cycle.get("simulated_time_s") {
-            Some(s) => ("simulated machine time ", n(s)),
-            None => ("", n(&cycle["wall_time_s"])),
-        };
+    for (name, line) in [("C", &r.c_axis), ("A", &r.a_axis)] {
         let _ = writeln!(
             t,
-            "cycle: {} balls, {} probe points ({} touches), {clock}{:.1} min",
-            cycle["balls"],
-            cycle["probe_points"],
-            cycle["probe_touches"],
-            time_s / 60.0
+            "{name} axis: circle centres {:.3} mm apart, their line {:.5} deg from the normals",
+            line.centre_separation_mm, line.centre_line_deviation_deg
         );
     }
-    if let Some(c) = r.get("compensation_check") {
+    t
+}
+
+/// A cycle's report as text: the C centre on the rim, the identification, the cycle's
+/// figures and the compensation check; a stopped cycle's balls.
+pub fn measure_summary(r: &RotaryMeasureResult) -> String {
+    use std::fmt::Write;
+    let mut t = String::new();
+    let Some(report) = &r.report else {
+        let _ = writeln!(
+            t,
+            "{}: stopped after {} balls ({} probe touches)",
+            r.name,
+            r.balls_measured.unwrap_or(0),
+            r.probe_touches.unwrap_or(0)
+        );
+        return t;
+    };
+    if let Some(c) = &report.c_centre {
+        let _ = writeln!(
+            t,
+            "C centre on the rim: ({:.4}, {:.4}) mm, ({:+.4}, {:+.4}) mm from the nominal axis, rim radius {:.4} mm",
+            c.x_mm, c.y_mm, c.offset_mm[0], c.offset_mm[1], c.rim_radius_mm
+        );
+    }
+    t.push_str(&identification_summary(
+        &report.identification,
+        report.truth.as_ref(),
+    ));
+    let cycle = &report.cycle;
+    let (clock, time_s) = match cycle.simulated_time_s {
+        Some(s) => ("simulated machine time ", s),
+        None => ("", cycle.wall_time_s.unwrap_or(f64::NAN)),
+    };
+    let _ = writeln!(
+        t,
+        "cycle: {} balls, {} probe points ({} touches), {clock}{:.1} min",
+        cycle.balls,
+        cycle.probe_points,
+        cycle.probe_touches,
+        time_s / 60.0
+    );
+    if let Some(c) = &report.compensation_check {
         let _ = writeln!(
             t,
             "compensated 5-axis program ({} poses, A 2..90°, C all round), against the truth:",
-            c["poses"]
+            c.poses
         );
         let _ = writeln!(
             t,
             "  tool tip   max {:.4} mm -> {:.5} mm ({:.1} % better), mean {:.4} -> {:.5}",
-            n(&c["tip_max_before_mm"]),
-            n(&c["tip_max_after_mm"]),
-            n(&c["tip_improvement_pct"]),
-            n(&c["tip_mean_before_mm"]),
-            n(&c["tip_mean_after_mm"])
+            c.tip_max_before_mm,
+            c.tip_max_after_mm,
+            c.tip_improvement_pct,
+            c.tip_mean_before_mm,
+            c.tip_mean_after_mm
         );
         let _ = writeln!(
             t,
             "  direction  max {:.6} rad -> {:.7} rad ({:.1} % better)",
-            n(&c["direction_max_before_rad"]),
-            n(&c["direction_max_after_rad"]),
-            n(&c["direction_improvement_pct"])
-        );
-    }
-    if r.get("lines").is_some() {
-        let _ = writeln!(
-            t,
-            "{} lines, {} moves rewritten, {} pieces added; largest correction {:.4} mm, {:.5} deg",
-            r["lines"],
-            r["moves"],
-            r["pieces_added"],
-            n(&r["max_correction_xyz_mm"]),
-            n(&r["max_correction_ac_deg"])
+            c.direction_max_before_rad, c.direction_max_after_rad, c.direction_improvement_pct
         );
     }
     t
@@ -834,6 +1268,85 @@ mod tests {
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
+    /// A stopped cycle's result (no report) and a whole one read back as the same type,
+    /// so the summary reads what the store keeps.
+    #[test]
+    fn a_stopped_and_a_whole_cycles_results_read_back() {
+        let stopped = RotaryMeasureResult {
+            name: "table".into(),
+            kept_as: None,
+            report: None,
+            balls_measured: Some(3),
+            probe_touches: Some(31),
+        };
+        let v = serde_json::to_value(&stopped).unwrap();
+        assert_eq!(
+            v,
+            serde_json::json!({"name": "table", "balls_measured": 3, "probe_touches": 31})
+        );
+        let back: RotaryMeasureResult = serde_json::from_value(v).unwrap();
+        assert_eq!(back, stopped);
+        assert!(measure_summary(&back).contains("stopped after 3 balls"));
+
+        let rows = rotary::parse_centres(include_str!(
+            "../../../tests/fuzz/corpus/rotary_centres/paper.csv"
+        ))
+        .unwrap();
+        let constants = MachineConstants::default();
+        let id = identify_errors(&rows, &constants).unwrap();
+        let identification = RotaryIdentifyResult::new(&id, &constants);
+        let whole = RotaryMeasureResult {
+            name: "table".into(),
+            kept_as: Some("errors.json".into()),
+            report: Some(CycleReport {
+                identification,
+                c_centre: None,
+                cycle: CycleFigures {
+                    balls: 20,
+                    probe_points: 103,
+                    probe_touches: 206,
+                    simulated_time_s: None,
+                    wall_time_s: Some(600.0),
+                },
+                truth: None,
+                compensation_check: None,
+            }),
+            balls_measured: None,
+            probe_touches: None,
+        };
+        let v = serde_json::to_value(&whole).unwrap();
+        assert_eq!(v["delta_ZA_mm"], serde_json::json!(id.errors.delta_za_mm));
+        assert_eq!(v["cycle"]["wall_time_s"], 600.0);
+        let back: RotaryMeasureResult = serde_json::from_value(v).unwrap();
+        assert_eq!(back, whole);
+        assert!(measure_summary(&back).contains("cycle: 20 balls, 103 probe points"));
+    }
+
+    /// The typed results' schemas (rotary, volumetric, layout, cut, export) are whole:
+    /// their nested types inlined, no `$ref` to a component nobody carries.
+    #[test]
+    fn the_typed_results_schemas_are_whole() {
+        let typed = [
+            "rotary",
+            "rotary-identify",
+            "rotary-rewrite",
+            "volumetric-identify",
+            "volumetric-eval",
+            "volumetric-contributions",
+            "volumetric-campaign",
+            "volumetric-export-isg",
+            "layout",
+            "cut",
+            "export",
+        ];
+        for name in typed {
+            let kind = crate::kinds::find(name).unwrap();
+            let schema = serde_json::to_string(&kind.result_schema()).unwrap();
+            assert!(schema.len() > 100, "{name}: {schema}");
+            assert!(!schema.contains("$ref"), "{name}: {schema}");
+        }
+    }
+
     fn errors_file(machine: Option<MachineConstants>) -> String {
         let mut v = serde_json::to_value(LocationErrors::paper()).unwrap();
         if let Some(k) = machine {
@@ -842,7 +1355,7 @@ mod tests {
         v.to_string()
     }
 
-    fn program_of(out: &Outcome, sink: &Collect) -> String {
+    fn program_of(out: &Outcome<RotaryRewriteResult>, sink: &Collect) -> String {
         assert!(out.is_success(), "{:?}", out.error());
         String::from_utf8(sink.0[0].bytes.clone()).unwrap()
     }

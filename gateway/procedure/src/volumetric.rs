@@ -17,7 +17,6 @@ use protocol::volumetric::{
     parse_model, parse_points, write_isg_csv, write_isg_lis, write_model, Structure, AXES,
 };
 use serde::{Deserialize, Serialize};
-use serde_json::{json, Value};
 use std::fmt::Write;
 use volumetric::ballbar::BallbarChart;
 use volumetric::contributions::{
@@ -188,16 +187,17 @@ pub struct VolumetricIdentifyRequest {
     pub camera: Option<String>,
 }
 
-/// `x,y,z` in mm (a command-line value).
+/// `x,y,z` in mm (a command-line value); the error is the value's
+/// ([`crate::Error::Input`]).
 #[cfg(feature = "cli")]
-pub fn xyz_mm(text: &str) -> Result<[f64; 3], String> {
+pub fn xyz_mm(text: &str) -> Result<[f64; 3], crate::Error> {
     let v: Vec<f64> = text
         .split(',')
         .map(|p| p.trim().parse::<f64>())
         .collect::<Result<_, _>>()
-        .map_err(|_| format!("`{text}`: expected x,y,z in mm"))?;
+        .map_err(|_| crate::Error::Input(format!("`{text}`: expected x,y,z in mm")))?;
     v.try_into()
-        .map_err(|_| format!("`{text}`: expected three numbers x,y,z in mm"))
+        .map_err(|_| crate::Error::Input(format!("`{text}`: expected three numbers x,y,z in mm")))
 }
 
 impl VolumetricIdentifyRequest {
@@ -294,13 +294,101 @@ fn display_unit(name: &str) -> (f64, &'static str) {
     }
 }
 
+/// How well one of the 21 errors is known (translations in um, angles in urad).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct IdentifiedError {
+    /// `E_XX`, ... `E_C0X`.
+    pub name: String,
+    /// `um` (a translation) or `urad` (an angle): the unit of the three figures.
+    pub unit: String,
+    /// RMS of (run - mean).
+    pub residual: f64,
+    /// Largest standard uncertainty of the identified value.
+    pub uncertainty: f64,
+    /// The instrument's stated uncertainty.
+    pub stated: f64,
+    /// Whether the residual is within the stated uncertainty.
+    pub fit: bool,
+}
+
+/// The ball bar's reading of one plane and the model's squareness.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct BallbarPlane {
+    /// `XY`, `XZ` or `YZ`.
+    pub plane: String,
+    /// ISO 230-4 circular deviation about the least-squares centre.
+    pub circular_deviation_um: f64,
+    /// The raw squareness reading of the test (`-2 b2 / R`).
+    pub iso_squareness_urad: f64,
+    /// The model's squareness constant.
+    pub squareness_urad: f64,
+    /// Its standard uncertainty.
+    pub uncertainty_urad: f64,
+    /// RMS of the readings minus the fitted model's prediction.
+    pub model_residual_rms_um: f64,
+}
+
+/// One angle the camera combined with the instruments.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct CameraAngle {
+    /// `E_AX`, `E_BX`, `E_AY` or `E_BY`.
+    pub name: String,
+    /// The combined value's largest standard uncertainty.
+    pub uncertainty_urad: f64,
+    /// The largest change from the instruments' value.
+    pub largest_change_from_instruments_urad: f64,
+}
+
+/// The camera's board measurements at several heights, combined with the instruments.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct CameraFigures {
+    pub points: usize,
+    /// Heights of Z, the reference first.
+    pub heights_mm: Vec<f64>,
+    /// RMS of the fitted camera differences' residuals.
+    pub residual_rms_um: f64,
+    /// Its stated bound (`sqrt(2) U`).
+    pub stated_um: f64,
+    /// RMS of the runs about their mean.
+    pub repeatability_um: f64,
+    /// The board's rotation change per raised height.
+    pub board_rotation_urad: Vec<f64>,
+    /// Whether the camera is consistent with the model.
+    pub fit: bool,
+    #[schema(inline)]
+    pub angles: Vec<CameraAngle>,
+}
+
+/// `volumetric identify`'s result.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct VolumetricIdentifyResult {
+    /// The model file (the artifact [`MODEL_ARTIFACT`]; the CLI: the path it wrote).
+    pub model: String,
+    /// FXYZ, XFYZ, XYFZ or XYZF.
+    pub structure: String,
+    /// Whether every error is within its stated uncertainty (else the CLI exits 2).
+    pub fit_for_compensation: bool,
+    /// The 21 errors.
+    #[schema(inline)]
+    pub errors: Vec<IdentifiedError>,
+    /// The ball-bar planes (none with `squareness.csv`).
+    #[schema(inline)]
+    pub ballbar: Vec<BallbarPlane>,
+    /// Null without `camera.csv`.
+    #[schema(inline)]
+    pub camera: Option<CameraFigures>,
+}
+
 /// Identifies the model from the campaign. The model file ([`MODEL_ARTIFACT`], marked
 /// fit or unfit for compensation) and, with `plots`, the ball-bar charts go to the sink.
 /// The result: `model` (the artifact), `structure`, `fit_for_compensation`, `errors`
 /// (per error: `name`, `unit`, `residual`, `uncertainty`, `stated`, `fit`), `ballbar`,
 /// `camera` (null without `camera.csv`). An unfit model is a success: the front end
 /// says so (the CLI's exit code 2).
-pub fn identify(request: &VolumetricIdentifyRequest, sink: &mut dyn Sink) -> Outcome {
+pub fn identify(
+    request: &VolumetricIdentifyRequest,
+    sink: &mut dyn Sink,
+) -> Outcome<VolumetricIdentifyResult> {
     let structure = match request.check() {
         Ok(()) => structure_of("structure", &request.structure).expect("checked"),
         Err(e) => return Outcome::failed(e.to_string()),
@@ -352,119 +440,118 @@ pub fn identify(request: &VolumetricIdentifyRequest, sink: &mut dyn Sink) -> Out
             }
         }
     }
-    let errors: Vec<_> = id
-        .quality
-        .iter()
+    let errors = (id.quality.iter())
         .map(|q| {
             let (scale, unit) = display_unit(q.name);
-            json!({"name": q.name, "unit": unit, "residual": q.residual * scale,
-                   "uncertainty": q.uncertainty * scale, "stated": q.stated * scale, "fit": q.fit()})
+            IdentifiedError {
+                name: q.name.into(),
+                unit: unit.into(),
+                residual: q.residual * scale,
+                uncertainty: q.uncertainty * scale,
+                stated: q.stated * scale,
+                fit: q.fit(),
+            }
         })
         .collect();
-    let ballbar: Vec<_> = id
-        .ballbar
-        .iter()
-        .map(|b| {
-            json!({"plane": b.plane, "circular_deviation_um": b.circular_deviation_mm * 1e3,
-                   "iso_squareness_urad": b.iso_squareness_rad * 1e6,
-                   "squareness_urad": b.squareness_rad * 1e6,
-                   "uncertainty_urad": b.uncertainty_rad * 1e6,
-                   "model_residual_rms_um": b.model_residual_rms_mm * 1e3})
+    let ballbar = (id.ballbar.iter())
+        .map(|b| BallbarPlane {
+            plane: b.plane.into(),
+            circular_deviation_um: b.circular_deviation_mm * 1e3,
+            iso_squareness_urad: b.iso_squareness_rad * 1e6,
+            squareness_urad: b.squareness_rad * 1e6,
+            uncertainty_urad: b.uncertainty_rad * 1e6,
+            model_residual_rms_um: b.model_residual_rms_mm * 1e3,
         })
         .collect();
-    let camera = id.camera.as_ref().map(|c| {
-        let angles: Vec<_> = (0..2)
+    let camera = id.camera.as_ref().map(|c| CameraFigures {
+        points: c.points,
+        heights_mm: c.heights_mm.clone(),
+        residual_rms_um: c.residual_rms_mm * 1e3,
+        stated_um: c.stated_mm * 1e3,
+        repeatability_um: c.repeatability_mm * 1e3,
+        board_rotation_urad: c.board_rotation_rad.iter().map(|v| v * 1e6).collect(),
+        fit: c.fit(),
+        angles: (0..2)
             .flat_map(|a| (0..2).map(move |k| (a, k)))
-            .map(|(a, k)| {
-                json!({"name": c.names[a][k],
-                       "uncertainty_urad": c.sigma[a][k].iter().fold(0.0f64, |m, v| m.max(*v)) * 1e6,
-                       "largest_change_from_instruments_urad": c.change[a][k] * 1e6})
+            .map(|(a, k)| CameraAngle {
+                name: c.names[a][k].into(),
+                uncertainty_urad: c.sigma[a][k].iter().fold(0.0f64, |m, v| m.max(*v)) * 1e6,
+                largest_change_from_instruments_urad: c.change[a][k] * 1e6,
             })
-            .collect();
-        json!({"points": c.points, "heights_mm": c.heights_mm,
-               "residual_rms_um": c.residual_rms_mm * 1e3, "stated_um": c.stated_mm * 1e3,
-               "repeatability_um": c.repeatability_mm * 1e3,
-               "board_rotation_urad": c.board_rotation_rad.iter().map(|v| v * 1e6).collect::<Vec<_>>(),
-               "fit": c.fit(), "angles": angles})
+            .collect(),
     });
-    let result = json!({
-        "model": MODEL_ARTIFACT, "structure": structure.name(),
-        "fit_for_compensation": id.model.file.fit, "errors": errors,
-        "ballbar": ballbar, "camera": camera,
-    });
-    let metrics = crate::metrics_from(&result, &["fit_for_compensation"]);
+    let result = VolumetricIdentifyResult {
+        model: MODEL_ARTIFACT.into(),
+        structure: structure.name().into(),
+        fit_for_compensation: id.model.file.fit,
+        errors,
+        ballbar,
+        camera,
+    };
+    let mut metrics = serde_json::Map::new();
+    metrics.insert(
+        "fit_for_compensation".into(),
+        result.fit_for_compensation.into(),
+    );
     Outcome::succeeded(result, metrics)
 }
 
 /// The identification as text: a table of the 21 errors, the ball-bar circles, the
 /// camera's figures.
-pub fn identify_summary(r: &Value) -> String {
+pub fn identify_summary(r: &VolumetricIdentifyResult) -> String {
     let mut t = String::new();
-    let n = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
     let _ = writeln!(
         t,
         "{:<6} {:>10} {:>12} {:>8}  unit",
         "error", "residual", "uncertainty", "stated"
     );
-    for q in r["errors"].as_array().into_iter().flatten() {
-        let unit = match q["unit"].as_str() {
-            Some("um") => "µm",
-            Some(u) => u,
-            None => "",
-        };
+    for q in &r.errors {
+        let unit = if q.unit == "um" { "µm" } else { &q.unit };
         let _ = writeln!(
             t,
             "{:<6} {:>10.3} {:>12.3} {:>8.3}  {unit}{}",
-            q["name"].as_str().unwrap_or(""),
-            n(&q["residual"]),
-            n(&q["uncertainty"]),
-            n(&q["stated"]),
-            if q["fit"] == true {
+            q.name,
+            q.residual,
+            q.uncertainty,
+            q.stated,
+            if q.fit {
                 ""
             } else {
                 "  EXCEEDS the stated uncertainty"
             }
         );
     }
-    for b in r["ballbar"].as_array().into_iter().flatten() {
+    for b in &r.ballbar {
         let _ = writeln!(
             t,
             "ball bar {}: circular deviation {:.2} µm, ISO squareness reading {:.2} µrad, model squareness {:.2} ± {:.2} µrad, residual {:.3} µm RMS",
-            b["plane"].as_str().unwrap_or(""),
-            n(&b["circular_deviation_um"]),
-            n(&b["iso_squareness_urad"]),
-            n(&b["squareness_urad"]),
-            n(&b["uncertainty_urad"]),
-            n(&b["model_residual_rms_um"])
+            b.plane,
+            b.circular_deviation_um,
+            b.iso_squareness_urad,
+            b.squareness_urad,
+            b.uncertainty_urad,
+            b.model_residual_rms_um
         );
     }
-    let c = &r["camera"];
-    if c.is_object() {
-        let heights: Vec<f64> = c["heights_mm"]
-            .as_array()
-            .into_iter()
-            .flatten()
-            .map(n)
-            .collect();
+    if let Some(c) = &r.camera {
         let _ = writeln!(
             t,
-            "camera: {} points at heights {heights:?} mm, residual {:.3} µm RMS (stated {:.3}), {}",
-            c["points"],
-            n(&c["residual_rms_um"]),
-            n(&c["stated_um"]),
-            if c["fit"] == true {
+            "camera: {} points at heights {:?} mm, residual {:.3} µm RMS (stated {:.3}), {}",
+            c.points,
+            c.heights_mm,
+            c.residual_rms_um,
+            c.stated_um,
+            if c.fit {
                 "consistent"
             } else {
                 "INCONSISTENT with the model"
             }
         );
-        for a in c["angles"].as_array().into_iter().flatten() {
+        for a in &c.angles {
             let _ = writeln!(
                 t,
                 "  {}: uncertainty {:.3} µrad combined, largest change from the instruments {:.3} µrad",
-                a["name"].as_str().unwrap_or(""),
-                n(&a["uncertainty_urad"]),
-                n(&a["largest_change_from_instruments_urad"])
+                a.name, a.uncertainty_urad, a.largest_change_from_instruments_urad
             );
         }
     }
@@ -532,10 +619,30 @@ impl VolumetricEvalRequest {
     }
 }
 
-/// The error at every point: the result `{first_order, points: [{x_mm, y_mm, z_mm,
-/// ex_um, ey_um, ez_um}]}`; a point outside the model's travel fails it, named by its
-/// number and line.
-pub fn eval(request: &VolumetricEvalRequest) -> Outcome {
+/// The volumetric error at one point.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct EvalPoint {
+    pub x_mm: f64,
+    pub y_mm: f64,
+    pub z_mm: f64,
+    pub ex_um: f64,
+    pub ey_um: f64,
+    pub ez_um: f64,
+}
+
+/// `volumetric eval`'s result.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct VolumetricEvalResult {
+    /// Whether the first-order closed form was used (else the full HTM product).
+    pub first_order: bool,
+    /// One per point of the points file, in its order.
+    #[schema(inline)]
+    pub points: Vec<EvalPoint>,
+}
+
+/// The error at every point ([`VolumetricEvalResult`]); a point outside the model's
+/// travel fails it, named by its number and line.
+pub fn eval(request: &VolumetricEvalRequest) -> Outcome<VolumetricEvalResult> {
     if let Err(e) = request.check() {
         return Outcome::failed(e.to_string());
     }
@@ -557,33 +664,36 @@ pub fn eval(request: &VolumetricEvalRequest) -> Outcome {
                 ))
             }
         };
-        rows.push(json!({"x_mm": q[0], "y_mm": q[1], "z_mm": q[2],
-                         "ex_um": e[0] * 1e3, "ey_um": e[1] * 1e3, "ez_um": e[2] * 1e3}));
+        rows.push(EvalPoint {
+            x_mm: q[0],
+            y_mm: q[1],
+            z_mm: q[2],
+            ex_um: e[0] * 1e3,
+            ey_um: e[1] * 1e3,
+            ez_um: e[2] * 1e3,
+        });
     }
     let mut metrics = serde_json::Map::new();
-    metrics.insert("points".into(), json!(rows.len()));
+    metrics.insert("points".into(), rows.len().into());
     Outcome::succeeded(
-        json!({"first_order": request.first_order, "points": rows}),
+        VolumetricEvalResult {
+            first_order: request.first_order,
+            points: rows,
+        },
         metrics,
     )
 }
 
 /// The evaluation as CSV lines (`x_mm,y_mm,z_mm,ex_um,ey_um,ez_um`, header first).
-pub fn eval_lines(r: &Value) -> impl Iterator<Item = String> + '_ {
-    let n = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
-    std::iter::once("x_mm,y_mm,z_mm,ex_um,ey_um,ez_um".to_string()).chain(
-        r["points"].as_array().into_iter().flatten().map(move |p| {
+pub fn eval_lines(r: &VolumetricEvalResult) -> impl Iterator<Item = String> + '_ {
+    std::iter::once("x_mm,y_mm,z_mm,ex_um,ey_um,ez_um".to_string()).chain(r.points.iter().map(
+        |p| {
             format!(
                 "{},{},{},{:.4},{:.4},{:.4}",
-                n(&p["x_mm"]),
-                n(&p["y_mm"]),
-                n(&p["z_mm"]),
-                n(&p["ex_um"]),
-                n(&p["ey_um"]),
-                n(&p["ez_um"])
+                p.x_mm, p.y_mm, p.z_mm, p.ex_um, p.ey_um, p.ez_um
             )
-        }),
-    )
+        },
+    ))
 }
 
 fn default_grid() -> u64 {
@@ -647,11 +757,36 @@ impl VolumetricContributionsRequest {
     }
 }
 
+/// One error's contribution over the volume.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct Contribution {
+    /// `E_XX`, ... `E_C0X`.
+    pub error: String,
+    pub max_um: f64,
+    pub rms_um: f64,
+}
+
+/// `volumetric contributions`' result.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct VolumetricContributionsResult {
+    /// Grid points per axis.
+    pub grid: usize,
+    /// The total error (first order) over the grid.
+    pub total_max_um: f64,
+    pub total_rms_um: f64,
+    /// The 21 errors, the largest first.
+    #[schema(inline)]
+    pub contributions: Vec<Contribution>,
+}
+
 /// The 21 contributions over a `grid`³ grid (ranked: `contributions.csv`, `.svg`,
 /// `.png`) and the exact error over the XY, XZ and YZ planes through the middle
 /// (`map_XY.csv`, `.svg`, `.png`, ...), as artifacts. The result: `grid`,
 /// `total_max_um`, `total_rms_um`, `contributions` (`error`, `max_um`, `rms_um`).
-pub fn contributions(request: &VolumetricContributionsRequest, sink: &mut dyn Sink) -> Outcome {
+pub fn contributions(
+    request: &VolumetricContributionsRequest,
+    sink: &mut dyn Sink,
+) -> Outcome<VolumetricContributionsResult> {
     if let Err(e) = request.check() {
         return Outcome::failed(e.to_string());
     }
@@ -719,38 +854,39 @@ pub fn contributions(request: &VolumetricContributionsRequest, sink: &mut dyn Si
             }
         }
     }
-    let list: Vec<_> = c
-        .iter()
-        .map(|x| json!({"error": x.name, "max_um": x.max_um, "rms_um": x.rms_um}))
+    let contributions = (c.iter())
+        .map(|x| Contribution {
+            error: x.name.into(),
+            max_um: x.max_um,
+            rms_um: x.rms_um,
+        })
         .collect();
-    let result =
-        json!({"grid": grid, "total_max_um": tmax, "total_rms_um": trms, "contributions": list});
-    let metrics = crate::metrics_from(&result, &["total_max_um", "total_rms_um"]);
+    let mut metrics = serde_json::Map::new();
+    metrics.insert("total_max_um".into(), tmax.into());
+    metrics.insert("total_rms_um".into(), trms.into());
+    let result = VolumetricContributionsResult {
+        grid,
+        total_max_um: tmax,
+        total_rms_um: trms,
+        contributions,
+    };
     Outcome::succeeded(result, metrics)
 }
 
 /// The contributions as text: the total, then each error ranked.
-pub fn contributions_summary(r: &Value) -> String {
-    let n = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
+pub fn contributions_summary(r: &VolumetricContributionsResult) -> String {
     let mut t = format!(
         "total (first order): max {:.2} µm, RMS {:.2} µm over a {}³ grid\n",
-        n(&r["total_max_um"]),
-        n(&r["total_rms_um"]),
-        r["grid"]
+        r.total_max_um, r.total_rms_um, r.grid
     );
-    for (i, x) in r["contributions"]
-        .as_array()
-        .into_iter()
-        .flatten()
-        .enumerate()
-    {
+    for (i, x) in r.contributions.iter().enumerate() {
         let _ = writeln!(
             t,
             "{:>2}. {:<6} max {:>8.3} µm  RMS {:>8.3} µm",
             i + 1,
-            x["error"].as_str().unwrap_or(""),
-            n(&x["max_um"]),
-            n(&x["rms_um"])
+            x.error,
+            x.max_um,
+            x.rms_um
         );
     }
     t
@@ -793,9 +929,23 @@ impl VolumetricCampaignRequest {
     }
 }
 
+/// `volumetric simulate-campaign`'s result.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct VolumetricCampaignResult {
+    /// The emulated machine's structure.
+    pub structure: String,
+    /// The seed of its errors and the instruments' noise.
+    pub seed: u64,
+    /// The campaign's files (artifacts), in [`CAMPAIGN_FILES`] order.
+    pub files: Vec<String>,
+}
+
 /// The emulated machine's campaign (laser, level and ball-bar files, and the camera's
-/// at several heights), one artifact per file. The result: `structure`, `seed`, `files`.
-pub fn simulate_campaign(request: &VolumetricCampaignRequest, sink: &mut dyn Sink) -> Outcome {
+/// at several heights), one artifact per file.
+pub fn simulate_campaign(
+    request: &VolumetricCampaignRequest,
+    sink: &mut dyn Sink,
+) -> Outcome<VolumetricCampaignResult> {
     let structure = match structure_of("structure", &request.structure) {
         Ok(s) => s,
         Err(e) => return Outcome::failed(e.to_string()),
@@ -814,7 +964,11 @@ pub fn simulate_campaign(request: &VolumetricCampaignRequest, sink: &mut dyn Sin
         }
     }
     Outcome::succeeded(
-        json!({"structure": structure.name(), "seed": request.seed, "files": names}),
+        VolumetricCampaignResult {
+            structure: structure.name().into(),
+            seed: request.seed,
+            files: names,
+        },
         Default::default(),
     )
 }
@@ -844,10 +998,27 @@ impl VolumetricExportIsgRequest {
     }
 }
 
+/// `volumetric export-isg`'s result: the files and what their tables hold.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct VolumetricIsgResult {
+    /// [`ISG_FILES`] (artifacts).
+    pub files: Vec<String>,
+    /// The model's structure.
+    pub structure: String,
+    /// Whether the model was fit for compensation when identified.
+    pub fit_for_compensation: bool,
+    /// Table positions along X.
+    pub x_points: usize,
+    pub y_points: usize,
+    pub z_points: usize,
+}
+
 /// The model for the ISG kernel: `volcomp.csv` (blocks `C0Y B0Z A0Z P0X P0Y P0Z`,
 /// `X EXX ... ECX`, ..., mm and rad) and the compensation list `volcomp.lis` naming it.
-/// The result: `files`, `structure`, `fit_for_compensation` and each axis's table points.
-pub fn export_isg(request: &VolumetricExportIsgRequest, sink: &mut dyn Sink) -> Outcome {
+pub fn export_isg(
+    request: &VolumetricExportIsgRequest,
+    sink: &mut dyn Sink,
+) -> Outcome<VolumetricIsgResult> {
     let model = &crate::or_fail!(read_model(&request.model_name, &request.model));
     let [csv, lis] = ISG_FILES;
     for a in [
@@ -866,8 +1037,14 @@ pub fn export_isg(request: &VolumetricExportIsgRequest, sink: &mut dyn Sink) -> 
     let f = &model.file;
     let points: Vec<usize> = f.tables.iter().map(|t| t.positions_mm.len()).collect();
     Outcome::succeeded(
-        json!({"files": ISG_FILES, "structure": f.structure.name(), "fit_for_compensation": f.fit,
-               "x_points": points[0], "y_points": points[1], "z_points": points[2]}),
+        VolumetricIsgResult {
+            files: ISG_FILES.map(String::from).to_vec(),
+            structure: f.structure.name().into(),
+            fit_for_compensation: f.fit,
+            x_points: points[0],
+            y_points: points[1],
+            z_points: points[2],
+        },
         Default::default(),
     )
 }
@@ -894,7 +1071,7 @@ fn campaign_folder(
 
 /// Declares a registered kind for a file-to-file volumetric procedure.
 macro_rules! volumetric_kind {
-    ($name:ident, $request:ty, $kind:literal, $title:literal, $command:literal,
+    ($name:ident, $request:ty, $result:ty, $kind:literal, $title:literal, $command:literal,
      $label:literal, $help:literal, |$r:ident, $sink:ident| $run:expr, $summary:expr,
      files: $files:expr, exit: $exit:expr) => {
         #[doc = concat!("`gateway ", $command, "` as a registered kind.")]
@@ -908,19 +1085,19 @@ macro_rules! volumetric_kind {
             const HELP: &'static str = $help;
             const USES: crate::registry::Uses = crate::registry::Uses::NOTHING;
             type Request = $request;
-            type Result = Value;
+            type Result = $result;
             const FILES: &'static [FileArg] = $files;
 
-            fn exit_code(result: &Value) -> u8 {
+            fn exit_code(result: &$result) -> u8 {
                 $exit(result)
             }
 
-            async fn run($r: $request, cx: &mut dyn crate::Context) -> Outcome {
+            async fn run($r: $request, cx: &mut dyn crate::Context) -> Outcome<$result> {
                 let $sink = cx.sink();
                 $run
             }
 
-            fn summary(result: &Value) -> String {
+            fn summary(result: &$result) -> String {
                 $summary(result)
             }
         }
@@ -936,6 +1113,7 @@ macro_rules! volumetric_kind {
 volumetric_kind!(
     VolumetricIdentify,
     VolumetricIdentifyRequest,
+    VolumetricIdentifyResult,
     "volumetric-identify",
     "Identify the 21-error volumetric model from a measurement campaign",
     "volumetric identify",
@@ -955,18 +1133,19 @@ volumetric_kind!(
         }),
     ],
     // Identified but unfit for compensation: the shop must not apply it.
-    exit: |r: &Value| if r["fit_for_compensation"] == false { 2 } else { 0 }
+    exit: |r: &VolumetricIdentifyResult| if r.fit_for_compensation { 0 } else { 2 }
 );
 volumetric_kind!(
     VolumetricEval,
     VolumetricEvalRequest,
+    VolumetricEvalResult,
     "volumetric-eval",
     "The volumetric error at each point of a points file",
     "volumetric eval",
     "Volumetric error at points",
     "Computes the machine's volumetric error at each point of a points file (X, Y, Z in mm) from its model.",
     |r, _sink| eval(&r),
-    |r: &Value| eval_lines(r).collect::<Vec<_>>().join("\n"),
+    |r: &VolumetricEvalResult| eval_lines(r).collect::<Vec<_>>().join("\n"),
     files: &[MODEL_FILE, FileArg::required("points", "The points (`x_mm,y_mm,z_mm`).", |path, plan| {
         plan.text(path, "points", Some("points_name"), read_file)
     })],
@@ -975,6 +1154,7 @@ volumetric_kind!(
 volumetric_kind!(
     VolumetricContributions,
     VolumetricContributionsRequest,
+    VolumetricContributionsResult,
     "volumetric-contributions",
     "Each volumetric error's contribution over the volume, and the middle planes' maps",
     "volumetric contributions",
@@ -988,6 +1168,7 @@ volumetric_kind!(
 volumetric_kind!(
     VolumetricCampaign,
     VolumetricCampaignRequest,
+    VolumetricCampaignResult,
     "volumetric-campaign",
     "The emulated machine's measurement campaign (laser, level, ball bar, camera files)",
     "volumetric simulate-campaign",
@@ -1001,30 +1182,26 @@ volumetric_kind!(
 volumetric_kind!(
     VolumetricExportIsg,
     VolumetricExportIsgRequest,
+    VolumetricIsgResult,
     "volumetric-export-isg",
     "Export the volumetric model as the ISG kernel's tables (Beckhoff TF5280)",
     "volumetric export-isg",
     "Volumetric tables for the ISG kernel",
     "Writes the volumetric model as the ISG kernel's compensation tables (Beckhoff TwinCAT CNC, TF5280) and the list that names them.",
     |r, sink| export_isg(&r, sink),
-    files_summary,
+    |r: &VolumetricIsgResult| r.files.join(", "),
     files: &[MODEL_FILE, FileArg::required("out", "The output folder.", command_line::artifacts_folder)],
     exit: |_| 0
 );
 
 /// The simulated campaign as text.
-pub fn campaign_summary(r: &Value) -> String {
+pub fn campaign_summary(r: &VolumetricCampaignResult) -> String {
     format!(
         "{} campaign (seed {}): {}",
-        r["structure"].as_str().unwrap_or(""),
-        r["seed"],
-        files_summary(r)
+        r.structure,
+        r.seed,
+        r.files.join(", ")
     )
-}
-
-/// The exported files.
-pub fn files_summary(r: &Value) -> String {
-    crate::summary::files(r)
 }
 
 #[cfg(test)]
@@ -1049,7 +1226,7 @@ mod tests {
     }
 
     fn identify_request(structure: &str) -> VolumetricIdentifyRequest {
-        serde_json::from_value(json!({ "structure": structure })).unwrap()
+        serde_json::from_value(serde_json::json!({ "structure": structure })).unwrap()
     }
 
     #[test]
@@ -1081,7 +1258,7 @@ mod tests {
         r.tool_offset_mm[2] = f64::NAN;
         assert_eq!(r.check().unwrap_err().field, "tool_offset_mm[2]");
         let parsed: Result<VolumetricCampaignRequest, _> =
-            serde_json::from_value(json!({"structure": "XYFZ", "seeds": 2}));
+            serde_json::from_value(serde_json::json!({"structure": "XYFZ", "seeds": 2}));
         assert!(parsed.is_err());
         let mut text = String::from("x_mm,y_mm,z_mm\n");
         for _ in 0..=MAX_EVAL_POINTS {
@@ -1127,8 +1304,18 @@ mod tests {
         let out = identify(&request, &mut sink);
         assert!(out.is_success(), "{:?}", out.error());
         let r = out.result.unwrap();
-        assert_eq!(r["fit_for_compensation"], true);
-        assert_eq!(r["errors"].as_array().unwrap().len(), 21);
+        assert!(r.fit_for_compensation);
+        assert_eq!(r.errors.len(), 21);
+        // The stored result reads back; an unfit model is the command's exit code 2.
+        let kind = crate::kinds::find("volumetric-identify").unwrap();
+        let stored = serde_json::to_value(&r).unwrap();
+        assert_eq!(kind.exit_code(&stored), 0);
+        assert_eq!(kind.summary(&stored), identify_summary(&r));
+        let unfit = VolumetricIdentifyResult {
+            fit_for_compensation: false,
+            ..r.clone()
+        };
+        assert_eq!(kind.exit_code(&serde_json::to_value(&unfit).unwrap()), 2);
         let names: Vec<&str> = sink.0.iter().map(|a| a.name.as_str()).collect();
         assert_eq!(names[0], MODEL_ARTIFACT);
         assert!(names.contains(&"ballbar_XZ.png"), "{names:?}");
@@ -1144,7 +1331,7 @@ mod tests {
         };
         let out = eval(&points("x_mm,y_mm,z_mm\n0,0,0\n250,200,100\n"));
         let r = out.result.unwrap();
-        assert_eq!(r["points"].as_array().unwrap().len(), 2);
+        assert_eq!(r.points.len(), 2);
         assert_eq!(eval_lines(&r).count(), 3);
         let out = eval(&points("x_mm,y_mm,z_mm\n0,0,0\n1e6,0,0\n"));
         assert!(out.error().unwrap().starts_with("p.csv: point 2 (line 3)"));
@@ -1169,8 +1356,8 @@ mod tests {
         let mut sink = Keep::default();
         let out = contributions(&contributions_of(5), &mut sink);
         let r = out.result.unwrap();
-        assert_eq!(r["contributions"][0]["error"], "E_XX");
-        assert!((r["total_max_um"].as_f64().unwrap() - 10.0).abs() < 1e-9);
+        assert_eq!(r.contributions[0].error, "E_XX");
+        assert!((r.total_max_um - 10.0).abs() < 1e-9);
         assert_eq!(sink.0.len(), 12);
         let csv = &sink
             .0

@@ -1,5 +1,7 @@
-//! The rotary table's probing cycle (source B) run through a rotary job's link, and its
-//! report: shared by `gateway rotary measure` and the service's `rotary` job.
+//! The rotary table's probing cycle (source B) run through a rotary job's link, and the
+//! compensation check of its report against a simulated table's truth: shared by
+//! `gateway rotary measure` and the service's `rotary` job (the report itself is
+//! `procedure::rotary::CycleReport`).
 //!
 //! The link is the simulated table in-process (no `link`), the same table behind the
 //! GRBL emulator on a pseudo-terminal (`"grbl_emulator"`), or a real GRBL-family
@@ -14,8 +16,7 @@ use drivers::{Axis, AxisValues, DriverError, Prober};
 use futures_util::FutureExt;
 use job::rotary::{RotaryJob, SimulatedTable};
 use rotary::measure::{Action, MeasureSession, Measurement, ProbingMachine, Stopped};
-use rotary::{Axes, Identification, LocationErrors, MachineConstants, RotaryMachine};
-use serde_json::{json, Value};
+use rotary::{Axes, LocationErrors, MachineConstants, RotaryMachine};
 use std::future::Future;
 use std::pin::Pin;
 use world::rotary::RotaryMachineSim;
@@ -48,9 +49,6 @@ pub enum RotaryError {
         nominal: Axes,
         error: rotary::RotaryError,
     },
-    /// A part of the report could not be written as JSON.
-    #[error("JSON: {0}")]
-    Json(serde_json::Error),
 }
 
 /// Runs the job's measurement cycle through its link, on the caller's runtime.
@@ -290,106 +288,6 @@ pub fn compensation_check(
     })
 }
 
-/// The identification's JSON: the eight errors at the top level under their paper names
-/// (what `gateway rewrite --rotary` reads), their standard uncertainties (k = 1) under
-/// `uncertainty`, the fitted circles and axis lines, and the machine constants.
-pub fn identification_json(id: &Identification, constants: &MachineConstants) -> Value {
-    let mut out = serde_json::Map::new();
-    for (name, v) in id.errors.named() {
-        out.insert(name.into(), json!(v));
-    }
-    let mut u = serde_json::Map::new();
-    for (name, v) in id.uncertainty.named() {
-        u.insert(name.into(), json!(v));
-    }
-    out.insert("uncertainty".into(), Value::Object(u));
-    out.insert("coverage_factor".into(), json!(1));
-    let circles: Vec<Value> = id
-        .circles
-        .iter()
-        .map(|(axis, ball, c)| {
-            json!({
-                "axis": axis.to_string(),
-                "ball": ball,
-                "centre_mm": c.centre,
-                "normal": c.normal,
-                "radius_mm": c.radius_mm,
-                "rms_plane_um": c.rms_plane_mm * 1e3,
-                "rms_radial_um": c.rms_radial_mm * 1e3,
-                "points": c.points,
-            })
-        })
-        .collect();
-    out.insert("circles".into(), json!(circles));
-    out.insert("c_axis".into(), json!(id.c_axis));
-    out.insert("a_axis".into(), json!(id.a_axis));
-    out.insert("machine".into(), json!(constants));
-    Value::Object(out)
-}
-
-/// The full report of a measured cycle: [`identification_json`], the C centre found on
-/// the rim, the cycle's figures (`simulated_time_s` on a simulated link, `wall_time_s`
-/// on a real one) and, when the truth is known, each error against the injected one and
-/// the compensation of a 5-axis program checked against the truth.
-pub fn cycle_report(
-    run: &CycleRun,
-    m: &Measurement,
-    id: &Identification,
-    constants: &MachineConstants,
-) -> Result<Value, RotaryError> {
-    let mut report = identification_json(id, constants);
-    let obj = report.as_object_mut().expect("an object");
-    if let Some(c) = &m.c_centre {
-        obj.insert(
-            "c_centre".into(),
-            serde_json::to_value(c).map_err(RotaryError::Json)?,
-        );
-    }
-    let clock = if run.truth.is_some() {
-        "simulated_time_s"
-    } else {
-        "wall_time_s"
-    };
-    obj.insert(
-        "cycle".into(),
-        json!({
-            "balls": m.balls.len(),
-            "probe_points": m.probe_touches / 2,
-            "probe_touches": m.probe_touches,
-            clock: run.time_s,
-        }),
-    );
-    let Some(truth) = &run.truth else {
-        return Ok(report);
-    };
-    let t = truth.errors;
-    let injected = job::rotary::injected_errors(&t);
-    let mut comparison = serde_json::Map::new();
-    for ((name, w), (_, g)) in injected.named().iter().zip(id.errors.named()) {
-        comparison.insert(
-            (*name).into(),
-            json!({ "injected": w, "identified": g, "difference": g - w }),
-        );
-    }
-    obj.insert("truth".into(), Value::Object(comparison));
-    let check = compensation_check(truth, constants, &id.errors)?;
-    obj.insert(
-        "compensation_check".into(),
-        json!({
-            "poses": check.poses,
-            "tip_max_before_mm": check.tip_max_before_mm,
-            "tip_max_after_mm": check.tip_max_after_mm,
-            "tip_mean_before_mm": check.tip_mean_before_mm,
-            "tip_mean_after_mm": check.tip_mean_after_mm,
-            "tip_improvement_pct": check.tip_improvement_pct,
-            "direction_max_before_rad": check.dir_max_before_rad,
-            "direction_max_after_rad": check.dir_max_after_rad,
-            "direction_improvement_pct": check.dir_improvement_pct,
-        }),
-    );
-    Ok(report)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -473,16 +371,13 @@ mod tests {
         assert_eq!(calls, m.balls.len());
         let constants = MachineConstants::default();
         let id = rotary::identify(&m.centres(), &constants).unwrap();
-        let report = cycle_report(&run, m, &id, &constants).unwrap();
-        assert!(
-            report["truth"]["delta_XC_mm"]["difference"]
-                .as_f64()
-                .unwrap()
-                .abs()
-                < 1e-3
-        );
-        assert!(report["cycle"]["simulated_time_s"].as_f64().unwrap() > 0.0);
-        assert!(report.get("wall_time_s").is_none());
+        let truth = run.truth.as_ref().expect("the simulated table");
+        let injected = job::rotary::injected_errors(&truth.errors);
+        assert!((id.errors.delta_xc_mm - injected.delta_xc_mm).abs() < 1e-3);
+        assert!(run.time_s > 0.0);
+        // Compensated with the identified errors, the tool tip lands closer.
+        let check = compensation_check(truth, &constants, &id.errors).unwrap();
+        assert!(check.tip_max_after_mm < check.tip_max_before_mm / 10.0);
     }
 
     /// The in-process cycle through the adapter is the synchronous one, figure for
@@ -532,9 +427,9 @@ mod tests {
         assert_eq!(m.probe_touches, 206);
         let constants = MachineConstants::default();
         let id = rotary::identify(&m.centres(), &constants).unwrap();
-        let report = cycle_report(&run, m, &id, &constants).unwrap();
-        for (name, _) in id.errors.named() {
-            let d = report["truth"][name]["difference"].as_f64().unwrap();
+        let injected = job::rotary::injected_errors(&run.truth.as_ref().unwrap().errors);
+        for ((name, g), (_, w)) in id.errors.named().iter().zip(injected.named()) {
+            let d = g - w;
             let tol = if name.ends_with("_deg") {
                 0.0005
             } else {
@@ -542,7 +437,7 @@ mod tests {
             };
             assert!(d.abs() <= tol, "{name}: {d}");
         }
-        assert!(report["cycle"]["simulated_time_s"].as_f64().unwrap() > 0.0);
+        assert!(run.time_s > 0.0);
     }
 
     #[test]
