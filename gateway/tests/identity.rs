@@ -1,7 +1,7 @@
 //! A map applies only to the machine it was measured on: `gateway rewrite --config` and
 //! `gateway verify` refuse another machine's map naming what differs, before any motion.
 
-mod common;
+use crate::common;
 
 use common::{gateway, job_file as config, scratch};
 use std::path::Path;

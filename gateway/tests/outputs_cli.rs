@@ -8,7 +8,7 @@ use protocol::errormap::ErrorMap;
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
-mod common;
+use crate::common;
 
 use common::{gateway, workspace as repo};
 

@@ -9,7 +9,7 @@ use serde_json::{json, Value};
 use std::path::PathBuf;
 use system_tests::service_client::Api;
 
-mod common;
+use crate::common;
 
 use common::{gateway, job_file, workspace};
 

@@ -26,7 +26,7 @@ use tokio_serial::SerialPortBuilderExt;
 use world::machine::MachineConfig;
 use world::Clock;
 
-mod common;
+use crate::common;
 
 use common::{scratch, workspace};
 

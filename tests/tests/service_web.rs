@@ -465,7 +465,8 @@ async fn the_page_runs_a_job_and_switches_profiles_in_headless_chromium() {
     // The finished job reads as the CLI's summary, not as raw JSON.
     let summary = report["job_summary"].as_str().unwrap();
     assert!(
-        summary.starts_with("1 targets, 1 converged") && summary.contains("error after"),
+        summary.contains("targets: 1 of 1 (1 within tolerance)")
+            && summary.contains("error vs truth, after compensation"),
         "{summary}"
     );
     assert!(report["measurements"].as_u64().unwrap_or(0) > 0, "{report}");

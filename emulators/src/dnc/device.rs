@@ -341,11 +341,20 @@ impl DncDevice {
 
     /// How many characters the device takes from the line now: the free space while
     /// it reads (what does not fit waits on the line), else any amount (discarded).
+    /// Before its DC3, no more than brings the buffer to the DC3 point: a controller
+    /// takes a wire's characters one by one and sends DC3 at that point, so a port layer
+    /// that reads in batches must not fill the buffer past it before the DC3 goes out
+    /// (the sender would be judged against the room left after the whole batch).
     pub fn room(&self) -> usize {
-        if self.reading() {
-            self.cfg.buffer - self.buffer.len()
+        if !self.reading() {
+            return 4096;
+        }
+        let free = self.cfg.buffer - self.buffer.len();
+        if self.stopped || free < self.cfg.dc3_free {
+            free
         } else {
-            4096
+            // Free falls below `dc3_free` with this many characters.
+            free - self.cfg.dc3_free + 1
         }
     }
 

@@ -94,7 +94,7 @@ pub struct Report {
     pub error: Option<String>,
     pub per_target: Vec<TargetRow>,
     /// Lost references found on a coded board (lost steps, no homing), in order.
-    #[serde(skip_serializing_if = "Vec::is_empty")]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub rereferences: Vec<crate::session::Rereference>,
 }
 

@@ -244,7 +244,20 @@ fn run_as<P: Procedure + 'static>(
             Ok(request) => P::run(request, cx).await.map_result(|result| {
                 // A result that cannot be JSON (a map key that is not a string) is a
                 // programming error the registry's tests catch.
-                serde_json::to_value(result).expect("a procedure's result serializes to JSON")
+                let json =
+                    serde_json::to_value(result).expect("a procedure's result serializes to JSON");
+                // Every test run of a kind checks that its result reads back (the summary
+                // and the exit code read the stored JSON): a field written only sometimes
+                // needs its default. A NaN figure is written as null and cannot.
+                #[cfg(debug_assertions)]
+                if let Err(e) = serde_json::from_value::<P::Result>(json.clone()) {
+                    assert!(
+                        e.to_string().starts_with("invalid type: null"),
+                        "{}: its result does not read back: {e}",
+                        P::KIND
+                    );
+                }
+                json
             }),
             // A stored request that no longer parses (a database from an older version).
             Err(e) if e.field == "params" => Outcome::failed(format!("params: {}", e.message)),
