@@ -81,7 +81,7 @@ if [ ${#missing[@]} -gt 0 ]; then
   as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${missing[@]}" >/dev/null
 fi
 
-# LinuxCNC 2.9 (linuxcnc-uspace): the real controller of tests/tests/linuxcnc.rs, started
+# LinuxCNC 2.9 (linuxcnc-uspace): the real controller of tests/tests/a_real_linuxcnc.rs, started
 # headless by ../shared/peers/linuxcnc/start.sh. --no-install-recommends: with its
 # recommends it pulls 1.3 GB, an RT kernel image among them (about 200 MB without).
 if ! have linuxcnc; then

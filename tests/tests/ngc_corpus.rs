@@ -1,6 +1,6 @@
 //! The RS274/NGC corpus (`tests/ngc`, see its README): every program is either
 //! rewritten or refused as its first line says. The rewritten ones are run in the real
-//! LinuxCNC by `tests/tests/linuxcnc.rs`; here each is checked without a controller:
+//! LinuxCNC by `tests/tests/a_real_linuxcnc.rs`; here each is checked without a controller:
 //! the rewrite succeeds, its output is flat (no parameters, no O-words, no arcs, no
 //! cycles), and read again it visits the program's end points in order; each refused
 //! one is refused naming its line and its construct.

@@ -3,9 +3,10 @@
 //! into it and checked in HAL.
 //!
 //! One LinuxCNC per machine (fixed shared-memory keys, ports 5007 and 5005, the
-//! `/tmp/linuxcnc.lock`): every test that starts one holds [`LINUXCNC`], and they all
-//! live in this one test binary. A machine without LinuxCNC fails naming
-//! `tests/install-peers.sh`.
+//! `/tmp/linuxcnc.lock`): every case that starts one holds [`lock`], and the cases run
+//! one after another in one test ([`every_case_in_turn`]), so that no test of the
+//! binary waits for LinuxCNC while holding one of libtest's threads. A machine without
+//! LinuxCNC fails naming `tests/install-peers.sh`.
 
 use drivers::linuxcnc::{LinuxcncAxis, LinuxcncOptions};
 use drivers::{Axis, AxisValues, DriverError, Stage, StageLink, StageState};
@@ -236,7 +237,6 @@ fn nothing_listening_is_said_plainly() {
     );
 }
 
-#[test]
 fn drives_a_real_linuxcnc() {
     let _one = lock();
     let _peer = Peer::start("x.ini");
@@ -339,7 +339,6 @@ fn drives_a_real_linuxcnc() {
     });
 }
 
-#[test]
 fn stop_aborts_a_move_in_flight() {
     let _one = lock();
     let _peer = Peer::start("x.ini");
@@ -480,7 +479,6 @@ fn table_trim(t: &[[f64; 3]], s: f64, col: usize) -> f64 {
     trim(a) + (trim(b) - trim(a)) * (s - a[0]) / (b[0] - a[0])
 }
 
-#[test]
 fn exported_comp_tables_are_applied_by_linuxcnc_as_the_map_says() {
     // The map of the demo's C5 stage, as a perfect scan would measure it.
     let machine = world::machine::MachineConfig::load(
@@ -654,7 +652,6 @@ fn fast(mut job: job::Job) -> job::Job {
     job
 }
 
-#[test]
 fn the_demo_job_on_linuxcnc_compensates_every_target_like_on_grbl() {
     let job = demo_on_linuxcnc();
     let _one = lock();
@@ -692,7 +689,6 @@ fn small_job_on_linuxcnc() -> job::Job {
     job
 }
 
-#[test]
 fn a_map_scanned_through_linuxcnc_improves_its_iso230_figures() {
     use errormap::scan::{MapBuilder, ScanPlan, ScanSpec};
     use iso230::plan::{targets, Cycle, CycleKind};
@@ -894,7 +890,6 @@ async fn run_held_out(
 /// and the program rewritten by the gateway from the map (on LinuxCNC without tables).
 /// What the tables take out, and what they cannot (the part of each axis's error that
 /// depends on the other axis).
-#[test]
 fn held_out_points_and_program_with_linuxcnc_tables_rewritten_and_uncompensated() {
     let machine = world::machine::MachineConfig::load(
         &system_tests::config_dir().join("machines/c5-stage.toml"),
@@ -1465,7 +1460,6 @@ fn check_corpus(runs: &[CorpusRun]) {
 /// The rig follows every servo period (LinuxCNC's sampler; a lost sample fails the
 /// run), so no backlash take-up falls between two samples and no piece of the path is
 /// skipped (each sample is checked to be within 1 mm of the one before).
-#[test]
 fn every_rewritten_corpus_program_runs_in_linuxcnc_on_its_path() {
     let machine = world::machine::MachineConfig::load(
         &system_tests::config_dir().join("machines/c5-stage.toml"),
@@ -1504,7 +1498,6 @@ fn every_rewritten_corpus_program_runs_in_linuxcnc_on_its_path() {
 /// sampler with a FIFO of 1000 periods (1 s: homing is followed as usual), the reader
 /// paused until the FIFO is full (HAL's `sampler.0.full`), then a move: its settle
 /// reports the overrun instead of a path with a gap.
-#[test]
 fn a_lost_servo_period_fails_the_follow() {
     let machine = world::machine::MachineConfig::load(
         &system_tests::config_dir().join("machines/c5-stage.toml"),
@@ -1551,4 +1544,76 @@ fn a_lost_servo_period_fails_the_follow() {
         let e = moved.expect_err("a follow that lost servo periods fails");
         assert!(e.to_string().contains("overran"), "{e}");
     });
+}
+
+/// The cases that start LinuxCNC, in this order.
+const CASES: &[(&str, fn())] = &[
+    ("drives_a_real_linuxcnc", drives_a_real_linuxcnc),
+    ("stop_aborts_a_move_in_flight", stop_aborts_a_move_in_flight),
+    (
+        "exported_comp_tables_are_applied_by_linuxcnc_as_the_map_says",
+        exported_comp_tables_are_applied_by_linuxcnc_as_the_map_says,
+    ),
+    (
+        "the_demo_job_on_linuxcnc_compensates_every_target_like_on_grbl",
+        the_demo_job_on_linuxcnc_compensates_every_target_like_on_grbl,
+    ),
+    (
+        "a_map_scanned_through_linuxcnc_improves_its_iso230_figures",
+        a_map_scanned_through_linuxcnc_improves_its_iso230_figures,
+    ),
+    (
+        "held_out_points_and_program_with_linuxcnc_tables_rewritten_and_uncompensated",
+        held_out_points_and_program_with_linuxcnc_tables_rewritten_and_uncompensated,
+    ),
+    (
+        "every_rewritten_corpus_program_runs_in_linuxcnc_on_its_path",
+        every_rewritten_corpus_program_runs_in_linuxcnc_on_its_path,
+    ),
+    (
+        "a_lost_servo_period_fails_the_follow",
+        a_lost_servo_period_fails_the_follow,
+    ),
+];
+
+/// Every case against the real LinuxCNC, one after another in this one test: they share
+/// the machine's one LinuxCNC, and tests of their own would each hold one of libtest's
+/// threads while they wait for it (libtest starts tests in name order, and the threads
+/// would all be waiting here while the other areas could run; docs/testing.md). Each case
+/// runs to its end; the test fails naming every case that failed. `LINUXCNC_CASES=a,b`
+/// runs only the cases whose names contain one of these words.
+#[test]
+fn every_case_in_turn() {
+    let only: Vec<String> = std::env::var("LINUXCNC_CASES")
+        .map(|v| v.split(',').map(|w| w.trim().to_string()).collect())
+        .unwrap_or_default();
+    let mut failed = Vec::new();
+    let mut ran = 0;
+    for (name, case) in CASES {
+        if !only.is_empty() && !only.iter().any(|w| name.contains(w.as_str())) {
+            continue;
+        }
+        ran += 1;
+        eprintln!("LinuxCNC case {name} ...");
+        let started = std::time::Instant::now();
+        match std::panic::catch_unwind(case) {
+            Ok(()) => eprintln!(
+                "LinuxCNC case {name} ok ({:.1} s)",
+                started.elapsed().as_secs_f64()
+            ),
+            Err(_) => {
+                eprintln!("LinuxCNC case {name} FAILED");
+                failed.push(*name);
+            }
+        }
+    }
+    assert!(
+        ran > 0,
+        "LINUXCNC_CASES={only:?} names no case: {:?}",
+        CASES.iter().map(|c| c.0).collect::<Vec<_>>()
+    );
+    assert!(
+        failed.is_empty(),
+        "LinuxCNC cases failed (their panics above): {failed:?}"
+    );
 }
