@@ -363,50 +363,68 @@ impl LinuxcncStage {
         self.set_within(command, self.opts.command_timeout).await
     }
 
+    /// A `set` refused with no reason at all (nothing on LinuxCNC's error channel, this
+    /// session in control, the machine on) is asked again every poll interval until the
+    /// command timeout: LinuxCNC's task refuses `set run` and `set mdi` so for a moment
+    /// after a program has ended while its status already reads idle (seen with other
+    /// work on the machine's cores). A refused command did nothing, so asking again
+    /// moves nothing twice; any other refusal is returned at once.
     async fn set_within(&mut self, command: &str, timeout: Duration) -> Result<(), DriverError> {
-        self.ensure_enabled().await?;
-        let l = self.session.exchange(command, timeout).await?;
-        match Reply::parse(&l.text) {
-            Reply::SetAck { .. } => self.drain_errors(command).await,
-            Reply::SetNak { .. } => Err(self.refusal(command).await),
-            _ => Err(self.protocol(format!("`{command}` answered {}", quoted(&l.text)))),
+        let settle_until = Instant::now() + self.opts.command_timeout;
+        loop {
+            self.ensure_enabled().await?;
+            let l = self.session.exchange(command, timeout).await?;
+            match Reply::parse(&l.text) {
+                Reply::SetAck { .. } => return self.drain_errors(command).await,
+                Reply::SetNak { .. } => {
+                    let (refused, reasonless) = self.refusal(command).await;
+                    if !reasonless || Instant::now() >= settle_until {
+                        return Err(refused);
+                    }
+                    tokio::time::sleep(self.opts.poll_interval).await;
+                }
+                _ => return Err(self.protocol(format!("`{command}` answered {}", quoted(&l.text)))),
+            }
         }
     }
 
     /// Why a `set` was refused: what LinuxCNC's error channel says, whether this
-    /// session still has control, whether the machine is on.
-    async fn refusal(&mut self, command: &str) -> DriverError {
+    /// session still has control, whether the machine is on; and whether it gave no
+    /// reason at all (none of these).
+    async fn refusal(&mut self, command: &str) -> (DriverError, bool) {
         let errors = match self.read_errors().await {
             Ok(e) => e,
-            Err(e) => return e,
+            Err(e) => return (e, false),
         };
         if !errors.is_empty() {
-            return self.linuxcnc_said(command, &errors);
+            return (self.linuxcnc_said(command, &errors), false);
         }
         match self.get_word("get enable", "ENABLE").await {
             Ok(w) if w == "OFF" => {
                 self.enabled = false;
-                return DriverError::InvalidState {
+                return (DriverError::InvalidState {
                     device: self.device(),
                     message: format!(
                         "`{command}` refused: another linuxcncrsh session has taken control of this LinuxCNC (`set enable`); the gateway does not take it back by itself: end the other session and start the job again"
                     ),
-                };
+                }, false);
             }
-            Err(e) => return e,
+            Err(e) => return (e, false),
             _ => {}
         }
-        let why = match self.get_word("get machine", "MACHINE").await {
-            Ok(w) if w != "ON" => {
-                "the machine is not on (estop or machine off, from the operator or a fault)"
-                    .to_string()
-            }
-            _ => "LinuxCNC gave no reason (a bad argument, or a state that does not allow it: a program running, a mode change refused)".to_string(),
+        let (why, reasonless) = match self.get_word("get machine", "MACHINE").await {
+            Ok(w) if w != "ON" => (
+                "the machine is not on (estop or machine off, from the operator or a fault)",
+                false,
+            ),
+            Err(e) => return (e, false),
+            _ => ("LinuxCNC gave no reason (a bad argument, or a state that does not allow it: a program running, a mode change refused)", true),
         };
-        DriverError::InvalidState {
+        let refused = DriverError::InvalidState {
             device: self.device(),
             message: format!("`{command}` refused (SET NAK): {why}"),
-        }
+        };
+        (refused, reasonless)
     }
 
     fn linuxcnc_said(&self, command: &str, errors: &[String]) -> DriverError {
