@@ -351,15 +351,15 @@ fn stop_aborts_a_move_in_flight() {
             // 300 mm at 600 mm/min: 30 s, unless stopped.
             let mv = stage.move_to(AxisValues::xy(300.0, 0.0), 600.0);
             tokio::pin!(mv);
-            // In flight: the machine has left zero and the move has not ended. (Not also
-            // `get program_status` RUNNING: once, with other tests beside it, this poller
-            // did not see it during the whole 30 s move.)
             let running = async {
                 loop {
-                    let p = observer.ask("get abs_act_pos").await;
-                    let x: f64 = p.split_whitespace().nth(1).unwrap().parse().unwrap();
-                    if x > 0.0 {
-                        break;
+                    if observer.ask("get program_status").await == "PROGRAM_STATUS RUNNING" {
+                        // and the machine has left zero
+                        let p = observer.ask("get abs_act_pos").await;
+                        let x: f64 = p.split_whitespace().nth(1).unwrap().parse().unwrap();
+                        if x > 0.0 {
+                            break;
+                        }
                     }
                     tokio::task::yield_now().await;
                 }
