@@ -23,8 +23,9 @@
 //! compensation and backlash take-ups as they ramp), servo period by servo period
 //! (at 3000 mm/min and 1 ms: 0.05 mm of path, 0.01 um of chord error on a 30 mm
 //! radius), however loaded the computer is: the FIFO holds 16 s. When the move has
-//! ended ([`LinuxcncFollower::settle`]) the reader waits until each joint's backlash
-//! filter has reached its correction, takes the samples up to that settled command,
+//! ended ([`LinuxcncFollower::settle`]) the reader waits until motion is in position
+//! (`motion.in-position`) and each joint's backlash filter has reached its correction,
+//! takes the samples up to that settled command,
 //! and the machine goes there: the end point is LinuxCNC's last command.
 //!
 //! Simulated time: each sample is a straight move at the follower's feed, from rest at
@@ -159,10 +160,14 @@ def command(js):
     return [g("joint.%d.motor-pos-cmd" % j) - g("joint.%d.motor-offset" % j) for j in js]
 def settle(js, slots):
     global following, sent
-    # The move has ended: wait for the backlash filters to reach their corrections,
-    # then take every sample up to the settled command.
-    for _ in range(5000):
-        if all(g("joint.%d.backlash-filt" % j) == g("joint.%d.backlash-corr" % j) for j in js):
+    # The move has ended: wait for motion to say so (in position, its queue empty) and
+    # the backlash filters to reach their corrections, then take every sample up to the
+    # settled command.
+    # (The shell's `set_wait done` has answered while LinuxCNC still moved.)
+    end = time.monotonic() + 60
+    while not (g("motion.in-position") and all(g("joint.%d.backlash-filt" % j) == g("joint.%d.backlash-corr" % j) for j in js)):
+        if time.monotonic() > end:
+            fail("LinuxCNC's motion did not come to rest within 60 s of the move's end (motion.in-position, the backlash filters)")
             break
         time.sleep(0.001)
     target = command(js)

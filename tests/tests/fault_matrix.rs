@@ -333,8 +333,12 @@ fn grbl_stall_beyond_the_timeout_is_a_safe_stop() {
 
 #[test]
 fn grbl_killed_mid_job_is_a_safe_stop() {
-    let (outcome, fired, report, _) =
-        grbl_case(SerialFault::Kill { after: MID_JOB }, Duration::from_secs(2));
+    // The command timeout only bounds the wait: the closed port is seen at once, but
+    // with the cores busy the link's own task ran more than 2 s late once.
+    let (outcome, fired, report, _) = grbl_case(
+        SerialFault::Kill { after: MID_JOB },
+        Duration::from_secs(20),
+    );
     assert!(fired);
     assert_safe_stop(&outcome, &report, &["the port closed"]);
 }

@@ -60,6 +60,9 @@ fn blocks(log: &str) -> Vec<Block> {
 fn patient() -> GrblOptions {
     GrblOptions {
         command_timeout: Duration::from_secs(15),
+        // grbl-sim's first power-up (the EEPROM written, the settings dump, the banner)
+        // took over 5 s with the cores busy
+        connect_timeout: Duration::from_secs(20),
         ..GrblOptions::default()
     }
 }

@@ -52,6 +52,15 @@ use tokio::time::Instant;
 /// stream that never ends is a fault of its own).
 const MAX_ERRORS_DRAINED: usize = 16;
 
+/// How close `get abs_cmd_pos` (6 decimals) must be to a move's target for the move to
+/// have arrived: LinuxCNC's trajectory ends exactly on the target it parsed.
+const ARRIVAL_TOLERANCE_MM: f64 = 2e-6;
+
+/// How long a commanded position short of a move's target may stay unchanged before the
+/// move counts as stopped there (LinuxCNC's servo thread runs every millisecond; a
+/// loaded computer delays it by tens of milliseconds, not seconds).
+const STILL_SHORT: Duration = Duration::from_secs(2);
+
 /// The TCP session with the shell: lines in, commands out.
 struct Session {
     stream: TcpStream,
@@ -549,6 +558,68 @@ impl LinuxcncStage {
         block
     }
 
+    /// After a move's `ACK`: poll `get abs_cmd_pos` (the trajectory's commanded position,
+    /// machine coordinates) until every axis of the move is at its target as sent
+    /// (within [`ARRIVAL_TOLERANCE_MM`]), up to `motion_timeout`. LinuxCNC's `set_wait
+    /// done` usually answers at the end of the motion; on a loaded computer (its servo
+    /// thread late) its task has answered while the motion still ran, and a frame taken
+    /// then saw the stage short of the target. A move that ends elsewhere (an abort from
+    /// elsewhere, a fault: the commanded position still for [`STILL_SHORT`]) is an error
+    /// quoting where it stopped, never a silent arrival.
+    async fn confirm_arrival(&mut self, target: &AxisValues) -> Result<(), DriverError> {
+        let d = self.opts.decimals;
+        // the target as LinuxCNC parsed it: the block's digits
+        let sent: Vec<(usize, f64)> = target
+            .iter()
+            .map(|(a, v)| {
+                let v = format!("{v:.d$}").parse::<f64>().unwrap_or(v);
+                (a.index(), v)
+            })
+            .collect();
+        let deadline = Instant::now() + self.opts.motion_timeout;
+        let mut last: Option<(Vec<f64>, Instant)> = None;
+        loop {
+            let words = self.get("get abs_cmd_pos", "ABS_CMD_POS").await?;
+            let v = numbers(&words).filter(|v| v.len() >= 3).ok_or_else(|| {
+                self.protocol(format!(
+                    "`get abs_cmd_pos` answered {}",
+                    quoted(&words.join(" "))
+                ))
+            })?;
+            let arrived = sent.iter().all(|&(i, t)| {
+                v.get(i)
+                    .is_some_and(|c| (c - t).abs() <= ARRIVAL_TOLERANCE_MM)
+            });
+            if arrived {
+                return Ok(());
+            }
+
+            self.drain_errors("get abs_cmd_pos").await?;
+            // Still short of the target for STILL_SHORT: the motion stopped there.
+            let now = Instant::now();
+            let since = match &last {
+                Some((p, at)) if *p == v => *at,
+                _ => now,
+            };
+            if now >= deadline || now - since >= STILL_SHORT {
+                let target = sent
+                    .iter()
+                    .map(|(i, t)| format!("{}{t}", ["X", "Y", "Z", "A", "B", "C"][*i]))
+                    .collect::<Vec<_>>()
+                    .join(" ");
+                return Err(DriverError::InvalidState {
+                    device: self.device(),
+                    message: format!(
+                        "the move was answered as done, but LinuxCNC's commanded position (ABS_CMD_POS {}) stopped short of the target {target}",
+                        words.join(" "),
+                    ),
+                });
+            }
+            last = Some((v, since));
+            tokio::time::sleep(self.opts.poll_interval).await;
+        }
+    }
+
     /// Run a program file that is on the LinuxCNC machine (`set mode auto`,
     /// `set open FILE`, `set run`), waiting for its end (`set_wait done`) up to
     /// `motion_timeout`.
@@ -677,9 +748,10 @@ impl Stage for LinuxcncStage {
         }
         self.mode("mdi").await?;
         let block = self.move_block(&target, feed_mm_min);
-        // set_wait done: the ACK comes when the motion has ended.
+        // set_wait done: the ACK comes when the motion has ended, as a rule.
         self.set_within(&format!("set mdi {block}"), self.opts.motion_timeout)
-            .await
+            .await?;
+        self.confirm_arrival(&target).await
     }
 
     async fn position(&mut self) -> Result<AxisValues, DriverError> {

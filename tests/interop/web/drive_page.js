@@ -268,7 +268,11 @@ async function queueWalk(page, spec) {
 // - units: the axis titles that carry a unit in brackets or after a comma.
 async function chartGeometry(page, url) {
   return page.evaluate(async ([url, t]) => {
-    const text = await (await fetch(url, { headers: { Authorization: 'Bearer ' + t } })).text();
+    const response = await fetch(url, { headers: { Authorization: 'Bearer ' + t } });
+    const text = await response.text();
+    if (!response.ok || !/<svg[\s>]/.test(text)) {
+      throw new Error(`${url} answered ${response.status} ${response.headers.get('content-type')}, not an SVG: ${text.slice(0, 300)}`);
+    }
     const holder = document.createElement('div');
     holder.style.position = 'absolute';
     holder.style.visibility = 'hidden';
