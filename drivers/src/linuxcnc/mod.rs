@@ -593,7 +593,6 @@ impl LinuxcncStage {
             if arrived {
                 return Ok(());
             }
-
             self.drain_errors("get abs_cmd_pos").await?;
             // Still short of the target for STILL_SHORT: the motion stopped there.
             let now = Instant::now();
