@@ -1546,34 +1546,23 @@ fn a_lost_servo_period_fails_the_follow() {
     });
 }
 
+/// `(name, case)` for each function named, the name its own.
+macro_rules! cases {
+    ($($case:ident),* $(,)?) => {
+        &[$((stringify!($case), $case as fn())),*]
+    };
+}
+
 /// The cases that start LinuxCNC, in this order.
-const CASES: &[(&str, fn())] = &[
-    ("drives_a_real_linuxcnc", drives_a_real_linuxcnc),
-    ("stop_aborts_a_move_in_flight", stop_aborts_a_move_in_flight),
-    (
-        "exported_comp_tables_are_applied_by_linuxcnc_as_the_map_says",
-        exported_comp_tables_are_applied_by_linuxcnc_as_the_map_says,
-    ),
-    (
-        "the_demo_job_on_linuxcnc_compensates_every_target_like_on_grbl",
-        the_demo_job_on_linuxcnc_compensates_every_target_like_on_grbl,
-    ),
-    (
-        "a_map_scanned_through_linuxcnc_improves_its_iso230_figures",
-        a_map_scanned_through_linuxcnc_improves_its_iso230_figures,
-    ),
-    (
-        "held_out_points_and_program_with_linuxcnc_tables_rewritten_and_uncompensated",
-        held_out_points_and_program_with_linuxcnc_tables_rewritten_and_uncompensated,
-    ),
-    (
-        "every_rewritten_corpus_program_runs_in_linuxcnc_on_its_path",
-        every_rewritten_corpus_program_runs_in_linuxcnc_on_its_path,
-    ),
-    (
-        "a_lost_servo_period_fails_the_follow",
-        a_lost_servo_period_fails_the_follow,
-    ),
+const CASES: &[(&str, fn())] = cases![
+    drives_a_real_linuxcnc,
+    stop_aborts_a_move_in_flight,
+    exported_comp_tables_are_applied_by_linuxcnc_as_the_map_says,
+    the_demo_job_on_linuxcnc_compensates_every_target_like_on_grbl,
+    a_map_scanned_through_linuxcnc_improves_its_iso230_figures,
+    held_out_points_and_program_with_linuxcnc_tables_rewritten_and_uncompensated,
+    every_rewritten_corpus_program_runs_in_linuxcnc_on_its_path,
+    a_lost_servo_period_fails_the_follow,
 ];
 
 /// Every case against the real LinuxCNC, one after another in this one test: they share

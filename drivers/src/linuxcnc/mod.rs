@@ -37,7 +37,7 @@ pub use link_spec::linuxcnc::{LinuxcncAxis, LinuxcncOptions};
 
 use crate::error::DriverError;
 use crate::stage::{
-    check_feed, AxisInfo, AxisValues, Capabilities, Stage, StageInfo, StageState, StageStatus,
+    check_feed, Axis, AxisInfo, AxisValues, Capabilities, Stage, StageInfo, StageState, StageStatus,
 };
 use async_trait::async_trait;
 use protocol::text::escape_bytes;
@@ -558,6 +558,20 @@ impl LinuxcncStage {
         block
     }
 
+    /// A position reply (`get abs_act_pos`, `get abs_cmd_pos`: X Y Z A B C, machine
+    /// coordinates): its words as they came and their numbers, at least X, Y and Z.
+    async fn positions(
+        &mut self,
+        command: &str,
+        key: &str,
+    ) -> Result<(Vec<String>, Vec<f64>), DriverError> {
+        let words = self.get(command, key).await?;
+        let v = numbers(&words).filter(|v| v.len() >= 3).ok_or_else(|| {
+            self.protocol(format!("`{command}` answered {}", quoted(&words.join(" "))))
+        })?;
+        Ok((words, v))
+    }
+
     /// After a move's `ACK`: poll `get abs_cmd_pos` (the trajectory's commanded position,
     /// machine coordinates) until every axis of the move is at its target as sent
     /// (within [`ARRIVAL_TOLERANCE_MM`]), up to `motion_timeout`. LinuxCNC's `set_wait
@@ -569,25 +583,16 @@ impl LinuxcncStage {
     async fn confirm_arrival(&mut self, target: &AxisValues) -> Result<(), DriverError> {
         let d = self.opts.decimals;
         // the target as LinuxCNC parsed it: the block's digits
-        let sent: Vec<(usize, f64)> = target
+        let sent: Vec<(Axis, f64)> = target
             .iter()
-            .map(|(a, v)| {
-                let v = format!("{v:.d$}").parse::<f64>().unwrap_or(v);
-                (a.index(), v)
-            })
+            .map(|(a, v)| (a, format!("{v:.d$}").parse::<f64>().unwrap_or(v)))
             .collect();
         let deadline = Instant::now() + self.opts.motion_timeout;
         let mut last: Option<(Vec<f64>, Instant)> = None;
         loop {
-            let words = self.get("get abs_cmd_pos", "ABS_CMD_POS").await?;
-            let v = numbers(&words).filter(|v| v.len() >= 3).ok_or_else(|| {
-                self.protocol(format!(
-                    "`get abs_cmd_pos` answered {}",
-                    quoted(&words.join(" "))
-                ))
-            })?;
-            let arrived = sent.iter().all(|&(i, t)| {
-                v.get(i)
+            let (words, v) = self.positions("get abs_cmd_pos", "ABS_CMD_POS").await?;
+            let arrived = sent.iter().all(|&(a, t)| {
+                v.get(a.index())
                     .is_some_and(|c| (c - t).abs() <= ARRIVAL_TOLERANCE_MM)
             });
             if arrived {
@@ -603,7 +608,7 @@ impl LinuxcncStage {
             if now >= deadline || now - since >= STILL_SHORT {
                 let target = sent
                     .iter()
-                    .map(|(i, t)| format!("{}{t}", ["X", "Y", "Z", "A", "B", "C"][*i]))
+                    .map(|(a, t)| format!("{}{t}", a.letter()))
                     .collect::<Vec<_>>()
                     .join(" ");
                 return Err(DriverError::InvalidState {
@@ -754,13 +759,7 @@ impl Stage for LinuxcncStage {
     }
 
     async fn position(&mut self) -> Result<AxisValues, DriverError> {
-        let words = self.get("get abs_act_pos", "ABS_ACT_POS").await?;
-        let v = numbers(&words).filter(|v| v.len() >= 3).ok_or_else(|| {
-            self.protocol(format!(
-                "`get abs_act_pos` answered {}",
-                quoted(&words.join(" "))
-            ))
-        })?;
+        let (_, v) = self.positions("get abs_act_pos", "ABS_ACT_POS").await?;
         let mut p = AxisValues::default();
         for a in &self.axes {
             let i = a.axis.index();
