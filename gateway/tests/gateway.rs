@@ -21,18 +21,9 @@ mod volumetric_cli;
 /// itself (`autotests = false`), so a file left out would never run.
 #[test]
 fn every_test_file_is_a_module_of_this_binary() {
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests");
-    let declared = include_str!("gateway.rs");
-    for entry in std::fs::read_dir(&dir).unwrap() {
-        let path = entry.unwrap().path();
-        let name = path.file_stem().unwrap().to_string_lossy().into_owned();
-        if name == "gateway" || (path.is_file() && path.extension().is_none_or(|e| e != "rs")) {
-            continue;
-        }
-        assert!(
-            declared.lines().any(|l| l == format!("mod {name};")),
-            "gateway/tests/{} is not declared in gateway/tests/gateway.rs",
-            path.file_name().unwrap().to_string_lossy()
-        );
-    }
+    system_tests::assert_every_test_file_declared(
+        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests"),
+        "gateway",
+        include_str!("gateway.rs"),
+    );
 }

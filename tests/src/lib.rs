@@ -181,3 +181,23 @@ pub fn cncjs_dir() -> Result<std::path::PathBuf, String> {
     }
     Ok(dir)
 }
+
+/// Every file of the test folder `dir` (a Rust file, or a folder of shared modules) is a
+/// module of the one test binary `binary` (`BINARY.rs` in that folder, whose text is
+/// `declared`): the package does not find its tests itself (`autotests = false`), so a
+/// file left out would never run. Fails naming the first file not declared.
+pub fn assert_every_test_file_declared(dir: &Path, binary: &str, declared: &str) {
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        let name = path.file_stem().unwrap().to_string_lossy().into_owned();
+        if name == binary || (path.is_file() && path.extension().is_none_or(|e| e != "rs")) {
+            continue;
+        }
+        assert!(
+            declared.lines().any(|l| l == format!("mod {name};")),
+            "{} is not declared in {}",
+            path.display(),
+            dir.join(format!("{binary}.rs")).display()
+        );
+    }
+}
