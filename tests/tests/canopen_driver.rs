@@ -214,7 +214,22 @@ fn a_node_that_stops_its_heartbeat_stops_the_stage_and_is_reported() {
             "Y did not report QUICK STOP ACTIVE"
         );
         // The drive's quick stop option code is 2 (its EDS default): down the quick stop
-        // ramp, then on to Switch on disabled by itself (CiA 402 transition 12).
+        // ramp, then on to Switch on disabled by itself (CiA 402 transition 12), which
+        // its statusword reports once the ramp ends (the deadline only bounds the wait).
+        let deadline = tokio::time::Instant::now() + std::time::Duration::from_secs(20);
+        let disabled = net
+            .wait_for(node(Y_NODE), deadline, |v| {
+                v.statuswords_since(0)
+                    .skip_while(|s| State::from_statusword(*s) != State::QuickStopActive)
+                    .any(|s| State::from_statusword(s) == State::SwitchOnDisabled)
+                    .then_some(())
+            })
+            .await
+            .unwrap();
+        assert!(
+            disabled.is_some(),
+            "Y did not report SWITCH ON DISABLED after its quick stop"
+        );
         let (state, _) = emu.set().lock().unwrap().node_state(Y_NODE).unwrap();
         assert_eq!(state, State::SwitchOnDisabled);
         let y = rig.lock().unwrap().machine().counts()[1];
