@@ -118,27 +118,32 @@ async fn stream(
     let mut sender_port = SenderPort::create(Some(&link)).unwrap();
     let mut command = sender(&link, &program);
     let client = tokio::task::spawn_blocking(move || command.output().expect("run the sender"));
-    let reference_mm = model.map().reference_mm;
+    let map = model.map().clone();
     let shared = procedure::proxy::SharedMap::new(model);
     let rereferenced = std::cell::Cell::new(0);
+    let previous = std::cell::RefCell::new(None);
     let mut proxy = Proxy::new(Rewriter::new(&shared, Options::default()).unwrap(), &shared);
     proxy.start();
     proxy.greet(greeting);
     if rereference {
-        proxy.after_homing(proxy::AfterHoming::Reference {
-            reference_mm,
-            approach_mm: job.policy.approach_mm,
-            hook: Box::new(|s| {
-                shared.rereference(s)?;
-                rereferenced.set(rereferenced.get() + 1);
-                Ok(format!("seen ({:+.2}, {:+.2}) um", s[0], s[1]))
-            }),
-        });
+        proxy.after_homing(proxy::AfterHoming::Reference(
+            procedure::proxy::map_rereference(
+                &map,
+                &shared,
+                job.policy.approach_mm,
+                job.board.pitch_mm * 500.0,
+                None,
+                &previous,
+                |_, _| {
+                    rereferenced.set(rereferenced.get() + 1);
+                    Ok(())
+                },
+            ),
+        ));
     }
     let mut frames = procedure::proxy::CameraFrames {
         camera: Box::new(drivers::sim::SimCamera::new(rig.clone())),
         job,
-        reference_mm,
     };
     let ending = proxy::serve_with_camera(
         &mut proxy,
@@ -401,26 +406,31 @@ fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_prog
             .model,
         );
         let seen = std::cell::Cell::new(None);
+        let previous = std::cell::RefCell::new(None);
         let homings = lock(&rig).machine().homings();
         lock(&rig).machine_mut().start_trace();
         let (mut controller, _) = open_controller(&port, 115_200, NO_BANNER).await.unwrap();
         let link = dir.path().join("ttyHOMING");
         let mut sender_port = SenderPort::create(Some(&link)).unwrap();
         let mut proxy = Proxy::new(Rewriter::new(&shared, Options::default()).unwrap(), &shared);
-        proxy.after_homing(proxy::AfterHoming::Reference {
-            reference_mm: map.reference_mm,
-            approach_mm: job.policy.approach_mm,
-            hook: Box::new(|s| {
-                shared.rereference(s)?;
-                seen.set(Some(s));
-                Ok(format!("seen ({:+.2}, {:+.2}) um", s[0], s[1]))
-            }),
-        });
+        proxy.after_homing(proxy::AfterHoming::Reference(
+            procedure::proxy::map_rereference(
+                &map,
+                &shared,
+                job.policy.approach_mm,
+                job.board.pitch_mm * 500.0,
+                None,
+                &previous,
+                |record, _| {
+                    seen.set(Some(record.seen_um));
+                    Ok(())
+                },
+            ),
+        ));
         proxy.start();
         let mut frames = procedure::proxy::CameraFrames {
             camera: Box::new(drivers::sim::SimCamera::new(rig.clone())),
             job: &job,
-            reference_mm: map.reference_mm,
         };
         let session = proxy::serve_with_camera(
             &mut proxy,
@@ -434,7 +444,7 @@ fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_prog
         let rows = lock(&rig).machine_mut().take_trace();
         assert!(lock(&rig).machine().homings() > homings, "the sender homed");
         assert!(got.contains("[MSG:gateway: homed:"), "{got}");
-        assert!(got.contains("[MSG:gateway: referenced: seen"), "{got}");
+        assert!(got.contains("[MSG:gateway: referenced: "), "{got}");
         assert!(!got.contains("error:"), "{got}");
         let seen = seen.get().expect("the reference frame was measured");
         // The camera was over the reference point, and the tool came back before the

@@ -51,6 +51,7 @@ mod modbus_profiles;
 mod ngc_corpus;
 mod northbound;
 mod proxy;
+mod proxy_in_use;
 mod proxy_rotary;
 mod retrofit_workflow;
 mod rewrite_paths;

@@ -912,6 +912,9 @@ impl GrblDevice {
                     self.pending = Some(p);
                     return false;
                 }
+                // Unconstrained, the dwell ends at once, but its time passes on the
+                // machine's clock as a move's does (the screws warm meanwhile).
+                Action::Dwell(s) if !check && s > 0.0 => self.machine_advance(s),
                 Action::Pause if !check => {
                     self.state = State::Hold;
                     p.paused = true;

@@ -13,13 +13,13 @@ use errormap::MapModel;
 use job::{GrblLink, Job, StageSpec};
 use protocol::errormap::ErrorMap;
 use proxy::{
-    serve_with_camera, AfterHoming, Ending, FiveAxisRewriter, LineAccount, Proxy, ReferenceFrames,
-    SenderPort,
+    serve_with_camera, AfterHoming, Ending, FiveAxisRewriter, InUse, LineAccount, Proxy,
+    ReferenceFrames, Rereference, SenderPort,
 };
 use rewrite::{Approach, Compensation, Options, Pose, Rewriter, N_AXIS};
 use rotary::{LocationErrors, MachineConstants};
 use serde::{Deserialize, Serialize};
-use std::cell::{Cell, RefCell};
+use std::cell::RefCell;
 use std::future::Future;
 use std::path::Path;
 use std::sync::RwLock;
@@ -109,6 +109,25 @@ pub struct ProxyRequest {
     #[serde(default)]
     #[cfg_attr(feature = "cli", arg(long, requires = "rotary"))]
     pub controller: Option<String>,
+    /// Re-reference the map in use every this many seconds as well as after the
+    /// sender's homing (the shift and each axis's scale, as `gateway reference
+    /// --no-home` measures them: the screws grow as the machine warms). A due one starts
+    /// when every line is answered, the controller is idle and the tool is at or above
+    /// `clear_z_mm`; it needs the job's camera. Default: only after a homing.
+    #[serde(default)]
+    #[cfg_attr(feature = "cli", arg(long, requires = "clear_z_mm"))]
+    #[schema(minimum = 30.0, maximum = 86400.0)]
+    pub reference_every_s: Option<f64>,
+    /// Machine Z (mm, the controller's `MPos`) at or above which the tool is clear of
+    /// the work and the clamps: a re-reference in use moves X and Y only there, and
+    /// never Z. No default: only the shop knows its fixtures.
+    #[serde(default)]
+    #[cfg_attr(
+        feature = "cli",
+        arg(long, requires = "reference_every_s", allow_hyphen_values = true)
+    )]
+    #[schema(minimum = -10000.0, maximum = 10000.0)]
+    pub clear_z_mm: Option<f64>,
 }
 
 /// The largest rotary errors file a request carries.
@@ -132,6 +151,8 @@ impl Default for ProxyRequest {
             rotary_name: default_rotary_name(),
             machine: None,
             controller: None,
+            reference_every_s: None,
+            clear_z_mm: None,
         }
     }
 }
@@ -166,6 +187,38 @@ impl ProxyRequest {
             .is_some_and(|t| t.len() > MAX_ERRORS_BYTES)
         {
             return Err(RequestError::new("rotary", "more than 16 MiB of errors"));
+        }
+        match (self.reference_every_s, self.clear_z_mm) {
+            (Some(every), Some(z)) => {
+                number("reference_every_s", every, 30.0, 86_400.0)?;
+                number("clear_z_mm", z, -10_000.0, 10_000.0)?;
+                if self.rotary.is_some() {
+                    return Err(RequestError::new(
+                        "reference_every_s",
+                        "re-referencing in use is for an error map, not a rotary table's errors",
+                    ));
+                }
+                if self.no_reference {
+                    return Err(RequestError::new(
+                        "reference_every_s",
+                        "re-referencing in use records references: not with no_reference",
+                    ));
+                }
+            }
+            (Some(_), None) => {
+                return Err(RequestError::new(
+                    "clear_z_mm",
+                    "re-referencing in use needs the machine Z at or above which the tool is \
+                     clear of the work and the clamps",
+                ))
+            }
+            (None, Some(_)) => {
+                return Err(RequestError::new(
+                    "clear_z_mm",
+                    "is for re-referencing in use (reference_every_s)",
+                ))
+            }
+            (None, None) => {}
         }
         if let Some(link) = &self.link {
             if link.is_empty() || link.len() > 4096 || link.contains('\0') {
@@ -383,12 +436,88 @@ impl SharedMap {
         self.model.read().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// Shifted by what the camera saw at the reference point now.
-    pub fn rereference(&self, seen_um: [f64; 2]) -> Result<(), crate::Error> {
-        let mut m = self.model.write().unwrap_or_else(|e| e.into_inner());
-        *m = (m.clone().rereferenced(seen_um)).map_err(|e| crate::Error::Refused(e.to_string()))?;
-        Ok(())
+    /// The map with a new reference from now on (the rewriter reads it at its next
+    /// line).
+    pub fn replace(&self, model: MapModel) {
+        *self.model.write().unwrap_or_else(|e| e.into_inner()) = model;
     }
+}
+
+/// The pass-through's re-reference of `map` (the one the session runs with, unshifted):
+/// the points `gateway reference` measures (the reference point, then each axis's scale
+/// point when the map reaches far enough: [`errormap::reference::scale_points_mm`]),
+/// averaged over as many arrivals, approached by `approach_mm`. Its hook makes the
+/// record from the means as `gateway reference` does (continuing `previous`, the
+/// reference in force, and replacing it), applies it to `shared`, then hands it to
+/// `recorded` (with its description) before the machine returns.
+pub fn map_rereference<'a>(
+    map: &'a ErrorMap,
+    shared: &'a SharedMap,
+    approach_mm: f64,
+    bound_um: f64,
+    in_use: Option<InUse>,
+    previous: &'a RefCell<Option<MapReference>>,
+    mut recorded: impl FnMut(&MapReference, &str) -> Result<(), crate::Error> + 'a,
+) -> Rereference<'a> {
+    let scale_at = errormap::reference::scale_points_mm(map);
+    let r = map.reference_mm;
+    let (points_mm, arrivals) = match scale_at {
+        Some(at) => (
+            vec![r, [at[0], r[1]], [r[0], at[1]]],
+            runner::reference::FRAMES_PER_POINT,
+        ),
+        None => (vec![r], 1),
+    };
+    let hook = move |means: &[[f64; 2]]| -> Result<String, String> {
+        let t = std::time::SystemTime::now();
+        let now_s = t
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_secs());
+        let before = previous.borrow().clone();
+        let before = before.filter(|p| p.check_map(map).is_ok());
+        let record = MapReference::new(
+            map,
+            means[0],
+            bound_um,
+            Circumstances {
+                measured_at: errormap::scan::rfc3339(t),
+                measured_unix_s: now_s,
+                homing_count: None,
+                temperature_c: None,
+                previous_count: before.as_ref().map_or(0, |p| p.reference_count),
+            },
+        )
+        .and_then(|record| match (scale_at, means) {
+            (Some(at), [_, x, y]) => record.with_scale(map, at, [x[0], y[1]], before.as_ref()),
+            _ => Ok(record),
+        })
+        .map_err(|e| e.to_string())?;
+        let model = record
+            .apply(MapModel::new(map.clone()), now_s)
+            .map_err(|e| e.to_string())?;
+        let describe = record.describe(now_s);
+        shared.replace(model);
+        recorded(&record, &describe).map_err(|e| e.to_string())?;
+        *previous.borrow_mut() = Some(record);
+        Ok(describe)
+    };
+    Rereference {
+        points_mm,
+        approach_mm,
+        arrivals,
+        in_use,
+        hook: Box::new(hook),
+    }
+}
+
+/// When a session's first re-reference in use is due (its clock starts at 0):
+/// `every_s` after the reference in force was measured, at once when that is older.
+pub fn first_due_s(every_s: f64, previous: Option<&MapReference>) -> f64 {
+    let now_s = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    let age = previous.map_or(f64::INFINITY, |p| p.age_s(now_s) as f64);
+    (every_s - age).clamp(0.0, every_s)
 }
 
 impl Compensation for SharedMap {
@@ -417,21 +546,20 @@ impl Compensation for SharedMap {
     }
 }
 
-/// The job's camera measuring the reference frame for the pass-through.
+/// The job's camera measuring the re-reference's frames for the pass-through.
 pub struct CameraFrames<'a> {
     pub camera: Box<dyn drivers::Camera>,
     pub job: &'a Job,
-    /// The map's reference point, machine mm.
-    pub reference_mm: [f64; 2],
 }
 
 impl ReferenceFrames for CameraFrames<'_> {
     fn measure(
         &mut self,
+        at_mm: [f64; 2],
     ) -> std::pin::Pin<Box<dyn Future<Output = Result<[f64; 2], String>> + '_>> {
         Box::pin(async move {
             let z = self.job.board_at_machine_zero_mm;
-            let target = [self.reference_mm[0] + z[0], self.reference_mm[1] + z[1]];
+            let target = [at_mm[0] + z[0], at_mm[1] + z[1]];
             let frame = self.camera.grab().await.map_err(|e| e.to_string())?;
             let at = runner::measure::At {
                 path: &[],
@@ -495,9 +623,9 @@ pub async fn run(
                 Some(_) => errormap::reference::MAX_SHIFT_UM,
                 None => errormap::reference::MAX_SHIFT_UM.min(job.board.pitch_mm * 500.0),
             };
-            let count = Cell::new(match &reference {
-                crate::reference::Choice::Recorded(r) => r.reference_count,
-                _ => 0,
+            let previous = RefCell::new(match &reference {
+                crate::reference::Choice::Recorded(r) => Some(r.clone()),
+                _ => None,
             });
             let current = RefCell::new(applied.describe.clone());
             let StageSpec::Grbl { link, baud } = &job.stage else {
@@ -534,20 +662,26 @@ pub async fn run(
                 false => Err("--no-reference".into()),
             };
             let (mut frames, camera_note) = match camera {
-                Ok(camera) => (
-                    Some(CameraFrames {
-                        camera,
-                        job: &job,
-                        reference_mm: map_copy.reference_mm,
-                    }),
-                    None,
-                ),
+                Ok(camera) => (Some(CameraFrames { camera, job: &job }), None),
                 Err(e) => (None, Some(e)),
             };
-            let after_homing_note = match (&camera_note, wanted) {
-                (_, false) => None,
-                (None, true) => Some("after the sender's homing the gateway re-references the map with the camera".to_string()),
-                (Some(e), true) => Some(format!(
+            let in_use = request.reference_every_s.zip(request.clear_z_mm);
+            if let (Some(_), Some(e)) = (in_use, &camera_note) {
+                return Outcome::failed(format!(
+                    "--reference-every-s: re-referencing in use needs the job's camera: {e}"
+                ));
+            }
+            let scale = match errormap::reference::scale_points_mm(&map_copy) {
+                Some(_) => " (its shift and each axis's scale)",
+                None => "",
+            };
+            let after_homing_note = match (&camera_note, wanted, in_use) {
+                (_, false, _) => None,
+                (None, true, None) => Some(format!("after the sender's homing the gateway re-references the map{scale} with the camera")),
+                (None, true, Some((every, z))) => Some(format!(
+                    "the gateway re-references the map{scale} with the camera after the sender's homing, and every {every:.0} s in use when the controller is idle and the tool at or above machine Z {z:.3}"
+                )),
+                (Some(e), true, _) => Some(format!(
                     "no camera ({e}): after the sender's homing, motion is refused (error:9) until a reference is recorded"
                 )),
             };
@@ -570,38 +704,22 @@ pub async fn run(
                 proxy.after_homing(match (wanted, have_camera) {
                     (false, _) => AfterHoming::Pass,
                     (true, false) => AfterHoming::Refuse,
-                    (true, true) => AfterHoming::Reference {
-                        reference_mm: map_copy.reference_mm,
-                        approach_mm: job.policy.approach_mm,
-                        hook: Box::new(|seen| {
-                            let (now_s, now_text) = {
-                                let t = std::time::SystemTime::now();
-                                let s = t
-                                    .duration_since(std::time::UNIX_EPOCH)
-                                    .map_or(0, |d| d.as_secs());
-                                (s, errormap::scan::rfc3339(t))
-                            };
-                            let record = MapReference::new(
-                                &map_copy,
-                                seen,
-                                bound_um,
-                                Circumstances {
-                                    measured_at: now_text,
-                                    measured_unix_s: now_s,
-                                    homing_count: None,
-                                    temperature_c: None,
-                                    previous_count: count.get(),
-                                },
-                            )
-                            .map_err(|e| e.to_string())?;
-                            shared.rereference(seen)?;
-                            count.set(record.reference_count);
-                            let describe = record.describe(now_s);
-                            *current.borrow_mut() = describe.clone();
-                            front.borrow_mut().reference(&record)?;
-                            Ok(describe)
+                    (true, true) => AfterHoming::Reference(map_rereference(
+                        &map_copy,
+                        &shared,
+                        job.policy.approach_mm,
+                        bound_um,
+                        in_use.map(|(every_s, clear_z_mm)| InUse {
+                            every_s,
+                            clear_z_mm,
+                            first_due_s: first_due_s(every_s, previous.borrow().as_ref()),
                         }),
-                    },
+                        &previous,
+                        |record, describe| {
+                            *current.borrow_mut() = describe.to_string();
+                            front.borrow_mut().reference(record)
+                        },
+                    )),
                 });
                 Ok(proxy)
             };
@@ -1056,6 +1174,42 @@ mod tests {
             .unwrap_err()
             .for_cli()
             .starts_with("--time-scale: "));
+    }
+
+    /// Re-referencing in use needs the interval and the clear height together, an error
+    /// map, and references recorded; each refusal names the field.
+    #[test]
+    fn re_referencing_in_use_needs_the_clear_height_and_a_map() {
+        let in_use = ProxyRequest {
+            reference_every_s: Some(300.0),
+            clear_z_mm: Some(-5.0),
+            ..ProxyRequest::default()
+        };
+        assert!(in_use.check().is_ok());
+        let field = |f: &dyn Fn(&mut ProxyRequest)| {
+            let mut r = in_use.clone();
+            f(&mut r);
+            r.check().unwrap_err().field
+        };
+        assert_eq!(field(&|r| r.clear_z_mm = None), "clear_z_mm");
+        assert_eq!(field(&|r| r.reference_every_s = None), "clear_z_mm");
+        assert_eq!(
+            field(&|r| r.reference_every_s = Some(5.0)),
+            "reference_every_s"
+        );
+        assert_eq!(
+            field(&|r| r.reference_every_s = Some(f64::NAN)),
+            "reference_every_s"
+        );
+        assert_eq!(field(&|r| r.clear_z_mm = Some(f64::INFINITY)), "clear_z_mm");
+        assert_eq!(field(&|r| r.no_reference = true), "reference_every_s");
+        assert_eq!(
+            field(&|r| {
+                r.rotary = Some("{}".into());
+                r.controller = Some("/dev/ttyACM0".into());
+            }),
+            "reference_every_s"
+        );
     }
 
     /// The rotary table's pass-through needs its controller's port, and a port alone

@@ -940,6 +940,8 @@ mod tests {
             "iso230-evaluate" => json!({"measurements": ""}),
             "rotary-identify" => json!({"centres": ""}),
             "rotary-rewrite" => json!({"program": "", "errors": ""}),
+            // Re-referencing in use needs both (each names itself at its bounds).
+            "proxy" => json!({"reference_every_s": 300.0, "clear_z_mm": -5.0}),
             _ => json!({}),
         };
         let mut bounds = 0;

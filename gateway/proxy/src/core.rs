@@ -79,43 +79,97 @@ struct Slot {
 /// (the motion is locked out until the zero is known again; `$` commands still pass).
 pub const UNREFERENCED_CODE: u8 = 9;
 
-/// Measures the reference after a homing and applies it: given the camera's error at
-/// the reference point (um), it shifts the compensation and records the reference;
-/// returns a line saying what it did (for the sender), or why it could not.
-pub type ReferenceHook<'a> = Box<dyn FnMut([f64; 2]) -> Result<String, String> + 'a>;
+/// Applies a re-reference: given the camera's mean error at each of the plan's points
+/// (um, in [`Rereference::points_mm`]'s order), it updates the compensation and records
+/// the reference; returns a line saying what it did (for the sender), or why it could
+/// not.
+pub type ReferenceHook<'a> = Box<dyn FnMut(&[[f64; 2]]) -> Result<String, String> + 'a>;
+
+/// How the pass-through re-references the map with the camera: after the sender's
+/// homing, and with `in_use` also every so often while the machine warms.
+pub struct Rereference<'a> {
+    /// Where the camera measures, machine mm, in this order: the map's reference point
+    /// first, then (when the map reaches far enough) X's scale point and Y's.
+    pub points_mm: Vec<[f64; 2]>,
+    /// The last stretch to each point, from below on both axes, mm (as the scan
+    /// approached its nodes).
+    pub approach_mm: f64,
+    /// Arrivals averaged at each point, each a new approach from below (at least one).
+    pub arrivals: usize,
+    /// Re-reference in use as well (no homing), or only after a homing (`None`).
+    pub in_use: Option<InUse>,
+    pub hook: ReferenceHook<'a>,
+}
+
+/// A re-reference in use: the screws grow as the machine warms, so the map's reference
+/// (its shift and each axis's scale) is measured again every `every_s` seconds of the
+/// session's clock. A due re-reference starts only at a safe moment: every sender line
+/// answered, nothing of the gateway's in the controller, the controller `Idle` and its
+/// machine Z at or above `clear_z_mm` (the tool clear of the work and the clamps). The
+/// gateway never moves Z: its moves are XY rapids (`G53 G0`) at the Z where the tool is,
+/// and it returns to the XY it left. Until such a moment it waits, and tells the sender
+/// once.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InUse {
+    pub every_s: f64,
+    /// Machine Z (mm, `MPos`) at or above which the tool is clear.
+    pub clear_z_mm: f64,
+    /// When the first one is due, the session's clock (s): `every_s` less the age of
+    /// the reference the session starts with, so an old one is measured again first.
+    pub first_due_s: f64,
+}
 
 /// What the pass-through does after the sender's homing (`$H`), which moves the
 /// machine's zero by a few um and so makes the map's reference stale.
 pub enum AfterHoming<'a> {
     /// Nothing (a compensation that does not depend on the zero: the default).
     Pass,
-    /// Re-reference with the camera before the next line: tell the sender, move to the
-    /// reference point (machine mm, `G53`, approached from below by `approach_mm`), have
-    /// the I/O loop measure a frame ([`Proxy::frame_due`], [`Proxy::frame_measured`]),
-    /// apply it through `hook`, return to where the homing left the machine, then
-    /// release the next line. A failure locks motion out as `Refuse` does.
-    Reference {
-        reference_mm: [f64; 2],
-        approach_mm: f64,
-        hook: ReferenceHook<'a>,
-    },
+    /// Re-reference with the camera before the next line: tell the sender, move to each
+    /// point of the plan (machine mm, `G53`, approached from below), have the I/O loop
+    /// measure a frame at each arrival ([`Proxy::frame_due`], [`Proxy::frame_measured`]),
+    /// apply the means through the hook, return to where the homing left the machine,
+    /// then release the next line. A failure locks motion out as `Refuse` does. With
+    /// [`Rereference::in_use`], also in use ([`InUse`]).
+    Reference(Rereference<'a>),
     /// No camera: motion lines are refused ([`UNREFERENCED_CODE`], with a message) until
     /// a reference is recorded ([`Proxy::referenced`]).
     Refuse,
 }
 
-/// Where a re-reference after homing stands.
+/// Why a re-reference runs: what a failure means differs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Why {
+    /// The sender homed: the zero is not known until it is measured (a failure locks
+    /// motion out).
+    Homed,
+    /// In use, on the interval: the last reference still holds (a failure of a frame
+    /// is reported, the machine returns and the lines go on).
+    InUse,
+}
+
+/// Where a re-reference stands.
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Referencing {
     /// Nothing to do: lines flow.
     Idle,
     /// Homed: waiting for the controller's position at rest (where to return to).
     AwaitPosition,
-    /// The gateway's moves to the reference point are on their way.
-    Moving { back_mm: [f64; 2] },
-    /// At the reference point: the I/O loop measures a frame.
-    FrameDue { back_mm: [f64; 2] },
-    /// Returning to where the homing left the machine.
+    /// The gateway's moves to a point of the plan are on their way (`point`'s
+    /// `arrival`-th arrival, from 0).
+    Moving {
+        back_mm: [f64; 2],
+        why: Why,
+        point: usize,
+        arrival: usize,
+    },
+    /// At rest at a point of the plan: the I/O loop measures a frame.
+    FrameDue {
+        back_mm: [f64; 2],
+        why: Why,
+        point: usize,
+        arrival: usize,
+    },
+    /// Returning to where the machine was.
     Returning,
     /// The zero is not known: motion is refused.
     Locked,
@@ -347,6 +401,14 @@ pub struct Proxy<'a> {
     greeting: Option<String>,
     after_homing: AfterHoming<'a>,
     referencing: Referencing,
+    /// The sums of the frames measured so far at each point of the re-reference.
+    reference_sums: Vec<[f64; 2]>,
+    /// When the next re-reference in use is due (the session's clock, s).
+    in_use_due_s: Option<f64>,
+    /// The sender was told a due re-reference waits for a safe moment.
+    in_use_wait_said: bool,
+    /// The latest time the caller gave (s).
+    now_s: f64,
     /// The gateway's own lines of a re-reference in the controller's buffer.
     reference_lines: usize,
     /// The controller's modal words from its last `$G` reply.
@@ -395,32 +457,82 @@ impl<'a> Proxy<'a> {
             greeting: None,
             after_homing: AfterHoming::Pass,
             referencing: Referencing::Idle,
+            reference_sums: Vec::new(),
+            in_use_due_s: None,
+            in_use_wait_said: false,
+            now_s: 0.0,
             reference_lines: 0,
             modal: None,
         }
     }
 
-    /// What to do after the sender's homing ([`AfterHoming`]; default `Pass`).
+    /// What to do after the sender's homing ([`AfterHoming`]; default `Pass`), and in
+    /// use ([`Rereference::in_use`]).
     pub fn after_homing(&mut self, what: AfterHoming<'a>) {
+        self.in_use_due_s = match &what {
+            AfterHoming::Reference(r) => r.in_use.map(|u| u.first_due_s),
+            _ => None,
+        };
         self.after_homing = what;
     }
 
-    /// Whether the I/O loop is to measure the reference frame now (the stage is at rest
-    /// at the reference point); it answers with [`Self::frame_measured`].
-    pub fn frame_due(&self) -> bool {
-        matches!(self.referencing, Referencing::FrameDue { .. })
+    /// The plan of the re-reference, when there is one.
+    fn plan(&self) -> Option<&Rereference<'a>> {
+        match &self.after_homing {
+            AfterHoming::Reference(r) => Some(r),
+            _ => None,
+        }
     }
 
-    /// The reference frame's result (the camera's error at the reference point, um):
-    /// applied through the hook, then the machine returns and the lines go on; an error
-    /// locks motion out.
+    /// Where the I/O loop is to measure a frame now (machine mm: the stage is at rest
+    /// there, a point of the re-reference); it answers with [`Self::frame_measured`].
+    pub fn frame_due(&self) -> Option<[f64; 2]> {
+        let Referencing::FrameDue { point, .. } = self.referencing else {
+            return None;
+        };
+        self.plan().and_then(|r| r.points_mm.get(point).copied())
+    }
+
+    /// A frame's result (the camera's error at the point [`Self::frame_due`] gave, um):
+    /// the next arrival or point, or after the last the means applied through the hook,
+    /// then the machine returns and the lines go on. An error after a homing locks
+    /// motion out; in use, the last reference holds and the machine returns.
     pub fn frame_measured(&mut self, seen_um: Result<[f64; 2], String>) {
-        let Referencing::FrameDue { back_mm } = self.referencing else {
+        let Referencing::FrameDue {
+            back_mm,
+            why,
+            point,
+            arrival,
+        } = self.referencing
+        else {
             return;
         };
-        let applied = match (&mut self.after_homing, seen_um) {
-            (AfterHoming::Reference { hook, .. }, Ok(seen)) => hook(seen),
-            (_, Err(e)) => Err(e),
+        let seen = match seen_um {
+            Ok(s) => s,
+            Err(e) => return self.reference_failed(why, back_mm, &e),
+        };
+        let Some((count, arrivals)) = self.plan().map(|r| (r.points_mm.len(), r.arrivals.max(1)))
+        else {
+            return self.reference_failed(why, back_mm, "no reference to take");
+        };
+        self.reference_sums.resize(count, [0.0; 2]);
+        let sum = &mut self.reference_sums[point];
+        *sum = [sum[0] + seen[0], sum[1] + seen[1]];
+        let next = match (arrival + 1 < arrivals, point + 1 < count) {
+            (true, _) => Some((point, arrival + 1)),
+            (false, true) => Some((point + 1, 0)),
+            (false, false) => None,
+        };
+        if let Some((point, arrival)) = next {
+            return self.go_point(back_mm, why, point, arrival);
+        }
+        let n = arrivals as f64;
+        let means: Vec<[f64; 2]> = std::mem::take(&mut self.reference_sums)
+            .into_iter()
+            .map(|s| [s[0] / n, s[1] / n])
+            .collect();
+        let applied = match &mut self.after_homing {
+            AfterHoming::Reference(r) => (r.hook)(&means),
             _ => Err("no reference to take".into()),
         };
         match applied {
@@ -428,16 +540,18 @@ impl<'a> Proxy<'a> {
                 self.message(&format!("referenced: {what}"));
                 // A greeting not yet shown describes the map before this reference.
                 self.greeting = None;
-                let mut lines = vec![self.machine_move(back_mm)];
-                // The gateway's G0 left the motion mode at G0: the sender's comes back.
-                if let Some(m) = self.modal_motion() {
-                    lines.push(m);
-                }
-                lines.push("G4P0".to_string());
-                self.own_lines(&lines);
-                self.referencing = Referencing::Returning;
+                self.go_back(back_mm);
             }
-            Err(e) => {
+            Err(e) => self.reference_failed(why, back_mm, &e),
+        }
+    }
+
+    /// The re-reference could not be taken: after a homing motion is locked out (the
+    /// zero is not known); in use the last reference holds and the machine returns.
+    fn reference_failed(&mut self, why: Why, back_mm: [f64; 2], e: &str) {
+        self.reference_sums.clear();
+        match why {
+            Why::Homed => {
                 self.message(&format!(
                     "the reference after homing failed: {e}; motion is refused until the \
                      machine is referenced (home again, or run gateway reference)"
@@ -445,6 +559,90 @@ impl<'a> Proxy<'a> {
                 self.referencing = Referencing::Locked;
                 self.release_deferred();
             }
+            Why::InUse => {
+                let every = self
+                    .plan()
+                    .and_then(|r| r.in_use)
+                    .map_or(0.0, |u| u.every_s);
+                self.message(&format!(
+                    "the re-reference in use failed: {e}; the map keeps its last reference, \
+                     the next try is in {every:.0} s"
+                ));
+                self.go_back(back_mm);
+            }
+        }
+    }
+
+    /// Back to where the machine was (its XY; Z was never moved), the sender's motion
+    /// mode again, a dwell: the lines go on once it is answered.
+    fn go_back(&mut self, back_mm: [f64; 2]) {
+        let mut lines = vec![self.machine_move(back_mm)];
+        // The gateway's G0 left the motion mode at G0: the sender's comes back.
+        if let Some(m) = self.modal_motion() {
+            lines.push(m);
+        }
+        lines.push("G4P0".to_string());
+        self.own_lines(&lines);
+        self.referencing = Referencing::Returning;
+    }
+
+    /// The caller's clock (s, the session's): a due re-reference in use asks where the
+    /// machine is when nothing is on its way, and starts from the answer if it is safe
+    /// ([`InUse`]). Called every status poll period.
+    pub fn tick(&mut self, now_s: f64) {
+        self.now_s = self.now_s.max(now_s);
+        if self.in_use_due() && self.quiet() {
+            self.ask_position();
+        }
+    }
+
+    /// A re-reference in use is due and none is running.
+    fn in_use_due(&self) -> bool {
+        self.referencing == Referencing::Idle
+            && !self.lost
+            && self.in_use_due_s.is_some_and(|t| self.now_s >= t)
+    }
+
+    /// Every sender line answered and nothing on its way to the controller.
+    fn quiet(&self) -> bool {
+        self.slots.is_empty()
+            && self.deferred.is_empty()
+            && self.queue.is_empty()
+            && self.in_flight.is_empty()
+    }
+
+    /// A status report while a re-reference in use is due: starts it when the machine
+    /// is idle and the tool clear ([`InUse`]), else tells the sender once why it waits.
+    fn maybe_in_use(&mut self, state: MachineState, machine: Option<&[f64]>) {
+        let Some(u) = self.plan().and_then(|r| r.in_use) else {
+            return;
+        };
+        if !(self.in_use_due() && self.quiet() && state == MachineState::Idle) {
+            return;
+        }
+        match machine {
+            Some(m) if m.len() >= 3 && m[2] >= u.clear_z_mm => {
+                self.message(&format!(
+                    "re-referencing in use (every {:.0} s): measuring the map's reference \
+                     with the camera at Z {:.3} before the next line",
+                    u.every_s, m[2]
+                ));
+                self.in_use_wait_said = false;
+                self.rewriter.forget_position();
+                self.go_point([m[0], m[1]], Why::InUse, 0, 0);
+            }
+            _ if !self.in_use_wait_said => {
+                self.in_use_wait_said = true;
+                let z = machine
+                    .and_then(|m| m.get(2))
+                    .map_or("not reported".to_string(), |z| format!("{z:.3}"));
+                self.message(&format!(
+                    "a re-reference in use is due: it waits for the tool at or above machine \
+                     Z {:.3} (now {z}) with the controller idle",
+                    u.clear_z_mm
+                ));
+            }
+            _ => {}
         }
     }
 
@@ -508,7 +706,7 @@ impl<'a> Proxy<'a> {
 
     /// The sender's homing was acknowledged: the zero moved.
     fn homed(&mut self) {
-        match self.after_homing {
+        match &self.after_homing {
             AfterHoming::Pass => {}
             AfterHoming::Refuse => {
                 self.message(
@@ -518,11 +716,16 @@ impl<'a> Proxy<'a> {
                 );
                 self.referencing = Referencing::Locked;
             }
-            AfterHoming::Reference { reference_mm, .. } => {
+            AfterHoming::Reference(r) => {
+                let at = r.points_mm[0];
+                let scale = match r.points_mm.len() {
+                    1 => "",
+                    _ => " and each axis's scale",
+                };
                 self.message(&format!(
                     "homed: the machine's zero moved; measuring the map's reference point \
-                     (X{:.3} Y{:.3}) with the camera before the next line",
-                    reference_mm[0], reference_mm[1]
+                     (X{:.3} Y{:.3}){scale} with the camera before the next line",
+                    at[0], at[1]
                 ));
                 self.referencing = Referencing::AwaitPosition;
                 self.rewriter.forget_position();
@@ -531,26 +734,28 @@ impl<'a> Proxy<'a> {
         }
     }
 
-    /// The controller is at rest at `machine` (mm) after a homing: to the reference
-    /// point, the last stretch from below on both axes, then a dwell (answered once the
-    /// moves have ended).
-    fn go_reference(&mut self, machine: [f64; 2]) {
-        let AfterHoming::Reference {
-            reference_mm,
-            approach_mm,
-            ..
-        } = self.after_homing
+    /// To the plan's `point` for its `arrival`-th arrival (the controller at rest, the
+    /// machine to return to at `back_mm`): the last stretch from below on both axes,
+    /// then a dwell (answered once the moves have ended).
+    fn go_point(&mut self, back_mm: [f64; 2], why: Why, point: usize, arrival: usize) {
+        let Some((p, a)) = self
+            .plan()
+            .and_then(|r| Some((*r.points_mm.get(point)?, r.approach_mm.max(0.0))))
         else {
-            return;
+            return self.reference_failed(why, back_mm, "the plan has no such point");
         };
-        let a = approach_mm.max(0.0);
         let lines = vec![
-            self.machine_move([reference_mm[0] - a, reference_mm[1] - a]),
-            self.machine_move(reference_mm),
+            self.machine_move([p[0] - a, p[1] - a]),
+            self.machine_move(p),
             "G4P0".to_string(),
         ];
         self.own_lines(&lines);
-        self.referencing = Referencing::Moving { back_mm: machine };
+        self.referencing = Referencing::Moving {
+            back_mm,
+            why,
+            point,
+            arrival,
+        };
     }
 
     /// Tell the sender `text` (as `[MSG:gateway: text]`) ahead of its first G-code line's
@@ -670,6 +875,7 @@ impl<'a> Proxy<'a> {
 
     /// Bytes from the sender, at `now_s` (the caller's clock, for latency figures).
     pub fn from_sender(&mut self, bytes: &[u8], now_s: f64) {
+        self.now_s = self.now_s.max(now_s);
         for &b in bytes {
             // Most bytes are plain text: only these four below 0x80 are real-time.
             let kind = match b {
@@ -836,6 +1042,7 @@ impl<'a> Proxy<'a> {
 
     /// Bytes from the controller.
     pub fn from_controller(&mut self, bytes: &[u8], now_s: f64) {
+        self.now_s = self.now_s.max(now_s);
         for &b in bytes {
             if b != b'\n' {
                 self.controller_partial.push(b);
@@ -916,11 +1123,25 @@ impl<'a> Proxy<'a> {
             return;
         }
         match self.referencing {
-            Referencing::Moving { back_mm } => {
-                self.referencing = Referencing::FrameDue { back_mm };
+            Referencing::Moving {
+                back_mm,
+                why,
+                point,
+                arrival,
+            } => {
+                self.referencing = Referencing::FrameDue {
+                    back_mm,
+                    why,
+                    point,
+                    arrival,
+                };
             }
             Referencing::Returning => {
                 self.referencing = Referencing::Idle;
+                // The next one in use counts from this one's end (a homing's too).
+                if let Some(u) = self.plan().and_then(|r| r.in_use) {
+                    self.in_use_due_s = Some(self.now_s + u.every_s);
+                }
                 // The position is learnt again before the next move.
                 self.rewriter.forget_position();
                 self.release_deferred();
@@ -974,9 +1195,11 @@ impl<'a> Proxy<'a> {
             && self.in_flight.is_empty()
         {
             if let Some(m) = machine.as_ref().filter(|m| m.len() >= 2) {
-                self.go_reference([m[0], m[1]]);
+                self.reference_sums.clear();
+                self.go_point([m[0], m[1]], Why::Homed, 0, 0);
             }
         }
+        self.maybe_in_use(report.state, machine.as_deref());
         if self.referencing == Referencing::AwaitPosition {
             // Not at rest yet (or lines of the sender's `$` commands on their way).
             self.ask_position();
@@ -1039,6 +1262,7 @@ impl<'a> Proxy<'a> {
         self.in_flight.clear();
         self.in_flight_bytes = 0;
         self.reference_lines = 0;
+        self.reference_sums.clear();
         if self.referencing != Referencing::Idle {
             // A reset in the middle of a re-reference: the zero is not known.
             self.referencing = Referencing::Locked;

@@ -14,8 +14,8 @@ pub mod line_rewriter;
 pub mod serve;
 
 pub use crate::core::{
-    refusal_code, AfterHoming, LineAccount, Proxy, ProxyStats, ReferenceHook, MAX_UNANSWERED_LINES,
-    RAW_LINE_KEPT, RX_BUFFER, UNREFERENCED_CODE,
+    refusal_code, AfterHoming, InUse, LineAccount, Proxy, ProxyStats, ReferenceHook, Rereference,
+    MAX_UNANSWERED_LINES, RAW_LINE_KEPT, RX_BUFFER, UNREFERENCED_CODE,
 };
 pub use line_rewriter::{CartesianRewriter, FiveAxisRewriter, LineRewriter};
 pub use serve::{serve, serve_with_camera, Ending, ReferenceFrames, SenderPort};

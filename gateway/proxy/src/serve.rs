@@ -148,16 +148,19 @@ pub async fn serve(
     serve_with_camera(proxy, sender, controller, stop, None).await
 }
 
-/// Measures the reference frame after a homing: the camera's error at the map's
-/// reference point, um (the stage is at rest there).
+/// Measures a re-reference's frame: the camera's error at `at_mm` (machine mm, a point
+/// of the plan), um (the stage is at rest there).
 pub trait ReferenceFrames {
-    fn measure(&mut self)
-        -> std::pin::Pin<Box<dyn Future<Output = Result<[f64; 2], String>> + '_>>;
+    fn measure(
+        &mut self,
+        at_mm: [f64; 2],
+    ) -> std::pin::Pin<Box<dyn Future<Output = Result<[f64; 2], String>> + '_>>;
 }
 
-/// [`serve`], with `frames` measuring the reference frame when the pass-through asks
-/// for it after the sender's homing ([`Proxy::frame_due`]; without `frames` the
-/// measurement fails and motion is refused until the machine is referenced).
+/// [`serve`], with `frames` measuring the re-reference's frames when the pass-through
+/// asks for them, after the sender's homing and in use ([`Proxy::frame_due`]; without
+/// `frames` the measurement fails: after a homing motion is then refused until the
+/// machine is referenced).
 pub async fn serve_with_camera(
     proxy: &mut Proxy<'_>,
     sender: &mut SenderPort,
@@ -183,11 +186,11 @@ pub async fn serve_with_camera(
     poll.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     tokio::pin!(stop);
     let ending = loop {
-        if proxy.frame_due() {
-            // The stage is at rest at the reference point: one frame (the sender waits
-            // for its next answer meanwhile, as it would for a slow controller).
+        if let Some(at_mm) = proxy.frame_due() {
+            // The stage is at rest at a point of the re-reference: one frame (the sender
+            // waits for its next answer meanwhile, as it would for a slow controller).
             let seen = match frames.as_mut() {
-                Some(f) => f.measure().await,
+                Some(f) => f.measure(at_mm).await,
                 None => Err("no camera to measure the reference with".into()),
             };
             proxy.frame_measured(seen);
@@ -214,6 +217,7 @@ pub async fn serve_with_camera(
             _ = &mut stop => break Ending::Stopped(proxy.account()),
             _ = poll.tick() => {
                 proxy.poll_status();
+                proxy.tick(now());
                 // Two poll periods in a row in which a read waited and none failed.
                 quiet_periods = match read_waited.take() && read_failures == 0 {
                     true => quiet_periods + 1,

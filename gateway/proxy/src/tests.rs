@@ -480,14 +480,16 @@ fn after_the_senders_homing_the_gateway_references_before_the_next_line() {
     let seen = std::cell::RefCell::new(Vec::new());
     let mut p = started(&comp);
     p.take_to_sender();
-    p.after_homing(AfterHoming::Reference {
-        reference_mm: [100.0, 80.0],
+    p.after_homing(AfterHoming::Reference(Rereference {
+        points_mm: vec![[100.0, 80.0]],
         approach_mm: 0.05,
+        arrivals: 1,
+        in_use: None,
         hook: Box::new(|s| {
-            seen.borrow_mut().push(s);
+            seen.borrow_mut().push(s.to_vec());
             Ok("zero moved (+6.70, -8.29) um".into())
         }),
-    });
+    }));
     // The greeting of the map as it was, not shown yet when the homing comes first.
     p.greet("map v1, no reference recorded");
     p.from_sender(b"$H\nG1 X20 Y10 F600\n", 1.0);
@@ -502,15 +504,19 @@ fn after_the_senders_homing_the_gateway_references_before_the_next_line() {
         text(p.take_to_controller()),
         "G53G0X99.9500Y79.9500\nG53G0X100.0000Y80.0000\nG4P0\n"
     );
-    assert!(!p.frame_due());
+    assert_eq!(p.frame_due(), None);
     p.from_controller(b"ok\r\nok\r\n", 2.2);
-    assert!(!p.frame_due());
+    assert_eq!(p.frame_due(), None);
     p.from_controller(b"ok\r\n", 2.3);
-    assert!(p.frame_due(), "at rest at the reference point");
+    assert_eq!(
+        p.frame_due(),
+        Some([100.0, 80.0]),
+        "at rest at the reference point"
+    );
     // The sender's next line waits meanwhile.
     assert!(p.take_to_controller().is_empty());
     p.frame_measured(Ok([6.7, -8.29]));
-    assert_eq!(*seen.borrow(), vec![[6.7, -8.29]]);
+    assert_eq!(*seen.borrow(), vec![vec![[6.7, -8.29]]]);
     let told = text(p.take_to_sender());
     assert!(
         told.contains("[MSG:gateway: referenced: zero moved"),
@@ -559,4 +565,166 @@ fn without_a_camera_motion_after_homing_is_refused_until_referenced() {
     p.from_sender(b"G0 X1 Y1\n", 2.4);
     let sent = text(p.take_to_controller());
     assert!(sent.starts_with("G0 X1.0100"), "{sent}");
+}
+
+/// A re-reference with the scale points, two arrivals at each, in use every 300 s with
+/// the tool clear at machine Z >= -5.
+fn in_use_plan<'a>(seen: &'a std::cell::RefCell<Vec<Vec<[f64; 2]>>>) -> AfterHoming<'a> {
+    AfterHoming::Reference(Rereference {
+        points_mm: vec![[100.0, 80.0], [180.0, 80.0], [100.0, 140.0]],
+        approach_mm: 0.05,
+        arrivals: 2,
+        in_use: Some(InUse {
+            every_s: 300.0,
+            clear_z_mm: -5.0,
+            first_due_s: 300.0,
+        }),
+        hook: Box::new(|s| {
+            seen.borrow_mut().push(s.to_vec());
+            Ok("shift and scale".into())
+        }),
+    })
+}
+
+/// Answers the gateway's own lines of one arrival (two moves and a dwell) and returns
+/// where the frame is due.
+fn arrive(p: &mut Proxy<'_>, expect: &str, now_s: f64) -> Option<[f64; 2]> {
+    assert_eq!(text(p.take_to_controller()), expect);
+    assert_eq!(p.frame_due(), None);
+    p.from_controller(b"ok\r\nok\r\nok\r\n", now_s);
+    p.frame_due()
+}
+
+#[test]
+fn in_use_the_gateway_re_references_with_the_scale_points_when_due_idle_and_clear() {
+    let comp = Skewed;
+    let seen = std::cell::RefCell::new(Vec::new());
+    let mut p = started(&comp);
+    p.take_to_sender();
+    p.after_homing(in_use_plan(&seen));
+    // Not due yet: nothing of the gateway's.
+    p.tick(299.0);
+    assert!(p.take_to_controller().is_empty());
+    // Due, but the sender's line is on its way: it waits.
+    p.from_sender(b"G1 X20 Y10 F600\n", 300.0);
+    assert!(text(p.take_to_controller()).starts_with("G1 X20.0100"));
+    p.tick(300.2);
+    assert!(
+        p.take_to_controller().is_empty(),
+        "not while a line is owed"
+    );
+    p.from_controller(b"ok\r\n", 300.3);
+    assert_eq!(text(p.take_to_sender()), "ok\r\n");
+    // Quiet: where is the machine? Idle, but the tool is down (Z -12): it waits, says so
+    // once.
+    p.tick(300.4);
+    assert_eq!(text(p.take_to_controller()), "?");
+    p.from_controller(b"<Idle|MPos:20.010,9.990,-12.000|FS:0,0>\r\n", 300.5);
+    let told = text(p.take_to_sender());
+    assert!(
+        told.contains("it waits for the tool at or above machine Z -5.000 (now -12.000)"),
+        "{told}"
+    );
+    assert!(
+        p.take_to_controller().is_empty(),
+        "no motion with the tool down"
+    );
+    p.tick(300.6);
+    assert_eq!(text(p.take_to_controller()), "?");
+    p.from_controller(b"<Run|MPos:20.010,9.990,-8.000|FS:600,0>\r\n", 300.7);
+    assert!(p.take_to_controller().is_empty(), "not while it moves");
+    assert!(p.take_to_sender().is_empty(), "said once");
+    // The tool is up and the machine idle: the reference point, then each scale point,
+    // two arrivals each from below, XY only.
+    p.tick(300.8);
+    assert_eq!(text(p.take_to_controller()), "?");
+    p.from_controller(b"<Idle|MPos:20.010,9.990,-2.000|FS:0,0>\r\n", 300.9);
+    let told = text(p.take_to_sender());
+    assert!(
+        told.contains("re-referencing in use (every 300 s)"),
+        "{told}"
+    );
+    // The sender's line meanwhile waits.
+    p.from_sender(b"G1 X30 Y10\n", 301.0);
+    let mut frames = Vec::new();
+    for (point, at) in [[100.0, 80.0], [180.0, 80.0], [100.0, 140.0]]
+        .iter()
+        .enumerate()
+    {
+        for _ in 0..2 {
+            let expect = format!(
+                "G53G0X{:.4}Y{:.4}\nG53G0X{:.4}Y{:.4}\nG4P0\n",
+                at[0] - 0.05,
+                at[1] - 0.05,
+                at[0],
+                at[1]
+            );
+            assert_eq!(arrive(&mut p, &expect, 302.0), Some(*at));
+            frames.push(point);
+            p.frame_measured(Ok([point as f64, frames.len() as f64]));
+        }
+    }
+    // The means of each point's two frames, in the plan's order.
+    assert_eq!(
+        *seen.borrow(),
+        vec![vec![[0.0, 1.5], [1.0, 3.5], [2.0, 5.5]]]
+    );
+    assert!(text(p.take_to_sender()).contains("referenced: shift and scale"));
+    // Back to the XY it left (Z never moved), the sender's line after the position.
+    assert_eq!(text(p.take_to_controller()), "G53G0X20.0100Y9.9900\nG4P0\n");
+    p.from_controller(b"ok\r\nok\r\n", 310.0);
+    assert_eq!(text(p.take_to_controller()), "?");
+    p.from_controller(b"<Idle|MPos:20.010,9.990,-2.000|FS:0,0>\r\n", 310.1);
+    assert!(text(p.take_to_controller()).starts_with("G1 X30.0100"));
+    p.from_controller(b"ok\r\n", 310.2);
+    assert_eq!(text(p.take_to_sender()), "ok\r\n");
+    // The next one is due 300 s after this one ended.
+    p.tick(609.0);
+    assert!(p.take_to_controller().is_empty());
+    p.tick(610.1);
+    assert_eq!(text(p.take_to_controller()), "?");
+}
+
+#[test]
+fn a_failed_frame_in_use_keeps_the_last_reference_and_returns_but_after_homing_locks() {
+    let comp = Skewed;
+    let seen = std::cell::RefCell::new(Vec::new());
+    let mut p = started(&comp);
+    p.take_to_sender();
+    p.after_homing(in_use_plan(&seen));
+    p.tick(300.0);
+    assert_eq!(text(p.take_to_controller()), "?");
+    p.from_controller(b"<Idle|MPos:20.010,9.990,0.000|FS:0,0>\r\n", 300.1);
+    p.take_to_sender();
+    let first = "G53G0X99.9500Y79.9500\nG53G0X100.0000Y80.0000\nG4P0\n";
+    assert_eq!(arrive(&mut p, first, 300.2), Some([100.0, 80.0]));
+    p.frame_measured(Err("no dots in the frame".into()));
+    let told = text(p.take_to_sender());
+    assert!(
+        told.contains("the re-reference in use failed: no dots in the frame; the map keeps its last reference"),
+        "{told}"
+    );
+    assert!(seen.borrow().is_empty(), "nothing applied");
+    assert_eq!(text(p.take_to_controller()), "G53G0X20.0100Y9.9900\nG4P0\n");
+    p.from_controller(b"ok\r\nok\r\n", 301.0);
+    // Lines go on.
+    p.from_sender(b"G1 X30 Y10 F600\n", 301.1);
+    assert_eq!(text(p.take_to_controller()), "?");
+    p.from_controller(b"<Idle|MPos:20.010,9.990,0.000|FS:0,0>\r\n", 301.2);
+    assert!(text(p.take_to_controller()).starts_with("G1 X30.0100"));
+    p.from_controller(b"ok\r\n", 301.3);
+    assert_eq!(text(p.take_to_sender()), "ok\r\n");
+    // After a homing the same failure locks motion out.
+    p.from_sender(b"$H\n", 302.0);
+    assert_eq!(text(p.take_to_controller()), "$H\n");
+    p.from_controller(b"ok\r\n", 303.0);
+    let told = text(p.take_to_sender());
+    assert!(told.contains("and each axis's scale"), "{told}");
+    assert_eq!(text(p.take_to_controller()), "?");
+    p.from_controller(b"<Idle|MPos:0.000,0.000,0.000|FS:0,0>\r\n", 303.1);
+    assert_eq!(arrive(&mut p, first, 303.2), Some([100.0, 80.0]));
+    p.frame_measured(Err("no dots in the frame".into()));
+    assert!(text(p.take_to_sender()).contains("motion is refused until the machine is referenced"));
+    p.from_sender(b"G0 X1 Y1\n", 304.0);
+    assert!(text(p.take_to_sender()).ends_with("error:9\r\n"));
 }
