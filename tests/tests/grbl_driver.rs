@@ -149,6 +149,12 @@ fn jog_is_cancelled_and_hold_resume_and_stop_keep_position() {
             Err(DriverError::OutOfLimits { .. })
         ));
 
+        // A slow deceleration (10 mm/s^2: about a second from 600 mm/min): GRBL ignores
+        // a cycle start while the hold still decelerates (`Hold:1`), so `resume` waits
+        // for the hold to complete before it sends `~`.
+        for axis in [120, 121] {
+            g.command(&Command::WriteSetting(axis, 10.0)).await.unwrap();
+        }
         g.move_to(AxisValues::xy(120.0, 0.0), 600.0).await.unwrap();
         g.feed_hold().await.unwrap();
         let held = g.status().await.unwrap();

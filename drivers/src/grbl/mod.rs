@@ -566,8 +566,22 @@ impl GrblStage {
         self.realtime(Realtime::FeedHold).await
     }
 
-    /// Cycle start (`~`).
+    /// Cycle start (`~`). GRBL resumes only a hold that is complete (`Hold:0`): a cycle
+    /// start while the feed hold still decelerates (`Hold:1`) is ignored (GRBL 1.1's
+    /// `protocol_exec_rt_system`), so the driver first waits for the hold to complete,
+    /// within the command timeout.
     pub async fn resume(&mut self) -> Result<(), DriverError> {
+        let deadline = std::time::Instant::now() + self.opts.command_timeout;
+        while self.status_report().await?.state == MachineState::Hold(1) {
+            if std::time::Instant::now() >= deadline {
+                return Err(DriverError::Timeout {
+                    device: self.device(),
+                    what: "a feed hold to complete before the cycle start (still Hold:1)".into(),
+                    after_ms: self.opts.command_timeout.as_millis() as u64,
+                });
+            }
+            tokio::time::sleep(self.opts.poll_interval).await;
+        }
         self.realtime(Realtime::CycleStart).await
     }
 
