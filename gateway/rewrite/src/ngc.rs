@@ -20,8 +20,12 @@
 //!   (Q0), so that the many short pieces run at speed without a corner rounded by more
 //!   than the tolerance and without pieces merged away. A `G64` of the program becomes
 //!   `G64 P<the smaller of its P and the tolerance> Q0`; `G61` and `G61.1` go as
-//!   written (exact path and exact stop are closer still). The executed path is then
-//!   within twice the tolerance of the compensated path (the split, then the blend);
+//!   written (exact path and exact stop are closer still), but a move split into
+//!   pieces runs its pieces but the last in `G64 P<tolerance> Q0` and the last in the
+//!   program's mode again, so the machine stops at the program's points and not at
+//!   every piece (a circle in 200 pieces would otherwise stop 200 times). The executed
+//!   path is then within twice the tolerance of the compensated path (the split, then
+//!   the blend);
 //! * every move is `G0`/`G1` with absolute coordinates in the program's work system
 //!   (`G53` moves stay `G53`), 6 decimals; F in mm/min where it changes;
 //! * a canned cycle's moves are written between `G61` and the path mode in effect, as
@@ -392,7 +396,24 @@ impl<'a> Writer<'a> {
                 }
             }
         }
+        // In exact path or exact stop mode the program asked to stop at its own points,
+        // not at every piece of a split move: the pieces but the last blend within the
+        // tolerance, and the mode comes back for the last (LinuxCNC ends each piece as
+        // that piece's mode says). A canned cycle keeps its exact path.
+        let exact = matches!(self.path, PathMode::ExactPath | PathMode::ExactStop);
+        let split_exact = exact && !self.in_cycle && commands.len() > 1;
         for (k, (command, rapid)) in commands.iter().enumerate() {
+            if split_exact && k == 0 {
+                let blend = self.path_text(PathMode::Blend {
+                    p_mm: None,
+                    q_mm: None,
+                });
+                self.emit(&blend)?;
+            }
+            if split_exact && k + 1 == commands.len() {
+                let mode = self.path_text(self.path);
+                self.emit(&mode)?;
+            }
             let mut text = String::new();
             if g53 {
                 text.push_str("G53 ");
@@ -508,6 +529,36 @@ mod tests {
     }
 
     const PROGRAM: &str = "(square by a subroutine)\nG21 G17\n#<side> = 20\no<sq> sub\n  G1 X[#1 + #<_side>] F600\n  G1 Y[#2 + #<_side>]\n  G1 X#1\n  G1 Y#2\no<sq> endsub\n#<_side> = #<side>\nG0 X10 Y10 Z0\no1 repeat [2]\n  o<sq> call [10] [10]\no1 endrepeat\nG91 G0 X5\nM2\n";
+
+    /// In G61 a split move blends between its own pieces and stops at its end, where
+    /// the program asked; a move of one piece and a canned cycle stay in exact path.
+    #[test]
+    fn in_exact_path_a_split_move_stops_only_at_the_programs_points() {
+        let program = "G21 G90 G17 G61\nG0 X10 Y10 Z5\nG2 X30 Y10 I10 J0 F3000\nG1 X31\n\
+                       G81 X40 Y10 Z-1 R2\nG80\nM2\n";
+        let (out, _) = rewrite_ngc(program, &Stretch, &NgcOptions::default()).unwrap();
+        let lines: Vec<&str> = out.lines().collect();
+        let arc = lines
+            .iter()
+            .position(|l| *l == "G64 P0.0005 Q0")
+            .unwrap_or_else(|| panic!("{out}"));
+        let back = lines[arc..]
+            .iter()
+            .position(|l| *l == "G61")
+            .map(|k| arc + k)
+            .unwrap_or_else(|| panic!("{out}"));
+        // The arc's pieces but its last between the two, its last after G61: it ends on
+        // the program's X30 Y10 (stretched).
+        assert!(back - arc > 10, "{out}");
+        assert!(
+            lines[arc + 1..back].iter().all(|l| l.starts_with("G1")),
+            "{out}"
+        );
+        assert_eq!(lines[back + 1], "G1 X30.003 Y10", "{out}");
+        // The one-piece line and the cycle add no mode lines.
+        assert_eq!(lines[back + 2], "G1 X31.0031", "{out}");
+        assert_eq!(out.matches("G64 P0.0005 Q0").count(), 2, "{out}");
+    }
 
     #[test]
     fn a_program_with_subroutines_is_flat_and_lands_where_programmed() {
