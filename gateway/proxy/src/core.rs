@@ -154,6 +154,14 @@ enum Referencing {
     Idle,
     /// Homed: waiting for the controller's position at rest (where to return to).
     AwaitPosition,
+    /// At rest at `back_mm`: the controller's modal state (`$G`) is asked first, so the
+    /// sender's motion mode can be set again after the gateway's `G0` moves.
+    AwaitModal {
+        back_mm: [f64; 2],
+        why: Why,
+        /// The machine Z the re-reference starts at (for the sender's message).
+        z_mm: f64,
+    },
     /// The gateway's moves to a point of the plan are on their way (`point`'s
     /// `arrival`-th arrival, from 0).
     Moving {
@@ -418,6 +426,10 @@ pub struct Proxy<'a> {
 /// Marks a line of a re-reference in the controller's buffer (the gateway's own).
 const OWN_REFERENCE: u64 = u64::MAX;
 
+/// Marks the `$G` a re-reference asks first: its reply is the controller's modal state
+/// now (kept for the return), not a state for the rewriter, which reads the sender's.
+const OWN_MODAL: u64 = u64::MAX - 1;
+
 /// Marks a line of the gateway's own (`$#`, `$G`) in the controller's buffer: its
 /// answer and what comes before it are the gateway's, not the sender's.
 const OWN: u64 = 0;
@@ -622,14 +634,7 @@ impl<'a> Proxy<'a> {
         }
         match machine {
             Some(m) if m.len() >= 3 && m[2] >= u.clear_z_mm => {
-                self.message(&format!(
-                    "re-referencing in use (every {:.0} s): measuring the map's reference \
-                     with the camera at Z {:.3} before the next line",
-                    u.every_s, m[2]
-                ));
-                self.in_use_wait_said = false;
-                self.rewriter.forget_position();
-                self.go_point([m[0], m[1]], Why::InUse, 0, 0);
+                self.ask_modal([m[0], m[1]], Why::InUse, m[2]);
             }
             _ if !self.in_use_wait_said => {
                 self.in_use_wait_said = true;
@@ -732,6 +737,62 @@ impl<'a> Proxy<'a> {
                 self.ask_position();
             }
         }
+    }
+
+    /// A re-reference begins: the controller's modal state first (`$G`), then the
+    /// first point ([`Self::modal_answered`]).
+    fn ask_modal(&mut self, back_mm: [f64; 2], why: Why, z_mm: f64) {
+        self.reference_sums.clear();
+        self.to_controller.extend_from_slice(b"$G\n");
+        self.in_flight.push_back((3, OWN_MODAL));
+        self.in_flight_bytes += 3;
+        self.referencing = Referencing::AwaitModal { back_mm, why, z_mm };
+    }
+
+    /// The re-reference's `$G` answered. In use the gateway moves only when the
+    /// controller's motion mode can be set again after its `G0` moves (`G0`, `G1` or
+    /// `G80`: an arc or probe mode needs axis words), else it tries again a second later
+    /// (the sender's next motion word changes it).
+    fn modal_answered(&mut self, answer: Response) {
+        let Referencing::AwaitModal { back_mm, why, z_mm } = self.referencing else {
+            return;
+        };
+        if let Response::Error(code) = answer {
+            self.referencing = Referencing::Idle;
+            return self.reference_failed(
+                why,
+                back_mm,
+                &format!("the controller answered error:{code} to $G"),
+            );
+        }
+        let motion = self
+            .modal
+            .as_deref()
+            .and_then(|m| m.split_whitespace().next())
+            .unwrap_or("G0")
+            .to_string();
+        if why == Why::InUse && !["G0", "G1", "G80"].contains(&motion.as_str()) {
+            self.referencing = Referencing::Idle;
+            self.in_use_due_s = Some(self.now_s + 1.0);
+            if !self.in_use_wait_said {
+                self.in_use_wait_said = true;
+                self.message(&format!(
+                    "a re-reference in use is due: it waits for the motion mode G0, G1 or G80 \
+                     (now {motion}), which it can set again after its own G0 moves"
+                ));
+            }
+            return self.release_deferred();
+        }
+        if let (Why::InUse, Some(u)) = (why, self.plan().and_then(|r| r.in_use)) {
+            self.message(&format!(
+                "re-referencing in use (every {:.0} s): measuring the map's reference with \
+                 the camera at Z {z_mm:.3} before the next line",
+                u.every_s
+            ));
+            self.in_use_wait_said = false;
+            self.rewriter.forget_position();
+        }
+        self.go_point(back_mm, why, 0, 0);
     }
 
     /// To the plan's `point` for its `arrival`-th arrival (the controller at rest, the
@@ -1075,6 +1136,10 @@ impl<'a> Proxy<'a> {
                     self.reference_line_answered(Response::parse(raw));
                     return;
                 }
+                if line == OWN_MODAL {
+                    self.modal_answered(Response::parse(raw));
+                    return;
+                }
                 if let Some(s) = self.slots.iter_mut().find(|s| s.line == line) {
                     s.outstanding -= 1;
                     if let Response::Error(code) = Response::parse(raw) {
@@ -1086,6 +1151,11 @@ impl<'a> Proxy<'a> {
             }
             Response::Parameter { name, value } if self.own_line_pending() => {
                 self.own_offset(&name, &value);
+            }
+            Response::ParserState(words)
+                if self.in_flight.front().is_some_and(|&(_, l)| l == OWN_MODAL) =>
+            {
+                self.modal = Some(words);
             }
             Response::ParserState(words) if self.own_line_pending() => {
                 // A $G reply the controller would not refuse; a failure leaves defaults.
@@ -1195,8 +1265,11 @@ impl<'a> Proxy<'a> {
             && self.in_flight.is_empty()
         {
             if let Some(m) = machine.as_ref().filter(|m| m.len() >= 2) {
-                self.reference_sums.clear();
-                self.go_point([m[0], m[1]], Why::Homed, 0, 0);
+                self.ask_modal(
+                    [m[0], m[1]],
+                    Why::Homed,
+                    m.get(2).copied().unwrap_or(f64::NAN),
+                );
             }
         }
         self.maybe_in_use(report.state, machine.as_deref());

@@ -500,6 +500,8 @@ fn after_the_senders_homing_the_gateway_references_before_the_next_line() {
     // Where the homing left the machine, then to the reference point from below.
     assert_eq!(text(p.take_to_controller()), "?");
     p.from_controller(b"<Idle|MPos:10.010,9.990,0.000|FS:0,0>\r\n", 2.1);
+    // The controller's modal state first (to set its motion mode again afterwards).
+    modal(&mut p, "G0", 2.15);
     assert_eq!(
         text(p.take_to_controller()),
         "G53G0X99.9500Y79.9500\nG53G0X100.0000Y80.0000\nG4P0\n"
@@ -586,6 +588,13 @@ fn in_use_plan<'a>(seen: &'a std::cell::RefCell<Vec<Vec<[f64; 2]>>>) -> AfterHom
     })
 }
 
+/// Answers the re-reference's own `$G` with the controller's motion mode `motion`.
+fn modal(p: &mut Proxy<'_>, motion: &str, now_s: f64) {
+    assert_eq!(text(p.take_to_controller()), "$G\n");
+    let reply = format!("[GC:{motion} G54 G17 G21 G90 G94 M5 M9 T0 F600 S0]\r\nok\r\n");
+    p.from_controller(reply.as_bytes(), now_s);
+}
+
 /// Answers the gateway's own lines of one arrival (two moves and a dwell) and returns
 /// where the frame is due.
 fn arrive(p: &mut Proxy<'_>, expect: &str, now_s: f64) -> Option<[f64; 2]> {
@@ -639,13 +648,15 @@ fn in_use_the_gateway_re_references_with_the_scale_points_when_due_idle_and_clea
     p.tick(300.8);
     assert_eq!(text(p.take_to_controller()), "?");
     p.from_controller(b"<Idle|MPos:20.010,9.990,-2.000|FS:0,0>\r\n", 300.9);
+    // The controller's motion mode now: the sender's G1.
+    modal(&mut p, "G1", 300.95);
     let told = text(p.take_to_sender());
     assert!(
         told.contains("re-referencing in use (every 300 s)"),
         "{told}"
     );
-    // The sender's line meanwhile waits.
-    p.from_sender(b"G1 X30 Y10\n", 301.0);
+    // The sender's line meanwhile waits (a modal G1 from its line before).
+    p.from_sender(b"X30 Y10\n", 301.0);
     let mut frames = Vec::new();
     for (point, at) in [[100.0, 80.0], [180.0, 80.0], [100.0, 140.0]]
         .iter()
@@ -670,12 +681,16 @@ fn in_use_the_gateway_re_references_with_the_scale_points_when_due_idle_and_clea
         vec![vec![[0.0, 1.5], [1.0, 3.5], [2.0, 5.5]]]
     );
     assert!(text(p.take_to_sender()).contains("referenced: shift and scale"));
-    // Back to the XY it left (Z never moved), the sender's line after the position.
-    assert_eq!(text(p.take_to_controller()), "G53G0X20.0100Y9.9900\nG4P0\n");
-    p.from_controller(b"ok\r\nok\r\n", 310.0);
+    // Back to the XY it left (Z never moved) and to G1 again, so that the sender's
+    // modal line is a feed move, then the line after the position.
+    assert_eq!(
+        text(p.take_to_controller()),
+        "G53G0X20.0100Y9.9900\nG1\nG4P0\n"
+    );
+    p.from_controller(b"ok\r\nok\r\nok\r\n", 310.0);
     assert_eq!(text(p.take_to_controller()), "?");
     p.from_controller(b"<Idle|MPos:20.010,9.990,-2.000|FS:0,0>\r\n", 310.1);
-    assert!(text(p.take_to_controller()).starts_with("G1 X30.0100"));
+    assert_eq!(text(p.take_to_controller()), "X30.0100 Y9.9900\n");
     p.from_controller(b"ok\r\n", 310.2);
     assert_eq!(text(p.take_to_sender()), "ok\r\n");
     // The next one is due 300 s after this one ended.
@@ -695,6 +710,7 @@ fn a_failed_frame_in_use_keeps_the_last_reference_and_returns_but_after_homing_l
     p.tick(300.0);
     assert_eq!(text(p.take_to_controller()), "?");
     p.from_controller(b"<Idle|MPos:20.010,9.990,0.000|FS:0,0>\r\n", 300.1);
+    modal(&mut p, "G0", 300.15);
     p.take_to_sender();
     let first = "G53G0X99.9500Y79.9500\nG53G0X100.0000Y80.0000\nG4P0\n";
     assert_eq!(arrive(&mut p, first, 300.2), Some([100.0, 80.0]));
@@ -722,9 +738,40 @@ fn a_failed_frame_in_use_keeps_the_last_reference_and_returns_but_after_homing_l
     assert!(told.contains("and each axis's scale"), "{told}");
     assert_eq!(text(p.take_to_controller()), "?");
     p.from_controller(b"<Idle|MPos:0.000,0.000,0.000|FS:0,0>\r\n", 303.1);
+    modal(&mut p, "G1", 303.15);
     assert_eq!(arrive(&mut p, first, 303.2), Some([100.0, 80.0]));
     p.frame_measured(Err("no dots in the frame".into()));
     assert!(text(p.take_to_sender()).contains("motion is refused until the machine is referenced"));
     p.from_sender(b"G0 X1 Y1\n", 304.0);
     assert!(text(p.take_to_sender()).ends_with("error:9\r\n"));
+}
+
+#[test]
+fn in_use_the_gateway_waits_while_the_motion_mode_is_one_it_cannot_set_again() {
+    let comp = Skewed;
+    let seen = std::cell::RefCell::new(Vec::new());
+    let mut p = started(&comp);
+    p.take_to_sender();
+    p.after_homing(in_use_plan(&seen));
+    p.tick(300.0);
+    assert_eq!(text(p.take_to_controller()), "?");
+    p.from_controller(b"<Idle|MPos:20.010,9.990,0.000|FS:0,0>\r\n", 300.1);
+    // An arc mode: after G0 moves it could not be set again without axis words.
+    modal(&mut p, "G2", 300.2);
+    let told = text(p.take_to_sender());
+    assert!(
+        told.contains("it waits for the motion mode G0, G1 or G80 (now G2)"),
+        "{told}"
+    );
+    assert!(p.take_to_controller().is_empty(), "no motion");
+    // A second later it asks again, and moves once the mode is one it can set.
+    p.tick(300.5);
+    assert!(p.take_to_controller().is_empty());
+    p.tick(301.3);
+    assert_eq!(text(p.take_to_controller()), "?");
+    p.from_controller(b"<Idle|MPos:20.010,9.990,0.000|FS:0,0>\r\n", 301.4);
+    modal(&mut p, "G80", 301.5);
+    assert!(text(p.take_to_sender()).contains("re-referencing in use"));
+    let first = "G53G0X99.9500Y79.9500\nG53G0X100.0000Y80.0000\nG4P0\n";
+    assert_eq!(arrive(&mut p, first, 301.6), Some([100.0, 80.0]));
 }
