@@ -722,7 +722,7 @@ impl<'a> Proxy<'a> {
                 self.referencing = Referencing::Locked;
             }
             AfterHoming::Reference(r) => {
-                let at = r.points_mm[0];
+                let at = r.points_mm.first().copied().unwrap_or([f64::NAN; 2]);
                 let scale = match r.points_mm.len() {
                     1 => "",
                     _ => " and each axis's scale",
