@@ -588,6 +588,21 @@ fn in_use_plan<'a>(seen: &'a std::cell::RefCell<Vec<Vec<[f64; 2]>>>) -> AfterHom
     })
 }
 
+/// A pass-through with [`in_use_plan`] at 300 s of its clock: it asks where the machine
+/// is, and hears that it is idle at X20.010 Y9.990 Z0 (the tool clear).
+fn due_at_rest<'a>(
+    comp: &'a Skewed,
+    seen: &'a std::cell::RefCell<Vec<Vec<[f64; 2]>>>,
+) -> Proxy<'a> {
+    let mut p = started(comp);
+    p.take_to_sender();
+    p.after_homing(in_use_plan(seen));
+    p.tick(300.0);
+    assert_eq!(text(p.take_to_controller()), "?");
+    p.from_controller(b"<Idle|MPos:20.010,9.990,0.000|FS:0,0>\r\n", 300.1);
+    p
+}
+
 /// Answers the re-reference's own `$G` with the controller's motion mode `motion`.
 fn modal(p: &mut Proxy<'_>, motion: &str, now_s: f64) {
     assert_eq!(text(p.take_to_controller()), "$G\n");
@@ -704,12 +719,7 @@ fn in_use_the_gateway_re_references_with_the_scale_points_when_due_idle_and_clea
 fn a_failed_frame_in_use_keeps_the_last_reference_and_returns_but_after_homing_locks() {
     let comp = Skewed;
     let seen = std::cell::RefCell::new(Vec::new());
-    let mut p = started(&comp);
-    p.take_to_sender();
-    p.after_homing(in_use_plan(&seen));
-    p.tick(300.0);
-    assert_eq!(text(p.take_to_controller()), "?");
-    p.from_controller(b"<Idle|MPos:20.010,9.990,0.000|FS:0,0>\r\n", 300.1);
+    let mut p = due_at_rest(&comp, &seen);
     modal(&mut p, "G0", 300.15);
     p.take_to_sender();
     let first = "G53G0X99.9500Y79.9500\nG53G0X100.0000Y80.0000\nG4P0\n";
@@ -750,12 +760,7 @@ fn a_failed_frame_in_use_keeps_the_last_reference_and_returns_but_after_homing_l
 fn in_use_the_gateway_waits_while_the_motion_mode_is_one_it_cannot_set_again() {
     let comp = Skewed;
     let seen = std::cell::RefCell::new(Vec::new());
-    let mut p = started(&comp);
-    p.take_to_sender();
-    p.after_homing(in_use_plan(&seen));
-    p.tick(300.0);
-    assert_eq!(text(p.take_to_controller()), "?");
-    p.from_controller(b"<Idle|MPos:20.010,9.990,0.000|FS:0,0>\r\n", 300.1);
+    let mut p = due_at_rest(&comp, &seen);
     // An arc mode: after G0 moves it could not be set again without axis words.
     modal(&mut p, "G2", 300.2);
     let told = text(p.take_to_sender());
