@@ -571,18 +571,35 @@ impl GrblStage {
     /// `protocol_exec_rt_system`), so the driver first waits for the hold to complete,
     /// within the command timeout.
     pub async fn resume(&mut self) -> Result<(), DriverError> {
-        let deadline = std::time::Instant::now() + self.opts.command_timeout;
-        while self.status_report().await?.state == MachineState::Hold(1) {
-            if std::time::Instant::now() >= deadline {
+        self.poll_until(
+            |s| *s != MachineState::Hold(1),
+            self.opts.command_timeout,
+            "a feed hold to complete before the cycle start (still Hold:1)",
+        )
+        .await?;
+        self.realtime(Realtime::CycleStart).await
+    }
+
+    /// Asks `?` every `poll_interval` until the state satisfies `done`, up to `timeout`
+    /// (GRBL reports only when asked: there is no event to wait for).
+    async fn poll_until(
+        &mut self,
+        done: impl Fn(&MachineState) -> bool,
+        timeout: Duration,
+        what: &str,
+    ) -> Result<(), DriverError> {
+        let deadline = with_deadline(timeout);
+        while !done(&self.status_report().await?.state) {
+            if Instant::now() >= deadline {
                 return Err(DriverError::Timeout {
                     device: self.device(),
-                    what: "a feed hold to complete before the cycle start (still Hold:1)".into(),
-                    after_ms: self.opts.command_timeout.as_millis() as u64,
+                    what: what.into(),
+                    after_ms: timeout.as_millis() as u64,
                 });
             }
             tokio::time::sleep(self.opts.poll_interval).await;
         }
-        self.realtime(Realtime::CycleStart).await
+        Ok(())
     }
 
     /// Soft reset (ctrl-x): flushes GRBL's buffers; returns once the banner is back.
@@ -952,21 +969,12 @@ impl Stage for GrblStage {
             MachineState::Home => self.soft_reset().await,
             MachineState::Run | MachineState::Hold(_) => {
                 self.feed_hold().await?;
-                let deadline = with_deadline(self.opts.motion_timeout);
-                loop {
-                    let s = self.status_report().await?;
-                    if matches!(s.state, MachineState::Hold(0) | MachineState::Idle) {
-                        break;
-                    }
-                    if Instant::now() >= deadline {
-                        return Err(DriverError::Timeout {
-                            device: self.device(),
-                            what: "feed hold to complete".into(),
-                            after_ms: self.opts.motion_timeout.as_millis() as u64,
-                        });
-                    }
-                    tokio::time::sleep(self.opts.poll_interval).await;
-                }
+                self.poll_until(
+                    |s| matches!(s, MachineState::Hold(0) | MachineState::Idle),
+                    self.opts.motion_timeout,
+                    "feed hold to complete",
+                )
+                .await?;
                 self.soft_reset().await
             }
             _ => Ok(()),
