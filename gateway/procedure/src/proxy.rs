@@ -469,10 +469,7 @@ pub fn map_rereference<'a>(
         None => (vec![r], 1),
     };
     let hook = move |means: &[[f64; 2]]| -> Result<String, String> {
-        let t = std::time::SystemTime::now();
-        let now_s = t
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_secs());
+        let (now_s, now_text) = crate::reference::at(std::time::SystemTime::now());
         let before = previous.borrow().clone();
         let before = before.filter(|p| p.check_map(map).is_ok());
         let record = MapReference::new(
@@ -480,7 +477,7 @@ pub fn map_rereference<'a>(
             means[0],
             bound_um,
             Circumstances {
-                measured_at: errormap::scan::rfc3339(t),
+                measured_at: now_text,
                 measured_unix_s: now_s,
                 homing_count: None,
                 temperature_c: None,
@@ -513,9 +510,7 @@ pub fn map_rereference<'a>(
 /// When a session's first re-reference in use is due (its clock starts at 0):
 /// `every_s` after the reference in force was measured, at once when that is older.
 pub fn first_due_s(every_s: f64, previous: Option<&MapReference>) -> f64 {
-    let now_s = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs());
+    let now_s = crate::context::unix_s(std::time::SystemTime::now());
     let age = previous.map_or(f64::INFINITY, |p| p.age_s(now_s) as f64);
     (every_s - age).clamp(0.0, every_s)
 }

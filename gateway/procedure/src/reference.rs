@@ -64,7 +64,7 @@ pub fn record_json(r: &MapReference) -> String {
 }
 
 /// Seconds since 1970 of `t`, and the same as RFC 3339.
-fn at(t: SystemTime) -> (u64, String) {
+pub(crate) fn at(t: SystemTime) -> (u64, String) {
     (crate::context::unix_s(t), errormap::scan::rfc3339(t))
 }
 
