@@ -95,6 +95,29 @@ async fn open(port: &str, rig: &SharedRig) -> Devices {
     }
 }
 
+/// The pass-through's re-reference after the sender's homing, as `gateway proxy` makes
+/// it (no re-reference in use), `recorded` told of each record.
+fn after_homing<'a>(
+    job: &Job,
+    map: &'a ErrorMap,
+    shared: &'a procedure::proxy::SharedMap,
+    previous: &'a std::cell::RefCell<Option<errormap::reference::MapReference>>,
+    mut recorded: impl FnMut(&errormap::reference::MapReference) + 'a,
+) -> proxy::AfterHoming<'a> {
+    proxy::AfterHoming::Reference(procedure::proxy::map_rereference(
+        map,
+        shared,
+        job.policy.approach_mm,
+        job.board.pitch_mm * 500.0,
+        None,
+        previous,
+        move |record, _| {
+            recorded(record);
+            Ok(())
+        },
+    ))
+}
+
 /// One session of the pyserial sender through the pass-through with `model`; the trace
 /// of the true tool point and the sender's report.
 /// With `rereference`, the pass-through re-references with the camera after the
@@ -126,20 +149,9 @@ async fn stream(
     proxy.start();
     proxy.greet(greeting);
     if rereference {
-        proxy.after_homing(proxy::AfterHoming::Reference(
-            procedure::proxy::map_rereference(
-                &map,
-                &shared,
-                job.policy.approach_mm,
-                job.board.pitch_mm * 500.0,
-                None,
-                &previous,
-                |_, _| {
-                    rereferenced.set(rereferenced.get() + 1);
-                    Ok(())
-                },
-            ),
-        ));
+        proxy.after_homing(after_homing(job, &map, &shared, &previous, |_| {
+            rereferenced.set(rereferenced.get() + 1)
+        }));
     }
     let mut frames = procedure::proxy::CameraFrames {
         camera: Box::new(drivers::sim::SimCamera::new(rig.clone())),
@@ -413,20 +425,9 @@ fn scan_home_reference_and_stream_without_a_truth_map_keeps_the_tool_on_the_prog
         let link = dir.path().join("ttyHOMING");
         let mut sender_port = SenderPort::create(Some(&link)).unwrap();
         let mut proxy = Proxy::new(Rewriter::new(&shared, Options::default()).unwrap(), &shared);
-        proxy.after_homing(proxy::AfterHoming::Reference(
-            procedure::proxy::map_rereference(
-                &map,
-                &shared,
-                job.policy.approach_mm,
-                job.board.pitch_mm * 500.0,
-                None,
-                &previous,
-                |record, _| {
-                    seen.set(Some(record.seen_um));
-                    Ok(())
-                },
-            ),
-        ));
+        proxy.after_homing(after_homing(&job, &map, &shared, &previous, |record| {
+            seen.set(Some(record.seen_um))
+        }));
         proxy.start();
         let mut frames = procedure::proxy::CameraFrames {
             camera: Box::new(drivers::sim::SimCamera::new(rig.clone())),
