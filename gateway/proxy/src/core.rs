@@ -159,8 +159,8 @@ enum Referencing {
     AwaitModal {
         back_mm: [f64; 2],
         why: Why,
-        /// The machine Z the re-reference starts at (for the sender's message).
-        z_mm: f64,
+        /// In use, the machine Z it starts at (for the sender's message).
+        z_mm: Option<f64>,
     },
     /// The gateway's moves to a point of the plan are on their way (`point`'s
     /// `arrival`-th arrival, from 0).
@@ -634,7 +634,7 @@ impl<'a> Proxy<'a> {
         }
         match machine {
             Some(m) if m.len() >= 3 && m[2] >= u.clear_z_mm => {
-                self.ask_modal([m[0], m[1]], Why::InUse, m[2]);
+                self.ask_modal([m[0], m[1]], Why::InUse, Some(m[2]));
             }
             _ if !self.in_use_wait_said => {
                 self.in_use_wait_said = true;
@@ -741,7 +741,7 @@ impl<'a> Proxy<'a> {
 
     /// A re-reference begins: the controller's modal state first (`$G`), then the
     /// first point ([`Self::modal_answered`]).
-    fn ask_modal(&mut self, back_mm: [f64; 2], why: Why, z_mm: f64) {
+    fn ask_modal(&mut self, back_mm: [f64; 2], why: Why, z_mm: Option<f64>) {
         self.reference_sums.clear();
         self.to_controller.extend_from_slice(b"$G\n");
         self.in_flight.push_back((3, OWN_MODAL));
@@ -758,7 +758,6 @@ impl<'a> Proxy<'a> {
             return;
         };
         if let Response::Error(code) = answer {
-            self.referencing = Referencing::Idle;
             return self.reference_failed(
                 why,
                 back_mm,
@@ -783,11 +782,15 @@ impl<'a> Proxy<'a> {
             }
             return self.release_deferred();
         }
-        if let (Why::InUse, Some(u)) = (why, self.plan().and_then(|r| r.in_use)) {
+        if why == Why::InUse {
+            let every = self
+                .plan()
+                .and_then(|r| r.in_use)
+                .map_or(0.0, |u| u.every_s);
+            let z = z_mm.map_or("not reported".to_string(), |z| format!("{z:.3}"));
             self.message(&format!(
-                "re-referencing in use (every {:.0} s): measuring the map's reference with \
-                 the camera at Z {z_mm:.3} before the next line",
-                u.every_s
+                "re-referencing in use (every {every:.0} s): measuring the map's reference \
+                 with the camera at Z {z} before the next line"
             ));
             self.in_use_wait_said = false;
             self.rewriter.forget_position();
@@ -1265,11 +1268,7 @@ impl<'a> Proxy<'a> {
             && self.in_flight.is_empty()
         {
             if let Some(m) = machine.as_ref().filter(|m| m.len() >= 2) {
-                self.ask_modal(
-                    [m[0], m[1]],
-                    Why::Homed,
-                    m.get(2).copied().unwrap_or(f64::NAN),
-                );
+                self.ask_modal([m[0], m[1]], Why::Homed, None);
             }
         }
         self.maybe_in_use(report.state, machine.as_deref());
