@@ -6,7 +6,8 @@
 //!   mark, a blank line, or a [`FanucBlock`] with its words as written (whether each
 //!   number had a decimal point matters: see below). Built on [`crate::nc`]'s lexer.
 //! * [`Interpreter`]: the modal state (G0-G3, G17-G19, G20/G21, G90/G91, G54-G59,
-//!   G92, G10 offsets, F) and what a block does ([`Action`]), in machine millimetres.
+//!   G61/G64, G92, G10 offsets, F) and what a block does ([`Action`]), in machine
+//!   millimetres.
 //!
 //! What the public manuals fix and how it is read here (`../shared/notes/
 //! legacy-controllers.md` has the sources):
@@ -21,6 +22,11 @@
 //! * `M98 P<repeats><program 4 digits>` (`P68003`: O8003 six times), `M99` returns.
 //! * `G10 L2 P<0-6> X Y Z`: work offsets (P0 the external offset, P1-P6 G54-G59);
 //!   absolute with G90, added with G91.
+//! * `G61` exact stop mode and `G64` cutting mode (group 15, modal; `G64` at power-up),
+//!   `G09` exact stop for its own block only (group 00, beside a motion code): where a
+//!   block ends at rest, never where the tool goes. How far `G64` rounds a corner
+//!   depends on the machine's acceleration parameters, which no manual gives: a
+//!   controller's rounding is not modelled ([`Modal::exact_stop`] records the mode).
 //!
 //! What the manuals leave open is an option with its default stated, or refused:
 //! * F without a point is read as written, in units per minute (*ours*; the rewriter
@@ -260,10 +266,13 @@ pub struct Modal {
     pub incremental: bool,
     /// 1..=6: G54..G59.
     pub work: usize,
+    /// Group 15: `G61` exact stop mode (every block ends at rest, its position
+    /// checked) when true, `G64` cutting mode when false.
+    pub exact_stop: bool,
 }
 
 impl Default for Modal {
-    /// Power-on state as usually set by parameters: G00 G17 G21 G90 G54.
+    /// Power-on state as usually set by parameters: G00 G17 G21 G90 G54 G64.
     fn default() -> Self {
         Self {
             motion: Motion::Rapid,
@@ -271,6 +280,7 @@ impl Default for Modal {
             inch: false,
             incremental: false,
             work: 1,
+            exact_stop: false,
         }
     }
 }
@@ -402,7 +412,9 @@ impl Interpreter {
             Shift,
         }
         let mut non_modal = None;
-        let mut groups = [false; 6];
+        // 0 motion, 1 plane, 2 units, 3 distance, 4 work system, 5 the block's group 00
+        // action, 6 path mode (group 15), 7 G09.
+        let mut groups = [false; 8];
         let mut set_group = |g: usize, code: f64| {
             if std::mem::replace(&mut groups[g], true) {
                 Err(fail(format!("two G codes of one group (G{code})")))
@@ -433,6 +445,10 @@ impl Interpreter {
                 90 => (set_group(3, code)?, modal.incremental = false).1,
                 91 => (set_group(3, code)?, modal.incremental = true).1,
                 54..=59 => (set_group(4, code)?, modal.work = code as usize - 53).1,
+                61 => (set_group(6, code)?, modal.exact_stop = true).1,
+                64 => (set_group(6, code)?, modal.exact_stop = false).1,
+                // Exact stop at this block's end: its position and action are the same.
+                9 => set_group(7, code)?,
                 40 | 49 | 80 | 94 => {}
                 _ => return Err(fail(format!("G{code} is not supported"))),
             }
@@ -457,6 +473,7 @@ impl Interpreter {
         self.modal.inch = modal.inch;
         self.modal.incremental = modal.incremental;
         self.modal.work = modal.work;
+        self.modal.exact_stop = modal.exact_stop;
         if let Some(f) = block.word('F') {
             let unit = if self.modal.inch { 25.4 } else { 1.0 };
             if !(f.value > 0.0) {
@@ -753,6 +770,46 @@ mod tests {
                 to: [760.0, 0.0, 0.0]
             }]
         );
+    }
+
+    #[test]
+    fn exact_stop_codes_set_the_mode_and_move_as_written() {
+        let mut i = Interpreter::new(Options::default(), [0.0; 3]);
+        assert!(!i.modal.exact_stop, "G64 at power-up");
+        assert_eq!(
+            run(&mut i, "G61G01X1.F100"),
+            vec![Action::Linear {
+                to: [1.0, 0.0, 0.0],
+                feed: 100.0
+            }]
+        );
+        assert!(i.modal.exact_stop);
+        // G09 is for its own block: the mode stays.
+        assert_eq!(
+            run(&mut i, "G64G09X2."),
+            vec![Action::Linear {
+                to: [2.0, 0.0, 0.0],
+                feed: 100.0
+            }]
+        );
+        assert!(!i.modal.exact_stop);
+        for (text, why) in [
+            ("G61G64X3.", "two G codes of one group (G64)"),
+            ("G09G09X3.", "two G codes of one group (G9)"),
+        ] {
+            let e = i.execute(&block(text), 7, text).unwrap_err();
+            assert!(e.to_string().contains(why), "{text}: {e}");
+        }
+        // No G code has a decimal here (`G61.1` is LinuxCNC's): refused as it is read.
+        let e = parse_line("G61.1X3.", 8).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("a decimal point is not allowed in G"),
+            "{e}"
+        );
+        // A refused block changed nothing.
+        assert_eq!(i.position, [2.0, 0.0, 0.0]);
+        assert!(!i.modal.exact_stop);
     }
 
     #[test]

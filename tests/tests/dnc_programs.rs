@@ -206,8 +206,8 @@ fn programs() -> Vec<(&'static str, String, Option<&'static str>, [f64; 2])> {
             [100.0, 20.0],
         ),
         (
-            "arcs both ways (R, I/J, a full circle)",
-            "%\nO2002\nG90G21G17\nG01X40.Y70.F3000.\nG02X100.Y70.R30.F900.\nG03X160.Y70.I30.J0\nG02X130.Y100.R-30.\nG03X130.Y100.I-15.J-15.\nG01X40.Y70.\nM30\n%\n".into(),
+            "arcs both ways (R, I/J, a full circle) in G61, G09 then G64",
+            "%\nO2002\nG90G21G17G61\nG01X40.Y70.F3000.\nG09G02X100.Y70.R30.F900.\nG64G03X160.Y70.I30.J0\nG02X130.Y100.R-30.\nG03X130.Y100.I-15.J-15.\nG01X40.Y70.\nM30\n%\n".into(),
             None,
             [40.0, 70.0],
         ),

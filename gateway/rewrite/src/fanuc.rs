@@ -27,6 +27,10 @@
 //!   comments `(CALL O8003 1 OF 3)` and `(END O8003)`. Subprograms come after the main
 //!   program's M30/M02 on the same tape (`O8003` ... `M99`), or from a second text (the
 //!   controller's stored programs). `M99 P..` (return to a sequence number) is refused.
+//! * `G61`/`G64` go as written, so in `G61` every piece of a split move ends at rest
+//!   (slower, never off the path: how far `G64` rounds a corner is the machine's
+//!   parameters', which no manual gives, so the rewrite does not switch to it); a
+//!   `G09` goes on the last piece, where the program asked to stop.
 //! * Dwells (`G04`) and every block without motion go as written (F written with its
 //!   point); `G92` is moved by the correction at the present point (the controller takes
 //!   its corrected position for the present point, so the shift it sets is the one the
@@ -527,15 +531,19 @@ impl<'a> Writer<'a> {
     }
 
     /// The words of `b` other than motion and axis words, as the controller reads them
-    /// (F with its point): its G codes, the words for the block's first piece, and
-    /// M02/M30 (for its last piece: the program ends after the whole move).
-    fn other_words(&self, b: &FanucBlock, keep_motion: bool) -> (String, String, String) {
+    /// (F with its point): its G codes, the words for the block's first piece, and the
+    /// words for its last piece: `G09` (the exact stop is at the programmed point) and
+    /// M02/M30 (the program ends after the whole move). Without motion (`keep_motion`)
+    /// every G code stays with the others.
+    fn other_words(&self, b: &FanucBlock, keep_motion: bool) -> OtherWords {
         let mut g = String::new();
         let mut rest = String::new();
+        let mut last_g = String::new();
         let mut end = String::new();
         for w in &b.words {
             match w.letter {
                 'G' if !keep_motion && w.value <= 3.0 => {}
+                'G' if !keep_motion && w.value == 9.0 => last_g.push_str(&w.text),
                 'G' => g.push_str(&w.text),
                 'X' | 'Y' | 'Z' | 'I' | 'J' | 'K' | 'R' => {}
                 'F' if !w.point => rest.push_str(&format!(
@@ -546,7 +554,12 @@ impl<'a> Writer<'a> {
                 _ => rest.push_str(&w.text),
             }
         }
-        (g, rest, end)
+        OtherWords {
+            g,
+            rest,
+            last_g,
+            end,
+        }
     }
 
     fn block(
@@ -594,8 +607,8 @@ impl<'a> Writer<'a> {
             let text = if g(4.0) {
                 b.to_string()
             } else {
-                let (gs, rest, end) = self.other_words(b, true);
-                format!("{n}{gs}{rest}{end}")
+                let w = self.other_words(b, true);
+                format!("{n}{}{}{}", w.g, w.rest, w.end)
             };
             return self.emit(&text, s, fail);
         };
@@ -648,12 +661,16 @@ impl<'a> Writer<'a> {
         let decimals = self.decimals();
         let increment = 10f64.powi(-(decimals as i32)) * unit;
         let incremental = self.nominal.modal.incremental;
-        let (gs, rest, end) = self.other_words(b, false);
+        let words = self.other_words(b, false);
         for (k, (command, rapid)) in commands.iter().enumerate() {
+            let last = k + 1 == commands.len();
             let mut text = String::new();
             if k == 0 {
                 text.push_str(&n);
-                text.push_str(&gs);
+                text.push_str(&words.g);
+            }
+            if last {
+                text.push_str(&words.last_g);
             }
             text.push_str(if *rapid { "G00" } else { "G01" });
             // The origin under the block's own work system (a G54-G59 in it applies
@@ -679,10 +696,10 @@ impl<'a> Writer<'a> {
                 text.push_str(&self.number(v, decimals, LETTERS[i], fail)?);
             }
             if k == 0 {
-                text.push_str(&rest);
+                text.push_str(&words.rest);
             }
-            if k + 1 == commands.len() {
-                text.push_str(&end);
+            if last {
+                text.push_str(&words.end);
             }
             self.emit(&text, s, fail)?;
             for i in 0..3 {
@@ -750,6 +767,19 @@ impl<'a> Writer<'a> {
         let _ = named;
         self.emit(&text, s, fail)
     }
+}
+
+/// A block's words other than motion and axis words, by the piece of a split move
+/// they go with (`Writer::other_words`).
+struct OtherWords {
+    /// G codes for the first piece (modes: they hold from there on).
+    g: String,
+    /// The other words for the first piece (F with its point, S, T, M...).
+    rest: String,
+    /// `G09` for the last piece: the exact stop is at the programmed point.
+    last_g: String,
+    /// M02/M30 for the last piece: the program ends after the whole move.
+    end: String,
 }
 
 /// The move as one GRBL line in machine coordinates (G90 G21, no offsets): the named

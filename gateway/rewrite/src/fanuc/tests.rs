@@ -235,3 +235,29 @@ fn a_live_tape_rewritten_line_by_line_is_the_whole_rewrite() {
     let e = stream.push_line("G41X2.").unwrap_err();
     assert_eq!((e.line, e.text.as_str()), (3, "G41X2."));
 }
+
+#[test]
+fn exact_stop_mode_goes_as_written_and_g09_stops_at_the_programmed_point() {
+    // A half circle in G61 with G09: it becomes chords, the first with the block's
+    // number and G61, the last with the G09.
+    let program = "%\nO1\nN10G90G00X0Y0\nN20G61G09G02X20.Y0R10.F300\nN30G64G01X30.\nN40M30\n%\n";
+    let (out, _) = rewrite(program).unwrap();
+    let blocks: Vec<&str> = out
+        .lines()
+        .filter(|l| l.contains("G01") || l.contains("G00"))
+        .collect();
+    let arc: Vec<&str> = blocks
+        .iter()
+        .copied()
+        .skip_while(|l| !l.starts_with("N20"))
+        .take_while(|l| !l.starts_with("N30"))
+        .collect();
+    assert!(arc.len() > 3, "chords: {out}");
+    assert!(arc[0].starts_with("N20G61G01"), "{out}");
+    assert_eq!(out.matches("G09").count(), 1, "{out}");
+    assert!(arc.last().unwrap().starts_with("G09G01"), "{out}");
+    assert!(out.contains("\nN30G64G01X30.012\n"), "{out}");
+    // The chords end on the shifted half circle: its end point where the arc ends.
+    let ends = ends(&out);
+    assert_eq!(ends[ends.len() - 2], [20.012, -0.005, 0.0], "{out}");
+}
