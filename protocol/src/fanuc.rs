@@ -784,7 +784,7 @@ mod tests {
             }]
         );
         assert!(i.modal.exact_stop);
-        // G09 is for its own block: the mode stays.
+        // G09 stops its own block only and sets no mode; G64 sets cutting mode.
         assert_eq!(
             run(&mut i, "G64G09X2."),
             vec![Action::Linear {
