@@ -140,7 +140,7 @@ fn in_use_the_pass_through_re_references_the_warming_machine_once_the_tool_is_cl
             &map,
             &shared,
             job.policy.approach_mm,
-            job.board.pitch_mm * 500.0,
+            procedure::reference::shift_bound_um(&job, errormap::reference::MAX_SHIFT_UM),
             Some(InUse {
                 every_s: 0.0,
                 clear_z_mm: CLEAR_Z_MM,

@@ -108,7 +108,7 @@ fn after_homing<'a>(
         map,
         shared,
         job.policy.approach_mm,
-        job.board.pitch_mm * 500.0,
+        procedure::reference::shift_bound_um(job, errormap::reference::MAX_SHIFT_UM),
         None,
         previous,
         move |record, _| {

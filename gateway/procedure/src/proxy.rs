@@ -614,10 +614,8 @@ pub async fn run(
                 };
             let shared = SharedMap::new(applied.model);
             let map_copy = shared.read().map().clone();
-            let bound_um = match job.board.code {
-                Some(_) => errormap::reference::MAX_SHIFT_UM,
-                None => errormap::reference::MAX_SHIFT_UM.min(job.board.pitch_mm * 500.0),
-            };
+            let bound_um =
+                crate::reference::shift_bound_um(&job, errormap::reference::MAX_SHIFT_UM);
             let previous = RefCell::new(match &reference {
                 crate::reference::Choice::Recorded(r) => Some(r.clone()),
                 _ => None,

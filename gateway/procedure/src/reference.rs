@@ -63,6 +63,17 @@ pub fn record_json(r: &MapReference) -> String {
     t
 }
 
+/// The largest shift a reference frame may report, um: `max_shift_um`, and on a plain
+/// dot grid at most half a pitch (the frame gives the position only modulo the pitch: a
+/// shift of half a pitch is another lattice point). A coded board reads its absolute
+/// position, so only `max_shift_um` bounds it.
+pub fn shift_bound_um(job: &Job, max_shift_um: f64) -> f64 {
+    match job.board.code {
+        Some(_) => max_shift_um,
+        None => max_shift_um.min(job.board.pitch_mm * 500.0),
+    }
+}
+
 /// Seconds since 1970 of `t`, and the same as RFC 3339.
 pub(crate) fn at(t: SystemTime) -> (u64, String) {
     (crate::context::unix_s(t), errormap::scan::rfc3339(t))
@@ -244,12 +255,7 @@ pub async fn run(
     }
     // A record of another map is not continued (nor an error here: it is replaced).
     let previous = previous.filter(|p| p.check_map(map).is_ok());
-    // On a plain dot grid the frame gives the position only modulo the pitch: a shift of
-    // half a pitch is another lattice point.
-    let bound_um = match job.board.code {
-        Some(_) => request.max_shift_um,
-        None => request.max_shift_um.min(job.board.pitch_mm * 500.0),
-    };
+    let bound_um = shift_bound_um(job, request.max_shift_um);
     let t0 = crate::machine_time_s(devices);
     sink.progress(0, 1);
     // Averaged frames at the reference point and the scale points when the map has

@@ -783,15 +783,14 @@ impl<'a> Proxy<'a> {
             return self.release_deferred();
         }
         if why == Why::InUse {
-            let every = self
-                .plan()
-                .and_then(|r| r.in_use)
-                .map_or(0.0, |u| u.every_s);
-            let z = z_mm.map_or("not reported".to_string(), |z| format!("{z:.3}"));
-            self.message(&format!(
-                "re-referencing in use (every {every:.0} s): measuring the map's reference \
-                 with the camera at Z {z} before the next line"
-            ));
+            // In use there is always a plan with an interval and a Z (`maybe_in_use`).
+            if let (Some(u), Some(z_mm)) = (self.plan().and_then(|r| r.in_use), z_mm) {
+                self.message(&format!(
+                    "re-referencing in use (every {:.0} s): measuring the map's reference \
+                     with the camera at Z {z_mm:.3} before the next line",
+                    u.every_s
+                ));
+            }
             self.in_use_wait_said = false;
             self.rewriter.forget_position();
         }
